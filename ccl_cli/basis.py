@@ -1,0 +1,213 @@
+"""Feature maps β(x) ∈ R^K (ALGORITHMS.md §2).
+
+* :class:`RBFBasis` — normalised Gaussian RBF, β_k = g_k / Σ_j g_j with
+  g_k = exp(−‖x − c_k‖² / (2σ²)), computed as a soft-max (the row-wise largest
+  exponent is subtracted first) so points far from every centre never give 0/0.
+* :class:`LinearBasis` — β(x) = [x; 1].
+
+Centres come from a regular grid over the widened bounding box of the data or from
+seeded k-means. The default width is σ² = (mean over all centre pairs, i = j
+included, of ‖c_i − c_j‖)², as in the original library.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ccl_cli.errors import ConfigError, InputError
+
+
+def pairwise_sqdist(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """‖a_i − b_j‖² for rows of A (N, p) and B (K, p) → (N, K), clipped at 0."""
+    d = (A * A).sum(1)[:, None] - 2.0 * A @ B.T + (B * B).sum(1)[None, :]
+    return np.maximum(d, 0.0)
+
+
+def grid_centres(X: np.ndarray, n_centres: int, margin: float = 0.1) -> np.ndarray:
+    """A regular grid of ``floor(K^(1/p))`` points per axis over the bounding box of X
+    widened by ``margin`` on each side: (N, p) → (floor(K^(1/p))^p, p)."""
+    X = np.asarray(X, dtype=float)
+    p = X.shape[1]
+    per_axis = max(1, int(np.floor(n_centres ** (1.0 / p) + 1e-9)))
+    lo, hi = X.min(0) - margin, X.max(0) + margin
+    axes = [np.linspace(lo[d], hi[d], per_axis) for d in range(p)]
+    mesh = np.meshgrid(*axes, indexing="ij")
+    return np.stack([m.ravel() for m in mesh], axis=1)
+
+
+def kmeans_centres(
+    X: np.ndarray, n_centres: int, seed: int = 0, max_iter: int = 100, tol: float = 1e-8
+) -> np.ndarray:
+    """Seeded k-means (k-means++ start, Lloyd iterations) on the rows of X (N, p) → (K, p).
+
+    An empty cluster is re-seeded with the point farthest from its assigned centre.
+    """
+    X = np.asarray(X, dtype=float)
+    n = X.shape[0]
+    if n < n_centres:
+        raise InputError(f"k-means needs at least {n_centres} samples, got {n}")
+    rng = np.random.default_rng(seed)
+    centres = np.empty((n_centres, X.shape[1]))
+    centres[0] = X[rng.integers(n)]
+    closest = pairwise_sqdist(X, centres[:1])[:, 0]
+    for k in range(1, n_centres):  # k-means++: loop over centres, not samples
+        total = closest.sum()
+        idx = rng.choice(n, p=closest / total) if total > 0 else rng.integers(n)
+        centres[k] = X[idx]
+        closest = np.minimum(closest, pairwise_sqdist(X, centres[k : k + 1])[:, 0])
+    for _ in range(max_iter):
+        d2 = pairwise_sqdist(X, centres)
+        label = d2.argmin(1)
+        counts = np.bincount(label, minlength=n_centres)
+        sums = np.zeros_like(centres)
+        np.add.at(sums, label, X)
+        new = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], centres)
+        empty = np.flatnonzero(counts == 0)
+        if empty.size:
+            own = d2[np.arange(n), label]
+            far = np.argsort(own)[::-1][: empty.size]
+            new[empty] = X[far]
+        shift = np.abs(new - centres).max()
+        centres = new
+        if shift < tol and not empty.size:
+            break
+    return centres
+
+
+def default_sigma2(centres: np.ndarray) -> float:
+    """σ² = (mean_{i,j} ‖c_i − c_j‖)², pairs with i = j included."""
+    dist = np.sqrt(pairwise_sqdist(centres, centres))
+    value = float(dist.mean()) ** 2
+    return value if value > 0 else 1.0
+
+
+class RBFBasis:
+    """Normalised Gaussian radial basis functions.
+
+    Args:
+        n_centres: K (with ``centres="grid"`` the grid has floor(K^(1/p))^p points).
+        centres: ``"kmeans"`` or ``"grid"``, or an explicit (K, p) array.
+        sigma2: squared width σ²; ``None`` uses the default rule.
+        seed: seed of k-means.
+
+    Attributes:
+        centres_: (K, p). sigma2_: float.
+    """
+
+    kind = "rbf"
+
+    def __init__(
+        self,
+        n_centres: int = 16,
+        centres: str | np.ndarray = "kmeans",
+        sigma2: float | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.n_centres = n_centres
+        self.centres = centres
+        self.sigma2 = sigma2
+        self.seed = seed
+
+    def fit(self, X: np.ndarray) -> RBFBasis:
+        X = np.asarray(X, dtype=float)
+        if isinstance(self.centres, str):
+            if self.centres == "kmeans":
+                self.centres_ = kmeans_centres(X, self.n_centres, seed=self.seed)
+            elif self.centres == "grid":
+                self.centres_ = grid_centres(X, self.n_centres)
+            else:
+                raise ConfigError(f"unknown centre placement {self.centres!r} (use kmeans or grid)")
+        else:
+            self.centres_ = np.asarray(self.centres, dtype=float)
+            if self.centres_.ndim != 2 or self.centres_.shape[1] != X.shape[1]:
+                raise ConfigError(f"centres must be (K, {X.shape[1]}), got {self.centres_.shape}")
+        if self.sigma2 is not None and not self.sigma2 > 0:
+            raise ConfigError(f"sigma2 must be positive, got {self.sigma2}")
+        self.sigma2_ = float(self.sigma2) if self.sigma2 is not None else default_sigma2(self.centres_)
+        return self
+
+    @property
+    def n_features(self) -> int:
+        return int(self.centres_.shape[0])
+
+    def transform(self, X: np.ndarray) -> np.ndarray:
+        """β(X): (N, p) → (N, K); rows sum to 1."""
+        logits = -pairwise_sqdist(np.asarray(X, dtype=float), self.centres_) / (2.0 * self.sigma2_)
+        logits -= logits.max(axis=1, keepdims=True)
+        g = np.exp(logits)
+        return g / g.sum(axis=1, keepdims=True)
+
+    def unnormalised(self, X: np.ndarray) -> np.ndarray:
+        """g(X) (N, K) without normalisation (weights of locally weighted models)."""
+        return np.exp(-pairwise_sqdist(np.asarray(X, dtype=float), self.centres_) / (2.0 * self.sigma2_))
+
+    def state(self) -> dict[str, Any]:
+        return {"kind": self.kind, "centres": self.centres_, "sigma2": self.sigma2_}
+
+
+class LinearBasis:
+    """β(x) = [x; 1] (K = p + 1)."""
+
+    kind = "linear"
+
+    def fit(self, X: np.ndarray) -> LinearBasis:
+        self.n_state_ = int(np.asarray(X).shape[1])
+        return self
+
+    @property
+    def n_features(self) -> int:
+        return self.n_state_ + 1
+
+    def transform(self, X: np.ndarray) -> np.ndarray:
+        X = np.asarray(X, dtype=float)
+        return np.hstack([X, np.ones((X.shape[0], 1))])
+
+    def state(self) -> dict[str, Any]:
+        return {"kind": self.kind, "n_state": self.n_state_}
+
+
+Basis = RBFBasis | LinearBasis
+
+
+def make_basis(spec: str | dict | Basis | None, default_centres: int = 16, seed: int = 0) -> Basis:
+    """A basis from a config value: ``"rbf"``, ``"linear"``, a dict
+    ``{kind, n_centres, centres, sigma2}``, or a basis object (used as is)."""
+    if spec is None:
+        spec = "rbf"
+    if isinstance(spec, RBFBasis | LinearBasis):
+        return spec
+    if isinstance(spec, str):
+        spec = {"kind": spec}
+    spec = dict(spec)
+    kind = spec.pop("kind", "rbf")
+    if kind == "linear":
+        if spec:
+            raise ConfigError(f"linear basis takes no options, got {sorted(spec)}")
+        return LinearBasis()
+    if kind == "rbf":
+        unknown = set(spec) - {"n_centres", "centres", "sigma2", "seed"}
+        if unknown:
+            raise ConfigError(f"unknown rbf basis option(s): {', '.join(sorted(unknown))}")
+        return RBFBasis(
+            n_centres=int(spec.get("n_centres", default_centres)),
+            centres=spec.get("centres", "kmeans"),
+            sigma2=spec.get("sigma2"),
+            seed=int(spec.get("seed", seed)),
+        )
+    raise ConfigError(f"unknown basis kind {kind!r} (use rbf or linear)")
+
+
+def basis_from_state(state: dict[str, Any]) -> Basis:
+    """Rebuild a fitted basis from :meth:`state` (used when loading models)."""
+    if state["kind"] == "linear":
+        b = LinearBasis()
+        b.n_state_ = int(state["n_state"])
+        return b
+    if state["kind"] == "rbf":
+        b = RBFBasis(n_centres=int(np.shape(state["centres"])[0]))
+        b.centres_ = np.asarray(state["centres"], dtype=float)
+        b.sigma2_ = float(state["sigma2"])
+        return b
+    raise InputError(f"unknown basis kind {state['kind']!r} in model file")

@@ -1,0 +1,132 @@
+"""State-dependent constraint with no prior ("alpha", ALGORITHMS.md §3.2).
+
+Each row of Ã(x) is a unit vector a(θ(x)) with θ(x) = W β(x); rows are found one at
+a time, each orthogonal to the earlier ones, by minimising Σ_n (a(θ(x_n))ᵀ u_n)²
+(see :mod:`ccl_cli.constraint.angular`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ccl_cli.basis import Basis, make_basis
+from ccl_cli.constraint import selection as sel
+from ccl_cli.constraint.angular import fit_sequence, rows_from_weights
+from ccl_cli.constraint.base import ConstraintModel, check_xu
+from ccl_cli.errors import ConfigError
+
+
+class AngularConstraintMixin:
+    """Shared fitting of the angle maps and the choice of s for alpha and lambda."""
+
+    def _learn_rows(self, B: np.ndarray, V: np.ndarray, Xs: np.ndarray, demo: np.ndarray,
+                    featurise) -> None:
+        """Fit the rows on features B (N, K), observations V (N, d), states Xs (N, p);
+        sets weights_ etc. ``featurise(mask)`` returns (B, V, Xs) restricted to ``mask``
+        (for cross-validation).
+        """
+        d = V.shape[1]
+        if d < 2:
+            raise ConfigError("learning a constraint needs at least 2 action dimensions")
+        max_k = min(self.max_constraints or d - 1, d - 1)
+        rule = sel.check_rule(self.selection, self.n_constraints)
+        if rule == "fixed" and self.n_constraints > max_k:
+            raise ConfigError(f"n_constraints must be between 1 and {max_k}")
+        limit = self.n_constraints if rule == "fixed" else max_k
+        fits = fit_sequence(B, V, Xs, limit, self.n_restarts, self.seed, self.max_iter, self.tol,
+                            stop_original=(rule == "threshold"))
+        nmse = [f.nmse for f in fits]
+        if rule == "fixed":
+            chosen = sel.fixed(self.n_constraints, max_k)
+        elif rule == "threshold":
+            k = len(fits) - 1 if (len(fits) > 1 and nmse[-1] > min(nmse[:-1]) and nmse[-1] > 1e-3) \
+                else len(fits)
+            reason = (f"constraint {k + 1} raised nmse to {nmse[k]:.3g} (> best and > 1e-3)"
+                      if k < len(fits) else f"stopped at the maximum {k}")
+            chosen = sel.Selection("threshold", k, nmse, reason)
+        elif rule == "eigengap":
+            chosen = sel.gap(np.append(nmse, 1.0), self.gap_floor)
+            chosen.values = nmse
+        else:
+            def candidates(train: np.ndarray):
+                Bt, Vt, Xt = featurise(train)
+                ws = [f.W for f in fit_sequence(Bt, Vt, Xt, max_k, self.n_restarts, self.seed,
+                                                self.max_iter, self.tol, stop_original=False)]
+                return lambda test, k: self._projection_from(test, ws[:k])
+
+            chosen = sel.cross_validated(candidates, V, demo, max_k, self.cv_folds, self.seed,
+                                         self.gap_floor)
+            fits = fit_sequence(B, V, Xs, chosen.n_constraints, self.n_restarts, self.seed,
+                                self.max_iter, self.tol, stop_original=False)
+        self.n_constraints_ = chosen.n_constraints
+        self.weights_ = [f.W for f in fits[: self.n_constraints_]]
+        self.nmse_ = nmse
+        self.selection_ = chosen.as_dict()
+
+
+class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
+    """Ã(x) with unit rows a(W_k β(x)), learnt without prior knowledge.
+
+    Args:
+        basis: feature map of θ(x) (``"rbf"``, ``"linear"``, a dict or a basis object).
+        n_centres: RBF centres when ``basis`` is a name.
+        selection: ``threshold`` (the original stopping rule, default), ``eigengap``
+            (on the per-row nmse sequence), ``cv``; or fix ``n_constraints``.
+        max_constraints: at most this many rows (default q − 1).
+        n_restarts: LM starts per row (the first the best constant direction).
+        seed, max_iter, tol, gap_floor, cv_folds.
+
+    Attributes:
+        basis_, weights_ (list of (q−k, K) arrays), n_constraints_, nmse_, selection_.
+    """
+
+    def __init__(
+        self,
+        basis: str | dict | Basis | None = "rbf",
+        n_centres: int = 16,
+        selection: str = "threshold",
+        n_constraints: int | None = None,
+        max_constraints: int | None = None,
+        n_restarts: int = 3,
+        seed: int = 0,
+        max_iter: int = 1000,
+        tol: float = 1e-9,
+        gap_floor: float = 1e-9,
+        cv_folds: int = 5,
+    ) -> None:
+        self.basis = basis
+        self.n_centres = n_centres
+        self.selection = selection
+        self.n_constraints = n_constraints
+        self.max_constraints = max_constraints
+        self.n_restarts = n_restarts
+        self.seed = seed
+        self.max_iter = max_iter
+        self.tol = tol
+        self.gap_floor = gap_floor
+        self.cv_folds = cv_folds
+
+    def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
+            ) -> StateDependentConstraint:
+        X, U = check_xu(X, U)
+        self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
+        self.n_action_ = U.shape[1]
+        B = self.basis_.transform(X)
+        demo = np.zeros(len(X), int) if demo is None else np.asarray(demo)
+        self._X = X
+        self._learn_rows(B, U, X, demo, lambda m: (B[m], U[m], X[m]))
+        del self._X
+        return self
+
+    def _projection_from(self, mask: np.ndarray, weights: list[np.ndarray]) -> np.ndarray:
+        B = self.basis_.transform(self._X[mask])
+        rows = rows_from_weights(B, weights, self.n_action_)
+        return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", rows, rows)
+
+    def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
+        return rows_from_weights(self.basis_.transform(X), self.weights_, self.n_action_)
+
+    def projection(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
+        """Ñ(x) = I − Ã(x)ᵀÃ(x) (rows orthonormal): (N, p) → (N, q, q)."""
+        rows = self.constraint(X)
+        return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", rows, rows)

@@ -1,0 +1,169 @@
+"""Sequential learning of unit constraint rows whose angles are linear in features
+(ALGORITHMS.md §3.2, used by "alpha" and "lambda").
+
+For constraint k the observations are first rotated, per sample, into a frame whose
+first k−1 axes are the rows already found: z_n = Q_n v_n. The new row, in that frame,
+is [0_{k−1}; a(θ_n)] with θ_n = W_k β(x_n) ∈ R^{d−k} (fixing the first k−1 angles at
+π/2 makes it orthogonal to the earlier rows). W_k minimises Σ_n r_n², r_n = a(θ_n)ᵀ z_n,
+by Levenberg–Marquardt with the analytic Jacobian
+
+    ∂r_n/∂W_k[i, j] = (∂a/∂θ_i(θ_n) · z_n) β_j(x_n),
+
+from several seeded starts (the first one the best constant direction, from the
+closed form), keeping the best. The frame is then advanced with the Givens rotation
+of θ_n: Q_n ← blockdiag(I_{k−1}, R(θ_n)ᵀ) Q_n.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ccl_cli.angles import angles_of, frame, unit_vector, unit_vector_jacobian
+from ccl_cli.linalg import total_variance
+
+
+@dataclass
+class AngleFit:
+    """Result of fitting one row: weights W (d−k, K) and its residual statistics."""
+
+    W: np.ndarray
+    nmse: float
+    cost: float
+
+
+def _advance(Q: np.ndarray, k: int, theta: np.ndarray) -> np.ndarray:
+    """Q ← blockdiag(I_k, R(θ)ᵀ) Q for stacks Q (N, d, d), θ (N, d−k−1)."""
+    R = frame(theta)
+    Q = Q.copy()
+    Q[:, k:, :] = np.einsum("nji,njc->nic", R, Q[:, k:, :])
+    return Q
+
+
+def rows_from_weights(B: np.ndarray, weights: list[np.ndarray], d: int) -> np.ndarray:
+    """Rebuild the learnt rows at features B (N, K): → (N, s, d), orthonormal per sample."""
+    n = B.shape[0]
+    Q = np.broadcast_to(np.eye(d), (n, d, d)).copy()
+    rows = np.empty((n, len(weights), d))
+    for k, W in enumerate(weights):
+        theta = B @ W.T
+        local = unit_vector(theta)  # (N, d−k)
+        rows[:, k, :] = np.einsum("nj,njc->nc", local, Q[:, k:, :])
+        if k + 1 < len(weights):
+            Q = _advance(Q, k, theta)
+    return rows
+
+
+def _local_start(B: np.ndarray, Z: np.ndarray, X: np.ndarray, rng: np.random.Generator,
+                 n_clusters: int = 36) -> np.ndarray:
+    """A start for W from local closed forms.
+
+    The states are clustered (k-means); in each cluster the best constant direction is
+    the smallest eigenvector d_c of Σ z zᵀ, known up to sign. The signs s_c are
+    synchronised: s = sign of the leading eigenvector of M_ij = κ_i κ_j e^{−‖c_i−c_j‖²/2h²}
+    (d_i·d_j), κ the confidence 1 − λ_min/λ_next of each cluster. The last angle is
+    unwrapped around its circular mean, and the per-sample angles of each sample's
+    cluster are lifted into the features by ridge regression.
+    """
+    from ccl_cli.basis import kmeans_centres, pairwise_sqdist
+
+    n, m = Z.shape
+    k = int(min(n_clusters, max(1, n // (4 * m))))
+    centres = kmeans_centres(X, k, seed=int(rng.integers(2**31)))
+    label = pairwise_sqdist(X, centres).argmin(1)
+    cov = np.zeros((k, m, m))
+    np.add.at(cov, label, Z[:, :, None] * Z[:, None, :])
+    vals, vecs = np.linalg.eigh(cov)
+    dirs = vecs[:, :, 0]
+    conf = 1.0 - vals[:, 0] / np.maximum(vals[:, 1], np.finfo(float).tiny)
+    dist = pairwise_sqdist(centres, centres)
+    h2 = np.median(np.sort(dist, axis=1)[:, 1]) if k > 1 else 1.0
+    affinity = np.exp(-dist / (2.0 * max(h2, 1e-12)))
+    M = conf[:, None] * conf[None, :] * affinity * (dirs @ dirs.T)
+    lead = np.linalg.eigh(M)[1][:, -1]
+    dirs = dirs * np.where(lead < 0, -1.0, 1.0)[:, None]
+    theta = angles_of(dirs)
+    last = theta[:, -1]
+    centre = np.angle(np.sum(conf * np.exp(1j * last)))
+    theta[:, -1] = centre + np.angle(np.exp(1j * (last - centre)))
+    return ridge(B, theta[label]).T
+
+
+def ridge(B: np.ndarray, Y: np.ndarray, rel: float = 1e-6) -> np.ndarray:
+    """argmin_W ‖B W − Y‖² + λ‖W‖², λ = rel · tr(BᵀB)/K: a lift that stays bounded
+    when the features are nearly collinear (wide normalised RBFs)."""
+    G = B.T @ B
+    lam = rel * np.trace(G) / G.shape[0]
+    return np.linalg.solve(G + lam * np.eye(G.shape[0]), B.T @ Y)
+
+
+def _fit_row(B: np.ndarray, Z: np.ndarray, n_restarts: int, rng: np.random.Generator,
+             max_iter: int, tol: float, X: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """min_W Σ_n (a(W β_n)ᵀ z_n)² for Z (N, m), m ≥ 2 → (W (m−1, K), cost)."""
+    n, K = B.shape
+    m = Z.shape[1]
+
+    def residual(w: np.ndarray) -> np.ndarray:
+        return np.einsum("nj,nj->n", unit_vector(B @ w.reshape(m - 1, K).T), Z)
+
+    def jacobian(w: np.ndarray) -> np.ndarray:
+        _, J = unit_vector_jacobian(B @ w.reshape(m - 1, K).T)
+        g = np.einsum("nji,nj->ni", J, Z)  # (N, m−1)
+        return (g[:, :, None] * B[:, None, :]).reshape(n, -1)
+
+    lift = ridge(B, np.ones(n))
+    starts = [_local_start(B, Z, X, rng)] if X is not None else []
+    # The best constant direction (smallest eigenvector of Σ z zᵀ), in the features.
+    _, vecs = np.linalg.eigh(Z.T @ Z)
+    starts.append(np.outer(angles_of(vecs[:, :1].T)[0], lift))
+    while len(starts) < max(1, n_restarts):
+        th = rng.uniform(0.0, np.pi, m - 1)
+        starts.append(np.outer(th, lift) + rng.normal(scale=0.3, size=(m - 1, K)))
+    best_w, best_cost = starts[0], np.inf
+    method = "lm" if n >= (m - 1) * K else "trf"
+    for w0 in starts:
+        sol = least_squares(residual, w0.ravel(), jac=jacobian, method=method,
+                            xtol=tol, ftol=tol, gtol=tol, max_nfev=max_iter)
+        if sol.cost < best_cost:
+            best_w, best_cost = sol.x.reshape(m - 1, K), float(sol.cost)
+    return best_w, 2.0 * best_cost
+
+
+def fit_sequence(
+    B: np.ndarray,
+    V: np.ndarray,
+    X: np.ndarray | None,
+    max_k: int,
+    n_restarts: int,
+    seed: int,
+    max_iter: int = 1000,
+    tol: float = 1e-9,
+    stop_original: bool = True,
+) -> list[AngleFit]:
+    """Learn rows one at a time on features B (N, K) and observations V (N, d); the
+    states X (N, p) place the clusters of the local start (``None``: no local start).
+
+    nmse_k = mean(r²) / Σ var(V) (ddof = 1). With ``stop_original`` the loop stops,
+    keeping the earlier rows, once nmse_k exceeds both the best so far and 1e-3
+    (the original rule); the rejected fit is still returned last so callers can
+    report it. Without it all ``max_k`` rows are learnt.
+    """
+    rng = np.random.default_rng(seed)
+    n, d = V.shape
+    var = total_variance(V)
+    Q = np.broadcast_to(np.eye(d), (n, d, d)).copy()
+    fits: list[AngleFit] = []
+    best = np.inf
+    for k in range(max_k):
+        Z = np.einsum("nij,nj->ni", Q[:, k:, :], V)
+        W, cost = _fit_row(B, Z, n_restarts, rng, max_iter, tol, X)
+        nmse = (cost / n) / var if var > 0 else np.inf
+        fits.append(AngleFit(W, float(nmse), cost))
+        if stop_original and k > 0 and nmse > best and nmse > 1e-3:
+            break
+        best = min(best, nmse)
+        if k + 1 < max_k:
+            Q = _advance(Q, k, B @ W.T)
+    return fits

@@ -1,0 +1,220 @@
+"""Closed-form, linear-in-parameters constraints (ALGORITHMS.md §3.5).
+
+The constraint is A(x) = W Φ_A(x), optionally with a task term b(x) = W_b φ_b(x),
+so that every observation satisfies W [Φ_A(x_n) u_n ; −φ_b(x_n)] = 0. Stacking the
+regressors h_n as columns of H, the s left singular vectors of H with the smallest
+singular values give W — no iterative optimisation. Rows of H are scaled to unit RMS
+first (and the scaling undone afterwards) to limit the total-least-squares bias of
+unscaled, over-complete regressors.
+
+Regressor families (``regressors``):
+* ``identity`` — Φ_A = I_q (a constant constraint);
+* ``rbf`` — Φ_A(x) = β(x) ⊗ I_q, i.e. A(x) = Σ_k β_k(x) W_k;
+* ``polynomial`` — monomials of x up to ``degree`` (1 included) ⊗ I_q;
+* a callable X (N, p) → (N, m, q) (e.g. rows of a Jacobian).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from itertools import combinations_with_replacement
+
+import numpy as np
+
+from ccl_cli.basis import Basis, make_basis
+from ccl_cli.constraint import selection as sel
+from ccl_cli.constraint.base import ConstraintModel, check_xu
+from ccl_cli.errors import ConfigError
+
+REGRESSORS = ("identity", "rbf", "polynomial")
+
+
+def polynomial_features(X: np.ndarray, degree: int) -> np.ndarray:
+    """Monomials of the columns of X up to ``degree``, constant first: (N, p) → (N, M)."""
+    X = np.asarray(X, dtype=float)
+    cols = [np.ones(X.shape[0])]
+    for deg in range(1, degree + 1):
+        for combo in combinations_with_replacement(range(X.shape[1]), deg):
+            cols.append(np.prod(X[:, list(combo)], axis=1))
+    return np.stack(cols, 1)
+
+
+class LinearConstraint(ConstraintModel):
+    """A(x) = W Φ_A(x) estimated in closed form.
+
+    Args:
+        regressors: ``identity``, ``rbf``, ``polynomial`` or a callable (N, m, q).
+        degree: of ``polynomial``.
+        basis, n_centres: feature map of ``rbf``.
+        task: also estimate a task term b(x) = W_b φ_b(x) (A u = b).
+        task_regressors: φ_b: ``constant`` (b const), ``polynomial`` (same degree) or ``rbf``.
+        scale: scale regressor rows to unit RMS before the SVD (recommended).
+        reweight: closed-form reweighting steps: each sample is weighted by
+            s / tr(Ã_n Ã_nᵀ) of the previous estimate, so the residual is that of unit
+            constraint rows (the objective of §3) and samples where the unnormalised
+            Ã(x) is large do not dominate; 0 gives the plain SVD.
+        selection, n_constraints, gap_floor, threshold, max_constraints, cv_folds, seed:
+            choice of s; the default is the eigen-gap rule on the squared singular values.
+
+    Attributes:
+        W_ (s, m), Wb_ (s, m_b) or None, singular_values_ (ascending), n_constraints_,
+        selection_, scale_ (m + m_b,).
+    """
+
+    def __init__(
+        self,
+        regressors: str | Callable[[np.ndarray], np.ndarray] = "polynomial",
+        degree: int = 1,
+        basis: str | dict | Basis | None = "rbf",
+        n_centres: int = 16,
+        task: bool = False,
+        task_regressors: str = "constant",
+        scale: bool = True,
+        reweight: int = 3,
+        selection: str = "eigengap",
+        n_constraints: int | None = None,
+        threshold: float = 0.1,
+        gap_floor: float = 1e-9,
+        max_constraints: int | None = None,
+        cv_folds: int = 5,
+        seed: int = 0,
+    ) -> None:
+        self.regressors = regressors
+        self.degree = degree
+        self.basis = basis
+        self.n_centres = n_centres
+        self.task = task
+        self.task_regressors = task_regressors
+        self.scale = scale
+        self.reweight = reweight
+        self.selection = selection
+        self.n_constraints = n_constraints
+        self.threshold = threshold
+        self.gap_floor = gap_floor
+        self.max_constraints = max_constraints
+        self.cv_folds = cv_folds
+        self.seed = seed
+
+    # -- regressors -------------------------------------------------------------------
+    def _features(self, X: np.ndarray) -> np.ndarray | None:
+        """f(x) (N, M) such that Φ_A(x) = f(x) ⊗ I_q; None for matrix regressors."""
+        r = self.regressors
+        if callable(r):
+            return None
+        if r == "identity":
+            return np.ones((X.shape[0], 1))
+        if r == "polynomial":
+            return polynomial_features(X, self.degree)
+        if r == "rbf":
+            return self.basis_.transform(X)
+        raise ConfigError(f"unknown regressors {r!r} (use {', '.join(REGRESSORS)} or a callable)")
+
+    def _phi(self, X: np.ndarray) -> np.ndarray:
+        """Φ_A(X): (N, m, q)."""
+        f = self._features(X)
+        if f is None:
+            return np.asarray(self.regressors(X), dtype=float)
+        q = self.n_action_
+        return np.einsum("nk,ij->nkij", f, np.eye(q)).reshape(len(X), -1, q)
+
+    def _task_features(self, X: np.ndarray) -> np.ndarray:
+        kind = self.task_regressors
+        if kind == "constant":
+            return np.ones((X.shape[0], 1))
+        if kind == "polynomial":
+            return polynomial_features(X, self.degree)
+        if kind == "rbf":
+            return self.basis_.transform(X)
+        raise ConfigError(f"unknown task_regressors {kind!r} (use constant, polynomial or rbf)")
+
+    def _stack(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
+        """Rows h_n = [Φ_A(x_n) u_n ; −φ_b(x_n)]: (N, m + m_b)."""
+        f = self._features(X)
+        if f is None:
+            H = np.einsum("nmq,nq->nm", self._phi(X), U)
+        else:
+            H = (f[:, :, None] * U[:, None, :]).reshape(len(X), -1)
+        if self.task:
+            H = np.hstack([H, -self._task_features(X)])
+        return H
+
+    # -- fitting ----------------------------------------------------------------------
+    def _solve(self, H: np.ndarray, X: np.ndarray, k: int = 1
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Right singular vectors of the (weighted) H, ascending: (vals, vecs (d, d), scale).
+
+        ``k`` rows define the reweighting (the count chosen from the unweighted solve).
+        """
+        scale = np.sqrt(np.mean(H**2, axis=0)) if self.scale else np.ones(H.shape[1])
+        scale = np.where(scale > 0, scale, 1.0)
+        Hs = H / scale
+        vals, vecs = np.linalg.eigh(Hs.T @ Hs)
+        if self.reweight:
+            phi = self._phi(X)
+            m = phi.shape[1]
+            for _ in range(self.reweight):
+                W = (vecs[:, :k] / scale[:, None]).T[:, :m]
+                norm2 = np.einsum("km,nmq->nkq", W, phi)
+                weight = k / np.maximum(np.sum(norm2**2, axis=(1, 2)), 1e-12)
+                weight /= weight.mean()
+                vals, vecs = np.linalg.eigh((Hs * weight[:, None]).T @ Hs)
+        return np.maximum(vals, 0.0), vecs, scale
+
+    def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None) -> LinearConstraint:
+        X, U = check_xu(X, U)
+        self.n_action_ = U.shape[1]
+        if self.regressors == "rbf" or (self.task and self.task_regressors == "rbf"):
+            self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
+        H = self._stack(X, U)
+        vals, vecs, scale = self._solve(H, X, 1)
+        d = H.shape[1]
+        max_k = min(self.max_constraints or self.n_action_ - 1, d - 1)
+        max_k = max(1, max_k)
+        rule = sel.check_rule(self.selection, self.n_constraints)
+        if rule == "fixed":
+            chosen = sel.fixed(self.n_constraints, d)
+        elif rule == "threshold":
+            nmse = (vals / len(X)) / max(float(np.mean(np.sum((H / scale) ** 2, 1))), 1e-300)
+            k = 1
+            while k < max_k and nmse[k] < self.threshold:
+                k += 1
+            chosen = sel.Selection("threshold", k, list(nmse[:max_k]), f"nmse below {self.threshold}")
+        elif rule == "eigengap":
+            chosen = sel.gap(vals[: max_k + 1], self.gap_floor)
+        else:
+            demo = np.zeros(len(X), int) if demo is None else np.asarray(demo)
+
+            def candidates(train: np.ndarray):
+                _, v, sc = self._solve(H[train], X[train], 1)
+                return lambda test, k: self._projection_of(X[test], (v[:, :k] / sc[:, None]).T)
+
+            chosen = sel.cross_validated(candidates, U, demo, max_k, self.cv_folds, self.seed,
+                                         self.gap_floor)
+        self.n_constraints_ = chosen.n_constraints
+        self.selection_ = chosen.as_dict()
+        if self.reweight and self.n_constraints_ > 1:
+            vals, vecs, scale = self._solve(H, X, self.n_constraints_)
+        self.singular_values_ = np.sqrt(vals)
+        self.scale_ = scale
+        W = (vecs[:, : self.n_constraints_] / scale[:, None]).T
+        m = d - (self._task_features(X[:1]).shape[1] if self.task else 0)
+        self.W_ = W[:, :m]
+        self.Wb_ = W[:, m:] if self.task else None
+        return self
+
+    def _projection_of(self, X: np.ndarray, W: np.ndarray) -> np.ndarray:
+        from ccl_cli.linalg import nullspace_projection
+
+        m = self._phi(X[:1]).shape[1]
+        return nullspace_projection(np.einsum("km,nmq->nkq", W[:, :m], self._phi(X)))
+
+    def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
+        """Ã(X) = W Φ_A(X): (N, s, q) (rows not normalised)."""
+        return np.einsum("km,nmq->nkq", self.W_, self._phi(np.asarray(X, dtype=float)))
+
+    def task_term(self, X: np.ndarray) -> np.ndarray:
+        """b̃(X) = W_b φ_b(X): (N, s); zeros without a task term."""
+        X = np.asarray(X, dtype=float)
+        if self.Wb_ is None:
+            return np.zeros((len(X), self.n_constraints_))
+        return self._task_features(X) @ self.Wb_.T

@@ -1,0 +1,162 @@
+"""State-independent constraint Ã with orthonormal rows ("nhat", ALGORITHMS.md §3.1).
+
+Minimises E[Ã] = Σ_n ‖Ã u_n‖² over Ã with orthonormal rows (eq. §3). With
+C = Σ_n u_n u_nᵀ the optimum for s rows is the s eigenvectors of C with the smallest
+eigenvalues and the residual is their sum: one pass over the data, O(N q² + q³).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ccl_cli.angles import unit_vector
+from ccl_cli.constraint import selection as sel
+from ccl_cli.constraint.base import ConstraintModel, check_xu
+from ccl_cli.errors import ConfigError
+
+#: Grid of the original search: 20 angles per axis in [0, π − π/20].
+SEARCH_STEPS = 20
+MAX_SEARCH_Q = 6
+
+
+def _threshold_count(lams: np.ndarray, rows: np.ndarray, cov: np.ndarray, n: int,
+                     threshold: float, max_k: int) -> sel.Selection:
+    """Original rule: keep the k-th constraint while nmse_k = (λ_k/N) / Σ var(N_k U) < threshold.
+
+    Σ var(N_k U) = tr(Cov) − Σ_{j≤k} a_jᵀ Cov a_j, with Cov the ddof = 1 covariance.
+    """
+    explained = np.cumsum(np.einsum("ki,ij,kj->k", rows, cov, rows))
+    remaining = np.trace(cov) - explained
+    with np.errstate(divide="ignore", invalid="ignore"):
+        nmse = np.where(remaining > 0, (lams / n) / remaining, np.inf)
+    k = 1
+    while k < max_k and nmse[k] < threshold:
+        k += 1
+    return sel.Selection("threshold", k, list(nmse[:max_k]),
+                         f"constraint {k + 1} would have nmse {nmse[k]:.3g} ≥ {threshold}"
+                         if k < max_k else f"all {k} candidates below {threshold}")
+
+
+class StateIndependentConstraint(ConstraintModel):
+    """Constant constraint matrix Ã (s × q) with orthonormal rows.
+
+    Args:
+        method: ``"closed_form"`` (default) or ``"search"`` (the original grid search,
+            q ≤ 6; for comparison only).
+        selection: how s is chosen: ``threshold`` (original, default), ``eigengap``,
+            ``cv``, or fixed via ``n_constraints``.
+        n_constraints: fix s.
+        threshold: of the ``threshold`` rule (original: 0.1).
+        gap_floor: relative floor of the eigen-gap rule.
+        max_constraints: upper bound on s (default q − 1).
+        cv_folds, seed: cross-validation over demonstrations.
+
+    Attributes:
+        A_: (s, q) learnt rows. eigenvalues_: (q,) ascending eigenvalues of Σ u uᵀ.
+        n_constraints_, selection_.
+    """
+
+    def __init__(
+        self,
+        method: str = "closed_form",
+        selection: str = "threshold",
+        n_constraints: int | None = None,
+        threshold: float = 0.1,
+        gap_floor: float = 1e-9,
+        max_constraints: int | None = None,
+        cv_folds: int = 5,
+        seed: int = 0,
+    ) -> None:
+        self.method = method
+        self.selection = selection
+        self.n_constraints = n_constraints
+        self.threshold = threshold
+        self.gap_floor = gap_floor
+        self.max_constraints = max_constraints
+        self.cv_folds = cv_folds
+        self.seed = seed
+
+    def _candidate_rows(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """All q−1 candidate rows in order of use, and their residuals λ_k = a_kᵀ C a_k."""
+        C = U.T @ U
+        if self.method == "closed_form":
+            lams, vecs = np.linalg.eigh(C)
+            return vecs.T, np.maximum(lams, 0.0)
+        if self.method == "search":
+            return _search_rows(C)
+        raise ConfigError(f"unknown nhat method {self.method!r} (use closed_form or search)")
+
+    def fit(self, X: np.ndarray | None, U: np.ndarray, demo: np.ndarray | None = None
+            ) -> StateIndependentConstraint:
+        """Learn Ã from actions U (N, q); X is not used (kept for a uniform API)."""
+        U = np.asarray(U, dtype=float)
+        X, U = check_xu(np.zeros((U.shape[0], 1)) if X is None else X, U)
+        n, q = U.shape
+        max_k = self.max_constraints or q - 1
+        max_k = max(1, min(max_k, q - 1 if q > 1 else 1))
+        rule = sel.check_rule(self.selection, self.n_constraints)
+        rows, lams = self._candidate_rows(U)
+        self.eigenvalues_ = np.linalg.eigvalsh(U.T @ U)
+        if rule == "fixed":
+            chosen = sel.fixed(self.n_constraints, q)
+        elif rule == "threshold":
+            cov = np.cov(U, rowvar=False, ddof=1).reshape(q, q)
+            chosen = _threshold_count(lams, rows, cov, n, self.threshold, max_k)
+        elif rule == "eigengap":
+            chosen = sel.gap(lams[: max_k + 1], self.gap_floor)
+        else:
+            demo = np.zeros(n, int) if demo is None else np.asarray(demo)
+
+            def candidates(train: np.ndarray):
+                r, _ = self._candidate_rows(U[train])
+                return lambda test, k: np.eye(q) - r[:k].T @ r[:k]
+
+            chosen = sel.cross_validated(candidates, U, demo, max_k, self.cv_folds, self.seed,
+                                         self.gap_floor)
+        self.n_constraints_ = chosen.n_constraints
+        self.A_ = rows[: self.n_constraints_].copy()
+        self.residuals_ = lams
+        self.selection_ = chosen.as_dict()
+        self.n_action_ = q
+        return self
+
+    def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
+        n = np.shape(X)[0]
+        return np.broadcast_to(self.A_, (n, *self.A_.shape))
+
+    def projection(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
+        """Ñ = I − ÃᵀÃ (rows are orthonormal), broadcast to (N, q, q)."""
+        N = np.eye(self.n_action_) - self.A_.T @ self.A_
+        return np.broadcast_to(N, (np.shape(X)[0], *N.shape)).copy()
+
+
+def _search_rows(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The original grid search: 20^(q−1) unit vectors in hyperspherical angles.
+
+    First row: the grid vector with the smallest aᵀCa; each next row: the best among
+    grid vectors whose |dot| with every earlier row is < 0.001.
+    """
+    q = C.shape[0]
+    if q > MAX_SEARCH_Q:
+        raise ConfigError(f"the grid search is exponential in q: q = {q} > {MAX_SEARCH_Q}; "
+                          "use method closed_form")
+    axis = np.linspace(0.0, np.pi - np.pi / SEARCH_STEPS, SEARCH_STEPS)
+    mesh = np.meshgrid(*([axis] * (q - 1)), indexing="ij")
+    cand = unit_vector(np.stack([m.ravel() for m in mesh], 1))
+    cost = np.einsum("mi,ij,mj->m", cand, C, cand)
+    rows, lams = [], []
+    ok = np.ones(len(cand), bool)
+    for _ in range(q):
+        if not ok.any():
+            break
+        best = int(np.flatnonzero(ok)[np.argmin(cost[ok])])
+        rows.append(cand[best])
+        lams.append(cost[best])
+        ok &= np.abs(cand @ cand[best]) < 1e-3
+    rows_a = np.array(rows)
+    if len(rows) < q:  # complete the basis so callers can index q − 1 candidates
+        _, _, vh = np.linalg.svd(rows_a)
+        extra = vh[len(rows):]
+        rows_a = np.vstack([rows_a, extra])
+        lams += list(np.einsum("ki,ij,kj->k", extra, C, extra))
+    return rows_a, np.maximum(np.array(lams), 0.0)

@@ -1,0 +1,200 @@
+"""The :class:`Demonstrations` type: what every reader returns and every learner takes.
+
+Arrays are one sample per row: ``X`` is (N, p), ``U`` is (N, q). Each sample carries
+the id of the demonstration (trajectory) it belongs to and a timestamp in seconds.
+Ground truth, when known (simulation), lives in ``truth``; learners never read it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from ccl_cli.errors import InputError
+
+#: Ground-truth keys and their per-sample shapes (s = number of constraints).
+TRUTH_KEYS = ("pi", "w", "v", "b", "A", "N")
+
+
+@dataclass
+class Demonstrations:
+    """Observed states and actions grouped into demonstrations.
+
+    Attributes:
+        X: states, (N, p).
+        U: actions, (N, q).
+        demo: demonstration id of each sample, (N,) int; samples of one
+            demonstration are contiguous and in time order.
+        t: time of each sample in seconds, (N,).
+        truth: optional ground truth: ``pi``, ``w``, ``v`` (N, q); ``b`` (N, s);
+            ``A`` (s, q) constant or (N, s, q); ``N`` (q, q) constant or (N, q, q).
+        state_names, action_names: length p and q.
+        state_units, action_units: length p and q (free text, may be empty).
+        metadata: JSON-serialisable provenance (source files, topics, ...).
+    """
+
+    X: np.ndarray
+    U: np.ndarray
+    demo: np.ndarray | None = None
+    t: np.ndarray | None = None
+    truth: dict[str, np.ndarray] = field(default_factory=dict)
+    state_names: list[str] | None = None
+    action_names: list[str] | None = None
+    state_units: list[str] | None = None
+    action_units: list[str] | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.X = np.asarray(self.X, dtype=float)
+        self.U = np.asarray(self.U, dtype=float)
+        if self.X.ndim == 1:
+            self.X = self.X[:, None]
+        if self.U.ndim == 1:
+            self.U = self.U[:, None]
+        if self.X.ndim != 2 or self.U.ndim != 2:
+            raise InputError(f"X and U must be 2-D (N×p, N×q), got {self.X.shape} and {self.U.shape}")
+        n = self.X.shape[0]
+        if self.U.shape[0] != n:
+            raise InputError(f"X has {n} samples but U has {self.U.shape[0]}")
+        self.demo = np.zeros(n, dtype=np.int64) if self.demo is None else np.asarray(self.demo)
+        self.demo = self.demo.astype(np.int64)
+        self.t = np.arange(n, dtype=float) if self.t is None else np.asarray(self.t, dtype=float)
+        if self.demo.shape != (n,) or self.t.shape != (n,):
+            raise InputError(f"demo and t must have shape ({n},)")
+        p, q = self.X.shape[1], self.U.shape[1]
+        self.state_names = list(self.state_names or [f"x{i}" for i in range(p)])
+        self.action_names = list(self.action_names or [f"u{i}" for i in range(q)])
+        self.state_units = list(self.state_units or [""] * p)
+        self.action_units = list(self.action_units or [""] * q)
+        if len(self.state_names) != p or len(self.action_names) != q:
+            raise InputError("state_names/action_names do not match the dimensions of X/U")
+        for key in self.truth:
+            if key not in TRUTH_KEYS:
+                raise InputError(f"unknown ground-truth key {key!r} (known: {', '.join(TRUTH_KEYS)})")
+        self.truth = {k: np.asarray(v, dtype=float) for k, v in self.truth.items()}
+
+    # -- sizes ------------------------------------------------------------------------
+    @property
+    def n_samples(self) -> int:
+        return int(self.X.shape[0])
+
+    @property
+    def n_state(self) -> int:
+        return int(self.X.shape[1])
+
+    @property
+    def n_action(self) -> int:
+        return int(self.U.shape[1])
+
+    @property
+    def demo_ids(self) -> np.ndarray:
+        """Distinct demonstration ids in order of first appearance."""
+        _, first = np.unique(self.demo, return_index=True)
+        return self.demo[np.sort(first)]
+
+    @property
+    def n_demos(self) -> int:
+        return int(len(self.demo_ids))
+
+    def __len__(self) -> int:
+        return self.n_samples
+
+    # -- ground truth -----------------------------------------------------------------
+    def has_truth(self, *keys: str) -> bool:
+        return all(k in self.truth for k in keys)
+
+    def truth_per_sample(self, key: str) -> np.ndarray:
+        """Ground truth ``key`` broadcast to one entry per sample.
+
+        ``A`` becomes (N, s, q) and ``N`` (N, q, q) when stored as constants.
+        """
+        value = self.truth[key]
+        if key in ("A", "N") and value.ndim == 2:
+            return np.broadcast_to(value, (self.n_samples, *value.shape))
+        return value
+
+    def true_projection(self) -> np.ndarray:
+        """True null-space projection N_n (N, q, q), from ``N`` or from ``A``."""
+        if "N" in self.truth:
+            return np.asarray(self.truth_per_sample("N"))
+        if "A" in self.truth:
+            from ccl_cli.linalg import nullspace_projection
+
+            return nullspace_projection(np.asarray(self.truth_per_sample("A")))
+        raise InputError("no ground-truth constraint (A or N) in this dataset")
+
+    # -- selection --------------------------------------------------------------------
+    def subset(self, mask: np.ndarray) -> Demonstrations:
+        """The samples where ``mask`` (bool (N,) or index array) holds."""
+        idx = np.asarray(mask)
+        n = self.n_samples
+        truth = {}
+        for key, value in self.truth.items():
+            if value.ndim >= 1 and value.shape[0] == n and not (key in ("A", "N") and value.ndim == 2):
+                truth[key] = value[idx]
+            else:
+                truth[key] = value
+        return replace(self, X=self.X[idx], U=self.U[idx], demo=self.demo[idx], t=self.t[idx],
+                       truth=truth, metadata=dict(self.metadata))
+
+    def select_demos(self, ids: np.ndarray | list[int]) -> Demonstrations:
+        return self.subset(np.isin(self.demo, np.asarray(ids)))
+
+    def split(self, fraction: float = 0.3, seed: int = 0) -> tuple[Demonstrations, Demonstrations]:
+        """Seeded train/test split by demonstration; ``fraction`` of demos go to test.
+
+        With a single demonstration the split is by time: the last ``fraction`` of it.
+        """
+        if not 0.0 < fraction < 1.0:
+            raise InputError(f"test fraction must be in (0, 1), got {fraction}")
+        ids = self.demo_ids
+        if len(ids) < 2:
+            cut = int(round(self.n_samples * (1.0 - fraction)))
+            train = np.arange(self.n_samples) < cut
+            return self.subset(train), self.subset(~train)
+        rng = np.random.default_rng(seed)
+        n_test = min(max(1, int(round(fraction * len(ids)))), len(ids) - 1)
+        test_ids = rng.choice(ids, size=n_test, replace=False)
+        test = np.isin(self.demo, test_ids)
+        return self.subset(~test), self.subset(test)
+
+    @staticmethod
+    def concatenate(parts: list[Demonstrations]) -> Demonstrations:
+        """Join datasets, renumbering demonstrations so ids stay distinct."""
+        if not parts:
+            raise InputError("no demonstrations to concatenate")
+        first = parts[0]
+        offset = 0
+        demos = []
+        for part in parts:
+            if part.n_state != first.n_state or part.n_action != first.n_action:
+                raise InputError("cannot join datasets with different state/action dimensions")
+            _, inv = np.unique(part.demo, return_inverse=True)
+            demos.append(inv + offset)
+            offset += int(inv.max()) + 1 if len(inv) else 0
+        keys = set.intersection(*(set(p.truth) for p in parts))
+        truth = {}
+        for key in keys:
+            vals = [p.truth_per_sample(key) for p in parts]
+            truth[key] = np.concatenate([np.asarray(v) for v in vals])
+        return Demonstrations(
+            X=np.concatenate([p.X for p in parts]),
+            U=np.concatenate([p.U for p in parts]),
+            demo=np.concatenate(demos),
+            t=np.concatenate([p.t for p in parts]),
+            truth=truth,
+            state_names=first.state_names,
+            action_names=first.action_names,
+            state_units=first.state_units,
+            action_units=first.action_units,
+            metadata={"parts": [p.metadata for p in parts]},
+        )
+
+    def check_finite(self) -> None:
+        for name, arr in (("X", self.X), ("U", self.U)):
+            bad = ~np.isfinite(arr)
+            if bad.any():
+                row = int(np.argwhere(bad)[0][0])
+                raise InputError(f"{name} has {int(bad.any(axis=1).sum())} non-finite samples (first at row {row})")

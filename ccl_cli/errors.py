@@ -1,0 +1,35 @@
+"""The one error type of the project.
+
+Library code raises :class:`CCLError` (or a subclass) with a message meant for the
+user; only the command line turns it into an exit code.
+"""
+
+from __future__ import annotations
+
+
+class CCLError(Exception):
+    """A user-facing failure. ``exit_code`` 2 = bad usage/input, 1 = learning failed."""
+
+    exit_code = 2
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)
+        self.message = message
+
+
+class InputError(CCLError):
+    """Bad input: unreadable file, missing field, wrong shapes, NaNs."""
+
+    exit_code = 2
+
+
+class ConfigError(CCLError):
+    """Bad configuration: unknown key, wrong type, inconsistent options."""
+
+    exit_code = 2
+
+
+class LearningError(CCLError):
+    """A learner or evaluator could not produce a result from valid input."""
+
+    exit_code = 1
