@@ -4,8 +4,9 @@ The constraint is A(x) = W Φ_A(x), optionally with a task term b(x) = W_b φ_b(
 so that every observation satisfies W [Φ_A(x_n) u_n ; −φ_b(x_n)] = 0. Stacking the
 regressors h_n as columns of H, the s left singular vectors of H with the smallest
 singular values give W — no iterative optimisation. Rows of H are scaled to unit RMS
-first (and the scaling undone afterwards) to limit the total-least-squares bias of
-unscaled, over-complete regressors.
+against the covariance that noise on u induces in them (a generalised eigenproblem),
+which removes the total-least-squares bias of unscaled, over-complete regressors;
+a few closed-form reweighting steps then give each sample the weight of a unit row.
 
 Regressor families (``regressors``):
 * ``identity`` — Φ_A = I_q (a constant constraint);
@@ -20,6 +21,7 @@ from collections.abc import Callable
 from itertools import combinations_with_replacement
 
 import numpy as np
+from scipy.linalg import eigh
 
 from ccl_cli.basis import Basis, make_basis
 from ccl_cli.constraint import selection as sel
@@ -48,7 +50,9 @@ class LinearConstraint(ConstraintModel):
         basis, n_centres: feature map of ``rbf``.
         task: also estimate a task term b(x) = W_b φ_b(x) (A u = b).
         task_regressors: φ_b: ``constant`` (b const), ``polynomial`` (same degree) or ``rbf``.
-        scale: scale regressor rows to unit RMS before the SVD (recommended).
+        whiten: ``rms`` (default: each regressor scaled to unit RMS), ``errors``
+            (generalised eigenproblem with the covariance that noise on u induces in
+            the regressors; consistent for exact families) or ``none`` (plain SVD).
         reweight: closed-form reweighting steps: each sample is weighted by
             s / tr(Ã_n Ã_nᵀ) of the previous estimate, so the residual is that of unit
             constraint rows (the objective of §3) and samples where the unnormalised
@@ -58,7 +62,7 @@ class LinearConstraint(ConstraintModel):
 
     Attributes:
         W_ (s, m), Wb_ (s, m_b) or None, singular_values_ (ascending), n_constraints_,
-        selection_, scale_ (m + m_b,).
+        selection_, scale_ (m + m_b,) (ones unless whiten='rms').
     """
 
     def __init__(
@@ -69,7 +73,7 @@ class LinearConstraint(ConstraintModel):
         n_centres: int = 16,
         task: bool = False,
         task_regressors: str = "constant",
-        scale: bool = True,
+        whiten: str = "rms",
         reweight: int = 3,
         selection: str = "eigengap",
         n_constraints: int | None = None,
@@ -85,7 +89,7 @@ class LinearConstraint(ConstraintModel):
         self.n_centres = n_centres
         self.task = task
         self.task_regressors = task_regressors
-        self.scale = scale
+        self.whiten = whiten
         self.reweight = reweight
         self.selection = selection
         self.n_constraints = n_constraints
@@ -141,23 +145,41 @@ class LinearConstraint(ConstraintModel):
     # -- fitting ----------------------------------------------------------------------
     def _solve(self, H: np.ndarray, X: np.ndarray, k: int = 1
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Right singular vectors of the (weighted) H, ascending: (vals, vecs (d, d), scale).
+        """Generalised eigenvectors of (S, T), ascending: (vals, vecs (d, d), scale).
 
-        ``k`` rows define the reweighting (the count chosen from the unweighted solve).
+        S = Σ_n ω_n h_n h_nᵀ. With ``whiten="errors"`` T = Σ_n ω_n ∂h_n/∂u ∂h_n/∂uᵀ is
+        the covariance that isotropic noise on u induces in h (zero on the noise-free
+        task rows), which makes the smallest eigenvectors a consistent estimate
+        (errors-in-variables); ``"rms"`` scales h to unit RMS per row and uses T = I;
+        ``"none"`` takes the plain SVD. ``k`` rows define the reweighting ω.
         """
-        scale = np.sqrt(np.mean(H**2, axis=0)) if self.scale else np.ones(H.shape[1])
-        scale = np.where(scale > 0, scale, 1.0)
+        n, d = H.shape
+        phi = self._phi(X)
+        m = phi.shape[1]
+        if self.whiten == "rms":
+            scale = np.sqrt(np.mean(H**2, axis=0))
+            scale = np.where(scale > 0, scale, 1.0)
+        elif self.whiten in ("errors", "none"):
+            scale = np.ones(d)
+        else:
+            raise ConfigError(f"unknown whiten {self.whiten!r} (use errors, rms or none)")
         Hs = H / scale
-        vals, vecs = np.linalg.eigh(Hs.T @ Hs)
-        if self.reweight:
-            phi = self._phi(X)
-            m = phi.shape[1]
-            for _ in range(self.reweight):
-                W = (vecs[:, :k] / scale[:, None]).T[:, :m]
-                norm2 = np.einsum("km,nmq->nkq", W, phi)
-                weight = k / np.maximum(np.sum(norm2**2, axis=(1, 2)), 1e-12)
-                weight /= weight.mean()
-                vals, vecs = np.linalg.eigh((Hs * weight[:, None]).T @ Hs)
+        weight = np.ones(n)
+        for step in range(self.reweight + 1):
+            S = (Hs * weight[:, None]).T @ Hs
+            if self.whiten == "errors":
+                T = np.zeros((d, d))
+                T[:m, :m] = np.einsum("n,nmq,nkq->mk", weight, phi, phi)
+                T[np.diag_indices(d)] += 1e-10 * np.trace(T) / d + np.finfo(float).tiny
+                vals, vecs = eigh(S, T)
+            else:
+                vals, vecs = np.linalg.eigh(S)
+            if step == self.reweight:
+                break
+            W = (vecs[:, :k] / scale[:, None]).T[:, :m]
+            rows = np.einsum("km,nmq->nkq", W, phi)
+            weight = k / np.maximum(np.sum(rows**2, axis=(1, 2)), 1e-12)
+            weight /= weight.mean()
         return np.maximum(vals, 0.0), vecs, scale
 
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None) -> LinearConstraint:

@@ -1,0 +1,114 @@
+"""Learning the unconstrained null-space policy π (ALGORITHMS.md §5; u = w, b = 0).
+
+All learners minimise a least-squares criterion that is linear in the weights, so
+each is solved in closed form (batched over samples, no iteration):
+
+* ``pi`` — inconsistency error Σ_n (û_nᵀ π̃(x_n) − ‖u_n‖)², π̃(x) = Wᵀβ(x)
+  (Howard et al. 2009); rows kron(β_n, û_n), eigen pseudo-inverse, cut-off 1e-6.
+* ``pi-weighted`` — the same residual times ‖u_n‖: u_nᵀ π̃(x_n) = ‖u_n‖², so samples
+  at the noise level (random û) no longer get full weight.
+* ``pi-coupled`` — with projections Ñ_n (true or learnt): u_n ≈ Ñ_n Wᵀ β(x_n), rows
+  kron(β_nᵀ, Ñ_n) (Armesto et al.).
+* ``lwpi`` — per centre c a local linear model W_cᵀ [x; 1] fitted to the inconsistency
+  error with weights β_c(x_n); π̃(x) = Σ_c β_c(x) W_cᵀ φ(x) / Σ_c β_c(x).
+* ``dpl`` — direct regression of u on β(x): the biased baseline.
+
+Samples with ‖u_n‖ below ``min_norm`` carry no direction and are dropped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ccl_cli.basis import Basis, RBFBasis, make_basis
+from ccl_cli.constraint.base import check_xu
+from ccl_cli.errors import ConfigError, InputError, LearningError
+from ccl_cli.linalg import eigen_lstsq
+
+METHODS = ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl")
+
+
+class PolicyLearner:
+    """π̃(x) = Wᵀ β(x) learnt by one of :data:`METHODS`.
+
+    Args:
+        method: ``pi`` (default), ``pi-weighted``, ``pi-coupled``, ``lwpi``, ``dpl``.
+        basis, n_centres, seed: feature map (``lwpi`` needs an RBF basis).
+        cutoff: relative eigenvalue cut-off of the pseudo-inverse (original: 1e-6).
+        min_norm: samples with ‖u‖ below this are dropped (not for ``dpl``/``pi-coupled``).
+
+    Attributes:
+        basis_, W_ ((K, q); for lwpi (K, p + 1, q)), n_used_.
+    """
+
+    def __init__(
+        self,
+        method: str = "pi",
+        basis: str | dict | Basis | None = "rbf",
+        n_centres: int = 16,
+        seed: int = 0,
+        cutoff: float = 1e-6,
+        min_norm: float = 1e-6,
+    ) -> None:
+        self.method = method
+        self.basis = basis
+        self.n_centres = n_centres
+        self.seed = seed
+        self.cutoff = cutoff
+        self.min_norm = min_norm
+
+    def fit(self, X: np.ndarray, U: np.ndarray, projections: np.ndarray | None = None
+            ) -> PolicyLearner:
+        """Fit on states X (N, p), actions U (N, q); ``pi-coupled`` needs ``projections``
+        Ñ_n (N, q, q) (true, or from a learnt constraint model)."""
+        X, U = check_xu(X, U)
+        if self.method not in METHODS:
+            raise ConfigError(f"unknown policy method {self.method!r} (use {', '.join(METHODS)})")
+        self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
+        self.n_action_ = U.shape[1]
+        norm = np.linalg.norm(U, axis=1)
+        if self.method in ("pi", "pi-weighted", "lwpi"):
+            keep = norm > self.min_norm
+            X, U, norm = X[keep], U[keep], norm[keep]
+            if len(X) < 2:
+                raise LearningError(f"fewer than 2 samples with ‖u‖ > {self.min_norm}")
+        self.n_used_ = int(len(X))
+        B = self.basis_.transform(X)
+        q = self.n_action_
+        K = B.shape[1]
+        if self.method == "dpl":
+            self.W_ = eigen_lstsq(B.T @ B, (B.T @ U).T, self.cutoff).T
+        elif self.method in ("pi", "pi-weighted"):
+            direction = U / norm[:, None] if self.method == "pi" else U
+            target = norm if self.method == "pi" else norm**2
+            R = (B[:, :, None] * direction[:, None, :]).reshape(len(X), K * q)
+            self.W_ = eigen_lstsq(R.T @ R, R.T @ target, self.cutoff).reshape(K, q)
+        elif self.method == "pi-coupled":
+            if projections is None:
+                raise InputError("pi-coupled needs the projections Ñ_n (true or learnt)")
+            P = np.asarray(projections, dtype=float)
+            if P.shape != (len(X), q, q):
+                raise InputError(f"projections must be ({len(X)}, {q}, {q}), got {P.shape}")
+            # rows for sample n: Ñ_n [β_1 I, ..., β_K I] → (q, K q); normal matrix by einsum
+            M = np.einsum("nk,nl,nai,naj->kilj", B, B, P, P).reshape(K * q, K * q)
+            r = np.einsum("nk,nai,na->ki", B, P, U).reshape(K * q)
+            self.W_ = eigen_lstsq(M, r, self.cutoff).reshape(K, q)
+        else:  # lwpi
+            if not isinstance(self.basis_, RBFBasis):
+                raise ConfigError("lwpi needs an RBF basis (its centres weight the local models)")
+            phi = np.hstack([X, np.ones((len(X), 1))])
+            d = phi.shape[1]
+            R = (phi[:, :, None] * (U / norm[:, None])[:, None, :]).reshape(len(X), d * q)
+            M = np.einsum("nc,ni,nj->cij", B, R, R)
+            r = np.einsum("nc,ni,n->ci", B, R, norm)
+            self.W_ = eigen_lstsq(M, r, self.cutoff).reshape(K, d, q)
+        return self
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        """π̃(X): (N, p) → (N, q)."""
+        X = np.asarray(X, dtype=float)
+        B = self.basis_.transform(X)
+        if self.method == "lwpi":
+            phi = np.hstack([X, np.ones((len(X), 1))])
+            return np.einsum("nc,ni,ciq->nq", B, phi, self.W_)  # β rows sum to 1
+        return B @ self.W_
