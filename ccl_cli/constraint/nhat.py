@@ -109,7 +109,8 @@ class StateIndependentConstraint(ConstraintModel):
 
             def candidates(train: np.ndarray):
                 r, _ = self._candidate_rows(U[train])
-                return lambda test, k: np.eye(q) - r[:k].T @ r[:k]
+                return lambda test, k: np.broadcast_to(np.eye(q) - r[:k].T @ r[:k],
+                                                       (int(np.sum(test)), q, q))
 
             chosen = sel.cross_validated(candidates, U, demo, max_k, self.cv_folds, self.seed,
                                          self.gap_floor)

@@ -1,0 +1,216 @@
+"""Quality bars of the learning core (issue: the CCL learning core). Seeds are fixed."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ccl_cli import simulate as sim
+from ccl_cli.basis import RBFBasis
+from ccl_cli.constraint import (
+    KnownFeatureConstraint,
+    LinearConstraint,
+    PerDemonstration,
+    StateDependentConstraint,
+    StateIndependentConstraint,
+)
+from ccl_cli.linalg import nullspace_projection, unit_rows
+from ccl_cli.metrics import nppe, nupe
+from ccl_cli.nullspace import NullSpaceComponent
+from ccl_cli.policy import PolicyLearner
+
+
+def test_nhat_closed_form_recovers_7dof_rank2_constraint():
+    right = 0
+    for seed in range(20):
+        data = sim.arm7(rows=(0, 1), seed=seed)
+        train, test = data.split(0.3, seed)
+        model = StateIndependentConstraint(selection="eigengap").fit(train.X, train.U)
+        right += model.n_constraints_ == 2
+        if model.n_constraints_ == 2:
+            err = nppe(test.true_projection(), model.projection(test.X), test.truth["pi"], test.U)
+            assert err.value < 1e-4, (seed, err.value)
+    assert right >= 19
+
+
+def test_nhat_threshold_rule_is_the_original_and_fixed_count_is_honoured():
+    data = sim.arm7(rows=(0, 1), seed=0)
+    model = StateIndependentConstraint().fit(data.X, data.U)
+    assert model.selection_["rule"] == "threshold"
+    assert len(model.selection_["values"]) == 6
+    fixed = StateIndependentConstraint(n_constraints=2).fit(data.X, data.U)
+    assert fixed.n_constraints_ == 2 and fixed.selection_["rule"] == "fixed"
+
+
+def test_nhat_cross_validated_count():
+    data = sim.arm7(rows=(0, 1, 2), seed=3)
+    model = StateIndependentConstraint(selection="cv").fit(data.X, data.U, data.demo)
+    assert model.n_constraints_ == 3
+    assert model.selection_["rule"] == "cv"
+
+
+def test_nhat_search_matches_closed_form_on_a_grid_direction():
+    rng = np.random.default_rng(0)
+    theta = np.pi * 7 / 20  # a grid angle of the original search
+    a = np.array([np.cos(theta), np.sin(theta)])
+    pi = rng.normal(size=(300, 2))
+    U = pi - np.outer(pi @ a, a)
+    search = StateIndependentConstraint(method="search").fit(None, U)
+    closed = StateIndependentConstraint().fit(None, U)
+    assert abs(search.A_[0] @ a) == pytest.approx(1.0, abs=1e-12)
+    assert abs(closed.A_[0] @ a) == pytest.approx(1.0, abs=1e-12)
+
+
+def test_nhat_search_refuses_high_dimensions():
+    from ccl_cli.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="exponential"):
+        StateIndependentConstraint(method="search").fit(None, np.ones((10, 7)))
+
+
+def test_alpha_learns_a_state_independent_constraint_in_3d():
+    rng = np.random.default_rng(1)
+    a = unit_rows(rng.normal(size=(1, 3)))[0]
+    X = rng.uniform(-1, 1, (600, 3))
+    pi = -X + rng.normal(scale=0.3, size=X.shape)
+    U = pi - np.outer(pi @ a, a) + rng.normal(scale=0.01, size=X.shape)
+    model = StateDependentConstraint(n_centres=9).fit(X, U)
+    assert model.n_constraints_ == 1
+    N_true = np.eye(3) - np.outer(a, a)
+    assert nppe(N_true, model.projection(X), pi, U).value < 1e-3
+
+
+def test_lambda_on_two_link_arm():
+    data = sim.two_link(seed=0)
+    train, test = data.split(0.3, 0)
+    model = KnownFeatureConstraint(features="arm2").fit(train.X, train.U)
+    err = nppe(test.true_projection(), model.projection(test.X), test.truth["pi"], test.U)
+    assert model.n_constraints_ == 1
+    assert err.value < 5e-6
+
+
+def exact_parabola_regressors(X):
+    """Rows [x₁u₁, u₂]: A(x) = W Φ(x) with W = [2a, −1] exactly."""
+    phi = np.zeros((len(X), 2, 2))
+    phi[:, 0, 0] = X[:, 0]
+    phi[:, 1, 1] = 1.0
+    return phi
+
+
+def test_linear_closed_form_exact_regressors():
+    data = sim.toy2d(constraint="parabola", noise=0.0, seed=0)
+    train, test = data.split(0.3, 0)
+    model = LinearConstraint(regressors=exact_parabola_regressors).fit(train.X, train.U)
+    err = nppe(test.true_projection(), model.projection(test.X), test.truth["pi"], test.U)
+    assert err.value < 1e-10
+    w = model.W_[0] / -model.W_[0, 1]
+    np.testing.assert_allclose(w, [4.0, -1.0], atol=1e-8)
+
+
+def test_linear_closed_form_with_noise_is_close_to_the_likelihood_optimum():
+    from scipy.optimize import minimize_scalar
+
+    errors, optimum = [], []
+    for seed in range(5):
+        data = sim.toy2d(constraint="parabola", noise=0.01, seed=seed)
+        train, test = data.split(0.3, seed)
+        model = LinearConstraint(regressors=exact_parabola_regressors).fit(train.X, train.U)
+        errors.append(nppe(test.true_projection(), model.projection(test.X), test.truth["pi"],
+                           test.U).value)
+
+        def cost(c, d=train):
+            A = unit_rows(np.stack([c * d.X[:, 0], -np.ones(len(d.X))], 1))
+            return ((A * d.U).sum(1) ** 2).sum()
+
+        c = minimize_scalar(cost, bounds=(0, 10), method="bounded").x
+        A = unit_rows(np.stack([c * test.X[:, 0], -np.ones(len(test.X))], 1))[:, None, :]
+        optimum.append(nppe(test.true_projection(), nullspace_projection(A), test.truth["pi"],
+                            test.U).value)
+    assert np.median(errors) < 3 * np.median(optimum)
+    assert np.median(errors) < 1e-4
+
+
+def test_linear_closed_form_per_demonstration_with_task_term():
+    data = sim.varying_constraint(task=True, noise=0.0, seed=4)
+    model = PerDemonstration(LinearConstraint(regressors="identity", task=True)).fit(
+        data.X, data.U, data.demo)
+    P = model.projection(data.X, data.demo)
+    np.testing.assert_allclose(P, data.true_projection(), atol=1e-8)
+    first = model.models_[int(data.demo[0])]
+    scale = -1.0 / np.linalg.norm(first.W_[0]) if first.W_[0] @ data.truth["A"][0, 0] < 0 else \
+        1.0 / np.linalg.norm(first.W_[0])
+    assert first.Wb_[0, 0] * scale == pytest.approx(data.truth["b"][0, 0], abs=1e-8)
+
+
+def test_ncl_recovers_null_space_component():
+    data = sim.toy2d(constraint="fixed", task=True, sampling="uniform", n_samples=1000,
+                     n_demos=1, seed=0)
+    train, test = data.subset(np.arange(500)), data.subset(np.arange(500, 1000))
+    model = NullSpaceComponent(n_centres=16).fit(train.X, train.U)
+    ours = nupe(test.truth["w"], model.predict(test.X))
+    direct = PolicyLearner("dpl", n_centres=16).fit(train.X, train.U)
+    baseline = nupe(test.truth["w"], direct.predict(test.X))
+    assert ours.value < 1e-3
+    assert baseline.value > 100 * ours.value
+    v = model.task_component(test.X, test.U)
+    np.testing.assert_allclose(v + model.predict(test.X), test.U)
+
+
+def policy_data(noise):
+    data = sim.varying_constraint(noise=noise, seed=0)
+    return data.split(0.2, 0)
+
+
+GRID = {"kind": "rbf", "n_centres": 100, "centres": "grid", "sigma2": 0.5}
+
+
+def test_pi_noise_free_is_exact_when_the_policy_is_in_the_basis():
+    data = sim.toy2d(constraint="fixed", policy="linear", vary_constraint=True, noise=0.0)
+    train, test = data.split(0.3, 0)
+    for method in ("pi", "pi-weighted"):
+        model = PolicyLearner(method, basis="linear").fit(train.X, train.U)
+        assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
+    model = PolicyLearner("pi-coupled", basis="linear").fit(train.X, train.U,
+                                                            train.true_projection())
+    assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
+
+
+def test_pi_variants_under_noise():
+    train, test = policy_data(0.01)
+    err = {}
+    for method in ("pi", "pi-weighted", "pi-coupled", "dpl"):
+        model = PolicyLearner(method, basis=GRID).fit(train.X, train.U, train.true_projection())
+        err[method] = nupe(test.truth["pi"], model.predict(test.X)).value
+    assert err["pi-weighted"] * 5 < err["pi"]
+    assert err["pi-coupled"] < err["pi-weighted"]
+    assert err["dpl"] > 0.3
+
+
+def test_lwpi_learns_a_linear_policy_locally():
+    data = sim.toy2d(constraint="fixed", policy="linear", vary_constraint=True, noise=0.0)
+    train, test = data.split(0.3, 0)
+    model = PolicyLearner("lwpi", n_centres=9).fit(train.X, train.U)
+    assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
+
+
+def models_for_property_tests(seed):
+    data = sim.toy2d(constraint="parabola", seed=seed, n_demos=20)
+    arm = sim.two_link(seed=seed, n_demos=10, n_steps=20)
+    return [
+        (StateIndependentConstraint().fit(data.X, data.U), data),
+        (StateDependentConstraint(n_restarts=1).fit(data.X, data.U), data),
+        (LinearConstraint().fit(data.X, data.U), data),
+        (LinearConstraint(regressors="rbf", basis=RBFBasis(9)).fit(data.X, data.U), data),
+        (KnownFeatureConstraint("arm2", n_restarts=1).fit(arm.X, arm.U), arm),
+    ]
+
+
+@settings(max_examples=5, deadline=None)
+@given(seed=st.integers(0, 1000))
+def test_projections_are_symmetric_and_idempotent(seed):
+    for model, data in models_for_property_tests(seed):
+        P = model.projection(data.X)
+        np.testing.assert_allclose(P, np.swapaxes(P, 1, 2), atol=1e-10)
+        np.testing.assert_allclose(P @ P, P, atol=1e-8)
+        A = model.constraint(data.X)
+        np.testing.assert_allclose(np.einsum("nkq,nqj->nkj", A, P), 0.0, atol=1e-8)
