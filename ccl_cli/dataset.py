@@ -197,4 +197,5 @@ class Demonstrations:
             bad = ~np.isfinite(arr)
             if bad.any():
                 row = int(np.argwhere(bad)[0][0])
-                raise InputError(f"{name} has {int(bad.any(axis=1).sum())} non-finite samples (first at row {row})")
+                count = int(bad.any(axis=1).sum())
+                raise InputError(f"{name} has {count} non-finite samples (first at row {row})")

@@ -89,8 +89,14 @@ class PolicyLearner:
             P = np.asarray(projections, dtype=float)
             if P.shape != (len(X), q, q):
                 raise InputError(f"projections must be ({len(X)}, {q}, {q}), got {P.shape}")
-            # rows for sample n: Ñ_n [β_1 I, ..., β_K I] → (q, K q); normal matrix by einsum
-            M = np.einsum("nk,nl,nai,naj->kilj", B, B, P, P).reshape(K * q, K * q)
+            # rows for sample n: Ñ_n [β_1 I, ..., β_K I] → (q, K q); the normal matrix is
+            # Σ_n kron(β_n β_nᵀ, Ñ_nᵀÑ_n), built with one BLAS product per (i, j) entry
+            G = np.einsum("nai,naj->nij", P, P)
+            M = np.empty((K, q, K, q))
+            for i in range(q):
+                for j in range(q):
+                    M[:, i, :, j] = (B * G[:, i, j, None]).T @ B
+            M = M.reshape(K * q, K * q)
             r = np.einsum("nk,nai,na->ki", B, P, U).reshape(K * q)
             self.W_ = eigen_lstsq(M, r, self.cutoff).reshape(K, q)
         else:  # lwpi
