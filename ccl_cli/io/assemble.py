@@ -1,0 +1,119 @@
+"""From streams to :class:`~ccl_cli.dataset.Demonstrations`.
+
+* the action stream is interpolated onto the state's stamps (samples of the state
+  outside the action's time span are dropped), or derived from the state;
+* derivatives come from a local polynomial (Savitzky–Golay style) fitted by least
+  squares on the real, non-uniform timestamps of a window of samples, inside each
+  demonstration only — never across a gap;
+* demonstrations are one per file, split on time gaps, or given as time ranges.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from ccl_cli.errors import InputError
+
+log = logging.getLogger("ccl")
+
+
+def check_increasing(t_ns: np.ndarray, where: str) -> None:
+    d = np.diff(t_ns)
+    if (d <= 0).any():
+        k = int(np.argmax(d <= 0)) + 1
+        raise InputError(f"{where}: timestamps are not strictly increasing at sample {k} "
+                         f"({int(t_ns[k - 1])} ns then {int(t_ns[k])} ns)")
+
+
+def segment_ids(t_s: np.ndarray, demos: dict[str, Any] | None, where: str) -> np.ndarray:
+    """Demo id per sample (−1 = outside every range) from the ``demos`` config:
+    ``{split_on_gap: seconds}``, ``{ranges: [[t0, t1], ...]}`` (seconds from the first
+    sample) or nothing (one demonstration)."""
+    demos = demos or {}
+    unknown = set(demos) - {"split_on_gap", "ranges", "per_file"}
+    if unknown:
+        raise InputError(f"unknown demos option(s): {', '.join(sorted(unknown))} "
+                         "(use split_on_gap, ranges or per_file)")
+    n = len(t_s)
+    if demos.get("ranges") is not None:
+        ids = np.full(n, -1)
+        rel = t_s - t_s[0]
+        for k, rng in enumerate(demos["ranges"]):
+            if len(rng) != 2 or not rng[0] < rng[1]:
+                raise InputError(f"demos.ranges[{k}] must be [start, end] with start < end, got {rng}")
+            inside = (rel >= rng[0]) & (rel <= rng[1]) & (ids < 0)
+            ids[inside] = k
+        if (ids < 0).all():
+            raise InputError(f"{where}: no samples inside demos.ranges")
+        return ids
+    gap = demos.get("split_on_gap")
+    if gap is not None:
+        if not gap > 0:
+            raise InputError(f"demos.split_on_gap must be positive seconds, got {gap}")
+        return np.concatenate([[0], np.cumsum(np.diff(t_s) > gap)])
+    return np.zeros(n, dtype=int)
+
+
+def local_polynomial_derivative(t: np.ndarray, Y: np.ndarray, demo: np.ndarray, window: int = 9,
+                                order: int = 2) -> np.ndarray:
+    """dY/dt by a degree-``order`` polynomial fitted to ``window`` neighbouring samples
+    (centred; shifted at the ends of each demonstration), on the real timestamps.
+
+    t (N,) seconds, Y (N, d), demo (N,) → (N, d). All samples are solved together as
+    one batch of small least-squares problems.
+    """
+    n = len(t)
+    if window < order + 1 or window % 2 == 0:
+        raise InputError(f"derivative window must be odd and > order ({order}), got {window}")
+    starts_of = np.flatnonzero(np.r_[True, demo[1:] != demo[:-1]])
+    ends_of = np.r_[starts_of[1:], n]
+    seg = np.cumsum(np.r_[True, demo[1:] != demo[:-1]]) - 1
+    lo, hi = starts_of[seg], ends_of[seg]
+    sizes = hi - lo
+    if sizes.min() < order + 1:
+        raise InputError(f"a demonstration has {int(sizes.min())} samples; deriving with order {order} "
+                         f"needs at least {order + 1}")
+    w = np.minimum(window, sizes)  # per-sample window (short demos use all their samples)
+    wmax = int(w.max())
+    half = w // 2
+    start = np.clip(np.arange(n) - half, lo, hi - w)
+    offsets = np.arange(wmax)
+    idx = np.minimum(start[:, None] + offsets[None, :], hi[:, None] - 1)
+    valid = offsets[None, :] < w[:, None]
+    tau = (t[idx] - t[:, None]) * valid
+    scale = np.maximum(np.abs(tau).max(1, keepdims=True), 1e-12)
+    V = (tau / scale)[:, :, None] ** np.arange(order + 1)[None, None, :] * valid[:, :, None]
+    coef = np.linalg.pinv(V) @ (Y[idx] * valid[:, :, None])  # (N, order+1, d)
+    return coef[:, 1, :] / scale
+
+
+def align(t_target: np.ndarray, t_source: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linear interpolation of ``values`` (at ``t_source``) onto ``t_target`` (int64 ns).
+
+    Returns (values at the kept targets, boolean mask of targets inside the source span).
+    """
+    inside = (t_target >= t_source[0]) & (t_target <= t_source[-1])
+    base = t_source[0]
+    ts = (t_source - base).astype(float)
+    tt = (t_target[inside] - base).astype(float)
+    out = np.empty((int(inside.sum()), values.shape[1]))
+    for j in range(values.shape[1]):  # loop over dimensions, not samples
+        out[:, j] = np.interp(tt, ts, values[:, j])
+    return out, inside
+
+
+def drop_nonfinite(t_ns: np.ndarray, values: np.ndarray, policy: str, where: str
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    bad = ~np.isfinite(values).all(axis=1)
+    if not bad.any():
+        return t_ns, values
+    if policy == "fail":
+        raise InputError(f"{where}: {int(bad.sum())} samples contain NaN or inf "
+                         f"(first at sample {int(np.argmax(bad))}); set data.nonfinite: drop to skip them")
+    if policy != "drop":
+        raise InputError(f"data.nonfinite must be drop or fail, got {policy!r}")
+    log.warning("%s: dropped %d samples with NaN or inf", where, int(bad.sum()))
+    return t_ns[~bad], values[~bad]

@@ -1,0 +1,172 @@
+"""CSV files with a header row.
+
+Duplicate column names (a rosbag → CSV export repeats ``x,y,z`` for position and
+orientation) are kept distinct: the second ``x`` is addressable as ``x.1``, the third
+as ``x.2``, or any column by its 0-based index. The time column is parsed exactly:
+integer nanoseconds stay int64; decimal seconds are split at the point, never
+passed through float64.
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ccl_cli.errors import InputError
+from ccl_cli.io.streams import Stream, StreamSpec
+
+TIME_NAMES = ("%time", "time", "timestamp", "t", "stamp", "header.stamp", "field.header.stamp")
+UNITS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
+_INT = re.compile(r"^[+-]?\d+$")
+_DEC = re.compile(r"^([+-]?)(\d*)\.(\d*)$")
+
+
+def unique_names(header: list[str]) -> list[str]:
+    """['x','y','x'] → ['x','y','x.1']."""
+    seen: dict[str, int] = {}
+    out = []
+    for raw in header:
+        name = raw.strip()
+        n = seen.get(name, 0)
+        seen[name] = n + 1
+        out.append(name if n == 0 else f"{name}.{n}")
+    return out
+
+
+def parse_time_ns(column: list[str], unit: str | None, where: str) -> np.ndarray:
+    """Exact int64 nanoseconds from strings. ``unit`` None: integers ≥ 1e15 are ns,
+    everything else seconds."""
+    if all(_INT.match(v) for v in column):
+        ints = np.array([int(v) for v in column], dtype=np.int64)
+        if unit is None:
+            unit = "ns" if np.abs(ints).max(initial=0) >= 10**15 else "s"
+        return ints * UNITS[unit]
+    unit = unit or "s"
+    scale = UNITS[unit]
+    digits = len(str(scale)) - 1
+    out = np.empty(len(column), dtype=np.int64)
+    for i, v in enumerate(column):  # exact decimal split; a float would lose ns at epoch scale
+        m = _DEC.match(v.strip())
+        if m:
+            sign = -1 if m.group(1) == "-" else 1
+            whole = int(m.group(2) or 0)
+            frac = (m.group(3) + "0" * digits)[:digits] if digits else ""
+            out[i] = sign * (whole * scale + (int(frac) if frac else 0))
+        elif _INT.match(v.strip()):
+            out[i] = int(v) * scale
+        else:
+            try:
+                out[i] = int(round(float(v) * scale))
+            except ValueError:
+                raise InputError(f"{where}: time value {v!r} in row {i + 2} is not a number") from None
+    return out
+
+
+class CsvReader:
+    def __init__(self, path: Path, time_column: str | int | None = None, time_unit: str | None = None,
+                 rate: float | None = None, delimiter: str | None = None) -> None:
+        self.path = Path(path)
+        self.time_column = time_column
+        self.time_unit = time_unit
+        self.rate = rate
+        self.delimiter = delimiter
+        if time_unit is not None and time_unit not in UNITS:
+            raise InputError(f"time unit must be one of {', '.join(UNITS)}, got {time_unit!r}")
+        self._table: tuple[list[str], list[list[str]]] | None = None
+
+    def _load(self) -> tuple[list[str], list[list[str]]]:
+        if self._table is not None:
+            return self._table
+        try:
+            with open(self.path, newline="", encoding="utf-8-sig") as f:
+                sample = f.read(65536)
+                f.seek(0)
+                delim = self.delimiter
+                if delim is None:
+                    try:
+                        delim = csv.Sniffer().sniff(sample, delimiters=",;\t ").delimiter
+                    except csv.Error:
+                        delim = ","
+                rows = list(csv.reader(f, delimiter=delim))
+        except UnicodeDecodeError:
+            raise InputError(f"{self.path}: not a text (CSV) file") from None
+        except OSError as exc:
+            raise InputError(f"{self.path}: {exc.strerror}") from None
+        rows = [r for r in rows if r and any(c.strip() for c in r)]
+        if not rows:
+            raise InputError(f"{self.path}: empty CSV file")
+        header = rows[0]
+        if all(_is_number(c) for c in header):
+            raise InputError(f"{self.path}: CSV needs a header row (the first row is all numbers)")
+        names = unique_names(header)
+        body = rows[1:]
+        bad = next((i for i, r in enumerate(body) if len(r) != len(names)), None)
+        if bad is not None:
+            raise InputError(f"{self.path}: row {bad + 2} has {len(body[bad])} fields, "
+                             f"the header has {len(names)}")
+        self._table = (names, body)
+        return self._table
+
+    def _index(self, names: list[str], key: str | int) -> int:
+        if isinstance(key, int) or (isinstance(key, str) and key.isdigit() and key not in names):
+            idx = int(key)
+            if not 0 <= idx < len(names):
+                raise InputError(f"{self.path}: column index {idx} out of range (0..{len(names) - 1})")
+            return idx
+        if key in names:
+            return names.index(key)
+        close = [n for n in names if n.lower() == str(key).lower() or n.endswith("." + str(key))]
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise InputError(f"{self.path}: column {key!r} not found{hint} (columns: {', '.join(names)})")
+
+    def _time(self, names: list[str], body: list[list[str]]) -> tuple[np.ndarray, str]:
+        where = str(self.path)
+        if self.time_column is not None:
+            idx = self._index(names, self.time_column)
+        else:
+            idx = next((names.index(n) for n in TIME_NAMES if n in names), None)
+        if idx is None:
+            if self.rate:
+                step = int(round(1e9 / self.rate))
+                return np.arange(len(body), dtype=np.int64) * step, f"rate {self.rate} Hz"
+            raise InputError(f"{where}: no time column (looked for {', '.join(TIME_NAMES)}); "
+                             "set data.time.column or data.time.rate")
+        return parse_time_ns([r[idx] for r in body], self.time_unit, where), names[idx]
+
+    def inspect(self) -> dict[str, Any]:
+        names, body = self._load()
+        t, col = self._time(names, body) if body else (np.zeros(0, np.int64), "")
+        return {"start_ns": int(t[0]) if len(t) else 0, "end_ns": int(t[-1]) if len(t) else 0,
+                "columns": names, "rows": len(body), "time_column": col}
+
+    def read(self, spec: StreamSpec) -> Stream:
+        names, body = self._load()
+        if not spec.columns:
+            raise InputError(f"{self.path}: a CSV stream needs columns: [...] (columns: {', '.join(names)})")
+        if not body:
+            raise InputError(f"{self.path}: CSV has a header but no rows")
+        idx = [self._index(names, c) for c in spec.columns]
+        t_ns, tcol = self._time(names, body)
+        values = np.empty((len(body), len(idx)))
+        for j, k in enumerate(idx):
+            col = [r[k] for r in body]
+            try:
+                values[:, j] = np.array(col, dtype=float)
+            except ValueError:
+                bad = next(i for i, v in enumerate(col) if not _is_number(v))
+                raise InputError(f"{self.path}: column {names[k]!r} row {bad + 2} is not numeric "
+                                 f"({col[bad]!r})") from None
+        return Stream(t_ns, values, [names[k] for k in idx], str(self.path),
+                      {"columns": [names[k] for k in idx], "time_column": tcol})
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False

@@ -1,0 +1,89 @@
+"""Standalone MCAP files via ``mcap`` and its decoder factories.
+
+Encodings: ``cdr`` with ``ros2msg`` schemas (mcap-ros2-support), ``ros1`` with
+``ros1msg`` schemas (mcap-ros1-support), and ``json`` (decoded with the standard
+library's json, which is what the encoding is).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from ccl_cli.errors import InputError
+from ccl_cli.io.streams import FieldExtractor, Stream, StreamSpec, collect
+
+
+def _decoders():
+    from mcap_ros1.decoder import DecoderFactory as Ros1Decoders
+    from mcap_ros2.decoder import DecoderFactory as Ros2Decoders
+
+    return [Ros2Decoders(), Ros1Decoders()]
+
+
+class McapReader:
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+
+    def _reader(self, f):
+        from mcap.reader import make_reader
+
+        return make_reader(f, decoder_factories=_decoders())
+
+    def inspect(self) -> dict[str, Any]:
+        try:
+            with open(self.path, "rb") as f:
+                summary = self._reader(f).get_summary()
+        except Exception as exc:
+            raise InputError(f"{self.path}: cannot read MCAP ({type(exc).__name__}: {exc})") from None
+        if summary is None:
+            raise InputError(f"{self.path}: MCAP has no summary (truncated?)")
+        counts = summary.statistics.channel_message_counts if summary.statistics else {}
+        topics = {}
+        for cid, ch in summary.channels.items():
+            schema = summary.schemas.get(ch.schema_id)
+            topics[ch.topic] = {"type": schema.name if schema else "", "encoding": ch.message_encoding,
+                                "count": int(counts.get(cid, 0))}
+        st = summary.statistics
+        return {"start_ns": int(st.message_start_time) if st else 0,
+                "end_ns": int(st.message_end_time) if st else 0, "topics": dict(sorted(topics.items()))}
+
+    def read(self, spec: StreamSpec) -> Stream:
+        where = str(self.path)
+        try:
+            f = open(self.path, "rb")
+        except OSError as exc:
+            raise InputError(f"{where}: {exc.strerror}") from None
+        with f:
+            reader = self._reader(f)
+            try:
+                summary = reader.get_summary()
+            except Exception as exc:
+                raise InputError(f"{where}: cannot read MCAP ({type(exc).__name__}: {exc})") from None
+            if summary is None:
+                raise InputError(f"{where}: MCAP has no summary (truncated?)")
+            channels = [c for c in summary.channels.values() if c.topic == spec.topic]
+            if not channels:
+                have = ", ".join(sorted({c.topic for c in summary.channels.values()})) or "none"
+                raise InputError(f"{where}: topic {spec.topic!r} not found (topics: {have})")
+            ch = channels[0]
+            schema = summary.schemas.get(ch.schema_id)
+            msgtype = schema.name if schema else ""
+            extractor = FieldExtractor(spec, msgtype, where)
+
+            def items():
+                try:
+                    if ch.message_encoding == "json":
+                        for _, _, message in reader.iter_messages(topics=[spec.topic]):
+                            yield json.loads(message.data), message.log_time
+                    else:
+                        for _, _, message, decoded in reader.iter_decoded_messages(topics=[spec.topic]):
+                            yield decoded, message.log_time
+                except InputError:
+                    raise
+                except Exception as exc:
+                    raise InputError(f"{where}: cannot decode {spec.topic} "
+                                     f"({type(exc).__name__}: {exc})") from None
+
+            return collect(extractor, items(), where)

@@ -1,0 +1,262 @@
+"""Readers give back the arrays the third-party writers were given."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from writers import EPOCH_NS, JOINTS, WRITERS, joint_recording, write_csv, write_ros1_bag, write_ros2_bag
+
+from ccl_cli import simulate as sim
+from ccl_cli.errors import InputError
+from ccl_cli.io import detect_format, inspect_path, load_demonstrations
+from ccl_cli.io.hdf5 import read_demonstrations, write_demonstrations
+
+JOINT_CFG = {"state": {"topic": "/joint_states", "field": "position", "joints": JOINTS},
+             "action": {"topic": "/joint_states", "field": "velocity", "joints": JOINTS}}
+
+
+@pytest.mark.parametrize("container", sorted(WRITERS))
+def test_every_container_round_trips_joint_states(tmp_path, container):
+    rec = joint_recording(n=40, shuffle=True, jitter=0.2)
+    path = WRITERS[container](tmp_path, rec)
+    data = load_demonstrations({**JOINT_CFG, "files": [str(path)]})
+    np.testing.assert_array_equal(data.X, rec.position)  # exact, despite shuffled names
+    np.testing.assert_array_equal(data.U, rec.velocity)
+    assert data.metadata["time_origin_ns"] == rec.t_ns[0]  # header stamp, int64-exact
+    np.testing.assert_allclose(data.t, (rec.t_ns - rec.t_ns[0]) / 1e9, rtol=0, atol=1e-12)
+    assert data.state_names == [f"{j}.position" for j in JOINTS]
+    assert data.metadata["files"][0]["state"]["stamp"] == "header"
+
+
+def test_log_time_when_asked(tmp_path):
+    rec = joint_recording(n=10)
+    path = write_ros1_bag(tmp_path / "a.bag", rec)
+    cfg = {"state": {**JOINT_CFG["state"], "stamp": "log"}, "action": {"derive": "state"}}
+    data = load_demonstrations({**cfg, "files": [str(path)]})
+    assert data.metadata["time_origin_ns"] == rec.log_ns[0]
+
+
+def test_default_fields_and_all_joints(tmp_path):
+    rec = joint_recording(n=10)
+    path = write_ros2_bag(tmp_path / "b", rec)
+    data = load_demonstrations({"files": [str(path)], "state": {"topic": "/joint_states"},
+                                "action": {"topic": "/joint_states", "field": "velocity"}})
+    np.testing.assert_array_equal(data.X, rec.position)
+    assert data.state_names[0] == "position[0]"
+
+
+def test_multi_rate_alignment(tmp_path):
+    rec = joint_recording(n=60, rate=100.0)
+    # a 30 Hz command stream linear in time: interpolation onto the state stamps is exact
+    t_cmd = EPOCH_NS + np.arange(0, 0.62e9, 1e9 / 30).astype(np.int64)
+    cmd = np.stack([(t_cmd - EPOCH_NS) / 1e9 * k for k in range(1, 8)], 1)
+    path = write_ros2_bag(tmp_path / "c", rec, extra=("/cmd", t_cmd, cmd))
+    data = load_demonstrations({"files": [str(path)], "state": JOINT_CFG["state"],
+                                "action": {"topic": "/cmd"}})
+    t_rel = (rec.t_ns - EPOCH_NS) / 1e9
+    inside = (rec.t_ns >= t_cmd[0]) & (rec.t_ns <= t_cmd[-1])
+    np.testing.assert_allclose(data.U, t_rel[inside, None] * np.arange(1, 8), atol=1e-12)
+    np.testing.assert_array_equal(data.X, rec.position[inside])
+    assert data.metadata["files"][0]["action"]["dropped_outside_span"] == int((~inside).sum())
+
+
+def test_derived_velocity_on_non_uniform_stamps(tmp_path):
+    rec = joint_recording(n=200, rate=100.0, jitter=0.4)
+    path = write_ros1_bag(tmp_path / "d.bag", rec)
+    data = load_demonstrations({"files": [str(path)], "state": JOINT_CFG["state"],
+                                "action": {"derive": "state", "window": 9, "order": 3}})
+    err = np.abs(data.U - rec.velocity)
+    assert err[5:-5].max() < 1e-5  # interior
+    assert err.max() < 1e-3  # ends, where the window is one-sided
+
+
+def test_gap_splitting_never_differentiates_across_a_gap(tmp_path):
+    rec = joint_recording(n=120, rate=100.0, gap_after=60, gap_s=2.0)
+    path = write_ros1_bag(tmp_path / "e.bag", rec)
+    data = load_demonstrations({"files": [str(path)], "state": JOINT_CFG["state"],
+                                "action": {"derive": "state", "window": 7, "order": 3},
+                                "demos": {"split_on_gap": 0.5}})
+    assert data.n_demos == 2
+    np.testing.assert_array_equal(np.bincount(data.demo), [60, 60])
+    assert np.abs(data.U - rec.velocity).max() < 1e-3
+
+
+def test_time_ranges_define_demos(tmp_path):
+    rec = joint_recording(n=100, rate=100.0)
+    path = write_ros1_bag(tmp_path / "f.bag", rec)
+    data = load_demonstrations({**JOINT_CFG, "files": [str(path)],
+                                "demos": {"ranges": [[0.0, 0.2], [0.5, 0.8]]}})
+    assert data.n_demos == 2
+    assert np.bincount(data.demo).tolist() == [21, 31]
+
+
+def test_csv_duplicate_names_and_exact_int64_time(tmp_path):
+    rec = joint_recording(n=30)
+    path = write_csv(tmp_path / "track.csv", rec)
+    data = load_demonstrations({"files": [str(path)], "state": {"columns": ["x", "y", "z"]},
+                                "action": {"columns": ["x.1", "y.1", "z.1", 7]}})
+    np.testing.assert_array_equal(data.X, rec.position[:, :3])
+    np.testing.assert_array_equal(data.U, rec.position[:, 3:7])
+    assert data.metadata["time_origin_ns"] == rec.t_ns[0]
+    assert data.action_names == ["x.1", "y.1", "z.1", "w"]
+
+
+def test_csv_decimal_seconds_are_parsed_exactly(tmp_path):
+    path = tmp_path / "s.csv"
+    path.write_text("time,a\n1700000000.123456789,1\n1700000000.223456789,2\n1700000000.323456789,4\n")
+    data = load_demonstrations({"files": [str(path)], "state": {"columns": ["a"]}})
+    assert data.metadata["time_origin_ns"] == 1_700_000_000_123_456_789
+    np.testing.assert_allclose(data.t, [0.0, 0.1, 0.2], atol=1e-12)
+
+
+def test_canonical_hdf5_round_trip(tmp_path):
+    data = sim.toy2d(constraint="parabola", seed=1, n_demos=5)
+    path = write_demonstrations(tmp_path / "d.h5", data, time_origin_ns=EPOCH_NS,
+                                masks={"train": [0, 1, 2], "test": [3, 4]})
+    back, info = read_demonstrations(path)
+    np.testing.assert_array_equal(back.X, data.X)
+    np.testing.assert_array_equal(back.U, data.U)
+    np.testing.assert_array_equal(back.truth["A"], data.truth["A"])
+    np.testing.assert_array_equal(back.t, data.t)
+    assert info["time_origin_ns"] == EPOCH_NS
+    assert info["masks"] == {"train": [0, 1, 2], "test": [3, 4]}
+
+
+def test_canonical_hdf5_orders_demos_by_index_and_chunks_large_data(tmp_path):
+    import h5py
+
+    path = tmp_path / "h.h5"
+    with h5py.File(path, "w") as f:  # written by h5py directly, group names out of order
+        f.attrs["format"] = "ccl-demonstrations"
+        f.attrs["format_version"] = 1
+        for name, index, offset in (("b_first", 0, 0.0), ("a_second", 1, 100.0)):
+            g = f.create_group(f"demos/{name}")
+            g.attrs["index"] = index
+            g.create_dataset("t", data=np.arange(3.0))
+            g.create_dataset("x", data=np.full((3, 2), offset))
+            g.create_dataset("u", data=np.ones((3, 2)))
+    data, _ = read_demonstrations(path)
+    assert data.X[0, 0] == 0.0 and data.X[-1, 0] == 100.0
+    big = sim.toy2d(sampling="uniform", n_samples=120_001, n_demos=1)
+    out = write_demonstrations(tmp_path / "big.h5", big)
+    with h5py.File(out) as f:
+        assert f["demos/demo_0000/x"].compression == "gzip"
+        assert f["demos/demo_0000/x"].chunks is not None
+
+
+def test_detect_format_by_content(tmp_path):
+    rec = joint_recording(n=5)
+    bag = write_ros1_bag(tmp_path / "renamed.dat", rec)
+    assert detect_format(bag) == "bag"
+    mcap = WRITERS["mcap-ros2"](tmp_path, rec)
+    assert detect_format(mcap) == "mcap"
+    assert detect_format(write_ros2_bag(tmp_path / "r2", rec)) == "bag"
+
+
+def test_inspect_lists_topics_counts_rates(tmp_path):
+    rec = joint_recording(n=101, rate=100.0, gap_after=50, gap_s=1.0)
+    path = write_ros2_bag(tmp_path / "i", rec)
+    info = inspect_path(path, JOINT_CFG, gap=0.5)
+    assert info["format"] == "bag"
+    assert info["topics"]["/joint_states"]["count"] == 101
+    assert info["topics"]["/joint_states"]["type"] == "sensor_msgs/msg/JointState"
+    assert info["demos"] == 2
+    assert info["duration_s"] == pytest.approx(2.0, abs=0.02)
+
+
+# -- bad input ----------------------------------------------------------------------------
+
+def err(cfg, match):
+    with pytest.raises(InputError, match=match) as info:
+        load_demonstrations(cfg)
+    assert "\n" not in info.value.message
+    return info.value.message
+
+
+def test_bad_inputs(tmp_path):
+    rec = joint_recording(n=20)
+    bag = write_ros1_bag(tmp_path / "ok.bag", rec)
+    err({**JOINT_CFG, "files": [str(tmp_path / "missing.bag")]}, "no such file")
+    junk = tmp_path / "junk.bin"
+    junk.write_bytes(bytes(range(256)))
+    err({**JOINT_CFG, "files": [str(junk)]}, "unknown format")
+    msg = err({"files": [str(bag)], "state": {"topic": "/nope"}}, "topic '/nope' not found")
+    assert "/joint_states" in msg
+    err({"files": [str(bag)], "state": {"topic": "/joint_states", "field": "pose.position"}},
+        "field 'pose.position' not found")
+    err({"files": [str(bag)], "state": {"topic": "/joint_states", "field": "header.frame_id"}},
+        "not numeric")
+    err({"files": [str(bag)], "state": {"topic": "/joint_states", "joints": ["elbow"]}},
+        "joint\\(s\\) elbow not in")
+    err({**JOINT_CFG, "files": [str(bag)], "min_samples": 100}, "at least 100")
+    err({**JOINT_CFG, "files": [str(bag)], "bogus": 1}, "unknown data option")
+
+
+@pytest.mark.parametrize("container", ["ros1", "mcap-ros2", "ros2-sqlite3"])
+def test_truncated_files_are_refused(tmp_path, container):
+    path = WRITERS[container](tmp_path, joint_recording(n=200))
+    target = path if path.is_file() else next(p for p in path.iterdir() if p.suffix in (".db3", ".mcap"))
+    raw = target.read_bytes()
+    target.write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(InputError) as info:
+        load_demonstrations({**JOINT_CFG, "files": [str(path)]})
+    assert str(path) in info.value.message or str(target) in info.value.message
+
+
+def test_truncated_and_foreign_hdf5(tmp_path):
+    import h5py
+
+    data = sim.toy2d(n_demos=3)
+    path = write_demonstrations(tmp_path / "t.h5", data)
+    raw = path.read_bytes()
+    path.write_bytes(raw[: len(raw) // 3])
+    err({"files": [str(path)]}, "cannot open as HDF5|cannot read")
+    foreign = tmp_path / "foreign.h5"
+    with h5py.File(foreign, "w") as f:
+        f["x"] = np.zeros(3)
+    err({"files": [str(foreign)]}, "not a ccl-demonstrations file")
+
+
+def test_empty_topic_nan_and_non_increasing(tmp_path):
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    empty = tmp_path / "empty.bag"
+    with Writer(empty) as w:
+        w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+    err({**JOINT_CFG, "files": [str(empty)]}, "has no messages")
+
+    rec = joint_recording(n=20)
+    rec.position[5, 2] = np.nan
+    nan_bag = write_ros1_bag(tmp_path / "nan.bag", rec)
+    cfg = {"files": [str(nan_bag)], "state": JOINT_CFG["state"], "action": {"derive": "state"}}
+    assert load_demonstrations(cfg).n_samples == 19
+    err({**cfg, "nonfinite": "fail"}, "NaN or inf")
+
+    rec = joint_recording(n=20)
+    rec.t_ns[10] = rec.t_ns[9]
+    dup = write_ros1_bag(tmp_path / "dup.bag", rec)
+    err({**JOINT_CFG, "files": [str(dup)]}, "not strictly increasing at sample 10")
+
+
+def test_csv_errors(tmp_path):
+    no_header = tmp_path / "n.csv"
+    no_header.write_text("1,2\n3,4\n")
+    err({"files": [str(no_header)], "state": {"columns": [0]}}, "needs a header row")
+    bad = tmp_path / "b.csv"
+    bad.write_text("time,a\n1,2\n2,oops\n")
+    err({"files": [str(bad)], "state": {"columns": ["a"]}}, "column 'a' row 3 is not numeric")
+    err({"files": [str(bad)], "state": {"columns": ["A"]}}, "did you mean 'a'")
+    notime = tmp_path / "nt.csv"
+    notime.write_text("a,b\n1,2\n")
+    err({"files": [str(notime)], "state": {"columns": ["a"]}}, "no time column")
+
+
+def test_files_can_be_globs_and_demos_are_renumbered(tmp_path):
+    for k in range(3):
+        write_ros1_bag(tmp_path / f"run_{k}.bag", joint_recording(n=10, seed=k))
+    data = load_demonstrations({**JOINT_CFG, "files": [str(tmp_path / "run_*.bag")]})
+    assert data.n_demos == 3 and data.n_samples == 30
+    assert [Path(f["path"]).name for f in data.metadata["files"]] == ["run_0.bag", "run_1.bag", "run_2.bag"]
+    assert all(len(f["sha256"]) == 64 for f in data.metadata["files"])
