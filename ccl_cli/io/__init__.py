@@ -125,8 +125,7 @@ def file_hash(path: Path) -> str:
     return h.hexdigest()
 
 
-def _read_stream(reader, spec: StreamSpec, nonfinite: str) -> Stream:
-    stream = reader.read(spec)
+def _clean(stream: Stream, spec: StreamSpec, nonfinite: str) -> Stream:
     where = f"{stream.source} ({spec.describe()})"
     stream.t_ns, stream.values = drop_nonfinite(stream.t_ns, stream.values, nonfinite, where)
     if len(stream.t_ns) == 0:
@@ -152,15 +151,17 @@ def load_file(path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations, int
                          "(e.g. state: {topic: /joint_states, field: position})")
     reader = open_reader(path, fmt, data_cfg)
     nonfinite = data_cfg.get("nonfinite", "drop")
-    state = _read_stream(reader, state_spec, nonfinite)
+    action_cfg = data_cfg.get("action") or {"derive": "state"}
+    derive = action_cfg.get("derive") if isinstance(action_cfg, dict) else None
+    specs = [state_spec] if derive is not None else [state_spec, StreamSpec.from_config(action_cfg)]
+    streams = [_clean(s, sp, nonfinite) for s, sp in zip(reader.read_many(specs), specs, strict=True)]
+    state = streams[0]
     t_ns = state.t_ns
     X = state.values
-    action_cfg = data_cfg.get("action") or {"derive": "state"}
     meta: dict[str, Any] = {"source": str(path), "format": fmt, "state": state.meta}
-    derive = action_cfg.get("derive") if isinstance(action_cfg, dict) else None
     if derive is None:
-        action_spec = StreamSpec.from_config(action_cfg)
-        action = _read_stream(reader, action_spec, nonfinite)
+        action_spec = specs[1]
+        action = streams[1]
         U, inside = align(t_ns, action.t_ns, action.values)
         if not inside.any():
             raise InputError(f"{path}: the action stream ({action_spec.describe()}) does not overlap "

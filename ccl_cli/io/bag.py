@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.streams import FieldExtractor, Stream, StreamSpec, collect
+from ccl_cli.io.streams import Collector, FieldExtractor, Stream, StreamSpec, feed
 
 
 def _typestore(name: str | None):
@@ -64,25 +64,35 @@ class BagReader:
             reader.close()
 
     def read(self, spec: StreamSpec) -> Stream:
+        return self.read_many([spec])[0]
+
+    def read_many(self, specs: list[StreamSpec]) -> list[Stream]:
+        """Several streams in one pass over the bag (each message deserialised once)."""
         where = str(self.path)
         reader = self._open()
         try:
-            conns = [c for c in reader.connections if c.topic == spec.topic]
-            if not conns:
-                have = ", ".join(sorted(reader.topics)) or "none"
-                raise InputError(f"{where}: topic {spec.topic!r} not found (topics: {have})")
-            extractor = FieldExtractor(spec, conns[0].msgtype, where)
-
-            def items():
-                try:
-                    for conn, log_ns, raw in reader.messages(connections=conns):
-                        yield reader.deserialize(raw, conn.msgtype), log_ns
-                except InputError:
-                    raise
-                except Exception as exc:
-                    raise InputError(f"{where}: cannot decode {spec.topic} "
-                                     f"({type(exc).__name__}: {exc})") from None
-
-            return collect(extractor, items(), where)
+            by_topic: dict[str, list[Collector]] = {}
+            collectors = []
+            conns = []
+            for spec in specs:
+                found = [c for c in reader.connections if c.topic == spec.topic]
+                if not found:
+                    have = ", ".join(sorted(reader.topics)) or "none"
+                    raise InputError(f"{where}: topic {spec.topic!r} not found (topics: {have})")
+                count = int(reader.topics[spec.topic].msgcount or 0)
+                col = Collector(FieldExtractor(spec, found[0].msgtype, where), where, count)
+                collectors.append(col)
+                if spec.topic not in by_topic:
+                    conns += found
+                by_topic.setdefault(spec.topic, []).append(col)
+            try:
+                for conn, log_ns, raw in reader.messages(connections=conns):
+                    feed(by_topic[conn.topic], reader.deserialize(raw, conn.msgtype), log_ns)
+            except InputError:
+                raise
+            except Exception as exc:
+                raise InputError(f"{where}: cannot decode {conn.topic} "
+                                 f"({type(exc).__name__}: {exc})") from None
+            return [c.finish() for c in collectors]
         finally:
             reader.close()

@@ -143,6 +143,9 @@ class CsvReader:
         return {"start_ns": int(t[0]) if len(t) else 0, "end_ns": int(t[-1]) if len(t) else 0,
                 "columns": names, "rows": len(body), "time_column": col}
 
+    def read_many(self, specs: list[StreamSpec]) -> list[Stream]:
+        return [self.read(spec) for spec in specs]
+
     def read(self, spec: StreamSpec) -> Stream:
         names, body = self._load()
         if not spec.columns:

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.streams import FieldExtractor, Stream, StreamSpec, collect
+from ccl_cli.io.streams import Collector, FieldExtractor, Stream, StreamSpec, feed
 
 
 def _decoders():
@@ -50,6 +50,10 @@ class McapReader:
                 "end_ns": int(st.message_end_time) if st else 0, "topics": dict(sorted(topics.items()))}
 
     def read(self, spec: StreamSpec) -> Stream:
+        return self.read_many([spec])[0]
+
+    def read_many(self, specs: list[StreamSpec]) -> list[Stream]:
+        """Several streams in one pass over the file (each message decoded once)."""
         where = str(self.path)
         try:
             f = open(self.path, "rb")
@@ -63,27 +67,33 @@ class McapReader:
                 raise InputError(f"{where}: cannot read MCAP ({type(exc).__name__}: {exc})") from None
             if summary is None:
                 raise InputError(f"{where}: MCAP has no summary (truncated?)")
-            channels = [c for c in summary.channels.values() if c.topic == spec.topic]
-            if not channels:
-                have = ", ".join(sorted({c.topic for c in summary.channels.values()})) or "none"
-                raise InputError(f"{where}: topic {spec.topic!r} not found (topics: {have})")
-            ch = channels[0]
-            schema = summary.schemas.get(ch.schema_id)
-            msgtype = schema.name if schema else ""
-            extractor = FieldExtractor(spec, msgtype, where)
-
-            def items():
-                try:
-                    if ch.message_encoding == "json":
-                        for _, _, message in reader.iter_messages(topics=[spec.topic]):
-                            yield json.loads(message.data), message.log_time
-                    else:
-                        for _, _, message, decoded in reader.iter_decoded_messages(topics=[spec.topic]):
-                            yield decoded, message.log_time
-                except InputError:
-                    raise
-                except Exception as exc:
-                    raise InputError(f"{where}: cannot decode {spec.topic} "
-                                     f"({type(exc).__name__}: {exc})") from None
-
-            return collect(extractor, items(), where)
+            counts = summary.statistics.channel_message_counts if summary.statistics else {}
+            by_topic: dict[str, list[Collector]] = {}
+            encodings: dict[str, str] = {}
+            collectors = []
+            for spec in specs:
+                channels = [c for c in summary.channels.values() if c.topic == spec.topic]
+                if not channels:
+                    have = ", ".join(sorted({c.topic for c in summary.channels.values()})) or "none"
+                    raise InputError(f"{where}: topic {spec.topic!r} not found (topics: {have})")
+                ch = channels[0]
+                schema = summary.schemas.get(ch.schema_id)
+                extractor = FieldExtractor(spec, schema.name if schema else "", where)
+                col = Collector(extractor, where, int(counts.get(ch.id, 0)))
+                collectors.append(col)
+                by_topic.setdefault(spec.topic, []).append(col)
+                encodings[spec.topic] = ch.message_encoding
+            topics = list(by_topic)
+            try:
+                if all(encodings[t] == "json" for t in topics):
+                    for _, channel, message in reader.iter_messages(topics=topics):
+                        feed(by_topic[channel.topic], json.loads(message.data), message.log_time)
+                else:
+                    for _, channel, message, decoded in reader.iter_decoded_messages(topics=topics):
+                        feed(by_topic[channel.topic], decoded, message.log_time)
+            except InputError:
+                raise
+            except Exception as exc:
+                raise InputError(f"{where}: cannot decode {', '.join(topics)} "
+                                 f"({type(exc).__name__}: {exc})") from None
+            return [c.finish() for c in collectors]

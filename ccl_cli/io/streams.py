@@ -8,7 +8,9 @@ A :class:`Stream` is one selection from one file (a topic's field, or CSV column
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -124,22 +126,27 @@ def flatten(obj: Any, prefix: str = "") -> tuple[list[float], list[str]]:
     return vals, names
 
 
-def stamp_ns(stamp: Any) -> int:
-    """ROS time (sec/nanosec, secs/nsecs, or a dict of those) → int nanoseconds."""
-    for s_key, n_key in (("sec", "nanosec"), ("secs", "nsecs"), ("sec", "nsec")):
-        if _has(stamp, s_key) and _has(stamp, n_key):
-            return int(_get(stamp, s_key)) * 1_000_000_000 + int(_get(stamp, n_key))
-    if hasattr(stamp, "to_nsec"):
-        return int(stamp.to_nsec())
-    raise TypeError("not a ROS time")
+def _getter(path: list[str], sample: Any) -> Callable[[Any], Any]:
+    """A compiled accessor for a dotted path on messages shaped like ``sample``."""
+    if not path:
+        return lambda m: m
+    if isinstance(sample, dict):
+        def get(m: Any) -> Any:
+            for key in path:
+                m = m[key]
+            return m
+
+        return get
+    return attrgetter(".".join(path))
 
 
 class FieldExtractor:
     """Pulls the numbers of one :class:`StreamSpec` out of decoded messages.
 
-    Built for one topic; ``names`` are fixed by the first message. Raises
-    :class:`InputError` naming the topic and field when the path is absent or
-    not numeric.
+    Built for one topic. The first message fixes the column names and compiles the
+    accessors (attribute/key getters, joint index map); later messages take the fast
+    path. Raises :class:`InputError` naming the topic and field when the path is
+    absent or not numeric.
     """
 
     def __init__(self, spec: StreamSpec, msgtype: str, where: str) -> None:
@@ -152,12 +159,16 @@ class FieldExtractor:
         self.path = self.field.split(".") if self.field else []
         self.where = where
         self.names: list[str] | None = None
-        self._joint_cache: tuple[tuple[str, ...], np.ndarray] | None = None
-        self.use_header = spec.stamp == "header"
+        self._get: Callable[[Any], Any] | None = None
+        self._fast: Callable[[Any], Any] | None = None
+        self._joint_names: list[str] | None = None
+        self._joint_index: np.ndarray | None = None
+        self._joint_identity = False
         if spec.stamp not in ("header", "log"):
             raise InputError(f"{where}: stamp must be header or log, got {spec.stamp!r}")
 
     def _resolve(self, msg: Any) -> Any:
+        """Slow, checked walk of the path (first message, and to explain failures)."""
         obj = msg
         for i, key in enumerate(self.path):
             if not _has(obj, key):
@@ -168,69 +179,151 @@ class FieldExtractor:
             obj = _get(obj, key)
         return obj
 
-    def values(self, msg: Any) -> list[float]:
-        leaf = self._resolve(msg)
-        if self.spec.joints is not None and self.kind == "JointState":
-            return self._joints(msg, leaf)
+    def _first(self, msg: Any, leaf: Any) -> list[float] | np.ndarray:
         try:
             vals, names = flatten(leaf, self.field)
         except TypeError:
             raise InputError(f"{self.where}: field {self.field!r} of {self.spec.topic} is not numeric") \
                 from None
+        self.names = names
+        if isinstance(leaf, np.ndarray | list | tuple) and all(
+                isinstance(v, int | float | np.number) for v in np.asarray(leaf).ravel()[:1]):
+            self._fast = lambda x: x  # numeric sequence: assign as is
+        elif not isinstance(leaf, dict) and all(hasattr(leaf, k) for k in VECTOR_KEYS[:3]) \
+                and len(vals) in (3, 4):
+            self._fast = attrgetter(*VECTOR_KEYS[: len(vals)])
+        return vals
+
+    def values(self, msg: Any) -> list[float] | np.ndarray:
+        if self._get is None:
+            self._get = _getter(self.path, msg)
+            leaf = self._resolve(msg)
+        else:
+            try:
+                leaf = self._get(msg)
+            except (AttributeError, KeyError, TypeError):
+                leaf = self._resolve(msg)
+        if self.spec.joints is not None and self.kind == "JointState":
+            return self._joints(msg, leaf)
         if self.names is None:
-            self.names = names
-        elif len(vals) != len(self.names):
+            return self._first(msg, leaf)
+        if self._fast is not None:
+            vals = self._fast(leaf)
+            if len(vals) == len(self.names):
+                return vals
+        try:
+            vals, _ = flatten(leaf, self.field)
+        except TypeError:
+            raise InputError(f"{self.where}: field {self.field!r} of {self.spec.topic} is not numeric") \
+                from None
+        if len(vals) != len(self.names):
             raise InputError(f"{self.where}: field {self.field!r} of {self.spec.topic} changes length "
                              f"({len(self.names)} → {len(vals)})")
         return vals
 
-    def _joints(self, msg: Any, leaf: Any) -> list[float]:
-        names = tuple(_get(msg, "name"))
-        if self._joint_cache is None or self._joint_cache[0] != names:
+    def _joints(self, msg: Any, leaf: Any) -> np.ndarray | Any:
+        names = _get(msg, "name")
+        if names != self._joint_names:  # list equality: cheap, and robust to reordering
+            names = list(names)
             lookup = {n: i for i, n in enumerate(names)}
             missing = [j for j in self.spec.joints if j not in lookup]
             if missing:
                 raise InputError(f"{self.where}: joint(s) {', '.join(missing)} not in {self.spec.topic} "
                                  f"(it has: {', '.join(names)})")
-            self._joint_cache = (names, np.array([lookup[j] for j in self.spec.joints]))
+            self._joint_names = names
+            self._joint_index = np.array([lookup[j] for j in self.spec.joints])
+            self._joint_identity = len(names) == len(self.spec.joints) and \
+                bool((self._joint_index == np.arange(len(names))).all())
             self.names = [f"{j}.{self.field}" for j in self.spec.joints]
-        arr = np.asarray(leaf, dtype=float)
-        if arr.size != len(names):
+        if len(leaf) != len(names):
             raise InputError(f"{self.where}: {self.spec.topic} has {len(names)} joint names but "
-                             f"{arr.size} values in {self.field!r}")
-        return arr[self._joint_cache[1]].tolist()
-
-    def time(self, msg: Any, log_time_ns: int) -> tuple[int, bool]:
-        """(stamp in ns, whether it came from the header)."""
-        if self.use_header and _has(msg, "header"):
-            try:
-                return stamp_ns(_get(_get(msg, "header"), "stamp")), True
-            except (TypeError, AttributeError, KeyError):
-                pass
-        return int(log_time_ns), False
+                             f"{len(leaf)} values in {self.field!r}")
+        if self._joint_identity:
+            return leaf
+        return np.asarray(leaf, dtype=float)[self._joint_index]
 
 
-def collect(extractor: FieldExtractor, items, where: str, count: int | None = None) -> Stream:
-    """Run ``extractor`` over ``(message, log_time_ns)`` pairs into a :class:`Stream`.
+class StampReader:
+    """Time of each message: header.stamp (compiled on the first message) or log time."""
+
+    def __init__(self, use_header: bool) -> None:
+        self.use_header = use_header
+        self._get: Callable[[Any], tuple[int, int]] | None = None
+        self._checked = False
+
+    def __call__(self, msg: Any, log_ns: int) -> tuple[int, bool]:
+        if self.use_header:
+            if not self._checked:
+                self._checked = True
+                self._get = self._compile(msg)
+            if self._get is not None:
+                sec, nsec = self._get(msg)
+                return int(sec) * 1_000_000_000 + int(nsec), True
+        return int(log_ns), False
+
+    @staticmethod
+    def _compile(msg: Any) -> Callable[[Any], tuple[int, int]] | None:
+        if not _has(msg, "header"):
+            return None
+        stamp = _get(_get(msg, "header"), "stamp")
+        for s_key, n_key in (("sec", "nanosec"), ("secs", "nsecs"), ("sec", "nsec")):
+            if _has(stamp, s_key) and _has(stamp, n_key):
+                if isinstance(msg, dict):
+                    return lambda m, a=s_key, b=n_key: (m["header"]["stamp"][a], m["header"]["stamp"][b])
+                return attrgetter(f"header.stamp.{s_key}", f"header.stamp.{n_key}")
+        return None
+
+
+class Collector:
+    """Accumulates one stream into preallocated NumPy buffers (grown by doubling).
 
     When every header stamp is zero (never filled in) log time is used instead.
     """
-    times: list[int] = []
-    logs: list[int] = []
-    rows: list[list[float]] = []
-    from_header = False
-    for msg, log_ns in items:
-        t, hdr = extractor.time(msg, log_ns)
-        from_header |= hdr
-        times.append(t)
-        logs.append(int(log_ns))
-        rows.append(extractor.values(msg))
-    if not rows:
-        raise InputError(f"{where}: topic {extractor.spec.topic} has no messages")
-    t_ns = np.asarray(times, dtype=np.int64)
-    if from_header and not t_ns.any():
-        t_ns, from_header = np.asarray(logs, dtype=np.int64), False
-    values = np.asarray(rows, dtype=float)
-    return Stream(t_ns, values, list(extractor.names or []), where,
-                  {"topic": extractor.spec.topic, "field": extractor.field,
-                   "stamp": "header" if from_header else "log"})
+
+    def __init__(self, extractor: FieldExtractor, where: str, capacity: int = 1024) -> None:
+        self.extractor = extractor
+        self.stamp = StampReader(extractor.spec.stamp == "header")
+        self.where = where
+        self.n = 0
+        self.t = np.empty(max(capacity, 1), dtype=np.int64)
+        self.log = np.empty(max(capacity, 1), dtype=np.int64)
+        self.values: np.ndarray | None = None
+        self.from_header = False
+
+    def add(self, msg: Any, log_ns: int, stamp: tuple[int, bool] | None = None) -> None:
+        """Append one message; ``stamp`` (from a shared :class:`StampReader`) saves the lookup."""
+        row = self.extractor.values(msg)
+        if self.values is None:
+            self.values = np.empty((len(self.t), len(row)))
+        if self.n == len(self.t):
+            grow = len(self.t) * 2
+            self.t = np.resize(self.t, grow)
+            self.log = np.resize(self.log, grow)
+            self.values = np.resize(self.values, (grow, self.values.shape[1]))
+        t, hdr = stamp if stamp is not None else self.stamp(msg, log_ns)
+        self.from_header |= hdr
+        self.t[self.n] = t
+        self.log[self.n] = log_ns
+        self.values[self.n] = row
+        self.n += 1
+
+    def finish(self) -> Stream:
+        spec = self.extractor.spec
+        if self.n == 0 or self.values is None:
+            raise InputError(f"{self.where}: topic {spec.topic} has no messages")
+        t_ns = self.t[: self.n].copy()
+        from_header = self.from_header
+        if from_header and not t_ns.any():
+            t_ns, from_header = self.log[: self.n].copy(), False
+        return Stream(t_ns, self.values[: self.n].copy(), list(self.extractor.names or []), self.where,
+                      {"topic": spec.topic, "field": self.extractor.field,
+                       "stamp": "header" if from_header else "log"})
+
+
+def feed(group: list[Collector], msg: Any, log_ns: int) -> None:
+    """Give one message to every collector of its topic; the stamp is read once."""
+    first = group[0]
+    stamp = first.stamp(msg, log_ns)
+    first.add(msg, log_ns, stamp)
+    for col in group[1:]:
+        col.add(msg, log_ns, stamp if col.stamp.use_header == first.stamp.use_header else None)
