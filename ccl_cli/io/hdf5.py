@@ -92,6 +92,8 @@ def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns:
                 for key, value in data.truth.items():
                     if key in ("A", "N") and value.ndim == 2:
                         tg.create_dataset(key, data=value)
+                    elif key in ("A", "N") and (value[m] == value[m][:1]).all():
+                        tg.create_dataset(key, data=value[m][0])  # constant within the demo
                     else:
                         _dataset(tg, key, value[m])
         if masks:

@@ -1,0 +1,491 @@
+"""The ``ccl`` command line: a thin layer over the library.
+
+Parses flags, loads and validates the YAML config (flags override it), calls the
+library, writes outputs atomically, and maps errors to exit codes: 0 success,
+1 learning/evaluation failure, 2 bad usage or bad input — always with a one-line
+message on stderr, never a traceback (``CCL_DEBUG=1`` shows one for internal errors).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import click
+import typer
+
+from ccl_cli.errors import CCLError, ConfigError, InputError
+
+log = logging.getLogger("ccl")
+
+app = typer.Typer(
+    name="ccl",
+    help="Constraint Consistent Learning: learn constraints A(x), null-space components w(x) and "
+         "null-space policies π(x) from demonstrations (HDF5, CSV, MCAP, ROS 1/2 bags).",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+)
+
+# -- shared options -----------------------------------------------------------------------
+DataArg = Annotated[list[Path] | None, typer.Argument(
+    help="Recordings (files, bag directories or globs); overrides data.files of the config.",
+    show_default=False)]
+ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="YAML config (see README).")]
+OutOpt = Annotated[Path | None, typer.Option("--out", "-o", help="Output directory.")]
+ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite existing outputs.")]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="Only warnings and errors on stderr.")]
+SeedOpt = Annotated[int | None, typer.Option("--seed", help="Seed of every random choice.")]
+TestOpt = Annotated[float | None, typer.Option("--test-fraction",
+                                               help="Fraction of demonstrations held out (0: none).")]
+ConvOpt = Annotated[str | None, typer.Option("--convention", help="Metric normalisers: ccl or original.")]
+CentresOpt = Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres.")]
+BasisOpt = Annotated[str | None, typer.Option("--basis", help="Feature map: rbf or linear.")]
+
+
+def _logging(quiet: bool) -> None:
+    level = logging.WARNING if quiet else logging.INFO
+    logging.basicConfig(level=level, format="ccl: %(message)s", stream=sys.stderr, force=True)
+
+
+def _common(seed, test_fraction, convention) -> dict[str, Any]:
+    return {"seed": seed, "data": {"test": {"fraction": test_fraction}},
+            "metrics": {"convention": convention}}
+
+
+def _config(path: Path | None, overrides: dict[str, Any]):
+    from ccl_cli import config as C
+
+    return C.merge(C.load(path), overrides)
+
+
+def _read(cfg, files: list[Path] | None):
+    """The dataset and its train/test masks (canonical HDF5 may carry them)."""
+    from ccl_cli.io import detect_format, expand_files, file_hash, load_demonstrations
+    from ccl_cli.io.hdf5 import read_demonstrations
+
+    data_cfg = dict(cfg.get("data") or {})
+    entries = [str(f) for f in files] if files else data_cfg.get("files")
+    if not entries:
+        raise ConfigError("no input data: give files on the command line or data.files in the config")
+    paths = expand_files(entries, None if files else cfg.base)
+    if len(paths) == 1 and detect_format(paths[0]) == "hdf5":
+        data, info = read_demonstrations(paths[0])
+        data.metadata = {"files": [{"path": str(paths[0]), "sha256": file_hash(paths[0]), "format": "hdf5"}],
+                         "time_origin_ns": info["time_origin_ns"], "provenance": info["provenance"]}
+        return data, info["masks"]
+    data_cfg.pop("test", None)
+    data_cfg.pop("files", None)
+    return load_demonstrations(data_cfg, files=[str(p) for p in paths]), None
+
+
+def _emit(summary: dict[str, Any], as_json: bool) -> None:
+    import json
+
+    if as_json:
+        sys.stdout.write(json.dumps(summary, default=str) + "\n")
+        return
+    for stage, entry in (summary.get("stages") or {}).items():
+        parts = [f"{stage} ({entry.get('method')})"]
+        if "n_constraints" in entry:
+            parts.append(f"s={entry['n_constraints']}")
+        for split in ("train", "test"):
+            for name, value in (entry.get(split) or {}).items():
+                parts.append(f"{split} {name}={value:.3e}")
+        typer.echo("  ".join(parts), err=True)
+    if summary.get("outdir"):
+        typer.echo(f"outputs in {summary['outdir']}", err=True)
+
+
+def _learn(command: str, stages: list[tuple[str, dict]] | None, cfg, files, out: Path | None,
+           force: bool, as_json: bool, quiet: bool) -> None:
+    from ccl_cli.io.atomic import atomic_dir
+    from ccl_cli.models import save_model
+    from ccl_cli.pipeline import Pipeline, stage_list
+    from ccl_cli.report import data_summary, make_plots, markdown, stage_metrics, versions, write_json
+
+    t0 = time.perf_counter()
+    data, masks = _read(cfg, files)
+    data.check_finite()
+    stages = stages if stages is not None else stage_list(cfg)
+    outdir = out or Path("runs") / (Path(cfg.source).stem if command == "run" and cfg.source != "<flags>"
+                                    else command)
+    if outdir.exists() and not force:
+        raise InputError(f"{outdir} exists; use --force to overwrite it")
+    pipeline = Pipeline(cfg, data, masks)
+    progress = _progress(len(stages), quiet)
+    try:
+        pipeline.run(stages, progress=progress.advance if progress else None)
+    finally:
+        if progress:
+            progress.stop()
+    metrics = stage_metrics(pipeline.results)
+    hashes = {f["path"]: f["sha256"] for f in data.metadata.get("files", [])}
+    with atomic_dir(outdir, force=force) as tmp:
+        single = len([r for r in pipeline.results if r.model is not None]) == 1
+        for r in pipeline.results:
+            if r.model is None:
+                continue
+            path = tmp / "model.h5" if single else tmp / "models" / f"{r.name}.h5"
+            path.parent.mkdir(exist_ok=True)
+            save_model(path, r.model, training={"stage": r.name, "config": dict(cfg), "inputs": hashes,
+                                                "versions": versions()})
+        plots = make_plots(tmp, pipeline) if (cfg.get("output") or {}).get("plots", True) else []
+        write_json(tmp / "metrics.json", metrics)
+        (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, data_summary(pipeline)))
+        import yaml
+
+        (tmp / "config.yaml").write_text(yaml.safe_dump(dict(cfg), sort_keys=False))
+        write_json(tmp / "run.json", {
+            "command": command, "argv": sys.argv, "config": dict(cfg), "config_source": cfg.source,
+            "inputs": hashes, "versions": versions(),
+            "timings": {r.name: r.seconds for r in pipeline.results} | {"total": time.perf_counter() - t0},
+            "data": data_summary(pipeline),
+        })
+    summary = {"status": "ok", "command": command, "outdir": str(outdir),
+               "stages": {name: {**{k: v for k, v in e.items() if k in ("method", "n_constraints")},
+                                 **{split: {m: v["value"] for m, v in e.get(split, {}).items()}
+                                    for split in ("train", "test") if split in e}}
+                          for name, e in metrics.items()}}
+    _emit(summary, as_json)
+
+
+def _progress(total: int, quiet: bool):
+    if quiet or not sys.stderr.isatty():
+        return None
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    progress = Progress(TextColumn("stages"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                        TimeElapsedColumn(), console=Console(stderr=True), transient=True)
+    task = progress.add_task("stages", total=total)
+    progress.start()
+
+    class Handle:
+        def advance(self) -> None:
+            progress.advance(task)
+
+        def stop(self) -> None:
+            progress.stop()
+
+    return Handle()
+
+
+# -- learning commands --------------------------------------------------------------------
+@app.command("learn-a")
+def learn_a(
+    data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None,
+    method: Annotated[str | None, typer.Option(help="nhat (constant A, closed form), alpha "
+                                               "(state-dependent), lambda (known Φ), linear (closed form).")]
+    = None,
+    selection: Annotated[str | None, typer.Option(help="How s is chosen: eigengap, threshold, cv.")] = None,
+    n_constraints: Annotated[int | None, typer.Option(help="Fix the number of constraints s.")] = None,
+    features: Annotated[str | None, typer.Option(help="lambda: built-in Φ, arm2 or arm7.")] = None,
+    regressors: Annotated[str | None, typer.Option(help="linear: identity, rbf or polynomial.")] = None,
+    degree: Annotated[int | None, typer.Option(help="linear: polynomial degree.")] = None,
+    per_demo: Annotated[bool | None, typer.Option("--per-demo/--pooled",
+                                                  help="One constraint per demonstration.")] = None,
+    n_centres: CentresOpt = None, basis: BasisOpt = None,
+    seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
+    force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
+) -> None:
+    """Learn the constraint A(x) (and its projection N = I − A⁺A) from observed actions."""
+    _logging(quiet)
+    over = _common(seed, test_fraction, convention) | {"learn-a": {
+        "method": method, "selection": selection, "n_constraints": n_constraints, "features": features,
+        "regressors": regressors, "degree": degree, "per_demo": per_demo, "n_centres": n_centres,
+        "basis": basis}}
+    cfg = _config(config, over)
+    _learn("learn-a", [("learn-a", {})], cfg, data, out, force, json_out, quiet)
+
+
+@app.command("learn-v")
+def learn_v(
+    data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None,
+    n_centres: CentresOpt = None, basis: BasisOpt = None,
+    seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
+    force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
+) -> None:
+    """Learn the null-space component w(x) of u = v + w (and so the task part v = u − w)."""
+    _logging(quiet)
+    cfg = _config(config, _common(seed, test_fraction, convention) | {
+        "learn-v": {"n_centres": n_centres, "basis": basis}})
+    _learn("learn-v", [("learn-v", {})], cfg, data, out, force, json_out, quiet)
+
+
+@app.command("learn-pi")
+def learn_pi(
+    data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None,
+    method: Annotated[str | None, typer.Option(help="pi, pi-weighted, pi-coupled, lwpi or dpl.")] = None,
+    projections: Annotated[str | None, typer.Option(help="pi-coupled: true (ground truth) or learnt.")]
+    = None,
+    n_centres: CentresOpt = None, basis: BasisOpt = None,
+    seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
+    force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
+) -> None:
+    """Learn the unconstrained null-space policy π(x) from demonstrations under varying constraints."""
+    _logging(quiet)
+    cfg = _config(config, _common(seed, test_fraction, convention) | {
+        "learn-pi": {"method": method, "projections": projections, "n_centres": n_centres, "basis": basis}})
+    _learn("learn-pi", [("learn-pi", {})], cfg, data, out, force, json_out, quiet)
+
+
+@app.command("run")
+def run(
+    pipeline: Annotated[Path, typer.Argument(help="Pipeline YAML with data and stages.")],
+    data: Annotated[list[Path] | None, typer.Option("--data", help="Recordings overriding data.files.")]
+    = None,
+    out: OutOpt = None, seed: SeedOpt = None, force: ForceOpt = False, json_out: JsonOpt = False,
+    quiet: QuietOpt = False,
+) -> None:
+    """Run the stages of a pipeline YAML in order (learn-v, learn-a, learn-pi, evaluate)."""
+    _logging(quiet)
+    cfg = _config(pipeline, {"seed": seed})
+    _learn("run", None, cfg, data, out, force, json_out, quiet)
+
+
+# -- using saved models -------------------------------------------------------------------
+@app.command("evaluate")
+def evaluate(
+    model: Annotated[Path, typer.Argument(help="A model.h5 written by ccl.")],
+    data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None, convention: ConvOpt = None,
+    force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
+) -> None:
+    """Metrics of a saved model on data (every metric its ground truth allows)."""
+    from ccl_cli.models import load_model
+    from ccl_cli.pipeline import check_dimensions, evaluate_model
+
+    _logging(quiet)
+    cfg = _config(config, {"metrics": {"convention": convention}})
+    est, info = load_model(model)
+    dataset, _ = _read(cfg, data)
+    check_dimensions(est, dataset)
+    metrics = evaluate_model(est, info["kind"], dataset, cfg["metrics"]["convention"])
+    entry = {"method": info["method"], "all": metrics}
+    if out is not None:
+        from ccl_cli.io.atomic import atomic_dir
+        from ccl_cli.report import versions, write_json
+
+        with atomic_dir(out, force=force) as tmp:
+            write_json(tmp / "metrics.json", {"evaluate": entry})
+            rows = [f"| {k} | {v['value']:.3e} | {v['normaliser']:.3e} (var of {v['normaliser_of']}) |"
+                    for k, v in metrics.items()]
+            (tmp / "report.md").write_text("\n".join([f"# ccl evaluate {model}", "",
+                                                      "| metric | value | normaliser |", "|---|---|---|",
+                                                      *rows, ""]))
+            write_json(tmp / "run.json", {"command": "evaluate", "model": str(model),
+                                          "inputs": dataset.metadata.get("files"), "versions": versions()})
+    summary = {"status": "ok", "command": "evaluate", "model": str(model), "kind": info["kind"],
+               "method": info["method"], "metrics": {k: v["value"] for k, v in metrics.items()},
+               "outdir": str(out) if out else None}
+    if json_out:
+        _emit(summary, True)
+    else:
+        for k, v in metrics.items():
+            typer.echo(f"{k} = {v['value']:.6e}  (error {v['error']:.3e} / var of {v['normaliser_of']} "
+                       f"{v['normaliser']:.3e})")
+
+
+@app.command("predict")
+def predict(
+    model: Annotated[Path, typer.Argument(help="A model.h5 written by ccl.")],
+    data: DataArg = None, config: ConfigOpt = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output file: .h5 or .csv.")]
+    = Path("predictions.h5"),
+    force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
+) -> None:
+    """Predict on new states: projections N(x) (constraint), w and v (null-space), π (policy)."""
+    import numpy as np
+
+    from ccl_cli.io.atomic import atomic_path
+    from ccl_cli.models import load_model
+    from ccl_cli.pipeline import check_dimensions
+
+    _logging(quiet)
+    cfg = _config(config, {})
+    est, info = load_model(model)
+    dataset, _ = _read(cfg, data)
+    check_dimensions(est, dataset)
+    kind = info["kind"]
+    outputs: dict[str, np.ndarray] = {"x": dataset.X, "u": dataset.U, "t": dataset.t, "demo": dataset.demo}
+    if kind == "constraint":
+        N = est.projection(dataset.X, dataset.demo)
+        outputs["N"] = N
+        outputs["w"] = np.einsum("nij,nj->ni", N, dataset.U)
+    elif kind == "nullspace":
+        outputs["w"] = est.predict(dataset.X)
+        outputs["v"] = dataset.U - outputs["w"]
+    else:
+        outputs["pi"] = est.predict(dataset.X)
+    if out.suffix.lower() == ".csv":
+        cols, names = [], []
+        for key, arr in outputs.items():
+            flat = arr.reshape(len(arr), -1)
+            cols.append(flat)
+            names += [key] if flat.shape[1] == 1 else [f"{key}_{j}" for j in range(flat.shape[1])]
+        with atomic_path(out, force=force) as tmp:
+            np.savetxt(tmp, np.hstack(cols), delimiter=",", header=",".join(names), comments="")
+    elif out.suffix.lower() in (".h5", ".hdf5"):
+        import h5py
+
+        with atomic_path(out, force=force) as tmp, h5py.File(tmp, "w") as f:
+            f.attrs["format"] = "ccl-predictions"
+            f.attrs["model"] = str(model)
+            f.attrs["method"] = info["method"]
+            for key, arr in outputs.items():
+                f.create_dataset(key, data=arr)
+    else:
+        raise InputError(f"{out}: output must end in .h5 or .csv")
+    summary = {"status": "ok", "command": "predict", "out": str(out), "samples": dataset.n_samples,
+               "outputs": sorted(outputs)}
+    _emit(summary, json_out) if json_out else typer.echo(f"wrote {out} ({dataset.n_samples} samples)",
+                                                         err=True)
+
+
+# -- data commands --------------------------------------------------------------------------
+@app.command("simulate")
+def simulate(
+    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7 or varying_constraint.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
+    seed: Annotated[int, typer.Option(help="Seed.")] = 0,
+    noise: Annotated[float | None, typer.Option(help="Std of noise on u.")] = None,
+    snr_db: Annotated[float | None, typer.Option(help="Noise as signal-to-noise ratio in dB.")] = None,
+    n_demos: Annotated[int | None, typer.Option(help="Number of demonstrations.")] = None,
+    n_steps: Annotated[int | None, typer.Option(help="Steps per demonstration.")] = None,
+    constraint: Annotated[str | None, typer.Option(help="toy2d: fixed|parabola; arm7: fixed|jacobian.")]
+    = None,
+    policy: Annotated[str | None, typer.Option(help="toy2d: attractor, limit_cycle, linear.")] = None,
+    task: Annotated[bool | None, typer.Option("--task/--no-task", help="Add a task part b.")] = None,
+    vary_constraint: Annotated[bool | None, typer.Option("--vary-constraint/--same-constraint",
+                                                         help="toy2d: a constraint per demo.")] = None,
+    sampling: Annotated[str | None, typer.Option(help="toy2d: trajectory or uniform.")] = None,
+    n_samples: Annotated[int | None, typer.Option(help="toy2d uniform: number of states.")] = None,
+    test_fraction: Annotated[float, typer.Option(help="Demos marked test in /mask (0: no masks).")] = 0.0,
+    force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
+) -> None:
+    """Write a reference problem with ground truth (π, w, v, b, A, N) as canonical HDF5."""
+    import inspect as pyinspect
+
+    from ccl_cli import simulate as S
+    from ccl_cli.io.hdf5 import write_demonstrations
+
+    _logging(quiet)
+    if problem not in S.PROBLEMS:
+        raise InputError(f"unknown problem {problem!r} (use {', '.join(S.PROBLEMS)})")
+    fn = S.PROBLEMS[problem]
+    given = {"noise": noise, "snr_db": snr_db, "n_demos": n_demos, "n_steps": n_steps,
+             "constraint": constraint, "policy": policy, "task": task, "vary_constraint": vary_constraint,
+             "sampling": sampling, "n_samples": n_samples}
+    accepted = pyinspect.signature(fn).parameters
+    kwargs = {k: v for k, v in given.items() if v is not None}
+    bad = [k for k in kwargs if k not in accepted]
+    if bad:
+        raise InputError(f"{problem} takes no --{bad[0].replace('_', '-')} "
+                         f"(it takes: {', '.join(a for a in accepted if a != 'seed')})")
+    data = fn(seed=seed, **kwargs)
+    masks = None
+    if test_fraction > 0:
+        train, test = data.split(test_fraction, seed)
+        masks = {"train": list(train.demo_ids), "test": list(test.demo_ids)}
+    write_demonstrations(out, data, provenance={"simulate": problem, "seed": seed, **kwargs}, masks=masks,
+                         force=force)
+    summary = {"status": "ok", "command": "simulate", "out": str(out), "samples": data.n_samples,
+               "demos": data.n_demos}
+    _emit(summary, json_out) if json_out else typer.echo(
+        f"wrote {out}: {data.n_samples} samples in {data.n_demos} demonstrations", err=True)
+
+
+@app.command("inspect")
+def inspect_cmd(
+    data: Annotated[Path, typer.Argument(help="A recording (file or bag directory).")],
+    config: ConfigOpt = None,
+    gap: Annotated[float | None, typer.Option(help="Report demonstrations split on gaps (seconds).")]
+    = None,
+    json_out: JsonOpt = False, quiet: QuietOpt = False,
+) -> None:
+    """Topics, types, counts, rates, time span and detected demonstrations of a recording."""
+    from ccl_cli.io import inspect_path
+
+    _logging(quiet)
+    cfg = _config(config, {})
+    info = inspect_path(data, cfg.get("data"), gap)
+    if json_out:
+        _emit(info, True)
+        return
+    typer.echo(f"path:     {info['path']}")
+    typer.echo(f"format:   {info['format']}  ({info['size_bytes']} bytes)")
+    if "duration_s" in info:
+        typer.echo(f"duration: {info['duration_s']:.3f} s")
+    for topic, t in (info.get("topics") or {}).items():
+        rate = f"{t['rate_hz']:.1f} Hz" if t.get("rate_hz") else "-"
+        typer.echo(f"  {topic:30s} {t['type']:40s} {t['count']:>9d} msgs  {rate}")
+    if "columns" in info:
+        typer.echo(f"columns:  {', '.join(info['columns'])}")
+        typer.echo(f"rows:     {info['rows']} (time column {info['time_column']})")
+    for key in ("samples", "demos", "state_names", "action_names", "truth", "masks"):
+        if key in info:
+            typer.echo(f"{key + ':':9s} {info[key]}")
+
+
+@app.command("convert")
+def convert(
+    data: Annotated[list[Path], typer.Argument(help="Recordings to convert.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
+    config: ConfigOpt = None, force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
+) -> None:
+    """Convert recordings (CSV, bags, MCAP) into the canonical ccl-demonstrations HDF5."""
+    from ccl_cli.io.hdf5 import write_demonstrations
+
+    _logging(quiet)
+    cfg = _config(config, {})
+    dataset, _ = _read(cfg, data)
+    write_demonstrations(out, dataset, time_origin_ns=int(dataset.metadata.get("time_origin_ns", 0)),
+                         provenance={"converted_from": dataset.metadata.get("files"),
+                                     "data_config": cfg.get("data")}, force=force)
+    summary = {"status": "ok", "command": "convert", "out": str(out), "samples": dataset.n_samples,
+               "demos": dataset.n_demos}
+    _emit(summary, json_out) if json_out else typer.echo(
+        f"wrote {out}: {dataset.n_samples} samples in {dataset.n_demos} demonstrations", err=True)
+
+
+# -- entry point ---------------------------------------------------------------------------
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point: run the app and turn every failure into a one-line message."""
+    try:
+        app(args=argv, prog_name="ccl", standalone_mode=False)
+        return 0
+    except click.exceptions.Exit as exc:
+        return int(exc.exit_code or 0)
+    except click.exceptions.Abort:
+        typer.echo("ccl: interrupted", err=True)
+        return 130
+    except click.exceptions.ClickException as exc:
+        exc.show()
+        return int(exc.exit_code)
+    except CCLError as exc:
+        typer.echo(f"ccl: error: {exc.message}", err=True)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        typer.echo("ccl: interrupted; no partial outputs were left", err=True)
+        return 130
+    except Exception as exc:  # an unexpected failure: still one line, unless debugging
+        if os.environ.get("CCL_DEBUG"):
+            raise
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        typer.echo(f"ccl: internal error: {type(exc).__name__}: {first} (set CCL_DEBUG=1 for a traceback)",
+                   err=True)
+        return 1
+
+
+def entry() -> None:
+    sys.exit(main())
+
+
+if __name__ == "__main__":
+    entry()

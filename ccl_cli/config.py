@@ -1,0 +1,272 @@
+"""The YAML configuration: schema, defaults and validation with precise messages.
+
+A config has a ``data`` section (what to read, see README "Config"), optional stage
+sections (``learn-v``, ``learn-a``, ``learn-pi``, ``evaluate``) holding each stage's
+options, an optional ``stages`` list for ``ccl run`` (names, or one-key mappings of a
+name to options that override the stage section), ``metrics``, ``output`` and ``seed``.
+
+Unknown keys and wrong types are rejected with the file, the line and the closest
+valid key. Command-line flags override the file (see :func:`merge`).
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ccl_cli.errors import ConfigError
+
+STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
+NUM = (int, float)
+
+BASIS = {"kind": str, "n_centres": int, "centres": (str, list), "sigma2": NUM, "seed": int}
+STREAM = {"topic": str, "field": str, "joints": list, "columns": list, "stamp": str}
+ACTION = {**STREAM, "derive": str, "window": int, "order": int}
+
+SCHEMA: dict[str, Any] = {
+    "seed": int,
+    "data": {
+        "files": (list, str), "format": str, "typestore": str, "state": STREAM, "action": ACTION,
+        "time": {"column": (str, int), "unit": str, "rate": NUM, "delimiter": str},
+        "demos": {"split_on_gap": NUM, "ranges": list, "per_file": bool},
+        "nonfinite": str, "min_samples": int,
+        "test": {"fraction": NUM, "seed": int, "use_masks": bool},
+    },
+    "learn-v": {"basis": (str, BASIS), "n_centres": int, "max_iter": int, "tol": NUM},
+    "learn-a": {
+        "method": str, "on": str, "per_demo": bool, "selection": str, "n_constraints": int,
+        "threshold": NUM, "gap_floor": NUM, "max_constraints": int, "cv_folds": int,
+        "variant": str, "n_restarts": int, "max_iter": int, "tol": NUM,
+        "basis": (str, BASIS), "n_centres": int,
+        "features": (str, {"arm": str, "rows": list}),
+        "regressors": str, "degree": int, "task": bool, "task_regressors": str, "whiten": str,
+        "reweight": int,
+    },
+    "learn-pi": {"method": str, "on": str, "basis": (str, BASIS), "n_centres": int, "cutoff": NUM,
+                 "min_norm": NUM, "projections": str, "baseline": bool},
+    "evaluate": {"convention": str},
+    "metrics": {"convention": str},
+    "output": {"plots": bool},
+    "stages": list,
+}
+
+DEFAULTS: dict[str, Any] = {
+    "seed": 0,
+    "data": {"format": "auto", "nonfinite": "drop", "test": {"fraction": 0.3, "seed": 0,
+                                                             "use_masks": True}},
+    "learn-v": {"basis": "rbf", "n_centres": 16},
+    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": "eigengap"},
+    "learn-pi": {"method": "pi", "on": "auto", "basis": "rbf", "n_centres": 16,
+                 "projections": "auto", "baseline": True},
+    "metrics": {"convention": "ccl"},
+    "output": {"plots": True},
+}
+
+CHOICES = {
+    ("learn-a", "method"): ("nhat", "alpha", "lambda", "linear"),
+    ("learn-a", "on"): ("auto", "u", "w"),
+    ("learn-a", "selection"): ("threshold", "eigengap", "cv"),
+    ("learn-a", "variant"): ("closed_form", "search"),
+    ("learn-a", "whiten"): ("rms", "errors", "none"),
+    ("learn-pi", "method"): ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"),
+    ("learn-pi", "on"): ("auto", "u", "w"),
+    ("learn-pi", "projections"): ("auto", "learnt", "true"),
+    ("metrics", "convention"): ("ccl", "original"),
+    ("evaluate", "convention"): ("ccl", "original"),
+    ("data", "format"): ("auto", "hdf5", "csv", "bag", "mcap"),
+    ("data", "nonfinite"): ("drop", "fail"),
+}
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader with YAML 1.2 booleans: only true/false, so keys like ``on`` stay strings."""
+
+
+_Loader.yaml_implicit_resolvers = {
+    first: [(tag, regexp) for tag, regexp in resolvers if tag != "tag:yaml.org,2002:bool"]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+_Loader.add_implicit_resolver("tag:yaml.org,2002:bool", __import__("re").compile(r"^(?:true|True|TRUE|"
+                              r"false|False|FALSE)$"), list("tTfF"))
+
+
+_TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false",
+               list: "a list", dict: "a mapping"}
+
+
+def _lines(node: yaml.Node, path: tuple = (), out: dict | None = None) -> dict[tuple, int]:
+    """Line (1-based) of every key and list item of a composed YAML document."""
+    out = {} if out is None else out
+    out.setdefault(path, node.start_mark.line + 1)
+    if isinstance(node, yaml.MappingNode):
+        for key, value in node.value:
+            k = key.value
+            out[(*path, k)] = key.start_mark.line + 1
+            _lines(value, (*path, k), out)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, item in enumerate(node.value):
+            _lines(item, (*path, i), out)
+    return out
+
+
+class Config(dict):
+    """The config mapping, with ``source`` (file) and ``lines`` (path → line)."""
+
+    source: str = "<flags>"
+    lines: dict[tuple, int]
+    base: Path | None = None
+
+
+def load(path: str | Path | None) -> Config:
+    """Read and validate a YAML config (``None`` → an empty config)."""
+    cfg = Config()
+    cfg.lines = {}
+    if path is None:
+        return cfg
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read config ({exc.strerror})") from None
+    try:
+        node = yaml.compose(text, Loader=_Loader)
+        data = yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark else str(path)
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"{where}: invalid YAML ({problem})") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}:1: the config must be a mapping of sections (data, learn-a, ...)")
+    cfg.update(data)
+    cfg.source = str(path)
+    cfg.lines = _lines(node) if node is not None else {}
+    cfg.base = path.parent
+    validate(cfg)
+    return cfg
+
+
+def _where(cfg: Config, path: tuple) -> str:
+    for cut in range(len(path), -1, -1):
+        line = cfg.lines.get(path[:cut])
+        if line is not None:
+            return f"{cfg.source}:{line}"
+    return cfg.source
+
+
+def _dotted(path: tuple) -> str:
+    return ".".join(str(p) if not isinstance(p, int) else f"[{p}]" for p in path).replace(".[", "[")
+
+
+def _check(cfg: Config, value: Any, schema: Any, path: tuple) -> None:
+    if isinstance(schema, tuple):  # alternatives: types and/or sub-schemas
+        for alt in schema:
+            if isinstance(alt, dict) and isinstance(value, dict):
+                return _check(cfg, value, alt, path)
+            if isinstance(alt, type) and _is(value, alt):
+                return None
+        names = " or ".join(_TYPE_NAMES.get(a, "a mapping") if isinstance(a, type) else "a mapping"
+                            for a in schema)
+        raise ConfigError(f"{_where(cfg, path)}: {_dotted(path)} must be {names}, got {value!r}")
+    if isinstance(schema, dict):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{_where(cfg, path)}: {_dotted(path)} must be a mapping, got {value!r}")
+        for key, sub in value.items():
+            if key not in schema:
+                close = difflib.get_close_matches(str(key), list(schema), n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else \
+                    f" (valid: {', '.join(schema)})"
+                where = f"in {_dotted(path)}" if path else "at the top level"
+                raise ConfigError(f"{_where(cfg, (*path, key))}: unknown key {key!r} {where}{hint}")
+            _check(cfg, sub, schema[key], (*path, key))
+        return None
+    if not _is(value, schema):
+        raise ConfigError(f"{_where(cfg, path)}: {_dotted(path)} must be {_TYPE_NAMES[schema]}, "
+                          f"got {value!r}")
+    return None
+
+
+def _is(value: Any, typ: type | tuple) -> bool:
+    if typ is NUM or typ == (int, float):
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if typ is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    if typ is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    return isinstance(value, typ)
+
+
+def validate(cfg: Config) -> None:
+    """Check ``cfg`` against :data:`SCHEMA` and :data:`CHOICES` (raises ConfigError)."""
+    _check(cfg, dict(cfg), {k: v for k, v in SCHEMA.items()}, ())
+    for (section, key), allowed in CHOICES.items():
+        value = (cfg.get(section) or {}).get(key)
+        if value is not None and value not in allowed:
+            close = difflib.get_close_matches(str(value), allowed, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ConfigError(f"{_where(cfg, (section, key))}: {section}.{key} must be one of "
+                              f"{', '.join(allowed)}, got {value!r}{hint}")
+    for i, item in enumerate(cfg.get("stages") or []):
+        name, options = stage_entry(item, cfg, i)
+        _check(cfg, options, SCHEMA[name], ("stages", i, name))
+
+
+def stage_entry(item: Any, cfg: Config, i: int) -> tuple[str, dict]:
+    """A ``stages`` item → (name, options)."""
+    if isinstance(item, str):
+        name, options = item, {}
+    elif isinstance(item, dict) and len(item) == 1:
+        name, options = next(iter(item.items()))
+        options = options or {}
+    else:
+        raise ConfigError(f"{_where(cfg, ('stages', i))}: each stage is a name or a one-key mapping "
+                          f"(e.g. - learn-a: {{method: nhat}}), got {item!r}")
+    if name not in STAGES:
+        close = difflib.get_close_matches(str(name), STAGES, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else f" (stages: {', '.join(STAGES)})"
+        raise ConfigError(f"{_where(cfg, ('stages', i))}: unknown stage {name!r}{hint}")
+    return name, options
+
+
+def deep_merge(base: dict, over: dict) -> dict:
+    out = copy.deepcopy(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = deep_merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def merge(cfg: Config, overrides: dict) -> Config:
+    """``cfg`` with flag ``overrides`` (None values ignored) and defaults filled in;
+    the result is validated again (flags are checked like file keys)."""
+    clean = _drop_none(overrides)
+    merged = Config(deep_merge(DEFAULTS, deep_merge(dict(cfg), clean)))
+    merged.source = cfg.source if not clean else f"{cfg.source} + flags"
+    merged.lines = cfg.lines
+    merged.base = cfg.base
+    validate(merged)
+    return merged
+
+
+def _drop_none(d: dict) -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            v = _drop_none(v)
+            if v:
+                out[k] = v
+        elif v is not None:
+            out[k] = v
+    return out
+
+
+def stage_options(cfg: Config, name: str, extra: dict | None = None) -> dict:
+    """Options of stage ``name``: its section, then the ``stages`` item's own options."""
+    return deep_merge(cfg.get(name) or {}, extra or {})

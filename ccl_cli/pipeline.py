@@ -1,0 +1,281 @@
+"""Runs configured stages in order, passing results between them.
+
+learn-v → (w̃ on train and test) → learn-a on w̃ or u → (Ñ) → learn-pi, coupled to the
+learnt constraint when asked → evaluate. Every stage reports the metrics that the
+available ground truth allows (ALGORITHMS.md §6), on train and test.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ccl_cli import metrics as M
+from ccl_cli.config import Config, stage_entry, stage_options
+from ccl_cli.constraint import (
+    KnownFeatureConstraint,
+    LinearConstraint,
+    PerDemonstration,
+    StateDependentConstraint,
+    StateIndependentConstraint,
+)
+from ccl_cli.dataset import Demonstrations
+from ccl_cli.errors import ConfigError, InputError, LearningError
+from ccl_cli.nullspace import NullSpaceComponent
+from ccl_cli.policy import PolicyLearner
+
+log = logging.getLogger("ccl")
+
+
+@dataclass
+class StageResult:
+    name: str
+    method: str
+    model: Any
+    metrics: dict[str, dict[str, dict]] = field(default_factory=dict)  # split → name → Metric dict
+    info: dict[str, Any] = field(default_factory=dict)
+    seconds: float = 0.0
+    baseline: Any = None
+
+
+@dataclass
+class Split:
+    train: Demonstrations
+    test: Demonstrations | None
+
+
+def split_data(data: Demonstrations, cfg: Config, masks: dict[str, list[int]] | None = None) -> Split:
+    tcfg = (cfg.get("data") or {}).get("test") or {}
+    if masks and tcfg.get("use_masks", True) and "train" in masks:
+        train = data.select_demos(masks["train"])
+        test = data.select_demos(masks["test"]) if masks.get("test") else None
+        return Split(train, test if test is not None and test.n_samples else None)
+    fraction = float(tcfg.get("fraction", 0.3))
+    if fraction <= 0:
+        return Split(data, None)
+    train, test = data.split(fraction, int(tcfg.get("seed", 0)))
+    return Split(train, test if test.n_samples else None)
+
+
+def _kwargs(options: dict, allowed: tuple[str, ...]) -> dict:
+    return {k: v for k, v in options.items() if k in allowed and v is not None}
+
+
+def make_constraint(options: dict, seed: int):
+    method = options.get("method", "nhat")
+    common = ("selection", "n_constraints", "gap_floor", "max_constraints", "cv_folds")
+    if method == "nhat":
+        kw = _kwargs(options, (*common, "threshold"))
+        model = StateIndependentConstraint(method=options.get("variant", "closed_form"), seed=seed, **kw)
+    elif method in ("alpha", "lambda"):
+        kw = _kwargs(options, (*common, "basis", "n_centres", "n_restarts", "max_iter", "tol"))
+        if method == "alpha":
+            model = StateDependentConstraint(seed=seed, **kw)
+        else:
+            if "features" not in options:
+                raise ConfigError("learn-a method lambda needs features (e.g. features: arm2, or "
+                                  "{arm: arm7, rows: [0, 1, 2]})")
+            model = KnownFeatureConstraint(features=options["features"], seed=seed, **kw)
+    elif method == "linear":
+        kw = _kwargs(options, (*common, "threshold", "basis", "n_centres", "regressors", "degree", "task",
+                               "task_regressors", "whiten", "reweight"))
+        model = LinearConstraint(seed=seed, **kw)
+    else:
+        raise ConfigError(f"unknown learn-a method {method!r}")
+    return PerDemonstration(model) if options.get("per_demo") else model
+
+
+def _metrics_dict(*items: M.Metric) -> dict[str, dict]:
+    return {m.name: m.as_dict() for m in items}
+
+
+class Pipeline:
+    """Holds the data split and what earlier stages learnt."""
+
+    def __init__(self, cfg: Config, data: Demonstrations, masks: dict | None = None) -> None:
+        self.cfg = cfg
+        self.data = data
+        self.split = split_data(data, cfg, masks)
+        self.seed = int(cfg.get("seed", 0))
+        self.convention = (cfg.get("metrics") or {}).get("convention", "ccl")
+        self.results: list[StageResult] = []
+        self.w: dict[str, np.ndarray] = {}
+        self.constraint: Any = None
+
+    # -- helpers ------------------------------------------------------------------------
+    def parts(self) -> list[tuple[str, Demonstrations]]:
+        out = [("train", self.split.train)]
+        if self.split.test is not None:
+            out.append(("test", self.split.test))
+        return out
+
+    def _target(self, on: str, part: str, data: Demonstrations) -> np.ndarray:
+        if on == "w" or (on == "auto" and self.w):
+            if part not in self.w:
+                raise ConfigError("'on: w' needs a learn-v stage before this one")
+            return self.w[part]
+        return data.U
+
+    # -- stages -------------------------------------------------------------------------
+    def run(self, names: list[tuple[str, dict]], progress=None) -> list[StageResult]:
+        for name, extra in names:
+            t0 = time.perf_counter()
+            opts = stage_options(self.cfg, name, extra)
+            log.info("stage %s (%s)", name, opts.get("method", ""))
+            result = getattr(self, "_" + name.replace("-", "_"))(opts)
+            result.seconds = time.perf_counter() - t0
+            self.results.append(result)
+            if progress is not None:
+                progress()
+        return self.results
+
+    def _learn_v(self, opts: dict) -> StageResult:
+        tr = self.split.train
+        model = NullSpaceComponent(**_kwargs(opts, ("basis", "n_centres", "max_iter", "tol")),
+                                   seed=self.seed).fit(tr.X, tr.U)
+        result = StageResult("learn-v", "ncl", model, info={"n_iter": model.n_iter_})
+        for part, d in self.parts():
+            w = model.predict(d.X)
+            self.w[part] = w
+            items = [M.npe(d.U, w, self.convention)]
+            if d.has_truth("w"):
+                m = M.nupe(d.truth["w"], w)
+                items.append(M.Metric("NUPE_w", m.value, m.error, m.normaliser, "w"))
+            if d.has_truth("v"):
+                m = M.nupe(d.truth["v"], d.U - w)
+                items.append(M.Metric("NUPE_v", m.value, m.error, m.normaliser, "v"))
+            result.metrics[part] = _metrics_dict(*items)
+        return result
+
+    def _learn_a(self, opts: dict) -> StageResult:
+        tr = self.split.train
+        on = opts.get("on", "auto")
+        model = make_constraint(opts, self.seed)
+        target = self._target(on, "train", tr)
+        try:
+            model.fit(tr.X, target, tr.demo)
+        except (np.linalg.LinAlgError, FloatingPointError) as exc:
+            raise LearningError(f"learn-a failed: {exc}") from None
+        self.constraint = model
+        method = opts.get("method", "nhat") + (" per demonstration" if opts.get("per_demo") else "")
+        result = StageResult("learn-a", method, model,
+                             info={"n_constraints": int(model.n_constraints_),
+                                   "selection": model.selection_,
+                                   "on": "w" if (on == "w" or (on == "auto" and self.w)) else "u"})
+        for part, d in self.parts():
+            if isinstance(model, PerDemonstration) and part != "train":
+                continue  # a per-demonstration model knows only its own demonstrations
+            N_est = model.projection(d.X, d.demo)
+            Y = self._target(on, part, d)
+            state_dep = opts.get("method", "nhat") != "nhat"
+            items = [M.npoe(N_est, Y, "ccl")]
+            if d.has_truth("pi") and (d.has_truth("N") or d.has_truth("A")):
+                items.append(M.nppe(d.true_projection(), N_est, d.truth["pi"], d.U, self.convention,
+                                    state_dependent=state_dep))
+            result.metrics[part] = _metrics_dict(*items)
+        return result
+
+    def _projections(self, opts: dict, part: str, d: Demonstrations) -> np.ndarray | None:
+        if opts.get("method") != "pi-coupled":
+            return None
+        source = opts.get("projections", "auto")
+        if source in ("learnt", "auto") and self.constraint is not None:
+            return self.constraint.projection(d.X, d.demo)
+        if source in ("true", "auto") and (d.has_truth("N") or d.has_truth("A")):
+            return d.true_projection()
+        raise ConfigError("pi-coupled needs projections: run learn-a first (projections: learnt) or "
+                          "use data with ground-truth constraints (projections: true)")
+
+    def _learn_pi(self, opts: dict) -> StageResult:
+        tr = self.split.train
+        on = opts.get("on", "auto")
+        kw = _kwargs(opts, ("basis", "n_centres", "cutoff", "min_norm"))
+        model = PolicyLearner(method=opts.get("method", "pi"), seed=self.seed, **kw)
+        model.fit(tr.X, self._target(on, "train", tr), self._projections(opts, "train", tr))
+        result = StageResult("learn-pi", model.method, model, info={"n_used": model.n_used_})
+        if opts.get("baseline", True) and model.method != "dpl":
+            result.baseline = PolicyLearner(method="dpl", seed=self.seed, **kw).fit(
+                tr.X, self._target(on, "train", tr))
+        for part, d in self.parts():
+            est = model.predict(d.X)
+            items = []
+            if d.has_truth("pi"):
+                items.append(M.nupe(d.truth["pi"], est))
+                if d.has_truth("N") or d.has_truth("A"):
+                    items.append(M.ncpe(d.true_projection(), d.truth["pi"], est))
+                if result.baseline is not None:
+                    b = M.nupe(d.truth["pi"], result.baseline.predict(d.X))
+                    items.append(M.Metric("NUPE_dpl", b.value, b.error, b.normaliser, "pi"))
+            if self.constraint is not None and not (isinstance(self.constraint, PerDemonstration)
+                                                    and part != "train"):
+                Y = self._target(on, part, d)
+                diff = Y - np.einsum("nij,nj->ni", self.constraint.projection(d.X, d.demo), est)
+                var = float(np.var(Y, axis=0, ddof=1).sum())
+                err = float(np.mean(np.sum(diff**2, 1)))
+                items.append(M.Metric("NCPE_obs", err / var if var > 0 else float("nan"), err, var, "u"))
+            result.metrics[part] = _metrics_dict(*items)
+        return result
+
+    def _evaluate(self, opts: dict) -> StageResult:
+        """Summary of every earlier stage under the evaluate convention."""
+        summary = {r.name: {part: {k: v["value"] for k, v in ms.items()} for part, ms in r.metrics.items()}
+                   for r in self.results}
+        return StageResult("evaluate", opts.get("convention", self.convention), None,
+                           metrics={}, info={"summary": summary})
+
+
+def stage_list(cfg: Config, default: list[str] | None = None) -> list[tuple[str, dict]]:
+    items = cfg.get("stages")
+    if not items:
+        if default is None:
+            raise ConfigError(f"{cfg.source}: no stages to run (add a stages: list)")
+        return [(name, {}) for name in default]
+    return [stage_entry(item, cfg, i) for i, item in enumerate(items)]
+
+
+def evaluate_model(model: Any, kind: str, data: Demonstrations, convention: str = "ccl") -> dict:
+    """Metrics of a saved model on ``data`` (all samples): the ones its ground truth allows."""
+    items: list[M.Metric] = []
+    if kind == "constraint":
+        if isinstance(model, PerDemonstration):
+            missing = set(np.unique(data.demo)) - set(model.models_)
+            if missing:
+                raise InputError("this per-demonstration model does not know demonstrations "
+                                 f"{sorted(missing)[:5]} of the data")
+        N_est = model.projection(data.X, data.demo)
+        items.append(M.npoe(N_est, data.U, "ccl"))
+        if data.has_truth("pi") and (data.has_truth("N") or data.has_truth("A")):
+            items.append(M.nppe(data.true_projection(), N_est, data.truth["pi"], data.U, convention))
+    elif kind == "nullspace":
+        w = model.predict(data.X)
+        items.append(M.npe(data.U, w, convention))
+        if data.has_truth("w"):
+            m = M.nupe(data.truth["w"], w)
+            items.append(M.Metric("NUPE_w", m.value, m.error, m.normaliser, "w"))
+    elif kind == "policy":
+        est = model.predict(data.X)
+        if data.has_truth("pi"):
+            items.append(M.nupe(data.truth["pi"], est))
+            if data.has_truth("N") or data.has_truth("A"):
+                items.append(M.ncpe(data.true_projection(), data.truth["pi"], est))
+        nm = M.nmse(data.U, est)
+        items.append(M.Metric("NMSE_u_mean", float(np.nanmean(nm)), float("nan"), float("nan"), "per-dim"))
+    return _metrics_dict(*items)
+
+
+def check_dimensions(model: Any, data: Demonstrations) -> None:
+    q = getattr(model, "n_action_", None)
+    if q is None and isinstance(model, PerDemonstration):
+        q = next(iter(model.models_.values())).n_action_
+    if q is not None and data.n_action != q:
+        raise InputError(f"the model expects {q}-dimensional actions, the data has {data.n_action}")
+    basis = getattr(model, "basis_", None) or (getattr(next(iter(model.models_.values())), "basis_", None)
+                                               if isinstance(model, PerDemonstration) else None)
+    if basis is not None:
+        p = basis.centres_.shape[1] if hasattr(basis, "centres_") else basis.n_state_
+        if data.n_state != p:
+            raise InputError(f"the model expects {p}-dimensional states, the data has {data.n_state}")
