@@ -15,7 +15,6 @@ import time
 from pathlib import Path
 from typing import Annotated, Any
 
-import click
 import typer
 
 from ccl_cli.errors import CCLError, ConfigError, InputError
@@ -458,16 +457,18 @@ def convert(
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: run the app and turn every failure into a one-line message."""
     try:
-        app(args=argv, prog_name="ccl", standalone_mode=False)
-        return 0
-    except click.exceptions.Exit as exc:
-        return int(exc.exit_code or 0)
-    except click.exceptions.Abort:
-        typer.echo("ccl: interrupted", err=True)
+        result = app(args=argv, prog_name="ccl", standalone_mode=False)
+        if result == 130:  # typer turns Ctrl-C into this return value
+            typer.echo("ccl: interrupted; no partial outputs were left", err=True)
+        return result if isinstance(result, int) else 0
+    except typer.Exit as exc:
+        code = int(exc.exit_code or 0)
+        if code == 130:  # typer turns Ctrl-C into Exit(130)
+            typer.echo("ccl: interrupted; no partial outputs were left", err=True)
+        return code
+    except typer.Abort:
+        typer.echo("ccl: interrupted; no partial outputs were left", err=True)
         return 130
-    except click.exceptions.ClickException as exc:
-        exc.show()
-        return int(exc.exit_code)
     except CCLError as exc:
         typer.echo(f"ccl: error: {exc.message}", err=True)
         return exc.exit_code
@@ -475,6 +476,9 @@ def main(argv: list[str] | None = None) -> int:
         typer.echo("ccl: interrupted; no partial outputs were left", err=True)
         return 130
     except Exception as exc:  # an unexpected failure: still one line, unless debugging
+        if hasattr(exc, "show") and hasattr(exc, "exit_code"):  # typer's usage errors (exit 2)
+            exc.show()
+            return int(exc.exit_code)
         if os.environ.get("CCL_DEBUG"):
             raise
         first = str(exc).splitlines()[0] if str(exc) else ""

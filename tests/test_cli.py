@@ -1,0 +1,275 @@
+"""End-to-end: the installed ``ccl`` entry point (subprocess) and ``ccl_cli.cli.main``."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from ccl_cli.cli import main
+
+ROOT = Path(__file__).resolve().parent.parent
+CONFIGS = ROOT / "configs"
+SAMPLES = ROOT / "sample_data"
+CCL = shutil.which("ccl") or str(Path(sys.executable).parent / "ccl")
+
+
+def ccl(*args, cwd=None, check=True):
+    proc = subprocess.run([CCL, *map(str, args)], capture_output=True, text=True, cwd=cwd)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"ccl {' '.join(map(str, args))} → {proc.returncode}\n{proc.stderr}")
+    return proc
+
+
+def run_main(capsys, *args):
+    code = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def metrics_of(outdir: Path) -> dict:
+    return json.loads((outdir / "metrics.json").read_text())
+
+
+# -- every shipped pipeline, with the accuracy bars of the learning core ----------------------
+def test_pipeline_toy2d_learn_v(tmp_path):
+    proc = ccl("run", CONFIGS / "toy2d_learn_v.yaml", "-o", tmp_path / "v", "--json")
+    summary = json.loads(proc.stdout)
+    assert summary["stages"]["learn-v"]["test"]["NUPE_w"] < 1e-3
+    out = tmp_path / "v"
+    assert {p.name for p in out.iterdir()} >= {"model.h5", "metrics.json", "report.md", "run.json",
+                                               "config.yaml", "plots"}
+    assert (out / "plots" / "learn-v.png").stat().st_size > 1000
+    assert "![learn-v" in (out / "report.md").read_text()
+    run = json.loads((out / "run.json").read_text())
+    assert run["inputs"] and all(len(h) == 64 for h in run["inputs"].values())
+    assert run["versions"]["numpy"] == np.__version__
+
+
+def test_pipeline_learn_v_then_a_on_learnt_w(capsys, tmp_path):
+    code, out, err = run_main(capsys, "run", CONFIGS / "toy2d_learn_v_then_a.yaml", "-o", tmp_path / "va",
+                              "--json", "-q")
+    assert code == 0, err
+    stages = json.loads(out)["stages"]
+    assert stages["learn-a"]["n_constraints"] == 1
+    assert stages["learn-a"]["test"]["NPPE"] < 1e-4
+    assert (tmp_path / "va" / "models" / "learn-v.h5").exists()
+    assert (tmp_path / "va" / "models" / "learn-a.h5").exists()
+
+
+def test_pipeline_arm7_two_link_and_real_formats(capsys, tmp_path):
+    bars = {"arm7": ("NPPE", 1e-4), "two_link": ("NPPE", 5e-6), "trakstar_csv": ("NPOE", 1e-3),
+            "kuka_bag": ("NPOE", 1e-4), "toy2d_learn_a": ("NPPE", 1e-3)}
+    for name, (metric, bar) in bars.items():
+        code, out, err = run_main(capsys, "run", CONFIGS / f"{name}.yaml", "-o", tmp_path / name, "--json",
+                                  "-q")
+        assert code == 0, (name, err)
+        stage = json.loads(out)["stages"]["learn-a"]
+        assert stage["test"][metric] < bar, (name, stage)
+    assert metrics_of(tmp_path / "arm7")["learn-a"]["n_constraints"] == 2
+
+
+def test_pipeline_learn_pi_coupled_to_learnt_constraints(capsys, tmp_path):
+    code, out, err = run_main(capsys, "run", CONFIGS / "toy2d_learn_pi.yaml", "-o", tmp_path / "pi", "--json",
+                              "-q")
+    assert code == 0, err
+    pi = json.loads(out)["stages"]["learn-pi"]["test"]
+    assert pi["NUPE"] < 0.05
+    assert pi["NUPE_dpl"] > 0.3  # the biased baseline, reported next to it
+
+
+# -- single commands, saved models ----------------------------------------------------------
+def test_simulate_learn_evaluate_predict_round_trip(tmp_path):
+    data = tmp_path / "arm.h5"
+    ccl("simulate", "arm7", "-o", data, "--seed", "3", "--test-fraction", "0.3")
+    info = json.loads(ccl("inspect", data, "--json").stdout)
+    assert info["format"] == "hdf5" and info["masks"] == {"train": 35, "test": 15}
+    ccl("learn-a", data, "-o", tmp_path / "a", "--selection", "eigengap", "-q")
+    model = tmp_path / "a" / "model.h5"
+    ev = json.loads(ccl("evaluate", model, data, "--json").stdout)
+    assert ev["kind"] == "constraint" and ev["metrics"]["NPPE"] < 1e-4
+    ccl("predict", model, data, "-o", tmp_path / "pred.h5")
+    # bit-identical predictions: a new process vs this one
+    from ccl_cli.io.hdf5 import read_demonstrations
+    from ccl_cli.models import load_model
+
+    est, _ = load_model(model)
+    d, _ = read_demonstrations(data)
+    with h5py.File(tmp_path / "pred.h5") as f:
+        assert np.array_equal(f["N"][()], est.projection(d.X, d.demo))
+    ccl("predict", model, data, "-o", tmp_path / "pred.csv")
+    header = (tmp_path / "pred.csv").read_text().splitlines()[0].split(",")
+    assert header[:2] == ["x_0", "x_1"] and "N_48" in header
+
+
+@pytest.mark.parametrize("kind", ["alpha", "lambda", "linear", "ncl", "policy", "per_demo"])
+def test_every_model_kind_reloads_bit_identically(tmp_path, kind):
+    from ccl_cli import simulate as sim
+    from ccl_cli.constraint import (
+        KnownFeatureConstraint,
+        LinearConstraint,
+        PerDemonstration,
+        StateDependentConstraint,
+    )
+    from ccl_cli.models import load_model, save_model
+    from ccl_cli.nullspace import NullSpaceComponent
+    from ccl_cli.policy import PolicyLearner
+
+    if kind == "lambda":
+        d = sim.two_link(n_demos=8, n_steps=20)
+    else:
+        d = sim.toy2d(n_demos=10, vary_constraint=True)
+    model = {"alpha": lambda: StateDependentConstraint(n_restarts=1),
+             "lambda": lambda: KnownFeatureConstraint("arm2", n_restarts=1),
+             "linear": lambda: LinearConstraint(regressors="rbf", n_centres=4),
+             "ncl": lambda: NullSpaceComponent(n_centres=9),
+             "policy": lambda: PolicyLearner("pi-weighted", n_centres=9),
+             "per_demo": lambda: PerDemonstration(LinearConstraint(regressors="identity"))}[kind]()
+    model.fit(d.X, d.U, d.demo) if kind == "per_demo" else model.fit(d.X, d.U)
+    path = save_model(tmp_path / "m.h5", model)
+    code = ("import sys, numpy as np; from ccl_cli.models import load_model; "
+            "from ccl_cli.io.hdf5 import read_demonstrations; m, i = load_model(sys.argv[1]); "
+            "d, _ = read_demonstrations(sys.argv[2]); "
+            "out = m.predict(d.X) if i['kind'] != 'constraint' else m.projection(d.X, d.demo); "
+            "np.save(sys.argv[3], out)")
+    from ccl_cli.io.hdf5 import write_demonstrations
+
+    write_demonstrations(tmp_path / "d.h5", d)
+    subprocess.run([sys.executable, "-c", code, path, tmp_path / "d.h5", tmp_path / "out.npy"], check=True)
+    fresh = np.load(tmp_path / "out.npy")
+    here = model.predict(d.X) if kind in ("ncl", "policy") else model.projection(d.X, d.demo)
+    assert np.array_equal(fresh, here)
+    again, _ = load_model(path)
+    assert type(again) is type(model)
+
+
+def test_convert_then_learn_from_bag_and_inspect(tmp_path):
+    out = tmp_path / "kuka.h5"
+    ccl("convert", SAMPLES / "kuka_wipe.bag", "-c", CONFIGS / "kuka_bag.yaml", "-o", out)
+    info = json.loads(ccl("inspect", out, "--json").stdout)
+    assert info["demos"] == 4 and info["samples"] == 1200
+    bag = json.loads(ccl("inspect", SAMPLES / "kuka_wipe.bag", "--json").stdout)
+    assert bag["topics"]["/joint_states"]["count"] == 1200
+    assert bag["topics"]["/joint_states"]["rate_hz"] == pytest.approx(1199 / bag["duration_s"])
+    text = ccl("inspect", SAMPLES / "trakstar_plane.csv").stdout
+    assert "x.1" in text and "rows:" in text
+
+
+def test_flags_override_config(capsys, tmp_path):
+    code, out, err = run_main(capsys, "learn-a", "-c", CONFIGS / "arm7.yaml", "--n-constraints", "3", "-o",
+                              tmp_path / "o", "--json", "-q")
+    assert code == 0, err
+    assert json.loads(out)["stages"]["learn-a"]["n_constraints"] == 3
+    resolved = (tmp_path / "o" / "config.yaml").read_text()
+    assert "n_constraints: 3" in resolved
+
+
+# -- bad input and bad config: exit 2, one line, no traceback ------------------------------
+BAD_CONFIGS = {
+    "unknown_key": ("data:\n  files: [x.h5]\nlearn-a:\n  n_centers: 3\n",
+                    r":4: unknown key 'n_centers' in learn-a \(did you mean 'n_centres'\?\)"),
+    "wrong_type": ("learn-a:\n  n_constraints: two\n", r":2: learn-a.n_constraints must be an integer"),
+    "bad_choice": ("learn-a:\n  method: nhatt\n", r"learn-a.method must be one of .*did you mean 'nhat'"),
+    "bad_stage": ("stages:\n  - learn-ax\n", r":2: unknown stage 'learn-ax' \(did you mean 'learn-a'"),
+    "bad_yaml": ("data: [unclosed\n", r"invalid YAML"),
+    "top_level": ("dat:\n  files: []\n", r":1: unknown key 'dat' at the top level \(did you mean 'data'"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CONFIGS))
+def test_bad_configs(capsys, tmp_path, case):
+    import re
+
+    text, pattern = BAD_CONFIGS[case]
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text(text)
+    code, out, err = run_main(capsys, "learn-a", SAMPLES / "arm7.h5", "-c", cfg, "-o", tmp_path / "o")
+    assert code == 2
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert re.search(pattern, err), err
+    assert not (tmp_path / "o").exists()
+
+
+def test_bad_inputs_exit_2_with_one_line(tmp_path):
+    (tmp_path / "junk.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + b"\x00" * 100)
+    (tmp_path / "notamodel.h5").write_bytes((SAMPLES / "arm7.h5").read_bytes())
+    cases = [
+        ("learn-a", tmp_path / "missing.bag"),
+        ("learn-a", tmp_path / "junk.h5"),
+        ("learn-a", SAMPLES / "kuka_wipe.bag"),  # no data.state for a bag
+        ("learn-a", SAMPLES / "arm7.h5", "--method", "lambda"),  # lambda needs features
+        ("evaluate", tmp_path / "notamodel.h5", SAMPLES / "arm7.h5"),
+        ("evaluate", tmp_path / "missing.h5", SAMPLES / "arm7.h5"),
+        ("simulate", "nope", "-o", tmp_path / "x.h5"),
+        ("simulate", "arm7", "-o", tmp_path / "x.h5", "--policy", "attractor"),
+        ("inspect", tmp_path / "missing.csv"),
+        ("learn-a", "--bogus-flag"),
+    ]
+    for args in cases:
+        proc = ccl(*args, check=False)
+        assert proc.returncode == 2, (args, proc.stderr)
+        assert "Traceback" not in proc.stderr, (args, proc.stderr)
+        if args[-1] != "--bogus-flag":
+            lines = proc.stderr.strip().splitlines()
+            assert lines[-1].startswith("ccl: error: "), (args, proc.stderr)
+            assert sum(line.startswith("ccl: error") for line in lines) == 1
+            assert all(line.startswith("ccl: ") for line in lines)  # progress logs, then the error
+
+
+def test_dimension_mismatch_and_existing_output(tmp_path):
+    ccl("learn-a", SAMPLES / "arm7.h5", "-o", tmp_path / "a", "-q")
+    proc = ccl("evaluate", tmp_path / "a" / "model.h5", SAMPLES / "two_link.h5", check=False)
+    assert proc.returncode == 2 and "7-dimensional actions" in proc.stderr
+    proc = ccl("learn-a", SAMPLES / "arm7.h5", "-o", tmp_path / "a", check=False)
+    assert proc.returncode == 2 and "exists; use --force" in proc.stderr
+    ccl("learn-a", SAMPLES / "arm7.h5", "-o", tmp_path / "a", "--force", "-q")
+
+
+def test_corrupt_model_is_refused(tmp_path):
+    ccl("learn-v", SAMPLES / "toy2d_ncl.h5", "-o", tmp_path / "v", "-q")
+    model = tmp_path / "v" / "model.h5"
+    with h5py.File(model, "a") as f:
+        del f["arrays/W_"]
+        f["arrays/W_"] = np.zeros((3, 3))
+    proc = ccl("evaluate", model, SAMPLES / "toy2d_ncl.h5", check=False)
+    assert proc.returncode == 2 and "wrong shape" in proc.stderr
+    raw = model.read_bytes()
+    model.write_bytes(raw[: len(raw) // 2])
+    proc = ccl("evaluate", model, SAMPLES / "toy2d_ncl.h5", check=False)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1
+
+
+# -- interruption leaves nothing half-written ------------------------------------------------
+def test_interrupted_write_leaves_no_output(capsys, tmp_path, monkeypatch):
+    import ccl_cli.report as report
+
+    def boom(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(report, "write_json", boom)
+    code, _, err = run_main(capsys, "learn-a", SAMPLES / "arm7.h5", "-o", tmp_path / "o")
+    assert code == 130 and "interrupted" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_sigint_during_a_run_leaves_complete_or_nothing(tmp_path):
+    out = tmp_path / "o"
+    env = dict(os.environ)
+    proc = subprocess.Popen([CCL, "run", str(CONFIGS / "toy2d_learn_pi.yaml"), "-o", str(out), "-q"],
+                            stderr=subprocess.PIPE, text=True, env=env)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    leftovers = [p.name for p in tmp_path.iterdir() if p.name != "o"]
+    assert leftovers == []
+    if out.exists():  # finished before the signal: then it is complete
+        assert (out / "metrics.json").exists() and (out / "run.json").exists()
+    else:
+        assert proc.returncode == 130 and "Traceback" not in err
