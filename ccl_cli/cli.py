@@ -17,7 +17,7 @@ from typing import Annotated, Any
 
 import typer
 
-from ccl_cli.errors import CCLError, ConfigError, InputError
+from ccl_cli.errors import CCLError, InputError
 
 log = logging.getLogger("ccl")
 
@@ -64,26 +64,6 @@ def _config(path: Path | None, overrides: dict[str, Any]):
     return C.merge(C.load(path), overrides)
 
 
-def _read(cfg, files: list[Path] | None):
-    """The dataset and its train/test masks (canonical HDF5 may carry them)."""
-    from ccl_cli.io import detect_format, expand_files, file_hash, load_demonstrations
-    from ccl_cli.io.hdf5 import read_demonstrations
-
-    data_cfg = dict(cfg.get("data") or {})
-    entries = [str(f) for f in files] if files else data_cfg.get("files")
-    if not entries:
-        raise ConfigError("no input data: give files on the command line or data.files in the config")
-    paths = expand_files(entries, None if files else cfg.base)
-    if len(paths) == 1 and detect_format(paths[0]) == "hdf5":
-        data, info = read_demonstrations(paths[0])
-        data.metadata = {"files": [{"path": str(paths[0]), "sha256": file_hash(paths[0]), "format": "hdf5"}],
-                         "time_origin_ns": info["time_origin_ns"], "provenance": info["provenance"]}
-        return data, info["masks"]
-    data_cfg.pop("test", None)
-    data_cfg.pop("files", None)
-    return load_demonstrations(data_cfg, files=[str(p) for p in paths]), None
-
-
 def _emit(summary: dict[str, Any], as_json: bool) -> None:
     import json
 
@@ -104,54 +84,20 @@ def _emit(summary: dict[str, Any], as_json: bool) -> None:
 
 def _learn(command: str, stages: list[tuple[str, dict]] | None, cfg, files, out: Path | None,
            force: bool, as_json: bool, quiet: bool) -> None:
-    from ccl_cli.io.atomic import atomic_dir
-    from ccl_cli.models import save_model
-    from ccl_cli.pipeline import Pipeline, stage_list
-    from ccl_cli.report import data_summary, make_plots, markdown, stage_metrics, versions, write_json
+    from ccl_cli.runner import default_outdir, run_to_dir
 
-    t0 = time.perf_counter()
-    data, masks = _read(cfg, files)
-    data.check_finite()
-    stages = stages if stages is not None else stage_list(cfg)
-    outdir = out or Path("runs") / (Path(cfg.source).stem if command == "run" and cfg.source != "<flags>"
-                                    else command)
-    if outdir.exists() and not force:
-        raise InputError(f"{outdir} exists; use --force to overwrite it")
-    pipeline = Pipeline(cfg, data, masks)
-    progress = _progress(len(stages), quiet)
+    outdir = out or default_outdir(command, cfg)
+    progress = None
+    if stages is not None or cfg.get("stages"):
+        from ccl_cli.pipeline import stage_list
+
+        progress = _progress(len(stages if stages is not None else stage_list(cfg)), quiet)
     try:
-        pipeline.run(stages, progress=progress.advance if progress else None)
+        summary = run_to_dir(command, cfg, files, outdir, force, stages,
+                             progress=progress.advance if progress else None)
     finally:
         if progress:
             progress.stop()
-    metrics = stage_metrics(pipeline.results)
-    hashes = {f["path"]: f["sha256"] for f in data.metadata.get("files", [])}
-    with atomic_dir(outdir, force=force) as tmp:
-        single = len([r for r in pipeline.results if r.model is not None]) == 1
-        for r in pipeline.results:
-            if r.model is None:
-                continue
-            path = tmp / "model.h5" if single else tmp / "models" / f"{r.name}.h5"
-            path.parent.mkdir(exist_ok=True)
-            save_model(path, r.model, training={"stage": r.name, "config": dict(cfg), "inputs": hashes,
-                                                "versions": versions()})
-        plots = make_plots(tmp, pipeline) if (cfg.get("output") or {}).get("plots", True) else []
-        write_json(tmp / "metrics.json", metrics)
-        (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, data_summary(pipeline)))
-        import yaml
-
-        (tmp / "config.yaml").write_text(yaml.safe_dump(dict(cfg), sort_keys=False))
-        write_json(tmp / "run.json", {
-            "command": command, "argv": sys.argv, "config": dict(cfg), "config_source": cfg.source,
-            "inputs": hashes, "versions": versions(),
-            "timings": {r.name: r.seconds for r in pipeline.results} | {"total": time.perf_counter() - t0},
-            "data": data_summary(pipeline),
-        })
-    summary = {"status": "ok", "command": command, "outdir": str(outdir),
-               "stages": {name: {**{k: v for k, v in e.items() if k in ("method", "n_constraints")},
-                                 **{split: {m: v["value"] for m, v in e.get(split, {}).items()}
-                                    for split in ("train", "test") if split in e}}
-                          for name, e in metrics.items()}}
     _emit(summary, as_json)
 
 
@@ -259,11 +205,12 @@ def evaluate(
     """Metrics of a saved model on data (every metric its ground truth allows)."""
     from ccl_cli.models import load_model
     from ccl_cli.pipeline import check_dimensions, evaluate_model
+    from ccl_cli.runner import read_data
 
     _logging(quiet)
     cfg = _config(config, {"metrics": {"convention": convention}})
     est, info = load_model(model)
-    dataset, _ = _read(cfg, data)
+    dataset, _ = read_data(cfg, data)
     check_dimensions(est, dataset)
     metrics = evaluate_model(est, info["kind"], dataset, cfg["metrics"]["convention"])
     entry = {"method": info["method"], "all": metrics}
@@ -305,11 +252,12 @@ def predict(
     from ccl_cli.io.atomic import atomic_path
     from ccl_cli.models import load_model
     from ccl_cli.pipeline import check_dimensions
+    from ccl_cli.runner import read_data
 
     _logging(quiet)
     cfg = _config(config, {})
     est, info = load_model(model)
-    dataset, _ = _read(cfg, data)
+    dataset, _ = read_data(cfg, data)
     check_dimensions(est, dataset)
     kind = info["kind"]
     outputs: dict[str, np.ndarray] = {"x": dataset.X, "u": dataset.U, "t": dataset.t, "demo": dataset.demo}
@@ -440,10 +388,11 @@ def convert(
 ) -> None:
     """Convert recordings (CSV, bags, MCAP) into the canonical ccl-demonstrations HDF5."""
     from ccl_cli.io.hdf5 import write_demonstrations
+    from ccl_cli.runner import read_data
 
     _logging(quiet)
     cfg = _config(config, {})
-    dataset, _ = _read(cfg, data)
+    dataset, _ = read_data(cfg, data)
     write_demonstrations(out, dataset, time_origin_ns=int(dataset.metadata.get("time_origin_ns", 0)),
                          provenance={"converted_from": dataset.metadata.get("files"),
                                      "data_config": cfg.get("data")}, force=force)
@@ -451,6 +400,68 @@ def convert(
                "demos": dataset.n_demos}
     _emit(summary, json_out) if json_out else typer.echo(
         f"wrote {out}: {dataset.n_samples} samples in {dataset.n_demos} demonstrations", err=True)
+
+
+@app.command("batch")
+def batch(
+    manifest: Annotated[Path | None, typer.Argument(help="Manifest YAML (files → pipeline configs).")] = None,
+    files: Annotated[list[str] | None, typer.Option("--files", help="Paths or globs (without a manifest).")]
+    = None,
+    config: ConfigOpt = None,
+    out: OutOpt = None,
+    workers: Annotated[int | None, typer.Option("--workers", "-j", help="Local processes (default: cores).")]
+    = None,
+    scheduler: Annotated[str | None, typer.Option(help="Address of a running Dask scheduler.")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Re-run jobs whose outputs are up to date.")] = False,
+    json_out: JsonOpt = False, quiet: QuietOpt = False,
+) -> int:
+    """Run a pipeline per recording (or group) in parallel; resumable; summary.csv/.md/.png."""
+    from ccl_cli.batch import plan, run_batch, write_summary
+
+    _logging(quiet)
+    t0 = time.perf_counter()
+    jobs, manifest_out = plan(manifest, files, str(config) if config else None)
+    outdir = out or manifest_out or Path("runs") / "batch"
+    bar = _batch_progress(len(jobs), quiet)
+    try:
+        results = run_batch(jobs, outdir, workers, scheduler, force, progress=bar.update if bar else None)
+    finally:
+        if bar:
+            bar.stop()
+    summary = write_summary(outdir, results, time.perf_counter() - t0)
+    summary["outdir"] = str(outdir)
+    if json_out:
+        _emit({k: v for k, v in summary.items() if k != "results"}, True)
+    else:
+        typer.echo(f"{summary['jobs']} jobs: {summary['ok']} ran, {summary['skipped']} skipped, "
+                   f"{summary['failed']} failed; summary in {outdir / 'summary.md'}", err=True)
+        for f in summary["failures"]:
+            typer.echo(f"  failed {f['job']}: {f['error']}", err=True)
+    return 1 if summary["failed"] else 0
+
+
+def _batch_progress(total: int, quiet: bool):
+    if quiet or not sys.stderr.isatty():
+        return None
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    progress = Progress(TextColumn("jobs"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                        TextColumn("failed {task.fields[failed]}"), TimeRemainingColumn(),
+                        console=Console(stderr=True), transient=True)
+    task = progress.add_task("jobs", total=total, failed=0)
+    progress.start()
+    failed = [0]
+
+    class Handle:
+        def update(self, res) -> None:
+            failed[0] += res.status == "failed"
+            progress.update(task, advance=1, failed=failed[0])
+
+        def stop(self) -> None:
+            progress.stop()
+
+    return Handle()
 
 
 # -- entry point ---------------------------------------------------------------------------

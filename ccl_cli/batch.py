@@ -1,0 +1,343 @@
+"""``ccl batch``: one pipeline run per recording (or group of recordings), in parallel.
+
+Manifest (YAML; paths relative to it)::
+
+    out: runs/batch                    # output root (flag -o overrides)
+    jobs:                              # rules: which files, which pipeline config
+      - files: [logs/kuka/*.bag]       # paths or globs
+        config: configs/kuka_bag.yaml
+        overrides: {learn-a: {n_constraints: 1}}   # merged into that config
+        group: false                   # true: all matched files form one dataset (one job)
+    overrides:                         # per file (path or glob) → config overrides
+      logs/kuka/run_07.bag: {data: {demos: {split_on_gap: 1.0}}}
+
+Each job writes ``OUT/jobs/<job>/`` exactly as ``ccl run`` would, plus ``job.json`` with its
+content key (sha256 of the input files, the resolved config and the ccl version). A job
+whose folder holds the same key is skipped unless ``force``; folders are written atomically,
+so an interrupted batch resumes where it stopped. Execution goes through one
+``concurrent.futures.Executor``: a process pool locally, or a dask.distributed cluster's
+executor with ``scheduler`` — the same code path.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import logging
+import os
+import shutil
+import time
+from concurrent.futures import Executor, as_completed
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from ccl_cli import __version__
+from ccl_cli import config as C
+from ccl_cli.errors import CCLError, ConfigError
+
+log = logging.getLogger("ccl")
+MANIFEST_KEYS = {"out", "jobs", "overrides"}
+RULE_KEYS = {"files", "config", "overrides", "group"}
+
+
+@dataclass
+class Job:
+    job_id: str
+    files: list[str]
+    config_path: str | None
+    config: dict[str, Any]
+    key: str = ""
+
+
+@dataclass
+class JobResult:
+    job_id: str
+    files: list[str]
+    status: str  # ok | skipped | failed
+    seconds: float = 0.0
+    error: str = ""
+    exit_code: int = 0
+    stages: dict[str, Any] = field(default_factory=dict)
+
+
+# -- planning ------------------------------------------------------------------------------
+def _resolve_config(path: str | None, overrides: list[dict], base: Path) -> C.Config:
+    cfg = C.load(base / path if path and not Path(path).is_absolute() else path)
+    merged = dict(cfg)
+    for over in overrides:
+        merged = C.deep_merge(merged, over or {})
+    out = C.Config(merged)
+    out.source, out.lines, out.base = cfg.source, cfg.lines, cfg.base
+    return C.merge(out, {})
+
+
+def _hash_files(files: list[str]) -> list[str]:
+    from ccl_cli.io import file_hash
+
+    return [file_hash(Path(f)) for f in files]
+
+
+def job_key(files: list[str], cfg: dict[str, Any]) -> str:
+    """sha256 over the inputs' contents, the resolved config and the ccl version."""
+    h = hashlib.sha256()
+    for digest in _hash_files(files):
+        h.update(digest.encode())
+    h.update(json.dumps(cfg, sort_keys=True, default=str).encode())
+    h.update(__version__.encode())
+    return h.hexdigest()
+
+
+def _job_id(files: list[str]) -> str:
+    stem = Path(files[0]).name.replace(".", "_") if len(files) == 1 else f"group_{Path(files[0]).parent.name}"
+    digest = hashlib.sha256("\n".join(sorted(map(str, files))).encode()).hexdigest()[:8]
+    return f"{stem}-{digest}"
+
+
+def plan(manifest: str | Path | None = None, files: list[str] | None = None,
+         config: str | None = None) -> tuple[list[Job], Path | None]:
+    """Jobs from a manifest, or from ``files`` (paths/globs) with one ``config``.
+
+    Returns (jobs, the manifest's ``out`` if it names one). Manifest or config problems
+    raise :class:`ConfigError` (exit 2) before anything runs.
+    """
+    from ccl_cli.io import expand_files
+
+    if manifest is not None:
+        mpath = Path(manifest)
+        try:
+            spec = yaml.safe_load(mpath.read_text()) or {}
+        except OSError as exc:
+            raise ConfigError(f"{mpath}: cannot read manifest ({exc.strerror})") from None
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{mpath}: invalid YAML ({str(exc).splitlines()[0]})") from None
+        if not isinstance(spec, dict) or not isinstance(spec.get("jobs"), list):
+            raise ConfigError(f"{mpath}: a manifest needs a jobs: list of rules")
+        unknown = set(spec) - MANIFEST_KEYS
+        if unknown:
+            raise ConfigError(f"{mpath}: unknown manifest key(s) {', '.join(sorted(unknown))} "
+                              f"(valid: {', '.join(sorted(MANIFEST_KEYS))})")
+        base = mpath.parent
+        rules = spec["jobs"]
+        per_file = spec.get("overrides") or {}
+        out = Path(spec["out"]) if spec.get("out") else None
+        if out is not None and not out.is_absolute():
+            out = base / out
+    else:
+        if not files:
+            raise ConfigError("give a manifest or --files with --config")
+        base = Path.cwd()
+        rules = [{"files": files, "config": config}]
+        per_file, out = {}, None
+    file_over = [(expand_files([k], base), v) for k, v in per_file.items()]
+    jobs: list[Job] = []
+    seen: set[str] = set()
+    for i, rule in enumerate(rules):
+        if not isinstance(rule, dict) or "files" not in rule:
+            raise ConfigError(f"jobs[{i}] must be a mapping with files: (and config:)")
+        bad = set(rule) - RULE_KEYS
+        if bad:
+            raise ConfigError(f"jobs[{i}]: unknown key(s) {', '.join(sorted(bad))} "
+                              f"(valid: {', '.join(sorted(RULE_KEYS))})")
+        matched = [str(p) for p in expand_files(rule["files"], base)]
+        groups = [matched] if rule.get("group") else [[f] for f in matched]
+        for group in groups:
+            extra = [v for paths, v in file_over if any(str(p) in group for p in paths)]
+            try:
+                cfg = _resolve_config(rule.get("config"), [rule.get("overrides") or {}, *extra], base)
+            except CCLError as exc:
+                raise ConfigError(f"jobs[{i}]: {exc.message}") from None
+            job = Job(_job_id(group), group, str(rule.get("config")), dict(cfg))
+            if job.job_id in seen:
+                raise ConfigError(f"{group[0]} is matched by more than one rule")
+            seen.add(job.job_id)
+            jobs.append(job)
+    if not jobs:
+        raise ConfigError("the manifest matches no files")
+    return jobs, out
+
+
+# -- running -------------------------------------------------------------------------------
+def run_job(job: Job, jobs_dir: str, force: bool) -> JobResult:
+    """Run one job into ``jobs_dir/<job_id>`` (in a worker process or on a Dask worker)."""
+    logging.getLogger("ccl").setLevel(logging.WARNING)
+    t0 = time.perf_counter()
+    outdir = Path(jobs_dir) / job.job_id
+    try:
+        key = job_key(job.files, job.config)
+        marker = outdir / "job.json"
+        if not force and marker.exists():
+            try:
+                if json.loads(marker.read_text()).get("key") == key:
+                    stages = json.loads((outdir / "metrics.json").read_text())
+                    from ccl_cli.runner import summarise
+
+                    return JobResult(job.job_id, job.files, "skipped", 0.0, stages=summarise(stages))
+            except (json.JSONDecodeError, OSError):
+                pass
+        cfg = C.Config(job.config)
+        cfg.source, cfg.lines, cfg.base = job.config_path or "<batch>", {}, None
+        from ccl_cli.runner import run_to_dir
+
+        summary = run_to_dir("run", cfg, job.files, outdir, force=True,
+                             extra_files={"job.json": {"key": key, "files": job.files,
+                                                       "config": job.config_path}})
+        return JobResult(job.job_id, job.files, "ok", time.perf_counter() - t0, stages=summary["stages"])
+    except CCLError as exc:
+        return JobResult(job.job_id, job.files, "failed", time.perf_counter() - t0, exc.message,
+                         exc.exit_code)
+    except Exception as exc:  # one bad job must not stop the others
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        return JobResult(job.job_id, job.files, "failed", time.perf_counter() - t0,
+                         f"internal error: {type(exc).__name__}: {first}", 1)
+
+
+def make_executor(workers: int | None, scheduler: str | None) -> tuple[Executor, Any]:
+    """A process pool, or the executor of a dask.distributed client at ``scheduler``."""
+    if scheduler:
+        try:
+            from distributed import Client
+        except ImportError:
+            raise ConfigError("--scheduler needs dask.distributed: pip install 'ccl_cli[dask]'") from None
+        try:
+            client = Client(scheduler, timeout="10s")
+        except Exception as exc:
+            raise ConfigError(f"cannot connect to the Dask scheduler at {scheduler} ({exc})") from None
+        return client.get_executor(), client
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    n = workers or os.cpu_count() or 1
+    return ProcessPoolExecutor(max_workers=n, mp_context=get_context("spawn")), None
+
+
+def clean_stale(jobs_dir: Path) -> int:
+    """Remove temporary folders left by a batch that was killed (never job folders)."""
+    n = 0
+    if jobs_dir.exists():
+        for p in jobs_dir.iterdir():
+            if p.name.startswith(".") and (p.name.endswith(".tmp") or ".old-" in p.name):
+                shutil.rmtree(p, ignore_errors=True)
+                n += 1
+    return n
+
+
+def run_batch(jobs: list[Job], out: Path, workers: int | None = None, scheduler: str | None = None,
+              force: bool = False, progress=None) -> list[JobResult]:
+    jobs_dir = out / "jobs"
+    jobs_dir.mkdir(parents=True, exist_ok=True)
+    removed = clean_stale(jobs_dir)
+    if removed:
+        log.info("removed %d unfinished job folder(s) of an interrupted batch", removed)
+    executor, client = make_executor(workers, scheduler)
+    results: list[JobResult] = []
+    try:
+        futures = {executor.submit(run_job, job, str(jobs_dir.resolve()), force): job for job in jobs}
+        for fut in as_completed(futures):
+            job = futures[fut]
+            try:
+                res = fut.result()
+            except Exception as exc:  # a worker died
+                res = JobResult(job.job_id, job.files, "failed", 0.0, f"worker failed: {exc}", 1)
+            results.append(res)
+            if progress is not None:
+                progress(res)
+    finally:
+        executor.shutdown(wait=True)
+        if client is not None:
+            client.close()
+    order = {j.job_id: i for i, j in enumerate(jobs)}
+    return sorted(results, key=lambda r: order[r.job_id])
+
+
+# -- aggregate -----------------------------------------------------------------------------
+def _flat(res: JobResult) -> dict[str, Any]:
+    row: dict[str, Any] = {"job": res.job_id, "files": ";".join(res.files), "status": res.status,
+                           "seconds": round(res.seconds, 3), "error": res.error}
+    methods, counts = [], []
+    for stage, entry in res.stages.items():
+        if entry.get("method"):
+            methods.append(f"{stage}:{entry['method']}")
+        if "n_constraints" in entry:
+            counts.append(str(entry["n_constraints"]))
+        for split in ("train", "test"):
+            for name, value in (entry.get(split) or {}).items():
+                row[f"{stage}.{split}.{name}"] = value
+    row["method"] = " ".join(methods)
+    row["n_constraints"] = ";".join(counts)
+    return row
+
+
+def write_summary(out: Path, results: list[JobResult], seconds: float) -> dict[str, Any]:
+    """summary.csv, summary.md, summary.json and summary.png under ``out`` (atomic each)."""
+    from ccl_cli.io.atomic import atomic_path
+
+    rows = [_flat(r) for r in results]
+    fixed = ["job", "files", "method", "n_constraints", "status", "seconds", "error"]
+    metric_cols = sorted({k for r in rows for k in r} - set(fixed))
+    with atomic_path(out / "summary.csv", force=True) as tmp, open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fixed[:6] + metric_cols + ["error"])
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: r.get(k, "") for k in w.fieldnames})
+    counts = {s: sum(r.status == s for r in results) for s in ("ok", "skipped", "failed")}
+    lines = [f"# ccl batch — {len(results)} jobs: {counts['ok']} ran, {counts['skipped']} skipped, "
+             f"{counts['failed']} failed ({seconds:.1f} s)", ""]
+    shown = [c for c in metric_cols if ".test." in c] or metric_cols
+    lines.append("| job | method | s | status | time [s] | " + " | ".join(shown) + " |")
+    lines.append("|" + "---|" * (5 + len(shown)))
+    for r in rows:
+        vals = " | ".join(f"{r[c]:.3e}" if isinstance(r.get(c), float) else "—" for c in shown)
+        lines.append(f"| {r['job']} | {r['method']} | {r['n_constraints']} | {r['status']} | "
+                     f"{r['seconds']:.2f} | {vals} |")
+    failed = [r for r in results if r.status == "failed"]
+    if failed:
+        lines += ["", "## Failures", ""]
+        lines += [f"- `{r.job_id}` ({', '.join(r.files)}): {r.error}" for r in failed]
+    if _plot(out, rows, shown):
+        lines += ["", "![metrics across jobs](summary.png)"]
+    with atomic_path(out / "summary.md", force=True) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+    summary = {"status": "ok" if not failed else "failed", "jobs": len(results), **counts,
+               "seconds": seconds, "failures": [{"job": r.job_id, "files": r.files, "error": r.error}
+                                                for r in failed],
+               "results": [asdict(r) for r in results]}
+    with atomic_path(out / "summary.json", force=True) as tmp:
+        tmp.write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    return summary
+
+
+def _plot(out: Path, rows: list[dict], columns: list[str]) -> bool:
+    """One panel per metric: its value per job, coloured by method (log scale)."""
+    cols = [c for c in columns if any(isinstance(r.get(c), float) and r[c] > 0 for r in rows)][:6]
+    if not cols:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    methods = sorted({r["method"] for r in rows if r["status"] != "failed"})
+    colours = {m: plt.cm.tab10(i % 10) for i, m in enumerate(methods)}
+    fig, axes = plt.subplots(len(cols), 1, figsize=(max(6, 0.25 * len(rows) + 3), 2.2 * len(cols)),
+                             squeeze=False)
+    for ax, col in zip(axes[:, 0], cols, strict=True):
+        for m in methods:
+            pts = [(i, r[col]) for i, r in enumerate(rows)
+                   if r["method"] == m and isinstance(r.get(col), float) and r[col] > 0]
+            if pts:
+                ax.scatter(*zip(*pts, strict=True), color=colours[m], label=m, s=18)
+        ax.set_yscale("log")
+        ax.set_ylabel(col, fontsize=7)
+    axes[-1, 0].set_xlabel("job")
+    axes[0, 0].legend(fontsize=6, loc="best")
+    fig.tight_layout()
+    from ccl_cli.io.atomic import atomic_path
+
+    with atomic_path(out / "summary.png", force=True) as tmp:
+        fig.savefig(tmp, format="png", dpi=80)
+    plt.close(fig)
+    return True

@@ -1,0 +1,97 @@
+"""Running a configured pipeline into an output folder: what ``ccl run`` (and each
+``ccl batch`` job) does, as a library function returning a summary."""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from ccl_cli.config import Config
+from ccl_cli.errors import ConfigError, InputError
+
+
+def read_data(cfg: Config, files: list[Path] | list[str] | None):
+    """The dataset and its train/test masks (canonical HDF5 may carry them)."""
+    from ccl_cli.io import detect_format, expand_files, file_hash, load_demonstrations
+    from ccl_cli.io.hdf5 import read_demonstrations
+
+    data_cfg = dict(cfg.get("data") or {})
+    entries = [str(f) for f in files] if files else data_cfg.get("files")
+    if not entries:
+        raise ConfigError("no input data: give files on the command line or data.files in the config")
+    paths = expand_files(entries, None if files else cfg.base)
+    if len(paths) == 1 and detect_format(paths[0]) == "hdf5":
+        data, info = read_demonstrations(paths[0])
+        data.metadata = {"files": [{"path": str(paths[0]), "sha256": file_hash(paths[0]), "format": "hdf5"}],
+                         "time_origin_ns": info["time_origin_ns"], "provenance": info["provenance"]}
+        return data, info["masks"]
+    data_cfg.pop("test", None)
+    data_cfg.pop("files", None)
+    return load_demonstrations(data_cfg, files=[str(p) for p in paths]), None
+
+
+def default_outdir(command: str, cfg: Config) -> Path:
+    stem = Path(cfg.source.split(" + ")[0]).stem if command == "run" and cfg.source != "<flags>" else command
+    return Path("runs") / stem
+
+
+def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = False,
+               stages: list[tuple[str, dict]] | None = None,
+               progress: Callable[[], None] | None = None,
+               extra_files: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Read the data, run the stages, write every output into ``outdir`` atomically.
+
+    Returns the summary (status, outdir, per-stage method, constraint count and metric values).
+    ``extra_files`` (name → JSON value) are written into the folder with the rest.
+    """
+    from ccl_cli.io.atomic import atomic_dir
+    from ccl_cli.models import save_model
+    from ccl_cli.pipeline import Pipeline, stage_list
+    from ccl_cli.report import data_summary, make_plots, markdown, stage_metrics, versions, write_json
+
+    t0 = time.perf_counter()
+    if outdir.exists() and not force:
+        raise InputError(f"{outdir} exists; use --force to overwrite it")
+    data, masks = read_data(cfg, files)
+    data.check_finite()
+    stages = stages if stages is not None else stage_list(cfg)
+    pipeline = Pipeline(cfg, data, masks)
+    pipeline.run(stages, progress=progress)
+    metrics = stage_metrics(pipeline.results)
+    hashes = {f["path"]: f["sha256"] for f in data.metadata.get("files", [])}
+    with atomic_dir(outdir, force=force) as tmp:
+        single = len([r for r in pipeline.results if r.model is not None]) == 1
+        for r in pipeline.results:
+            if r.model is None:
+                continue
+            path = tmp / "model.h5" if single else tmp / "models" / f"{r.name}.h5"
+            path.parent.mkdir(exist_ok=True)
+            save_model(path, r.model, training={"stage": r.name, "config": dict(cfg), "inputs": hashes,
+                                                "versions": versions()})
+        plots = make_plots(tmp, pipeline) if (cfg.get("output") or {}).get("plots", True) else []
+        write_json(tmp / "metrics.json", metrics)
+        (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, data_summary(pipeline)))
+        import yaml
+
+        (tmp / "config.yaml").write_text(yaml.safe_dump(dict(cfg), sort_keys=False))
+        write_json(tmp / "run.json", {
+            "command": command, "argv": sys.argv, "config": dict(cfg), "config_source": cfg.source,
+            "inputs": hashes, "versions": versions(),
+            "timings": {r.name: r.seconds for r in pipeline.results} | {"total": time.perf_counter() - t0},
+            "data": data_summary(pipeline),
+        })
+        for name, value in (extra_files or {}).items():
+            write_json(tmp / name, value)
+    return {"status": "ok", "command": command, "outdir": str(outdir),
+            "seconds": time.perf_counter() - t0, "stages": summarise(metrics)}
+
+
+def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
+    """metrics.json → {stage: {method, n_constraints, train: {name: value}, test: {...}}}."""
+    return {name: {**{k: v for k, v in e.items() if k in ("method", "n_constraints")},
+                   **{split: {m: v["value"] for m, v in e.get(split, {}).items()}
+                      for split in ("train", "test") if split in e}}
+            for name, e in metrics.items()}

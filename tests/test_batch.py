@@ -1,0 +1,175 @@
+"""ccl batch: parallel runs over many recordings, locally and on Dask, resumable."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from ccl_cli import simulate as sim
+from ccl_cli.cli import main
+from ccl_cli.io.hdf5 import write_demonstrations
+
+CCL = shutil.which("ccl") or str(Path(sys.executable).parent / "ccl")
+CONFIG = """
+data:
+  test: {fraction: 0.3, seed: 0}
+learn-a:
+  method: linear
+  regressors: polynomial
+  degree: 1
+stages:
+  - learn-a
+output: {plots: false}
+"""
+N_GOOD = 20
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory):
+    root = tmp_path_factory.mktemp("recs")
+    for i in range(N_GOOD):
+        write_demonstrations(root / f"rec_{i:02d}.h5", sim.toy2d(constraint="parabola", n_demos=10, seed=i))
+    (root / "rec_bad1.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + b"\x00" * 64)  # corrupt HDF5
+    nan = sim.toy2d(n_demos=3, seed=99)
+    nan.U[4, 0] = float("nan")
+    write_demonstrations(root / "rec_bad2.h5", nan)  # NaN actions
+    cfg = root / "pipeline.yaml"
+    cfg.write_text(CONFIG)
+    return root
+
+
+def batch(capsys, *args):
+    code = main(["batch", *map(str, args), "--json", "-q"])
+    out = capsys.readouterr()
+    return code, json.loads(out.out) if out.out.strip() else None, out.err
+
+
+def job_metrics(out: Path) -> dict[str, dict]:
+    res = {}
+    for d in (out / "jobs").iterdir():
+        if not d.name.startswith("."):
+            res[d.name] = json.loads((d / "metrics.json").read_text())
+    return res
+
+
+def values(metrics: dict) -> dict:
+    return {(s, p, m): v["value"] for s, e in metrics.items() for p in ("train", "test")
+            for m, v in (e.get(p) or {}).items()}
+
+
+def test_local_batch_reports_failures_and_matches_ccl_run(capsys, recordings, tmp_path):
+    out = tmp_path / "local"
+    code, summary, _ = batch(capsys, "--files", recordings / "rec_*.h5", "-c", recordings / "pipeline.yaml",
+                             "-o", out, "--workers", 2)
+    assert code == 1
+    assert summary["jobs"] == N_GOOD + 2 and summary["ok"] == N_GOOD and summary["failed"] == 2
+    errors = {Path(f["files"][0]).name: f["error"] for f in summary["failures"]}
+    assert set(errors) == {"rec_bad1.h5", "rec_bad2.h5"}
+    assert "rec_bad1.h5" in errors["rec_bad1.h5"] and "cannot" in errors["rec_bad1.h5"]
+    assert "non-finite" in errors["rec_bad2.h5"]
+    rows = (out / "summary.csv").read_text().splitlines()
+    assert len(rows) == N_GOOD + 3 and rows[0].startswith("job,files,method,n_constraints,status,seconds")
+    assert "## Failures" in (out / "summary.md").read_text()
+    assert (out / "summary.png").stat().st_size > 1000
+    # the same per-file metrics as ccl run on each file alone
+    per_job = job_metrics(out)
+    for i in (0, 7, 19):
+        alone = tmp_path / f"alone_{i}"
+        assert main(["run", str(recordings / "pipeline.yaml"), "--data", str(recordings / f"rec_{i:02d}.h5"),
+                     "-o", str(alone), "-q"]) == 0
+        capsys.readouterr()
+        job = next(k for k in per_job if k.startswith(f"rec_{i:02d}_h5-"))
+        assert values(per_job[job]) == values(json.loads((alone / "metrics.json").read_text()))
+
+
+def test_dask_cluster_gives_the_same_metrics(capsys, recordings, tmp_path):
+    from distributed import LocalCluster
+
+    local, remote = tmp_path / "local", tmp_path / "dask"
+    code, summary, _ = batch(capsys, "--files", recordings / "rec_0*.h5", "-c", recordings / "pipeline.yaml",
+                             "-o", local, "-j", 2)
+    assert code == 0, summary["failures"]
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as cluster:
+        code, summary, _ = batch(capsys, "--files", recordings / "rec_0*.h5", "-c",
+                                 recordings / "pipeline.yaml", "-o", remote, "--scheduler",
+                                 cluster.scheduler_address)
+    assert code == 0 and summary["ok"] == 10
+    a, b = job_metrics(local), job_metrics(remote)
+    assert a.keys() == b.keys()
+    assert all(values(a[k]) == values(b[k]) for k in a)
+
+
+def test_bad_scheduler_and_manifest_are_usage_errors(capsys, recordings, tmp_path):
+    code, _, err = batch(capsys, "--files", recordings / "rec_00.h5", "-c", recordings / "pipeline.yaml",
+                         "-o", tmp_path / "x", "--scheduler", "tcp://127.0.0.1:9")
+    assert code == 2 and "cannot connect to the Dask scheduler" in err
+    bad = tmp_path / "m.yaml"
+    bad.write_text("jobs:\n  - files: [nothing_*.h5]\n    config: pipeline.yaml\n")
+    code, _, err = batch(capsys, bad, "-o", tmp_path / "y")
+    assert code == 2 and "no files match" in err
+
+
+def test_manifest_rules_overrides_and_groups(capsys, recordings, tmp_path):
+    manifest = tmp_path / "batch.yaml"
+    manifest.write_text(f"""
+out: out
+jobs:
+  - files: ["{recordings}/rec_0[0-2].h5"]
+    config: {recordings}/pipeline.yaml
+  - files: ["{recordings}/rec_1[0-1].h5"]
+    config: {recordings}/pipeline.yaml
+    group: true
+    overrides: {{learn-a: {{method: nhat}}}}
+overrides:
+  "{recordings}/rec_01.h5": {{learn-a: {{n_constraints: 1, selection: eigengap}}}}
+""")
+    code, summary, err = batch(capsys, manifest, "-j", 2)
+    assert code == 0, err
+    assert summary["ok"] == 4  # three single-file jobs and one group of two
+    rows = {r["job_id"]: r for r in summary_results(tmp_path / "out")}
+    group = next(r for k, r in rows.items() if k.startswith("group_"))
+    assert len(group["files"]) == 2 and group["stages"]["learn-a"]["method"] == "nhat"
+    one = next(r for k, r in rows.items() if k.startswith("rec_01_h5"))
+    cfg = json.loads((tmp_path / "out" / "jobs" / one["job_id"] / "run.json").read_text())["config"]
+    assert cfg["learn-a"]["n_constraints"] == 1
+
+
+def summary_results(out: Path) -> list[dict]:
+    return json.loads((out / "summary.json").read_text())["results"]
+
+
+def test_resume_after_kill(recordings, tmp_path):
+    out = tmp_path / "resume"
+    args = [CCL, "batch", "--files", str(recordings / "rec_*.h5"), "-c", str(recordings / "pipeline.yaml"),
+            "-o", str(out), "-j", "1", "-q"]
+    proc = subprocess.Popen(args, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    jobs = out / "jobs"
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        done = [p for p in jobs.iterdir() if not p.name.startswith(".")] if jobs.exists() else []
+        if len(done) >= 3:
+            break
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)  # the batch and its worker processes, mid-way
+    proc.wait()
+    time.sleep(0.2)
+    finished = {p.name for p in jobs.iterdir() if not p.name.startswith(".")}
+    assert 3 <= len(finished) < N_GOOD
+    for name in finished:  # never a half-written job folder
+        assert (jobs / name / "metrics.json").exists() and (jobs / name / "job.json").exists()
+    again = subprocess.run([*args, "--json"], capture_output=True, text=True)
+    summary = json.loads(again.stdout)
+    assert again.returncode == 1  # the two bad files
+    assert summary["skipped"] == len(finished)
+    assert summary["ok"] == N_GOOD - len(finished)
+    assert not [p for p in jobs.iterdir() if p.name.startswith(".")]  # stale temp folders removed
+    # a third run skips everything that succeeded; --force re-runs
+    third = json.loads(subprocess.run([*args, "--json"], capture_output=True, text=True).stdout)
+    assert third["skipped"] == N_GOOD and third["ok"] == 0
