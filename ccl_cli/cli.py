@@ -82,6 +82,15 @@ def _emit(summary: dict[str, Any], as_json: bool) -> None:
         typer.echo(f"outputs in {summary['outdir']}", err=True)
 
 
+def _wrote(command: str, out: Path, data, as_json: bool) -> None:
+    """Report a written dataset: JSON on stdout, or one line on stderr."""
+    if as_json:
+        _emit({"status": "ok", "command": command, "out": str(out), "samples": data.n_samples,
+               "demos": data.n_demos}, True)
+    else:
+        typer.echo(f"wrote {out}: {data.n_samples} samples in {data.n_demos} demonstrations", err=True)
+
+
 def _learn(command: str, stages: list[tuple[str, dict]] | None, cfg, files, out: Path | None,
            force: bool, as_json: bool, quiet: bool) -> None:
     from ccl_cli.runner import default_outdir, run_to_dir
@@ -342,10 +351,7 @@ def simulate(
         masks = {"train": list(train.demo_ids), "test": list(test.demo_ids)}
     write_demonstrations(out, data, provenance={"simulate": problem, "seed": seed, **kwargs}, masks=masks,
                          force=force)
-    summary = {"status": "ok", "command": "simulate", "out": str(out), "samples": data.n_samples,
-               "demos": data.n_demos}
-    _emit(summary, json_out) if json_out else typer.echo(
-        f"wrote {out}: {data.n_samples} samples in {data.n_demos} demonstrations", err=True)
+    _wrote("simulate", out, data, json_out)
 
 
 @app.command("inspect")
@@ -396,10 +402,7 @@ def convert(
     write_demonstrations(out, dataset, time_origin_ns=int(dataset.metadata.get("time_origin_ns", 0)),
                          provenance={"converted_from": dataset.metadata.get("files"),
                                      "data_config": cfg.get("data")}, force=force)
-    summary = {"status": "ok", "command": "convert", "out": str(out), "samples": dataset.n_samples,
-               "demos": dataset.n_demos}
-    _emit(summary, json_out) if json_out else typer.echo(
-        f"wrote {out}: {dataset.n_samples} samples in {dataset.n_demos} demonstrations", err=True)
+    _wrote("convert", out, dataset, json_out)
 
 
 @app.command("batch")

@@ -91,7 +91,7 @@ class BagReader:
             except InputError:
                 raise
             except Exception as exc:
-                raise InputError(f"{where}: cannot decode {conn.topic} "
+                raise InputError(f"{where}: cannot decode {', '.join(by_topic)} "
                                  f"({type(exc).__name__}: {exc})") from None
             return [c.finish() for c in collectors]
         finally:
