@@ -260,3 +260,25 @@ def test_files_can_be_globs_and_demos_are_renumbered(tmp_path):
     assert data.n_demos == 3 and data.n_samples == 30
     assert [Path(f["path"]).name for f in data.metadata["files"]] == ["run_0.bag", "run_1.bag", "run_2.bag"]
     assert all(len(f["sha256"]) == 64 for f in data.metadata["files"])
+
+
+def test_mcap_messages_written_out_of_order_come_back_in_log_time_order(tmp_path):
+    import json as _json
+
+    from mcap.writer import Writer
+
+    rng = np.random.default_rng(5)
+    t = EPOCH_NS + np.arange(200, dtype=np.int64) * 10_000_000
+    order = rng.permutation(200)
+    path = tmp_path / "shuffled.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f, chunk_size=512)  # many chunks
+        w.start(profile="", library="tests")
+        sid = w.register_schema("Sample", "jsonschema", b"{}")
+        cid = w.register_channel("/s", "json", sid)
+        for k in order:
+            w.add_message(cid, int(t[k]), _json.dumps({"value": float(k)}).encode(), int(t[k]))
+        w.finish()
+    data = load_demonstrations({"files": [str(path)], "state": {"topic": "/s", "field": "value"}})
+    np.testing.assert_array_equal(data.X[:, 0], np.arange(200.0))
+    assert data.metadata["time_origin_ns"] == t[0]

@@ -83,7 +83,7 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
     def __init__(
         self,
         basis: str | dict | Basis | None = "rbf",
-        n_centres: int = 16,
+        n_centres: int = 25,
         selection: str = "threshold",
         n_constraints: int | None = None,
         max_constraints: int | None = None,

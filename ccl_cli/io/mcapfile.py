@@ -53,7 +53,11 @@ class McapReader:
         return self.read_many([spec])[0]
 
     def read_many(self, specs: list[StreamSpec]) -> list[Stream]:
-        """Several streams in one pass over the file (each message decoded once)."""
+        """Several streams in one pass over the file (each message decoded once).
+
+        Messages are read in file order (no merge heap) and each stream is put back in
+        log-time order afterwards by a stable sort, which is what log-time iteration gives.
+        """
         where = str(self.path)
         try:
             f = open(self.path, "rb")
@@ -86,14 +90,15 @@ class McapReader:
             topics = list(by_topic)
             try:
                 if all(encodings[t] == "json" for t in topics):
-                    for _, channel, message in reader.iter_messages(topics=topics):
+                    for _, channel, message in reader.iter_messages(topics=topics, log_time_order=False):
                         feed(by_topic[channel.topic], json.loads(message.data), message.log_time)
                 else:
-                    for _, channel, message, decoded in reader.iter_decoded_messages(topics=topics):
+                    for _, channel, message, decoded in reader.iter_decoded_messages(
+                            topics=topics, log_time_order=False):
                         feed(by_topic[channel.topic], decoded, message.log_time)
             except InputError:
                 raise
             except Exception as exc:
                 raise InputError(f"{where}: cannot decode {', '.join(topics)} "
                                  f"({type(exc).__name__}: {exc})") from None
-            return [c.finish() for c in collectors]
+            return [c.finish(sort_by_log_time=True) for c in collectors]

@@ -307,15 +307,22 @@ class Collector:
         self.values[self.n] = row
         self.n += 1
 
-    def finish(self) -> Stream:
+    def finish(self, sort_by_log_time: bool = False) -> Stream:
+        """The stream; ``sort_by_log_time`` restores log-time order (stable) when the
+        messages were read in file order."""
         spec = self.extractor.spec
         if self.n == 0 or self.values is None:
             raise InputError(f"{self.where}: topic {spec.topic} has no messages")
-        t_ns = self.t[: self.n].copy()
+        n = self.n
+        t_ns, log, values = self.t[:n], self.log[:n], self.values[:n]
+        if sort_by_log_time and n > 1 and (np.diff(log) < 0).any():
+            order = np.argsort(log, kind="stable")
+            t_ns, log, values = t_ns[order], log[order], values[order]
+        t_ns, values = t_ns.copy(), values.copy()
         from_header = self.from_header
         if from_header and not t_ns.any():
-            t_ns, from_header = self.log[: self.n].copy(), False
-        return Stream(t_ns, self.values[: self.n].copy(), list(self.extractor.names or []), self.where,
+            t_ns, from_header = log.copy(), False
+        return Stream(t_ns, values, list(self.extractor.names or []), self.where,
                       {"topic": spec.topic, "field": self.extractor.field,
                        "stamp": "header" if from_header else "log"})
 
