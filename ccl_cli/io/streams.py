@@ -275,53 +275,71 @@ class StampReader:
 
 
 class Collector:
-    """Accumulates one stream into preallocated NumPy buffers (grown by doubling).
+    """Accumulates one stream. Rows, stamps and log times are appended to Python lists
+    and converted to NumPy once per ``BLOCK`` messages, so the per-message cost is a few
+    list appends and memory stays near the size of the final arrays.
 
     When every header stamp is zero (never filled in) log time is used instead.
     """
 
-    def __init__(self, extractor: FieldExtractor, where: str, capacity: int = 1024) -> None:
+    BLOCK = 4096
+
+    def __init__(self, extractor: FieldExtractor, where: str, capacity: int = 0) -> None:
         self.extractor = extractor
-        self.stamp = StampReader(extractor.spec.stamp == "header")
         self.where = where
+        self.stamp = StampReader(extractor.spec.stamp == "header")
         self.n = 0
-        self.t = np.empty(max(capacity, 1), dtype=np.int64)
-        self.log = np.empty(max(capacity, 1), dtype=np.int64)
-        self.values: np.ndarray | None = None
         self.from_header = False
+        self._rows: list[Any] = []
+        self._t: list[int] = []
+        self._log: list[int] = []
+        self._blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
 
     def add(self, msg: Any, log_ns: int, stamp: tuple[int, bool] | None = None) -> None:
         """Append one message; ``stamp`` (from a shared :class:`StampReader`) saves the lookup."""
-        row = self.extractor.values(msg)
-        if self.values is None:
-            self.values = np.empty((len(self.t), len(row)))
-        if self.n == len(self.t):
-            grow = len(self.t) * 2
-            self.t = np.resize(self.t, grow)
-            self.log = np.resize(self.log, grow)
-            self.values = np.resize(self.values, (grow, self.values.shape[1]))
         t, hdr = stamp if stamp is not None else self.stamp(msg, log_ns)
+        self._rows.append(self.extractor.values(msg))
+        self._t.append(t)
+        self._log.append(log_ns)
         self.from_header |= hdr
-        self.t[self.n] = t
-        self.log[self.n] = log_ns
-        self.values[self.n] = row
-        self.n += 1
+        if len(self._rows) >= self.BLOCK:
+            self._flush()
+
+    def _flush(self) -> None:
+        if not self._rows:
+            return
+        try:
+            rows = np.array(self._rows, dtype=float)
+        except ValueError:
+            raise InputError(f"{self.where}: field {self.extractor.field!r} of {self.extractor.spec.topic} "
+                             "changes length between messages") from None
+        if rows.ndim != 2:
+            rows = rows.reshape(len(self._rows), -1)
+        self._blocks.append((np.array(self._t, dtype=np.int64), np.array(self._log, dtype=np.int64), rows))
+        self.n += len(self._rows)
+        self._rows, self._t, self._log = [], [], []
 
     def finish(self, sort_by_log_time: bool = False) -> Stream:
         """The stream; ``sort_by_log_time`` restores log-time order (stable) when the
         messages were read in file order."""
+        self._flush()
         spec = self.extractor.spec
-        if self.n == 0 or self.values is None:
+        if self.n == 0:
             raise InputError(f"{self.where}: topic {spec.topic} has no messages")
-        n = self.n
-        t_ns, log, values = self.t[:n], self.log[:n], self.values[:n]
-        if sort_by_log_time and n > 1 and (np.diff(log) < 0).any():
+        widths = {b[2].shape[1] for b in self._blocks}
+        if len(widths) > 1:
+            raise InputError(f"{self.where}: field {self.extractor.field!r} of {spec.topic} changes length "
+                             "between messages")
+        t_ns = np.concatenate([b[0] for b in self._blocks])
+        log = np.concatenate([b[1] for b in self._blocks])
+        values = np.concatenate([b[2] for b in self._blocks])
+        self._blocks = []
+        if sort_by_log_time and self.n > 1 and (np.diff(log) < 0).any():
             order = np.argsort(log, kind="stable")
             t_ns, log, values = t_ns[order], log[order], values[order]
-        t_ns, values = t_ns.copy(), values.copy()
         from_header = self.from_header
         if from_header and not t_ns.any():
-            t_ns, from_header = log.copy(), False
+            t_ns, from_header = log, False
         return Stream(t_ns, values, list(self.extractor.names or []), self.where,
                       {"topic": spec.topic, "field": self.extractor.field,
                        "stamp": "header" if from_header else "log"})
