@@ -282,3 +282,37 @@ def test_mcap_messages_written_out_of_order_come_back_in_log_time_order(tmp_path
     data = load_demonstrations({"files": [str(path)], "state": {"topic": "/s", "field": "value"}})
     np.testing.assert_array_equal(data.X[:, 0], np.arange(200.0))
     assert data.metadata["time_origin_ns"] == t[0]
+
+
+def test_pose_and_twist_stamped_defaults_and_compound_fields(tmp_path):
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    T = ts.types
+    Header, Time = T["std_msgs/msg/Header"], T["builtin_interfaces/msg/Time"]
+    Point, Quat = T["geometry_msgs/msg/Point"], T["geometry_msgs/msg/Quaternion"]
+    Vec = T["geometry_msgs/msg/Vector3"]
+    rng = np.random.default_rng(3)
+    pos, quat, lin = rng.normal(size=(15, 3)), rng.normal(size=(15, 4)), rng.normal(size=(15, 3))
+    stamps = EPOCH_NS + np.arange(15, dtype=np.int64) * 20_000_000
+    path = tmp_path / "poses"
+    with Writer(path, version=9) as w:
+        pc = w.add_connection("/pose", "geometry_msgs/msg/PoseStamped", typestore=ts)
+        tc = w.add_connection("/twist", "geometry_msgs/msg/TwistStamped", typestore=ts)
+        for i, t in enumerate(stamps):
+            hdr = Header(stamp=Time(sec=int(t) // 10**9, nanosec=int(t) % 10**9), frame_id="map")
+            pose = T["geometry_msgs/msg/PoseStamped"](header=hdr, pose=T["geometry_msgs/msg/Pose"](
+                position=Point(*pos[i]), orientation=Quat(*quat[i])))
+            twist = T["geometry_msgs/msg/TwistStamped"](header=hdr, twist=T["geometry_msgs/msg/Twist"](
+                linear=Vec(*lin[i]), angular=Vec(0.0, 0.0, 0.0)))
+            w.write(pc, int(t), ts.serialize_cdr(pose, "geometry_msgs/msg/PoseStamped"))
+            w.write(tc, int(t), ts.serialize_cdr(twist, "geometry_msgs/msg/TwistStamped"))
+    data = load_demonstrations({"files": [str(path)], "state": {"topic": "/pose"},
+                                "action": {"topic": "/twist"}, "typestore": "ros2_foxy"})
+    np.testing.assert_array_equal(data.X, pos)
+    np.testing.assert_array_equal(data.U, lin)
+    assert data.state_names == ["pose.position.x", "pose.position.y", "pose.position.z"]
+    full = load_demonstrations({"files": [str(path)], "state": {"topic": "/pose", "field": "pose"}})
+    np.testing.assert_array_equal(full.X, np.hstack([pos, quat]))
+    err({"files": [str(path)], "state": {"topic": "/pose"}, "typestore": "ros9"}, "unknown typestore 'ros9'")
