@@ -167,7 +167,8 @@ def load_file(path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations, int
             raise InputError(f"{path}: the action stream ({action_spec.describe()}) does not overlap "
                              "the state stream in time")
         dropped = int((~inside).sum())
-        t_ns, X = t_ns[inside], X[inside]
+        if dropped:
+            t_ns, X = t_ns[inside], X[inside]
         action_names = action.names
         meta["action"] = {**action.meta, "aligned": "linear interpolation onto state stamps",
                           "dropped_outside_span": dropped}
@@ -181,11 +182,12 @@ def load_file(path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations, int
     t_s = (t_ns - t_ns[0]) / 1e9
     demo = segment_ids(t_s, data_cfg.get("demos"), str(path))
     keep = demo >= 0
-    t_ns, t_s, X, demo = t_ns[keep], t_s[keep], X[keep], demo[keep]
+    if not keep.all():  # samples outside every demos.range
+        t_ns, t_s, X, demo = t_ns[keep], t_s[keep], X[keep], demo[keep]
     if U is None:
         U = local_polynomial_derivative(t_s, X, demo, int(action_cfg.get("window", 9)),
                                         int(action_cfg.get("order", 2)))
-    else:
+    elif not keep.all():
         U = U[keep]
     data = Demonstrations(X=X, U=U, demo=demo, t=(t_ns - t_ns[0]) / 1e9,
                           state_names=state.names, action_names=action_names, metadata=meta)

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.streams import Collector, FieldExtractor, Stream, StreamSpec, feed
+from ccl_cli.io.streams import Stream, StreamSpec, finish_topics, read_topics
 
 
 def _typestore(name: str | None):
@@ -71,28 +71,23 @@ class BagReader:
         where = str(self.path)
         reader = self._open()
         try:
-            by_topic: dict[str, list[Collector]] = {}
-            collectors = []
-            conns = []
+            msgtypes = {}
             for spec in specs:
                 found = [c for c in reader.connections if c.topic == spec.topic]
                 if not found:
                     have = ", ".join(sorted(reader.topics)) or "none"
                     raise InputError(f"{where}: topic {spec.topic!r} not found (topics: {have})")
-                count = int(reader.topics[spec.topic].msgcount or 0)
-                col = Collector(FieldExtractor(spec, found[0].msgtype, where), where, count)
-                collectors.append(col)
-                if spec.topic not in by_topic:
-                    conns += found
-                by_topic.setdefault(spec.topic, []).append(col)
+                msgtypes[spec.topic] = found[0].msgtype
+            collectors, slots = read_topics(specs, msgtypes, where)
+            conns = [c for c in reader.connections if c.topic in collectors]
             try:
                 for conn, log_ns, raw in reader.messages(connections=conns):
-                    feed(by_topic[conn.topic], reader.deserialize(raw, conn.msgtype), log_ns)
+                    collectors[conn.topic].add(reader.deserialize(raw, conn.msgtype), log_ns)
             except InputError:
                 raise
             except Exception as exc:
-                raise InputError(f"{where}: cannot decode {', '.join(by_topic)} "
+                raise InputError(f"{where}: cannot decode {', '.join(collectors)} "
                                  f"({type(exc).__name__}: {exc})") from None
-            return [c.finish() for c in collectors]
+            return finish_topics(collectors, slots)
         finally:
             reader.close()

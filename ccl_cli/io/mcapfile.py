@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.streams import Collector, FieldExtractor, Stream, StreamSpec, feed
+from ccl_cli.io.streams import Stream, StreamSpec, finish_topics, read_topics
 
 
 def _decoders():
@@ -53,11 +53,9 @@ class McapReader:
         return self.read_many([spec])[0]
 
     def read_many(self, specs: list[StreamSpec]) -> list[Stream]:
-        """Several streams in one pass over the file (each message decoded once).
-
-        Messages are read in file order (no merge heap) and each stream is put back in
-        log-time order afterwards by a stable sort, which is what log-time iteration gives.
-        """
+        """Several streams in one pass over the file (each message decoded once), in log-time
+        order. (Reading in file order instead makes mcap hold the file's data in memory:
+        measured 84 MB for 100k JointState messages against 3 MB in log-time order.)"""
         where = str(self.path)
         try:
             f = open(self.path, "rb")
@@ -71,34 +69,27 @@ class McapReader:
                 raise InputError(f"{where}: cannot read MCAP ({type(exc).__name__}: {exc})") from None
             if summary is None:
                 raise InputError(f"{where}: MCAP has no summary (truncated?)")
-            counts = summary.statistics.channel_message_counts if summary.statistics else {}
-            by_topic: dict[str, list[Collector]] = {}
-            encodings: dict[str, str] = {}
-            collectors = []
+            msgtypes, encodings = {}, {}
             for spec in specs:
                 channels = [c for c in summary.channels.values() if c.topic == spec.topic]
                 if not channels:
                     have = ", ".join(sorted({c.topic for c in summary.channels.values()})) or "none"
                     raise InputError(f"{where}: topic {spec.topic!r} not found (topics: {have})")
-                ch = channels[0]
-                schema = summary.schemas.get(ch.schema_id)
-                extractor = FieldExtractor(spec, schema.name if schema else "", where)
-                col = Collector(extractor, where, int(counts.get(ch.id, 0)))
-                collectors.append(col)
-                by_topic.setdefault(spec.topic, []).append(col)
-                encodings[spec.topic] = ch.message_encoding
-            topics = list(by_topic)
+                schema = summary.schemas.get(channels[0].schema_id)
+                msgtypes[spec.topic] = schema.name if schema else ""
+                encodings[spec.topic] = channels[0].message_encoding
+            collectors, slots = read_topics(specs, msgtypes, where)
+            topics = list(collectors)
             try:
                 if all(encodings[t] == "json" for t in topics):
-                    for _, channel, message in reader.iter_messages(topics=topics, log_time_order=False):
-                        feed(by_topic[channel.topic], json.loads(message.data), message.log_time)
+                    for _, channel, message in reader.iter_messages(topics=topics):
+                        collectors[channel.topic].add(json.loads(message.data), message.log_time)
                 else:
-                    for _, channel, message, decoded in reader.iter_decoded_messages(
-                            topics=topics, log_time_order=False):
-                        feed(by_topic[channel.topic], decoded, message.log_time)
+                    for _, channel, message, decoded in reader.iter_decoded_messages(topics=topics):
+                        collectors[channel.topic].add(decoded, message.log_time)
             except InputError:
                 raise
             except Exception as exc:
                 raise InputError(f"{where}: cannot decode {', '.join(topics)} "
                                  f"({type(exc).__name__}: {exc})") from None
-            return [c.finish(sort_by_log_time=True) for c in collectors]
+            return finish_topics(collectors, slots)

@@ -188,7 +188,7 @@ class FieldExtractor:
         self.names = names
         if isinstance(leaf, np.ndarray | list | tuple) and all(
                 isinstance(v, int | float | np.number) for v in np.asarray(leaf).ravel()[:1]):
-            self._fast = lambda x: x  # numeric sequence: assign as is
+            self._fast = _identity  # numeric sequence: assign as is
         elif not isinstance(leaf, dict) and all(hasattr(leaf, k) for k in VECTOR_KEYS[:3]) \
                 and len(vals) in (3, 4):
             self._fast = attrgetter(*VECTOR_KEYS[: len(vals)])
@@ -243,112 +243,154 @@ class FieldExtractor:
         return np.asarray(leaf, dtype=float)[self._joint_index]
 
 
-class StampReader:
-    """Time of each message: header.stamp (compiled on the first message) or log time."""
+class TopicCollector:
+    """Accumulates every stream read from one topic, one call per message.
 
-    def __init__(self, use_header: bool) -> None:
-        self.use_header = use_header
-        self._get: Callable[[Any], tuple[int, int]] | None = None
-        self._checked = False
-
-    def __call__(self, msg: Any, log_ns: int) -> tuple[int, bool]:
-        if self.use_header:
-            if not self._checked:
-                self._checked = True
-                self._get = self._compile(msg)
-            if self._get is not None:
-                sec, nsec = self._get(msg)
-                return int(sec) * 1_000_000_000 + int(nsec), True
-        return int(log_ns), False
-
-    @staticmethod
-    def _compile(msg: Any) -> Callable[[Any], tuple[int, int]] | None:
-        if not _has(msg, "header"):
-            return None
-        stamp = _get(_get(msg, "header"), "stamp")
-        for s_key, n_key in (("sec", "nanosec"), ("secs", "nsecs"), ("sec", "nsec")):
-            if _has(stamp, s_key) and _has(stamp, n_key):
-                if isinstance(msg, dict):
-                    return lambda m, a=s_key, b=n_key: (m["header"]["stamp"][a], m["header"]["stamp"][b])
-                return attrgetter(f"header.stamp.{s_key}", f"header.stamp.{n_key}")
-        return None
-
-
-class Collector:
-    """Accumulates one stream. Rows, stamps and log times are appended to Python lists
-    and converted to NumPy once per ``BLOCK`` messages, so the per-message cost is a few
-    list appends and memory stays near the size of the final arrays.
-
+    The first message (and any message whose joint-name order differs from the current
+    block's) goes through the checked path of each :class:`FieldExtractor`; the others
+    take a compiled fast path: C-level attribute getters for every selected field, the
+    raw ``(sec, nsec)`` header stamp and the log time appended to Python lists. Once per
+    ``BLOCK`` messages (and whenever the joint order changes) the lists become NumPy
+    arrays; joint reordering, stamp arithmetic and shape checks happen there, vectorised.
     When every header stamp is zero (never filled in) log time is used instead.
     """
 
     BLOCK = 4096
 
-    def __init__(self, extractor: FieldExtractor, where: str, capacity: int = 0) -> None:
-        self.extractor = extractor
+    def __init__(self, extractors: list[FieldExtractor], where: str) -> None:
+        self.extractors = extractors
         self.where = where
-        self.stamp = StampReader(extractor.spec.stamp == "header")
-        self.n = 0
-        self.from_header = False
-        self._rows: list[Any] = []
-        self._t: list[int] = []
-        self._log: list[int] = []
-        self._blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.topic = extractors[0].spec.topic
+        self.use_header = any(e.spec.stamp == "header" for e in extractors)
+        self._stamp: Callable[[Any], tuple[int, int]] | None = None
+        self._compiled = False
+        self._getters: list[Callable[[Any], Any]] = []
+        self._index: list[np.ndarray | None] = []
+        self._names: Any = None
+        self._name_of: Callable[[Any], Any] | None = None
+        self._rows: list[list[Any]] = [[] for _ in extractors]
+        self._stamps: list[Any] = []
+        self._logs: list[int] = []
+        self._blocks: list[list[np.ndarray]] = [[] for _ in extractors]
+        self._tblocks: list[np.ndarray] = []
+        self._lblocks: list[np.ndarray] = []
+        self._header_seen = False
 
-    def add(self, msg: Any, log_ns: int, stamp: tuple[int, bool] | None = None) -> None:
-        """Append one message; ``stamp`` (from a shared :class:`StampReader`) saves the lookup."""
-        t, hdr = stamp if stamp is not None else self.stamp(msg, log_ns)
-        self._rows.append(self.extractor.values(msg))
-        self._t.append(t)
-        self._log.append(log_ns)
-        self.from_header |= hdr
-        if len(self._rows) >= self.BLOCK:
+    # -- per message -------------------------------------------------------------------
+    def add(self, msg: Any, log_ns: int) -> None:
+        if not self._compiled or (self._name_of is not None and self._name_of(msg) != self._names):
+            self._checked(msg)
+        for rows, get in zip(self._rows, self._getters, strict=True):
+            rows.append(get(msg))
+        self._stamps.append(self._stamp(msg) if self._stamp is not None else (0, 0))
+        self._logs.append(log_ns)
+        if len(self._logs) >= self.BLOCK:
             self._flush()
 
-    def _flush(self) -> None:
-        if not self._rows:
-            return
-        try:
-            rows = np.array(self._rows, dtype=float)
-        except ValueError:
-            raise InputError(f"{self.where}: field {self.extractor.field!r} of {self.extractor.spec.topic} "
-                             "changes length between messages") from None
-        if rows.ndim != 2:
-            rows = rows.reshape(len(self._rows), -1)
-        self._blocks.append((np.array(self._t, dtype=np.int64), np.array(self._log, dtype=np.int64), rows))
-        self.n += len(self._rows)
-        self._rows, self._t, self._log = [], [], []
-
-    def finish(self, sort_by_log_time: bool = False) -> Stream:
-        """The stream; ``sort_by_log_time`` restores log-time order (stable) when the
-        messages were read in file order."""
+    def _checked(self, msg: Any) -> None:
+        """Validate ``msg`` with the extractors and (re)compile the fast path."""
         self._flush()
-        spec = self.extractor.spec
-        if self.n == 0:
-            raise InputError(f"{self.where}: topic {spec.topic} has no messages")
-        widths = {b[2].shape[1] for b in self._blocks}
-        if len(widths) > 1:
-            raise InputError(f"{self.where}: field {self.extractor.field!r} of {spec.topic} changes length "
-                             "between messages")
-        t_ns = np.concatenate([b[0] for b in self._blocks])
-        log = np.concatenate([b[1] for b in self._blocks])
-        values = np.concatenate([b[2] for b in self._blocks])
-        self._blocks = []
-        if sort_by_log_time and self.n > 1 and (np.diff(log) < 0).any():
-            order = np.argsort(log, kind="stable")
-            t_ns, log, values = t_ns[order], log[order], values[order]
-        from_header = self.from_header
-        if from_header and not t_ns.any():
-            t_ns, from_header = log, False
-        return Stream(t_ns, values, list(self.extractor.names or []), self.where,
-                      {"topic": spec.topic, "field": self.extractor.field,
-                       "stamp": "header" if from_header else "log"})
+        for ex in self.extractors:
+            ex.values(msg)  # raises a precise InputError on a bad path, type or joint set
+        if not self._compiled:
+            self._stamp = _stamp_getter(msg) if self.use_header else None
+            self._header_seen = self._stamp is not None
+        self._getters, self._index = [], []
+        self._name_of = None
+        for ex in self.extractors:
+            if ex.spec.joints is not None and ex.kind == "JointState":
+                get = ex._get
+                self._index.append(None if ex._joint_identity else ex._joint_index)
+                self._name_of = _getter(["name"], msg)
+                self._names = list(self._name_of(msg))
+            elif ex._fast is not None:
+                field_get, fast = ex._get, ex._fast
+                get = field_get if fast is _identity else (lambda m, g=field_get, f=fast: f(g(m)))
+                self._index.append(None)
+            else:
+                get = ex.values  # compound fields: the general (slower) path
+                self._index.append(None)
+            self._getters.append(get)
+        self._compiled = True
+
+    # -- per block ---------------------------------------------------------------------
+    def _flush(self) -> None:
+        n = len(self._logs)
+        if n == 0:
+            return
+        for k, ex in enumerate(self.extractors):
+            try:
+                rows = np.array(self._rows[k], dtype=float)
+            except ValueError:
+                raise InputError(f"{self.where}: field {ex.field!r} of {self.topic} changes length "
+                                 "between messages") from None
+            rows = rows.reshape(n, -1)
+            if ex.spec.joints is not None and ex.kind == "JointState" and self._names is not None:
+                if rows.shape[1] != len(self._names):
+                    raise InputError(f"{self.where}: {self.topic} has {len(self._names)} joint names but "
+                                     f"{rows.shape[1]} values in {ex.field!r}")
+                if self._index[k] is not None:
+                    rows = rows[:, self._index[k]]
+            if len(ex.names or []) != rows.shape[1]:
+                raise InputError(f"{self.where}: field {ex.field!r} of {self.topic} changes length "
+                                 f"({len(ex.names or [])} → {rows.shape[1]})")
+            self._blocks[k].append(rows)
+            self._rows[k] = []
+        stamps = np.array(self._stamps, dtype=np.int64).reshape(n, 2)
+        self._tblocks.append(stamps[:, 0] * 1_000_000_000 + stamps[:, 1])
+        self._lblocks.append(np.array(self._logs, dtype=np.int64))
+        self._stamps, self._logs = [], []
+
+    def finish(self) -> list[Stream]:
+        """One :class:`Stream` per extractor, in the order the messages were added."""
+        self._flush()
+        if not self._lblocks:
+            raise InputError(f"{self.where}: topic {self.topic} has no messages")
+        header = np.concatenate(self._tblocks)
+        log = np.concatenate(self._lblocks)
+        self._tblocks, self._lblocks = [], []
+        use_header = self._header_seen and bool(header.any())
+        out = []
+        for k, ex in enumerate(self.extractors):
+            from_header = use_header and ex.spec.stamp == "header"
+            values = np.concatenate(self._blocks[k])
+            self._blocks[k] = []  # free the blocks before the next stream is joined
+            out.append(Stream(header if from_header else log, values,
+                              list(ex.names or []), self.where,
+                              {"topic": self.topic, "field": ex.field,
+                               "stamp": "header" if from_header else "log"}))
+        return out
 
 
-def feed(group: list[Collector], msg: Any, log_ns: int) -> None:
-    """Give one message to every collector of its topic; the stamp is read once."""
-    first = group[0]
-    stamp = first.stamp(msg, log_ns)
-    first.add(msg, log_ns, stamp)
-    for col in group[1:]:
-        col.add(msg, log_ns, stamp if col.stamp.use_header == first.stamp.use_header else None)
+def _identity(x: Any) -> Any:
+    return x
+
+
+def _stamp_getter(msg: Any) -> Callable[[Any], tuple[int, int]] | None:
+    """A getter of (sec, nanosec) of ``header.stamp`` for messages shaped like ``msg``."""
+    if not _has(msg, "header"):
+        return None
+    stamp = _get(_get(msg, "header"), "stamp")
+    for s_key, n_key in (("sec", "nanosec"), ("secs", "nsecs"), ("sec", "nsec")):
+        if _has(stamp, s_key) and _has(stamp, n_key):
+            if isinstance(msg, dict):
+                return lambda m, a=s_key, b=n_key: (m["header"]["stamp"][a], m["header"]["stamp"][b])
+            return attrgetter(f"header.stamp.{s_key}", f"header.stamp.{n_key}")
+    return None
+
+
+def read_topics(specs: list[StreamSpec], msgtypes: dict[str, str], where: str
+                ) -> tuple[dict[str, TopicCollector], list[tuple[str, int]]]:
+    """Collectors per topic for ``specs`` and, per spec, where its stream will be."""
+    by_topic: dict[str, list[FieldExtractor]] = {}
+    slots = []
+    for spec in specs:
+        extractors = by_topic.setdefault(spec.topic, [])
+        extractors.append(FieldExtractor(spec, msgtypes[spec.topic], where))
+        slots.append((spec.topic, len(extractors) - 1))
+    return {t: TopicCollector(ex, where) for t, ex in by_topic.items()}, slots
+
+
+def finish_topics(collectors: dict[str, TopicCollector], slots: list[tuple[str, int]]) -> list[Stream]:
+    done = {t: c.finish() for t, c in collectors.items()}
+    return [done[t][k] for t, k in slots]
