@@ -32,6 +32,7 @@ from ccl_cli.constraint import (
 )
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.io.atomic import atomic_path
+from ccl_cli.io.hdf5 import check_header
 from ccl_cli.nullspace import NullSpaceComponent
 from ccl_cli.policy import PolicyLearner
 
@@ -222,13 +223,7 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
     except OSError:
         raise InputError(f"{where}: not a ccl model (not an HDF5 file)") from None
     with f:
-        fmt = f.attrs.get("format")
-        if fmt != FORMAT:
-            raise InputError(f"{where}: not a ccl model (format attribute {fmt!r})")
-        version = int(f.attrs.get("schema_version", -1))
-        if version != SCHEMA_VERSION:
-            raise InputError(f"{where}: model schema version {version} is not supported "
-                             f"(this ccl reads {SCHEMA_VERSION})")
+        check_header(f.attrs, where, FORMAT, "schema_version", SCHEMA_VERSION, "ccl model")
         method = str(f.attrs.get("method", ""))
         try:
             training = json.loads(f.attrs.get("training", "{}"))

@@ -103,6 +103,18 @@ def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns:
     return path
 
 
+def check_header(attrs, where: str, fmt: str, version_key: str, version: int, what: str) -> None:
+    """Refuse a file whose ``format`` attribute is not ``fmt`` or whose ``version_key``
+    attribute is not ``version`` (one message naming the file and what was found)."""
+    found = attrs.get("format")
+    found = found.decode() if isinstance(found, bytes) else found
+    if found != fmt:
+        raise InputError(f"{where}: not a {what} (format attribute {found!r})")
+    got = int(attrs.get(version_key, -1))
+    if got != version:
+        raise InputError(f"{where}: {what} version {got} is not supported (this ccl reads version {version})")
+
+
 def is_canonical(path: Path) -> bool:
     import h5py
 
@@ -128,14 +140,7 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
     except OSError as exc:
         raise InputError(f"{where}: cannot open as HDF5 ({exc})") from None
     with f:
-        fmt = f.attrs.get("format")
-        fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
-        if fmt != FORMAT:
-            raise InputError(f"{where}: not a {FORMAT} file (format attribute: {fmt!r})")
-        version = int(f.attrs.get("format_version", -1))
-        if version != FORMAT_VERSION:
-            raise InputError(f"{where}: {FORMAT} version {version} is not supported "
-                             f"(this ccl reads version {FORMAT_VERSION})")
+        check_header(f.attrs, where, FORMAT, "format_version", FORMAT_VERSION, f"{FORMAT} file")
         if "demos" not in f or not len(f["demos"]):
             raise InputError(f"{where}: no demonstrations under /demos")
         groups = []
