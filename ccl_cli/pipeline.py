@@ -221,11 +221,20 @@ class Pipeline:
         return result
 
     def _evaluate(self, opts: dict) -> StageResult:
-        """Summary of every earlier stage under the evaluate convention."""
-        summary = {r.name: {part: {k: v["value"] for k, v in ms.items()} for part, ms in r.metrics.items()}
-                   for r in self.results}
-        return StageResult("evaluate", opts.get("convention", self.convention), None,
-                           metrics={}, info={"summary": summary})
+        """Every learnt model of the earlier stages on train and test, under this stage's
+        ``convention`` (e.g. ``original`` for the original library's normalisers)."""
+        convention = opts.get("convention", self.convention)
+        kinds = {"learn-a": "constraint", "learn-v": "nullspace", "learn-pi": "policy"}
+        result = StageResult("evaluate", convention, None)
+        for part, d in self.parts():
+            merged: dict[str, dict] = {}
+            for r in self.results:
+                if r.model is None or (isinstance(r.model, PerDemonstration) and part != "train"):
+                    continue
+                for name, m in evaluate_model(r.model, kinds[r.name], d, convention).items():
+                    merged[f"{r.name}.{name}"] = {**m, "name": f"{r.name}.{name}"}
+            result.metrics[part] = merged
+        return result
 
 
 def stage_list(cfg: Config, default: list[str] | None = None) -> list[tuple[str, dict]]:

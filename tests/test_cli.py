@@ -273,3 +273,16 @@ def test_sigint_during_a_run_leaves_complete_or_nothing(tmp_path):
         assert (out / "metrics.json").exists() and (out / "run.json").exists()
     else:
         assert proc.returncode == 130 and "Traceback" not in err
+
+
+def test_evaluate_stage_applies_its_convention(capsys, tmp_path):
+    cfg = tmp_path / "p.yaml"
+    cfg.write_text(f"data: {{files: [{SAMPLES / 'toy2d_ncl.h5'}], test: {{fraction: 0.5}}}}\n"
+                   "stages:\n  - learn-v\n  - evaluate: {convention: original}\n")
+    code, _, err = run_main(capsys, "run", cfg, "-o", tmp_path / "o", "-q")
+    assert code == 0, err
+    m = metrics_of(tmp_path / "o")
+    ours, original = m["learn-v"]["train"]["NPE"], m["evaluate"]["train"]["learn-v.NPE"]
+    assert original["error"] == pytest.approx(ours["error"])
+    n = 500  # training samples: NPE's original normaliser uses ddof = 0
+    assert original["normaliser"] == pytest.approx(ours["normaliser"] * (n - 1) / n)
