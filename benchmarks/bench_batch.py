@@ -47,6 +47,7 @@ def main() -> int:
         (root / "p.yaml").write_text(CONFIG)
         jobs, _ = plan(files=[str(root / "r*.h5")], config=str(root / "p.yaml"))
         times = {}
+        timed_batch(jobs[:2], root / "warm-local", 2, None)  # start the fork server once
         for workers in (1, 2):
             s = timed_batch(jobs, root / f"local{workers}", workers, None)
             times[workers] = s

@@ -208,10 +208,20 @@ def make_executor(workers: int | None, scheduler: str | None) -> tuple[Executor,
             raise ConfigError(f"cannot connect to the Dask scheduler at {scheduler} ({exc})") from None
         return client.get_executor(), client
     from concurrent.futures import ProcessPoolExecutor
-    from multiprocessing import get_context
+    from multiprocessing import get_all_start_methods, get_context
 
     n = workers or os.cpu_count() or 1
-    return ProcessPoolExecutor(max_workers=n, mp_context=get_context("spawn")), None
+    threads = str(max(1, (os.cpu_count() or 1) // n))
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, threads)  # workers share the cores, not oversubscribe them
+    if "forkserver" in get_all_start_methods():
+        # workers fork from a server that has imported the learners once (fast start,
+        # and no fork of this process's threads)
+        ctx = get_context("forkserver")
+        ctx.set_forkserver_preload(["ccl_cli.runner", "ccl_cli.pipeline", "ccl_cli.models", "ccl_cli.io"])
+    else:
+        ctx = get_context("spawn")
+    return ProcessPoolExecutor(max_workers=n, mp_context=ctx), None
 
 
 def clean_stale(jobs_dir: Path) -> int:
