@@ -68,13 +68,6 @@ def _msg_dict(rec: Recording, i: int) -> dict:
             "velocity": rec.velocity[i, o].tolist(), "effort": []}
 
 
-def extra_messages(ts, n_extra: int = 0):
-    """A Float64MultiArray stream (optional second topic)."""
-    Arr = ts.types["std_msgs/msg/Float64MultiArray"]
-    Layout = ts.types["std_msgs/msg/MultiArrayLayout"]
-    return Arr, Layout
-
-
 def write_ros1_bag(path: Path, rec: Recording, compress: bool = False,
                    extra: tuple[str, np.ndarray, np.ndarray] | None = None) -> Path:
     from rosbags.rosbag1 import Writer
