@@ -111,15 +111,25 @@ def npe(U: np.ndarray, W_est: np.ndarray, convention: str = "ccl") -> Metric:
     return _metric("NPE", proj - W_est, total_variance(U, ddof=ddof), "u")
 
 
-def nupe(Pi: np.ndarray, Pi_est: np.ndarray) -> Metric:
-    """Normalised unconstrained policy error: mean ‖π − π̃‖² / Σ var(π)."""
-    return _metric("NUPE", Pi - Pi_est, total_variance(Pi), "pi")
+def nupe(Pi: np.ndarray, Pi_est: np.ndarray, name: str = "NUPE", of: str = "pi") -> Metric:
+    """Normalised unconstrained policy error: mean ‖π − π̃‖² / Σ var(π).
+
+    The same normalised error serves other targets (``name="NUPE_w", of="w"`` for the
+    null-space component, ``"NUPE_v"`` for the task part, ``"NUPE_dpl"`` for the baseline).
+    """
+    return _metric(name, Pi - Pi_est, total_variance(Pi), of)
 
 
 def ncpe(N_true: np.ndarray, Pi: np.ndarray, Pi_est: np.ndarray) -> Metric:
     """Normalised constrained policy error: mean ‖N π − N π̃‖² / Σ var(N π)."""
     w = _apply(N_true, Pi)
     return _metric("NCPE", w - _apply(N_true, Pi_est), total_variance(w), "N pi")
+
+
+def ncpe_observed(N_est: np.ndarray, U: np.ndarray, Pi_est: np.ndarray) -> Metric:
+    """NCPE with what is observable: mean ‖u − Ñ π̃‖² / Σ var(U), with the learnt Ñ and the
+    observed u in place of the true N and Nπ (reported as ``NCPE_obs``)."""
+    return _metric("NCPE_obs", U - _apply(N_est, Pi_est), total_variance(U), "u")
 
 
 def nmse(Y: np.ndarray, Y_est: np.ndarray, ddof: int = 1) -> np.ndarray:

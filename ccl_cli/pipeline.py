@@ -141,14 +141,7 @@ class Pipeline:
         for part, d in self.parts():
             w = model.predict(d.X)
             self.w[part] = w
-            items = [M.npe(d.U, w, self.convention)]
-            if d.has_truth("w"):
-                m = M.nupe(d.truth["w"], w)
-                items.append(M.Metric("NUPE_w", m.value, m.error, m.normaliser, "w"))
-            if d.has_truth("v"):
-                m = M.nupe(d.truth["v"], d.U - w)
-                items.append(M.Metric("NUPE_v", m.value, m.error, m.normaliser, "v"))
-            result.metrics[part] = _metrics_dict(*items)
+            result.metrics[part] = nullspace_metrics(w, d, self.convention)
         return result
 
     def _learn_a(self, opts: dict) -> StageResult:
@@ -169,14 +162,7 @@ class Pipeline:
         for part, d in self.parts():
             if isinstance(model, PerDemonstration) and part != "train":
                 continue  # a per-demonstration model knows only its own demonstrations
-            N_est = model.projection(d.X, d.demo)
-            Y = self._target(on, part, d)
-            state_dep = opts.get("method", "nhat") != "nhat"
-            items = [M.npoe(N_est, Y, "ccl")]
-            if d.has_truth("pi") and (d.has_truth("N") or d.has_truth("A")):
-                items.append(M.nppe(d.true_projection(), N_est, d.truth["pi"], d.U, self.convention,
-                                    state_dependent=state_dep))
-            result.metrics[part] = _metrics_dict(*items)
+            result.metrics[part] = constraint_metrics(model, d, self._target(on, part, d), self.convention)
         return result
 
     def _projections(self, opts: dict, part: str, d: Demonstrations) -> np.ndarray | None:
@@ -202,22 +188,15 @@ class Pipeline:
                 tr.X, self._target(on, "train", tr))
         for part, d in self.parts():
             est = model.predict(d.X)
-            items = []
-            if d.has_truth("pi"):
-                items.append(M.nupe(d.truth["pi"], est))
-                if d.has_truth("N") or d.has_truth("A"):
-                    items.append(M.ncpe(d.true_projection(), d.truth["pi"], est))
-                if result.baseline is not None:
-                    b = M.nupe(d.truth["pi"], result.baseline.predict(d.X))
-                    items.append(M.Metric("NUPE_dpl", b.value, b.error, b.normaliser, "pi"))
+            metrics = policy_metrics(est, d)
+            if result.baseline is not None and d.has_truth("pi"):
+                b = M.nupe(d.truth["pi"], result.baseline.predict(d.X), "NUPE_dpl")
+                metrics[b.name] = b.as_dict()
             if self.constraint is not None and not (isinstance(self.constraint, PerDemonstration)
                                                     and part != "train"):
-                Y = self._target(on, part, d)
-                diff = Y - np.einsum("nij,nj->ni", self.constraint.projection(d.X, d.demo), est)
-                var = float(np.var(Y, axis=0, ddof=1).sum())
-                err = float(np.mean(np.sum(diff**2, 1)))
-                items.append(M.Metric("NCPE_obs", err / var if var > 0 else float("nan"), err, var, "u"))
-            result.metrics[part] = _metrics_dict(*items)
+                m = M.ncpe_observed(self.constraint.projection(d.X, d.demo), self._target(on, part, d), est)
+                metrics[m.name] = m.as_dict()
+            result.metrics[part] = metrics
         return result
 
     def _evaluate(self, opts: dict) -> StageResult:
@@ -246,34 +225,59 @@ def stage_list(cfg: Config, default: list[str] | None = None) -> list[tuple[str,
     return [stage_entry(item, cfg, i) for i, item in enumerate(items)]
 
 
+def _has_true_constraint(d: Demonstrations) -> bool:
+    return d.has_truth("pi") and (d.has_truth("N") or d.has_truth("A"))
+
+
+def constraint_metrics(model: Any, d: Demonstrations, Y: np.ndarray, convention: str) -> dict:
+    """NPOE of ``Y`` (the observations, or the learnt w̃ they were fitted on) and, with
+    ground truth, NPPE (normalised as for a state-dependent model unless it is nhat)."""
+    N_est = model.projection(d.X, d.demo)
+    items = [M.npoe(N_est, Y, "ccl")]
+    if _has_true_constraint(d):
+        base = model.estimator if isinstance(model, PerDemonstration) else model
+        items.append(M.nppe(d.true_projection(), N_est, d.truth["pi"], d.U, convention,
+                            state_dependent=not isinstance(base, StateIndependentConstraint)))
+    return _metrics_dict(*items)
+
+
+def nullspace_metrics(w: np.ndarray, d: Demonstrations, convention: str) -> dict:
+    """NPE of the learnt w̃ and, with ground truth, NUPE of w and of v = u − w̃."""
+    items = [M.npe(d.U, w, convention)]
+    if d.has_truth("w"):
+        items.append(M.nupe(d.truth["w"], w, "NUPE_w", "w"))
+    if d.has_truth("v"):
+        items.append(M.nupe(d.truth["v"], d.U - w, "NUPE_v", "v"))
+    return _metrics_dict(*items)
+
+
+def policy_metrics(est: np.ndarray, d: Demonstrations) -> dict:
+    """With ground truth: NUPE of π̃ and NCPE."""
+    items = []
+    if d.has_truth("pi"):
+        items.append(M.nupe(d.truth["pi"], est))
+        if _has_true_constraint(d):
+            items.append(M.ncpe(d.true_projection(), d.truth["pi"], est))
+    return _metrics_dict(*items)
+
+
 def evaluate_model(model: Any, kind: str, data: Demonstrations, convention: str = "ccl") -> dict:
     """Metrics of a saved model on ``data`` (all samples): the ones its ground truth allows."""
-    items: list[M.Metric] = []
     if kind == "constraint":
         if isinstance(model, PerDemonstration):
             missing = set(np.unique(data.demo)) - set(model.models_)
             if missing:
                 raise InputError("this per-demonstration model does not know demonstrations "
                                  f"{sorted(missing)[:5]} of the data")
-        N_est = model.projection(data.X, data.demo)
-        items.append(M.npoe(N_est, data.U, "ccl"))
-        if data.has_truth("pi") and (data.has_truth("N") or data.has_truth("A")):
-            items.append(M.nppe(data.true_projection(), N_est, data.truth["pi"], data.U, convention))
-    elif kind == "nullspace":
-        w = model.predict(data.X)
-        items.append(M.npe(data.U, w, convention))
-        if data.has_truth("w"):
-            m = M.nupe(data.truth["w"], w)
-            items.append(M.Metric("NUPE_w", m.value, m.error, m.normaliser, "w"))
-    elif kind == "policy":
-        est = model.predict(data.X)
-        if data.has_truth("pi"):
-            items.append(M.nupe(data.truth["pi"], est))
-            if data.has_truth("N") or data.has_truth("A"):
-                items.append(M.ncpe(data.true_projection(), data.truth["pi"], est))
-        nm = M.nmse(data.U, est)
-        items.append(M.Metric("NMSE_u_mean", float(np.nanmean(nm)), float("nan"), float("nan"), "per-dim"))
-    return _metrics_dict(*items)
+        return constraint_metrics(model, data, data.U, convention)
+    if kind == "nullspace":
+        return nullspace_metrics(model.predict(data.X), data, convention)
+    est = model.predict(data.X)
+    metrics = policy_metrics(est, data)
+    nm = M.nmse(data.U, est)
+    metrics["NMSE_u_mean"] = M.Metric("NMSE_u_mean", float(np.nanmean(nm)), float("nan"), float("nan"),
+                                      "per-dim").as_dict()
+    return metrics
 
 
 def check_dimensions(model: Any, data: Demonstrations) -> None:

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from ccl_cli.errors import ConfigError
-from ccl_cli.metrics import ncpe, nmse, npe, npoe, nppe, nupe
+from ccl_cli.metrics import ncpe, ncpe_observed, nmse, npe, npoe, nppe, nupe
 
 U = np.array([[1.0, 0.0], [0.0, 2.0], [1.0, 1.0]])
 PI = np.array([[1.0, 1.0], [2.0, 0.0], [0.0, -1.0]])
@@ -68,3 +68,14 @@ def test_nmse_per_dimension():
     out = nmse(Y, est)
     assert out[0] == pytest.approx(1.0 / 4.0)
     assert np.isnan(out[1])  # constant dimension has no variance
+
+
+def test_ncpe_observed_and_named_nupe_by_hand():
+    est = np.array([[1.0, 1.0], [0.0, 0.0], [2.0, 2.0]])
+    # Ñπ̃ with Ñ = diag(0,1): [[0,1],[0,0],[0,2]]; u − Ñπ̃ = [[1,-1],[0,2],[1,-1]] → 2, 4, 2
+    m = ncpe_observed(N_EST, U, est)
+    assert m.name == "NCPE_obs" and m.error == pytest.approx(8 / 3)
+    assert m.value == pytest.approx((8 / 3) / (4 / 3))
+    w = nupe(PI, est, "NUPE_w", "w")
+    assert (w.name, w.normaliser_of) == ("NUPE_w", "w")
+    assert w.value == pytest.approx(nupe(PI, est).value)
