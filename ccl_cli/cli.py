@@ -93,37 +93,42 @@ def _wrote(command: str, out: Path, data, as_json: bool) -> None:
 
 def _learn(command: str, stages: list[tuple[str, dict]] | None, cfg, files, out: Path | None,
            force: bool, as_json: bool, quiet: bool) -> None:
+    from ccl_cli.pipeline import stage_list
     from ccl_cli.runner import default_outdir, run_to_dir
 
     outdir = out or default_outdir(command, cfg)
-    progress = None
-    if stages is not None or cfg.get("stages"):
-        from ccl_cli.pipeline import stage_list
-
-        progress = _progress(len(stages if stages is not None else stage_list(cfg)), quiet)
+    stages = stages if stages is not None else stage_list(cfg)
+    bar = _bar("stages", len(stages), quiet)
     try:
         summary = run_to_dir(command, cfg, files, outdir, force, stages,
-                             progress=progress.advance if progress else None)
+                             progress=bar.advance if bar else None)
     finally:
-        if progress:
-            progress.stop()
+        if bar:
+            bar.stop()
     _emit(summary, as_json)
 
 
-def _progress(total: int, quiet: bool):
+def _bar(label: str, total: int, quiet: bool):
+    """A rich progress bar on stderr (TTY only, not with -q): done/total, failures when
+    ``advance`` is given results with a ``status``, and elapsed or remaining time."""
     if quiet or not sys.stderr.isatty():
         return None
     from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-    progress = Progress(TextColumn("stages"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                        TimeElapsedColumn(), console=Console(stderr=True), transient=True)
-    task = progress.add_task("stages", total=total)
+    counts_failures = label == "jobs"
+    columns = [TextColumn(label), BarColumn(), TextColumn("{task.completed}/{task.total}")]
+    columns += [TextColumn("failed {task.fields[failed]}"), TimeRemainingColumn()] if counts_failures \
+        else [TimeElapsedColumn()]
+    progress = Progress(*columns, console=Console(stderr=True), transient=True)
+    task = progress.add_task(label, total=total, failed=0)
     progress.start()
+    failed = [0]
 
     class Handle:
-        def advance(self) -> None:
-            progress.advance(task)
+        def advance(self, result: Any = None) -> None:
+            failed[0] += getattr(result, "status", None) == "failed"
+            progress.update(task, advance=1, failed=failed[0])
 
         def stop(self) -> None:
             progress.stop()
@@ -425,9 +430,9 @@ def batch(
     t0 = time.perf_counter()
     jobs, manifest_out = plan(manifest, files, str(config) if config else None)
     outdir = out or manifest_out or Path("runs") / "batch"
-    bar = _batch_progress(len(jobs), quiet)
+    bar = _bar("jobs", len(jobs), quiet)
     try:
-        results = run_batch(jobs, outdir, workers, scheduler, force, progress=bar.update if bar else None)
+        results = run_batch(jobs, outdir, workers, scheduler, force, progress=bar.advance if bar else None)
     finally:
         if bar:
             bar.stop()
@@ -441,30 +446,6 @@ def batch(
         for f in summary["failures"]:
             typer.echo(f"  failed {f['job']}: {f['error']}", err=True)
     return 1 if summary["failed"] else 0
-
-
-def _batch_progress(total: int, quiet: bool):
-    if quiet or not sys.stderr.isatty():
-        return None
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-    progress = Progress(TextColumn("jobs"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                        TextColumn("failed {task.fields[failed]}"), TimeRemainingColumn(),
-                        console=Console(stderr=True), transient=True)
-    task = progress.add_task("jobs", total=total, failed=0)
-    progress.start()
-    failed = [0]
-
-    class Handle:
-        def update(self, res) -> None:
-            failed[0] += res.status == "failed"
-            progress.update(task, advance=1, failed=failed[0])
-
-        def stop(self) -> None:
-            progress.stop()
-
-    return Handle()
 
 
 # -- entry point ---------------------------------------------------------------------------
