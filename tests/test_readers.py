@@ -316,3 +316,19 @@ def test_pose_and_twist_stamped_defaults_and_compound_fields(tmp_path):
     full = load_demonstrations({"files": [str(path)], "state": {"topic": "/pose", "field": "pose"}})
     np.testing.assert_array_equal(full.X, np.hstack([pos, quat]))
     err({"files": [str(path)], "state": {"topic": "/pose"}, "typestore": "ros9"}, "unknown typestore 'ros9'")
+
+
+def test_file_hash_is_content_hash_and_follows_rewrites(tmp_path):
+    import hashlib
+
+    from ccl_cli.io import file_hash
+
+    f = tmp_path / "a.bin"
+    f.write_bytes(b"first")
+    assert file_hash(f) == hashlib.sha256(b"first").hexdigest()
+    assert file_hash(f) == file_hash(f)  # remembered
+    f.write_bytes(b"second, longer")
+    assert file_hash(f) == hashlib.sha256(b"second, longer").hexdigest()
+    bag = write_ros2_bag(tmp_path / "bagdir", joint_recording(n=5))
+    parts = b"".join(p.read_bytes() for p in sorted(q for q in bag.rglob("*") if q.is_file()))
+    assert file_hash(bag) == hashlib.sha256(parts).hexdigest()

@@ -8,6 +8,7 @@ ROS 2 bag directory (sqlite3/mcap), standalone MCAP (ROS 2 CDR, ROS 1, JSON).
 
 from __future__ import annotations
 
+import functools
 import glob
 import hashlib
 from pathlib import Path
@@ -115,11 +116,23 @@ def expand_files(files: list[str] | str, base: Path | None = None) -> list[Path]
 
 
 def file_hash(path: Path) -> str:
-    """sha256 of a file, or of a bag directory's files in name order."""
-    h = hashlib.sha256()
+    """sha256 of a file, or of a bag directory's files in name order.
+
+    Digests are remembered for the process, keyed on every file's path, size and
+    modification time, so an unchanged input is read once however many callers ask
+    (a batch job's content key, then the run's provenance).
+    """
+    path = Path(path)
     paths = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
-    for p in paths:
-        with open(p, "rb") as f:
+    key = tuple((str(p.resolve()), p.stat().st_size, p.stat().st_mtime_ns) for p in paths)
+    return _sha256_of(key)
+
+
+@functools.lru_cache(maxsize=1024)
+def _sha256_of(key: tuple[tuple[str, int, int], ...]) -> str:
+    h = hashlib.sha256()
+    for name, _, _ in key:
+        with open(name, "rb") as f:
             for block in iter(lambda: f.read(1 << 20), b""):
                 h.update(block)
     return h.hexdigest()
