@@ -224,9 +224,6 @@ def load_demonstrations(data_cfg: dict[str, Any], base: Path | None = None,
         parts.append(part)
         origins.append(origin)
     data = parts[0] if len(parts) == 1 else Demonstrations.concatenate(parts)
-    if len(parts) > 1:  # keep absolute time per file readable from t0 of each part
-        data.t = np.concatenate([p.t for p in parts])
-        data.state_names, data.action_names = parts[0].state_names, parts[0].action_names
     data.metadata = {"files": [{"path": str(p), "sha256": file_hash(p), **{k: v for k, v in
                                 part.metadata.items() if k != "source"}}
                                for p, part in zip(paths, parts, strict=True)],
