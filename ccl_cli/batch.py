@@ -75,17 +75,13 @@ def _resolve_config(path: str | None, overrides: list[dict], base: Path) -> C.Co
     return C.merge(out, {})
 
 
-def _hash_files(files: list[str]) -> list[str]:
-    from ccl_cli.io import file_hash
-
-    return [file_hash(Path(f)) for f in files]
-
-
 def job_key(files: list[str], cfg: dict[str, Any]) -> str:
     """sha256 over the inputs' contents, the resolved config and the ccl version."""
+    from ccl_cli.io import file_hash
+
     h = hashlib.sha256()
-    for digest in _hash_files(files):
-        h.update(digest.encode())
+    for f in files:
+        h.update(file_hash(Path(f)).encode())
     h.update(json.dumps(cfg, sort_keys=True, default=str).encode())
     h.update(__version__.encode())
     return h.hexdigest()
