@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.streams import Stream, StreamSpec, finish_topics, read_topics
+from ccl_cli.io.streams import Stream, StreamSpec, decoding, finish_topics, read_topics
 
 
 def _typestore(name: str | None):
@@ -80,14 +80,9 @@ class BagReader:
                 msgtypes[spec.topic] = found[0].msgtype
             collectors, slots = read_topics(specs, msgtypes, where)
             conns = [c for c in reader.connections if c.topic in collectors]
-            try:
+            with decoding(where, collectors):
                 for conn, log_ns, raw in reader.messages(connections=conns):
                     collectors[conn.topic].add(reader.deserialize(raw, conn.msgtype), log_ns)
-            except InputError:
-                raise
-            except Exception as exc:
-                raise InputError(f"{where}: cannot decode {', '.join(collectors)} "
-                                 f"({type(exc).__name__}: {exc})") from None
             return finish_topics(collectors, slots)
         finally:
             reader.close()

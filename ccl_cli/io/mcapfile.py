@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.streams import Stream, StreamSpec, finish_topics, read_topics
+from ccl_cli.io.streams import Stream, StreamSpec, decoding, finish_topics, read_topics
 
 
 def _decoders():
@@ -80,16 +80,11 @@ class McapReader:
                 encodings[spec.topic] = channels[0].message_encoding
             collectors, slots = read_topics(specs, msgtypes, where)
             topics = list(collectors)
-            try:
+            with decoding(where, topics):
                 if all(encodings[t] == "json" for t in topics):
                     for _, channel, message in reader.iter_messages(topics=topics):
                         collectors[channel.topic].add(json.loads(message.data), message.log_time)
                 else:
                     for _, channel, message, decoded in reader.iter_decoded_messages(topics=topics):
                         collectors[channel.topic].add(decoded, message.log_time)
-            except InputError:
-                raise
-            except Exception as exc:
-                raise InputError(f"{where}: cannot decode {', '.join(topics)} "
-                                 f"({type(exc).__name__}: {exc})") from None
             return finish_topics(collectors, slots)

@@ -8,7 +8,8 @@ A :class:`Stream` is one selection from one file (a topic's field, or CSV column
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from operator import attrgetter
 from typing import Any
@@ -389,6 +390,18 @@ def read_topics(specs: list[StreamSpec], msgtypes: dict[str, str], where: str
         extractors.append(FieldExtractor(spec, msgtypes[spec.topic], where))
         slots.append((spec.topic, len(extractors) - 1))
     return {t: TopicCollector(ex, where) for t, ex in by_topic.items()}, slots
+
+
+@contextlib.contextmanager
+def decoding(where: str, topics) -> Iterator[None]:
+    """Turn a reader library's failure while decoding ``topics`` into one InputError line."""
+    try:
+        yield
+    except InputError:
+        raise
+    except Exception as exc:  # the libraries raise many types for corrupt or truncated files
+        raise InputError(f"{where}: cannot decode {', '.join(topics)} ({type(exc).__name__}: {exc})") \
+            from None
 
 
 def finish_topics(collectors: dict[str, TopicCollector], slots: list[tuple[str, int]]) -> list[Stream]:
