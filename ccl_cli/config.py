@@ -24,15 +24,18 @@ STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
 NUM = (int, float)
 
 BASIS = {"kind": str, "n_centres": int, "centres": (str, list), "sigma2": NUM, "seed": int}
-STREAM = {"topic": str, "field": str, "joints": list, "columns": list, "stamp": str}
+STREAM = {"topic": str, "field": str, "joints": list, "columns": list, "stamp": str,
+          "dataset": str, "variable": str, "file": str, "samples": str}
 ACTION = {**STREAM, "derive": str, "window": int, "order": int}
 
 SCHEMA: dict[str, Any] = {
     "seed": int,
     "data": {
         "files": (list, str), "format": str, "typestore": str, "state": STREAM, "action": ACTION,
-        "time": {"column": (str, int), "unit": str, "rate": NUM, "delimiter": str},
-        "demos": {"split_on_gap": NUM, "ranges": list, "per_file": bool},
+        "time": {"column": (str, int), "unit": str, "rate": NUM, "delimiter": str,
+                 "dataset": str, "variable": str, "file": str},
+        "demos": {"split_on_gap": NUM, "ranges": list, "per_file": bool,
+                  "group": str, "dataset": str, "variable": str},
         "nonfinite": str, "min_samples": int,
         "test": {"fraction": NUM, "seed": int, "use_masks": bool},
     },
@@ -77,7 +80,7 @@ CHOICES = {
     ("learn-pi", "projections"): ("auto", "learnt", "true"),
     ("metrics", "convention"): ("ccl", "original"),
     ("evaluate", "convention"): ("ccl", "original"),
-    ("data", "format"): ("auto", "hdf5", "csv", "bag", "mcap"),
+    ("data", "format"): ("auto", "hdf5", "csv", "bag", "mcap", "mat"),
     ("data", "nonfinite"): ("drop", "fail"),
 }
 

@@ -15,7 +15,7 @@ from ccl_cli.errors import ConfigError, InputError
 
 def read_data(cfg: Config, files: list[Path] | list[str] | None):
     """The dataset and its train/test masks (canonical HDF5 may carry them)."""
-    from ccl_cli.io import detect_format, expand_files, file_hash, load_demonstrations
+    from ccl_cli.io import expand_files, file_hash, is_canonical_input, load_demonstrations
     from ccl_cli.io.hdf5 import read_demonstrations
 
     data_cfg = dict(cfg.get("data") or {})
@@ -23,7 +23,7 @@ def read_data(cfg: Config, files: list[Path] | list[str] | None):
     if not entries:
         raise ConfigError("no input data: give files on the command line or data.files in the config")
     paths = expand_files(entries, None if files else cfg.base)
-    if len(paths) == 1 and detect_format(paths[0]) == "hdf5":
+    if len(paths) == 1 and is_canonical_input(paths[0], data_cfg):
         data, info = read_demonstrations(paths[0])
         data.metadata = {"files": [{"path": str(paths[0]), "sha256": file_hash(paths[0]), "format": "hdf5"}],
                          "time_origin_ns": info["time_origin_ns"], "provenance": info["provenance"]}

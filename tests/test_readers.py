@@ -214,7 +214,7 @@ def test_truncated_and_foreign_hdf5(tmp_path):
     foreign = tmp_path / "foreign.h5"
     with h5py.File(foreign, "w") as f:
         f["x"] = np.zeros(3)
-    err({"files": [str(foreign)]}, "not a ccl-demonstrations file")
+    err({"files": [str(foreign)]}, "not in the ccl-demonstrations layout.*the file has: x")
 
 
 def test_empty_topic_nan_and_non_increasing(tmp_path):

@@ -10,6 +10,7 @@ standalone MCAP). ``detect_format`` looks at the content, not only the suffix;
 from __future__ import annotations
 
 from ccl_cli.io.files import expand_files, file_hash
+from ccl_cli.io.h5layout import is_canonical_input
 from ccl_cli.io.load import DATA_KEYS, inspect_path, load_demonstrations, load_file
 from ccl_cli.io.registry import (
     BAG1_MAGIC,
@@ -30,5 +31,6 @@ FORMATS = format_names()
 __all__ = [
     "BAG1_MAGIC", "DATA_KEYS", "FORMATS", "HDF5_MAGIC", "MCAP_MAGIC", "REGISTRY", "Format", "Reader",
     "StreamFile", "StreamSource", "detect_format", "expand_files", "file_hash", "format_names",
-    "inspect_path", "load_demonstrations", "load_file", "open_reader", "open_recording", "register",
+    "is_canonical_input", "inspect_path", "load_demonstrations", "load_file",
+    "open_reader", "open_recording", "register",
 ]

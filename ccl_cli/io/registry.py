@@ -145,10 +145,24 @@ def _open_hdf5(path: Path, data_cfg: dict[str, Any]) -> Reader:
     return Hdf5File(path, data_cfg)
 
 
+def _open_mat(path: Path, data_cfg: dict[str, Any]) -> Reader:
+    from ccl_cli.io.matfile import MatFile
+
+    return MatFile(path, data_cfg)
+
+
+def _sniff_mat(path: Path, head: bytes) -> bool:
+    from ccl_cli.io.matfile import sniff
+
+    return not path.is_dir() and sniff(path, head)
+
+
 register(Format("bag", "ROS 1 .bag file or ROS 2 bag directory (sqlite3/mcap), via rosbags",
                 _sniff_bag, _open_stream("bag")))
 register(Format("mcap", "standalone MCAP (ROS 2 CDR, ROS 1, JSON)",
                 lambda path, head: head.startswith(MCAP_MAGIC), _open_stream("mcap")))
+register(Format("mat", "MATLAB .mat, v5/v7 (scipy) and v7.3 (HDF5), by variable names",
+                _sniff_mat, _open_mat))
 register(Format("hdf5", "HDF5: the canonical ccl-demonstrations layout, or any layout via the config",
                 _sniff_hdf5, _open_hdf5))
 register(Format("csv", "CSV / text table (header or not, one sample per row or per column)",
