@@ -386,7 +386,9 @@ def inspect_cmd(
     if "columns" in info:
         typer.echo(f"columns:  {', '.join(info['columns'])}")
         typer.echo(f"rows:     {info['rows']} (time column {info['time_column']})")
-    for key in ("samples", "demos", "state_names", "action_names", "truth", "masks"):
+    for node in info.get("tree", []):  # HDF5 / .mat contents
+        typer.echo("  " + "  ".join(str(v) for k, v in node.items() if k != "names"))
+    for key in ("samples", "demos", "samples_per_demo", "state_names", "action_names", "truth", "masks"):
         if key in info:
             typer.echo(f"{key + ':':9s} {info[key]}")
 

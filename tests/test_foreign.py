@@ -340,3 +340,42 @@ def test_cli_bad_mat_exit_2(tmp_path, capsys):
     assert code == 2 and err.count("\n") == 1 and "data.state.variable is required" in err
     assert not (tmp_path / "o.h5").exists()
     json.dumps(inspect_path(path))  # the tree is JSON-able
+
+
+# -- text matrices (the original C library's data files) ------------------------------------
+TEXT = {"format": "csv", "state": {"samples": "columns"}, "action": {"file": "U.txt", "samples": "columns"},
+        "time": {"rate": 20}}
+
+
+def test_text_matrices_one_sample_per_column_one_file_per_variable(tmp_path, arm):
+    for d in arm.demo_ids[:3]:  # one folder per demonstration: X.txt (p×n), U.txt (q×n)
+        folder = tmp_path / f"demo{d}"
+        folder.mkdir()
+        np.savetxt(folder / "X.txt", arm.X[arm.demo == d].T)
+        np.savetxt(folder / "U.txt", arm.U[arm.demo == d].T, delimiter="\t")
+    data = load_demonstrations({**TEXT, "files": [str(tmp_path / "demo*" / "X.txt")]})
+    first3 = arm.select_demos(arm.demo_ids[:3])
+    np.testing.assert_array_equal(data.X, first3.X)  # %.18e text round-trips float64 exactly
+    np.testing.assert_array_equal(data.U, first3.U)
+    assert data.n_demos == 3 and data.state_names[0] == "X[0]" and data.action_names[6] == "U[6]"
+    info = inspect_path(tmp_path / "demo0" / "X.txt", {**TEXT, "files": []})
+    assert info["samples"] == "columns" and info["rows"] == 20 and len(info["columns"]) == 7
+
+
+def test_text_matrix_bad_cases_one_line(tmp_path, arm):
+    np.savetxt(tmp_path / "X.txt", arm.X[:20].T)
+    np.savetxt(tmp_path / "U.txt", arm.U[:20])  # one sample per row: the wrong orientation
+    cfg = {**TEXT, "files": [str(tmp_path / "X.txt")]}
+    bad_ = pytest.raises(InputError, match="20 state samples but 7 action samples in U.txt")
+    with bad_:
+        load_demonstrations(cfg)
+    (tmp_path / "U.txt").write_text("1 2 3\n4 5\n")
+    with pytest.raises(InputError, match="row 2 has 2 fields, row 1 has 3"):
+        load_demonstrations(cfg)
+    (tmp_path / "U.txt").write_text("1 2 x\n4 5 6\n")
+    with pytest.raises(InputError, match="samples: columns needs a text matrix without a header"):
+        load_demonstrations(cfg)
+    with pytest.raises(InputError, match="no such file"):
+        load_demonstrations({**cfg, "action": {"file": "V.txt"}})
+    with pytest.raises(InputError, match="no time column"):
+        load_demonstrations({**cfg, "time": {}})

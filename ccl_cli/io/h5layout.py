@@ -276,7 +276,9 @@ class Hdf5File:
         from ccl_cli.io.hdf5 import is_canonical, read_demonstrations
         from ccl_cli.io.tree import describe_tree
 
-        out: dict[str, Any] = {"tree": describe_tree(self.path)}
+        out: dict[str, Any] = {}
+        if uses_layout(self.data_cfg) or not is_canonical(self.path):
+            out["tree"] = describe_tree(self.path)  # a canonical file is summarised, not listed
         if uses_layout(self.data_cfg):
             data, _ = self.load()
             out.update(summary(data))

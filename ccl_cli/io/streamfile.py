@@ -36,9 +36,9 @@ class StreamSource(Protocol):
     def read_many(self, specs: list[StreamSpec]) -> list[Stream]: ...
 
 
-def open_reader(path: str | Path, fmt: str | None = None, config: dict[str, Any] | None = None
-                ) -> StreamSource:
-    """The stream source of ``path`` (CSV, bag or MCAP)."""
+def open_reader(path: str | Path, fmt: str | None = None, config: dict[str, Any] | None = None,
+                samples: str | None = None) -> StreamSource:
+    """The stream source of ``path`` (CSV, bag or MCAP); ``samples`` (CSV only): rows or columns."""
     from ccl_cli.io.registry import detect_format
 
     config = config or {}
@@ -49,7 +49,7 @@ def open_reader(path: str | Path, fmt: str | None = None, config: dict[str, Any]
 
         tcfg = config.get("time") or {}
         return CsvReader(path, tcfg.get("column"), tcfg.get("unit"), tcfg.get("rate"),
-                         tcfg.get("delimiter"))
+                         tcfg.get("delimiter"), samples)
     if fmt == "bag":
         from ccl_cli.io.bag import BagReader
 
@@ -77,7 +77,29 @@ class StreamFile:
         self.path = Path(path)
         self.format = fmt
         self.data_cfg = data_cfg
-        self.source = open_reader(self.path, fmt, data_cfg)
+        state = data_cfg.get("state") if isinstance(data_cfg.get("state"), dict) else {}
+        self._sources: dict[tuple[Path, str | None], StreamSource] = {}
+        self.source = self.source_for({"samples": state.get("samples")})
+
+    def source_for(self, stream_cfg: dict[str, Any]) -> StreamSource:
+        """The source of one stream: the recording itself, or (text files) a sibling
+        ``file`` (relative to the recording's folder), read with its ``samples`` side."""
+        file, samples = stream_cfg.get("file"), stream_cfg.get("samples")
+        if (file is not None or samples is not None) and self.format != "csv":
+            raise InputError(f"{self.path}: file and samples apply to CSV/text input, not {self.format}")
+        path = self.path if file is None else (Path(file) if Path(file).is_absolute()
+                                               else self.path.parent / file)
+        if file is not None and not path.exists():
+            raise InputError(f"{path}: no such file (stream file {file!r}, relative to {self.path.parent})")
+        key = (path, samples)
+        if key not in self._sources:
+            self._sources[key] = open_reader(path, self.format, self.data_cfg, samples)
+        return self._sources[key]
+
+    def _read(self, specs: list[StreamSpec], cfgs: list[dict[str, Any]]) -> list[Stream]:
+        if all(not c.get("file") and not c.get("samples") for c in cfgs):
+            return self.source.read_many(specs)  # one pass over the recording
+        return [self.source_for(c).read(s) for s, c in zip(specs, cfgs, strict=True)]
 
     def load(self) -> tuple[Demonstrations, int]:
         path, fmt, data_cfg = self.path, self.format, self.data_cfg
@@ -89,8 +111,9 @@ class StreamFile:
         action_cfg = data_cfg.get("action") or {"derive": "state"}
         derive = action_cfg.get("derive") if isinstance(action_cfg, dict) else None
         specs = [state_spec] if derive is not None else [state_spec, StreamSpec.from_config(action_cfg)]
+        cfgs = [data_cfg["state"]] + ([] if derive is not None else [action_cfg])
         streams = [_clean(s, sp, nonfinite)
-                   for s, sp in zip(self.source.read_many(specs), specs, strict=True)]
+                   for s, sp in zip(self._read(specs, cfgs), specs, strict=True)]
         state = streams[0]
         t_ns = state.t_ns
         X = state.values
@@ -98,6 +121,10 @@ class StreamFile:
         if derive is None:
             action_spec = specs[1]
             action = streams[1]
+            paced = str(state.meta.get("time_column", "")).startswith("rate")
+            if action_cfg.get("file") and paced and len(action.t_ns) != len(t_ns):
+                raise InputError(f"{path}: {len(t_ns)} state samples but {len(action.t_ns)} action samples "
+                                 f"in {action_cfg['file']}; check samples: rows|columns")
             U, inside = align(t_ns, action.t_ns, action.values)
             if not inside.any():
                 raise InputError(f"{path}: the action stream ({action_spec.describe()}) does not "
@@ -138,11 +165,18 @@ class StreamFile:
                 topic["rate_hz"] = (topic["count"] - 1) / span if span > 0 and topic["count"] > 1 else None
             out["topics"] = info["topics"]
         else:
-            out.update({k: info[k] for k in ("columns", "rows", "time_column")})
+            out.update({k: info[k] for k in ("columns", "rows", "time_column", "header", "samples")})
             if info["rows"] > 1 and span > 0:
                 out["rate_hz"] = (info["rows"] - 1) / span
+        if self.format == "csv":  # the columns a config would read (or all, for a text matrix)
+            for key in ("state", "action"):
+                cfg = self.data_cfg.get(key)
+                if isinstance(cfg, dict) and cfg.get("derive") is None and \
+                        (cfg.get("columns") or (key == "state" and not info.get("header", True))):
+                    out[f"{key}_names"] = self.source_for(cfg).read(StreamSpec.from_config(cfg)).names
         if gap is not None and self.data_cfg.get("state"):
-            stream = self.source.read(StreamSpec.from_config(self.data_cfg["state"]))
+            state = self.data_cfg["state"]
+            stream = self.source_for(state).read(StreamSpec.from_config(state))
             ids = segment_ids((stream.t_ns - stream.t_ns[0]) / 1e9, {"split_on_gap": gap}, str(self.path))
             out["demos"] = int(ids.max()) + 1
         return out
