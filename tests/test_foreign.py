@@ -172,7 +172,7 @@ def test_hdf5_external_link_and_storage_refused(tmp_path, arm):
     path2 = tmp_path / "ext.h5"
     with h5py.File(path2, "w") as f:
         f.create_dataset("X", shape=arm.X.shape, dtype="<f8", external=[(str(raw), 0, h5py.h5f.UNLIMITED)])
-    bad({"state": {"dataset": "X"}, "time": {"rate": 20}}, path2, "external files")
+    bad({"state": {"dataset": "X"}, "time": {"rate": 20}}, path2, "stores its data in external file")
     path3 = tmp_path / "virtual.h5"
     with h5py.File(path3, "w") as f:
         layout = h5py.VirtualLayout(shape=arm.X.shape, dtype="f8")
@@ -330,6 +330,25 @@ def test_bar_arm7_mat73_matrix_demo_index(tmp_path, capsys):
     cfg = {**MAT_CELLS, "demos": {"variable": "demo"}}
     _bar(tmp_path, capsys, lambda p, d: write_mat73(p.with_suffix(".mat"), {
         "X": d.X.T, "U": d.U.T, "demo": d.demo[None, :].astype(float)}), cfg)
+    # convert and evaluate read the same file with the same -c config
+    held, config = tmp_path / "held.mat", tmp_path / "c.yaml"
+    assert main(["convert", str(held), "-c", str(config), "-o", str(tmp_path / "held.h5"), "-q"]) == 0
+    with h5py.File(tmp_path / "held.h5") as f:
+        assert len(f["demos"]) == 10 and f["demos/demo_0000/x"].shape == (40, 7)
+    assert main(["evaluate", str(tmp_path / "out" / "model.h5"), str(held), "-c", str(config), "--json",
+                 "-q"]) == 0
+    metrics = json.loads(capsys.readouterr().out)["metrics"]
+    assert metrics["NPOE"] < 1e-3, metrics  # no ground truth in a .mat: the observed-action error
+
+
+def test_cli_inspect_lists_the_tree_and_demos(tmp_path, capsys, arm):
+    path = write_robomimic(tmp_path / "r.hdf5", demo_list(arm))
+    config = tmp_path / "c.yaml"
+    config.write_text(yaml.safe_dump({"data": ROBOMIMIC}))
+    assert main(["inspect", str(path), "-c", str(config)]) == 0
+    out = capsys.readouterr().out
+    assert "data/demo_11/obs/joint_pos  dataset  [20, 7]  float64" in out
+    assert "demos:    12" in out and "samples_per_demo: [20," in out
 
 
 def test_cli_bad_mat_exit_2(tmp_path, capsys):
