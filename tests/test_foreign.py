@@ -46,7 +46,17 @@ def write_mat73(path: Path, variables: dict) -> Path:
     arrays (stored transposed), lists (cell arrays of arrays), dicts (structs)."""
 
     def put(parent, refs, name, value):
-        if isinstance(value, list):
+        if isinstance(value, list) and isinstance(value[0], dict):  # struct array: a field = references
+            g = parent.create_group(name)
+            g.attrs["MATLAB_class"] = np.bytes_("struct")
+            for key in value[0]:
+                rs = []
+                for k, elem in enumerate(value):
+                    ds = refs.create_dataset(f"{name}_{key}_{k}", data=np.asarray(elem[key], dtype=float).T)
+                    ds.attrs["MATLAB_class"] = np.bytes_("double")
+                    rs.append(ds.ref)
+                g.create_dataset(key, data=np.array(rs, dtype=h5py.ref_dtype).reshape(len(rs), 1))
+        elif isinstance(value, list):
             rs = []
             for k, item in enumerate(value):
                 ds = refs.create_dataset(f"{name}_{k}_{len(refs)}", data=np.asarray(item).T)
@@ -215,6 +225,19 @@ def test_mat_v5_struct_fields_matrix_and_demo_index(tmp_path, arm):
                  "demos": {"variable": "data.demo"}, "time": {"rate": 20}}, path)
     np.testing.assert_array_equal(data.X, arm.X)
     assert data.n_demos == arm.n_demos
+    runs = np.empty((1, 3), dtype=[("X", object), ("U", object)])  # a struct array: one demo per element
+    for k in range(3):
+        runs[0, k]["X"], runs[0, k]["U"] = arm.X[arm.demo == k].T, arm.U[arm.demo == k].T
+    scipy.io.savemat(path, {"run": runs})
+    cfg = {**MAT_CELLS, "state": {"variable": "run.X", "samples": "columns"},
+           "action": {"variable": "run.U", "samples": "columns"}}
+    data = load({**cfg, "time": {"rate": 20}}, path)
+    np.testing.assert_array_equal(data.U, arm.select_demos([0, 1, 2]).U)
+    assert data.n_demos == 3
+    # the same in v7.3 (fields of a struct array are reference datasets)
+    elems = [{"X": arm.X[arm.demo == k].T, "U": arm.U[arm.demo == k].T} for k in range(3)]
+    v73 = write_mat73(tmp_path / "sa73.mat", {"run": elems})
+    np.testing.assert_array_equal(load(cfg, v73).X, arm.select_demos([0, 1, 2]).X)
 
 
 def test_mat_v5_bad_cases_one_line(tmp_path, arm):

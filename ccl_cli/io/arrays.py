@@ -95,14 +95,14 @@ def orient(variables: dict[str, Variable], default: str | None, where: str) -> d
     if known:
         counts = set(known.values())
         if len(counts) > 1:
-            desc = ", ".join(f"{variables[k].where} has {n}" for k, n in known.items())
+            desc = ", ".join(f"{_name(variables[k])} has {n}" for k, n in known.items())
             raise InputError(f"{where}: the variables disagree on the number of samples ({desc}); "
                              "check samples: rows|columns")
         n = counts.pop()
     else:
         common = set.intersection(*(set(v.values.shape) for v in variables.values()))
         if len(common) != 1:
-            shapes = ", ".join(f"{v.where} {_shape(v.values)}" for v in variables.values())
+            shapes = ", ".join(f"{_name(v)} {_shape(v.values)}" for v in variables.values())
             raise InputError(f"{where}: cannot tell which side holds the samples ({shapes}); "
                              "set samples: rows or samples: columns")
         n = common.pop()
@@ -123,6 +123,11 @@ def orient(variables: dict[str, Variable], default: str | None, where: str) -> d
         else:
             out[key] = arr if side == "rows" else arr.T
     return out
+
+
+def _name(var: Variable) -> str:
+    """The variable's own part of ``where`` (after the file name)."""
+    return var.where.rsplit(": ", 1)[-1]
 
 
 def _shape(arr: np.ndarray) -> str:
