@@ -141,6 +141,23 @@ def test_flat_layout_with_demo_index_rate_and_derived_action(tmp_path, arm):
     np.testing.assert_allclose(line.U, np.tile([10.0, -20.0], (10, 1)), atol=1e-9)
 
 
+def test_integer_nanosecond_stamps_stay_exact(tmp_path):
+    epoch = 1_700_000_000_123_456_789
+    stamps = epoch + np.arange(2000, dtype=np.int64) * 1_000_000 + np.tile([0, 1], 1000)  # 1 kHz, ±1 ns
+    path = tmp_path / "ns.h5"
+    with h5py.File(path, "w") as f:
+        f["q"] = np.arange(2000.0)[:, None]
+        f["stamp"] = stamps
+    cfg = {"files": [str(path)], "state": {"dataset": "q"}, "time": {"dataset": "stamp"}}
+    data = load_demonstrations(cfg)
+    # exact to the ns (float64 of the epoch stamps would not be: 256 ns steps)
+    np.testing.assert_array_equal(np.round(data.t * 1e9).astype(np.int64), stamps - epoch)
+    assert data.metadata["time_origin_ns"] == epoch
+    assert data.metadata["files"][0]["layout"]["time"] == "stamp: integer stamps in ns"
+    with pytest.raises(InputError, match="not both"):
+        load_demonstrations({**cfg, "demos": {"group": "*", "dataset": "x"}})
+
+
 def test_samples_columns_in_hdf5(tmp_path, arm):
     path = tmp_path / "cols.h5"
     with h5py.File(path, "w") as f:

@@ -34,11 +34,11 @@ from ccl_cli.io.arrays import (
     Part,
     Variable,
     assemble,
+    chunk_times,
     names_for,
     numeric,
     orient,
     split_by_index,
-    time_of,
     wants_derived,
 )
 
@@ -134,7 +134,7 @@ def _contents(group, limit: int = 6) -> str:
     return (", ".join(found[:limit]) or "no datasets") + more
 
 
-def _dataset(group, rel: str, where: str, spec: dict[str, Any]) -> Variable:
+def _dataset(group, rel: str, where: str, spec: dict[str, Any], keep_int: bool = False) -> Variable:
     import h5py
 
     here = f"{where}:/{group.name.strip('/') + '/' if group.name != '/' else ''}{rel.strip('/')}"
@@ -151,7 +151,7 @@ def _dataset(group, rel: str, where: str, spec: dict[str, Any]) -> Variable:
         if key in obj.attrs:
             names = [v.decode() if isinstance(v, bytes) else str(v) for v in np.ravel(obj.attrs[key])]
             break
-    return Variable(numeric(raw, here), here, spec.get("samples"), names)
+    return Variable(numeric(raw, here, keep_int), here, spec.get("samples"), names)
 
 
 def select_columns(mat: np.ndarray, names: list[str], columns: list[Any] | None, where: str
@@ -184,12 +184,12 @@ def _part(group, data_cfg: dict[str, Any], where: str, label: str, derive: bool
         vars_["action"] = _dataset(group, action["dataset"], where, action)
     tcfg = data_cfg.get("time") or {}
     if tcfg.get("dataset") is not None:
-        vars_["time"] = _dataset(group, tcfg["dataset"], where, {})
+        vars_["time"] = _dataset(group, tcfg["dataset"], where, {}, keep_int=True)
     return orient(vars_, "rows", f"{where}: {label}"), vars_
 
 
-def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> Demonstrations:
-    """A foreign layout → Demonstrations (see the module docstring for the keys)."""
+def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations, int]:
+    """A foreign layout → (Demonstrations, time origin ns); see the module docstring for the keys."""
     where = str(path)
     state = data_cfg.get("state") or {}
     if state.get("dataset") is None:
@@ -201,6 +201,9 @@ def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> Demonstrations:
     if unknown:
         raise InputError(f"unknown demos option(s) for an HDF5 layout: {', '.join(sorted(unknown))} "
                          "(use group or dataset)")
+    if demos.get("group") is not None and demos.get("dataset") is not None:
+        raise InputError("data.demos: give group (one demonstration per group) or dataset (a demo id "
+                         "per sample), not both")
     tcfg = data_cfg.get("time") or {}
     chunks: list[tuple[str, dict[str, np.ndarray]]] = []
     variables: dict[str, Variable] = {}
@@ -222,11 +225,8 @@ def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> Demonstrations:
             chunks = split_by_index(arrays, index.values, index.where)
         else:
             chunks = [("file", arrays)]
-    parts = []
-    for label, arrays in chunks:
-        n = arrays["state"].shape[0]
-        t = time_of(n, arrays["time"][:, 0] if "time" in arrays else None, tcfg, f"{where}: {label}")
-        parts.append(Part(arrays["state"], arrays.get("action"), t, label))
+    times, origin, time_used = chunk_times(chunks, tcfg, where)
+    parts = [Part(a["state"], a.get("action"), t, label) for (label, a), t in zip(chunks, times, strict=True)]
     p = parts[0].X.shape[1]
     leaf = state["dataset"].strip("/").split("/")[-1]
     state_names = names_for(leaf, p, variables["state"].names)
@@ -243,9 +243,9 @@ def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> Demonstrations:
         action_names = names
     meta = {"source": where, "format": "hdf5", "layout": {
         "state": state["dataset"], "action": "derived" if derive else data_cfg["action"]["dataset"],
-        "time": tcfg.get("dataset") or f"rate {tcfg.get('rate')} Hz",
+        "time": f"{tcfg['dataset']}: {time_used}" if tcfg.get("dataset") else time_used,
         "demos": demos.get("group") or demos.get("dataset") or "whole file"}}
-    return assemble(parts, data_cfg, where, state_names, action_names, meta)
+    return assemble(parts, data_cfg, where, state_names, action_names, meta), origin
 
 
 class Hdf5File:
@@ -260,7 +260,7 @@ class Hdf5File:
 
         if uses_layout(self.data_cfg):
             with open_checked(self.path) as f:
-                return read_layout(f, self.path, self.data_cfg), 0
+                return read_layout(f, self.path, self.data_cfg)
         with open_checked(self.path) as f:
             found = f.attrs.get("format")
             found = found.decode() if isinstance(found, bytes) else found
@@ -282,6 +282,7 @@ class Hdf5File:
         if uses_layout(self.data_cfg):
             data, _ = self.load()
             out.update(summary(data))
+            out["time"] = data.metadata["layout"]["time"]
         elif is_canonical(self.path):
             data, info = read_demonstrations(self.path)
             out.update(summary(data))
