@@ -51,7 +51,9 @@ def open_checked(path: Path, what: str = "HDF5"):
     external links, external raw storage and virtual datasets (which read other files)
     are refused with one line. Returns the open ``h5py.File``.
 
-    (The one place to swap for a shared safe-open function.)
+    (The one place to swap for a shared safe-open function.) The walk uses h5py's
+    low-level API: link types from the link table, dataset creation properties from the
+    dataset ids, never a value.
     """
     import h5py
 
@@ -60,27 +62,33 @@ def open_checked(path: Path, what: str = "HDF5"):
         f = h5py.File(path, "r")
     except OSError as exc:
         raise InputError(f"{where}: cannot open as {what} ({exc})") from None
-    problems: list[str] = []
-
-    def visit(name: str, link) -> None:
-        if isinstance(link, h5py.ExternalLink):
-            problems.append(f"/{name} is an external link to {link.filename}:{link.path}")
-        elif isinstance(link, h5py.HardLink):
-            obj = f.get(name)
-            if isinstance(obj, h5py.Dataset):
-                if obj.is_virtual:
-                    problems.append(f"/{name} is a virtual dataset")
-                elif obj.id.get_create_plist().get_external_count() > 0:
-                    problems.append(f"/{name} stores its data in external files")
-
+    links: list[tuple[bytes, int]] = []
+    problem = None
     try:
-        f.visititems_links(visit)
-    except (OSError, RuntimeError, KeyError) as exc:
+        f.id.links.visit(lambda name, info: links.append((name, info.type)), info=True)
+        for name, kind in links:
+            label = name.decode(errors="replace")
+            if kind == h5py.h5l.TYPE_EXTERNAL:
+                target = f.get(label, getlink=True)
+                problem = f"/{label} is an external link to {target.filename}:{target.path}"
+            elif kind == h5py.h5l.TYPE_HARD:
+                obj = h5py.h5o.open(f.id, name)
+                if isinstance(obj, h5py.h5d.DatasetID):
+                    dcpl = obj.get_create_plist()
+                    if dcpl.get_layout() == h5py.h5d.VIRTUAL:
+                        problem = f"/{label} is a virtual dataset"
+                    elif dcpl.get_external_count() > 0:
+                        problem = f"/{label} stores its data in external files"
+            elif kind != h5py.h5l.TYPE_SOFT:
+                problem = f"/{label} is a user-defined link"
+            if problem:
+                break
+    except (OSError, RuntimeError, KeyError, ValueError) as exc:
         f.close()
         raise InputError(f"{where}: cannot read the {what} structure ({exc})") from None
-    if problems:
+    if problem:
         f.close()
-        raise InputError(f"{where}: refused: {problems[0]} (ccl reads no data outside the file)")
+        raise InputError(f"{where}: refused: {problem} (ccl reads no data outside the file)")
     return f
 
 
@@ -134,24 +142,37 @@ def _contents(group, limit: int = 6) -> str:
     return (", ".join(found[:limit]) or "no datasets") + more
 
 
-def _dataset(group, rel: str, where: str, spec: dict[str, Any], keep_int: bool = False) -> Variable:
+def _dataset(group, rel: str, where: str, spec: dict[str, Any], keep_int: bool = False,
+             names: bool = True) -> Variable:
+    """One dataset under ``group`` as a checked :class:`Variable` (read through h5py's
+    low-level API: the high-level object layer costs more than the read for small datasets)."""
     import h5py
 
-    here = f"{where}:/{group.name.strip('/') + '/' if group.name != '/' else ''}{rel.strip('/')}"
-    obj = group.get(rel.strip("/"))
-    if not isinstance(obj, h5py.Dataset):
-        what = "a group" if isinstance(obj, h5py.Group) else "missing"
-        raise InputError(f"{here}: {what}, not a dataset (this group has: {_contents(group)})")
+    rel = rel.strip("/")
+    here = f"{where}:/{group.name.strip('/') + '/' if group.name != '/' else ''}{rel}"
     try:
-        raw = obj[()]
-    except (OSError, TypeError, ValueError) as exc:
-        raise InputError(f"{here}: cannot read ({exc})") from None
-    names = None
-    for key in NAME_ATTRS:
-        if key in obj.attrs:
-            names = [v.decode() if isinstance(v, bytes) else str(v) for v in np.ravel(obj.attrs[key])]
+        oid = h5py.h5o.open(group.id, rel.encode())
+    except KeyError:
+        raise InputError(f"{here}: missing, not a dataset (this group has: {_contents(group)})") from None
+    if not isinstance(oid, h5py.h5d.DatasetID):
+        raise InputError(f"{here}: a group, not a dataset (this group has: {_contents(group)})")
+    dtype = oid.dtype
+    if dtype.kind not in "biuf":  # text, references, compounds: refused before reading
+        raw = np.zeros(0, dtype=dtype if dtype.kind in "SUOc" else "V1")
+    else:
+        raw = np.empty(oid.shape, dtype=dtype)
+        try:
+            if raw.size:
+                oid.read(h5py.h5s.ALL, h5py.h5s.ALL, raw)
+        except (OSError, TypeError, ValueError) as exc:
+            raise InputError(f"{here}: cannot read ({exc})") from None
+    found = None
+    attrs = h5py.Dataset(oid).attrs if names else {}
+    for key in NAME_ATTRS if names else ():
+        if key in attrs:
+            found = [v.decode() if isinstance(v, bytes) else str(v) for v in np.ravel(attrs[key])]
             break
-    return Variable(numeric(raw, here, keep_int), here, spec.get("samples"), names)
+    return Variable(numeric(raw, here, keep_int), here, spec.get("samples"), found)
 
 
 def select_columns(mat: np.ndarray, names: list[str], columns: list[Any] | None, where: str
@@ -173,15 +194,16 @@ def select_columns(mat: np.ndarray, names: list[str], columns: list[Any] | None,
     return mat[:, idx], [names[k] for k in idx]
 
 
-def _part(group, data_cfg: dict[str, Any], where: str, label: str, derive: bool
+def _part(group, data_cfg: dict[str, Any], where: str, label: str, derive: bool, names: bool = True
           ) -> tuple[dict[str, np.ndarray], dict[str, Variable]]:
+    """The oriented arrays of one group (names attributes read when ``names``)."""
     vars_: dict[str, Variable] = {"state": _dataset(group, data_cfg["state"]["dataset"], where,
-                                                    data_cfg["state"])}
+                                                    data_cfg["state"], names=names)}
     if not derive:
         action = data_cfg["action"]
         if action.get("dataset") is None:
             raise InputError(f"{where}: data.action needs dataset: PATH (or derive: state)")
-        vars_["action"] = _dataset(group, action["dataset"], where, action)
+        vars_["action"] = _dataset(group, action["dataset"], where, action, names=names)
     tcfg = data_cfg.get("time") or {}
     if tcfg.get("dataset") is not None:
         vars_["time"] = _dataset(group, tcfg["dataset"], where, {}, keep_int=True)
@@ -212,8 +234,9 @@ def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations
         if not groups:
             raise InputError(f"{where}: no group matches demos.group {demos['group']!r} "
                              f"(the file has: {_contents(f)})")
-        for name in groups:
-            arrays, variables = _part(f[name], data_cfg, where, name, derive)
+        for k, name in enumerate(groups):
+            arrays, found = _part(f[name], data_cfg, where, name, derive, names=k == 0)
+            variables = variables or found  # names from the first group's attributes
             chunks.append((name, arrays))
     else:
         arrays, variables = _part(f, data_cfg, where, "file", derive)
