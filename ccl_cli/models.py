@@ -154,6 +154,8 @@ def save_model(path: str | Path, model: Any, training: dict[str, Any] | None = N
 
 #: fitted scalars that predictions depend on: name → (lowest, highest) allowed integer
 _COUNTS = {"n_action_": (1, 100_000), "n_constraints_": (0, 100_000), "n_task_": (1, 100_000)}
+#: largest magnitude of a saved array: products of two such values stay finite
+MAX_MAGNITUDE = 1e150
 _JSON_TYPES = (str, int, float, bool, list, dict, type(None))
 
 
@@ -220,19 +222,21 @@ def _read(group, method: str, where: str) -> Any:
             raise InputError(f"{where}: fitted {key} is missing")
     arrays = h5safe.group_of(group, "arrays", where)
     for name in ARRAYS[method]:
-        setattr(model, name, h5safe.numeric(arrays, name, where, ndim=(1, 2, 3)) if name in arrays else None)
+        setattr(model, name, h5safe.numeric(arrays, name, where, ndim=(1, 2, 3), limit=MAX_MAGNITUDE)
+                if name in arrays else None)
     if method in ("alpha", "lambda"):
         n = model.n_constraints_
         missing = [i for i in range(n) if f"weights_{i}" not in arrays]
         if missing:
             raise InputError(f"{where}: expected {n} weight arrays, weights_{missing[0]} is missing")
-        model.weights_ = [h5safe.numeric(arrays, f"weights_{i}", where, ndim=(2,)) for i in range(n)]
+        model.weights_ = [h5safe.numeric(arrays, f"weights_{i}", where, ndim=(2,), limit=MAX_MAGNITUDE)
+                          for i in range(n)]
     basis = h5safe.group_of(group, "basis", where, required=False)
     if basis is not None:
         bwhere = f"{where}: /basis"
         kind = h5safe.attr_str(basis.attrs, "kind", bwhere)
         if kind == "rbf":
-            centres = h5safe.numeric(basis, "centres", where, ndim=(2,))
+            centres = h5safe.numeric(basis, "centres", where, ndim=(2,), limit=MAX_MAGNITUDE)
             if centres.shape[0] < 1 or centres.shape[1] < 1:
                 raise InputError(f"{where}: /basis/centres is empty ({centres.shape})")
             state = {"kind": kind, "centres": centres,

@@ -227,33 +227,35 @@ def check_tree(f, where: str) -> None:
     import h5py
 
     count = 0
+    problem: list[str] = []
 
-    def visit(name: str, link) -> None:
+    def visit(name: str, link) -> int | None:
         nonlocal count
         count += 1
         if count > MAX_OBJECTS:
-            raise InputError(f"{where}: more than {MAX_OBJECTS} objects; refused")
-        if isinstance(link, h5py.ExternalLink):
-            raise InputError(f"{where}: /{name} is an external link to {link.filename}:{link.path}; "
-                             "ccl reads nothing outside the file")
-        if isinstance(link, h5py.SoftLink):
+            problem.append(f"more than {MAX_OBJECTS} objects; refused")
+        elif isinstance(link, h5py.ExternalLink):
+            problem.append(f"/{name} is an external link to {link.filename}:{link.path}; "
+                           "ccl reads nothing outside the file")
+        elif isinstance(link, h5py.SoftLink):
             if f.get(name) is None:
-                raise InputError(f"{where}: /{name} is a soft link to {link.path}, which does not exist")
-            return
-        obj = f.get(name)
-        if isinstance(obj, h5py.Dataset):
+                problem.append(f"/{name} is a soft link to {link.path}, which does not exist")
+        elif isinstance(obj := f.get(name), h5py.Dataset):
             dcpl = obj.id.get_create_plist()
             if dcpl.get_layout() == h5py.h5d.VIRTUAL:
-                raise InputError(f"{where}: /{name} is a virtual dataset (its data lives in other "
-                                 "files); ccl reads nothing outside the file")
-            if dcpl.get_external_count() > 0:
-                raise InputError(f"{where}: /{name} stores its data in external file(s); "
-                                 "ccl reads nothing outside the file")
+                problem.append(f"/{name} is a virtual dataset (its data lives in other files); "
+                               "ccl reads nothing outside the file")
+            elif dcpl.get_external_count() > 0:
+                problem.append(f"/{name} stores its data in external file(s); ccl reads nothing outside "
+                               "the file")
+        return 1 if problem else None  # a non-None value stops the visit
 
     try:
         f.visititems_links(visit)
     except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
         raise InputError(f"{where}: damaged HDF5 structure ({_first(exc)})") from None
+    if problem:
+        raise InputError(f"{where}: {problem[0]}")
 
 
 # -- typed access ------------------------------------------------------------------------------
@@ -387,13 +389,13 @@ def group_of(parent, name: str, where: str, required: bool = True):
     return obj
 
 
-def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite: bool = True
-            ) -> np.ndarray:
+def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite: bool = True,
+            limit: float | None = None) -> np.ndarray:
     """A real numeric dataset as float64, of one of the dimensionalities ``ndim``.
 
     Checked before reading: the type (integers or floats, no strings, compounds,
     references) and the size (at most ``MAX_EXPANSION`` bytes per byte of file, against
-    decompression bombs); after: finiteness (``finite``).
+    decompression bombs); after: finiteness (``finite``) and magnitude (``|v| <= limit``).
     """
     ds = dataset(group, name, where)
     label = f"{where}: {ds.name}"
@@ -412,6 +414,9 @@ def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite
         raise InputError(f"{label} cannot be read ({_first(exc)})") from None
     if finite and not np.isfinite(value).all():
         raise InputError(f"{label} contains NaN or inf")
+    if limit is not None and value.size and float(np.abs(value).max()) > limit:
+        raise InputError(f"{label} holds values beyond ±{limit:g} (max |v| = {np.abs(value).max():.3g}); "
+                         "no fit produces them and predictions would overflow")
     return value
 
 
