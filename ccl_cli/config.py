@@ -32,7 +32,7 @@ SCHEMA: dict[str, Any] = {
     "data": {
         "files": (list, str), "format": str, "typestore": str, "state": STREAM, "action": ACTION,
         "time": {"column": (str, int), "unit": str, "rate": NUM, "delimiter": str},
-        "demos": {"split_on_gap": NUM, "ranges": list, "per_file": bool},
+        "demos": {"split_on_gap": NUM, "ranges": list, "window": NUM, "per_file": bool},
         "nonfinite": str, "min_samples": int,
         "test": {"fraction": NUM, "seed": int, "use_masks": bool},
     },

@@ -23,6 +23,7 @@ from ccl_cli.io.assemble import (
     check_increasing,
     drop_nonfinite,
     local_polynomial_derivative,
+    resegment,
     segment_ids,
 )
 from ccl_cli.io.streams import Stream, StreamSpec
@@ -157,6 +158,7 @@ def load_file(path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations, int
         from ccl_cli.io.hdf5 import read_demonstrations
 
         data, info = read_demonstrations(path)
+        data, _ = resegment(data, data_cfg.get("demos"), str(path))
         return data, info["time_origin_ns"]
     state_spec = StreamSpec.from_config(data_cfg.get("state"))
     if state_spec is None:
