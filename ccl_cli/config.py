@@ -34,7 +34,7 @@ SCHEMA: dict[str, Any] = {
         "files": (list, str), "format": str, "typestore": str, "state": STREAM, "action": ACTION,
         "time": {"column": (str, int), "unit": str, "rate": NUM, "delimiter": str,
                  "dataset": str, "variable": str, "file": str},
-        "demos": {"split_on_gap": NUM, "ranges": list, "per_file": bool,
+        "demos": {"split_on_gap": NUM, "ranges": list, "window": NUM, "per_file": bool,
                   "group": str, "dataset": str, "variable": str},
         "nonfinite": str, "min_samples": int,
         "test": {"fraction": NUM, "seed": int, "use_masks": bool},
