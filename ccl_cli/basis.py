@@ -12,11 +12,17 @@ included, of ‖c_i − c_j‖)², as in the original library.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.linalg import row_chunks
+
+#: Feature blocks of iterative learners are kept in memory up to this many bytes (N K · 8);
+#: above it they are recomputed on every pass, so memory stays bounded in N.
+FEATURE_CACHE_BYTES = 256 * 2**20
 
 
 def pairwise_sqdist(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -197,6 +203,21 @@ def make_basis(spec: str | dict | Basis | None, default_centres: int = 16, seed:
             seed=int(spec.get("seed", seed)),
         )
     raise ConfigError(f"unknown basis kind {kind!r} (use rbf or linear)")
+
+
+def feature_blocks(basis: Basis, X: np.ndarray, chunk_size: int | None = None,
+                   cache_bytes: int = FEATURE_CACHE_BYTES
+                   ) -> Callable[[], Iterable[tuple[slice, np.ndarray]]]:
+    """A re-iterable source of (rows, β(X[rows]) (c, K)) blocks for chunked passes.
+
+    The blocks are computed once and kept when N K floats fit in ``cache_bytes``,
+    otherwise recomputed on each pass (memory O(chunk_size · K), independent of N).
+    """
+    slices = row_chunks(len(X), chunk_size)
+    if len(X) * basis.n_features * 8 <= cache_bytes:
+        cached = [(s, basis.transform(X[s])) for s in slices]
+        return lambda: cached
+    return lambda: ((s, basis.transform(X[s])) for s in slices)
 
 
 def basis_from_state(state: dict[str, Any]) -> Basis:
