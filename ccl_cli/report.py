@@ -3,6 +3,7 @@ and run.json (config, package versions, timings, input hashes)."""
 
 from __future__ import annotations
 
+import functools
 import json
 import platform
 import sys
@@ -18,14 +19,20 @@ PACKAGES = ("ccl_cli", "numpy", "scipy", "h5py", "rosbags", "mcap", "mcap-ros1-s
             "mcap-ros2-support", "typer", "pyyaml", "matplotlib")
 
 
-def versions() -> dict[str, str]:
+@functools.cache
+def _versions() -> tuple[tuple[str, str], ...]:
     out = {"python": sys.version.split()[0], "platform": platform.platform()}
     for name in PACKAGES:
         try:
             out[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
             out[name] = "not installed"
-    return out
+    return tuple(out.items())
+
+
+def versions() -> dict[str, str]:
+    """Python, platform and package versions (computed once per process)."""
+    return dict(_versions())
 
 
 def write_json(path: Path, value: Any) -> None:
@@ -54,32 +61,56 @@ def _fmt(value: float) -> str:
     return "—" if value is None or (isinstance(value, float) and np.isnan(value)) else f"{value:.3e}"
 
 
+HEADINGS = {"learn-v": "learn-v: null-space component w(x)", "learn-a": "learn-a: constraint A(x)",
+            "learn-pi": "learn-pi: null-space policy π(x)"}
+OBSERVATIONS = {"u": "the observed actions u", "w": "the null-space component w̃ learnt by learn-v"}
+
+
+def metric_rows(entry: dict[str, Any]) -> list[str]:
+    """A markdown table of an entry's metrics per split (empty list when there are none)."""
+    rows = []
+    for part in ("train", "test", "all"):
+        for name, m in (entry.get(part) or {}).items():
+            rows.append(f"| {part} | {name} | {_fmt(m['value'])} | {_fmt(m['error'])} | "
+                        f"{_fmt(m['normaliser'])} (var of {m['normaliser_of']}) |")
+    if not rows:
+        return []
+    return ["| data | metric | value | error (mean sq.) | normaliser |", "|---|---|---|---|---|", *rows, ""]
+
+
 def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str, str]],
              data_info: dict[str, Any]) -> str:
+    """report.md: the data, then per stage what was learnt, its metrics (docs/metrics.md) and plots."""
     lines = [f"# {title}", ""]
     lines += [f"- samples: {data_info.get('samples')} in {data_info.get('demos')} demonstrations "
               f"(train {data_info.get('train')}, test {data_info.get('test')})",
               f"- state dimension p = {data_info.get('p')}, action dimension q = {data_info.get('q')}",
-              f"- inputs: {', '.join(data_info.get('files', [])) or '—'}", ""]
+              f"- inputs: {', '.join(data_info.get('files', [])) or '—'}",
+              "- metrics: mean squared error / normaliser, both shown; see docs/metrics.md", ""]
     for stage, entry in results_metrics.items():
-        lines.append(f"## {stage} — {entry.get('method')}")
-        lines.append("")
+        if stage == "evaluate":
+            lines += [f"## evaluate: every learnt model re-scored under the {entry.get('convention')} "
+                      "convention", ""]
+        else:
+            lines += [f"## {HEADINGS.get(stage, stage)} — method {entry.get('method')}", ""]
+        if "on" in entry:
+            lines += [f"Learnt from {OBSERVATIONS.get(entry['on'], entry['on'])}.", ""]
         if "n_constraints" in entry:
             sel = entry.get("selection") or {}
             lines.append(f"Constraints: **{entry['n_constraints']}** (rule: {sel.get('rule')}; "
                          f"{sel.get('reason', '')})")
             lines.append("")
-        rows = []
-        for part in ("train", "test"):
-            for name, m in (entry.get(part) or {}).items():
-                rows.append(f"| {part} | {name} | {_fmt(m['value'])} | {_fmt(m['error'])} | "
-                            f"{_fmt(m['normaliser'])} (var of {m['normaliser_of']}) |")
-        if rows:
-            lines += ["| split | metric | value | error | normaliser |", "|---|---|---|---|---|", *rows, ""]
+        if entry.get("per_demo_note"):
+            lines += [entry["per_demo_note"], ""]
+        lines += metric_rows(entry)
+        base = entry.get("baseline")
+        if base:
+            lines += [f"Baseline: direct policy learning ({base.get('method')}, u regressed on β(x), "
+                      "ignoring the constraints) — its own errors:", "", *metric_rows(base)]
         lines.append(f"Time: {entry.get('seconds', 0):.3f} s")
         lines.append("")
         for caption, rel in plots:
-            if caption.startswith(stage):
+            if caption.split(":")[0] == stage:
                 lines += [f"![{caption}]({rel})", ""]
     return "\n".join(lines)
 

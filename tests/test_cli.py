@@ -80,9 +80,11 @@ def test_pipeline_learn_pi_coupled_to_learnt_constraints(capsys, tmp_path):
     code, out, err = run_main(capsys, "run", CONFIGS / "toy2d_learn_pi.yaml", "-o", tmp_path / "pi", "--json",
                               "-q")
     assert code == 0, err
-    pi = json.loads(out)["stages"]["learn-pi"]["test"]
+    stage = json.loads(out)["stages"]["learn-pi"]
+    pi = stage["test"]
     assert pi["NUPE"] < 0.05
-    assert pi["NUPE_dpl"] > 0.3  # the biased baseline, reported next to it
+    assert stage["baseline"]["method"] == "dpl"
+    assert stage["baseline"]["test"]["NUPE"] > 0.3  # the biased baseline, reported next to it
 
 
 # -- single commands, saved models ----------------------------------------------------------
