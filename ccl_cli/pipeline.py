@@ -161,6 +161,9 @@ class Pipeline:
                              info={"n_constraints": int(model.n_constraints_),
                                    "selection": model.selection_,
                                    "on": "w" if on_w else "u"})
+        from ccl_cli.plots import describe_constraint
+
+        result.info["constraint"] = describe_constraint(model, tr)
         if isinstance(model, PerDemonstration):
             result.info["per_demo_note"] = ("One constraint per training demonstration: a held-out "
                                             "demonstration has none, so there are no test metrics.")

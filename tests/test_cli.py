@@ -46,7 +46,7 @@ def test_pipeline_toy2d_learn_v(tmp_path):
     out = tmp_path / "v"
     assert {p.name for p in out.iterdir()} >= {"model.h5", "metrics.json", "report.md", "run.json",
                                                "config.yaml", "plots"}
-    assert (out / "plots" / "learn-v.png").stat().st_size > 1000
+    assert (out / "plots" / "learn-v-field.png").stat().st_size > 1000
     assert "![learn-v" in (out / "report.md").read_text()
     run = json.loads((out / "run.json").read_text())
     assert run["inputs"] and all(len(h) == 64 for h in run["inputs"].values())
