@@ -324,32 +324,51 @@ def simulate(
 def inspect_cmd(
     data: Annotated[Path, typer.Argument(help="A recording (file or bag directory).")],
     config: ConfigOpt = None,
-    gap: Annotated[float | None, typer.Option(help="Report demonstrations split on gaps (seconds).")]
-    = None,
+    gap: Annotated[float | None, typer.Option(help="Pause (seconds) that splits demonstrations "
+                                              "[default: data.demos.split_on_gap, else 5 × the median "
+                                              "sampling interval].", show_default=False)] = None,
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
-    """Topics, types, counts, rates, time span and detected demonstrations of a recording."""
-    from ccl_cli.io import inspect_path
+    """Topics (type, count, rate over the active time, fields, joint names), CSV columns, time span
+    and the demonstrations a gap split finds (default gap: 5 × the median sampling interval)."""
+    from ccl_cli.inspect import inspect_recording
 
     _logging(quiet)
     cfg = _config(config, {})
-    info = inspect_path(data, cfg.get("data"), gap)
+    info = inspect_recording(data, cfg.get("data"), gap)
     if json_out:
         _emit(info, True)
         return
-    typer.echo(f"path:     {info['path']}")
-    typer.echo(f"format:   {info['format']}  ({info['size_bytes']} bytes)")
+    for line in _inspect_lines(info):
+        typer.echo(line)
+
+
+def _inspect_lines(info: dict[str, Any]) -> list[str]:
+    """``ccl inspect``'s text rendering (one function, so every format's listing shows here)."""
+    out = [f"path:     {info['path']}", f"format:   {info['format']}  ({info['size_bytes']} bytes)"]
     if "duration_s" in info:
-        typer.echo(f"duration: {info['duration_s']:.3f} s")
+        span = "summed over demonstrations" if info["format"] == "hdf5" else "first to last message"
+        out.append(f"duration: {info['duration_s']:.3f} s ({span})")
     for topic, t in (info.get("topics") or {}).items():
         rate = f"{t['rate_hz']:.1f} Hz" if t.get("rate_hz") else "-"
-        typer.echo(f"  {topic:30s} {t['type']:40s} {t['count']:>9d} msgs  {rate}")
+        out.append(f"  {topic:30s} {t['type']:36s} {t['count']:>9d} msgs  {rate:>10s}"
+                   + (f" over {t['active_s']:.2f} s active" if t.get("active_s") else ""))
+        if t.get("fields"):
+            out.append(f"  {'':30s} fields: {', '.join(t['fields'])}")
+        if t.get("joint_names"):
+            out.append(f"  {'':30s} joints: {', '.join(t['joint_names'])}")
     if "columns" in info:
-        typer.echo(f"columns:  {', '.join(info['columns'])}")
-        typer.echo(f"rows:     {info['rows']} (time column {info['time_column']})")
+        out.append(f"columns:  {', '.join(map(str, info['columns']))}")
+        rate = f", {info['rate_hz']:.1f} Hz over {info['active_s']:.2f} s active" \
+            if info.get("rate_hz") else ""
+        out.append(f"rows:     {info['rows']} (time column {info['time_column']}{rate})")
+    if "gap_s" in info and "demos" in info:
+        out.append(f"demos:    {info['demos']} in {info.get('demos_from')} (split on pauses > "
+                   f"{info['gap_s']:.3g} s: {info.get('gap_rule')}; change with --gap)")
     for key in ("samples", "demos", "state_names", "action_names", "truth", "masks"):
-        if key in info:
-            typer.echo(f"{key + ':':9s} {info[key]}")
+        if key in info and not (key == "demos" and "gap_s" in info):
+            out.append(f"{key + ':':9s} {info[key]}")
+    return out
 
 
 @app.command("convert")
