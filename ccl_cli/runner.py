@@ -92,8 +92,14 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
 
 
 def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
-    """metrics.json → {stage: {method, n_constraints, train: {name: value}, test: {...}}}."""
-    return {name: {**{k: v for k, v in e.items() if k in ("method", "n_constraints")},
-                   **{split: {m: v["value"] for m, v in e.get(split, {}).items()}
-                      for split in ("train", "test") if split in e}}
-            for name, e in metrics.items()}
+    """metrics.json → {stage: {method, n_constraints, train: {name: value}, test: {...},
+    baseline: {method, train, test}}} (the baseline only where a stage has one)."""
+    def one(e: dict[str, Any]) -> dict[str, Any]:
+        out = {k: v for k, v in e.items() if k in ("method", "n_constraints")}
+        out.update({split: {m: v["value"] for m, v in e.get(split, {}).items()}
+                    for split in ("train", "test") if split in e})
+        if isinstance(e.get("baseline"), dict):
+            out["baseline"] = one(e["baseline"])
+        return out
+
+    return {name: one(e) for name, e in metrics.items()}
