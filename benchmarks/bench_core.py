@@ -71,7 +71,7 @@ def bench_alpha() -> None:
 def bench_lambda() -> None:
     data = sim.two_link(seed=0)
     train, test = data.split(0.3, 0)
-    s, model = timed(lambda: KnownFeatureConstraint("arm2").fit(train.X, train.U), repeats=1)
+    s, model = timed(lambda: KnownFeatureConstraint(features="arm2").fit(train.X, train.U), repeats=1)
     emit("learn-a/lambda", "two_link 40x40", train.n_samples, 2, s, "test NPPE",
          nppe(test.true_projection(), model.projection(test.X), test.truth["pi"], test.U).value)
 
@@ -101,7 +101,7 @@ def bench_policy() -> None:
     train, test = data.split(0.2, 0)
     grid = {"kind": "rbf", "n_centres": 100, "centres": "grid", "sigma2": 0.5}
     for method in ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"):
-        s, model = timed(lambda m=method: PolicyLearner(m, basis=grid).fit(
+        s, model = timed(lambda m=method: PolicyLearner(method=m, basis=grid).fit(
             train.X, train.U, train.true_projection()))
         emit(f"learn-pi/{method}", "varying_constraint noise 0.01", train.n_samples, 2, s, "test NUPE",
              nupe(test.truth["pi"], model.predict(test.X)).value)

@@ -19,12 +19,13 @@ from scipy.optimize import least_squares
 
 from ccl_cli.basis import Basis, make_basis
 from ccl_cli.constraint.base import check_xu
+from ccl_cli.estimator import Estimator
 from ccl_cli.linalg import eigen_lstsq
 
 EPS_RESIDUAL = 1e-8
 
 
-class NullSpaceComponent:
+class NullSpaceComponent(Estimator):
     """Learns w̃(x) = W β(x) from observations u = v + w.
 
     Args:
@@ -38,6 +39,7 @@ class NullSpaceComponent:
 
     def __init__(
         self,
+        *,
         basis: str | dict | Basis | None = "rbf",
         n_centres: int = 16,
         seed: int = 0,
@@ -53,6 +55,7 @@ class NullSpaceComponent:
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
             ) -> NullSpaceComponent:
         X, U = check_xu(X, U)
+        self._set_n_features(X)
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
         B = self.basis_.transform(X)
         n, K = B.shape
@@ -87,6 +90,7 @@ class NullSpaceComponent:
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         """w̃(X) = W β(X): (N, p) → (N, q)."""
+        self._check_fitted("W_")
         return self.basis_.transform(np.asarray(X, dtype=float)) @ self.W_.T
 
     def task_component(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:

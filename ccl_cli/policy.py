@@ -23,12 +23,13 @@ import numpy as np
 from ccl_cli.basis import Basis, RBFBasis, make_basis
 from ccl_cli.constraint.base import check_xu
 from ccl_cli.errors import ConfigError, InputError, LearningError
+from ccl_cli.estimator import Estimator
 from ccl_cli.linalg import eigen_lstsq
 
 METHODS = ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl")
 
 
-class PolicyLearner:
+class PolicyLearner(Estimator):
     """π̃(x) = Wᵀ β(x) learnt by one of :data:`METHODS`.
 
     Args:
@@ -43,6 +44,7 @@ class PolicyLearner:
 
     def __init__(
         self,
+        *,
         method: str = "pi",
         basis: str | dict | Basis | None = "rbf",
         n_centres: int = 16,
@@ -62,6 +64,7 @@ class PolicyLearner:
         """Fit on states X (N, p), actions U (N, q); ``pi-coupled`` needs ``projections``
         Ñ_n (N, q, q) (true, or from a learnt constraint model)."""
         X, U = check_xu(X, U)
+        self._set_n_features(X)
         if self.method not in METHODS:
             raise ConfigError(f"unknown policy method {self.method!r} (use {', '.join(METHODS)})")
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
@@ -112,6 +115,7 @@ class PolicyLearner:
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         """π̃(X): (N, p) → (N, q)."""
+        self._check_fitted("W_")
         X = np.asarray(X, dtype=float)
         B = self.basis_.transform(X)
         if self.method == "lwpi":

@@ -82,6 +82,7 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
 
     def __init__(
         self,
+        *,
         basis: str | dict | Basis | None = "rbf",
         n_centres: int = 25,
         selection: str = "threshold",
@@ -109,6 +110,7 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
             ) -> StateDependentConstraint:
         X, U = check_xu(X, U)
+        self._set_n_features(X)
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
         self.n_action_ = U.shape[1]
         B = self.basis_.transform(X)
@@ -124,6 +126,7 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
         return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", rows, rows)
 
     def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
+        self._check_fitted("weights_")
         return rows_from_weights(self.basis_.transform(X), self.weights_, self.n_action_)
 
     def projection(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:

@@ -53,6 +53,7 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
 
     def __init__(
         self,
+        *,
         features: str | dict | Features = "arm2",
         basis: str | dict | Basis | None = "rbf",
         n_centres: int = 16,
@@ -82,6 +83,7 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
             ) -> KnownFeatureConstraint:
         X, U = check_xu(X, U)
+        self._set_n_features(X)
         self.features_ = make_features(self.features)
         Phi = self.features_(X)
         if Phi.ndim != 3 or Phi.shape[0] != X.shape[0] or Phi.shape[2] != U.shape[1]:
@@ -109,6 +111,7 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
 
     def selection_matrix(self, X: np.ndarray) -> np.ndarray:
         """Λ̃(X): (N, s, r)."""
+        self._check_fitted("weights_")
         return rows_from_weights(self.basis_.transform(X), self.weights_, self.n_task_)
 
     def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:

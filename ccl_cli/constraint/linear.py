@@ -67,6 +67,7 @@ class LinearConstraint(ConstraintModel):
 
     def __init__(
         self,
+        *,
         regressors: str | Callable[[np.ndarray], np.ndarray] = "polynomial",
         degree: int = 1,
         basis: str | dict | Basis | None = "rbf",
@@ -184,6 +185,7 @@ class LinearConstraint(ConstraintModel):
 
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None) -> LinearConstraint:
         X, U = check_xu(X, U)
+        self._set_n_features(X)
         self.n_action_ = U.shape[1]
         if self.regressors == "rbf" or (self.task and self.task_regressors == "rbf"):
             self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
@@ -232,6 +234,7 @@ class LinearConstraint(ConstraintModel):
 
     def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
         """Ã(X) = W Φ_A(X): (N, s, q) (rows not normalised)."""
+        self._check_fitted("W_")
         return np.einsum("km,nmq->nkq", self.W_, self._phi(np.asarray(X, dtype=float)))
 
     def task_term(self, X: np.ndarray) -> np.ndarray:

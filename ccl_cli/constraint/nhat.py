@@ -58,6 +58,7 @@ class StateIndependentConstraint(ConstraintModel):
 
     def __init__(
         self,
+        *,
         method: str = "closed_form",
         selection: str = "threshold",
         n_constraints: int | None = None,
@@ -90,7 +91,8 @@ class StateIndependentConstraint(ConstraintModel):
             ) -> StateIndependentConstraint:
         """Learn Ã from actions U (N, q); X is not used (kept for a uniform API)."""
         U = np.asarray(U, dtype=float)
-        X, U = check_xu(np.zeros((U.shape[0], 1)) if X is None else X, U)
+        X, U = check_xu(np.zeros((U.shape[0], 0)) if X is None else X, U)
+        self._set_n_features(X)
         n, q = U.shape
         max_k = self.max_constraints or q - 1
         max_k = max(1, min(max_k, q - 1 if q > 1 else 1))
@@ -122,11 +124,13 @@ class StateIndependentConstraint(ConstraintModel):
         return self
 
     def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
+        self._check_fitted("A_")
         n = np.shape(X)[0]
         return np.broadcast_to(self.A_, (n, *self.A_.shape))
 
     def projection(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
         """Ñ = I − ÃᵀÃ (rows are orthonormal), broadcast to (N, q, q)."""
+        self._check_fitted("A_")
         N = np.eye(self.n_action_) - self.A_.T @ self.A_
         return np.broadcast_to(N, (np.shape(X)[0], *N.shape)).copy()
 
