@@ -312,10 +312,12 @@ def predict(
 # -- data commands --------------------------------------------------------------------------
 @app.command("simulate")
 def simulate(
-    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7 or varying_constraint.")],
+    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7, varying_constraint, tracker_plane or "
+                                                "tracker_sphere.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     seed: Annotated[int, typer.Option(help="Seed.")] = 0,
-    noise: Annotated[float | None, typer.Option(help="Std of noise on u.")] = None,
+    noise: Annotated[float | None, typer.Option(help="Std of noise on u (tracker_*: on positions, m).")]
+    = None,
     snr_db: Annotated[float | None, typer.Option(help="Noise as signal-to-noise ratio in dB.")] = None,
     n_demos: Annotated[int | None, typer.Option(help="Number of demonstrations.")] = None,
     n_steps: Annotated[int | None, typer.Option(help="Steps per demonstration.")] = None,
@@ -327,6 +329,11 @@ def simulate(
                                                          help="toy2d: a constraint per demo.")] = None,
     sampling: Annotated[str | None, typer.Option(help="toy2d: trajectory or uniform.")] = None,
     n_samples: Annotated[int | None, typer.Option(help="toy2d uniform: number of states.")] = None,
+    rate: Annotated[float | None, typer.Option(help="tracker_*: sampling rate, Hz (default 50).")] = None,
+    duration: Annotated[float | None, typer.Option(help="tracker_*: seconds per recording (default 90).")]
+    = None,
+    n_recordings: Annotated[int | None, typer.Option(help="tracker_*: continuous recordings (default 1).")]
+    = None,
     test_fraction: Annotated[float, typer.Option(help="Demos marked test in /mask (0: no masks).")] = 0.0,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
@@ -342,7 +349,8 @@ def simulate(
     fn = S.PROBLEMS[problem]
     given = {"noise": noise, "snr_db": snr_db, "n_demos": n_demos, "n_steps": n_steps,
              "constraint": constraint, "policy": policy, "task": task, "vary_constraint": vary_constraint,
-             "sampling": sampling, "n_samples": n_samples}
+             "sampling": sampling, "n_samples": n_samples, "rate": rate, "duration": duration,
+             "n_recordings": n_recordings}
     accepted = pyinspect.signature(fn).parameters
     kwargs = {k: v for k, v in given.items() if v is not None}
     bad = [k for k in kwargs if k not in accepted]
