@@ -25,7 +25,8 @@ def test_nhat_closed_form_recovers_7dof_rank2_constraint():
     for seed in range(20):
         data = sim.arm7(rows=(0, 1), seed=seed)
         train, test = data.split(0.3, seed)
-        model = StateIndependentConstraint(selection="eigengap").fit(train.X, train.U)
+        model = StateIndependentConstraint().fit(train.X, train.U)  # the default rule
+        assert model.selection_["rule"] == "ratio"
         right += model.n_constraints_ == 2
         if model.n_constraints_ == 2:
             err = nppe(test.true_projection(), model.projection(test.X), test.truth["pi"], test.U)
@@ -35,9 +36,10 @@ def test_nhat_closed_form_recovers_7dof_rank2_constraint():
 
 def test_nhat_threshold_rule_is_the_original_and_fixed_count_is_honoured():
     data = sim.arm7(rows=(0, 1), seed=0)
-    model = StateIndependentConstraint().fit(data.X, data.U)
+    model = StateIndependentConstraint(selection="threshold").fit(data.X, data.U)
     assert model.selection_["rule"] == "threshold"
     assert len(model.selection_["values"]) == 6
+    assert model.n_constraints_ == 3  # the original rule is wrong here (the reason for the default)
     fixed = StateIndependentConstraint(n_constraints=2).fit(data.X, data.U)
     assert fixed.n_constraints_ == 2 and fixed.selection_["rule"] == "fixed"
 
@@ -244,8 +246,8 @@ LEARNERS = [
 
 @pytest.mark.parametrize("make", LEARNERS)
 def test_estimator_base_params_clone_and_not_fitted(make):
-    from ccl_cli.estimator import NotFittedError, clone
     from ccl_cli.errors import LearningError
+    from ccl_cli.estimator import NotFittedError, clone
 
     model = make()
     params = model.get_params(deep=False)
