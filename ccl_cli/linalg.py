@@ -121,7 +121,8 @@ def kron_least_squares(
     are summed block by block at the trial point, so an accepted step needs no further
     pass and no N × m K matrix is ever formed. Steps solve (JᵀJ + μ D) δ = −Jᵀr with D
     the running maximum of diag(JᵀJ) (Marquardt/MINPACK scaling; μ is raised if the
-    Cholesky factorisation fails) and μ updated from the gain ratio (Nielsen). Stops when the cost falls by less than ``tol`` relatively, the
+    Cholesky factorisation fails) and μ updated from the gain ratio (Nielsen). Stops when the
+    cost falls by less than ``tol`` relatively, the
     step is below ``tol`` relative to W, or the scaled gradient is below ``tol``;
     ``max_iter`` bounds the passes.
 

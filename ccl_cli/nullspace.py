@@ -26,12 +26,13 @@ import numpy as np
 
 from ccl_cli.basis import Basis, feature_blocks, make_basis
 from ccl_cli.constraint.base import check_xu
+from ccl_cli.estimator import Estimator
 from ccl_cli.linalg import eigen_lstsq, kron_least_squares, row_chunks
 
 EPS_RESIDUAL = 1e-8
 
 
-class NullSpaceComponent:
+class NullSpaceComponent(Estimator):
     """Learns w̃(x) = W β(x) from observations u = v + w.
 
     Args:
@@ -46,6 +47,7 @@ class NullSpaceComponent:
 
     def __init__(
         self,
+        *,
         basis: str | dict | Basis | None = "rbf",
         n_centres: int = 16,
         seed: int = 0,
@@ -63,6 +65,7 @@ class NullSpaceComponent:
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
             ) -> NullSpaceComponent:
         X, U = check_xu(X, U)
+        self._set_n_features(X)
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
         blocks = feature_blocks(self.basis_, X, self.chunk_size)
         K = self.basis_.n_features
@@ -96,6 +99,7 @@ class NullSpaceComponent:
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         """w̃(X) = W β(X): (N, p) → (N, q), in row blocks."""
+        self._check_fitted("W_")
         X = np.asarray(X, dtype=float)
         out = np.empty((len(X), self.W_.shape[0]))
         for rows in row_chunks(len(X), self.chunk_size):

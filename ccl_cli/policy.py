@@ -27,12 +27,13 @@ import numpy as np
 from ccl_cli.basis import Basis, RBFBasis, make_basis
 from ccl_cli.constraint.base import check_xu
 from ccl_cli.errors import ConfigError, InputError, LearningError
+from ccl_cli.estimator import Estimator
 from ccl_cli.linalg import eigen_lstsq, kron_rows, row_chunks
 
 METHODS = ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl")
 
 
-class PolicyLearner:
+class PolicyLearner(Estimator):
     """π̃(x) = Wᵀ β(x) learnt by one of :data:`METHODS`.
 
     Args:
@@ -48,6 +49,7 @@ class PolicyLearner:
 
     def __init__(
         self,
+        *,
         method: str = "pi",
         basis: str | dict | Basis | None = "rbf",
         n_centres: int = 16,
@@ -69,6 +71,7 @@ class PolicyLearner:
         """Fit on states X (N, p), actions U (N, q); ``pi-coupled`` needs ``projections``
         Ñ_n (N, q, q) (true, or from a learnt constraint model)."""
         X, U = check_xu(X, U)
+        self._set_n_features(X)
         if self.method not in METHODS:
             raise ConfigError(f"unknown policy method {self.method!r} (use {', '.join(METHODS)})")
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
@@ -134,6 +137,7 @@ class PolicyLearner:
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         """π̃(X): (N, p) → (N, q)."""
+        self._check_fitted("W_")
         X = np.asarray(X, dtype=float)
         out = np.empty((len(X), self.n_action_))
         for rows in row_chunks(len(X), self.chunk_size):
