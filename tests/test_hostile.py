@@ -194,6 +194,7 @@ def test_libhdf5_hang_is_bounded(fixtures, tmp_path, monkeypatch):
         time.sleep(60)
 
     monkeypatch.setattr(h5safe, "_probe_child", hang)
+    monkeypatch.setattr(h5safe.threading, "active_count", lambda: 1)  # fork even if a test left threads
     monkeypatch.setattr(h5safe, "TIMEOUT", 0.5)
     t0 = time.perf_counter()
     with pytest.raises(h5safe.InputError, match="did not finish parsing the file within 0.5 s"):
@@ -206,6 +207,7 @@ def test_libhdf5_crash_is_contained(fixtures, tmp_path, monkeypatch):
     with h5py.File(edited, "a") as f:
         f.attrs["frame_id"] = "edited"
     monkeypatch.setattr(h5safe, "_probe_child", lambda path: os.kill(os.getpid(), 11))
+    monkeypatch.setattr(h5safe.threading, "active_count", lambda: 1)
     with pytest.raises(h5safe.InputError, match="crashed parsing the file"):
         h5safe.open_hdf5(edited)
 
