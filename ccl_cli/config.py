@@ -19,6 +19,7 @@ from typing import Any
 import yaml
 
 from ccl_cli.errors import ConfigError
+from ccl_cli.selection import DEFAULT_RULE
 
 STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
 NUM = (int, float)
@@ -34,7 +35,7 @@ SCHEMA: dict[str, Any] = {
         "files": (list, str), "format": str, "typestore": str, "state": STREAM, "action": ACTION,
         "time": {"column": (str, int), "unit": str, "rate": NUM, "delimiter": str,
                  "dataset": str, "variable": str, "file": str},
-        "demos": {"split_on_gap": NUM, "ranges": list, "per_file": bool,
+        "demos": {"split_on_gap": NUM, "ranges": list, "window": NUM, "per_file": bool,
                   "group": str, "dataset": str, "variable": str},
         "nonfinite": str, "min_samples": int,
         "test": {"fraction": NUM, "seed": int, "use_masks": bool},
@@ -62,7 +63,7 @@ DEFAULTS: dict[str, Any] = {
     "data": {"format": "auto", "nonfinite": "drop", "test": {"fraction": 0.3, "seed": 0,
                                                              "use_masks": True}},
     "learn-v": {"basis": "rbf", "n_centres": 16},
-    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": "eigengap"},
+    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": DEFAULT_RULE},
     "learn-pi": {"method": "pi", "on": "auto", "basis": "rbf", "n_centres": 16,
                  "projections": "auto", "baseline": True},
     "metrics": {"convention": "ccl"},
@@ -72,7 +73,7 @@ DEFAULTS: dict[str, Any] = {
 CHOICES = {
     ("learn-a", "method"): ("nhat", "alpha", "lambda", "linear"),
     ("learn-a", "on"): ("auto", "u", "w"),
-    ("learn-a", "selection"): ("threshold", "eigengap", "cv"),
+    ("learn-a", "selection"): ("ratio", "threshold", "eigengap", "cv"),
     ("learn-a", "variant"): ("closed_form", "search"),
     ("learn-a", "whiten"): ("rms", "errors", "none"),
     ("learn-pi", "method"): ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"),

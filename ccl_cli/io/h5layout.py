@@ -279,6 +279,7 @@ class Hdf5File:
         self.data_cfg = data_cfg
 
     def load(self) -> tuple[Demonstrations, int]:
+        from ccl_cli.io.assemble import resegment
         from ccl_cli.io.hdf5 import FORMAT, read_demonstrations
 
         if uses_layout(self.data_cfg):
@@ -293,6 +294,7 @@ class Hdf5File:
                     "data.state.dataset (and action.dataset or action.derive, time.dataset or "
                     f"time.rate, demos.group or demos.dataset); the file has: {_contents(f)}")
         data, info = read_demonstrations(self.path)
+        data, _ = resegment(data, self.data_cfg.get("demos"), str(self.path))
         return data, info["time_origin_ns"]
 
     def inspect(self, gap: float | None = None) -> dict[str, Any]:
