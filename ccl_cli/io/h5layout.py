@@ -14,8 +14,9 @@ row unless ``samples: columns``; ``columns: [...]`` picks columns (by index, or 
 when the dataset carries a ``names``/``column_names``/``joint_names`` attribute, which
 also names the state and action dimensions).
 
-Files are opened through :func:`open_checked`: external links, external storage and
-virtual datasets are refused before anything is read.
+Files are opened through :func:`ccl_cli.io.h5safe.open_hdf5`: external links, external
+storage and virtual datasets are refused before anything is read, and a file ccl did not
+write is parsed in a time-limited child process first.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
+from ccl_cli.io import h5safe
 from ccl_cli.io.arrays import (
     NAME_ATTRS,
     Part,
@@ -44,52 +46,6 @@ from ccl_cli.io.arrays import (
 
 LAYOUT_KEYS = (("state", "dataset"), ("action", "dataset"), ("time", "dataset"), ("demos", "group"),
                ("demos", "dataset"))
-
-
-def open_checked(path: Path, what: str = "HDF5"):
-    """Open ``path`` read-only with h5py after checking every link and dataset of the file:
-    external links, external raw storage and virtual datasets (which read other files)
-    are refused with one line. Returns the open ``h5py.File``.
-
-    (The one place to swap for a shared safe-open function.) The walk uses h5py's
-    low-level API: link types from the link table, dataset creation properties from the
-    dataset ids, never a value.
-    """
-    import h5py
-
-    where = str(path)
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise InputError(f"{where}: cannot open as {what} ({exc})") from None
-    links: list[tuple[bytes, int]] = []
-    problem = None
-    try:
-        f.id.links.visit(lambda name, info: links.append((name, info.type)), info=True)
-        for name, kind in links:
-            label = name.decode(errors="replace")
-            if kind == h5py.h5l.TYPE_EXTERNAL:
-                target = f.get(label, getlink=True)
-                problem = f"/{label} is an external link to {target.filename}:{target.path}"
-            elif kind == h5py.h5l.TYPE_HARD:
-                obj = h5py.h5o.open(f.id, name)
-                if isinstance(obj, h5py.h5d.DatasetID):
-                    dcpl = obj.get_create_plist()
-                    if dcpl.get_layout() == h5py.h5d.VIRTUAL:
-                        problem = f"/{label} is a virtual dataset"
-                    elif dcpl.get_external_count() > 0:
-                        problem = f"/{label} stores its data in external files"
-            elif kind != h5py.h5l.TYPE_SOFT:
-                problem = f"/{label} is a user-defined link"
-            if problem:
-                break
-    except (OSError, RuntimeError, KeyError, ValueError) as exc:
-        f.close()
-        raise InputError(f"{where}: cannot read the {what} structure ({exc})") from None
-    if problem:
-        f.close()
-        raise InputError(f"{where}: refused: {problem} (ccl reads no data outside the file)")
-    return f
 
 
 def uses_layout(data_cfg: dict[str, Any]) -> bool:
@@ -282,10 +238,9 @@ class Hdf5File:
         from ccl_cli.io.assemble import resegment
         from ccl_cli.io.hdf5 import FORMAT, read_demonstrations
 
-        if uses_layout(self.data_cfg):
-            with open_checked(self.path) as f:
+        with h5safe.open_hdf5(self.path, "HDF5 recording") as f:
+            if uses_layout(self.data_cfg):
                 return read_layout(f, self.path, self.data_cfg)
-        with open_checked(self.path) as f:
             found = f.attrs.get("format")
             found = found.decode() if isinstance(found, bytes) else found
             if found != FORMAT:

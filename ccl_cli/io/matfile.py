@@ -132,10 +132,10 @@ def _cls(obj) -> str:
 
 class _V73:
     def __init__(self, path: Path) -> None:
-        from ccl_cli.io.h5layout import open_checked
+        from ccl_cli.io.h5safe import open_hdf5
 
         self.path = path
-        self.f = open_checked(path, "MATLAB v7.3 file")
+        self.f = open_hdf5(path, "MATLAB v7.3 file")
 
     def close(self) -> None:
         self.f.close()
