@@ -418,7 +418,7 @@ def test_text_matrices_one_sample_per_column_one_file_per_variable(tmp_path, arm
     np.testing.assert_array_equal(data.U, first3.U)
     assert data.n_demos == 3 and data.state_names[0] == "X[0]" and data.action_names[6] == "U[6]"
     info = inspect_path(tmp_path / "demo0" / "X.txt", {**TEXT, "files": []})
-    assert info["samples"] == "columns" and info["rows"] == 20 and len(info["columns"]) == 7
+    assert info["sample_axis"] == "columns" and info["rows"] == 20 and len(info["columns"]) == 7
 
 
 def test_text_matrix_bad_cases_one_line(tmp_path, arm):

@@ -174,7 +174,7 @@ class CsvReader:
         t, col = self._time(names, body) if body else (np.zeros(0, np.int64), "")
         return {"start_ns": int(t[0]) if len(t) else 0, "end_ns": int(t[-1]) if len(t) else 0,
                 "columns": names, "rows": len(body), "time_column": col, "header": not self.headerless,
-                "samples": self.samples}
+                "sample_axis": self.samples}
 
     def read_many(self, specs: list[StreamSpec]) -> list[Stream]:
         return [self.read(spec) for spec in specs]
@@ -201,7 +201,7 @@ class CsvReader:
                                  f"({col[bad]!r})") from None
         labels = [f"{self.path.stem}[{names[k]}]" if self.headerless else names[k] for k in idx]
         return Stream(t_ns, values, labels, str(self.path),
-                      {"columns": [names[k] for k in idx], "time_column": tcol, "samples": self.samples})
+                      {"columns": [names[k] for k in idx], "time_column": tcol, "sample_axis": self.samples})
 
 
 _TIME_KEYS = {n.lower() for n in TIME_NAMES}
