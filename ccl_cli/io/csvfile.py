@@ -214,9 +214,18 @@ def find_time_column(names: list[str], body: list[list[str]]) -> int | None:
     for cand in TIME_NAMES:
         key = cand.lower()
         for k, name in enumerate(lower):
-            if name == key and body and all(_is_number(r[k]) for r in body):
+            if name == key and body and _numeric_column(body, k):
                 return k
     return None
+
+
+def _numeric_column(body: list[list[str]], k: int) -> bool:
+    """Every value of column ``k`` parses as a number (NumPy's C parser; '' and text fail)."""
+    try:
+        np.asarray([r[k] for r in body], dtype=float)
+    except ValueError:
+        return False
+    return True
 
 
 def _sniff_delimiter(sample: str) -> str:
