@@ -213,8 +213,12 @@ MAT_CELLS = {"format": "mat", "state": {"variable": "X", "samples": "columns"},
              "action": {"variable": "U", "samples": "columns"}, "time": {"rate": 20}}
 
 
-def _cells(arm, key):
-    return np.array([getattr(arm, key)[arm.demo == d].T for d in arm.demo_ids] + [None], dtype=object)[:-1]
+def _cells(data, key):
+    """One (dims × samples) matrix per demonstration, as a 1-D object array (a cell row for savemat)."""
+    out = np.empty(data.n_demos, dtype=object)
+    for k, d in enumerate(data.demo_ids):
+        out[k] = getattr(data, key)[data.demo == d].T
+    return out
 
 
 def test_mat_v5_cells_one_sample_per_column(tmp_path, arm):
@@ -228,7 +232,9 @@ def test_mat_v5_cells_one_sample_per_column(tmp_path, arm):
     assert data.state_names[0] == "X[0]"
     # orientation found from the other variable when not given (7×20 matrices share both sides
     # with each other, but the time vector fixes n = 20)
-    t = np.array([arm.t[arm.demo == d][None, :] for d in arm.demo_ids] + [None], dtype=object)[:-1]
+    t = np.empty(arm.n_demos, dtype=object)
+    for k, d in enumerate(arm.demo_ids):
+        t[k] = arm.t[arm.demo == d][None, :]
     scipy.io.savemat(path, {"X": _cells(arm, "X")[None, :], "U": _cells(arm, "U")[None, :], "t": t[None, :]})
     auto = load({"format": "mat", "state": {"variable": "X"}, "action": {"variable": "U"},
                  "time": {"variable": "t"}}, path)
