@@ -419,12 +419,27 @@ def library_errors() -> tuple[type[BaseException], ...]:
     return tuple(found)
 
 
+#: packages whose own exception classes the readers meet (the libraries, and what they use:
+#: compression and sqlite)
+LIBRARY_PACKAGES = {"rosbags", "mcap", "mcap_ros1", "mcap_ros2", "zstandard", "backports", "lz4",
+                    "sqlite3", "_sqlite3", "ruamel", "yaml", "bz2", "_bz2", "zlib", "lzma", "_lzma"}
+
+
+def _is_library_error(exc: BaseException) -> bool:
+    return isinstance(exc, library_errors()) or \
+        type(exc).__module__.split(".")[0] in LIBRARY_PACKAGES
+
+
 def library_call(where: str, what: str, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
     """``fn(*args, **kwargs)`` — a call into a reader library — with the library's
-    failures turned into one :class:`InputError` line (``where: cannot what (...)``)."""
+    failures (its own exception classes, or built-in ones its parsers let through)
+    turned into one :class:`InputError` line (``where: cannot what (...)``). Anything
+    else propagates."""
     try:
         return fn(*args, **kwargs)
-    except library_errors() as exc:
+    except Exception as exc:  # filtered: only the libraries' exception types are converted
+        if not _is_library_error(exc):
+            raise
         raise InputError(f"{where}: cannot {what} ({type(exc).__name__}: {_first_line(exc)})") from None
 
 
@@ -437,7 +452,9 @@ def library_iter(where: str, what: str, iterable: Iterable[Any]) -> Iterator[Any
             item = next(it)
         except StopIteration:
             return
-        except library_errors() as exc:
+        except Exception as exc:  # filtered: only the libraries' exception types are converted
+            if not _is_library_error(exc):
+                raise
             raise InputError(f"{where}: cannot {what} ({type(exc).__name__}: {_first_line(exc)})") from None
         yield item
 
