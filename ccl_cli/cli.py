@@ -441,7 +441,13 @@ def batch(
 # -- entry point ---------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: run the app and turn every failure into a one-line message."""
+    import signal
+
+    import ccl_cli
+
     try:
+        if signal.getsignal(signal.SIGINT) is ccl_cli._interrupted_while_starting:
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # from here on: KeyboardInterrupt
         result = app(args=argv, prog_name="ccl", standalone_mode=False)
         if result == 130:  # typer turns Ctrl-C into this return value
             typer.echo("ccl: interrupted; no partial outputs were left", err=True)
@@ -473,7 +479,18 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def entry() -> None:
-    sys.exit(main())
+    """The ``ccl`` script: exit status of :func:`main`; Ctrl-C at any moment → 130 and one
+    line; a file-size limit (``ulimit -f``) is a write error (EFBIG), not a kill."""
+    import signal
+
+    if hasattr(signal, "SIGXFSZ"):
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    try:
+        code = main()
+    except KeyboardInterrupt:
+        typer.echo("ccl: interrupted; no partial outputs were left", err=True)
+        code = 130
+    sys.exit(code)
 
 
 if __name__ == "__main__":

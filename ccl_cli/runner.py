@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ccl_cli.config import Config
-from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.errors import ConfigError
 
 
 def read_data(cfg: Config, files: list[Path] | list[str] | None):
@@ -49,14 +49,13 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
     Returns the summary (status, outdir, per-stage method, constraint count and metric values).
     ``extra_files`` (name → JSON value) are written into the folder with the rest.
     """
-    from ccl_cli.io.atomic import atomic_dir
+    from ccl_cli.io.atomic import atomic_dir, check_replaceable
     from ccl_cli.models import save_model
     from ccl_cli.pipeline import Pipeline, stage_list
     from ccl_cli.report import data_summary, make_plots, markdown, stage_metrics, versions, write_json
 
     t0 = time.perf_counter()
-    if outdir.exists() and not force:
-        raise InputError(f"{outdir} exists; use --force to overwrite it")
+    check_replaceable(outdir, force)  # before any work: a folder ccl did not write is never replaced
     data, masks = read_data(cfg, files)
     data.check_finite()
     stages = stages if stages is not None else stage_list(cfg)
