@@ -50,8 +50,10 @@ NEAR_CONSTANT = 1e-3
 MIN_DEMOS = 5
 #: Demonstrations shorter than this (samples) are too short to derive, split or learn from.
 MIN_DEMO_SAMPLES = 10
-#: Directions whose action variance is below RANK_NOISE × the noise variance are not moved.
+#: Directions whose action variance is below RANK_NOISE × the noise variance (or below
+#: RANK_RELATIVE × the largest) are not moved.
 RANK_NOISE = 3.0
+RANK_RELATIVE = 1e-4
 #: Stamp jitter: robust spread of the sampling intervals above this fraction of their median.
 JITTER = 0.1
 
@@ -117,7 +119,10 @@ def noise_levels(data: Demonstrations) -> dict[str, Any]:
     """Estimated noise variances and SNRs of states and actions.
 
     Returns ``x_noise`` (p,), ``u_noise`` (q,), ``snr_x``, ``snr_u`` (floats),
-    ``band_x`` (max std of a state / RMS of the state's mean) and ``derived`` (bool|None).
+    ``band_x`` (max std of a state / RMS of the state's mean), ``derived`` (bool|None) and
+    ``temporal``: whether the samples are trajectories in time (states smooth, SNR_x ≥
+    SMOOTH_STATE_SNR, or at rest, band_x < STILL_BAND), without which differences in time
+    say nothing about noise.
     """
     X, U, demo = data.X, data.U, data.demo
     x_noise = white_noise_var(X, demo)
@@ -132,9 +137,11 @@ def noise_levels(data: Demonstrations) -> dict[str, Any]:
     var_x = X.var(0, ddof=1) if len(X) > 1 else np.zeros(data.n_state)
     var_u = U.var(0, ddof=1) if len(U) > 1 else np.zeros(data.n_action)
     mean_rms = float(np.sqrt(np.mean(X.mean(0) ** 2)))
-    return {"x_noise": x_noise, "u_noise": u_noise,
-            "snr_x": _ratio(var_x.sum(), x_noise.sum()), "snr_u": _ratio(var_u.sum(), u_noise.sum()),
-            "band_x": _ratio(float(np.sqrt(var_x.max())), mean_rms), "derived": derived}
+    snr_x = _ratio(var_x.sum(), x_noise.sum())
+    band_x = _ratio(float(np.sqrt(var_x.max())), mean_rms)
+    return {"x_noise": x_noise, "u_noise": u_noise, "snr_x": snr_x,
+            "snr_u": _ratio(var_u.sum(), u_noise.sum()), "band_x": band_x, "derived": derived,
+            "temporal": bool(snr_x >= SMOOTH_STATE_SNR or band_x < STILL_BAND)}
 
 
 def _ratio(a: float, b: float) -> float:
@@ -245,12 +252,12 @@ def check_data(data: Demonstrations) -> list[dict[str, str]]:
 
 def action_rank(U: np.ndarray, noise_var: np.ndarray) -> int:
     """Number of directions the actions U (N, q) move in beyond their noise: eigenvalues of
-    the second moment UᵀU/N above RANK_NOISE × the mean noise variance (and 1e-9 × the
-    largest, for noise-free data)."""
+    the second moment UᵀU/N above RANK_NOISE × the mean noise variance and RANK_RELATIVE ×
+    the largest eigenvalue."""
     if len(U) == 0:
         return 0
     ev = np.linalg.eigvalsh(U.T @ U / len(U))
-    floor = max(RANK_NOISE * float(np.mean(noise_var)), 1e-9 * float(ev.max()), np.finfo(float).tiny)
+    floor = max(RANK_NOISE * float(np.mean(noise_var)), RANK_RELATIVE * float(ev.max()), np.finfo(float).tiny)
     return int((ev > floor).sum())
 
 
@@ -263,7 +270,8 @@ def low_rank_actions(data: Demonstrations, U: np.ndarray, n_constraints: int,
     limited by the number of demonstrations, so s may count unexplored directions)."""
     q = U.shape[1]
     if noise_var is None:
-        noise_var = noise_levels(data)["u_noise"]
+        lv = noise_levels(data)
+        noise_var = lv["u_noise"] if lv["temporal"] else np.zeros(q)
     r = action_rank(U, noise_var)
     free = q - int(n_constraints)
     if r < free:

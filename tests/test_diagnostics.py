@@ -165,3 +165,12 @@ def test_a_clean_run_says_so_in_its_report(tmp_path, capsys):
     assert main(["run", str(cfg), "-o", str(tmp_path / "out"), "--json", "-q"]) == 0
     assert json.loads(capsys.readouterr().out)["warnings"] == []
     assert "No warnings" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_no_rank_false_alarm_on_samples_that_are_not_trajectories():
+    # uniformly sampled states: differences in time say nothing about noise, so the rank
+    # uses only the relative floor; w = Nπ spans exactly the q − s = 1 free direction
+    data = sim.toy2d(sampling="uniform", n_samples=1000, n_demos=10, task=True, seed=0)
+    assert not D.noise_levels(data)["temporal"]
+    assert D.low_rank_actions(data, data.truth["w"], 1) == []
+    assert codes(D.low_rank_actions(data, data.truth["w"], 0)) == ["low_rank_actions"]
