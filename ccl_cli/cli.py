@@ -273,8 +273,8 @@ def predict(
 # -- data commands --------------------------------------------------------------------------
 @app.command("simulate")
 def simulate(
-    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7, varying_constraint, tracker_plane or "
-                                                "tracker_sphere.")],
+    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7, varying_constraint, tracker_plane, "
+                                                "tracker_sphere or arm_at_rest.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     seed: Annotated[int, typer.Option(help="Seed.")] = 0,
     noise: Annotated[float | None, typer.Option(help="Std of noise on u (tracker_*: on positions, m).")]
@@ -323,8 +323,9 @@ def simulate(
     if test_fraction > 0:
         train, test = data.split(test_fraction, seed)
         masks = {"train": list(train.demo_ids), "test": list(test.demo_ids)}
-    write_demonstrations(out, data, provenance={"simulate": problem, "seed": seed, **kwargs}, masks=masks,
-                         force=force)
+    derivative = {"derivative": data.metadata["derivative"]} if "derivative" in data.metadata else {}
+    write_demonstrations(out, data, provenance={"simulate": problem, "seed": seed, **kwargs, **derivative},
+                         masks=masks, force=force)
     _wrote("simulate", out, data, json_out)
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from ccl_cli import diagnostics
 from ccl_cli import evaluate as E
 from ccl_cli.config import Config, stage_entry, stage_options
 from ccl_cli.constraint import (
@@ -105,6 +106,8 @@ class Pipeline:
         self.results: list[StageResult] = []
         self.w: dict[str, np.ndarray] = {}
         self.constraint: Any = None
+        #: coded data warnings ({code, message}); stages and other checks append to it
+        self.warnings: list[dict[str, str]] = diagnostics.emit(diagnostics.check_data(data))
 
     # -- helpers ------------------------------------------------------------------------
     def parts(self) -> list[tuple[str, Demonstrations]]:
@@ -155,6 +158,7 @@ class Pipeline:
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             raise LearningError(f"learn-a failed: {exc}") from None
         self.constraint = model
+        self.warnings += diagnostics.emit(diagnostics.low_rank_actions(tr, target, int(model.n_constraints_)))
         method = opts.get("method", "nhat") + (" per demonstration" if opts.get("per_demo") else "")
         on_w = on == "w" or (on == "auto" and bool(self.w))
         result = StageResult("learn-a", method, model,
