@@ -94,17 +94,6 @@ def kron_normal(G: np.ndarray, B: np.ndarray, r: np.ndarray | None = None
     return J.T @ J, (None if r is None else ((G * r[:, None]).T @ B).ravel())
 
 
-def solve_psd(M: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Solve M x = r for symmetric positive (semi)definite M: Cholesky, falling back to
-    the eigen pseudo-inverse (relative cut-off 1e-12) when M is numerically singular."""
-    try:
-        L = np.linalg.cholesky(M)
-    except np.linalg.LinAlgError:
-        return eigen_lstsq(M, r, 1e-12)
-    y = np.linalg.solve(L, r)
-    return np.linalg.solve(L.T, y)
-
-
 def kron_least_squares(
     W0: np.ndarray,
     blocks: Callable[[], Iterable[tuple[slice, np.ndarray]]],
@@ -121,10 +110,9 @@ def kron_least_squares(
     are summed block by block at the trial point, so an accepted step needs no further
     pass and no N × m K matrix is ever formed. Steps solve (JᵀJ + μ D) δ = −Jᵀr with D
     the running maximum of diag(JᵀJ) (Marquardt/MINPACK scaling; μ is raised if the
-    Cholesky factorisation fails) and μ updated from the gain ratio (Nielsen). Stops when the
-    cost falls by less than ``tol`` relatively, the
-    step is below ``tol`` relative to W, or the scaled gradient is below ``tol``;
-    ``max_iter`` bounds the passes.
+    Cholesky factorisation fails) and μ updated from the gain ratio (Nielsen). Stops
+    when the cost falls by less than ``tol`` relatively, the step is below ``tol``
+    relative to W, or the scaled gradient is below ``tol``; ``max_iter`` bounds the passes.
 
     Returns:
         (W (m, K), cost Σ r², passes over the data).

@@ -40,6 +40,9 @@ class NullSpaceComponent(Estimator):
         max_iter: LM iterations (passes over the data) at most (original: 1000).
         tol: LM tolerances (relative cost decrease, step, scaled gradient; original: 1e-9).
         chunk_size: rows per block of the passes over the data (default 8192).
+        polish: after the smooth stage, minimise the original residual (default: the
+            original optimum). ``False`` stops after the smooth stage: ~10× fewer passes
+            on large N, at a slightly higher original cost.
 
     Attributes:
         basis_, W_ (q, K), cost_ (final Σ r²), n_iter_.
@@ -54,6 +57,7 @@ class NullSpaceComponent(Estimator):
         max_iter: int = 1000,
         tol: float = 1e-9,
         chunk_size: int | None = None,
+        polish: bool = True,
     ) -> None:
         self.basis = basis
         self.n_centres = n_centres
@@ -61,6 +65,7 @@ class NullSpaceComponent(Estimator):
         self.max_iter = max_iter
         self.tol = tol
         self.chunk_size = chunk_size
+        self.polish = polish
 
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
             ) -> NullSpaceComponent:
@@ -91,8 +96,8 @@ class NullSpaceComponent(Estimator):
             return r, (Ub - 2.0 * Wt) / sc[:, None] - (r / c)[:, None] * Wt
 
         W1, _, first = kron_least_squares(W0, blocks, smooth, self.max_iter, self.tol)
-        self.W_, self.cost_, polish = kron_least_squares(
-            W1, blocks, residual, max(1, self.max_iter - first), self.tol)
+        budget = max(1, self.max_iter - first) if self.polish else 1  # 1: cost only
+        self.W_, self.cost_, polish = kron_least_squares(W1, blocks, residual, budget, self.tol)
         self.n_iter_ = first + polish
         self.n_action_ = q
         return self
