@@ -336,10 +336,12 @@ def predict(
 # -- data commands --------------------------------------------------------------------------
 @app.command("simulate")
 def simulate(
-    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7 or varying_constraint.")],
+    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7, varying_constraint, tracker_plane or "
+                                                "tracker_sphere.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     seed: Annotated[int, typer.Option(help="Seed.")] = 0,
-    noise: Annotated[float | None, typer.Option(help="Std of noise on u.")] = None,
+    noise: Annotated[float | None, typer.Option(help="Std of noise on u (tracker_*: on positions, m).")]
+    = None,
     snr_db: Annotated[float | None, typer.Option(help="Noise as signal-to-noise ratio in dB.")] = None,
     n_demos: Annotated[int | None, typer.Option(help="Number of demonstrations.")] = None,
     n_steps: Annotated[int | None, typer.Option(help="Steps per demonstration.")] = None,
@@ -351,6 +353,11 @@ def simulate(
                                                          help="toy2d: a constraint per demo.")] = None,
     sampling: Annotated[str | None, typer.Option(help="toy2d: trajectory or uniform.")] = None,
     n_samples: Annotated[int | None, typer.Option(help="toy2d uniform: number of states.")] = None,
+    rate: Annotated[float | None, typer.Option(help="tracker_*: sampling rate, Hz (default 50).")] = None,
+    duration: Annotated[float | None, typer.Option(help="tracker_*: seconds per recording (default 90).")]
+    = None,
+    n_recordings: Annotated[int | None, typer.Option(help="tracker_*: continuous recordings (default 1).")]
+    = None,
     test_fraction: Annotated[float, typer.Option(help="Demos marked test in /mask (0: no masks).")] = 0.0,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
@@ -366,7 +373,8 @@ def simulate(
     fn = S.PROBLEMS[problem]
     given = {"noise": noise, "snr_db": snr_db, "n_demos": n_demos, "n_steps": n_steps,
              "constraint": constraint, "policy": policy, "task": task, "vary_constraint": vary_constraint,
-             "sampling": sampling, "n_samples": n_samples}
+             "sampling": sampling, "n_samples": n_samples, "rate": rate, "duration": duration,
+             "n_recordings": n_recordings}
     accepted = pyinspect.signature(fn).parameters
     kwargs = {k: v for k, v in given.items() if v is not None}
     bad = [k for k in kwargs if k not in accepted]
@@ -425,10 +433,12 @@ def _inspect_lines(info: dict[str, Any]) -> list[str]:
         rate = f", {info['rate_hz']:.1f} Hz over {info['active_s']:.2f} s active" \
             if info.get("rate_hz") else ""
         out.append(f"rows:     {info['rows']} (time column {info['time_column']}{rate})")
+    for node in info.get("tree", []):  # HDF5 / .mat contents
+        out.append("  " + "  ".join(str(v) for k, v in node.items() if k != "names"))
     if "gap_s" in info and "demos" in info:
         out.append(f"demos:    {info['demos']} in {info.get('demos_from')} (split on pauses > "
                    f"{info['gap_s']:.3g} s: {info.get('gap_rule')}; change with --gap)")
-    for key in ("samples", "demos", "state_names", "action_names", "truth", "masks"):
+    for key in ("samples", "demos", "samples_per_demo", "state_names", "action_names", "truth", "masks"):
         if key in info and not (key == "demos" and "gap_s" in info):
             out.append(f"{key + ':':9s} {info[key]}")
     return out

@@ -129,10 +129,10 @@ def test_every_model_kind_reloads_bit_identically(tmp_path, kind):
     else:
         d = sim.toy2d(n_demos=10, vary_constraint=True)
     model = {"alpha": lambda: StateDependentConstraint(n_restarts=1),
-             "lambda": lambda: KnownFeatureConstraint("arm2", n_restarts=1),
+             "lambda": lambda: KnownFeatureConstraint(features="arm2", n_restarts=1),
              "linear": lambda: LinearConstraint(regressors="rbf", n_centres=4),
              "ncl": lambda: NullSpaceComponent(n_centres=9),
-             "policy": lambda: PolicyLearner("pi-weighted", n_centres=9),
+             "policy": lambda: PolicyLearner(method="pi-weighted", n_centres=9),
              "per_demo": lambda: PerDemonstration(LinearConstraint(regressors="identity"))}[kind]()
     model.fit(d.X, d.U, d.demo) if kind == "per_demo" else model.fit(d.X, d.U)
     path = save_model(tmp_path / "m.h5", model)
