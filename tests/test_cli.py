@@ -320,10 +320,14 @@ def test_version_and_help_show_defaults_and_choices(capsys):
 
     code, out, _ = run_main(capsys, "--version")
     assert code == 0 and out.strip() == f"ccl {__version__}"
+    from ccl_cli.config import CHOICES, DEFAULTS
+
     proc = ccl("learn-a", "--help")
     text = " ".join(proc.stdout.split())
-    assert "<nhat|alpha|lambda|linear>" in text and "<threshold|eigengap|cv>" in text
-    assert "[default: (config, else eigengap)]" in text and "<ccl|original>" in text
+    rules = CHOICES[("learn-a", "selection")]
+    assert "<nhat|alpha|lambda|linear>" in text and f"<{'|'.join(rules)}>" in text
+    assert f"[default: (config, else {DEFAULTS['learn-a']['selection']})]" in text
+    assert "<ccl|original>" in text
     assert "[default: (config, else pi)]" in " ".join(ccl("learn-pi", "--help").stdout.split())
 
 
