@@ -216,6 +216,11 @@ class Config(dict):
     source: str = "<flags>"
     lines: dict[tuple, int]
     base: Path | None = None
+    flags: dict  # the command-line overrides merged in (see merge)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.flags = {}
 
 
 def load(path: str | Path | None) -> Config:
@@ -239,6 +244,8 @@ def load(path: str | Path | None) -> Config:
 
 
 def _where(cfg: Config, path: tuple) -> str:
+    if cfg.source == FLAGS and path:
+        return "--" + str(path[-1]).replace("_", "-")
     for cut in range(len(path), -1, -1):
         line = cfg.lines.get(path[:cut])
         if line is not None:
@@ -330,14 +337,46 @@ def deep_merge(base: dict, over: dict) -> dict:
     return out
 
 
+FLAGS = "command line"
+
+
+def _override(opts: dict, flags: dict) -> dict:
+    """``opts`` with a stage's flag values on top, at any depth: ``--n-centres`` also sets
+    ``basis.n_centres`` and ``--basis KIND`` sets ``basis.kind`` when the basis is a mapping
+    (so a flag is never shadowed by, nor wipes out, a basis mapping of the config)."""
+    out = deep_merge(opts, {k: v for k, v in flags.items() if k != "basis"})
+    if "basis" in flags:
+        old = opts.get("basis")
+        out["basis"] = {**old, "kind": flags["basis"]} if isinstance(old, dict) and \
+            isinstance(flags["basis"], str) else copy.deepcopy(flags["basis"])
+    if "n_centres" in flags and isinstance(out.get("basis"), dict):
+        out["basis"] = {**out["basis"], "n_centres": flags["n_centres"]}
+    return out
+
+
 def merge(cfg: Config, overrides: dict) -> Config:
     """``cfg`` with flag ``overrides`` (None values ignored) and defaults filled in;
-    the result is validated again (flags are checked like file keys)."""
+    the result is validated again (flags are checked like file keys, and named as flags
+    in errors). The flags are kept (``flags``) so :func:`stage_options` applies them over
+    a ``stages`` item's own options too."""
     clean = _drop_none(overrides)
-    merged = Config(deep_merge(DEFAULTS, deep_merge(dict(cfg), clean)))
-    merged.source = cfg.source if not clean else f"{cfg.source} + flags"
+    if clean:
+        check = Config(clean)
+        check.source, check.lines = FLAGS, {}
+        validate(check)
+    merged_dict = deep_merge(DEFAULTS, dict(cfg))
+    for key, value in clean.items():
+        if key in STAGES and isinstance(value, dict):
+            merged_dict[key] = _override(merged_dict.get(key) or {}, value)
+        elif isinstance(value, dict) and isinstance(merged_dict.get(key), dict):
+            merged_dict[key] = deep_merge(merged_dict[key], value)
+        else:
+            merged_dict[key] = copy.deepcopy(value)
+    merged = Config(merged_dict)
+    merged.source = cfg.source
     merged.lines = cfg.lines
     merged.base = cfg.base
+    merged.flags = deep_merge(getattr(cfg, "flags", {}), clean)
     validate(merged)
     return merged
 
@@ -355,5 +394,8 @@ def _drop_none(d: dict) -> dict:
 
 
 def stage_options(cfg: Config, name: str, extra: dict | None = None) -> dict:
-    """Options of stage ``name``: its section, then the ``stages`` item's own options."""
-    return deep_merge(cfg.get(name) or {}, extra or {})
+    """Options of stage ``name``: its section, then the ``stages`` item's own options, then
+    the command-line flags of that stage (flags win at any depth, see :func:`_override`)."""
+    opts = deep_merge(cfg.get(name) or {}, extra or {})
+    flags = (getattr(cfg, "flags", None) or {}).get(name)
+    return _override(opts, flags) if flags else opts

@@ -185,7 +185,11 @@ class Pipeline:
         for part, d in self.parts():
             if isinstance(result.model, PerDemonstration) and part != "train":
                 continue  # a per-demonstration model knows only its own demonstrations
-            scored = result.score(part, d, convention or self.convention)
+            convention = convention or self.convention
+            if convention == self.convention and into is not result.metrics and part in result.metrics:
+                scored = dict(result.metrics[part])  # the same numbers: no need to score again
+            else:
+                scored = result.score(part, d, convention)
             into.setdefault(part, {}).update({prefix + k: {**m, "name": prefix + k}
                                               for k, m in scored.items()})
 

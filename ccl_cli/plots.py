@@ -337,7 +337,7 @@ def constraint_figure(plt, info: dict[str, Any], method: str, part: str, d: Demo
                  f"\nfitted on the training demonstrations", fontsize=9)
     axes[0, 0].legend(loc="upper left", bbox_to_anchor=(1.01, 1), fontsize=8, frameon=False)
     h = fig.get_figheight()
-    fig.subplots_adjust(left=0.09, right=0.86, top=1 - 0.8 / h, bottom=0.75 / h, hspace=0.5)
+    fig.subplots_adjust(left=0.12, right=0.86, top=1 - 0.8 / h, bottom=0.75 / h, hspace=0.5)
     return fig
 
 
