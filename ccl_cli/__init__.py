@@ -15,8 +15,7 @@ from typing import Any
 
 def _interrupted_while_starting(signum, frame) -> None:  # noqa: ANN001
     """Ctrl-C before the ``ccl`` command is running (imports): one line, exit 130."""
-    _os.write(2, b"ccl: interrupted; no partial outputs were left
-")
+    _os.write(2, b"ccl: interrupted; no partial outputs were left\n")
     _os._exit(130)
 
 
