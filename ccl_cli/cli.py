@@ -70,6 +70,9 @@ def _emit(summary: dict[str, Any], as_json: bool) -> None:
     if as_json:
         sys.stdout.write(json.dumps(summary, default=str) + "\n")
         return
+    val = summary.get("validation")
+    if val:
+        typer.echo(f"validation: {val.get('kind')} ({val.get('reason')})", err=True)
     for stage, entry in (summary.get("stages") or {}).items():
         parts = [f"{stage} ({entry.get('method')})"]
         if "n_constraints" in entry:

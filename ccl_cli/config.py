@@ -35,7 +35,8 @@ SCHEMA: dict[str, Any] = {
         "time": {"column": (str, int), "unit": str, "rate": NUM, "delimiter": str},
         "demos": {"split_on_gap": NUM, "ranges": list, "per_file": bool},
         "nonfinite": str, "min_samples": int,
-        "test": {"fraction": NUM, "seed": int, "use_masks": bool},
+        "test": {"fraction": NUM, "seed": int, "use_masks": bool, "gap": int, "min_demos": int,
+                 "blocks": int},
     },
     "learn-v": {"basis": (str, BASIS), "n_centres": int, "max_iter": int, "tol": NUM},
     "learn-a": {

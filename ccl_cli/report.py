@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.dataset import Demonstrations
+from ccl_cli.selection import tuning_markdown, validation_markdown
 
 PACKAGES = ("ccl_cli", "numpy", "scipy", "h5py", "rosbags", "mcap", "mcap-ros1-support",
             "mcap-ros2-support", "typer", "pyyaml", "matplotlib")
@@ -61,6 +62,7 @@ def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str,
               f"(train {data_info.get('train')}, test {data_info.get('test')})",
               f"- state dimension p = {data_info.get('p')}, action dimension q = {data_info.get('q')}",
               f"- inputs: {', '.join(data_info.get('files', [])) or '—'}", ""]
+    lines += validation_markdown(data_info.get("validation"))
     for stage, entry in results_metrics.items():
         lines.append(f"## {stage} — {entry.get('method')}")
         lines.append("")
@@ -76,6 +78,7 @@ def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str,
                             f"{_fmt(m['normaliser'])} (var of {m['normaliser_of']}) |")
         if rows:
             lines += ["| split | metric | value | error | normaliser |", "|---|---|---|---|---|", *rows, ""]
+        lines += tuning_markdown(stage, entry.get("tuning"))
         lines.append(f"Time: {entry.get('seconds', 0):.3f} s")
         lines.append("")
         for caption, rel in plots:

@@ -103,3 +103,28 @@ def test_default_rule_is_one_for_library_and_cli():
     for cls in (StateIndependentConstraint, StateDependentConstraint, KnownFeatureConstraint,
                 LinearConstraint):
         assert cls().selection == rank.DEFAULT_RULE
+
+
+def test_a_single_continuous_recording_gets_a_stated_block_split(tmp_path, capsys):
+    """The issue's bar: one recording → time blocks, stated in --json, stderr, report.md, run.json."""
+    import json
+
+    from ccl_cli.cli import main
+
+    h5 = tmp_path / "plane.h5"
+    assert main(["simulate", "tracker_plane", "-o", str(h5), "--seed", "3", "-q"]) == 0
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"data: {{files: [{h5}]}}\nlearn-a: {{method: nhat}}\n")
+    capsys.readouterr()
+    assert main(["learn-a", "-c", str(cfg), "-o", str(tmp_path / "out"), "--json", "-q"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    val = summary["validation"]
+    assert val["kind"] == "blocks" and "single continuous recording" in val["reason"]
+    assert val["n_test_blocks"] == 3 and val["n_train_blocks"] == 7
+    stage = summary["stages"]["learn-a"]
+    assert stage["n_constraints"] == 1 and stage["test"]["NPOE"] < 0.03
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "## Validation" in report and "**blocks**" in report
+    assert json.loads((tmp_path / "out" / "run.json").read_text())["validation"]["kind"] == "blocks"
+    assert main(["learn-a", "-c", str(cfg), "-o", str(tmp_path / "out2"), "-q"]) == 0
+    assert "validation: blocks (a single continuous recording" in capsys.readouterr().err
