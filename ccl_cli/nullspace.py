@@ -21,6 +21,7 @@ from ccl_cli.basis import Basis, make_basis
 from ccl_cli.constraint.base import check_xu
 from ccl_cli.estimator import Estimator
 from ccl_cli.linalg import eigen_lstsq
+from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
 
 EPS_RESIDUAL = 1e-8
 
@@ -32,6 +33,8 @@ class NullSpaceComponent(Estimator):
         basis, n_centres, seed: feature map (normalised RBF by default).
         max_iter: LM iterations (function evaluations) at most (original: 1000).
         tol: LM tolerances (original: 1e-9).
+        tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
+            default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
     Attributes:
         basis_, W_ (q, K), cost_ (final Σ r²), n_iter_.
@@ -45,17 +48,26 @@ class NullSpaceComponent(Estimator):
         seed: int = 0,
         max_iter: int = 1000,
         tol: float = 1e-9,
+        tune: bool | dict = TUNE,
     ) -> None:
         self.basis = basis
         self.n_centres = n_centres
         self.seed = seed
         self.max_iter = max_iter
         self.tol = tol
+        self.tune = tune
+
+    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
+        if not rbf_tunable(self.basis):
+            return {}
+        return {"basis": basis_grid(X, (self.n_centres, 16, 36, 64, 100), (1.0, 0.5), self.seed)}
 
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
             ) -> NullSpaceComponent:
         X, U = check_xu(X, U)
         self._set_n_features(X)
+        if self._fit_tuned(X, U, demo=demo):
+            return self
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
         B = self.basis_.transform(X)
         n, K = B.shape

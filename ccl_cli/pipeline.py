@@ -103,7 +103,7 @@ def make_constraint(options: dict, seed: int):
         kw = _kwargs(options, (*common, "threshold"))
         model = StateIndependentConstraint(method=options.get("variant", "closed_form"), seed=seed, **kw)
     elif method in ("alpha", "lambda"):
-        kw = _kwargs(options, (*common, "basis", "n_centres", "n_restarts", "max_iter", "tol"))
+        kw = _kwargs(options, (*common, "basis", "n_centres", "n_restarts", "max_iter", "tol", "tune"))
         if method == "alpha":
             model = StateDependentConstraint(seed=seed, **kw)
         else:
@@ -113,7 +113,7 @@ def make_constraint(options: dict, seed: int):
             model = KnownFeatureConstraint(features=options["features"], seed=seed, **kw)
     elif method == "linear":
         kw = _kwargs(options, (*common, "threshold", "basis", "n_centres", "regressors", "degree", "task",
-                               "task_regressors", "whiten", "reweight"))
+                               "task_regressors", "whiten", "reweight", "tune"))
         model = LinearConstraint(seed=seed, **kw)
     else:
         raise ConfigError(f"unknown learn-a method {method!r}")
@@ -167,9 +167,11 @@ class Pipeline:
 
     def _learn_v(self, opts: dict) -> StageResult:
         tr = self.split.train
-        model = NullSpaceComponent(**_kwargs(opts, ("basis", "n_centres", "max_iter", "tol")),
-                                   seed=self.seed).fit(tr.X, tr.U)
+        model = NullSpaceComponent(**_kwargs(opts, ("basis", "n_centres", "max_iter", "tol", "tune")),
+                                   seed=self.seed).fit(tr.X, tr.U, tr.demo)
         result = StageResult("learn-v", "ncl", model, info={"n_iter": model.n_iter_})
+        if getattr(model, "tuning_", None):
+            result.info["tuning"] = model.tuning_
         for part, d in self.parts():
             w = model.predict(d.X)
             self.w[part] = w
@@ -191,6 +193,8 @@ class Pipeline:
                              info={"n_constraints": int(model.n_constraints_),
                                    "selection": model.selection_,
                                    "on": "w" if (on == "w" or (on == "auto" and self.w)) else "u"})
+        if getattr(model, "tuning_", None):
+            result.info["tuning"] = model.tuning_
         for part, d in self.parts():
             if isinstance(model, PerDemonstration) and part != "train":
                 continue  # a per-demonstration model knows only its own demonstrations
@@ -211,10 +215,12 @@ class Pipeline:
     def _learn_pi(self, opts: dict) -> StageResult:
         tr = self.split.train
         on = opts.get("on", "auto")
-        kw = _kwargs(opts, ("basis", "n_centres", "cutoff", "min_norm"))
+        kw = _kwargs(opts, ("basis", "n_centres", "cutoff", "min_norm", "tune"))
         model = PolicyLearner(method=opts.get("method", "pi"), seed=self.seed, **kw)
         model.fit(tr.X, self._target(on, "train", tr), self._projections(opts, "train", tr))
         result = StageResult("learn-pi", model.method, model, info={"n_used": model.n_used_})
+        if getattr(model, "tuning_", None):
+            result.info["tuning"] = model.tuning_
         if opts.get("baseline", True) and model.method != "dpl":
             result.baseline = PolicyLearner(method="dpl", seed=self.seed, **kw).fit(
                 tr.X, self._target(on, "train", tr))

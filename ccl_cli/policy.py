@@ -25,6 +25,7 @@ from ccl_cli.constraint.base import check_xu
 from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.estimator import Estimator
 from ccl_cli.linalg import eigen_lstsq
+from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
 
 METHODS = ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl")
 
@@ -37,6 +38,8 @@ class PolicyLearner(Estimator):
         basis, n_centres, seed: feature map (``lwpi`` needs an RBF basis).
         cutoff: relative eigenvalue cut-off of the pseudo-inverse (original: 1e-6).
         min_norm: samples with ‖u‖ below this are dropped (not for ``dpl``/``pi-coupled``).
+        tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
+            default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
     Attributes:
         basis_, W_ ((K, q); for lwpi (K, p + 1, q)), n_used_.
@@ -51,6 +54,7 @@ class PolicyLearner(Estimator):
         seed: int = 0,
         cutoff: float = 1e-6,
         min_norm: float = 1e-6,
+        tune: bool | dict = TUNE,
     ) -> None:
         self.method = method
         self.basis = basis
@@ -58,6 +62,15 @@ class PolicyLearner(Estimator):
         self.seed = seed
         self.cutoff = cutoff
         self.min_norm = min_norm
+        self.tune = tune
+
+    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
+        if not rbf_tunable(self.basis):
+            return {}
+        if self.method == "lwpi":
+            return {"basis": basis_grid(X, (self.n_centres, 9, 16, 25, 49), (1.0, 0.5, 0.25, 0.1, 0.05),
+                                        self.seed)}
+        return {"basis": basis_grid(X, (self.n_centres, 16, 49, 100), (1.0, 0.5, 0.25), self.seed)}
 
     def fit(self, X: np.ndarray, U: np.ndarray, projections: np.ndarray | None = None
             ) -> PolicyLearner:
@@ -65,6 +78,8 @@ class PolicyLearner(Estimator):
         Ñ_n (N, q, q) (true, or from a learnt constraint model)."""
         X, U = check_xu(X, U)
         self._set_n_features(X)
+        if self._fit_tuned(X, U, projections=projections):
+            return self
         if self.method not in METHODS:
             raise ConfigError(f"unknown policy method {self.method!r} (use {', '.join(METHODS)})")
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)

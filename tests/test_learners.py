@@ -162,9 +162,9 @@ def test_ncl_recovers_null_space_component():
     data = sim.toy2d(constraint="fixed", task=True, sampling="uniform", n_samples=1000,
                      n_demos=1, seed=0)
     train, test = data.subset(np.arange(500)), data.subset(np.arange(500, 1000))
-    model = NullSpaceComponent(n_centres=16).fit(train.X, train.U)
+    model = NullSpaceComponent(n_centres=16, tune=False).fit(train.X, train.U)
     ours = nupe(test.truth["w"], model.predict(test.X))
-    direct = PolicyLearner(method="dpl", n_centres=16).fit(train.X, train.U)
+    direct = PolicyLearner(method="dpl", n_centres=16, tune=False).fit(train.X, train.U)
     baseline = nupe(test.truth["w"], direct.predict(test.X))
     assert ours.value < 1e-3
     assert baseline.value > 100 * ours.value
@@ -195,7 +195,8 @@ def test_pi_variants_under_noise():
     train, test = policy_data(0.01)
     err = {}
     for method in ("pi", "pi-weighted", "pi-coupled", "dpl"):
-        model = PolicyLearner(method=method, basis=GRID).fit(train.X, train.U, train.true_projection())
+        model = PolicyLearner(method=method, basis=GRID, tune=False).fit(train.X, train.U,
+                                                                        train.true_projection())
         err[method] = nupe(test.truth["pi"], model.predict(test.X)).value
     assert err["pi-weighted"] * 5 < err["pi"]
     assert err["pi-coupled"] < err["pi-weighted"]
@@ -205,7 +206,7 @@ def test_pi_variants_under_noise():
 def test_lwpi_learns_a_linear_policy_locally():
     data = sim.toy2d(constraint="fixed", policy="linear", vary_constraint=True, noise=0.0)
     train, test = data.split(0.3, 0)
-    model = PolicyLearner(method="lwpi", n_centres=9).fit(train.X, train.U)
+    model = PolicyLearner(method="lwpi", n_centres=9, tune=False).fit(train.X, train.U)
     assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
 
 
@@ -277,4 +278,4 @@ def test_set_params_nested_and_keyword_only():
     assert model.get_params()["estimator__n_constraints"] == 2
     assert PolicyLearner().set_params(n_centres=9).n_centres == 9
     with pytest.raises(TypeError):
-        PolicyLearner("pi")  # noqa: the parameters are keyword-only
+        PolicyLearner("pi")  # the parameters are keyword-only
