@@ -130,6 +130,9 @@ def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
         return
     if quiet or _QUIET[0]:
         return
+    val = summary.get("validation")
+    if val:
+        typer.echo(f"validation: {val.get('kind')} ({val.get('reason')})", err=True)
 
     def line(label: str, entry: dict[str, Any]) -> str:
         parts = [label]

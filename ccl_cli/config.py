@@ -18,8 +18,8 @@ from typing import Any
 
 import yaml
 
+from ccl_cli import selection as S
 from ccl_cli.errors import ConfigError
-from ccl_cli.selection import DEFAULT_RULE
 
 STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
 NUM = (int, float)
@@ -28,6 +28,8 @@ BASIS = {"kind": str, "n_centres": int, "centres": (str, list), "sigma2": NUM, "
 STREAM = {"topic": str, "field": str, "joints": list, "columns": list, "stamp": str,
           "dataset": str, "variable": str, "file": str, "samples": str}
 ACTION = {**STREAM, "derive": str, "window": int, "order": int}
+#: ``tune: {budget: seconds, folds: k}`` (or true/false) in a learner's section.
+TUNE = {"budget": NUM, "folds": int}
 
 SCHEMA: dict[str, Any] = {
     "seed": int,
@@ -38,9 +40,10 @@ SCHEMA: dict[str, Any] = {
         "demos": {"split_on_gap": NUM, "ranges": list, "window": NUM, "per_file": bool,
                   "group": str, "dataset": str, "variable": str},
         "nonfinite": str, "min_samples": int,
-        "test": {"fraction": NUM, "seed": int, "use_masks": bool},
+        "test": {"fraction": NUM, "seed": int, "use_masks": bool, "gap": int, "min_demos": int,
+                 "blocks": int},
     },
-    "learn-v": {"basis": (str, BASIS), "n_centres": int, "max_iter": int, "tol": NUM},
+    "learn-v": {"basis": (str, BASIS), "n_centres": int, "max_iter": int, "tol": NUM, "tune": (bool, TUNE)},
     "learn-a": {
         "method": str, "on": str, "per_demo": bool, "selection": str, "n_constraints": int,
         "threshold": NUM, "gap_floor": NUM, "max_constraints": int, "cv_folds": int,
@@ -48,10 +51,10 @@ SCHEMA: dict[str, Any] = {
         "basis": (str, BASIS), "n_centres": int,
         "features": (str, {"arm": str, "rows": list}),
         "regressors": str, "degree": int, "task": bool, "task_regressors": str, "whiten": str,
-        "reweight": int,
+        "reweight": int, "tune": (bool, TUNE),
     },
     "learn-pi": {"method": str, "on": str, "basis": (str, BASIS), "n_centres": int, "cutoff": NUM,
-                 "min_norm": NUM, "projections": str, "baseline": bool},
+                 "min_norm": NUM, "projections": str, "baseline": bool, "tune": (bool, TUNE)},
     "evaluate": {"convention": str},
     "metrics": {"convention": str},
     "output": {"plots": bool},
@@ -62,10 +65,11 @@ DEFAULTS: dict[str, Any] = {
     "seed": 0,
     "data": {"format": "auto", "nonfinite": "drop", "test": {"fraction": 0.3, "seed": 0,
                                                              "use_masks": True}},
-    "learn-v": {"basis": "rbf", "n_centres": 16},
-    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": DEFAULT_RULE},
+    "learn-v": {"basis": "rbf", "n_centres": 16, "tune": S.TUNE},
+    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": S.DEFAULT_RULE,
+                "tune": S.TUNE},
     "learn-pi": {"method": "pi", "on": "auto", "basis": "rbf", "n_centres": 16,
-                 "projections": "auto", "baseline": True},
+                 "projections": "auto", "baseline": True, "tune": S.TUNE},
     "metrics": {"convention": "ccl"},
     "output": {"plots": True},
 }

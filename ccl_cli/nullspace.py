@@ -28,6 +28,7 @@ from ccl_cli.basis import Basis, feature_blocks, make_basis
 from ccl_cli.constraint.base import check_xu
 from ccl_cli.estimator import Estimator
 from ccl_cli.linalg import eigen_lstsq, kron_least_squares, row_chunks
+from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
 
 EPS_RESIDUAL = 1e-8
 
@@ -43,6 +44,8 @@ class NullSpaceComponent(Estimator):
         polish: after the smooth stage, minimise the original residual (default: the
             original optimum). ``False`` stops after the smooth stage: ~10× fewer passes
             on large N, at a slightly higher original cost.
+        tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
+            default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
     Attributes:
         basis_, W_ (q, K), cost_ (final Σ r²), n_iter_.
@@ -58,6 +61,7 @@ class NullSpaceComponent(Estimator):
         tol: float = 1e-9,
         chunk_size: int | None = None,
         polish: bool = True,
+        tune: bool | dict = TUNE,
     ) -> None:
         self.basis = basis
         self.n_centres = n_centres
@@ -66,11 +70,19 @@ class NullSpaceComponent(Estimator):
         self.tol = tol
         self.chunk_size = chunk_size
         self.polish = polish
+        self.tune = tune
+
+    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
+        if not rbf_tunable(self.basis):
+            return {}
+        return {"basis": basis_grid(X, (self.n_centres, 16, 36, 64, 100), (1.0, 0.5), self.seed)}
 
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
             ) -> NullSpaceComponent:
         X, U = check_xu(X, U)
         self._set_n_features(X)
+        if self._fit_tuned(X, U, demo=demo):
+            return self
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
         blocks = feature_blocks(self.basis_, X, self.chunk_size)
         K = self.basis_.n_features

@@ -29,6 +29,7 @@ from ccl_cli.constraint.base import check_xu
 from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.estimator import Estimator
 from ccl_cli.linalg import eigen_lstsq, kron_rows, row_chunks
+from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
 
 METHODS = ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl")
 
@@ -42,6 +43,8 @@ class PolicyLearner(Estimator):
         cutoff: relative eigenvalue cut-off of the pseudo-inverse (original: 1e-6).
         min_norm: samples with ‖u‖ below this are dropped (not for ``dpl``/``pi-coupled``).
         chunk_size: rows per block of the normal-equation sums (default 8192).
+        tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
+            default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
     Attributes:
         basis_, W_ ((K, q); for lwpi (K, p + 1, q)), n_used_.
@@ -57,6 +60,7 @@ class PolicyLearner(Estimator):
         cutoff: float = 1e-6,
         min_norm: float = 1e-6,
         chunk_size: int | None = None,
+        tune: bool | dict = TUNE,
     ) -> None:
         self.method = method
         self.basis = basis
@@ -65,6 +69,15 @@ class PolicyLearner(Estimator):
         self.cutoff = cutoff
         self.min_norm = min_norm
         self.chunk_size = chunk_size
+        self.tune = tune
+
+    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
+        if not rbf_tunable(self.basis):
+            return {}
+        if self.method == "lwpi":
+            return {"basis": basis_grid(X, (self.n_centres, 9, 16, 25, 49), (1.0, 0.5, 0.25, 0.1, 0.05),
+                                        self.seed)}
+        return {"basis": basis_grid(X, (self.n_centres, 16, 49, 100), (1.0, 0.5, 0.25), self.seed)}
 
     def fit(self, X: np.ndarray, U: np.ndarray, projections: np.ndarray | None = None
             ) -> PolicyLearner:
@@ -72,6 +85,8 @@ class PolicyLearner(Estimator):
         Ñ_n (N, q, q) (true, or from a learnt constraint model)."""
         X, U = check_xu(X, U)
         self._set_n_features(X)
+        if self._fit_tuned(X, U, projections=projections):
+            return self
         if self.method not in METHODS:
             raise ConfigError(f"unknown policy method {self.method!r} (use {', '.join(METHODS)})")
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)

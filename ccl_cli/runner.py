@@ -75,7 +75,8 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
                                                 "versions": versions()})
         plots = make_plots(tmp, pipeline) if (cfg.get("output") or {}).get("plots", True) else []
         write_json(tmp / "metrics.json", metrics)
-        (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, data_summary(pipeline))
+        summary = {**data_summary(pipeline), "validation": pipeline.split_info}
+        (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, summary)
                                        + "\n" + "\n".join(markdown_section(pipeline.warnings)))
         import yaml
 
@@ -84,12 +85,14 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
             "command": command, "argv": sys.argv, "config": dict(cfg), "config_source": cfg.source,
             "inputs": hashes, "versions": versions(),
             "timings": {r.name: r.seconds for r in pipeline.results} | {"total": time.perf_counter() - t0},
-            "data": data_summary(pipeline), "warnings": pipeline.warnings,
+            "data": data_summary(pipeline), "validation": pipeline.split_info,
+            "warnings": pipeline.warnings,
         })
         for name, value in (extra_files or {}).items():
             write_json(tmp / name, value)
     return {"status": "ok", "command": command, "outdir": str(outdir),
-            "seconds": time.perf_counter() - t0, "stages": summarise(metrics), "warnings": pipeline.warnings}
+            "seconds": time.perf_counter() - t0, "validation": pipeline.split_info,
+            "stages": summarise(metrics), "warnings": pipeline.warnings}
 
 
 def summarise(metrics: dict[str, Any]) -> dict[str, Any]:

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.estimator import clone
 
 #: Fewest demonstrations for splitting by demonstration; below it, time blocks.
@@ -44,6 +44,12 @@ N_FOLDS = 5
 DEFAULT_RULE = "ratio"
 #: ``ratio`` rule: row k is a constraint while its residual is ≤ this multiple of row 1's.
 RATIO_FACTOR = 2.0
+#: Hyperparameter tuning is on by default (learners' ``tune`` and the config agree).
+TUNE = True
+#: Seconds a learner's hyperparameter search may take (``tune: {budget: s}``).
+TUNE_BUDGET = 5.0
+#: Folds of the hyperparameter search (fewer than for choosing s: it fits many candidates).
+TUNE_FOLDS = 3
 
 
 # -- splitters ------------------------------------------------------------------------------
@@ -286,10 +292,10 @@ def tune(
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Grid search by :func:`cross_validate` within ``budget`` seconds.
 
-    Candidates are tried in the grid's order (put the cheap and the default first);
-    once the budget is spent the remaining ones are skipped (and listed as skipped).
-    The candidate with the smallest mean held-out error wins; among candidates within
-    one standard error of it, the first (simplest) one is taken.
+    Candidates are tried in the grid's order (the default and the cheap first); a
+    candidate is skipped (and counted in ``skipped``) when the time spent plus what the
+    previous candidate took would exceed ``budget``; the first always runs. The
+    candidate with the smallest mean held-out error wins.
 
     Returns:
         (chosen parameters, info) with info = {"grid", "scores": [{params, mean, se}],
@@ -305,30 +311,69 @@ def tune(
     t0 = time.perf_counter()
     rows: list[dict[str, Any]] = []
     skipped = 0
+    last, last_size = 0.0, 1
     for params in combos:
-        if rows and time.perf_counter() - t0 > budget:
+        size = _size(params)
+        if rows and time.perf_counter() - t0 + last * max(1.0, size / last_size) ** 1.5 > budget:
             skipped += 1
             continue
         est = clone(estimator).set_params(**params)
+        t1 = time.perf_counter()
         try:
             res = cross_validate(est, X, U, groups, folds=folds, projections=projections)
-        except (InputError, np.linalg.LinAlgError):
+        except (InputError, LearningError, np.linalg.LinAlgError):
             continue  # e.g. more centres than training samples in a fold
+        finally:
+            last, last_size = time.perf_counter() - t1, size
         mean = float(res.mean)
         rows.append({"params": params, "mean": mean if np.isfinite(mean) else float("inf"),
                      "se": float(res.se)})
     if not rows:
         raise InputError("no hyperparameter candidate could be cross-validated on this data")
     best = min(range(len(rows)), key=lambda i: rows[i]["mean"])
-    limit = rows[best]["mean"] + rows[best]["se"]
-    pick = next(i for i, r in enumerate(rows) if r["mean"] <= limit)
-    chosen = rows[pick]["params"]
+    chosen = rows[best]["params"]
     info = {"grid": {k: list(v) for k, v in grid.items()}, "scores": rows, "chosen": chosen,
-            "best": rows[best]["params"], "budget": budget,
-            "budget_used": round(time.perf_counter() - t0, 3), "skipped": skipped,
+            "budget": budget, "budget_used": round(time.perf_counter() - t0, 3), "skipped": skipped,
             "folds": {"kind": folds.kind, "n": len(folds.pairs), "reason": folds.reason},
-            "rule": "smallest held-out error; first candidate within one standard error"}
+            "rule": "smallest held-out error"}
     return chosen, info
+
+
+def _size(params: dict[str, Any]) -> int:
+    """Number of basis functions of a candidate (its cost grows with it)."""
+    basis = params.get("basis")
+    return int(basis.get("n_centres", 1)) if isinstance(basis, dict) else int(params.get("n_centres", 1))
+
+
+def rbf_tunable(basis: Any) -> bool:
+    """Only a default RBF basis (a name or a dict without explicit centres/width) is tuned;
+    a linear basis, a basis object or explicit centres/σ² are the user's choice."""
+    if basis is None or basis == "rbf":
+        return True
+    return isinstance(basis, dict) and basis.get("kind", "rbf") == "rbf" and \
+        "sigma2" not in basis and not isinstance(basis.get("centres"), list | np.ndarray)
+
+
+def basis_grid(X: np.ndarray, sizes: tuple[int, ...], widths: tuple[float, ...], seed: int = 0,
+               centres: str = "kmeans") -> list[dict[str, Any]]:
+    """Candidate RBF bases (``basis`` parameter values): for each number of centres K
+    (at most N/2; repeated values dropped) and width factor f, σ² = f · σ²_default(K)
+    (the default rule of ALGORITHMS.md §2 on those centres; f = 1 is left to the rule)."""
+    from ccl_cli.basis import RBFBasis
+
+    X = np.asarray(X, dtype=float)
+    out: list[dict[str, Any]] = []
+    for K in dict.fromkeys(int(k) for k in sizes):
+        if K > max(1, len(X) // 2):
+            continue
+        s0 = RBFBasis(n_centres=K, centres=centres, seed=seed).fit(X).sigma2_ if any(
+            f != 1 for f in widths) else 1.0
+        for f in widths:
+            spec: dict[str, Any] = {"kind": "rbf", "n_centres": int(K), "centres": centres}
+            if f != 1:
+                spec["sigma2"] = float(f * s0)
+            out.append(spec)
+    return out
 
 
 # -- report sections ------------------------------------------------------------------------
@@ -353,6 +398,8 @@ def tuning_markdown(stage: str, tuning: dict[str, Any] | None) -> list[str]:
     """Table of the cross-validation curve of one stage's hyperparameter search."""
     if not tuning:
         return []
+    if tuning.get("chosen") is None:
+        return [f"### {stage}: hyperparameters", "", tuning.get("reason", "not tuned"), ""]
     lines = [f"### {stage}: hyperparameters by cross-validation", "",
              f"Chosen: {tuning['chosen']} ({tuning['rule']}; {tuning['folds']['reason']}; "
              f"{tuning['budget_used']:.2f} s of {tuning['budget']} s"

@@ -162,9 +162,9 @@ def test_ncl_recovers_null_space_component():
     data = sim.toy2d(constraint="fixed", task=True, sampling="uniform", n_samples=1000,
                      n_demos=1, seed=0)
     train, test = data.subset(np.arange(500)), data.subset(np.arange(500, 1000))
-    model = NullSpaceComponent(n_centres=16).fit(train.X, train.U)
+    model = NullSpaceComponent(n_centres=16, tune=False).fit(train.X, train.U)
     ours = nupe(test.truth["w"], model.predict(test.X))
-    direct = PolicyLearner(method="dpl", n_centres=16).fit(train.X, train.U)
+    direct = PolicyLearner(method="dpl", n_centres=16, tune=False).fit(train.X, train.U)
     baseline = nupe(test.truth["w"], direct.predict(test.X))
     assert ours.value < 1e-3
     assert baseline.value > 100 * ours.value
@@ -195,7 +195,8 @@ def test_pi_variants_under_noise():
     train, test = policy_data(0.01)
     err = {}
     for method in ("pi", "pi-weighted", "pi-coupled", "dpl"):
-        model = PolicyLearner(method=method, basis=GRID).fit(train.X, train.U, train.true_projection())
+        model = PolicyLearner(method=method, basis=GRID, tune=False).fit(train.X, train.U,
+                                                                        train.true_projection())
         err[method] = nupe(test.truth["pi"], model.predict(test.X)).value
     assert err["pi-weighted"] * 5 < err["pi"]
     assert err["pi-coupled"] < err["pi-weighted"]
@@ -205,7 +206,7 @@ def test_pi_variants_under_noise():
 def test_lwpi_learns_a_linear_policy_locally():
     data = sim.toy2d(constraint="fixed", policy="linear", vary_constraint=True, noise=0.0)
     train, test = data.split(0.3, 0)
-    model = PolicyLearner(method="lwpi", n_centres=9).fit(train.X, train.U)
+    model = PolicyLearner(method="lwpi", n_centres=9, tune=False).fit(train.X, train.U)
     assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
 
 
@@ -327,8 +328,8 @@ def test_kron_least_squares_solves_a_separable_problem_like_scipy():
 def test_policy_chunk_size_smaller_than_n_gives_the_same_fit(method):
     train, test = policy_data(0.01)
     P = train.true_projection()
-    whole = PolicyLearner(method, basis=GRID).fit(train.X, train.U, P)
-    chunked = PolicyLearner(method, basis=GRID, chunk_size=97).fit(train.X, train.U, P)
+    whole = PolicyLearner(method=method, basis=GRID, tune=False).fit(train.X, train.U, P)
+    chunked = PolicyLearner(method=method, basis=GRID, chunk_size=97, tune=False).fit(train.X, train.U, P)
     np.testing.assert_allclose(chunked.W_, whole.W_, rtol=1e-8, atol=1e-8 * np.abs(whole.W_).max())
     np.testing.assert_allclose(chunked.predict(test.X), whole.predict(test.X), atol=1e-8)
 
@@ -336,8 +337,8 @@ def test_policy_chunk_size_smaller_than_n_gives_the_same_fit(method):
 def test_ncl_chunk_size_smaller_than_n_gives_the_same_fit():
     data = sim.toy2d(constraint="fixed", task=True, sampling="uniform", n_samples=600,
                      n_demos=1, seed=0)
-    whole = NullSpaceComponent(n_centres=9).fit(data.X, data.U)
-    chunked = NullSpaceComponent(n_centres=9, chunk_size=64).fit(data.X, data.U)
+    whole = NullSpaceComponent(n_centres=9, tune=False).fit(data.X, data.U)
+    chunked = NullSpaceComponent(n_centres=9, chunk_size=64, tune=False).fit(data.X, data.U)
     assert chunked.cost_ == pytest.approx(whole.cost_, rel=1e-6)
     np.testing.assert_allclose(chunked.predict(data.X), whole.predict(data.X), atol=1e-5)
 
@@ -347,7 +348,7 @@ def test_linear_and_alpha_blocks_smaller_than_n_give_the_same_fit(monkeypatch):
     models = lambda: [  # noqa: E731
         LinearConstraint(task=True),
         LinearConstraint(whiten="errors", reweight=2),
-        LinearConstraint(regressors="rbf", basis=RBFBasis(9), selection="threshold"),
+        LinearConstraint(regressors="rbf", basis=RBFBasis(9), selection="threshold", tune=False),
         StateDependentConstraint(n_restarts=1),
     ]
     whole = [m.fit(data.X, data.U) for m in models()]
