@@ -48,7 +48,11 @@ CentresOpt = Annotated[int | None, typer.Option("--n-centres", help="Number of R
 BasisOpt = Annotated[str | None, typer.Option("--basis", help="Feature map: rbf or linear.")]
 
 
+_QUIET = [False]  # set by every command through _logging: -q silences the summaries too
+
+
 def _logging(quiet: bool) -> None:
+    _QUIET[0] = quiet
     level = logging.WARNING if quiet else logging.INFO
     logging.basicConfig(level=level, format="ccl: %(message)s", stream=sys.stderr, force=True)
 
@@ -64,20 +68,30 @@ def _config(path: Path | None, overrides: dict[str, Any]):
     return C.merge(C.load(path), overrides)
 
 
-def _emit(summary: dict[str, Any], as_json: bool) -> None:
+def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
+    """The summary: JSON on stdout (``--json``), else one line per stage on stderr (none with -q)."""
     import json
 
     if as_json:
         sys.stdout.write(json.dumps(summary, default=str) + "\n")
         return
-    for stage, entry in (summary.get("stages") or {}).items():
-        parts = [f"{stage} ({entry.get('method')})"]
+    if quiet or _QUIET[0]:
+        return
+
+    def line(label: str, entry: dict[str, Any]) -> str:
+        parts = [label]
         if "n_constraints" in entry:
             parts.append(f"s={entry['n_constraints']}")
         for split in ("train", "test"):
             for name, value in (entry.get(split) or {}).items():
                 parts.append(f"{split} {name}={value:.3e}")
-        typer.echo("  ".join(parts), err=True)
+        return "  ".join(parts)
+
+    for stage, entry in (summary.get("stages") or {}).items():
+        typer.echo(line(f"{stage} ({entry.get('method')})", entry), err=True)
+        if entry.get("baseline"):
+            typer.echo(line(f"{stage} baseline ({entry['baseline'].get('method')})", entry["baseline"]),
+                       err=True)
     if summary.get("outdir"):
         typer.echo(f"outputs in {summary['outdir']}", err=True)
 
@@ -87,7 +101,7 @@ def _wrote(command: str, out: Path, data, as_json: bool) -> None:
     if as_json:
         _emit({"status": "ok", "command": command, "out": str(out), "samples": data.n_samples,
                "demos": data.n_demos}, True)
-    else:
+    elif not _QUIET[0]:
         typer.echo(f"wrote {out}: {data.n_samples} samples in {data.n_demos} demonstrations", err=True)
 
 
@@ -105,7 +119,7 @@ def _learn(command: str, stages: list[tuple[str, dict]] | None, cfg, files, out:
     finally:
         if bar:
             bar.stop()
-    _emit(summary, as_json)
+    _emit(summary, as_json, quiet)
 
 
 def _bar(label: str, total: int, quiet: bool):
@@ -216,38 +230,20 @@ def evaluate(
     data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None, convention: ConvOpt = None,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
-    """Metrics of a saved model on data (every metric its ground truth allows)."""
-    from ccl_cli.models import load_model
-    from ccl_cli.pipeline import check_dimensions, evaluate_model
+    """Metrics of a saved model on data (every metric its ground truth allows; docs/metrics.md)."""
+    from ccl_cli.evaluate import evaluate_saved
     from ccl_cli.runner import read_data
 
     _logging(quiet)
     cfg = _config(config, {"metrics": {"convention": convention}})
-    est, info = load_model(model)
     dataset, _ = read_data(cfg, data)
-    check_dimensions(est, dataset)
-    metrics = evaluate_model(est, info["kind"], dataset, cfg["metrics"]["convention"])
-    entry = {"method": info["method"], "all": metrics}
-    if out is not None:
-        from ccl_cli.io.atomic import atomic_dir
-        from ccl_cli.report import versions, write_json
-
-        with atomic_dir(out, force=force) as tmp:
-            write_json(tmp / "metrics.json", {"evaluate": entry})
-            rows = [f"| {k} | {v['value']:.3e} | {v['normaliser']:.3e} (var of {v['normaliser_of']}) |"
-                    for k, v in metrics.items()]
-            (tmp / "report.md").write_text("\n".join([f"# ccl evaluate {model}", "",
-                                                      "| metric | value | normaliser |", "|---|---|---|",
-                                                      *rows, ""]))
-            write_json(tmp / "run.json", {"command": "evaluate", "model": str(model),
-                                          "inputs": dataset.metadata.get("files"), "versions": versions()})
-    summary = {"status": "ok", "command": "evaluate", "model": str(model), "kind": info["kind"],
-               "method": info["method"], "metrics": {k: v["value"] for k, v in metrics.items()},
-               "outdir": str(out) if out else None}
+    summary = evaluate_saved(model, dataset, cfg["metrics"]["convention"], out, force)
     if json_out:
-        _emit(summary, True)
-    else:
-        for k, v in metrics.items():
+        _emit({**summary, "metrics": {k: v["value"] for k, v in summary["metrics"].items()}}, True)
+    elif not quiet:
+        if not summary["metrics"]:
+            typer.echo(f"no metric: the data has no ground truth for this {summary['kind']} model", err=True)
+        for k, v in summary["metrics"].items():
             typer.echo(f"{k} = {v['value']:.6e}  (error {v['error']:.3e} / var of {v['normaliser_of']} "
                        f"{v['normaliser']:.3e})")
 
@@ -261,61 +257,28 @@ def predict(
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Predict on new states: projections N(x) (constraint), w and v (null-space), π (policy)."""
-    import numpy as np
-
-    from ccl_cli.io.atomic import atomic_path
-    from ccl_cli.models import load_model
-    from ccl_cli.pipeline import check_dimensions
+    from ccl_cli.evaluate import predict_saved
     from ccl_cli.runner import read_data
 
     _logging(quiet)
     cfg = _config(config, {})
-    est, info = load_model(model)
     dataset, _ = read_data(cfg, data)
-    check_dimensions(est, dataset)
-    kind = info["kind"]
-    outputs: dict[str, np.ndarray] = {"x": dataset.X, "u": dataset.U, "t": dataset.t, "demo": dataset.demo}
-    if kind == "constraint":
-        N = est.projection(dataset.X, dataset.demo)
-        outputs["N"] = N
-        outputs["w"] = np.einsum("nij,nj->ni", N, dataset.U)
-    elif kind == "nullspace":
-        outputs["w"] = est.predict(dataset.X)
-        outputs["v"] = dataset.U - outputs["w"]
-    else:
-        outputs["pi"] = est.predict(dataset.X)
-    if out.suffix.lower() == ".csv":
-        cols, names = [], []
-        for key, arr in outputs.items():
-            flat = arr.reshape(len(arr), -1)
-            cols.append(flat)
-            names += [key] if flat.shape[1] == 1 else [f"{key}_{j}" for j in range(flat.shape[1])]
-        with atomic_path(out, force=force) as tmp:
-            np.savetxt(tmp, np.hstack(cols), delimiter=",", header=",".join(names), comments="")
-    elif out.suffix.lower() in (".h5", ".hdf5"):
-        import h5py
-
-        with atomic_path(out, force=force) as tmp, h5py.File(tmp, "w") as f:
-            f.attrs["format"] = "ccl-predictions"
-            f.attrs["model"] = str(model)
-            f.attrs["method"] = info["method"]
-            for key, arr in outputs.items():
-                f.create_dataset(key, data=arr)
-    else:
-        raise InputError(f"{out}: output must end in .h5 or .csv")
-    summary = {"status": "ok", "command": "predict", "out": str(out), "samples": dataset.n_samples,
-               "outputs": sorted(outputs)}
-    _emit(summary, json_out) if json_out else typer.echo(f"wrote {out} ({dataset.n_samples} samples)",
-                                                         err=True)
+    summary = predict_saved(model, dataset, out, force)
+    if json_out:
+        _emit(summary, True)
+    elif not quiet:
+        typer.echo(f"wrote {out} ({dataset.n_samples} samples)", err=True)
 
 
 # -- data commands --------------------------------------------------------------------------
 @app.command("simulate")
 def simulate(
-    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7 or varying_constraint.")],
+    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7, varying_constraint, tracker_plane or "
+                                                "tracker_sphere.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     seed: Annotated[int, typer.Option(help="Seed.")] = 0,
-    noise: Annotated[float | None, typer.Option(help="Std of noise on u.")] = None,
+    noise: Annotated[float | None, typer.Option(help="Std of noise on u (tracker_*: on positions, m).")]
+    = None,
     snr_db: Annotated[float | None, typer.Option(help="Noise as signal-to-noise ratio in dB.")] = None,
     n_demos: Annotated[int | None, typer.Option(help="Number of demonstrations.")] = None,
     n_steps: Annotated[int | None, typer.Option(help="Steps per demonstration.")] = None,
@@ -327,6 +290,11 @@ def simulate(
                                                          help="toy2d: a constraint per demo.")] = None,
     sampling: Annotated[str | None, typer.Option(help="toy2d: trajectory or uniform.")] = None,
     n_samples: Annotated[int | None, typer.Option(help="toy2d uniform: number of states.")] = None,
+    rate: Annotated[float | None, typer.Option(help="tracker_*: sampling rate, Hz (default 50).")] = None,
+    duration: Annotated[float | None, typer.Option(help="tracker_*: seconds per recording (default 90).")]
+    = None,
+    n_recordings: Annotated[int | None, typer.Option(help="tracker_*: continuous recordings (default 1).")]
+    = None,
     test_fraction: Annotated[float, typer.Option(help="Demos marked test in /mask (0: no masks).")] = 0.0,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
@@ -342,7 +310,8 @@ def simulate(
     fn = S.PROBLEMS[problem]
     given = {"noise": noise, "snr_db": snr_db, "n_demos": n_demos, "n_steps": n_steps,
              "constraint": constraint, "policy": policy, "task": task, "vary_constraint": vary_constraint,
-             "sampling": sampling, "n_samples": n_samples}
+             "sampling": sampling, "n_samples": n_samples, "rate": rate, "duration": duration,
+             "n_recordings": n_recordings}
     accepted = pyinspect.signature(fn).parameters
     kwargs = {k: v for k, v in given.items() if v is not None}
     bad = [k for k in kwargs if k not in accepted]
@@ -363,32 +332,53 @@ def simulate(
 def inspect_cmd(
     data: Annotated[Path, typer.Argument(help="A recording (file or bag directory).")],
     config: ConfigOpt = None,
-    gap: Annotated[float | None, typer.Option(help="Report demonstrations split on gaps (seconds).")]
-    = None,
+    gap: Annotated[float | None, typer.Option(help="Pause (seconds) that splits demonstrations "
+                                              "[default: data.demos.split_on_gap, else 5 × the median "
+                                              "sampling interval].", show_default=False)] = None,
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
-    """Topics, types, counts, rates, time span and detected demonstrations of a recording."""
-    from ccl_cli.io import inspect_path
+    """Topics (type, count, rate over the active time, fields, joint names), CSV columns, time span
+    and the demonstrations a gap split finds (default gap: 5 × the median sampling interval)."""
+    from ccl_cli.inspect import inspect_recording
 
     _logging(quiet)
     cfg = _config(config, {})
-    info = inspect_path(data, cfg.get("data"), gap)
+    info = inspect_recording(data, cfg.get("data"), gap)
     if json_out:
         _emit(info, True)
         return
-    typer.echo(f"path:     {info['path']}")
-    typer.echo(f"format:   {info['format']}  ({info['size_bytes']} bytes)")
+    for line in _inspect_lines(info):
+        typer.echo(line)
+
+
+def _inspect_lines(info: dict[str, Any]) -> list[str]:
+    """``ccl inspect``'s text rendering (one function, so every format's listing shows here)."""
+    out = [f"path:     {info['path']}", f"format:   {info['format']}  ({info['size_bytes']} bytes)"]
     if "duration_s" in info:
-        typer.echo(f"duration: {info['duration_s']:.3f} s")
+        span = "summed over demonstrations" if info["format"] == "hdf5" else "first to last message"
+        out.append(f"duration: {info['duration_s']:.3f} s ({span})")
     for topic, t in (info.get("topics") or {}).items():
         rate = f"{t['rate_hz']:.1f} Hz" if t.get("rate_hz") else "-"
-        typer.echo(f"  {topic:30s} {t['type']:40s} {t['count']:>9d} msgs  {rate}")
+        out.append(f"  {topic:30s} {t['type']:36s} {t['count']:>9d} msgs  {rate:>10s}"
+                   + (f" over {t['active_s']:.2f} s active" if t.get("active_s") else ""))
+        if t.get("fields"):
+            out.append(f"  {'':30s} fields: {', '.join(t['fields'])}")
+        if t.get("joint_names"):
+            out.append(f"  {'':30s} joints: {', '.join(t['joint_names'])}")
     if "columns" in info:
-        typer.echo(f"columns:  {', '.join(info['columns'])}")
-        typer.echo(f"rows:     {info['rows']} (time column {info['time_column']})")
-    for key in ("samples", "demos", "state_names", "action_names", "truth", "masks"):
-        if key in info:
-            typer.echo(f"{key + ':':9s} {info[key]}")
+        out.append(f"columns:  {', '.join(map(str, info['columns']))}")
+        rate = f", {info['rate_hz']:.1f} Hz over {info['active_s']:.2f} s active" \
+            if info.get("rate_hz") else ""
+        out.append(f"rows:     {info['rows']} (time column {info['time_column']}{rate})")
+    for node in info.get("tree", []):  # HDF5 / .mat contents
+        out.append("  " + "  ".join(str(v) for k, v in node.items() if k != "names"))
+    if "gap_s" in info and "demos" in info:
+        out.append(f"demos:    {info['demos']} in {info.get('demos_from')} (split on pauses > "
+                   f"{info['gap_s']:.3g} s: {info.get('gap_rule')}; change with --gap)")
+    for key in ("samples", "demos", "samples_per_demo", "state_names", "action_names", "truth", "masks"):
+        if key in info and not (key == "demos" and "gap_s" in info):
+            out.append(f"{key + ':':9s} {info[key]}")
+    return out
 
 
 @app.command("convert")

@@ -19,20 +19,24 @@ from typing import Any
 import yaml
 
 from ccl_cli.errors import ConfigError
+from ccl_cli.selection import DEFAULT_RULE
 
 STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
 NUM = (int, float)
 
 BASIS = {"kind": str, "n_centres": int, "centres": (str, list), "sigma2": NUM, "seed": int}
-STREAM = {"topic": str, "field": str, "joints": list, "columns": list, "stamp": str}
+STREAM = {"topic": str, "field": str, "joints": list, "columns": list, "stamp": str,
+          "dataset": str, "variable": str, "file": str, "samples": str}
 ACTION = {**STREAM, "derive": str, "window": int, "order": int}
 
 SCHEMA: dict[str, Any] = {
     "seed": int,
     "data": {
         "files": (list, str), "format": str, "typestore": str, "state": STREAM, "action": ACTION,
-        "time": {"column": (str, int), "unit": str, "rate": NUM, "delimiter": str},
-        "demos": {"split_on_gap": NUM, "ranges": list, "per_file": bool},
+        "time": {"column": (str, int), "unit": str, "rate": NUM, "delimiter": str,
+                 "dataset": str, "variable": str, "file": str},
+        "demos": {"split_on_gap": NUM, "ranges": list, "window": NUM, "per_file": bool,
+                  "group": str, "dataset": str, "variable": str},
         "nonfinite": str, "min_samples": int,
         "test": {"fraction": NUM, "seed": int, "use_masks": bool},
     },
@@ -59,7 +63,7 @@ DEFAULTS: dict[str, Any] = {
     "data": {"format": "auto", "nonfinite": "drop", "test": {"fraction": 0.3, "seed": 0,
                                                              "use_masks": True}},
     "learn-v": {"basis": "rbf", "n_centres": 16},
-    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": "eigengap"},
+    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": DEFAULT_RULE},
     "learn-pi": {"method": "pi", "on": "auto", "basis": "rbf", "n_centres": 16,
                  "projections": "auto", "baseline": True},
     "metrics": {"convention": "ccl"},
@@ -69,7 +73,7 @@ DEFAULTS: dict[str, Any] = {
 CHOICES = {
     ("learn-a", "method"): ("nhat", "alpha", "lambda", "linear"),
     ("learn-a", "on"): ("auto", "u", "w"),
-    ("learn-a", "selection"): ("threshold", "eigengap", "cv"),
+    ("learn-a", "selection"): ("ratio", "threshold", "eigengap", "cv"),
     ("learn-a", "variant"): ("closed_form", "search"),
     ("learn-a", "whiten"): ("rms", "errors", "none"),
     ("learn-pi", "method"): ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"),
@@ -77,7 +81,7 @@ CHOICES = {
     ("learn-pi", "projections"): ("auto", "learnt", "true"),
     ("metrics", "convention"): ("ccl", "original"),
     ("evaluate", "convention"): ("ccl", "original"),
-    ("data", "format"): ("auto", "hdf5", "csv", "bag", "mcap"),
+    ("data", "format"): ("auto", "hdf5", "csv", "bag", "mcap", "mat"),
     ("data", "nonfinite"): ("drop", "fail"),
 }
 

@@ -15,7 +15,8 @@ from ccl_cli.errors import ConfigError
 
 def read_data(cfg: Config, files: list[Path] | list[str] | None):
     """The dataset and its train/test masks (canonical HDF5 may carry them)."""
-    from ccl_cli.io import detect_format, expand_files, file_hash, load_demonstrations
+    from ccl_cli.io import expand_files, file_hash, is_canonical_input, load_demonstrations
+    from ccl_cli.io.assemble import resegment
     from ccl_cli.io.hdf5 import read_demonstrations
 
     data_cfg = dict(cfg.get("data") or {})
@@ -23,11 +24,12 @@ def read_data(cfg: Config, files: list[Path] | list[str] | None):
     if not entries:
         raise ConfigError("no input data: give files on the command line or data.files in the config")
     paths = expand_files(entries, None if files else cfg.base)
-    if len(paths) == 1 and detect_format(paths[0]) == "hdf5":
+    if len(paths) == 1 and is_canonical_input(paths[0], data_cfg):
         data, info = read_demonstrations(paths[0])
+        data, masks = resegment(data, data_cfg.get("demos"), str(paths[0]), info["masks"])
         data.metadata = {"files": [{"path": str(paths[0]), "sha256": file_hash(paths[0]), "format": "hdf5"}],
                          "time_origin_ns": info["time_origin_ns"], "provenance": info["provenance"]}
-        return data, info["masks"]
+        return data, masks
     data_cfg.pop("test", None)
     data_cfg.pop("files", None)
     return load_demonstrations(data_cfg, files=[str(p) for p in paths]), None
@@ -89,8 +91,14 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
 
 
 def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
-    """metrics.json → {stage: {method, n_constraints, train: {name: value}, test: {...}}}."""
-    return {name: {**{k: v for k, v in e.items() if k in ("method", "n_constraints")},
-                   **{split: {m: v["value"] for m, v in e.get(split, {}).items()}
-                      for split in ("train", "test") if split in e}}
-            for name, e in metrics.items()}
+    """metrics.json → {stage: {method, n_constraints, train: {name: value}, test: {...},
+    baseline: {method, train, test}}} (the baseline only where a stage has one)."""
+    def one(e: dict[str, Any]) -> dict[str, Any]:
+        out = {k: v for k, v in e.items() if k in ("method", "n_constraints")}
+        out.update({split: {m: v["value"] for m, v in e.get(split, {}).items()}
+                    for split in ("train", "test") if split in e})
+        if isinstance(e.get("baseline"), dict):
+            out["baseline"] = one(e["baseline"])
+        return out
+
+    return {name: one(e) for name, e in metrics.items()}

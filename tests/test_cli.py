@@ -46,7 +46,7 @@ def test_pipeline_toy2d_learn_v(tmp_path):
     out = tmp_path / "v"
     assert {p.name for p in out.iterdir()} >= {"model.h5", "metrics.json", "report.md", "run.json",
                                                "config.yaml", "plots"}
-    assert (out / "plots" / "learn-v.png").stat().st_size > 1000
+    assert (out / "plots" / "learn-v-field.png").stat().st_size > 1000
     assert "![learn-v" in (out / "report.md").read_text()
     run = json.loads((out / "run.json").read_text())
     assert run["inputs"] and all(len(h) == 64 for h in run["inputs"].values())
@@ -80,9 +80,11 @@ def test_pipeline_learn_pi_coupled_to_learnt_constraints(capsys, tmp_path):
     code, out, err = run_main(capsys, "run", CONFIGS / "toy2d_learn_pi.yaml", "-o", tmp_path / "pi", "--json",
                               "-q")
     assert code == 0, err
-    pi = json.loads(out)["stages"]["learn-pi"]["test"]
+    stage = json.loads(out)["stages"]["learn-pi"]
+    pi = stage["test"]
     assert pi["NUPE"] < 0.05
-    assert pi["NUPE_dpl"] > 0.3  # the biased baseline, reported next to it
+    assert stage["baseline"]["method"] == "dpl"
+    assert stage["baseline"]["test"]["NUPE"] > 0.3  # the biased baseline, reported next to it
 
 
 # -- single commands, saved models ----------------------------------------------------------
@@ -127,10 +129,10 @@ def test_every_model_kind_reloads_bit_identically(tmp_path, kind):
     else:
         d = sim.toy2d(n_demos=10, vary_constraint=True)
     model = {"alpha": lambda: StateDependentConstraint(n_restarts=1),
-             "lambda": lambda: KnownFeatureConstraint("arm2", n_restarts=1),
+             "lambda": lambda: KnownFeatureConstraint(features="arm2", n_restarts=1),
              "linear": lambda: LinearConstraint(regressors="rbf", n_centres=4),
              "ncl": lambda: NullSpaceComponent(n_centres=9),
-             "policy": lambda: PolicyLearner("pi-weighted", n_centres=9),
+             "policy": lambda: PolicyLearner(method="pi-weighted", n_centres=9),
              "per_demo": lambda: PerDemonstration(LinearConstraint(regressors="identity"))}[kind]()
     model.fit(d.X, d.U, d.demo) if kind == "per_demo" else model.fit(d.X, d.U)
     path = save_model(tmp_path / "m.h5", model)
@@ -157,7 +159,8 @@ def test_convert_then_learn_from_bag_and_inspect(tmp_path):
     assert info["demos"] == 4 and info["samples"] == 1200
     bag = json.loads(ccl("inspect", SAMPLES / "kuka_wipe.bag", "--json").stdout)
     assert bag["topics"]["/joint_states"]["count"] == 1200
-    assert bag["topics"]["/joint_states"]["rate_hz"] == pytest.approx(1199 / bag["duration_s"])
+    assert bag["topics"]["/joint_states"]["rate_hz"] == pytest.approx(100.0)  # over the active time
+    assert bag["demos"] == 4  # the shipped config's split, found without --gap
     text = ccl("inspect", SAMPLES / "trakstar_plane.csv").stdout
     assert "x.1" in text and "rows:" in text
 
@@ -286,3 +289,26 @@ def test_evaluate_stage_applies_its_convention(capsys, tmp_path):
     assert original["error"] == pytest.approx(ours["error"])
     n = 500  # training samples: NPE's original normaliser uses ddof = 0
     assert original["normaliser"] == pytest.approx(ours["normaliser"] * (n - 1) / n)
+
+
+# -- inspect: rates over the active time, joint names, demonstrations ---------------------------
+@pytest.mark.parametrize("writer", ["ros2", "mcap"])
+def test_inspect_rate_over_active_time_joints_and_default_demos(capsys, tmp_path, writer):
+    from tests.writers import JOINTS, joint_recording, write_mcap_ros2, write_ros2_bag
+
+    rec = joint_recording(n=1001, rate=500.0, gap_after=400, gap_s=1.5)  # 500 Hz, one 1.5 s pause
+    path = write_ros2_bag(tmp_path / "b", rec) if writer == "ros2" else \
+        write_mcap_ros2(tmp_path / "r.mcap", rec)
+    code, out, err = run_main(capsys, "inspect", path, "--json")
+    assert code == 0, err
+    info = json.loads(out)
+    topic = info["topics"]["/joint_states"]
+    assert topic["count"] == 1001
+    assert topic["rate_hz"] == pytest.approx(500.0, rel=1e-3)  # not 1000 / 3.5 s = 286 Hz
+    assert topic["joint_names"] == JOINTS
+    assert {"name", "position", "velocity"} <= set(topic["fields"])
+    assert info["demos"] == 2  # found with the default gap, no --gap and no -c
+    code, out, _ = run_main(capsys, "inspect", path, "--json", "--gap", "2.0")  # --gap without -c
+    assert json.loads(out)["demos"] == 1
+    code, out, _ = run_main(capsys, "inspect", path)
+    assert "500.0 Hz" in out and "joints:" in out and "demos:    2" in out

@@ -201,6 +201,7 @@ def test_libhdf5_hang_is_bounded(fixtures, tmp_path, monkeypatch):
             pass
 
     monkeypatch.setattr(h5safe, "_probe_child", sleeps)
+    monkeypatch.setattr(h5safe.threading, "active_count", lambda: 1)  # fork even if a test left threads
     t0 = time.perf_counter()
     with pytest.raises(h5safe.InputError, match="did not finish parsing the file within 0.5 s"):
         h5safe.open_hdf5(edited, timeout=0.5)
@@ -215,6 +216,7 @@ def test_libhdf5_crash_is_contained(fixtures, tmp_path, monkeypatch):
     with h5py.File(edited, "a") as f:
         f.attrs["frame_id"] = "edited"
     monkeypatch.setattr(h5safe, "_probe_child", lambda path, cpu_limit: os.kill(os.getpid(), 11))
+    monkeypatch.setattr(h5safe.threading, "active_count", lambda: 1)
     with pytest.raises(h5safe.InputError, match="crashed parsing the file"):
         h5safe.open_hdf5(edited)
 

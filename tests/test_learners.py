@@ -25,7 +25,8 @@ def test_nhat_closed_form_recovers_7dof_rank2_constraint():
     for seed in range(20):
         data = sim.arm7(rows=(0, 1), seed=seed)
         train, test = data.split(0.3, seed)
-        model = StateIndependentConstraint(selection="eigengap").fit(train.X, train.U)
+        model = StateIndependentConstraint().fit(train.X, train.U)  # the default rule
+        assert model.selection_["rule"] == "ratio"
         right += model.n_constraints_ == 2
         if model.n_constraints_ == 2:
             err = nppe(test.true_projection(), model.projection(test.X), test.truth["pi"], test.U)
@@ -35,9 +36,10 @@ def test_nhat_closed_form_recovers_7dof_rank2_constraint():
 
 def test_nhat_threshold_rule_is_the_original_and_fixed_count_is_honoured():
     data = sim.arm7(rows=(0, 1), seed=0)
-    model = StateIndependentConstraint().fit(data.X, data.U)
+    model = StateIndependentConstraint(selection="threshold").fit(data.X, data.U)
     assert model.selection_["rule"] == "threshold"
     assert len(model.selection_["values"]) == 6
+    assert model.n_constraints_ == 3  # the original rule is wrong here (the reason for the default)
     fixed = StateIndependentConstraint(n_constraints=2).fit(data.X, data.U)
     assert fixed.n_constraints_ == 2 and fixed.selection_["rule"] == "fixed"
 
@@ -162,7 +164,7 @@ def test_ncl_recovers_null_space_component():
     train, test = data.subset(np.arange(500)), data.subset(np.arange(500, 1000))
     model = NullSpaceComponent(n_centres=16).fit(train.X, train.U)
     ours = nupe(test.truth["w"], model.predict(test.X))
-    direct = PolicyLearner("dpl", n_centres=16).fit(train.X, train.U)
+    direct = PolicyLearner(method="dpl", n_centres=16).fit(train.X, train.U)
     baseline = nupe(test.truth["w"], direct.predict(test.X))
     assert ours.value < 1e-3
     assert baseline.value > 100 * ours.value
@@ -182,9 +184,9 @@ def test_pi_noise_free_is_exact_when_the_policy_is_in_the_basis():
     data = sim.toy2d(constraint="fixed", policy="linear", vary_constraint=True, noise=0.0)
     train, test = data.split(0.3, 0)
     for method in ("pi", "pi-weighted"):
-        model = PolicyLearner(method, basis="linear").fit(train.X, train.U)
+        model = PolicyLearner(method=method, basis="linear").fit(train.X, train.U)
         assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
-    model = PolicyLearner("pi-coupled", basis="linear").fit(train.X, train.U,
+    model = PolicyLearner(method="pi-coupled", basis="linear").fit(train.X, train.U,
                                                             train.true_projection())
     assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
 
@@ -193,7 +195,7 @@ def test_pi_variants_under_noise():
     train, test = policy_data(0.01)
     err = {}
     for method in ("pi", "pi-weighted", "pi-coupled", "dpl"):
-        model = PolicyLearner(method, basis=GRID).fit(train.X, train.U, train.true_projection())
+        model = PolicyLearner(method=method, basis=GRID).fit(train.X, train.U, train.true_projection())
         err[method] = nupe(test.truth["pi"], model.predict(test.X)).value
     assert err["pi-weighted"] * 5 < err["pi"]
     assert err["pi-coupled"] < err["pi-weighted"]
@@ -203,7 +205,7 @@ def test_pi_variants_under_noise():
 def test_lwpi_learns_a_linear_policy_locally():
     data = sim.toy2d(constraint="fixed", policy="linear", vary_constraint=True, noise=0.0)
     train, test = data.split(0.3, 0)
-    model = PolicyLearner("lwpi", n_centres=9).fit(train.X, train.U)
+    model = PolicyLearner(method="lwpi", n_centres=9).fit(train.X, train.U)
     assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
 
 
@@ -215,7 +217,7 @@ def models_for_property_tests(seed):
         (StateDependentConstraint(n_restarts=1).fit(data.X, data.U), data),
         (LinearConstraint().fit(data.X, data.U), data),
         (LinearConstraint(regressors="rbf", basis=RBFBasis(9)).fit(data.X, data.U), data),
-        (KnownFeatureConstraint("arm2", n_restarts=1).fit(arm.X, arm.U), arm),
+        (KnownFeatureConstraint(features="arm2", n_restarts=1).fit(arm.X, arm.U), arm),
     ]
 
 
@@ -228,3 +230,51 @@ def test_projections_are_symmetric_and_idempotent(seed):
         np.testing.assert_allclose(P @ P, P, atol=1e-8)
         A = model.constraint(data.X)
         np.testing.assert_allclose(np.einsum("nkq,nqj->nkj", A, P), 0.0, atol=1e-8)
+
+
+# -- the estimator base shared by every learner ---------------------------------------------
+LEARNERS = [
+    lambda: StateIndependentConstraint(),
+    lambda: StateDependentConstraint(n_centres=4, n_restarts=1),
+    lambda: KnownFeatureConstraint(features="arm2", n_centres=4, n_restarts=1),
+    lambda: LinearConstraint(),
+    lambda: PerDemonstration(LinearConstraint(regressors="identity")),
+    lambda: NullSpaceComponent(n_centres=4),
+    lambda: PolicyLearner(method="pi-weighted", n_centres=4),
+]
+
+
+@pytest.mark.parametrize("make", LEARNERS)
+def test_estimator_base_params_clone_and_not_fitted(make):
+    from ccl_cli.errors import LearningError
+    from ccl_cli.estimator import NotFittedError, clone
+
+    model = make()
+    params = model.get_params(deep=False)
+    assert params and all(hasattr(model, k) for k in params)
+    twin = clone(model)
+    assert twin is not model and twin.get_params(deep=False).keys() == params.keys()
+    assert repr(twin) == repr(model)
+    arm = sim.two_link(seed=1, n_demos=6, n_steps=10)
+    predict = getattr(model, "projection", None) or model.predict
+    with pytest.raises(NotFittedError) as err:
+        predict(arm.X)
+    assert isinstance(err.value, LearningError) and "fit" in err.value.message
+    model.fit(arm.X, arm.U, arm.demo) if isinstance(model, PerDemonstration) else model.fit(arm.X, arm.U)
+    assert model.n_features_in_ == 2
+    out = model.projection(arm.X, arm.demo) if hasattr(model, "projection") else model.predict(arm.X)
+    assert np.isfinite(out).all()
+    fresh = clone(model)  # a clone is unfitted even when the original is fitted
+    assert not hasattr(fresh, "n_features_in_")
+    with pytest.raises(ValueError, match="no parameter"):
+        fresh.set_params(no_such_thing=1)
+
+
+def test_set_params_nested_and_keyword_only():
+    model = PerDemonstration(StateIndependentConstraint())
+    model.set_params(estimator__n_constraints=2)
+    assert model.estimator.n_constraints == 2
+    assert model.get_params()["estimator__n_constraints"] == 2
+    assert PolicyLearner().set_params(n_centres=9).n_centres == 9
+    with pytest.raises(TypeError):
+        PolicyLearner("pi")  # the parameters are keyword-only

@@ -13,6 +13,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ccl_cli.basis import Basis, make_basis
+from ccl_cli.constraint import selection as sel
 from ccl_cli.constraint.alpha import AngularConstraintMixin
 from ccl_cli.constraint.angular import rows_from_weights
 from ccl_cli.constraint.base import ConstraintModel, check_xu
@@ -53,10 +54,11 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
 
     def __init__(
         self,
+        *,
         features: str | dict | Features = "arm2",
         basis: str | dict | Basis | None = "rbf",
         n_centres: int = 16,
-        selection: str = "threshold",
+        selection: str = sel.DEFAULT_RULE,
         n_constraints: int | None = None,
         max_constraints: int | None = None,
         n_restarts: int = 3,
@@ -82,6 +84,7 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
             ) -> KnownFeatureConstraint:
         X, U = check_xu(X, U)
+        self._set_n_features(X)
         self.features_ = make_features(self.features)
         Phi = self.features_(X)
         if Phi.ndim != 3 or Phi.shape[0] != X.shape[0] or Phi.shape[2] != U.shape[1]:
@@ -91,24 +94,29 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
         self.n_dropped_ = int((~keep).sum())
         if keep.sum() < 2:
             raise LearningError(f"only {int(keep.sum())} samples have ‖Φu‖ ≥ {MIN_TASK_NORM}")
+        X_all = X
+        demo_all = np.zeros(len(X), int) if demo is None else np.asarray(demo)
         X, V = X[keep], V[keep]
-        demo = np.zeros(len(X), int) if demo is None else np.asarray(demo)[keep]
+        demo = demo_all[keep]
         self.n_action_ = U.shape[1]
         self.n_task_ = V.shape[1]
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
         B = self.basis_.transform(X)
-        self._X = X
-        self._learn_rows(B, V, X, demo, lambda m: (B[m], V[m], X[m]))
-        del self._X
+        self._X, self._U, self._demo = X_all, U, demo_all
+        self._learn_rows(B, V, X, demo)
+        del self._X, self._U, self._demo
         return self
 
-    def _projection_from(self, mask: np.ndarray, weights: list[np.ndarray]) -> np.ndarray:
-        X = self._X[mask]
-        lam = rows_from_weights(self.basis_.transform(X), weights, self.n_task_)
+    def projection_k(self, X: np.ndarray, k: int) -> np.ndarray:
+        """Ñ(X) of the first ``k`` learnt rows (the rows are nested): (N, p) → (N, q, q)."""
+        self._check_fitted("weights_")
+        X = np.asarray(X, dtype=float)
+        lam = rows_from_weights(self.basis_.transform(X), self.weights_[:k], self.n_task_)
         return nullspace_projection(np.einsum("nkr,nrq->nkq", lam, self.features_(X)))
 
     def selection_matrix(self, X: np.ndarray) -> np.ndarray:
         """Λ̃(X): (N, s, r)."""
+        self._check_fitted("weights_")
         return rows_from_weights(self.basis_.transform(X), self.weights_, self.n_task_)
 
     def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
