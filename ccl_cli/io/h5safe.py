@@ -257,7 +257,7 @@ def check_tree(f, where: str) -> None:
                 problem.append(f"/{name} is a virtual dataset (its data lives in other files); "
                                "ccl reads nothing outside the file")
             elif dcpl.get_external_count() > 0:
-                problem.append(f"/{name} stores its data in external file(s); ccl reads nothing outside "
+                problem.append(f"/{name} stores its data in external files; ccl reads nothing outside "
                                "the file")
         return 1 if problem else None  # a non-None value stops the visit
 

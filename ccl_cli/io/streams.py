@@ -8,6 +8,7 @@ A :class:`Stream` is one selection from one file (a topic's field, or CSV column
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib
 from collections.abc import Callable, Iterable, Iterator
@@ -457,6 +458,20 @@ def library_iter(where: str, what: str, iterable: Iterable[Any]) -> Iterator[Any
                 raise
             raise InputError(f"{where}: cannot {what} ({type(exc).__name__}: {_first_line(exc)})") from None
         yield item
+
+
+@contextlib.contextmanager
+def decoding(where: str, topics) -> Iterator[None]:
+    """Exceptions of the reader libraries' own classes (not built-in ones, which our code
+    raises too) raised inside the block → one InputError line. Prefer
+    :func:`library_call` / :func:`library_iter`, which also cover built-in types."""
+    try:
+        yield
+    except Exception as exc:  # filtered to the libraries' own classes below
+        if type(exc).__module__.split(".")[0] not in LIBRARY_PACKAGES:
+            raise
+        raise InputError(f"{where}: cannot decode {', '.join(topics)} ({type(exc).__name__}: "
+                         f"{_first_line(exc)})") from None
 
 
 def _first_line(exc: BaseException) -> str:
