@@ -215,7 +215,7 @@ def time_figure(plt, title: str, part: str, d: Demonstrations, lines: dict[str, 
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", ncol=len(lines), fontsize=8,
                frameon=False)
     h = fig.get_figheight()
-    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.75 / h, bottom=1.0 / h, hspace=0.15, wspace=0.18)
+    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.95 / h, bottom=1.0 / h, hspace=0.15, wspace=0.18)
     return fig
 
 
@@ -248,8 +248,9 @@ def selection_figure(plt, selection: dict[str, Any], q: int):
             ax.legend(loc="upper left", bbox_to_anchor=(0, -0.22), fontsize=8, frameon=False)
         ax.set_xticks(k)
         ax.set_xlabel("candidate number of constraints k")
-        meaning = {"cv": "cross-validated NPOE", "eigengap": "residual of candidate k",
-                   "threshold": "residual of candidate k"}.get(str(selection.get("rule")), key)
+        meaning = selection.get("criterion") or {
+            "cv": "cross-validated NPOE", "eigengap": "residual of candidate k",
+            "threshold": "residual of candidate k"}.get(str(selection.get("rule")), key)
         ax.set_ylabel(f"{meaning if key == 'values' else key} (log)")
     fig.suptitle(f"How the number of constraints was chosen: rule {selection.get('rule')}\n"
                  f"{selection.get('reason', '')}", fontsize=9)
