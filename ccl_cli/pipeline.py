@@ -217,13 +217,13 @@ class Pipeline:
         on = opts.get("on", "auto")
         kw = _kwargs(opts, ("basis", "n_centres", "cutoff", "min_norm", "tune"))
         model = PolicyLearner(method=opts.get("method", "pi"), seed=self.seed, **kw)
-        model.fit(tr.X, self._target(on, "train", tr), self._projections(opts, "train", tr))
+        model.fit(tr.X, self._target(on, "train", tr), self._projections(opts, "train", tr), demo=tr.demo)
         result = StageResult("learn-pi", model.method, model, info={"n_used": model.n_used_})
         if getattr(model, "tuning_", None):
             result.info["tuning"] = model.tuning_
         if opts.get("baseline", True) and model.method != "dpl":
             result.baseline = PolicyLearner(method="dpl", seed=self.seed, **kw).fit(
-                tr.X, self._target(on, "train", tr))
+                tr.X, self._target(on, "train", tr), demo=tr.demo)
         for part, d in self.parts():
             est = model.predict(d.X)
             metrics = policy_metrics(est, d)

@@ -72,13 +72,14 @@ class PolicyLearner(Estimator):
                                         self.seed)}
         return {"basis": basis_grid(X, (self.n_centres, 16, 49, 100), (1.0, 0.5, 0.25), self.seed)}
 
-    def fit(self, X: np.ndarray, U: np.ndarray, projections: np.ndarray | None = None
-            ) -> PolicyLearner:
+    def fit(self, X: np.ndarray, U: np.ndarray, projections: np.ndarray | None = None,
+            demo: np.ndarray | None = None) -> PolicyLearner:
         """Fit on states X (N, p), actions U (N, q); ``pi-coupled`` needs ``projections``
-        Ñ_n (N, q, q) (true, or from a learnt constraint model)."""
+        Ñ_n (N, q, q) (true, or from a learnt constraint model). ``demo`` (N,) ids are
+        only used to cross-validate by demonstration when tuning."""
         X, U = check_xu(X, U)
         self._set_n_features(X)
-        if self._fit_tuned(X, U, projections=projections):
+        if self._fit_tuned(X, U, projections=projections, demo=demo):
             return self
         if self.method not in METHODS:
             raise ConfigError(f"unknown policy method {self.method!r} (use {', '.join(METHODS)})")
