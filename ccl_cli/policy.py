@@ -4,7 +4,8 @@ All learners minimise a least-squares criterion that is linear in the weights, s
 each is solved in closed form (batched over samples, no iteration):
 
 * ``pi`` — inconsistency error Σ_n (û_nᵀ π̃(x_n) − ‖u_n‖)², π̃(x) = Wᵀβ(x)
-  (Howard et al. 2009); rows kron(β_n, û_n), eigen pseudo-inverse, cut-off 1e-6.
+  (Howard et al. 2009); rows kron(β_n, û_n), eigen pseudo-inverse (cut-off 1e-6 relative to
+  the largest eigenvalue; the original library's is absolute: ``cutoff_rule="absolute"``).
 * ``pi-weighted`` — the same residual times ‖u_n‖: u_nᵀ π̃(x_n) = ‖u_n‖², so samples
   at the noise level (random û) no longer get full weight.
 * ``pi-coupled`` — with projections Ñ_n (true or learnt): u_n ≈ Ñ_n Wᵀ β(x_n), rows
@@ -36,7 +37,12 @@ class PolicyLearner(Estimator):
     Args:
         method: ``pi`` (default), ``pi-weighted``, ``pi-coupled``, ``lwpi``, ``dpl``.
         basis, n_centres, seed: feature map (``lwpi`` needs an RBF basis).
-        cutoff: relative eigenvalue cut-off of the pseudo-inverse (original: 1e-6).
+        cutoff: eigenvalue cut-off of the pseudo-inverse: eigenvalues of the normal matrix
+            below ``cutoff · λ_max`` are dropped (``cutoff_rule="relative"``, the default).
+        cutoff_rule: ``relative`` or ``absolute`` — eigenvalues below ``cutoff`` itself are
+            dropped: the original library's rule (absolute 1e-6). They are not the same rule:
+            with the tutorial settings ``absolute`` reproduces the original's numbers (README
+            "Reproducing the original library").
         min_norm: samples with ‖u‖ below this are dropped (not for ``dpl``/``pi-coupled``).
         tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
             default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
@@ -55,6 +61,7 @@ class PolicyLearner(Estimator):
         cutoff: float = 1e-6,
         min_norm: float = 1e-6,
         tune: bool | dict = TUNE,
+        cutoff_rule: str = "relative",
     ) -> None:
         self.method = method
         self.basis = basis
@@ -63,6 +70,7 @@ class PolicyLearner(Estimator):
         self.cutoff = cutoff
         self.min_norm = min_norm
         self.tune = tune
+        self.cutoff_rule = cutoff_rule
 
     def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
         if not rbf_tunable(self.basis):
@@ -81,6 +89,9 @@ class PolicyLearner(Estimator):
         self._set_n_features(X)
         if self._fit_tuned(X, U, projections=projections, demo=demo):
             return self
+        if self.cutoff_rule not in ("relative", "absolute"):
+            raise ConfigError(f"unknown cutoff_rule {self.cutoff_rule!r} (use relative or absolute)")
+        absolute = self.cutoff_rule == "absolute"
         if self.method not in METHODS:
             raise ConfigError(f"unknown policy method {self.method!r} (use {', '.join(METHODS)})")
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
@@ -96,12 +107,12 @@ class PolicyLearner(Estimator):
         q = self.n_action_
         K = B.shape[1]
         if self.method == "dpl":
-            self.W_ = eigen_lstsq(B.T @ B, (B.T @ U).T, self.cutoff).T
+            self.W_ = eigen_lstsq(B.T @ B, (B.T @ U).T, self.cutoff, absolute).T
         elif self.method in ("pi", "pi-weighted"):
             direction = U / norm[:, None] if self.method == "pi" else U
             target = norm if self.method == "pi" else norm**2
             R = (B[:, :, None] * direction[:, None, :]).reshape(len(X), K * q)
-            self.W_ = eigen_lstsq(R.T @ R, R.T @ target, self.cutoff).reshape(K, q)
+            self.W_ = eigen_lstsq(R.T @ R, R.T @ target, self.cutoff, absolute).reshape(K, q)
         elif self.method == "pi-coupled":
             if projections is None:
                 raise InputError("pi-coupled needs the projections Ñ_n (true or learnt)")
@@ -117,7 +128,7 @@ class PolicyLearner(Estimator):
                     M[:, i, :, j] = (B * G[:, i, j, None]).T @ B
             M = M.reshape(K * q, K * q)
             r = np.einsum("nk,nai,na->ki", B, P, U).reshape(K * q)
-            self.W_ = eigen_lstsq(M, r, self.cutoff).reshape(K, q)
+            self.W_ = eigen_lstsq(M, r, self.cutoff, absolute).reshape(K, q)
         else:  # lwpi
             if not isinstance(self.basis_, RBFBasis):
                 raise ConfigError("lwpi needs an RBF basis (its centres weight the local models)")
@@ -126,7 +137,7 @@ class PolicyLearner(Estimator):
             R = (phi[:, :, None] * (U / norm[:, None])[:, None, :]).reshape(len(X), d * q)
             M = np.einsum("nc,ni,nj->cij", B, R, R)
             r = np.einsum("nc,ni,n->ci", B, R, norm)
-            self.W_ = eigen_lstsq(M, r, self.cutoff).reshape(K, d, q)
+            self.W_ = eigen_lstsq(M, r, self.cutoff, absolute).reshape(K, d, q)
         return self
 
     def predict(self, X: np.ndarray) -> np.ndarray:

@@ -320,7 +320,7 @@ def tune(
     last, last_size = 0.0, 1
     for params in combos:
         size = _size(params)
-        if rows and time.perf_counter() - t0 + last * max(1.0, size / last_size) ** 1.5 > budget:
+        if rows and time.perf_counter() - t0 + last * max(1.0, size / last_size) ** 2 > budget:
             skipped += 1
             continue
         est = clone(estimator).set_params(**params)
