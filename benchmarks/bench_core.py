@@ -1,7 +1,19 @@
-"""Speed/accuracy benchmark of the learning core. One JSON object per line:
-{"stage", "problem", "N", "q", "seconds", "metric", "value"}.
+"""Scaling benchmark of the learning core (issue 10). One JSON object per line:
 
-Run:  python benchmarks/bench_core.py   (single-threaded BLAS is forced for "one core")
+    {"learner", "problem", "N", "K", "seconds", "peak_mb", "mem_ratio", "test_error",
+     "metric", "floor_seconds", "floor_ratio"}
+
+* ``seconds`` — wall time of ``fit`` (one run, tracemalloc on);
+* ``peak_mb`` / ``mem_ratio`` — peak traced memory of ``fit`` and its ratio to the input
+  arrays (X, U and, for pi-coupled, the projections);
+* ``test_error`` — on 10,000 held-out samples from the same simulator (another seed);
+* ``floor_seconds`` / ``floor_ratio`` — the one-pass floor: the time, in the same process
+  and under the same conditions, of forming that learner's normal equations once
+  (features of every sample and the Gram matrix of its regressor rows, in 8192-row chunks),
+  and fit seconds divided by it.
+
+Run:  python benchmarks/bench_core.py [--quick] [--only NAME[,NAME]] [--sizes 1e4,1e5]
+(single-threaded BLAS is forced, as on one core of the 2-core VM).
 """
 
 from __future__ import annotations
@@ -12,9 +24,12 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
+import argparse  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+import tracemalloc  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -25,95 +40,173 @@ from ccl_cli.constraint import (  # noqa: E402
     StateDependentConstraint,
     StateIndependentConstraint,
 )
-from ccl_cli.linalg import unit_rows  # noqa: E402
 from ccl_cli.metrics import nppe, nupe  # noqa: E402
 from ccl_cli.nullspace import NullSpaceComponent  # noqa: E402
 from ccl_cli.policy import PolicyLearner  # noqa: E402
 
-
-def emit(stage: str, problem: str, n: int, q: int, seconds: float, metric: str, value: float) -> None:
-    print(json.dumps({"stage": stage, "problem": problem, "N": n, "q": q,
-                      "seconds": round(seconds, 4), "metric": metric, "value": value}), flush=True)
-
-
-def timed(fn, repeats: int = 3):
-    best, out = np.inf, None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
+CHUNK = 8192
+N_TEST = 10_000
+POLICY_K = 100
+POLICY_BASIS = {"kind": "rbf", "n_centres": POLICY_K, "centres": "grid", "sigma2": 0.5}
+LINEAR_IN_PARAMETERS = ("nhat", "linear", "pi", "pi-weighted", "pi-coupled", "lwpi", "dpl")
 
 
-def bench_nhat(n: int = 1_000_000, q: int = 7) -> None:
-    rng = np.random.default_rng(0)
-    A = np.linalg.qr(rng.normal(size=(q, 2)))[0].T  # 2 orthonormal rows
-    pi = rng.normal(size=(n, q))
-    U = pi - (pi @ A.T) @ A + rng.normal(scale=0.01, size=(n, q))
-    seconds, model = timed(lambda: StateIndependentConstraint(selection="eigengap").fit(None, U))
-    N_true = np.eye(q) - A.T @ A
-    err = nppe(N_true, model.projection(np.zeros((1, 1)))[0], pi[:10000], U[:10000]).value
-    emit("learn-a/nhat", "random rank-2", n, q, seconds, "NPPE", err)
+def emit(**row) -> None:
+    print(json.dumps(row), flush=True)
 
 
-def bench_alpha() -> None:
-    vals, secs = [], []
-    for seed in range(5):
-        data = sim.toy2d(constraint="parabola", seed=seed)
-        train, test = data.split(0.3, seed)
-        s, model = timed(lambda tr=train: StateDependentConstraint().fit(tr.X, tr.U), repeats=1)
-        secs.append(s)
-        vals.append(nppe(test.true_projection(), model.projection(test.X), test.truth["pi"], test.U).value)
-    emit("learn-a/alpha", "toy2d parabola 50x20 (median of 5 seeds)", train.n_samples, 2,
-         float(np.median(secs)), "test NPPE", float(np.median(vals)))
+def traced(fn: Callable[[], object]) -> tuple[float, float, object]:
+    """(seconds, peak traced bytes, result) of one call."""
+    tracemalloc.start()
+    tracemalloc.reset_peak()
+    t = time.perf_counter()
+    out = fn()
+    seconds = time.perf_counter() - t
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return seconds, float(peak), out
 
 
-def bench_lambda() -> None:
-    data = sim.two_link(seed=0)
-    train, test = data.split(0.3, 0)
-    s, model = timed(lambda: KnownFeatureConstraint(features="arm2").fit(train.X, train.U), repeats=1)
-    emit("learn-a/lambda", "two_link 40x40", train.n_samples, 2, s, "test NPPE",
-         nppe(test.true_projection(), model.projection(test.X), test.truth["pi"], test.U).value)
+def gram_floor(rows: Callable[[slice], np.ndarray], n: int) -> float:
+    """Seconds to form Σ_n h_n h_nᵀ once, rows h built chunk by chunk by ``rows(slice)``."""
+    t = time.perf_counter()
+    G = None
+    for start in range(0, n, CHUNK):
+        H = rows(slice(start, min(start + CHUNK, n)))
+        G = H.T @ H if G is None else G + H.T @ H
+    return time.perf_counter() - t
 
 
-def bench_linear() -> None:
-    data = sim.toy2d(constraint="parabola", seed=0)
-    train, test = data.split(0.3, 0)
-    s, model = timed(lambda: LinearConstraint().fit(train.X, train.U))
-    emit("learn-a/linear", "toy2d parabola, polynomial degree 1", train.n_samples, 2, s, "test NPPE",
-         nppe(test.true_projection(), model.projection(test.X), test.truth["pi"], test.U).value)
+def kron_rows(B: np.ndarray, m: int) -> np.ndarray:
+    """Jacobian-shaped rows g ⊗ β with g = 1: (c, K) → (c, m K)."""
+    return np.repeat(B[:, None, :], m, axis=1).reshape(len(B), -1)
 
 
-def bench_ncl(n: int = 10_000, k: int = 100) -> None:
-    rng = np.random.default_rng(0)
-    a = unit_rows(rng.normal(size=(1, 2)))[0]
-    X = rng.uniform(-1, 1, (n, 2))
-    w = (-0.5 * X) - np.outer((-0.5 * X) @ a, a)
-    v = np.outer(rng.uniform(-1, 1, n), a)
-    U = v + w + rng.normal(scale=0.01, size=X.shape)
-    s, model = timed(lambda: NullSpaceComponent(n_centres=k).fit(X, U), repeats=1)
-    emit("learn-v/ncl", f"toy2d fixed constraint, {k} RBFs", n, 2, s, "train NUPE(w)",
-         nupe(w, model.predict(X)).value)
+# -- problems: (train, test) demonstrations of size n -------------------------------------
+def toy(n: int, **kw):
+    """Uniform toy2d samples; the first n train, the next N_TEST test (one constraint)."""
+    data = sim.toy2d(sampling="uniform", n_samples=n + N_TEST, n_demos=1, seed=0, **kw)
+    return data.subset(np.arange(n)), data.subset(np.arange(n, n + N_TEST))
 
 
-def bench_policy() -> None:
-    data = sim.varying_constraint(noise=0.01, seed=0)
-    train, test = data.split(0.2, 0)
-    grid = {"kind": "rbf", "n_centres": 100, "centres": "grid", "sigma2": 0.5}
-    for method in ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"):
-        s, model = timed(lambda m=method: PolicyLearner(method=m, basis=grid).fit(
-            train.X, train.U, train.true_projection()))
-        emit(f"learn-pi/{method}", "varying_constraint noise 0.01", train.n_samples, 2, s, "test NUPE",
-             nupe(test.truth["pi"], model.predict(test.X)).value)
+def arm(n: int, seed: int):
+    return sim.two_link(n_demos=max(1, n // 40), n_steps=40, seed=seed)
 
 
-def main() -> int:
-    bench_nhat()
-    bench_alpha()
-    bench_lambda()
-    bench_linear()
-    bench_ncl()
-    bench_policy()
+def policy_problem(n: int, seed: int):
+    return sim.varying_constraint(n_demos=max(1, n // 100), noise=0.01, seed=seed)
+
+
+# -- one benchmark row ----------------------------------------------------------------------
+def run(learner: str, n: int, k: int | None = None, options: dict | None = None) -> None:
+    test_seed = 1000
+    if learner == "nhat":
+        tr, te = toy(n, constraint="fixed")
+        fit = lambda: StateIndependentConstraint(selection="eigengap").fit(tr.X, tr.U)  # noqa: E731
+        inputs = tr.X.nbytes + tr.U.nbytes
+        floor_rows = lambda m, s: tr.U[s]  # noqa: E731
+        problem, metric = "toy2d fixed uniform", "test NPPE"
+    elif learner == "linear":
+        tr, te = toy(n, constraint="parabola")
+        fit = lambda: LinearConstraint().fit(tr.X, tr.U)  # noqa: E731
+        inputs = tr.X.nbytes + tr.U.nbytes
+        floor_rows = lambda m, s: m._stack(tr.X[s], tr.U[s])  # noqa: E731
+        problem, metric = "toy2d parabola uniform, polynomial 1", "test NPPE"
+    elif learner == "alpha":
+        tr, te = toy(n, constraint="parabola")
+        fit = lambda: StateDependentConstraint().fit(tr.X, tr.U)  # noqa: E731
+        inputs = tr.X.nbytes + tr.U.nbytes
+        floor_rows = lambda m, s: kron_rows(m.basis_.transform(tr.X[s]), 1)  # noqa: E731
+        problem, metric = "toy2d parabola uniform, 25 RBFs", "test NPPE"
+    elif learner == "lambda":
+        tr, te = arm(n, 0), arm(N_TEST, test_seed)
+        fit = lambda: KnownFeatureConstraint(features="arm2").fit(tr.X, tr.U)  # noqa: E731
+        inputs = tr.X.nbytes + tr.U.nbytes
+
+        def floor_rows(m, s):
+            np.einsum("nrq,nq->nr", m.features_(tr.X[s]), tr.U[s])
+            return kron_rows(m.basis_.transform(tr.X[s]), 1)
+
+        problem, metric = "two_link, 16 RBFs", "test NPPE"
+    elif learner == "ncl":
+        tr, te = toy(n, constraint="fixed", task=True)
+        fit = lambda: NullSpaceComponent(n_centres=k, **(options or {})).fit(tr.X, tr.U)  # noqa: E731
+        inputs = tr.X.nbytes + tr.U.nbytes
+        floor_rows = lambda m, s: kron_rows(m.basis_.transform(tr.X[s]), 2)  # noqa: E731
+        problem, metric = f"toy2d fixed + task, {k} RBFs", "test NUPE(w)"
+    else:  # policy learners
+        tr, te = policy_problem(n, 0), policy_problem(N_TEST, test_seed)
+        P = tr.true_projection() if learner == "pi-coupled" else None
+        fit = lambda: PolicyLearner(method=learner, basis=POLICY_BASIS).fit(tr.X, tr.U, P)  # noqa: E731
+        inputs = tr.X.nbytes + tr.U.nbytes + (P.nbytes if P is not None else 0)
+        if learner == "dpl":
+            floor_rows = lambda m, s: m.basis_.transform(tr.X[s])  # noqa: E731
+        elif learner == "lwpi":
+            def floor_rows(m, s):
+                B = m.basis_.transform(tr.X[s])
+                phi = np.hstack([tr.X[s], np.ones((len(B), 1))])
+                R = (phi[:, :, None] * tr.U[s][:, None, :]).reshape(len(B), -1)
+                RR = (R[:, :, None] * R[:, None, :]).reshape(len(B), -1)
+                return np.sqrt(np.abs(B.T @ RR))  # the (K, D²) accumulation, then a tiny Gram
+        else:
+            floor_rows = lambda m, s: kron_rows(m.basis_.transform(tr.X[s]), 2)  # noqa: E731
+        problem, metric = "varying_constraint noise 0.01, 100-RBF grid", "test NUPE"
+        k = POLICY_K
+    seconds, peak, model = traced(fit)
+    if learner == "ncl":
+        err = nupe(te.truth["w"], model.predict(te.X)).value
+    elif learner in ("nhat", "linear", "alpha", "lambda"):
+        err = nppe(te.true_projection(), model.projection(te.X), te.truth["pi"], te.U).value
+    else:
+        err = nupe(te.truth["pi"], model.predict(te.X)).value
+    floor = min(gram_floor(lambda s: floor_rows(model, s), tr.n_samples) for _ in range(3))
+    emit(learner=learner, options=options or {}, problem=problem, N=tr.n_samples, K=k,
+         seconds=round(seconds, 4),
+         peak_mb=round(peak / 2**20, 2), mem_ratio=round(peak / inputs, 2),
+         test_error=float(f"{err:.4g}"), metric=metric, floor_seconds=round(floor, 5),
+         floor_ratio=round(seconds / floor, 1))
+
+
+PLAN = [  # (learner, N values, K, options)
+    ("nhat", (10_000, 100_000, 1_000_000), None, None),
+    ("linear", (10_000, 100_000, 1_000_000), None, None),
+    ("pi", (10_000, 100_000, 1_000_000), None, None),
+    ("pi-weighted", (10_000, 100_000, 1_000_000), None, None),
+    ("pi-coupled", (10_000, 100_000, 1_000_000), None, None),
+    ("lwpi", (10_000, 100_000, 1_000_000), None, None),
+    ("dpl", (10_000, 100_000, 1_000_000), None, None),
+    ("ncl", (10_000, 100_000, 1_000_000), 16, None),
+    ("ncl", (10_000, 100_000, 1_000_000), 16, {"polish": False}),
+    ("ncl", (10_000,), 256, None),
+    ("ncl", (10_000,), 256, {"polish": False}),
+    ("alpha", (10_000, 100_000), None, None),
+    ("lambda", (10_000, 100_000), None, None),
+]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="N = 1e4 only, ncl K = 16 only (smoke run)")
+    ap.add_argument("--only", default="", help="comma-separated learners (e.g. ncl,alpha)")
+    ap.add_argument("--sizes", default="", help="comma-separated N values to keep (e.g. 1e4,1e5)")
+    ap.add_argument("--k", default="", help="ncl: comma-separated K values to keep")
+    args = ap.parse_args(argv)
+    only = set(filter(None, args.only.split(",")))
+    sizes = {int(float(s)) for s in args.sizes.split(",") if s}
+    ks = {int(s) for s in args.k.split(",") if s}
+    for learner, ns, k, options in PLAN:
+        if only and learner not in only:
+            continue
+        if ks and k is not None and k not in ks:
+            continue
+        if args.quick and k is not None and k > 16:
+            continue
+        for n in ns:
+            if args.quick and n > 10_000:
+                continue
+            if sizes and n not in sizes:
+                continue
+            run(learner, n, k, options)
     return 0
 
 

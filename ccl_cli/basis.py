@@ -12,11 +12,17 @@ included, of ‖c_i − c_j‖)², as in the original library.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.linalg import row_chunks
+
+#: Feature blocks of iterative learners are kept in memory up to this many bytes (N K · 8);
+#: above it they are recomputed on every pass, so memory stays bounded in N.
+FEATURE_CACHE_BYTES = 256 * 2**20
 
 
 def pairwise_sqdist(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -37,18 +43,38 @@ def grid_centres(X: np.ndarray, n_centres: int, margin: float = 0.1) -> np.ndarr
     return np.stack([m.ravel() for m in mesh], axis=1)
 
 
+#: k-means runs on a seeded subsample of at most max(KMEANS_SAMPLE, 50 K) rows.
+KMEANS_SAMPLE = 20_000
+
+
+def cluster_sums(X: np.ndarray, label: np.ndarray, k: int) -> np.ndarray:
+    """Σ of the rows of X (N, p) per label in 0..k−1 → (k, p) (bincount per column)."""
+    return np.stack([np.bincount(label, weights=X[:, j], minlength=k) for j in range(X.shape[1])], 1)
+
+
 def kmeans_centres(
-    X: np.ndarray, n_centres: int, seed: int = 0, max_iter: int = 100, tol: float = 1e-8
+    X: np.ndarray, n_centres: int, seed: int = 0, max_iter: int = 100, tol: float = 1e-4,
+    max_samples: int | None = None,
 ) -> np.ndarray:
     """Seeded k-means (k-means++ start, Lloyd iterations) on the rows of X (N, p) → (K, p).
 
-    An empty cluster is re-seeded with the point farthest from its assigned centre.
+    Large N: a seeded subsample of ``max_samples`` rows (default max(20000, 50 K)) is
+    clustered, so the cost is independent of N. Lloyd stops when no label changes or the
+    total squared centre shift Σ_k ‖Δc_k‖² falls below ``tol`` times the mean per-axis
+    variance of the data (a relative tolerance, reached whatever the units; the rule of
+    scikit-learn). An empty cluster is re-seeded with
+    the point farthest from its assigned centre.
     """
     X = np.asarray(X, dtype=float)
     n = X.shape[0]
     if n < n_centres:
         raise InputError(f"k-means needs at least {n_centres} samples, got {n}")
     rng = np.random.default_rng(seed)
+    limit = max_samples or max(KMEANS_SAMPLE, 50 * n_centres)
+    if n > limit:
+        X = X[np.sort(rng.choice(n, limit, replace=False))]
+        n = limit
+    spread = float(np.mean(np.var(X, axis=0)))
     centres = np.empty((n_centres, X.shape[1]))
     centres[0] = X[rng.integers(n)]
     closest = pairwise_sqdist(X, centres[:1])[:, 0]
@@ -57,21 +83,24 @@ def kmeans_centres(
         idx = rng.choice(n, p=closest / total) if total > 0 else rng.integers(n)
         centres[k] = X[idx]
         closest = np.minimum(closest, pairwise_sqdist(X, centres[k : k + 1])[:, 0])
+    label = np.full(n, -1)
     for _ in range(max_iter):
         d2 = pairwise_sqdist(X, centres)
-        label = d2.argmin(1)
+        new_label = d2.argmin(1)
+        if np.array_equal(new_label, label):
+            break
+        label = new_label
         counts = np.bincount(label, minlength=n_centres)
-        sums = np.zeros_like(centres)
-        np.add.at(sums, label, X)
+        sums = cluster_sums(X, label, n_centres)
         new = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], centres)
         empty = np.flatnonzero(counts == 0)
         if empty.size:
             own = d2[np.arange(n), label]
             far = np.argsort(own)[::-1][: empty.size]
             new[empty] = X[far]
-        shift = np.abs(new - centres).max()
+        shift = float(np.sum((new - centres) ** 2))
         centres = new
-        if shift < tol and not empty.size:
+        if shift <= tol * spread and not empty.size:
             break
     return centres
 
@@ -197,6 +226,21 @@ def make_basis(spec: str | dict | Basis | None, default_centres: int = 16, seed:
             seed=int(spec.get("seed", seed)),
         )
     raise ConfigError(f"unknown basis kind {kind!r} (use rbf or linear)")
+
+
+def feature_blocks(basis: Basis, X: np.ndarray, chunk_size: int | None = None,
+                   cache_bytes: int = FEATURE_CACHE_BYTES
+                   ) -> Callable[[], Iterable[tuple[slice, np.ndarray]]]:
+    """A re-iterable source of (rows, β(X[rows]) (c, K)) blocks for chunked passes.
+
+    The blocks are computed once and kept when N K floats fit in ``cache_bytes``,
+    otherwise recomputed on each pass (memory O(chunk_size · K), independent of N).
+    """
+    slices = row_chunks(len(X), chunk_size)
+    if len(X) * basis.n_features * 8 <= cache_bytes:
+        cached = [(s, basis.transform(X[s])) for s in slices]
+        return lambda: cached
+    return lambda: ((s, basis.transform(X[s])) for s in slices)
 
 
 def basis_from_state(state: dict[str, Any]) -> Basis:

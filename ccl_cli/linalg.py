@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
+
 import numpy as np
 
 #: Relative singular-value cut-off of the pseudo-inverse (ALGORITHMS.md §1).
@@ -60,3 +62,109 @@ def eigen_lstsq(M: np.ndarray, r: np.ndarray, cutoff: float, absolute: bool = Fa
     inv = np.where(vals > threshold, 1.0 / np.where(vals > 0, vals, 1.0), 0.0)
     coef = np.einsum("...ij,...i->...j", vecs, r) * inv
     return np.einsum("...ij,...j->...i", vecs, coef)
+
+
+# -- chunked normal equations (issue 10: memory independent of N) --------------------------
+
+#: Rows per block of the chunked passes: temporaries are O(CHUNK_ROWS · K q), not O(N · K q).
+CHUNK_ROWS = 8192
+
+
+def row_chunks(n: int, size: int | None = None) -> list[slice]:
+    """Consecutive slices of at most ``size`` (default :data:`CHUNK_ROWS`) rows covering 0..n."""
+    size = int(size or CHUNK_ROWS)
+    if size < 1:
+        raise ValueError(f"chunk size must be positive, got {size}")
+    return [slice(i, min(i + size, n)) for i in range(0, n, size)]
+
+
+def kron_rows(G: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Rows vec(g_n β_nᵀ) of a Jacobian whose parameters are W (m, K) flattened row-major:
+    G (c, m), B (c, K) → (c, m K)."""
+    return (G[:, :, None] * B[:, None, :]).reshape(len(B), -1)
+
+
+def kron_normal(G: np.ndarray, B: np.ndarray, r: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray | None]:
+    """One block of the normal equations of rows J_n = vec(g_n β_nᵀ):
+
+        JᵀJ = Σ_n kron(g_n g_nᵀ, β_n β_nᵀ) (m K, m K),   Jᵀr = vec(Σ_n r_n g_n β_nᵀ) (m K,),
+
+    for G (c, m), B (c, K), r (c,) or None — one BLAS product on a (c, m K) block.
+    """
+    J = kron_rows(G, B)
+    return J.T @ J, (None if r is None else ((G * r[:, None]).T @ B).ravel())
+
+
+def kron_least_squares(
+    W0: np.ndarray,
+    blocks: Callable[[], Iterable[tuple[slice, np.ndarray]]],
+    residual: Callable[[np.ndarray, slice, np.ndarray], tuple[np.ndarray, np.ndarray]],
+    max_iter: int = 1000,
+    tol: float = 1e-9,
+) -> tuple[np.ndarray, float, int]:
+    """Levenberg–Marquardt on accumulated normal equations for min_W Σ_n r_n(W)².
+
+    The model is r_n = r(W β_n, data_n) with W (m, K), so the Jacobian row of sample n is
+    vec(g_n β_nᵀ), g_n = ∂r_n/∂(W β_n) (m,). ``residual(W, rows, β)`` returns
+    (r (c,), g (c, m)). Every iteration is ONE chunked pass over the data: ``blocks()``
+    yields (rows slice, features β (c, K)); JᵀJ (m K × m K, :func:`kron_normal`) and Jᵀr
+    are summed block by block at the trial point, so an accepted step needs no further
+    pass and no N × m K matrix is ever formed. Steps solve (JᵀJ + μ D) δ = −Jᵀr with D
+    the running maximum of diag(JᵀJ) (Marquardt/MINPACK scaling; μ is raised if the
+    Cholesky factorisation fails) and μ updated from the gain ratio (Nielsen). Stops
+    when the cost falls by less than ``tol`` relatively, the step is below ``tol``
+    relative to W, or the scaled gradient is below ``tol``; ``max_iter`` bounds the passes.
+
+    Returns:
+        (W (m, K), cost Σ r², passes over the data).
+    """
+    shape = np.shape(W0)
+
+    def evaluate(w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        W = w.reshape(shape)
+        cost, H, Jtr = 0.0, np.zeros((w.size, w.size)), np.zeros(w.size)
+        for rows, B in blocks():
+            r, G = residual(W, rows, B)
+            M, g = kron_normal(G, B, r)
+            H += M
+            Jtr += g
+            cost += float(r @ r)
+        return cost, H, Jtr, np.diag(H).copy()
+
+    w = np.asarray(W0, dtype=float).ravel().copy()
+    cost, H, Jtr, D = evaluate(w)
+    passes = 1
+    if not np.isfinite(cost):
+        return w.reshape(shape), cost, passes
+    diag = np.maximum(D, 1e-12 * max(float(np.max(D)), 1e-300))
+    mu, nu = 1e-3, 2.0
+    while passes < max_iter:
+        scaled = np.abs(Jtr) / np.sqrt(diag * max(cost, 1e-300))
+        if np.max(scaled, initial=0.0) <= tol:
+            break
+        while True:  # raise μ until JᵀJ + μD factorises (rank-deficient JᵀJ)
+            try:
+                L = np.linalg.cholesky(H + mu * np.diag(diag))
+                break
+            except np.linalg.LinAlgError:
+                mu *= 10.0
+        step = -np.linalg.solve(L.T, np.linalg.solve(L, Jtr))
+        if np.linalg.norm(step) <= tol * (tol + np.linalg.norm(w)):
+            break
+        new_cost, new_H, new_Jtr, new_D = evaluate(w + step)
+        passes += 1
+        predicted = float(-Jtr @ step + mu * step @ (diag * step))
+        gain = (cost - new_cost) / predicted if predicted > 0 else -1.0
+        if np.isfinite(new_cost) and gain > 0:
+            reduction = cost - new_cost
+            w, cost, H, Jtr = w + step, new_cost, new_H, new_Jtr
+            diag = np.maximum(diag, new_D)  # MINPACK: the scaling only grows
+            mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+            nu = 2.0
+            if reduction <= tol * cost:
+                break
+        else:
+            mu *= nu
+            nu *= 2.0
+    return w.reshape(shape), cost, passes

@@ -15,6 +15,10 @@ each is solved in closed form (batched over samples, no iteration):
 * ``dpl`` — direct regression of u on β(x): the biased baseline.
 
 Samples with ‖u_n‖ below ``min_norm`` carry no direction and are dropped.
+
+Scale: every normal matrix is summed over blocks of ``chunk_size`` rows (default 8192)
+with BLAS-shaped products, so temporaries are O(chunk · K q) whatever N (no N × K
+feature matrix, no N × K q regressor matrix); predict works in the same blocks.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from ccl_cli.basis import Basis, RBFBasis, make_basis
 from ccl_cli.constraint.base import check_xu
 from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.estimator import Estimator
-from ccl_cli.linalg import eigen_lstsq
+from ccl_cli.linalg import eigen_lstsq, kron_rows, row_chunks
 from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
 
 METHODS = ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl")
@@ -44,6 +48,7 @@ class PolicyLearner(Estimator):
             with the tutorial settings ``absolute`` reproduces the original's numbers (README
             "Reproducing the original library").
         min_norm: samples with ‖u‖ below this are dropped (not for ``dpl``/``pi-coupled``).
+        chunk_size: rows per block of the normal-equation sums (default 8192).
         tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
             default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
@@ -60,6 +65,7 @@ class PolicyLearner(Estimator):
         seed: int = 0,
         cutoff: float = 1e-6,
         min_norm: float = 1e-6,
+        chunk_size: int | None = None,
         tune: bool | dict = TUNE,
         cutoff_rule: str = "relative",
     ) -> None:
@@ -69,6 +75,7 @@ class PolicyLearner(Estimator):
         self.seed = seed
         self.cutoff = cutoff
         self.min_norm = min_norm
+        self.chunk_size = chunk_size
         self.tune = tune
         self.cutoff_rule = cutoff_rule
 
@@ -99,53 +106,73 @@ class PolicyLearner(Estimator):
         norm = np.linalg.norm(U, axis=1)
         if self.method in ("pi", "pi-weighted", "lwpi"):
             keep = norm > self.min_norm
-            X, U, norm = X[keep], U[keep], norm[keep]
+            if not keep.all():
+                X, U, norm = X[keep], U[keep], norm[keep]
             if len(X) < 2:
                 raise LearningError(f"fewer than 2 samples with ‖u‖ > {self.min_norm}")
         self.n_used_ = int(len(X))
-        B = self.basis_.transform(X)
         q = self.n_action_
-        K = B.shape[1]
-        if self.method == "dpl":
-            self.W_ = eigen_lstsq(B.T @ B, (B.T @ U).T, self.cutoff, absolute).T
-        elif self.method in ("pi", "pi-weighted"):
-            direction = U / norm[:, None] if self.method == "pi" else U
-            target = norm if self.method == "pi" else norm**2
-            R = (B[:, :, None] * direction[:, None, :]).reshape(len(X), K * q)
-            self.W_ = eigen_lstsq(R.T @ R, R.T @ target, self.cutoff, absolute).reshape(K, q)
-        elif self.method == "pi-coupled":
+        K = self.basis_.n_features
+        P = None
+        if self.method == "pi-coupled":
             if projections is None:
                 raise InputError("pi-coupled needs the projections Ñ_n (true or learnt)")
             P = np.asarray(projections, dtype=float)
             if P.shape != (len(X), q, q):
                 raise InputError(f"projections must be ({len(X)}, {q}, {q}), got {P.shape}")
-            # rows for sample n: Ñ_n [β_1 I, ..., β_K I] → (q, K q); the normal matrix is
-            # Σ_n kron(β_n β_nᵀ, Ñ_nᵀÑ_n), built with one BLAS product per (i, j) entry
-            G = np.einsum("nai,naj->nij", P, P)
-            M = np.empty((K, q, K, q))
-            for i in range(q):
-                for j in range(q):
-                    M[:, i, :, j] = (B * G[:, i, j, None]).T @ B
-            M = M.reshape(K * q, K * q)
-            r = np.einsum("nk,nai,na->ki", B, P, U).reshape(K * q)
-            self.W_ = eigen_lstsq(M, r, self.cutoff, absolute).reshape(K, q)
-        else:  # lwpi
-            if not isinstance(self.basis_, RBFBasis):
-                raise ConfigError("lwpi needs an RBF basis (its centres weight the local models)")
-            phi = np.hstack([X, np.ones((len(X), 1))])
-            d = phi.shape[1]
-            R = (phi[:, :, None] * (U / norm[:, None])[:, None, :]).reshape(len(X), d * q)
-            M = np.einsum("nc,ni,nj->cij", B, R, R)
-            r = np.einsum("nc,ni,n->ci", B, R, norm)
+        if self.method == "lwpi" and not isinstance(self.basis_, RBFBasis):
+            raise ConfigError("lwpi needs an RBF basis (its centres weight the local models)")
+        d = X.shape[1] + 1
+        size = {"dpl": K, "lwpi": K * d * q}.get(self.method, K * q)
+        M = np.zeros((K, d * q, d * q)) if self.method == "lwpi" else np.zeros((size, size))
+        r = np.zeros((K, d * q) if self.method == "lwpi" else (size, q) if self.method == "dpl"
+                     else size)
+        for rows in row_chunks(len(X), self.chunk_size):
+            B = self.basis_.transform(X[rows])
+            Ub, nb = U[rows], norm[rows]
+            if self.method == "dpl":
+                M += B.T @ B
+                r += B.T @ Ub
+            elif self.method in ("pi", "pi-weighted"):
+                # rows kron(β_n, û_n) (pi) or kron(β_n, u_n) (pi-weighted), target ‖u‖ or ‖u‖²
+                R = kron_rows(B, Ub / nb[:, None] if self.method == "pi" else Ub)
+                M += R.T @ R
+                r += R.T @ (nb if self.method == "pi" else nb**2)
+            elif self.method == "pi-coupled":
+                # rows Ñ_n [β_1 I, ..., β_K I] (q, K q): M = Σ_n kron(β_n β_nᵀ, Ñ_nᵀÑ_n),
+                # one BLAS product per (i, j) entry; r = Σ_n β_n ⊗ Ñ_nᵀ u_n
+                Pb = P[rows]
+                G = np.einsum("nai,naj->nij", Pb, Pb, optimize=True)
+                M4 = M.reshape(K, q, K, q)
+                for i in range(q):  # loops over action dimensions, not samples
+                    for j in range(q):
+                        M4[:, i, :, j] += (B * G[:, i, j, None]).T @ B
+                r += (B.T @ np.einsum("nai,na->ni", Pb, Ub, optimize=True)).ravel()
+            else:  # lwpi: per centre c, Σ_n β_c(x_n) R_n R_nᵀ with rows R_n = φ_n ⊗ û_n
+                phi = np.hstack([X[rows], np.ones((len(B), 1))])
+                R = kron_rows(phi, Ub / nb[:, None])
+                D = R.shape[1]
+                M += (B.T @ (R[:, :, None] * R[:, None, :]).reshape(len(B), D * D)).reshape(K, D, D)
+                r += B.T @ (R * nb[:, None])
+        if self.method == "dpl":
+            self.W_ = eigen_lstsq(M, r.T, self.cutoff, absolute).T
+        elif self.method == "lwpi":
             self.W_ = eigen_lstsq(M, r, self.cutoff, absolute).reshape(K, d, q)
+        else:
+            self.W_ = eigen_lstsq(M, r, self.cutoff, absolute).reshape(K, q)
         return self
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         """π̃(X): (N, p) → (N, q)."""
         self._check_fitted("W_")
         X = np.asarray(X, dtype=float)
-        B = self.basis_.transform(X)
-        if self.method == "lwpi":
-            phi = np.hstack([X, np.ones((len(X), 1))])
-            return np.einsum("nc,ni,ciq->nq", B, phi, self.W_)  # β rows sum to 1
-        return B @ self.W_
+        out = np.empty((len(X), self.n_action_))
+        for rows in row_chunks(len(X), self.chunk_size):
+            B = self.basis_.transform(X[rows])
+            if self.method == "lwpi":  # Σ_c β_c W_cᵀ φ (β rows sum to 1)
+                phi = np.hstack([X[rows], np.ones((len(B), 1))])
+                local = (B @ self.W_.reshape(len(self.W_), -1)).reshape(len(B), phi.shape[1], -1)
+                out[rows] = np.einsum("ni,niq->nq", phi, local)
+            else:
+                out[rows] = B @ self.W_
+        return out

@@ -9,8 +9,12 @@ by Levenberg–Marquardt with the analytic Jacobian
 
     ∂r_n/∂W_k[i, j] = (∂a/∂θ_i(θ_n) · z_n) β_j(x_n),
 
-from several seeded starts (the first one the best constant direction, from the
-closed form), keeping the best. The frame is then advanced with the Givens rotation
+whose rows vec(g_n β_nᵀ) are summed into JᵀJ and Jᵀr block by block, one pass over
+the data per iteration (:func:`~ccl_cli.linalg.kron_least_squares`; no N × (d−k)K matrix),
+
+from several seeded starts (the local closed form, the best constant direction, random
+ones): each start is screened for SCREEN_PASSES iterations and the best is run to
+convergence. The frame is then advanced with the Givens rotation
 of θ_n: Q_n ← blockdiag(I_{k−1}, R(θ_n)ᵀ) Q_n.
 """
 
@@ -19,10 +23,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from ccl_cli.angles import angles_of, frame, unit_vector, unit_vector_jacobian
-from ccl_cli.linalg import total_variance
+from ccl_cli.linalg import kron_least_squares, row_chunks, total_variance
+
+#: LM iterations every start gets before only the best one is continued.
+SCREEN_PASSES = 8
 
 
 @dataclass
@@ -62,33 +68,51 @@ def _local_start(B: np.ndarray, Z: np.ndarray, X: np.ndarray, rng: np.random.Gen
 
     The states are clustered (k-means); in each cluster the best constant direction is
     the smallest eigenvector d_c of Σ z zᵀ, known up to sign. The signs s_c are
-    synchronised: s = sign of the leading eigenvector of M_ij = κ_i κ_j e^{−‖c_i−c_j‖²/2h²}
-    (d_i·d_j), κ the confidence 1 − λ_min/λ_next of each cluster. The last angle is
+    synchronised along the maximum spanning tree of the strengths
+    S_ij = κ_i κ_j e^{−‖c_i−c_j‖²/2h²} (κ the confidence 1 − λ_min/λ_next of each
+    cluster), each new cluster taking the sign that makes d_i·d_j > 0 with its tree
+    neighbour (the leading eigenvector of S ∘ (d_i·d_j) used before mixes far clusters
+    whose directions are legitimately opposite, and failed on large samples). The last angle is
     unwrapped around its circular mean, and the per-sample angles of each sample's
     cluster are lifted into the features by ridge regression.
     """
-    from ccl_cli.basis import kmeans_centres, pairwise_sqdist
+    from ccl_cli.basis import cluster_sums, kmeans_centres, pairwise_sqdist
 
     n, m = Z.shape
     k = int(min(n_clusters, max(1, n // (4 * m))))
     centres = kmeans_centres(X, k, seed=int(rng.integers(2**31)))
-    label = pairwise_sqdist(X, centres).argmin(1)
-    cov = np.zeros((k, m, m))
-    np.add.at(cov, label, Z[:, :, None] * Z[:, None, :])
+    label = np.concatenate([pairwise_sqdist(X[rows], centres).argmin(1)
+                            for rows in row_chunks(n)])
+    cov = cluster_sums((Z[:, :, None] * Z[:, None, :]).reshape(n, m * m), label, k).reshape(k, m, m)
     vals, vecs = np.linalg.eigh(cov)
     dirs = vecs[:, :, 0]
     conf = 1.0 - vals[:, 0] / np.maximum(vals[:, 1], np.finfo(float).tiny)
     dist = pairwise_sqdist(centres, centres)
     h2 = np.median(np.sort(dist, axis=1)[:, 1]) if k > 1 else 1.0
     affinity = np.exp(-dist / (2.0 * max(h2, 1e-12)))
-    M = conf[:, None] * conf[None, :] * affinity * (dirs @ dirs.T)
-    lead = np.linalg.eigh(M)[1][:, -1]
-    dirs = dirs * np.where(lead < 0, -1.0, 1.0)[:, None]
+    dirs = dirs * _synchronised_signs(conf[:, None] * conf[None, :] * affinity, dirs)[:, None]
     theta = angles_of(dirs)
     last = theta[:, -1]
     centre = np.angle(np.sum(conf * np.exp(1j * last)))
     theta[:, -1] = centre + np.angle(np.exp(1j * (last - centre)))
     return ridge(B, theta[label]).T
+
+
+def _synchronised_signs(strength: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Signs s (k,) making neighbouring directions agree: Prim's maximum spanning tree of
+    ``strength`` (k, k) from the strongest cluster; s_j = sign(d_i·d_j) s_i for its tree
+    neighbour i. Loops over the k clusters (k ≤ 36), not over samples."""
+    k = len(dirs)
+    sign = np.ones(k)
+    done = np.zeros(k, bool)
+    done[int(np.argmax(np.diag(strength)))] = True
+    dots = dirs @ dirs.T
+    for _ in range(k - 1):
+        link = np.where(done[:, None] & ~done[None, :], strength, -np.inf)
+        i, j = np.unravel_index(int(np.argmax(link)), link.shape)
+        sign[j] = sign[i] * (1.0 if dots[i, j] >= 0 else -1.0)
+        done[j] = True
+    return sign
 
 
 def ridge(B: np.ndarray, Y: np.ndarray, rel: float = 1e-6) -> np.ndarray:
@@ -105,13 +129,12 @@ def _fit_row(B: np.ndarray, Z: np.ndarray, n_restarts: int, rng: np.random.Gener
     n, K = B.shape
     m = Z.shape[1]
 
-    def residual(w: np.ndarray) -> np.ndarray:
-        return np.einsum("nj,nj->n", unit_vector(B @ w.reshape(m - 1, K).T), Z)
+    blocks = [(rows, B[rows]) for rows in row_chunks(n)]
 
-    def jacobian(w: np.ndarray) -> np.ndarray:
-        _, J = unit_vector_jacobian(B @ w.reshape(m - 1, K).T)
-        g = np.einsum("nji,nj->ni", J, Z)  # (N, m−1)
-        return (g[:, :, None] * B[:, None, :]).reshape(n, -1)
+    def residual(W: np.ndarray, rows: slice, Bc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        Zc = Z[rows]
+        a, J = unit_vector_jacobian(Bc @ W.T)  # (c, m), (c, m, m−1)
+        return np.einsum("nj,nj->n", a, Zc), np.einsum("nji,nj->ni", J, Zc)
 
     lift = ridge(B, np.ones(n))
     starts = [_local_start(B, Z, X, rng)] if X is not None else []
@@ -121,14 +144,17 @@ def _fit_row(B: np.ndarray, Z: np.ndarray, n_restarts: int, rng: np.random.Gener
     while len(starts) < max(1, n_restarts):
         th = rng.uniform(0.0, np.pi, m - 1)
         starts.append(np.outer(th, lift) + rng.normal(scale=0.3, size=(m - 1, K)))
-    best_w, best_cost = starts[0], np.inf
-    method = "lm" if n >= (m - 1) * K else "trf"
-    for w0 in starts:
-        sol = least_squares(residual, w0.ravel(), jac=jacobian, method=method,
-                            xtol=tol, ftol=tol, gtol=tol, max_nfev=max_iter)
-        if sol.cost < best_cost:
-            best_w, best_cost = sol.x.reshape(m - 1, K), float(sol.cost)
-    return best_w, 2.0 * best_cost
+    if len(starts) == 1:
+        W, cost, _ = kron_least_squares(starts[0], lambda: blocks, residual, max_iter, tol)
+        return W, cost
+    # Screen: every start gets SCREEN_PASSES iterations, the best one is run to convergence.
+    screened = [kron_least_squares(w0, lambda: blocks, residual, min(SCREEN_PASSES, max_iter), tol)
+                for w0 in starts]
+    W, cost, used = min(screened, key=lambda fit: fit[1])
+    if used < min(SCREEN_PASSES, max_iter):  # converged while screening
+        return W, cost
+    W, cost, _ = kron_least_squares(W, lambda: blocks, residual, max(1, max_iter - used), tol)
+    return W, cost
 
 
 def fit_sequence(

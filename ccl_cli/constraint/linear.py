@@ -27,6 +27,7 @@ from ccl_cli.basis import Basis, make_basis
 from ccl_cli.constraint import selection as sel
 from ccl_cli.constraint.base import ConstraintModel, check_xu
 from ccl_cli.errors import ConfigError
+from ccl_cli.linalg import row_chunks
 from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
 
 REGRESSORS = ("identity", "rbf", "polynomial")
@@ -155,44 +156,63 @@ class LinearConstraint(ConstraintModel):
         return H
 
     # -- fitting ----------------------------------------------------------------------
-    def _solve(self, H: np.ndarray, X: np.ndarray, k: int = 1
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Generalised eigenvectors of (S, T), ascending: (vals, vecs (d, d), scale).
+    def _solve(self, X: np.ndarray, U: np.ndarray, k: int = 1
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """Generalised eigenvectors of (S, T), ascending: (vals, vecs (d, d), scale, msq).
 
         S = Σ_n ω_n h_n h_nᵀ. With ``whiten="errors"`` T = Σ_n ω_n ∂h_n/∂u ∂h_n/∂uᵀ is
         the covariance that isotropic noise on u induces in h (zero on the noise-free
         task rows), which makes the smallest eigenvectors a consistent estimate
         (errors-in-variables); ``"rms"`` scales h to unit RMS per row and uses T = I;
-        ``"none"`` takes the plain SVD. ``k`` rows define the reweighting ω.
+        ``"none"`` takes the plain SVD. ``k`` rows define the reweighting ω (normalised
+        to mean 1). msq = mean_n ‖h_n / scale‖².
+
+        Every sum runs over blocks of rows (:func:`~ccl_cli.linalg.row_chunks`), one pass
+        per reweighting step (plus one for the RMS scale): h, Φ_A are never formed for
+        all N at once.
         """
-        n, d = H.shape
-        phi = self._phi(X)
-        m = phi.shape[1]
-        if self.whiten == "rms":
-            scale = np.sqrt(np.mean(H**2, axis=0))
-            scale = np.where(scale > 0, scale, 1.0)
-        elif self.whiten in ("errors", "none"):
-            scale = np.ones(d)
-        else:
+        if self.whiten not in ("rms", "errors", "none"):
             raise ConfigError(f"unknown whiten {self.whiten!r} (use errors, rms or none)")
-        Hs = H / scale
-        weight = np.ones(n)
+        n = len(X)
+        chunks = row_chunks(n)
+        colsq = sum(np.sum(self._stack(X[r], U[r]) ** 2, axis=0) for r in chunks)
+        d = colsq.shape[0]
+        if self.whiten == "rms":
+            scale = np.sqrt(colsq / n)
+            scale = np.where(scale > 0, scale, 1.0)
+        else:
+            scale = np.ones(d)
+        msq = float(np.sum(colsq / scale**2) / n)
+        W = None
         for step in range(self.reweight + 1):
-            S = (Hs * weight[:, None]).T @ Hs
+            S, T, wsum = np.zeros((d, d)), None, 0.0
+            for rows in chunks:
+                Hs = self._stack(X[rows], U[rows]) / scale
+                phi = self._phi(X[rows]) if (W is not None or self.whiten == "errors") else None
+                if W is None:
+                    weight = np.ones(len(Hs))
+                else:
+                    A = np.einsum("km,nmq->nkq", W, phi, optimize=True)
+                    weight = k / np.maximum(np.sum(A**2, axis=(1, 2)), 1e-12)
+                wsum += float(weight.sum())
+                S += (Hs * weight[:, None]).T @ Hs
+                if self.whiten == "errors":
+                    m = phi.shape[1]
+                    Tb = np.einsum("n,nmq,nkq->mk", weight, phi, phi, optimize=True)
+                    T = Tb if T is None else T + Tb
+            S /= wsum / n  # the weights normalised to mean 1
             if self.whiten == "errors":
-                T = np.zeros((d, d))
-                T[:m, :m] = np.einsum("n,nmq,nkq->mk", weight, phi, phi)
-                T[np.diag_indices(d)] += 1e-10 * np.trace(T) / d + np.finfo(float).tiny
-                vals, vecs = eigh(S, T)
+                Tf = np.zeros((d, d))
+                Tf[:m, :m] = T / (wsum / n)
+                Tf[np.diag_indices(d)] += 1e-10 * np.trace(Tf) / d + np.finfo(float).tiny
+                vals, vecs = eigh(S, Tf)
             else:
                 vals, vecs = np.linalg.eigh(S)
             if step == self.reweight:
                 break
+            m = self._phi(X[:1]).shape[1]
             W = (vecs[:, :k] / scale[:, None]).T[:, :m]
-            rows = np.einsum("km,nmq->nkq", W, phi)
-            weight = k / np.maximum(np.sum(rows**2, axis=(1, 2)), 1e-12)
-            weight /= weight.mean()
-        return np.maximum(vals, 0.0), vecs, scale
+        return np.maximum(vals, 0.0), vecs, scale, msq
 
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None) -> LinearConstraint:
         X, U = check_xu(X, U)
@@ -202,16 +222,15 @@ class LinearConstraint(ConstraintModel):
         self.n_action_ = U.shape[1]
         if self.regressors == "rbf" or (self.task and self.task_regressors == "rbf"):
             self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
-        H = self._stack(X, U)
-        vals, vecs, scale = self._solve(H, X, 1)
-        d = H.shape[1]
+        vals, vecs, scale, msq = self._solve(X, U, 1)
+        d = vecs.shape[0]
         max_k = min(self.max_constraints or self.n_action_ - 1, d - 1)
         max_k = max(1, max_k)
         rule = sel.check_rule(self.selection, self.n_constraints)
         if rule == "fixed":
             chosen = sel.fixed(self.n_constraints, d)
         elif rule == "threshold":
-            nmse = (vals / len(X)) / max(float(np.mean(np.sum((H / scale) ** 2, 1))), 1e-300)
+            nmse = (vals / len(X)) / max(msq, 1e-300)
             k = 1
             while k < max_k and nmse[k] < self.threshold:
                 k += 1
@@ -226,7 +245,7 @@ class LinearConstraint(ConstraintModel):
         self.n_constraints_ = chosen.n_constraints
         self.selection_ = chosen.as_dict()
         if self.reweight and self.n_constraints_ > 1:
-            vals, vecs, scale = self._solve(H, X, self.n_constraints_)
+            vals, vecs, scale, _ = self._solve(X, U, self.n_constraints_)
         self.singular_values_ = np.sqrt(vals)
         self.scale_ = scale
         W = (vecs[:, : self.n_constraints_] / scale[:, None]).T
