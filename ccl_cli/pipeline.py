@@ -243,15 +243,23 @@ class Pipeline:
     def _learn_pi(self, opts: dict) -> StageResult:
         tr = self.split.train
         on = opts.get("on", "auto")
-        kw = _kwargs(opts, ("basis", "n_centres", "cutoff", "min_norm", "tune"))
+        kw = _kwargs(opts, ("basis", "n_centres", "cutoff", "cutoff_rule", "min_norm", "tune"))
+        if isinstance(kw.get("cutoff"), str):  # cutoff: absolute | relative (the rule, at 1e-6)
+            if kw["cutoff"] not in ("absolute", "relative"):
+                raise ConfigError("learn-pi.cutoff must be a number, absolute or relative, "
+                                  f"got {kw['cutoff']!r}")
+            kw["cutoff_rule"] = kw.pop("cutoff")
         model = PolicyLearner(method=opts.get("method", "pi"), seed=self.seed, **kw)
-        model.fit(tr.X, self._target(on, "train", tr), self._projections(opts, "train", tr))
+        model.fit(tr.X, self._target(on, "train", tr), self._projections(opts, "train", tr), demo=tr.demo)
         result = StageResult("learn-pi", model.method, model, info={"n_used": model.n_used_})
         if getattr(model, "tuning_", None):
             result.info["tuning"] = model.tuning_
         if opts.get("baseline", True) and model.method != "dpl":
-            result.baseline = PolicyLearner(method="dpl", seed=self.seed, **kw).fit(
-                tr.X, self._target(on, "train", tr))
+            base_kw = dict(kw)
+            if (model.tuning_ or {}).get("chosen"):  # the baseline regresses on the same basis
+                base_kw.update(model.tuning_["chosen"], tune=False)
+            result.baseline = PolicyLearner(method="dpl", seed=self.seed, **base_kw).fit(
+                tr.X, self._target(on, "train", tr), demo=tr.demo)
         constraint = self.constraint
         targets = {part: self._target(on, part, d) for part, d in self.parts()}
         of = "learnt w" if on == "w" or (on == "auto" and self.w) else "u"

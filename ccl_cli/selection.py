@@ -12,7 +12,8 @@
     (per truncation k = 1..s when asked, for choosing the number of constraints);
   - null-space component (ncl): NPE (§6), ``mean ‖P̃u − w̃‖² / Σ var(u)``;
   - policies: the normalised inconsistency error (§5) ``mean ‖u − ûûᵀ π̃(x)‖² / Σ var(u)``
-    (pi-coupled: ``mean ‖u − Ñ π̃(x)‖² / Σ var(u)`` with the given projections).
+    (pi-weighted: each term weighted by ‖u‖², its own criterion; pi-coupled:
+    ``mean ‖u − Ñ π̃(x)‖² / Σ var(u)`` with the given projections).
 
 * :func:`holdout_split` chooses the reported train/test split of a recording and says
   why; :func:`tune` searches a small grid of hyperparameters within a time budget.
@@ -122,16 +123,20 @@ def npe_score(W: np.ndarray, U: np.ndarray) -> float:
     return float(np.mean(np.sum((proj - W) ** 2, 1)) / _var(U))
 
 
-def inconsistency_score(P: np.ndarray, U: np.ndarray, N: np.ndarray | None = None) -> float:
-    """mean ‖u − ûûᵀπ̃‖² / Σ var(u) (§5), or with projections N (n, q, q) mean ‖u − Ñπ̃‖²."""
+def inconsistency_score(P: np.ndarray, U: np.ndarray, N: np.ndarray | None = None,
+                        weighted: bool = False) -> float:
+    """mean ‖u − ûûᵀπ̃‖² / Σ var(u) (§5), or with projections N (n, q, q) mean ‖u − Ñπ̃‖²;
+    ``weighted`` (pi-weighted's own criterion): each sample's term weighted by ‖u‖² / mean ‖u‖²."""
     if N is not None:
         res = U - np.einsum("nij,nj->ni", N, P)
+        w = np.ones(len(U))
     else:
         norm = np.linalg.norm(U, axis=1)
         keep = norm > 0
         uh = U[keep] / norm[keep, None]
         res = U[keep] - uh * np.sum(uh * P[keep], 1)[:, None]
-    return float(np.mean(np.sum(res**2, 1)) / _var(U))
+        w = norm[keep] ** 2 if weighted else np.ones(int(keep.sum()))
+    return float(np.sum(w * np.sum(res**2, 1)) / max(np.sum(w), 1e-300) / _var(U))
 
 
 def score(model: Any, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None,
@@ -141,9 +146,10 @@ def score(model: Any, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = No
         return npoe_score(model.projection(X, demo), U)
     if hasattr(model, "task_component"):  # null-space component (ncl)
         return npe_score(model.predict(X), U)
-    if getattr(model, "method", None) == "pi-coupled":
+    method = getattr(model, "method", None)
+    if method == "pi-coupled":
         return inconsistency_score(model.predict(X), U, projections)
-    return inconsistency_score(model.predict(X), U)
+    return inconsistency_score(model.predict(X), U, weighted=method == "pi-weighted")
 
 
 def truncated_npoe(model: Any, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
@@ -206,7 +212,7 @@ def cross_validate(
         kw = {}
         if projections is not None:
             kw["projections"] = projections[train]
-        elif _takes_demo(model):
+        if _takes_demo(model):
             kw["demo"] = groups[train]
         model.fit(X[train], U[train], **kw)
         if scorer is not None:
@@ -314,7 +320,7 @@ def tune(
     last, last_size = 0.0, 1
     for params in combos:
         size = _size(params)
-        if rows and time.perf_counter() - t0 + last * max(1.0, size / last_size) ** 1.5 > budget:
+        if rows and time.perf_counter() - t0 + last * max(1.0, size / last_size) ** 2 > budget:
             skipped += 1
             continue
         est = clone(estimator).set_params(**params)

@@ -14,6 +14,7 @@ from ccl_cli.constraint import (
     StateDependentConstraint,
     StateIndependentConstraint,
 )
+from ccl_cli.errors import ConfigError
 from ccl_cli.linalg import nullspace_projection, unit_rows
 from ccl_cli.metrics import nppe, nupe
 from ccl_cli.nullspace import NullSpaceComponent
@@ -279,6 +280,22 @@ def test_set_params_nested_and_keyword_only():
     assert PolicyLearner().set_params(n_centres=9).n_centres == 9
     with pytest.raises(TypeError):
         PolicyLearner("pi")  # the parameters are keyword-only
+
+
+def test_absolute_cutoff_is_the_original_rule_not_the_relative_one():
+    from ccl_cli.linalg import eigen_lstsq
+
+    M = np.diag([1e3, 5e-4, 1e-7])
+    r = np.array([1e3, 5e-4, 1e-7])
+    np.testing.assert_allclose(eigen_lstsq(M, r, 1e-6), [1.0, 0.0, 0.0])  # 5e-4 < 1e-6·1e3
+    np.testing.assert_allclose(eigen_lstsq(M, r, 1e-6, absolute=True), [1.0, 1.0, 0.0])
+    data = sim.toy2d(policy="limit_cycle", vary_constraint=True, sampling="uniform", n_samples=400, seed=0)
+    grid = {"kind": "rbf", "n_centres": 100, "centres": "grid", "sigma2": 0.5}
+    rel = PolicyLearner(basis=grid, tune=False).fit(data.X, data.U)
+    ab = PolicyLearner(basis=grid, tune=False, cutoff_rule="absolute").fit(data.X, data.U)
+    assert not np.allclose(rel.W_, ab.W_)  # 100 grid RBFs leave eigenvalues between the two cut-offs
+    with pytest.raises(ConfigError, match="cutoff_rule"):
+        PolicyLearner(cutoff_rule="absolut", tune=False).fit(data.X, data.U)
 
 
 # ---- issue 10 (scale): chunked normal equations give the unchunked answers ----------------
