@@ -169,8 +169,9 @@ def read_yaml(path: str | Path, what: str = "config", error: type = ConfigError
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise error(f"{path}: {what} is not UTF-8 text (byte {exc.start}: 0x{raw[exc.start]:02x})") from None
-    loader = _Loader(text)
+    loader = None
     try:
+        loader = _Loader(text)
         node = loader.get_single_node()
         if node is not None:
             total = _expanded_size(node)
@@ -187,7 +188,8 @@ def read_yaml(path: str | Path, what: str = "config", error: type = ConfigError
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise error(f"{where}: invalid YAML ({problem})") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
     return data, node
 
 
