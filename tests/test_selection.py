@@ -126,5 +126,5 @@ def test_a_single_continuous_recording_gets_a_stated_block_split(tmp_path, capsy
     report = (tmp_path / "out" / "report.md").read_text()
     assert "## Validation" in report and "**blocks**" in report
     assert json.loads((tmp_path / "out" / "run.json").read_text())["validation"]["kind"] == "blocks"
-    assert main(["learn-a", "-c", str(cfg), "-o", str(tmp_path / "out2"), "-q"]) == 0
+    assert main(["learn-a", "-c", str(cfg), "-o", str(tmp_path / "out2")]) == 0  # -q would hide it
     assert "validation: blocks (a single continuous recording" in capsys.readouterr().err
