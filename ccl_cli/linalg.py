@@ -64,6 +64,10 @@ def eigen_lstsq(M: np.ndarray, r: np.ndarray, cutoff: float) -> np.ndarray:
 
 # -- chunked normal equations (issue 10: memory independent of N) --------------------------
 
+#: Relative eigenvalue cut-off of the damped normal matrix in the LM steps: directions
+#: of JᵀJ weaker than this (near-collinear RBF features) are not stepped along.
+LM_CUTOFF = 1e-12
+
 #: Rows per block of the chunked passes: temporaries are O(CHUNK_ROWS · K q), not O(N · K q).
 CHUNK_ROWS = 8192
 
@@ -141,13 +145,7 @@ def kron_least_squares(
         scaled = np.abs(Jtr) / np.sqrt(diag * max(cost, 1e-300))
         if np.max(scaled, initial=0.0) <= tol:
             break
-        while True:  # raise μ until JᵀJ + μD factorises (rank-deficient JᵀJ)
-            try:
-                L = np.linalg.cholesky(H + mu * np.diag(diag))
-                break
-            except np.linalg.LinAlgError:
-                mu *= 10.0
-        step = -np.linalg.solve(L.T, np.linalg.solve(L, Jtr))
+        step = -eigen_lstsq(H + mu * np.diag(diag), Jtr, LM_CUTOFF)
         if np.linalg.norm(step) <= tol * (tol + np.linalg.norm(w)):
             break
         new_cost, new_H, new_Jtr, new_D = evaluate(w + step)
