@@ -120,7 +120,7 @@ def run(learner: str, n: int, k: int | None = None, options: dict | None = None)
         problem, metric = "toy2d parabola uniform, 25 RBFs", "test NPPE"
     elif learner == "lambda":
         tr, te = arm(n, 0), arm(N_TEST, test_seed)
-        fit = lambda: KnownFeatureConstraint("arm2").fit(tr.X, tr.U)  # noqa: E731
+        fit = lambda: KnownFeatureConstraint(features="arm2").fit(tr.X, tr.U)  # noqa: E731
         inputs = tr.X.nbytes + tr.U.nbytes
 
         def floor_rows(m, s):
@@ -137,7 +137,7 @@ def run(learner: str, n: int, k: int | None = None, options: dict | None = None)
     else:  # policy learners
         tr, te = policy_problem(n, 0), policy_problem(N_TEST, test_seed)
         P = tr.true_projection() if learner == "pi-coupled" else None
-        fit = lambda: PolicyLearner(learner, basis=POLICY_BASIS).fit(tr.X, tr.U, P)  # noqa: E731
+        fit = lambda: PolicyLearner(method=learner, basis=POLICY_BASIS).fit(tr.X, tr.U, P)  # noqa: E731
         inputs = tr.X.nbytes + tr.U.nbytes + (P.nbytes if P is not None else 0)
         if learner == "dpl":
             floor_rows = lambda m, s: m.basis_.transform(tr.X[s])  # noqa: E731

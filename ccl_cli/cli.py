@@ -12,12 +12,14 @@ import logging
 import os
 import sys
 import time
+from enum import Enum
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
-from ccl_cli.errors import CCLError, InputError
+from ccl_cli.config import CHOICES, DEFAULTS
+from ccl_cli.errors import CCLError, ConfigError, InputError
 
 log = logging.getLogger("ccl")
 
@@ -36,26 +38,81 @@ DataArg = Annotated[list[Path] | None, typer.Argument(
     help="Recordings (files, bag directories or globs); overrides data.files of the config.",
     show_default=False)]
 ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="YAML config (see README).")]
-OutOpt = Annotated[Path | None, typer.Option("--out", "-o", help="Output directory.")]
+OutOpt = Annotated[Path | None, typer.Option("--out", "-o", help="Output directory.",
+                                             show_default="runs/<config name or command>")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite existing outputs.")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="Only warnings and errors on stderr.")]
-SeedOpt = Annotated[int | None, typer.Option("--seed", help="Seed of every random choice.")]
-TestOpt = Annotated[float | None, typer.Option("--test-fraction",
-                                               help="Fraction of demonstrations held out (0: none).")]
-ConvOpt = Annotated[str | None, typer.Option("--convention", help="Metric normalisers: ccl or original.")]
-CentresOpt = Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres.")]
-BasisOpt = Annotated[str | None, typer.Option("--basis", help="Feature map: rbf or linear.")]
+SeedOpt = Annotated[int | None, typer.Option("--seed", help="Seed of every random choice.",
+                                             show_default=f"config, else {DEFAULTS['seed']}")]
+TestOpt = Annotated[float | None, typer.Option(
+    "--test-fraction", help="Fraction of demonstrations held out (0: none).",
+    show_default=f"config, else {DEFAULTS['data']['test']['fraction']}")]
+
+
+def _choices(name: str, section: str, key: str) -> type[Enum]:
+    """An Enum of the config's allowed values of ``section.key`` (shown as choices in --help)."""
+    return Enum(name, [(v.replace("-", "_"), v) for v in CHOICES[(section, key)]], type=str)
+
+
+def _default(section: str, key: str, otherwise: str = "the method's default") -> str:
+    """The config default of ``section.key`` as --help shows it (flags only override the config)."""
+    value = (DEFAULTS.get(section) or {}).get(key)
+    return "config, else the method's default" if value is None and otherwise is None else \
+        f"config, else {value if value is not None else otherwise}"
+
+
+def _value(v: Any) -> Any:
+    return v.value if isinstance(v, Enum) else v
+
+
+Convention = _choices("Convention", "metrics", "convention")
+LearnAMethod = _choices("LearnAMethod", "learn-a", "method")
+Selection = _choices("Selection", "learn-a", "selection")
+PiMethod = _choices("PiMethod", "learn-pi", "method")
+Projections = _choices("Projections", "learn-pi", "projections")
+BasisKind = Enum("BasisKind", [("rbf", "rbf"), ("linear", "linear")], type=str)
+Features = Enum("Features", [("arm2", "arm2"), ("arm7", "arm7")], type=str)
+Regressors = Enum("Regressors", [("identity", "identity"), ("rbf", "rbf"), ("polynomial", "polynomial")],
+                  type=str)
+
+ConvOpt = Annotated[Convention | None, typer.Option("--convention",
+                                                    help="Metric normalisers (docs/metrics.md).",
+                                                    show_default=_default("metrics", "convention"))]
+CentresOpt = Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres (also sets "
+                                                "basis.n_centres of a basis mapping).",
+                                                show_default="config, else the stage's default")]
+BasisOpt = Annotated[BasisKind | None, typer.Option("--basis", help="Feature map (sets basis.kind of a "
+                                                    "basis mapping).", show_default="config, else rbf")]
+
+
+def _version(value: bool) -> None:
+    if value:
+        from ccl_cli import __version__
+
+        typer.echo(f"ccl {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True,
+                                                help="Print the version and exit.")] = False) -> None:
+    """Constraint Consistent Learning: learn constraints A(x), null-space components w(x) and
+    null-space policies π(x) from demonstrations (HDF5, CSV, MCAP, ROS 1/2 bags)."""
+
+
+_QUIET = [False]  # set by every command through _logging: -q silences the summaries too
 
 
 def _logging(quiet: bool) -> None:
+    _QUIET[0] = quiet
     level = logging.WARNING if quiet else logging.INFO
     logging.basicConfig(level=level, format="ccl: %(message)s", stream=sys.stderr, force=True)
 
 
 def _common(seed, test_fraction, convention) -> dict[str, Any]:
     return {"seed": seed, "data": {"test": {"fraction": test_fraction}},
-            "metrics": {"convention": convention}}
+            "metrics": {"convention": _value(convention)}}
 
 
 def _config(path: Path | None, overrides: dict[str, Any]):
@@ -64,20 +121,33 @@ def _config(path: Path | None, overrides: dict[str, Any]):
     return C.merge(C.load(path), overrides)
 
 
-def _emit(summary: dict[str, Any], as_json: bool) -> None:
+def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
+    """The summary: JSON on stdout (``--json``), else one line per stage on stderr (none with -q)."""
     import json
 
     if as_json:
         sys.stdout.write(json.dumps(summary, default=str) + "\n")
         return
-    for stage, entry in (summary.get("stages") or {}).items():
-        parts = [f"{stage} ({entry.get('method')})"]
+    if quiet or _QUIET[0]:
+        return
+    val = summary.get("validation")
+    if val:
+        typer.echo(f"validation: {val.get('kind')} ({val.get('reason')})", err=True)
+
+    def line(label: str, entry: dict[str, Any]) -> str:
+        parts = [label]
         if "n_constraints" in entry:
             parts.append(f"s={entry['n_constraints']}")
         for split in ("train", "test"):
             for name, value in (entry.get(split) or {}).items():
                 parts.append(f"{split} {name}={value:.3e}")
-        typer.echo("  ".join(parts), err=True)
+        return "  ".join(parts)
+
+    for stage, entry in (summary.get("stages") or {}).items():
+        typer.echo(line(f"{stage} ({entry.get('method')})", entry), err=True)
+        if entry.get("baseline"):
+            typer.echo(line(f"{stage} baseline ({entry['baseline'].get('method')})", entry["baseline"]),
+                       err=True)
     if summary.get("outdir"):
         typer.echo(f"outputs in {summary['outdir']}", err=True)
 
@@ -87,7 +157,7 @@ def _wrote(command: str, out: Path, data, as_json: bool) -> None:
     if as_json:
         _emit({"status": "ok", "command": command, "out": str(out), "samples": data.n_samples,
                "demos": data.n_demos}, True)
-    else:
+    elif not _QUIET[0]:
         typer.echo(f"wrote {out}: {data.n_samples} samples in {data.n_demos} demonstrations", err=True)
 
 
@@ -105,7 +175,7 @@ def _learn(command: str, stages: list[tuple[str, dict]] | None, cfg, files, out:
     finally:
         if bar:
             bar.stop()
-    _emit(summary, as_json)
+    _emit(summary, as_json, quiet)
 
 
 def _bar(label: str, total: int, quiet: bool):
@@ -140,16 +210,23 @@ def _bar(label: str, total: int, quiet: bool):
 @app.command("learn-a")
 def learn_a(
     data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None,
-    method: Annotated[str | None, typer.Option(help="nhat (constant A, closed form), alpha "
-                                               "(state-dependent), lambda (known Φ), linear (closed form).")]
+    method: Annotated[LearnAMethod | None, typer.Option(
+        help="nhat (constant A, closed form), alpha (state-dependent), lambda (known Φ), linear "
+             "(closed form, docs/methods.md).", show_default=_default("learn-a", "method"))] = None,
+    selection: Annotated[Selection | None, typer.Option(
+        help="How the number of constraints s is chosen.", show_default=_default("learn-a", "selection"))]
     = None,
-    selection: Annotated[str | None, typer.Option(help="How s is chosen: eigengap, threshold, cv.")] = None,
-    n_constraints: Annotated[int | None, typer.Option(help="Fix the number of constraints s.")] = None,
-    features: Annotated[str | None, typer.Option(help="lambda: built-in Φ, arm2 or arm7.")] = None,
-    regressors: Annotated[str | None, typer.Option(help="linear: identity, rbf or polynomial.")] = None,
-    degree: Annotated[int | None, typer.Option(help="linear: polynomial degree.")] = None,
-    per_demo: Annotated[bool | None, typer.Option("--per-demo/--pooled",
-                                                  help="One constraint per demonstration.")] = None,
+    n_constraints: Annotated[int | None, typer.Option(help="Fix the number of constraints s.",
+                                                      show_default="chosen by --selection")] = None,
+    features: Annotated[Features | None, typer.Option(help="lambda: built-in Φ.", show_default="config")]
+    = None,
+    regressors: Annotated[Regressors | None, typer.Option(help="linear: regressors of A(x).",
+                                                          show_default="config, else identity")] = None,
+    degree: Annotated[int | None, typer.Option(help="linear: polynomial degree.",
+                                               show_default="config, else the method's default")] = None,
+    per_demo: Annotated[bool | None, typer.Option("--per-demo/--pooled", help="One constraint per "
+                                                  "demonstration.", show_default="config, else pooled")]
+    = None,
     n_centres: CentresOpt = None, basis: BasisOpt = None,
     seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
@@ -157,9 +234,9 @@ def learn_a(
     """Learn the constraint A(x) (and its projection N = I − A⁺A) from observed actions."""
     _logging(quiet)
     over = _common(seed, test_fraction, convention) | {"learn-a": {
-        "method": method, "selection": selection, "n_constraints": n_constraints, "features": features,
-        "regressors": regressors, "degree": degree, "per_demo": per_demo, "n_centres": n_centres,
-        "basis": basis}}
+        "method": _value(method), "selection": _value(selection), "n_constraints": n_constraints,
+        "features": _value(features), "regressors": _value(regressors), "degree": degree,
+        "per_demo": per_demo, "n_centres": n_centres, "basis": _value(basis)}}
     cfg = _config(config, over)
     _learn("learn-a", [("learn-a", {})], cfg, data, out, force, json_out, quiet)
 
@@ -174,16 +251,18 @@ def learn_v(
     """Learn the null-space component w(x) of u = v + w (and so the task part v = u − w)."""
     _logging(quiet)
     cfg = _config(config, _common(seed, test_fraction, convention) | {
-        "learn-v": {"n_centres": n_centres, "basis": basis}})
+        "learn-v": {"n_centres": n_centres, "basis": _value(basis)}})
     _learn("learn-v", [("learn-v", {})], cfg, data, out, force, json_out, quiet)
 
 
 @app.command("learn-pi")
 def learn_pi(
     data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None,
-    method: Annotated[str | None, typer.Option(help="pi, pi-weighted, pi-coupled, lwpi or dpl.")] = None,
-    projections: Annotated[str | None, typer.Option(help="pi-coupled: true (ground truth) or learnt.")]
-    = None,
+    method: Annotated[PiMethod | None, typer.Option(help="Policy learner (docs/methods.md).",
+                                                    show_default=_default("learn-pi", "method"))] = None,
+    projections: Annotated[Projections | None, typer.Option(
+        help="pi-coupled: projections from the ground truth (true) or a learn-a stage (learnt).",
+        show_default=_default("learn-pi", "projections"))] = None,
     n_centres: CentresOpt = None, basis: BasisOpt = None,
     seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
@@ -191,7 +270,8 @@ def learn_pi(
     """Learn the unconstrained null-space policy π(x) from demonstrations under varying constraints."""
     _logging(quiet)
     cfg = _config(config, _common(seed, test_fraction, convention) | {
-        "learn-pi": {"method": method, "projections": projections, "n_centres": n_centres, "basis": basis}})
+        "learn-pi": {"method": _value(method), "projections": _value(projections), "n_centres": n_centres,
+                     "basis": _value(basis)}})
     _learn("learn-pi", [("learn-pi", {})], cfg, data, out, force, json_out, quiet)
 
 
@@ -216,38 +296,20 @@ def evaluate(
     data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None, convention: ConvOpt = None,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
-    """Metrics of a saved model on data (every metric its ground truth allows)."""
-    from ccl_cli.models import load_model
-    from ccl_cli.pipeline import check_dimensions, evaluate_model
+    """Metrics of a saved model on data (every metric its ground truth allows; docs/metrics.md)."""
+    from ccl_cli.evaluate import evaluate_saved
     from ccl_cli.runner import read_data
 
     _logging(quiet)
-    cfg = _config(config, {"metrics": {"convention": convention}})
-    est, info = load_model(model)
+    cfg = _config(config, {"metrics": {"convention": _value(convention)}})
     dataset, _ = read_data(cfg, data)
-    check_dimensions(est, dataset)
-    metrics = evaluate_model(est, info["kind"], dataset, cfg["metrics"]["convention"])
-    entry = {"method": info["method"], "all": metrics}
-    if out is not None:
-        from ccl_cli.io.atomic import atomic_dir
-        from ccl_cli.report import versions, write_json
-
-        with atomic_dir(out, force=force) as tmp:
-            write_json(tmp / "metrics.json", {"evaluate": entry})
-            rows = [f"| {k} | {v['value']:.3e} | {v['normaliser']:.3e} (var of {v['normaliser_of']}) |"
-                    for k, v in metrics.items()]
-            (tmp / "report.md").write_text("\n".join([f"# ccl evaluate {model}", "",
-                                                      "| metric | value | normaliser |", "|---|---|---|",
-                                                      *rows, ""]))
-            write_json(tmp / "run.json", {"command": "evaluate", "model": str(model),
-                                          "inputs": dataset.metadata.get("files"), "versions": versions()})
-    summary = {"status": "ok", "command": "evaluate", "model": str(model), "kind": info["kind"],
-               "method": info["method"], "metrics": {k: v["value"] for k, v in metrics.items()},
-               "outdir": str(out) if out else None}
+    summary = evaluate_saved(model, dataset, cfg["metrics"]["convention"], out, force)
     if json_out:
-        _emit(summary, True)
-    else:
-        for k, v in metrics.items():
+        _emit({**summary, "metrics": {k: v["value"] for k, v in summary["metrics"].items()}}, True)
+    elif not quiet:
+        if not summary["metrics"]:
+            typer.echo(f"no metric: the data has no ground truth for this {summary['kind']} model", err=True)
+        for k, v in summary["metrics"].items():
             typer.echo(f"{k} = {v['value']:.6e}  (error {v['error']:.3e} / var of {v['normaliser_of']} "
                        f"{v['normaliser']:.3e})")
 
@@ -261,61 +323,28 @@ def predict(
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Predict on new states: projections N(x) (constraint), w and v (null-space), π (policy)."""
-    import numpy as np
-
-    from ccl_cli.io.atomic import atomic_path
-    from ccl_cli.models import load_model
-    from ccl_cli.pipeline import check_dimensions
+    from ccl_cli.evaluate import predict_saved
     from ccl_cli.runner import read_data
 
     _logging(quiet)
     cfg = _config(config, {})
-    est, info = load_model(model)
     dataset, _ = read_data(cfg, data)
-    check_dimensions(est, dataset)
-    kind = info["kind"]
-    outputs: dict[str, np.ndarray] = {"x": dataset.X, "u": dataset.U, "t": dataset.t, "demo": dataset.demo}
-    if kind == "constraint":
-        N = est.projection(dataset.X, dataset.demo)
-        outputs["N"] = N
-        outputs["w"] = np.einsum("nij,nj->ni", N, dataset.U)
-    elif kind == "nullspace":
-        outputs["w"] = est.predict(dataset.X)
-        outputs["v"] = dataset.U - outputs["w"]
-    else:
-        outputs["pi"] = est.predict(dataset.X)
-    if out.suffix.lower() == ".csv":
-        cols, names = [], []
-        for key, arr in outputs.items():
-            flat = arr.reshape(len(arr), -1)
-            cols.append(flat)
-            names += [key] if flat.shape[1] == 1 else [f"{key}_{j}" for j in range(flat.shape[1])]
-        with atomic_path(out, force=force) as tmp:
-            np.savetxt(tmp, np.hstack(cols), delimiter=",", header=",".join(names), comments="")
-    elif out.suffix.lower() in (".h5", ".hdf5"):
-        import h5py
-
-        with atomic_path(out, force=force) as tmp, h5py.File(tmp, "w") as f:
-            f.attrs["format"] = "ccl-predictions"
-            f.attrs["model"] = str(model)
-            f.attrs["method"] = info["method"]
-            for key, arr in outputs.items():
-                f.create_dataset(key, data=arr)
-    else:
-        raise InputError(f"{out}: output must end in .h5 or .csv")
-    summary = {"status": "ok", "command": "predict", "out": str(out), "samples": dataset.n_samples,
-               "outputs": sorted(outputs)}
-    _emit(summary, json_out) if json_out else typer.echo(f"wrote {out} ({dataset.n_samples} samples)",
-                                                         err=True)
+    summary = predict_saved(model, dataset, out, force)
+    if json_out:
+        _emit(summary, True)
+    elif not quiet:
+        typer.echo(f"wrote {out} ({dataset.n_samples} samples)", err=True)
 
 
 # -- data commands --------------------------------------------------------------------------
 @app.command("simulate")
 def simulate(
-    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7 or varying_constraint.")],
+    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7, varying_constraint, tracker_plane, "
+                                                "tracker_sphere or arm_at_rest.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     seed: Annotated[int, typer.Option(help="Seed.")] = 0,
-    noise: Annotated[float | None, typer.Option(help="Std of noise on u.")] = None,
+    noise: Annotated[float | None, typer.Option(help="Std of noise on u (tracker_*: on positions, m).")]
+    = None,
     snr_db: Annotated[float | None, typer.Option(help="Noise as signal-to-noise ratio in dB.")] = None,
     n_demos: Annotated[int | None, typer.Option(help="Number of demonstrations.")] = None,
     n_steps: Annotated[int | None, typer.Option(help="Steps per demonstration.")] = None,
@@ -327,6 +356,11 @@ def simulate(
                                                          help="toy2d: a constraint per demo.")] = None,
     sampling: Annotated[str | None, typer.Option(help="toy2d: trajectory or uniform.")] = None,
     n_samples: Annotated[int | None, typer.Option(help="toy2d uniform: number of states.")] = None,
+    rate: Annotated[float | None, typer.Option(help="tracker_*: sampling rate, Hz (default 50).")] = None,
+    duration: Annotated[float | None, typer.Option(help="tracker_*: seconds per recording (default 90).")]
+    = None,
+    n_recordings: Annotated[int | None, typer.Option(help="tracker_*: continuous recordings (default 1).")]
+    = None,
     test_fraction: Annotated[float, typer.Option(help="Demos marked test in /mask (0: no masks).")] = 0.0,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
@@ -342,7 +376,8 @@ def simulate(
     fn = S.PROBLEMS[problem]
     given = {"noise": noise, "snr_db": snr_db, "n_demos": n_demos, "n_steps": n_steps,
              "constraint": constraint, "policy": policy, "task": task, "vary_constraint": vary_constraint,
-             "sampling": sampling, "n_samples": n_samples}
+             "sampling": sampling, "n_samples": n_samples, "rate": rate, "duration": duration,
+             "n_recordings": n_recordings}
     accepted = pyinspect.signature(fn).parameters
     kwargs = {k: v for k, v in given.items() if v is not None}
     bad = [k for k in kwargs if k not in accepted]
@@ -354,8 +389,9 @@ def simulate(
     if test_fraction > 0:
         train, test = data.split(test_fraction, seed)
         masks = {"train": list(train.demo_ids), "test": list(test.demo_ids)}
-    write_demonstrations(out, data, provenance={"simulate": problem, "seed": seed, **kwargs}, masks=masks,
-                         force=force)
+    derivative = {"derivative": data.metadata["derivative"]} if "derivative" in data.metadata else {}
+    write_demonstrations(out, data, provenance={"simulate": problem, "seed": seed, **kwargs, **derivative},
+                         masks=masks, force=force)
     _wrote("simulate", out, data, json_out)
 
 
@@ -363,32 +399,53 @@ def simulate(
 def inspect_cmd(
     data: Annotated[Path, typer.Argument(help="A recording (file or bag directory).")],
     config: ConfigOpt = None,
-    gap: Annotated[float | None, typer.Option(help="Report demonstrations split on gaps (seconds).")]
-    = None,
+    gap: Annotated[float | None, typer.Option(help="Pause (seconds) that splits demonstrations "
+                                              "[default: data.demos.split_on_gap, else 5 × the median "
+                                              "sampling interval].", show_default=False)] = None,
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
-    """Topics, types, counts, rates, time span and detected demonstrations of a recording."""
-    from ccl_cli.io import inspect_path
+    """Topics (type, count, rate over the active time, fields, joint names), CSV columns, time span
+    and the demonstrations a gap split finds (default gap: 5 × the median sampling interval)."""
+    from ccl_cli.inspect import inspect_recording
 
     _logging(quiet)
     cfg = _config(config, {})
-    info = inspect_path(data, cfg.get("data"), gap)
+    info = inspect_recording(data, cfg.get("data"), gap)
     if json_out:
         _emit(info, True)
         return
-    typer.echo(f"path:     {info['path']}")
-    typer.echo(f"format:   {info['format']}  ({info['size_bytes']} bytes)")
+    for line in _inspect_lines(info):
+        typer.echo(line)
+
+
+def _inspect_lines(info: dict[str, Any]) -> list[str]:
+    """``ccl inspect``'s text rendering (one function, so every format's listing shows here)."""
+    out = [f"path:     {info['path']}", f"format:   {info['format']}  ({info['size_bytes']} bytes)"]
     if "duration_s" in info:
-        typer.echo(f"duration: {info['duration_s']:.3f} s")
+        span = "summed over demonstrations" if info["format"] == "hdf5" else "first to last message"
+        out.append(f"duration: {info['duration_s']:.3f} s ({span})")
     for topic, t in (info.get("topics") or {}).items():
         rate = f"{t['rate_hz']:.1f} Hz" if t.get("rate_hz") else "-"
-        typer.echo(f"  {topic:30s} {t['type']:40s} {t['count']:>9d} msgs  {rate}")
+        out.append(f"  {topic:30s} {t['type']:36s} {t['count']:>9d} msgs  {rate:>10s}"
+                   + (f" over {t['active_s']:.2f} s active" if t.get("active_s") else ""))
+        if t.get("fields"):
+            out.append(f"  {'':30s} fields: {', '.join(t['fields'])}")
+        if t.get("joint_names"):
+            out.append(f"  {'':30s} joints: {', '.join(t['joint_names'])}")
     if "columns" in info:
-        typer.echo(f"columns:  {', '.join(info['columns'])}")
-        typer.echo(f"rows:     {info['rows']} (time column {info['time_column']})")
-    for key in ("samples", "demos", "state_names", "action_names", "truth", "masks"):
-        if key in info:
-            typer.echo(f"{key + ':':9s} {info[key]}")
+        out.append(f"columns:  {', '.join(map(str, info['columns']))}")
+        rate = f", {info['rate_hz']:.1f} Hz over {info['active_s']:.2f} s active" \
+            if info.get("rate_hz") else ""
+        out.append(f"rows:     {info['rows']} (time column {info['time_column']}{rate})")
+    for node in info.get("tree", []):  # HDF5 / .mat contents
+        out.append("  " + "  ".join(str(v) for k, v in node.items() if k != "names"))
+    if "gap_s" in info and "demos" in info:
+        out.append(f"demos:    {info['demos']} in {info.get('demos_from')} (split on pauses > "
+                   f"{info['gap_s']:.3g} s: {info.get('gap_rule')}; change with --gap)")
+    for key in ("samples", "demos", "samples_per_demo", "state_names", "action_names", "truth", "masks"):
+        if key in info and not (key == "demos" and "gap_s" in info):
+            out.append(f"{key + ':':9s} {info[key]}")
+    return out
 
 
 @app.command("convert")
@@ -417,8 +474,8 @@ def batch(
     = None,
     config: ConfigOpt = None,
     out: OutOpt = None,
-    workers: Annotated[int | None, typer.Option("--workers", "-j", help="Local processes (default: cores).")]
-    = None,
+    workers: Annotated[int | None, typer.Option("--workers", "-j", help="Local processes.",
+                                                show_default="the number of cores")] = None,
     scheduler: Annotated[str | None, typer.Option(help="Address of a running Dask scheduler.")] = None,
     force: Annotated[bool, typer.Option("--force", help="Re-run jobs whose outputs are up to date.")] = False,
     json_out: JsonOpt = False, quiet: QuietOpt = False,
@@ -428,7 +485,10 @@ def batch(
 
     _logging(quiet)
     t0 = time.perf_counter()
+    if manifest is None and files and config is None:
+        raise ConfigError("batch --files needs --config/-c: a pipeline YAML with a stages: list")
     jobs, manifest_out = plan(manifest, files, str(config) if config else None)
+    _check_plan(jobs)
     outdir = out or manifest_out or Path("runs") / "batch"
     bar = _bar("jobs", len(jobs), quiet)
     try:
@@ -440,7 +500,7 @@ def batch(
     summary["outdir"] = str(outdir)
     if json_out:
         _emit({k: v for k, v in summary.items() if k != "results"}, True)
-    else:
+    elif not quiet or summary["failed"]:
         typer.echo(f"{summary['jobs']} jobs: {summary['ok']} ran, {summary['skipped']} skipped, "
                    f"{summary['failed']} failed; summary in {outdir / 'summary.md'}", err=True)
         for f in summary["failures"]:
@@ -448,10 +508,31 @@ def batch(
     return 1 if summary["failed"] else 0
 
 
+def _check_plan(jobs) -> None:
+    """Every job of a batch can run: its config names stages (raises ConfigError, exit 2,
+    before any job starts)."""
+    from ccl_cli.config import Config
+    from ccl_cli.pipeline import stage_list
+
+    for job in jobs:
+        cfg = Config(job.config)
+        cfg.source, cfg.lines = job.config_path or "the batch config", {}
+        try:
+            stage_list(cfg)
+        except ConfigError as exc:
+            raise ConfigError(f"job {job.job_id} ({job.files[0]}): {exc.message}") from None
+
+
 # -- entry point ---------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: run the app and turn every failure into a one-line message."""
+    import signal
+
+    import ccl_cli
+
     try:
+        if signal.getsignal(signal.SIGINT) is ccl_cli._interrupted_while_starting:
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # from here on: KeyboardInterrupt
         result = app(args=argv, prog_name="ccl", standalone_mode=False)
         if result == 130:  # typer turns Ctrl-C into this return value
             typer.echo("ccl: interrupted; no partial outputs were left", err=True)
@@ -483,7 +564,18 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def entry() -> None:
-    sys.exit(main())
+    """The ``ccl`` script: exit status of :func:`main`; Ctrl-C at any moment → 130 and one
+    line; a file-size limit (``ulimit -f``) is a write error (EFBIG), not a kill."""
+    import signal
+
+    if hasattr(signal, "SIGXFSZ"):
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    try:
+        code = main()
+    except KeyboardInterrupt:
+        typer.echo("ccl: interrupted; no partial outputs were left", err=True)
+        code = 130
+    sys.exit(code)
 
 
 if __name__ == "__main__":

@@ -18,25 +18,32 @@ from typing import Any
 
 import yaml
 
+from ccl_cli import selection as S
 from ccl_cli.errors import ConfigError
 
 STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
 NUM = (int, float)
 
 BASIS = {"kind": str, "n_centres": int, "centres": (str, list), "sigma2": NUM, "seed": int}
-STREAM = {"topic": str, "field": str, "joints": list, "columns": list, "stamp": str}
+STREAM = {"topic": str, "field": str, "joints": list, "columns": list, "stamp": str,
+          "dataset": str, "variable": str, "file": str, "samples": str}
 ACTION = {**STREAM, "derive": str, "window": int, "order": int}
+#: ``tune: {budget: seconds, folds: k}`` (or true/false) in a learner's section.
+TUNE = {"budget": NUM, "folds": int}
 
 SCHEMA: dict[str, Any] = {
     "seed": int,
     "data": {
         "files": (list, str), "format": str, "typestore": str, "state": STREAM, "action": ACTION,
-        "time": {"column": (str, int), "unit": str, "rate": NUM, "delimiter": str},
-        "demos": {"split_on_gap": NUM, "ranges": list, "per_file": bool},
+        "time": {"column": (str, int), "unit": str, "rate": NUM, "delimiter": str,
+                 "dataset": str, "variable": str, "file": str},
+        "demos": {"split_on_gap": NUM, "ranges": list, "window": NUM, "per_file": bool,
+                  "group": str, "dataset": str, "variable": str},
         "nonfinite": str, "min_samples": int,
-        "test": {"fraction": NUM, "seed": int, "use_masks": bool},
+        "test": {"fraction": NUM, "seed": int, "use_masks": bool, "gap": int, "min_demos": int,
+                 "blocks": int},
     },
-    "learn-v": {"basis": (str, BASIS), "n_centres": int, "max_iter": int, "tol": NUM},
+    "learn-v": {"basis": (str, BASIS), "n_centres": int, "max_iter": int, "tol": NUM, "tune": (bool, TUNE)},
     "learn-a": {
         "method": str, "on": str, "per_demo": bool, "selection": str, "n_constraints": int,
         "threshold": NUM, "gap_floor": NUM, "max_constraints": int, "cv_folds": int,
@@ -44,10 +51,11 @@ SCHEMA: dict[str, Any] = {
         "basis": (str, BASIS), "n_centres": int,
         "features": (str, {"arm": str, "rows": list}),
         "regressors": str, "degree": int, "task": bool, "task_regressors": str, "whiten": str,
-        "reweight": int,
+        "reweight": int, "tune": (bool, TUNE),
     },
-    "learn-pi": {"method": str, "on": str, "basis": (str, BASIS), "n_centres": int, "cutoff": NUM,
-                 "min_norm": NUM, "projections": str, "baseline": bool},
+    "learn-pi": {"method": str, "on": str, "basis": (str, BASIS), "n_centres": int, "cutoff": (NUM, str),
+                 "cutoff_rule": str,
+                 "min_norm": NUM, "projections": str, "baseline": bool, "tune": (bool, TUNE)},
     "evaluate": {"convention": str},
     "metrics": {"convention": str},
     "output": {"plots": bool},
@@ -58,10 +66,11 @@ DEFAULTS: dict[str, Any] = {
     "seed": 0,
     "data": {"format": "auto", "nonfinite": "drop", "test": {"fraction": 0.3, "seed": 0,
                                                              "use_masks": True}},
-    "learn-v": {"basis": "rbf", "n_centres": 16},
-    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": "eigengap"},
+    "learn-v": {"basis": "rbf", "n_centres": 16, "tune": S.TUNE},
+    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": S.DEFAULT_RULE,
+                "tune": S.TUNE},
     "learn-pi": {"method": "pi", "on": "auto", "basis": "rbf", "n_centres": 16,
-                 "projections": "auto", "baseline": True},
+                 "projections": "auto", "baseline": True, "tune": S.TUNE},
     "metrics": {"convention": "ccl"},
     "output": {"plots": True},
 }
@@ -69,20 +78,44 @@ DEFAULTS: dict[str, Any] = {
 CHOICES = {
     ("learn-a", "method"): ("nhat", "alpha", "lambda", "linear"),
     ("learn-a", "on"): ("auto", "u", "w"),
-    ("learn-a", "selection"): ("threshold", "eigengap", "cv"),
+    ("learn-a", "selection"): ("ratio", "threshold", "eigengap", "cv"),
     ("learn-a", "variant"): ("closed_form", "search"),
     ("learn-a", "whiten"): ("rms", "errors", "none"),
     ("learn-pi", "method"): ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"),
     ("learn-pi", "on"): ("auto", "u", "w"),
     ("learn-pi", "projections"): ("auto", "learnt", "true"),
+    ("learn-pi", "cutoff_rule"): ("relative", "absolute"),
     ("metrics", "convention"): ("ccl", "original"),
     ("evaluate", "convention"): ("ccl", "original"),
-    ("data", "format"): ("auto", "hdf5", "csv", "bag", "mcap"),
+    ("data", "format"): ("auto", "hdf5", "csv", "bag", "mcap", "mat"),
     ("data", "nonfinite"): ("drop", "fail"),
 }
 
+#: limits of a YAML document (configs, manifests): nesting depth, nodes after expanding
+#: aliases (billion laughs), and size of the file
+MAX_DEPTH = 64
+MAX_NODES = 100_000
+MAX_BYTES = 16 << 20
+
+
 class _Loader(yaml.SafeLoader):
-    """SafeLoader with YAML 1.2 booleans: only true/false, so keys like ``on`` stay strings."""
+    """SafeLoader with YAML 1.2 booleans (only true/false, so keys like ``on`` stay
+    strings), bounded nesting depth and a budget of nodes counted with every alias
+    expanded (so an alias bomb is refused before anything walks it)."""
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self._depth = 0
+
+    def compose_node(self, parent, index):  # noqa: ANN001, ANN201 - PyYAML's signature
+        self._depth += 1
+        if self._depth > MAX_DEPTH:
+            mark = self.peek_event().start_mark
+            raise yaml.composer.ComposerError(None, None, f"nested deeper than {MAX_DEPTH} levels", mark)
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
 
 
 _Loader.yaml_implicit_resolvers = {
@@ -91,6 +124,77 @@ _Loader.yaml_implicit_resolvers = {
 }
 _Loader.add_implicit_resolver("tag:yaml.org,2002:bool", __import__("re").compile(r"^(?:true|True|TRUE|"
                               r"false|False|FALSE)$"), list("tTfF"))
+
+
+def _expanded_size(root: yaml.Node) -> int | None:
+    """Number of nodes of ``root`` with every alias expanded (shared nodes counted at each
+    use), computed once per distinct node; None if an alias refers to its own ancestor."""
+    size: dict[int, int] = {}
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    open_: set[int] = set()
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        children = [n for pair in node.value for n in pair] if isinstance(node, yaml.MappingNode) else \
+            list(node.value) if isinstance(node, yaml.SequenceNode) else []
+        if done:
+            size[key] = min(1 + sum(size[id(c)] for c in children), 1 << 62)
+            open_.discard(key)
+            continue
+        if key in size:
+            continue
+        if key in open_:
+            return None
+        open_.add(key)
+        stack.append((node, True))
+        for child in children:
+            if id(child) in open_:
+                return None
+            if id(child) not in size:
+                stack.append((child, False))
+    return size[id(root)]
+
+
+def read_yaml(path: str | Path, what: str = "config", error: type = ConfigError
+              ) -> tuple[Any, yaml.Node | None]:
+    """Parse one YAML document safely → (data, composed node).
+
+    Refused with a one-line ``error`` naming the file (and line, or byte offset): files
+    over ``MAX_BYTES``, bytes that are not UTF-8, YAML errors, nesting deeper than
+    ``MAX_DEPTH`` and more than ``MAX_NODES`` nodes once aliases are expanded.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(MAX_BYTES + 1)
+    except OSError as exc:
+        raise error(f"{path}: cannot read {what} ({exc.strerror})") from None
+    if len(raw) > MAX_BYTES:
+        raise error(f"{path}: {what} is larger than {MAX_BYTES >> 20} MB")
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: {what} is not UTF-8 text (byte {exc.start}: 0x{raw[exc.start]:02x})") from None
+    loader = _Loader(text)
+    try:
+        node = loader.get_single_node()
+        if node is not None:
+            total = _expanded_size(node)
+            if total is None:
+                raise error(f"{path}:{node.start_mark.line + 1}: invalid YAML (an alias refers to "
+                            "its own parent)")
+            if total > MAX_NODES:
+                raise error(f"{path}: {what} has {total} values once aliases are expanded "
+                            f"(limit {MAX_NODES}); refused")
+        data = loader.construct_document(node) if node is not None else None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark else str(path)
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise error(f"{where}: invalid YAML ({problem})") from None
+    finally:
+        loader.dispose()
+    return data, node
 
 
 _TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false",
@@ -118,6 +222,11 @@ class Config(dict):
     source: str = "<flags>"
     lines: dict[tuple, int]
     base: Path | None = None
+    flags: dict  # the command-line overrides merged in (see merge)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.flags = {}
 
 
 def load(path: str | Path | None) -> Config:
@@ -127,18 +236,7 @@ def load(path: str | Path | None) -> Config:
     if path is None:
         return cfg
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read config ({exc.strerror})") from None
-    try:
-        node = yaml.compose(text, Loader=_Loader)
-        data = yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark else str(path)
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"{where}: invalid YAML ({problem})") from None
+    data, node = read_yaml(path, "config")
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -152,6 +250,8 @@ def load(path: str | Path | None) -> Config:
 
 
 def _where(cfg: Config, path: tuple) -> str:
+    if cfg.source == FLAGS and path:
+        return "--" + str(path[-1]).replace("_", "-")
     for cut in range(len(path), -1, -1):
         line = cfg.lines.get(path[:cut])
         if line is not None:
@@ -243,14 +343,46 @@ def deep_merge(base: dict, over: dict) -> dict:
     return out
 
 
+FLAGS = "command line"
+
+
+def _override(opts: dict, flags: dict) -> dict:
+    """``opts`` with a stage's flag values on top, at any depth: ``--n-centres`` also sets
+    ``basis.n_centres`` and ``--basis KIND`` sets ``basis.kind`` when the basis is a mapping
+    (so a flag is never shadowed by, nor wipes out, a basis mapping of the config)."""
+    out = deep_merge(opts, {k: v for k, v in flags.items() if k != "basis"})
+    if "basis" in flags:
+        old = opts.get("basis")
+        out["basis"] = {**old, "kind": flags["basis"]} if isinstance(old, dict) and \
+            isinstance(flags["basis"], str) else copy.deepcopy(flags["basis"])
+    if "n_centres" in flags and isinstance(out.get("basis"), dict):
+        out["basis"] = {**out["basis"], "n_centres": flags["n_centres"]}
+    return out
+
+
 def merge(cfg: Config, overrides: dict) -> Config:
     """``cfg`` with flag ``overrides`` (None values ignored) and defaults filled in;
-    the result is validated again (flags are checked like file keys)."""
+    the result is validated again (flags are checked like file keys, and named as flags
+    in errors). The flags are kept (``flags``) so :func:`stage_options` applies them over
+    a ``stages`` item's own options too."""
     clean = _drop_none(overrides)
-    merged = Config(deep_merge(DEFAULTS, deep_merge(dict(cfg), clean)))
-    merged.source = cfg.source if not clean else f"{cfg.source} + flags"
+    if clean:
+        check = Config(clean)
+        check.source, check.lines = FLAGS, {}
+        validate(check)
+    merged_dict = deep_merge(DEFAULTS, dict(cfg))
+    for key, value in clean.items():
+        if key in STAGES and isinstance(value, dict):
+            merged_dict[key] = _override(merged_dict.get(key) or {}, value)
+        elif isinstance(value, dict) and isinstance(merged_dict.get(key), dict):
+            merged_dict[key] = deep_merge(merged_dict[key], value)
+        else:
+            merged_dict[key] = copy.deepcopy(value)
+    merged = Config(merged_dict)
+    merged.source = cfg.source
     merged.lines = cfg.lines
     merged.base = cfg.base
+    merged.flags = deep_merge(getattr(cfg, "flags", {}), clean)
     validate(merged)
     return merged
 
@@ -268,5 +400,8 @@ def _drop_none(d: dict) -> dict:
 
 
 def stage_options(cfg: Config, name: str, extra: dict | None = None) -> dict:
-    """Options of stage ``name``: its section, then the ``stages`` item's own options."""
-    return deep_merge(cfg.get(name) or {}, extra or {})
+    """Options of stage ``name``: its section, then the ``stages`` item's own options, then
+    the command-line flags of that stage (flags win at any depth, see :func:`_override`)."""
+    opts = deep_merge(cfg.get(name) or {}, extra or {})
+    flags = (getattr(cfg, "flags", None) or {}).get(name)
+    return _override(opts, flags) if flags else opts

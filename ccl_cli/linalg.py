@@ -49,15 +49,17 @@ def total_variance(Y: np.ndarray, ddof: int = 1) -> float:
     return float(np.var(Y, axis=0, ddof=ddof).sum())
 
 
-def eigen_lstsq(M: np.ndarray, r: np.ndarray, cutoff: float) -> np.ndarray:
+def eigen_lstsq(M: np.ndarray, r: np.ndarray, cutoff: float, absolute: bool = False) -> np.ndarray:
     """Solve the symmetric normal equations ``M w = r`` by eigen-decomposition.
 
-    Eigenvalues of ``M`` below ``cutoff · max(eig)`` are discarded (a regularised
+    Eigenvalues of ``M`` below ``cutoff · max(eig)`` (or below ``cutoff`` itself with
+    ``absolute``, the original library's rule) are discarded (a regularised
     pseudo-inverse, ALGORITHMS.md §4–§5). ``M`` is (..., d, d), ``r`` (..., d).
     """
     vals, vecs = np.linalg.eigh(M)
     top = np.maximum(vals[..., -1:], np.finfo(float).tiny)
-    inv = np.where(vals > cutoff * top, 1.0 / np.where(vals > 0, vals, 1.0), 0.0)
+    threshold = cutoff if absolute else cutoff * top
+    inv = np.where(vals > threshold, 1.0 / np.where(vals > 0, vals, 1.0), 0.0)
     coef = np.einsum("...ij,...i->...j", vecs, r) * inv
     return np.einsum("...ij,...j->...i", vecs, coef)
 

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.errors import ConfigError
 from ccl_cli.linalg import total_variance
 
 CONVENTIONS = ("ccl", "original")
@@ -81,21 +81,28 @@ def npoe(
     convention: str = "ccl",
     Pi: np.ndarray | None = None,
     W: np.ndarray | None = None,
+    V_est: np.ndarray | None = None,
+    of: str = "u",
 ) -> Metric:
-    """Normalised projected observation error: mean ‖u − Ñ u‖² / Σ var(U).
+    """Normalised projected observation error: mean ‖z − Ñ z‖² / Σ var(U), z = u − ṽ.
 
-    Under ``convention="original"`` the normaliser is var(π) (pass ``Pi``) or var(w)
-    (pass ``W``, state-dependent case).
+    ``U`` (N, q) are the observations the constraint was learnt from (``of`` names them:
+    ``"u"``, or ``"learnt w"`` when a learn-v stage gave w̃); ``V_est`` (N, q) is the
+    learnt task part Ã⁺b̃ of a model with a task term (subtracted, so NPOE measures
+    only the null-space consistency, never A⁺b). Under ``convention="original"`` the
+    normaliser is var(w) (pass the true ``W``, state-dependent case) or var(π) (pass
+    ``Pi``); without them the ccl normaliser is used and the label says so.
     """
     _convention(convention)
-    diff = U - _apply(N_est, U)
+    Z = U if V_est is None else U - V_est
+    diff = Z - _apply(N_est, Z)
     if convention == "original":
         if W is not None:
             return _metric("NPOE", diff, total_variance(W), "w")
         if Pi is not None:
             return _metric("NPOE", diff, total_variance(Pi), "pi")
-        raise InputError("NPOE with the original convention needs the true pi or w")
-    return _metric("NPOE", diff, total_variance(U), "u")
+        return _metric("NPOE", diff, total_variance(U), f"{of} (no true pi/w for the original normaliser)")
+    return _metric("NPOE", diff, total_variance(U), of)
 
 
 def npe(U: np.ndarray, W_est: np.ndarray, convention: str = "ccl") -> Metric:
@@ -126,10 +133,14 @@ def ncpe(N_true: np.ndarray, Pi: np.ndarray, Pi_est: np.ndarray) -> Metric:
     return _metric("NCPE", w - _apply(N_true, Pi_est), total_variance(w), "N pi")
 
 
-def ncpe_observed(N_est: np.ndarray, U: np.ndarray, Pi_est: np.ndarray) -> Metric:
-    """NCPE with what is observable: mean ‖u − Ñ π̃‖² / Σ var(U), with the learnt Ñ and the
-    observed u in place of the true N and Nπ (reported as ``NCPE_obs``)."""
-    return _metric("NCPE_obs", U - _apply(N_est, Pi_est), total_variance(U), "u")
+def ncpe_observed(N_est: np.ndarray, U: np.ndarray, Pi_est: np.ndarray, V_est: np.ndarray | None = None,
+                  of: str = "u") -> Metric:
+    """NCPE with what is observable: mean ‖z − Ñ π̃‖² / Σ var(z), z = u − ṽ, with the learnt
+    Ñ and the observations z (minus a learnt task part ``V_est``) in place of the true N
+    and Nπ (reported as ``NCPE_obs``). U, Pi_est, V_est: (N, q)."""
+    Z = U if V_est is None else U - V_est
+    label = of if V_est is None else f"{of} - learnt v"
+    return _metric("NCPE_obs", Z - _apply(N_est, Pi_est), total_variance(Z), label)
 
 
 def nmse(Y: np.ndarray, Y_est: np.ndarray, ddof: int = 1) -> np.ndarray:

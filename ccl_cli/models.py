@@ -9,14 +9,20 @@
     /basis/      attrs: kind (rbf | linear), sigma2 / n_state; centres (K, p)
     /demos/<id>/ the same layout once per demonstration (per-demonstration models)
 
-Loading checks the format, the schema version, the method and every array's shape,
-and rebuilds the estimator so predictions are bit-identical to the saved one's.
+Loading goes through :func:`ccl_cli.io.h5safe.open_hdf5` (nothing outside the file is
+ever read, damaged files cannot hang libhdf5) and checks the format, the schema version,
+the method, the type of every attribute and parameter, and every array's type, shape
+and finiteness; then it rebuilds the estimator so predictions are bit-identical to the
+saved one's. Any problem is one :class:`~ccl_cli.errors.InputError` naming the file and
+the object at fault.
 """
 
 from __future__ import annotations
 
 import inspect
 import json
+import math
+import typing
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +37,7 @@ from ccl_cli.constraint import (
     StateIndependentConstraint,
 )
 from ccl_cli.errors import ConfigError, InputError
-from ccl_cli.io.atomic import atomic_path
+from ccl_cli.io import h5safe
 from ccl_cli.io.hdf5 import check_header
 from ccl_cli.nullspace import NullSpaceComponent
 from ccl_cli.policy import PolicyLearner
@@ -125,11 +131,9 @@ def _write(group, model: Any, method: str) -> None:
 def save_model(path: str | Path, model: Any, training: dict[str, Any] | None = None,
                force: bool = False) -> Path:
     """Write ``model`` to ``path`` atomically."""
-    import h5py
-
     method = method_of(model)
     path = Path(path)
-    with atomic_path(path, force=force) as tmp, h5py.File(tmp, "w") as f:
+    with h5safe.create_hdf5(path, force=force) as f:
         f.attrs["format"] = FORMAT
         f.attrs["schema_version"] = SCHEMA_VERSION
         base = method.split(":")[-1]
@@ -148,101 +152,235 @@ def save_model(path: str | Path, model: Any, training: dict[str, Any] | None = N
     return path
 
 
+#: fitted scalars that predictions depend on: name → (lowest, highest) allowed integer
+_COUNTS = {"n_action_": (1, 100_000), "n_constraints_": (0, 100_000), "n_task_": (1, 100_000)}
+#: largest magnitude of a saved array: products of two such values stay finite
+MAX_MAGNITUDE = 1e150
+_JSON_TYPES = (str, int, float, bool, list, dict, type(None))
+
+
+def _allowed_types(cls: type, name: str, default: Any) -> tuple[type, ...]:
+    """The JSON types a constructor parameter may take, from its annotation (or default)."""
+    try:
+        hint = typing.get_type_hints(cls.__init__).get(name)
+    except (NameError, TypeError):
+        hint = None
+    if hint is None:
+        return _JSON_TYPES if default is None else (type(default),)
+    args = typing.get_args(hint) or (hint,)
+    out = tuple(a for a in (typing.get_origin(a) or a for a in args) if a in _JSON_TYPES)
+    if float in out:
+        out += (int,)
+    if any(a is np.ndarray for a in args):
+        out += (list,)
+    return out or _JSON_TYPES
+
+
+def _read_params(group, cls: type, where: str) -> dict[str, Any]:
+    """The constructor parameters saved with a model, each checked against the
+    constructor's signature (name and type)."""
+    params = h5safe.attr_json(group.attrs, "params", where, kind=dict)
+    sig = inspect.signature(cls.__init__).parameters
+    for key, value in params.items():
+        if key not in sig or key == "self":
+            raise InputError(f"{where}: parameter {key!r} is not a parameter of {cls.__name__}")
+        allowed = _allowed_types(cls, key, sig[key].default)
+        ok = isinstance(value, allowed) and not (isinstance(value, bool) and bool not in allowed)
+        if isinstance(value, float) and not math.isfinite(value):
+            ok = False
+        if not ok:
+            names = ", ".join(sorted({t.__name__ for t in allowed}))
+            raise InputError(f"{where}: parameter {key!r} must be {names}, got {value!r}"[:200])
+    return params
+
+
+def _fitted(group, where: str) -> dict[str, Any]:
+    fitted = h5safe.attr_json(group.attrs, "fitted", where, kind=dict)
+    for key, (lo, hi) in _COUNTS.items():
+        if key in fitted:
+            value = fitted[key]
+            if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+                raise InputError(f"{where}: fitted {key} must be an integer in [{lo}, {hi}], got {value!r}"
+                                 [:200])
+    return fitted
+
+
 def _read(group, method: str, where: str) -> Any:
     if method not in CLASSES:
         raise InputError(f"{where}: unknown model method {method!r}")
     cls = CLASSES[method][1]
-    try:
-        params = json.loads(group.attrs["params"])
-        fitted = json.loads(group.attrs["fitted"])
-    except (KeyError, json.JSONDecodeError, TypeError) as exc:
-        raise InputError(f"{where}: model attributes are damaged ({exc})") from None
-    try:
-        model = cls(**params)
-    except TypeError as exc:
-        raise InputError(f"{where}: parameters do not fit {cls.__name__} ({exc})") from None
+    params = _read_params(group, cls, where)
+    fitted = _fitted(group, where)
+    model = cls(**params)
     for key, value in fitted.items():
+        if not key.endswith("_") or key not in SCALARS[method]:
+            raise InputError(f"{where}: unknown fitted value {key!r} for a {method} model")
         setattr(model, key, value)
-    arrays = group.get("arrays")
-    if arrays is None:
-        raise InputError(f"{where}: no /arrays group")
+    for key in ("n_action_", *(("n_constraints_",) if method in ("nhat", "alpha", "lambda", "linear")
+                               else ()), *(("n_task_",) if method == "lambda" else ())):
+        if key not in fitted:
+            raise InputError(f"{where}: fitted {key} is missing")
+    arrays = h5safe.group_of(group, "arrays", where)
     for name in ARRAYS[method]:
-        setattr(model, name, arrays[name][()] if name in arrays else None)
+        setattr(model, name, h5safe.numeric(arrays, name, where, ndim=(1, 2, 3), limit=MAX_MAGNITUDE)
+                if name in arrays else None)
     if method in ("alpha", "lambda"):
-        n = int(fitted.get("n_constraints_", 0))
-        try:
-            model.weights_ = [arrays[f"weights_{i}"][()] for i in range(n)]
-        except KeyError:
-            raise InputError(f"{where}: expected {n} weight arrays") from None
-    if "basis" in group:
-        g = group["basis"]
-        state = {"kind": g.attrs["kind"]}
-        if state["kind"] == "rbf":
-            state.update(sigma2=float(g.attrs["sigma2"]), centres=g["centres"][()])
+        n = model.n_constraints_
+        missing = [i for i in range(n) if f"weights_{i}" not in arrays]
+        if missing:
+            raise InputError(f"{where}: expected {n} weight arrays, weights_{missing[0]} is missing")
+        model.weights_ = [h5safe.numeric(arrays, f"weights_{i}", where, ndim=(2,), limit=MAX_MAGNITUDE)
+                          for i in range(n)]
+    basis = h5safe.group_of(group, "basis", where, required=False)
+    if basis is not None:
+        bwhere = f"{where}: /basis"
+        kind = h5safe.attr_str(basis.attrs, "kind", bwhere)
+        if kind == "rbf":
+            centres = h5safe.numeric(basis, "centres", where, ndim=(2,), limit=MAX_MAGNITUDE)
+            if centres.shape[0] < 1 or centres.shape[1] < 1:
+                raise InputError(f"{where}: /basis/centres is empty ({centres.shape})")
+            state = {"kind": kind, "centres": centres,
+                     "sigma2": h5safe.attr_float(basis.attrs, "sigma2", bwhere, positive=True)}
+        elif kind == "linear":
+            n_state = h5safe.attr_int(basis.attrs, "n_state", bwhere)
+            if not 1 <= n_state <= 100_000:
+                raise InputError(f"{bwhere}: n_state must be a positive integer, got {n_state}")
+            state = {"kind": kind, "n_state": n_state}
         else:
-            state["n_state"] = int(g.attrs["n_state"])
+            raise InputError(f"{bwhere}: unknown basis kind {kind!r} (rbf or linear)")
         model.basis_ = basis_from_state(state)
     if method == "lambda":
-        from ccl_cli.constraint.lambda_ import make_features
-
-        model.features_ = make_features(model.features)
+        _check_features(model, where)
     _check_shapes(model, method, where)
     return model
 
 
-def _check_shapes(model: Any, method: str, where: str) -> None:
-    q = int(getattr(model, "n_action_", 0))
+def _check_features(model: Any, where: str) -> None:
+    from ccl_cli.constraint.lambda_ import make_features
+    from ccl_cli.kinematics import ARMS
+
+    spec = model.features
+    spec = {"arm": spec} if isinstance(spec, str) else spec
+    if not isinstance(spec, dict) or set(spec) - {"arm", "rows", "kind"} or spec.get("arm") not in ARMS:
+        raise InputError(f"{where}: features must name a built-in arm ({', '.join(ARMS)}), "
+                         f"got {spec!r}"[:200])
+    arm = ARMS[spec["arm"]]()
+    n_rows = arm.jacobian(np.zeros((1, arm.n_joints))).shape[1]
+    rows = spec.get("rows")
+    if rows is not None and (not isinstance(rows, list) or not rows or any(
+            not isinstance(r, int) or isinstance(r, bool) or not 0 <= r < n_rows for r in rows)):
+        raise InputError(f"{where}: features.rows must be a list of Jacobian rows in [0, {n_rows}), "
+                         f"got {rows!r}"[:200])
+    model.features_ = make_features({"arm": spec["arm"], "rows": rows})
+    r = n_rows if rows is None else len(rows)
+    if model.n_task_ != r or model.n_action_ != arm.n_joints:
+        raise InputError(f"{where}: n_task_ {model.n_task_} / n_action_ {model.n_action_} do not fit "
+                         f"{spec['arm']} with {r} rows")
+    if not hasattr(model, "basis_") or _n_state(model.basis_) != arm.n_joints:
+        raise InputError(f"{where}: the basis does not fit {spec['arm']} ({arm.n_joints} joints)")
+
+
+def _n_state(basis: Any) -> int:
+    return int(basis.centres_.shape[1]) if hasattr(basis, "centres_") else int(basis.n_state_)
+
+
+def _linear_width(model: Any, kind: str, q: int | None) -> list[int]:
+    """Possible column counts of f(x) for regressors ``kind`` (×q for Φ_A)."""
     K = model.basis_.n_features if hasattr(model, "basis_") else None
+    if kind in ("identity", "constant"):
+        return [1]
+    if kind == "rbf":
+        return [K] if K else []
+    degree = model.degree
+    if not isinstance(degree, int) or not 0 <= degree <= 64:
+        return []
+    return [math.comb(p + degree, degree) for p in range(1, 1025)]
+
+
+def _check_shapes(model: Any, method: str, where: str) -> None:
+    q = model.n_action_
+    K = model.basis_.n_features if hasattr(model, "basis_") else None
+    s = getattr(model, "n_constraints_", None)
+    needs_basis = method in ("alpha", "lambda", "ncl", "policy") or (
+        method == "linear" and "rbf" in (model.regressors, model.task_regressors if model.task else None))
+    if needs_basis and K is None:
+        raise InputError(f"{where}: a {method} model needs a /basis group")
     bad = None
-    if method == "nhat" and (model.A_ is None or model.A_.ndim != 2 or model.A_.shape[1] != q):
+    if method == "nhat" and (model.A_ is None or model.A_.shape != (s, q)):
         bad = "A_"
-    elif method == "ncl" and model.W_.shape != (q, K):
+    elif method == "ncl" and (model.W_ is None or model.W_.shape != (q, K)):
         bad = "W_"
-    elif method == "policy" and model.W_.shape[0] != K:
-        bad = "W_"
+    elif method == "policy":
+        want = (K, _n_state(model.basis_) + 1, q) if model.method == "lwpi" else (K, q)
+        if model.W_ is None or model.W_.shape != want:
+            bad = "W_"
     elif method in ("alpha", "lambda"):
-        d = q if method == "alpha" else int(model.n_task_)
-        if any(w.shape != (d - 1 - k, K) for k, w in enumerate(model.weights_)):
+        d = q if method == "alpha" else model.n_task_
+        if s > d - 1 or any(w.shape != (d - 1 - k, K) for k, w in enumerate(model.weights_)):
             bad = "weights"
-    elif method == "linear" and (model.W_ is None or model.W_.ndim != 2):
-        bad = "W_"
+    elif method == "linear":
+        if model.regressors not in ("identity", "polynomial", "rbf") or \
+                model.task_regressors not in ("constant", "polynomial", "rbf"):
+            raise InputError(f"{where}: unknown regressors {model.regressors!r} / {model.task_regressors!r}")
+        widths = _linear_width(model, model.regressors, q)
+        if model.W_ is None or model.W_.ndim != 2 or model.W_.shape[0] != s or \
+                model.W_.shape[1] not in [w * q for w in widths]:
+            bad = "W_"
+        elif model.task and (model.Wb_ is None or model.Wb_.ndim != 2 or model.Wb_.shape[0] != s or
+                             model.Wb_.shape[1] not in _linear_width(model, model.task_regressors, q)):
+            bad = "Wb_"
+        elif not model.task:
+            model.Wb_ = None
     if bad:
         raise InputError(f"{where}: array {bad} has the wrong shape for a {method} model")
+    if K is not None and hasattr(model.basis_, "centres_"):
+        # the feature map must give finite features (σ² and centres are finite and σ² > 0)
+        beta = model.basis_.transform(model.basis_.centres_[:1])
+        if not np.isfinite(beta).all():
+            raise InputError(f"{where}: the basis gives non-finite features")
 
 
 def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
-    """(estimator, info) from a model file; foreign or damaged files are refused."""
-    import h5py
-
+    """(estimator, info) from a model file; foreign, damaged or unsafe files are refused."""
     path = Path(path)
     where = str(path)
-    if not path.is_file():
-        raise InputError(f"{where}: no such model file")
-    try:
-        f = h5py.File(path, "r")
-    except OSError:
-        raise InputError(f"{where}: not a ccl model (not an HDF5 file)") from None
-    with f:
+    with h5safe.open_hdf5(path, "model file") as f:
         check_header(f.attrs, where, FORMAT, "schema_version", SCHEMA_VERSION, "ccl model")
-        method = str(f.attrs.get("method", ""))
-        try:
-            training = json.loads(f.attrs.get("training", "{}"))
-        except json.JSONDecodeError:
-            training = {}
-        info = {"kind": str(f.attrs.get("kind")), "method": method, "training": training}
-        try:
-            if method.startswith("per_demo:"):
-                base = method.split(":", 1)[1]
-                template = CLASSES[base][1](**json.loads(f.attrs["params"]))
-                model = PerDemonstration(template)
-                model.models_ = {int(k): _read(g, base, f"{where}:/demos/{k}") for k, g in f["demos"].items()}
-                fitted = json.loads(f.attrs["fitted"])
-                model.n_constraints_ = fitted["n_constraints_"]
-                model.selection_ = fitted["selection_"]
-            else:
-                model = _read(f, method, where)
+        method = h5safe.attr_str(f.attrs, "method", where)
+        kind = h5safe.attr_str(f.attrs, "kind", where)
+        try:  # informative only
+            training = h5safe.attr_json(f.attrs, "training", where, {}, dict)
         except InputError:
-            raise
-        except Exception as exc:  # damaged datasets, missing keys
-            raise InputError(f"{where}: damaged model file ({type(exc).__name__}: {exc})") from None
+            training = {}
+        base = method.split(":", 1)[1] if method.startswith("per_demo:") else method
+        if base not in CLASSES:
+            raise InputError(f"{where}: unknown model method {method!r}")
+        if kind != CLASSES[base][0]:
+            raise InputError(f"{where}: kind {kind!r} does not match method {method!r}")
+        info = {"kind": kind, "method": method, "training": training}
+        if method.startswith("per_demo:"):
+            if CLASSES[base][0] != "constraint":
+                raise InputError(f"{where}: only constraint models can be per-demonstration")
+            template = CLASSES[base][1](**_read_params(f, CLASSES[base][1], where))
+            model = PerDemonstration(template)
+            demos = h5safe.group_of(f, "demos", where)
+            models = {}
+            for k in demos:
+                if not k.lstrip("-").isdigit() or len(k) > 18:
+                    raise InputError(f"{where}: /demos/{k} is not a demonstration id")
+                models[int(k)] = _read(h5safe.group_of(demos, k, where), base, f"{where}:/demos/{k}")
+            if not models:
+                raise InputError(f"{where}: /demos holds no models")
+            if len({m.n_action_ for m in models.values()}) > 1:
+                raise InputError(f"{where}: per-demonstration models disagree on the action dimension")
+            model.models_ = models
+            fitted = h5safe.attr_json(f.attrs, "fitted", where, kind=dict)
+            count = fitted.get("n_constraints_")
+            if not isinstance(count, int) or isinstance(count, bool) or count < 0:
+                raise InputError(f"{where}: fitted n_constraints_ must be a non-negative integer, "
+                                 f"got {count!r}"[:200])
+            model.n_constraints_ = count
+            model.selection_ = fitted.get("selection_")
+        else:
+            model = _read(f, method, where)
     return model, info

@@ -26,12 +26,14 @@ import numpy as np
 
 from ccl_cli.basis import Basis, feature_blocks, make_basis
 from ccl_cli.constraint.base import check_xu
+from ccl_cli.estimator import Estimator
 from ccl_cli.linalg import eigen_lstsq, kron_least_squares, row_chunks
+from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
 
 EPS_RESIDUAL = 1e-8
 
 
-class NullSpaceComponent:
+class NullSpaceComponent(Estimator):
     """Learns w̃(x) = W β(x) from observations u = v + w.
 
     Args:
@@ -42,6 +44,8 @@ class NullSpaceComponent:
         polish: after the smooth stage, minimise the original residual (default: the
             original optimum). ``False`` stops after the smooth stage: ~10× fewer passes
             on large N, at a slightly higher original cost.
+        tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
+            default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
     Attributes:
         basis_, W_ (q, K), cost_ (final Σ r²), n_iter_.
@@ -49,6 +53,7 @@ class NullSpaceComponent:
 
     def __init__(
         self,
+        *,
         basis: str | dict | Basis | None = "rbf",
         n_centres: int = 16,
         seed: int = 0,
@@ -56,6 +61,7 @@ class NullSpaceComponent:
         tol: float = 1e-9,
         chunk_size: int | None = None,
         polish: bool = True,
+        tune: bool | dict = TUNE,
     ) -> None:
         self.basis = basis
         self.n_centres = n_centres
@@ -64,10 +70,19 @@ class NullSpaceComponent:
         self.tol = tol
         self.chunk_size = chunk_size
         self.polish = polish
+        self.tune = tune
+
+    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
+        if not rbf_tunable(self.basis):
+            return {}
+        return {"basis": basis_grid(X, (self.n_centres, 16, 36, 64, 100), (1.0, 0.5), self.seed)}
 
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
             ) -> NullSpaceComponent:
         X, U = check_xu(X, U)
+        self._set_n_features(X)
+        if self._fit_tuned(X, U, demo=demo):
+            return self
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
         blocks = feature_blocks(self.basis_, X, self.chunk_size)
         K = self.basis_.n_features
@@ -101,6 +116,7 @@ class NullSpaceComponent:
 
     def predict(self, X: np.ndarray) -> np.ndarray:
         """w̃(X) = W β(X): (N, p) → (N, q), in row blocks."""
+        self._check_fitted("W_")
         X = np.asarray(X, dtype=float)
         out = np.empty((len(X), self.W_.shape[0]))
         for rows in row_chunks(len(X), self.chunk_size):

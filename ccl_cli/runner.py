@@ -10,12 +10,13 @@ from pathlib import Path
 from typing import Any
 
 from ccl_cli.config import Config
-from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.errors import ConfigError
 
 
 def read_data(cfg: Config, files: list[Path] | list[str] | None):
     """The dataset and its train/test masks (canonical HDF5 may carry them)."""
-    from ccl_cli.io import detect_format, expand_files, file_hash, load_demonstrations
+    from ccl_cli.io import expand_files, file_hash, is_canonical_input, load_demonstrations
+    from ccl_cli.io.assemble import resegment
     from ccl_cli.io.hdf5 import read_demonstrations
 
     data_cfg = dict(cfg.get("data") or {})
@@ -23,11 +24,12 @@ def read_data(cfg: Config, files: list[Path] | list[str] | None):
     if not entries:
         raise ConfigError("no input data: give files on the command line or data.files in the config")
     paths = expand_files(entries, None if files else cfg.base)
-    if len(paths) == 1 and detect_format(paths[0]) == "hdf5":
+    if len(paths) == 1 and is_canonical_input(paths[0], data_cfg):
         data, info = read_demonstrations(paths[0])
+        data, masks = resegment(data, data_cfg.get("demos"), str(paths[0]), info["masks"])
         data.metadata = {"files": [{"path": str(paths[0]), "sha256": file_hash(paths[0]), "format": "hdf5"}],
                          "time_origin_ns": info["time_origin_ns"], "provenance": info["provenance"]}
-        return data, info["masks"]
+        return data, masks
     data_cfg.pop("test", None)
     data_cfg.pop("files", None)
     return load_demonstrations(data_cfg, files=[str(p) for p in paths]), None
@@ -47,14 +49,14 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
     Returns the summary (status, outdir, per-stage method, constraint count and metric values).
     ``extra_files`` (name → JSON value) are written into the folder with the rest.
     """
-    from ccl_cli.io.atomic import atomic_dir
+    from ccl_cli.diagnostics import markdown_section
+    from ccl_cli.io.atomic import atomic_dir, check_replaceable
     from ccl_cli.models import save_model
     from ccl_cli.pipeline import Pipeline, stage_list
     from ccl_cli.report import data_summary, make_plots, markdown, stage_metrics, versions, write_json
 
     t0 = time.perf_counter()
-    if outdir.exists() and not force:
-        raise InputError(f"{outdir} exists; use --force to overwrite it")
+    check_replaceable(outdir, force)  # before any work: a folder ccl did not write is never replaced
     data, masks = read_data(cfg, files)
     data.check_finite()
     stages = stages if stages is not None else stage_list(cfg)
@@ -73,7 +75,9 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
                                                 "versions": versions()})
         plots = make_plots(tmp, pipeline) if (cfg.get("output") or {}).get("plots", True) else []
         write_json(tmp / "metrics.json", metrics)
-        (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, data_summary(pipeline)))
+        summary = {**data_summary(pipeline), "validation": pipeline.split_info}
+        (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, summary)
+                                       + "\n" + "\n".join(markdown_section(pipeline.warnings)))
         import yaml
 
         (tmp / "config.yaml").write_text(yaml.safe_dump(dict(cfg), sort_keys=False))
@@ -81,17 +85,25 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
             "command": command, "argv": sys.argv, "config": dict(cfg), "config_source": cfg.source,
             "inputs": hashes, "versions": versions(),
             "timings": {r.name: r.seconds for r in pipeline.results} | {"total": time.perf_counter() - t0},
-            "data": data_summary(pipeline),
+            "data": data_summary(pipeline), "validation": pipeline.split_info,
+            "warnings": pipeline.warnings,
         })
         for name, value in (extra_files or {}).items():
             write_json(tmp / name, value)
     return {"status": "ok", "command": command, "outdir": str(outdir),
-            "seconds": time.perf_counter() - t0, "stages": summarise(metrics)}
+            "seconds": time.perf_counter() - t0, "validation": pipeline.split_info,
+            "stages": summarise(metrics), "warnings": pipeline.warnings}
 
 
 def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
-    """metrics.json → {stage: {method, n_constraints, train: {name: value}, test: {...}}}."""
-    return {name: {**{k: v for k, v in e.items() if k in ("method", "n_constraints")},
-                   **{split: {m: v["value"] for m, v in e.get(split, {}).items()}
-                      for split in ("train", "test") if split in e}}
-            for name, e in metrics.items()}
+    """metrics.json → {stage: {method, n_constraints, train: {name: value}, test: {...},
+    baseline: {method, train, test}}} (the baseline only where a stage has one)."""
+    def one(e: dict[str, Any]) -> dict[str, Any]:
+        out = {k: v for k, v in e.items() if k in ("method", "n_constraints")}
+        out.update({split: {m: v["value"] for m, v in e.get(split, {}).items()}
+                    for split in ("train", "test") if split in e})
+        if isinstance(e.get("baseline"), dict):
+            out["baseline"] = one(e["baseline"])
+        return out
+
+    return {name: one(e) for name, e in metrics.items()}

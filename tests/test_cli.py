@@ -46,7 +46,7 @@ def test_pipeline_toy2d_learn_v(tmp_path):
     out = tmp_path / "v"
     assert {p.name for p in out.iterdir()} >= {"model.h5", "metrics.json", "report.md", "run.json",
                                                "config.yaml", "plots"}
-    assert (out / "plots" / "learn-v.png").stat().st_size > 1000
+    assert (out / "plots" / "learn-v-field.png").stat().st_size > 1000
     assert "![learn-v" in (out / "report.md").read_text()
     run = json.loads((out / "run.json").read_text())
     assert run["inputs"] and all(len(h) == 64 for h in run["inputs"].values())
@@ -80,9 +80,11 @@ def test_pipeline_learn_pi_coupled_to_learnt_constraints(capsys, tmp_path):
     code, out, err = run_main(capsys, "run", CONFIGS / "toy2d_learn_pi.yaml", "-o", tmp_path / "pi", "--json",
                               "-q")
     assert code == 0, err
-    pi = json.loads(out)["stages"]["learn-pi"]["test"]
+    stage = json.loads(out)["stages"]["learn-pi"]
+    pi = stage["test"]
     assert pi["NUPE"] < 0.05
-    assert pi["NUPE_dpl"] > 0.3  # the biased baseline, reported next to it
+    assert stage["baseline"]["method"] == "dpl"
+    assert stage["baseline"]["test"]["NUPE"] > 0.3  # the biased baseline, reported next to it
 
 
 # -- single commands, saved models ----------------------------------------------------------
@@ -127,10 +129,10 @@ def test_every_model_kind_reloads_bit_identically(tmp_path, kind):
     else:
         d = sim.toy2d(n_demos=10, vary_constraint=True)
     model = {"alpha": lambda: StateDependentConstraint(n_restarts=1),
-             "lambda": lambda: KnownFeatureConstraint("arm2", n_restarts=1),
+             "lambda": lambda: KnownFeatureConstraint(features="arm2", n_restarts=1),
              "linear": lambda: LinearConstraint(regressors="rbf", n_centres=4),
              "ncl": lambda: NullSpaceComponent(n_centres=9),
-             "policy": lambda: PolicyLearner("pi-weighted", n_centres=9),
+             "policy": lambda: PolicyLearner(method="pi-weighted", n_centres=9),
              "per_demo": lambda: PerDemonstration(LinearConstraint(regressors="identity"))}[kind]()
     model.fit(d.X, d.U, d.demo) if kind == "per_demo" else model.fit(d.X, d.U)
     path = save_model(tmp_path / "m.h5", model)
@@ -157,7 +159,8 @@ def test_convert_then_learn_from_bag_and_inspect(tmp_path):
     assert info["demos"] == 4 and info["samples"] == 1200
     bag = json.loads(ccl("inspect", SAMPLES / "kuka_wipe.bag", "--json").stdout)
     assert bag["topics"]["/joint_states"]["count"] == 1200
-    assert bag["topics"]["/joint_states"]["rate_hz"] == pytest.approx(1199 / bag["duration_s"])
+    assert bag["topics"]["/joint_states"]["rate_hz"] == pytest.approx(100.0)  # over the active time
+    assert bag["demos"] == 4  # the shipped config's split, found without --gap
     text = ccl("inspect", SAMPLES / "trakstar_plane.csv").stdout
     assert "x.1" in text and "rows:" in text
 
@@ -286,3 +289,105 @@ def test_evaluate_stage_applies_its_convention(capsys, tmp_path):
     assert original["error"] == pytest.approx(ours["error"])
     n = 500  # training samples: NPE's original normaliser uses ddof = 0
     assert original["normaliser"] == pytest.approx(ours["normaliser"] * (n - 1) / n)
+
+
+# -- inspect: rates over the active time, joint names, demonstrations ---------------------------
+@pytest.mark.parametrize("writer", ["ros2", "mcap"])
+def test_inspect_rate_over_active_time_joints_and_default_demos(capsys, tmp_path, writer):
+    from tests.writers import JOINTS, joint_recording, write_mcap_ros2, write_ros2_bag
+
+    rec = joint_recording(n=1001, rate=500.0, gap_after=400, gap_s=1.5)  # 500 Hz, one 1.5 s pause
+    path = write_ros2_bag(tmp_path / "b", rec) if writer == "ros2" else \
+        write_mcap_ros2(tmp_path / "r.mcap", rec)
+    code, out, err = run_main(capsys, "inspect", path, "--json")
+    assert code == 0, err
+    info = json.loads(out)
+    topic = info["topics"]["/joint_states"]
+    assert topic["count"] == 1001
+    assert topic["rate_hz"] == pytest.approx(500.0, rel=1e-3)  # not 1000 / 3.5 s = 286 Hz
+    assert topic["joint_names"] == JOINTS
+    assert {"name", "position", "velocity"} <= set(topic["fields"])
+    assert info["demos"] == 2  # found with the default gap, no --gap and no -c
+    code, out, _ = run_main(capsys, "inspect", path, "--json", "--gap", "2.0")  # --gap without -c
+    assert json.loads(out)["demos"] == 1
+    code, out, _ = run_main(capsys, "inspect", path)
+    assert "500.0 Hz" in out and "joints:" in out and "demos:    2" in out
+
+
+# -- command-line conventions ------------------------------------------------------------------
+def test_version_and_help_show_defaults_and_choices(capsys):
+    from ccl_cli import __version__
+
+    code, out, _ = run_main(capsys, "--version")
+    assert code == 0 and out.strip() == f"ccl {__version__}"
+    from ccl_cli.config import CHOICES, DEFAULTS
+
+    proc = ccl("learn-a", "--help")
+    text = " ".join(proc.stdout.split())
+    rules = CHOICES[("learn-a", "selection")]
+    assert "<nhat|alpha|lambda|linear>" in text and f"<{'|'.join(rules)}>" in text
+    assert f"[default: (config, else {DEFAULTS['learn-a']['selection']})]" in text
+    assert "<ccl|original>" in text
+    assert "[default: (config, else pi)]" in " ".join(ccl("learn-pi", "--help").stdout.split())
+
+
+def test_flag_overrides_a_basis_mapping_at_any_depth(capsys, tmp_path):
+    from ccl_cli import config as C
+    from ccl_cli.models import load_model
+
+    cfg_path = tmp_path / "v.yaml"
+    cfg_path.write_text(f"data: {{files: [{SAMPLES / 'toy2d_ncl.h5'}]}}\n"
+                        "learn-v: {basis: {kind: rbf, n_centres: 4}}\n")
+    code, _, err = run_main(capsys, "learn-v", "-c", cfg_path, "--n-centres", "25", "-o", tmp_path / "o",
+                            "-q")
+    assert code == 0, err
+    assert load_model(tmp_path / "o" / "model.h5")[0].basis_.centres_.shape == (25, 2)
+    # over a stages item's own options too, and --basis keeps the mapping's other keys
+    cfg = C.merge(C.load(cfg_path), {"learn-v": {"n_centres": 25, "basis": "rbf"}})
+    opts = C.stage_options(cfg, "learn-v", {"basis": {"kind": "rbf", "n_centres": 9, "centres": "grid"}})
+    assert opts["basis"] == {"kind": "rbf", "n_centres": 25, "centres": "grid"} and opts["n_centres"] == 25
+
+
+def test_flag_errors_are_one_line_and_name_the_flag(capsys, tmp_path):
+    from ccl_cli import config as C
+    from ccl_cli.errors import ConfigError
+
+    with pytest.raises(ConfigError) as info:
+        C.merge(C.load(CONFIGS / "arm7.yaml"), {"learn-a": {"selection": "often"}})
+    assert info.value.message.startswith("--selection: learn-a.selection must be one of")
+    assert "<flags>" not in info.value.message and "\n" not in info.value.message
+
+
+def test_quiet_prints_nothing_on_success(capsys, tmp_path):
+    data = tmp_path / "d.h5"
+    for args in (("simulate", "toy2d", "-o", data, "--n-demos", "6"),
+                 ("learn-a", data, "-o", tmp_path / "a"),
+                 ("evaluate", tmp_path / "a" / "model.h5", data),
+                 ("predict", tmp_path / "a" / "model.h5", data, "-o", tmp_path / "p.csv"),
+                 ("convert", data, "-o", tmp_path / "c.h5"),
+                 ("run", CONFIGS / "arm7.yaml", "-o", tmp_path / "r")):
+        code, out, err = run_main(capsys, *args, "-q")
+        assert code == 0, (args, err)
+        assert out == "" and err == "", (args, out, err)
+
+
+def test_batch_validates_the_whole_plan_before_any_job(capsys, tmp_path):
+    code, _, err = run_main(capsys, "batch", "--files", str(SAMPLES / "*.h5"), "-o", tmp_path / "b")
+    assert code == 2 and "--config" in err and err.count("\n") == 1
+    assert not (tmp_path / "b").exists()
+    bare = tmp_path / "bare.yaml"
+    bare.write_text("learn-a: {method: nhat}\n")  # no stages: no job can run
+    code, _, err = run_main(capsys, "batch", "--files", str(SAMPLES / "arm7.h5"), "-c", bare, "-o",
+                            tmp_path / "b")
+    assert code == 2 and "no stages" in err
+    assert not (tmp_path / "b").exists()
+
+
+def test_matplotlib_font_cache_message_never_reaches_the_user(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "MPLCONFIGDIR"}
+    env |= {"XDG_CACHE_HOME": str(tmp_path / "c"), "HOME": str(tmp_path)}
+    proc = subprocess.run([CCL, "run", CONFIGS / "arm7.yaml", "-o", tmp_path / "r"], capture_output=True,
+                          text=True, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert "fontManager" not in proc.stderr and "Matplotlib" not in proc.stderr
+    assert (tmp_path / "c" / "ccl" / "matplotlib").is_dir()

@@ -14,6 +14,7 @@ from ccl_cli.constraint import (
     StateDependentConstraint,
     StateIndependentConstraint,
 )
+from ccl_cli.errors import ConfigError
 from ccl_cli.linalg import nullspace_projection, unit_rows
 from ccl_cli.metrics import nppe, nupe
 from ccl_cli.nullspace import NullSpaceComponent
@@ -25,7 +26,8 @@ def test_nhat_closed_form_recovers_7dof_rank2_constraint():
     for seed in range(20):
         data = sim.arm7(rows=(0, 1), seed=seed)
         train, test = data.split(0.3, seed)
-        model = StateIndependentConstraint(selection="eigengap").fit(train.X, train.U)
+        model = StateIndependentConstraint().fit(train.X, train.U)  # the default rule
+        assert model.selection_["rule"] == "ratio"
         right += model.n_constraints_ == 2
         if model.n_constraints_ == 2:
             err = nppe(test.true_projection(), model.projection(test.X), test.truth["pi"], test.U)
@@ -35,9 +37,10 @@ def test_nhat_closed_form_recovers_7dof_rank2_constraint():
 
 def test_nhat_threshold_rule_is_the_original_and_fixed_count_is_honoured():
     data = sim.arm7(rows=(0, 1), seed=0)
-    model = StateIndependentConstraint().fit(data.X, data.U)
+    model = StateIndependentConstraint(selection="threshold").fit(data.X, data.U)
     assert model.selection_["rule"] == "threshold"
     assert len(model.selection_["values"]) == 6
+    assert model.n_constraints_ == 3  # the original rule is wrong here (the reason for the default)
     fixed = StateIndependentConstraint(n_constraints=2).fit(data.X, data.U)
     assert fixed.n_constraints_ == 2 and fixed.selection_["rule"] == "fixed"
 
@@ -160,9 +163,9 @@ def test_ncl_recovers_null_space_component():
     data = sim.toy2d(constraint="fixed", task=True, sampling="uniform", n_samples=1000,
                      n_demos=1, seed=0)
     train, test = data.subset(np.arange(500)), data.subset(np.arange(500, 1000))
-    model = NullSpaceComponent(n_centres=16).fit(train.X, train.U)
+    model = NullSpaceComponent(n_centres=16, tune=False).fit(train.X, train.U)
     ours = nupe(test.truth["w"], model.predict(test.X))
-    direct = PolicyLearner("dpl", n_centres=16).fit(train.X, train.U)
+    direct = PolicyLearner(method="dpl", n_centres=16, tune=False).fit(train.X, train.U)
     baseline = nupe(test.truth["w"], direct.predict(test.X))
     assert ours.value < 1e-3
     assert baseline.value > 100 * ours.value
@@ -182,9 +185,9 @@ def test_pi_noise_free_is_exact_when_the_policy_is_in_the_basis():
     data = sim.toy2d(constraint="fixed", policy="linear", vary_constraint=True, noise=0.0)
     train, test = data.split(0.3, 0)
     for method in ("pi", "pi-weighted"):
-        model = PolicyLearner(method, basis="linear").fit(train.X, train.U)
+        model = PolicyLearner(method=method, basis="linear").fit(train.X, train.U)
         assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
-    model = PolicyLearner("pi-coupled", basis="linear").fit(train.X, train.U,
+    model = PolicyLearner(method="pi-coupled", basis="linear").fit(train.X, train.U,
                                                             train.true_projection())
     assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
 
@@ -193,7 +196,8 @@ def test_pi_variants_under_noise():
     train, test = policy_data(0.01)
     err = {}
     for method in ("pi", "pi-weighted", "pi-coupled", "dpl"):
-        model = PolicyLearner(method, basis=GRID).fit(train.X, train.U, train.true_projection())
+        model = PolicyLearner(method=method, basis=GRID, tune=False).fit(train.X, train.U,
+                                                                        train.true_projection())
         err[method] = nupe(test.truth["pi"], model.predict(test.X)).value
     assert err["pi-weighted"] * 5 < err["pi"]
     assert err["pi-coupled"] < err["pi-weighted"]
@@ -203,7 +207,7 @@ def test_pi_variants_under_noise():
 def test_lwpi_learns_a_linear_policy_locally():
     data = sim.toy2d(constraint="fixed", policy="linear", vary_constraint=True, noise=0.0)
     train, test = data.split(0.3, 0)
-    model = PolicyLearner("lwpi", n_centres=9).fit(train.X, train.U)
+    model = PolicyLearner(method="lwpi", n_centres=9, tune=False).fit(train.X, train.U)
     assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
 
 
@@ -215,7 +219,7 @@ def models_for_property_tests(seed):
         (StateDependentConstraint(n_restarts=1).fit(data.X, data.U), data),
         (LinearConstraint().fit(data.X, data.U), data),
         (LinearConstraint(regressors="rbf", basis=RBFBasis(9)).fit(data.X, data.U), data),
-        (KnownFeatureConstraint("arm2", n_restarts=1).fit(arm.X, arm.U), arm),
+        (KnownFeatureConstraint(features="arm2", n_restarts=1).fit(arm.X, arm.U), arm),
     ]
 
 
@@ -228,6 +232,70 @@ def test_projections_are_symmetric_and_idempotent(seed):
         np.testing.assert_allclose(P @ P, P, atol=1e-8)
         A = model.constraint(data.X)
         np.testing.assert_allclose(np.einsum("nkq,nqj->nkj", A, P), 0.0, atol=1e-8)
+
+
+# -- the estimator base shared by every learner ---------------------------------------------
+LEARNERS = [
+    lambda: StateIndependentConstraint(),
+    lambda: StateDependentConstraint(n_centres=4, n_restarts=1),
+    lambda: KnownFeatureConstraint(features="arm2", n_centres=4, n_restarts=1),
+    lambda: LinearConstraint(),
+    lambda: PerDemonstration(LinearConstraint(regressors="identity")),
+    lambda: NullSpaceComponent(n_centres=4),
+    lambda: PolicyLearner(method="pi-weighted", n_centres=4),
+]
+
+
+@pytest.mark.parametrize("make", LEARNERS)
+def test_estimator_base_params_clone_and_not_fitted(make):
+    from ccl_cli.errors import LearningError
+    from ccl_cli.estimator import NotFittedError, clone
+
+    model = make()
+    params = model.get_params(deep=False)
+    assert params and all(hasattr(model, k) for k in params)
+    twin = clone(model)
+    assert twin is not model and twin.get_params(deep=False).keys() == params.keys()
+    assert repr(twin) == repr(model)
+    arm = sim.two_link(seed=1, n_demos=6, n_steps=10)
+    predict = getattr(model, "projection", None) or model.predict
+    with pytest.raises(NotFittedError) as err:
+        predict(arm.X)
+    assert isinstance(err.value, LearningError) and "fit" in err.value.message
+    model.fit(arm.X, arm.U, arm.demo) if isinstance(model, PerDemonstration) else model.fit(arm.X, arm.U)
+    assert model.n_features_in_ == 2
+    out = model.projection(arm.X, arm.demo) if hasattr(model, "projection") else model.predict(arm.X)
+    assert np.isfinite(out).all()
+    fresh = clone(model)  # a clone is unfitted even when the original is fitted
+    assert not hasattr(fresh, "n_features_in_")
+    with pytest.raises(ValueError, match="no parameter"):
+        fresh.set_params(no_such_thing=1)
+
+
+def test_set_params_nested_and_keyword_only():
+    model = PerDemonstration(StateIndependentConstraint())
+    model.set_params(estimator__n_constraints=2)
+    assert model.estimator.n_constraints == 2
+    assert model.get_params()["estimator__n_constraints"] == 2
+    assert PolicyLearner().set_params(n_centres=9).n_centres == 9
+    with pytest.raises(TypeError):
+        PolicyLearner("pi")  # the parameters are keyword-only
+
+
+def test_absolute_cutoff_is_the_original_rule_not_the_relative_one():
+    from ccl_cli.linalg import eigen_lstsq
+
+    M = np.diag([1e3, 5e-4, 1e-7])
+    r = np.array([1e3, 5e-4, 1e-7])
+    np.testing.assert_allclose(eigen_lstsq(M, r, 1e-6), [1.0, 0.0, 0.0])  # 5e-4 < 1e-6·1e3
+    np.testing.assert_allclose(eigen_lstsq(M, r, 1e-6, absolute=True), [1.0, 1.0, 0.0])
+    data = sim.toy2d(policy="limit_cycle", vary_constraint=True, sampling="uniform", n_samples=400, seed=0)
+    grid = {"kind": "rbf", "n_centres": 100, "centres": "grid", "sigma2": 0.5}
+    rel = PolicyLearner(basis=grid, tune=False).fit(data.X, data.U)
+    ab = PolicyLearner(basis=grid, tune=False, cutoff_rule="absolute").fit(data.X, data.U)
+    assert not np.allclose(rel.W_, ab.W_)  # 100 grid RBFs leave eigenvalues between the two cut-offs
+    with pytest.raises(ConfigError, match="cutoff_rule"):
+        PolicyLearner(cutoff_rule="absolut", tune=False).fit(data.X, data.U)
 
 
 # ---- issue 10 (scale): chunked normal equations give the unchunked answers ----------------
@@ -277,8 +345,8 @@ def test_kron_least_squares_solves_a_separable_problem_like_scipy():
 def test_policy_chunk_size_smaller_than_n_gives_the_same_fit(method):
     train, test = policy_data(0.01)
     P = train.true_projection()
-    whole = PolicyLearner(method, basis=GRID).fit(train.X, train.U, P)
-    chunked = PolicyLearner(method, basis=GRID, chunk_size=97).fit(train.X, train.U, P)
+    whole = PolicyLearner(method=method, basis=GRID, tune=False).fit(train.X, train.U, P)
+    chunked = PolicyLearner(method=method, basis=GRID, chunk_size=97, tune=False).fit(train.X, train.U, P)
     np.testing.assert_allclose(chunked.W_, whole.W_, rtol=1e-8, atol=1e-8 * np.abs(whole.W_).max())
     np.testing.assert_allclose(chunked.predict(test.X), whole.predict(test.X), atol=1e-8)
 
@@ -286,8 +354,8 @@ def test_policy_chunk_size_smaller_than_n_gives_the_same_fit(method):
 def test_ncl_chunk_size_smaller_than_n_gives_the_same_fit():
     data = sim.toy2d(constraint="fixed", task=True, sampling="uniform", n_samples=600,
                      n_demos=1, seed=0)
-    whole = NullSpaceComponent(n_centres=9).fit(data.X, data.U)
-    chunked = NullSpaceComponent(n_centres=9, chunk_size=64).fit(data.X, data.U)
+    whole = NullSpaceComponent(n_centres=9, tune=False).fit(data.X, data.U)
+    chunked = NullSpaceComponent(n_centres=9, chunk_size=64, tune=False).fit(data.X, data.U)
     assert chunked.cost_ == pytest.approx(whole.cost_, rel=1e-6)
     np.testing.assert_allclose(chunked.predict(data.X), whole.predict(data.X), atol=1e-5)
 
@@ -297,7 +365,7 @@ def test_linear_and_alpha_blocks_smaller_than_n_give_the_same_fit(monkeypatch):
     models = lambda: [  # noqa: E731
         LinearConstraint(task=True),
         LinearConstraint(whiten="errors", reweight=2),
-        LinearConstraint(regressors="rbf", basis=RBFBasis(9), selection="threshold"),
+        LinearConstraint(regressors="rbf", basis=RBFBasis(9), selection="threshold", tune=False),
         StateDependentConstraint(n_restarts=1),
     ]
     whole = [m.fit(data.X, data.U) for m in models()]

@@ -214,7 +214,7 @@ def test_truncated_and_foreign_hdf5(tmp_path):
     foreign = tmp_path / "foreign.h5"
     with h5py.File(foreign, "w") as f:
         f["x"] = np.zeros(3)
-    err({"files": [str(foreign)]}, "not a ccl-demonstrations file")
+    err({"files": [str(foreign)]}, "not in the ccl-demonstrations layout.*the file has: x")
 
 
 def test_empty_topic_nan_and_non_increasing(tmp_path):
@@ -243,7 +243,7 @@ def test_empty_topic_nan_and_non_increasing(tmp_path):
 def test_csv_errors(tmp_path):
     no_header = tmp_path / "n.csv"
     no_header.write_text("1,2\n3,4\n")
-    err({"files": [str(no_header)], "state": {"columns": [0]}}, "needs a header row")
+    err({"files": [str(no_header)], "state": {"columns": [0]}}, "no time column")
     bad = tmp_path / "b.csv"
     bad.write_text("time,a\n1,2\n2,oops\n")
     err({"files": [str(bad)], "state": {"columns": ["a"]}}, "column 'a' row 3 is not numeric")
@@ -332,3 +332,63 @@ def test_file_hash_is_content_hash_and_follows_rewrites(tmp_path):
     bag = write_ros2_bag(tmp_path / "bagdir", joint_recording(n=5))
     parts = b"".join(p.read_bytes() for p in sorted(q for q in bag.rglob("*") if q.is_file()))
     assert file_hash(bag) == hashlib.sha256(parts).hexdigest()
+
+
+# -- CSV exports: time detection, raw rosbag→CSV (Trakstar), headerless matrices ---------------
+def _trakstar_rows(n=60, empty_header=False):
+    """A raw rosbag→CSV export of a PoseStamped: log time in ns, and (optionally) the
+    flattened header columns, whose ``header``/``stamp`` cells are empty."""
+    rng = np.random.default_rng(3)
+    t = 1_531_000_000_000_000_000 + np.arange(n) * 20_000_000
+    p = np.cumsum(rng.normal(size=(n, 3)) * 1e-3, axis=0)
+    head = ["rosbagTimestamp", *(["header", "seq", "stamp", "secs", "nsecs", "frame_id"] if empty_header
+                                 else []), "x", "y", "z", "x", "y", "z", "w"]
+    rows = []
+    for k in range(n):
+        extra = ["", str(k), "", str(t[k] // 10**9), str(t[k] % 10**9), "/trakstar"] if empty_header else []
+        rows.append([str(t[k]), *extra, *(repr(float(v)) for v in p[k]), "0.0", "0.0", "0.0", "1.0"])
+    return head, rows, t, p
+
+
+@pytest.mark.parametrize("empty_header", [False, True])
+def test_raw_trakstar_export_reads_with_state_columns_only(tmp_path, capsys, empty_header):
+    head, rows, t, p = _trakstar_rows(empty_header=empty_header)
+    path = tmp_path / "trakstar.csv"
+    path.write_text("\n".join(",".join(r) for r in [head, *rows]) + "\n")
+    data = load_demonstrations({"files": [str(path)], "state": {"columns": ["x", "y", "z"]}})
+    np.testing.assert_array_equal(data.X, p)
+    np.testing.assert_allclose(data.t, (t - t[0]) / 1e9)  # rosbagTimestamp, integer ns, exact
+    assert data.metadata["files"][0]["state"]["time_column"] == "rosbagTimestamp"
+    info = inspect_path(path, {"state": {"columns": ["x", "y", "z"]}})
+    assert info["time_column"] == "rosbagTimestamp" and info["state_names"] == ["x", "y", "z"]
+    assert info["rate_hz"] == pytest.approx(50.0)
+    from ccl_cli.cli import main
+
+    (tmp_path / "c.yaml").write_text("data:\n  state: {columns: [x, y, z]}\n")
+    assert main(["inspect", str(path), "-c", str(tmp_path / "c.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "(time column rosbagTimestamp" in out and "state_names: ['x', 'y', 'z']" in out
+
+
+def test_csv_time_detection_never_picks_an_empty_or_text_column(tmp_path):
+    path = tmp_path / "e.csv"
+    path.write_text("stamp,%time,a\n,0.5,1\n,0.75,2\n,1.0,3\n")
+    data = load_demonstrations({"files": [str(path)], "state": {"columns": ["a"]}})
+    np.testing.assert_allclose(data.t, [0.0, 0.25, 0.5])
+    path.write_text("Time,stamp,a\n12:00,,1\n12:01,,2\n")
+    msg = err({"files": [str(path)], "state": {"columns": ["a"]}}, "no time column")
+    assert "Time, stamp not numeric or empty" in msg
+    path.write_text("field.header.stamp,stamp,a\n1000000000000000000,7,1\n1000000000010000000,8,2\n"
+                    "1000000000020000000,9,4\n")
+    data = load_demonstrations({"files": [str(path)], "state": {"columns": ["a"]}})
+    np.testing.assert_allclose(data.t, [0.0, 0.01, 0.02])  # the header stamp in ns, before a bare 'stamp'
+
+
+def test_headerless_whitespace_table_one_sample_per_row(tmp_path):
+    path = tmp_path / "m.txt"
+    path.write_text("0.0   1.5\t2\n0.1  2.5   4\n0.2 3.5 6\n")
+    data = load_demonstrations({"files": [str(path)], "state": {"columns": [1, 2]},
+                                "time": {"column": 0}})
+    np.testing.assert_allclose(data.X, [[1.5, 2], [2.5, 4], [3.5, 6]])
+    np.testing.assert_allclose(data.U, [[10, 20]] * 3, atol=1e-9)
+    assert data.state_names == ["m[1]", "m[2]"]

@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
 import numpy as np
 
 from ccl_cli.errors import InputError
+from ccl_cli.estimator import Estimator, clone
 from ccl_cli.linalg import nullspace_projection
 
 
-class ConstraintModel:
+class ConstraintModel(Estimator):
     """A learnt constraint. Subclasses implement :meth:`constraint`.
 
     Attributes (after ``fit``): ``n_constraints_``, ``selection_`` (dict with the rule,
@@ -27,6 +27,7 @@ class ConstraintModel:
 
     def projection(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
         """Ñ(X) = I − Ã⁺Ã: (N, p) → (N, q, q) (ALGORITHMS.md §1)."""
+        self._check_fitted("n_constraints_")
         return nullspace_projection(self.constraint(X, demo))
 
 
@@ -53,16 +54,17 @@ class PerDemonstration(ConstraintModel):
 
     needs_demo = True
 
-    def __init__(self, estimator: ConstraintModel) -> None:
+    def __init__(self, estimator: ConstraintModel) -> None:  # the one positional parameter
         self.estimator = estimator
 
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray) -> PerDemonstration:
         X, U = check_xu(X, U)
+        self._set_n_features(X)
         demo = np.asarray(demo)
         self.models_: dict[int, Any] = {}
         for d in np.unique(demo):  # loop over demonstrations, not samples
             m = demo == d
-            self.models_[int(d)] = copy.deepcopy(self.estimator).fit(X[m], U[m])
+            self.models_[int(d)] = clone(self.estimator).fit(X[m], U[m])
         counts = [m.n_constraints_ for m in self.models_.values()]
         self.n_constraints_ = int(np.bincount(counts).argmax())
         self.selection_ = {"rule": "per-demonstration",
@@ -72,6 +74,7 @@ class PerDemonstration(ConstraintModel):
         return self
 
     def projection(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
+        self._check_fitted("models_")
         if demo is None:
             raise InputError("a per-demonstration constraint model needs the demonstration ids")
         demo = np.asarray(demo)

@@ -28,6 +28,7 @@ from ccl_cli.constraint import selection as sel
 from ccl_cli.constraint.base import ConstraintModel, check_xu
 from ccl_cli.errors import ConfigError
 from ccl_cli.linalg import row_chunks
+from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
 
 REGRESSORS = ("identity", "rbf", "polynomial")
 #: Regressor rows of all samples are cached between the reweighting passes up to this size.
@@ -61,7 +62,10 @@ class LinearConstraint(ConstraintModel):
             constraint rows (the objective of §3) and samples where the unnormalised
             Ã(x) is large do not dominate; 0 gives the plain SVD.
         selection, n_constraints, gap_floor, threshold, max_constraints, cv_folds, seed:
-            choice of s; the default is the eigen-gap rule on the squared singular values.
+            choice of s; the default (``ratio``, :mod:`ccl_cli.constraint.selection`) reads
+            the squared singular values.
+        tune: with ``regressors="rbf"``, choose the basis by cross-validation
+            (:func:`ccl_cli.selection.tune`; True by default, False for fixed settings).
 
     Attributes:
         W_ (s, m), Wb_ (s, m_b) or None, singular_values_ (ascending), n_constraints_,
@@ -70,6 +74,7 @@ class LinearConstraint(ConstraintModel):
 
     def __init__(
         self,
+        *,
         regressors: str | Callable[[np.ndarray], np.ndarray] = "polynomial",
         degree: int = 1,
         basis: str | dict | Basis | None = "rbf",
@@ -78,13 +83,14 @@ class LinearConstraint(ConstraintModel):
         task_regressors: str = "constant",
         whiten: str = "rms",
         reweight: int = 3,
-        selection: str = "eigengap",
+        selection: str = sel.DEFAULT_RULE,
         n_constraints: int | None = None,
         threshold: float = 0.1,
         gap_floor: float = 1e-9,
         max_constraints: int | None = None,
         cv_folds: int = 5,
         seed: int = 0,
+        tune: bool | dict = TUNE,
     ) -> None:
         self.regressors = regressors
         self.degree = degree
@@ -101,6 +107,12 @@ class LinearConstraint(ConstraintModel):
         self.max_constraints = max_constraints
         self.cv_folds = cv_folds
         self.seed = seed
+        self.tune = tune
+
+    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
+        if self.regressors != "rbf" or not rbf_tunable(self.basis):
+            return {}
+        return {"basis": basis_grid(X, (self.n_centres, 16, 9, 25, 36), (1.0, 0.5), self.seed)}
 
     # -- regressors -------------------------------------------------------------------
     def _features(self, X: np.ndarray) -> np.ndarray | None:
@@ -218,6 +230,9 @@ class LinearConstraint(ConstraintModel):
 
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None) -> LinearConstraint:
         X, U = check_xu(X, U)
+        self._set_n_features(X)
+        if self._fit_tuned(X, U, demo=demo):
+            return self
         self.n_action_ = U.shape[1]
         if self.regressors == "rbf" or (self.task and self.task_regressors == "rbf"):
             self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
@@ -236,15 +251,11 @@ class LinearConstraint(ConstraintModel):
             chosen = sel.Selection("threshold", k, list(nmse[:max_k]), f"nmse below {self.threshold}")
         elif rule == "eigengap":
             chosen = sel.gap(vals[: max_k + 1], self.gap_floor)
+        elif rule == "ratio":
+            chosen = sel.ratio(vals[: max_k + 1] / len(X), max_k, self.gap_floor,
+                               criterion="squared singular value k of the scaled regressors / N")
         else:
-            demo = np.zeros(len(X), int) if demo is None else np.asarray(demo)
-
-            def candidates(train: np.ndarray):
-                _, v, sc, _ = self._solve(X[train], U[train], 1)
-                return lambda test, k: self._projection_of(X[test], (v[:, :k] / sc[:, None]).T)
-
-            chosen = sel.cross_validated(candidates, U, demo, max_k, self.cv_folds, self.seed,
-                                         self.gap_floor)
+            chosen = sel.cross_validated(self, X, U, demo, max_k, self.cv_folds, self.seed)
         self.n_constraints_ = chosen.n_constraints
         self.selection_ = chosen.as_dict()
         if self.reweight and self.n_constraints_ > 1:
@@ -257,14 +268,17 @@ class LinearConstraint(ConstraintModel):
         self.Wb_ = W[:, m:] if self.task else None
         return self
 
-    def _projection_of(self, X: np.ndarray, W: np.ndarray) -> np.ndarray:
+    def projection_k(self, X: np.ndarray, k: int) -> np.ndarray:
+        """Ñ(X) of the first ``k`` rows of W_ (nested up to the reweighting): (N, q, q)."""
         from ccl_cli.linalg import nullspace_projection
 
-        m = self._phi(X[:1]).shape[1]
-        return nullspace_projection(np.einsum("km,nmq->nkq", W[:, :m], self._phi(X)))
+        self._check_fitted("W_")
+        X = np.asarray(X, dtype=float)
+        return nullspace_projection(np.einsum("km,nmq->nkq", self.W_[:k], self._phi(X)))
 
     def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
         """Ã(X) = W Φ_A(X): (N, s, q) (rows not normalised)."""
+        self._check_fitted("W_")
         return np.einsum("km,nmq->nkq", self.W_, self._phi(np.asarray(X, dtype=float)))
 
     def task_term(self, X: np.ndarray) -> np.ndarray:

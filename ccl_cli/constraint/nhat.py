@@ -43,8 +43,9 @@ class StateIndependentConstraint(ConstraintModel):
     Args:
         method: ``"closed_form"`` (default) or ``"search"`` (the original grid search,
             q ≤ 6; for comparison only).
-        selection: how s is chosen: ``threshold`` (original, default), ``eigengap``,
-            ``cv``, or fixed via ``n_constraints``.
+        selection: how s is chosen (:mod:`ccl_cli.constraint.selection`): ``ratio``
+            (the noise-aware default), ``threshold`` (the original), ``eigengap``, ``cv``,
+            or fixed via ``n_constraints``.
         n_constraints: fix s.
         threshold: of the ``threshold`` rule (original: 0.1).
         gap_floor: relative floor of the eigen-gap rule.
@@ -58,8 +59,9 @@ class StateIndependentConstraint(ConstraintModel):
 
     def __init__(
         self,
+        *,
         method: str = "closed_form",
-        selection: str = "threshold",
+        selection: str = sel.DEFAULT_RULE,
         n_constraints: int | None = None,
         threshold: float = 0.1,
         gap_floor: float = 1e-9,
@@ -90,7 +92,8 @@ class StateIndependentConstraint(ConstraintModel):
             ) -> StateIndependentConstraint:
         """Learn Ã from actions U (N, q); X is not used (kept for a uniform API)."""
         U = np.asarray(U, dtype=float)
-        X, U = check_xu(np.zeros((U.shape[0], 1)) if X is None else X, U)
+        X, U = check_xu(np.zeros((U.shape[0], 0)) if X is None else X, U)
+        self._set_n_features(X)
         n, q = U.shape
         max_k = self.max_constraints or q - 1
         max_k = max(1, min(max_k, q - 1 if q > 1 else 1))
@@ -104,16 +107,11 @@ class StateIndependentConstraint(ConstraintModel):
             chosen = _threshold_count(lams, rows, cov, n, self.threshold, max_k)
         elif rule == "eigengap":
             chosen = sel.gap(lams[: max_k + 1], self.gap_floor)
+        elif rule == "ratio":
+            chosen = sel.ratio(lams[: max_k + 1] / n, max_k, self.gap_floor,
+                               criterion="eigenvalue k of Σ u uᵀ / N")
         else:
-            demo = np.zeros(n, int) if demo is None else np.asarray(demo)
-
-            def candidates(train: np.ndarray):
-                r, _ = self._candidate_rows(U[train])
-                return lambda test, k: np.broadcast_to(np.eye(q) - r[:k].T @ r[:k],
-                                                       (int(np.sum(test)), q, q))
-
-            chosen = sel.cross_validated(candidates, U, demo, max_k, self.cv_folds, self.seed,
-                                         self.gap_floor)
+            chosen = sel.cross_validated(self, X, U, demo, max_k, self.cv_folds, self.seed)
         self.n_constraints_ = chosen.n_constraints
         self.A_ = rows[: self.n_constraints_].copy()
         self.residuals_ = lams
@@ -121,12 +119,21 @@ class StateIndependentConstraint(ConstraintModel):
         self.n_action_ = q
         return self
 
+    def projection_k(self, X: np.ndarray, k: int) -> np.ndarray:
+        """Ñ of the first ``k`` rows (the rows are nested), broadcast to (N, q, q)."""
+        self._check_fitted("A_")
+        A = self.A_[:k]
+        N = np.eye(self.n_action_) - A.T @ A
+        return np.broadcast_to(N, (np.shape(X)[0], *N.shape)).copy()
+
     def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
+        self._check_fitted("A_")
         n = np.shape(X)[0]
         return np.broadcast_to(self.A_, (n, *self.A_.shape))
 
     def projection(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
         """Ñ = I − ÃᵀÃ (rows are orthonormal), broadcast to (N, q, q)."""
+        self._check_fitted("A_")
         N = np.eye(self.n_action_) - self.A_.T @ self.A_
         return np.broadcast_to(N, (np.shape(X)[0], *N.shape)).copy()
 

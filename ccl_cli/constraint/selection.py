@@ -1,26 +1,44 @@
 """Choosing the number of constraints s (ALGORITHMS.md §3.4).
 
 Every rule returns a :class:`Selection` recording the rule, the chosen number, the
-numbers it was chosen from, and a sentence saying why, so a report can show it.
+criterion it looked at for each candidate k = 1..max_k, and a sentence saying why, so a
+report can tabulate and plot it. ``model.selection_`` is :meth:`Selection.as_dict`::
 
+    {"rule": str, "n_constraints": int,
+     "values": [criterion for k = 1, 2, ...],   # what the rule compared (see below)
+     "criterion": str,                          # what "values" are
+     "reason": str}
+
+Each learner has a sequence of residuals ρ_1 ≤ ρ_2 ≤ ... of its candidate constraint
+rows (nhat: eigenvalues of Σ u uᵀ / N; alpha, lambda: nmse of row k; linear: squared
+singular values of the scaled regressors); the rules read it:
+
+* ``ratio`` (the default, :data:`DEFAULT_RULE`) — the noise-aware threshold: row 1 is
+  always a constraint, so ρ_1 is the noise level of the data in that direction; row k is
+  kept while ρ_k ≤ :data:`RATIO_FACTOR` · ρ_1 (values floored at ``floor · max ρ`` so the
+  exact zeros of noise-free data count as equal). A direction the demonstrations move
+  along carries the motion on top of the noise; a constraint direction carries only noise.
 * ``threshold`` — the original library's rule for the learner at hand;
-* ``eigengap`` — the largest ratio between consecutive residuals (ascending), each
-  floored at ``floor · largest`` so exact zeros of noise-free data do not win;
-* ``cv`` — the same gap rule on the held-out NPOE of each candidate count,
-  cross-validated over demonstrations;
+* ``eigengap`` — the largest ratio between consecutive residuals;
+* ``cv`` — held-out NPOE by cross-validation (:func:`ccl_cli.selection.cross_validate`):
+  the held-out energy Δ_k removed by row k, kept while Δ_k is within one standard error
+  (paired over folds) of RATIO_FACTOR · Δ_1;
 * ``fixed`` — the user's number.
+
+Chosen on evidence (``benchmarks/bench_rank.py``): see README "Number of constraints".
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.errors import ConfigError
+from ccl_cli.selection import DEFAULT_RULE, RATIO_FACTOR
 
-RULES = ("threshold", "eigengap", "cv", "fixed")
+RULES = ("ratio", "threshold", "eigengap", "cv", "fixed")
+__all__ = ["DEFAULT_RULE", "RATIO_FACTOR", "RULES", "Selection"]
 
 
 @dataclass
@@ -29,10 +47,12 @@ class Selection:
     n_constraints: int
     values: list[float] = field(default_factory=list)
     reason: str = ""
+    criterion: str = ""
 
     def as_dict(self) -> dict:
         return {"rule": self.rule, "n_constraints": self.n_constraints,
-                "values": [float(v) for v in self.values], "reason": self.reason}
+                "values": [float(v) for v in self.values], "criterion": self.criterion,
+                "reason": self.reason}
 
 
 def check_rule(rule: str, n_constraints: int | None) -> str:
@@ -64,49 +84,69 @@ def gap(values: np.ndarray, floor: float = 1e-9, rule: str = "eigengap") -> Sele
                      f"largest gap between residual {k} and {k + 1} (ratio {ratios[k - 1]:.3g})")
 
 
-def demo_folds(demo: np.ndarray, n_folds: int, seed: int) -> list[np.ndarray]:
-    """Boolean test masks of ``n_folds`` folds over demonstrations (or over
-    contiguous blocks of samples when there is only one demonstration)."""
-    ids = np.unique(demo)
-    rng = np.random.default_rng(seed)
-    if len(ids) >= 2:
-        n_folds = min(n_folds, len(ids))
-        perm = rng.permutation(ids)
-        return [np.isin(demo, part) for part in np.array_split(perm, n_folds)]
-    n = len(demo)
-    if n < 2 * n_folds:
-        raise InputError(f"cross-validation needs at least {2 * n_folds} samples, got {n}")
-    blocks = np.array_split(np.arange(n), n_folds)
-    return [np.isin(np.arange(n), b) for b in blocks]
+def ratio(values: np.ndarray, max_k: int, floor: float = 1e-9, factor: float = RATIO_FACTOR,
+          criterion: str = "residual") -> Selection:
+    """Noise-aware threshold: s = the number of leading residuals ρ_k ≤ factor · ρ_1
+    (ρ floored at ``floor · max ρ``), at least 1 and at most ``max_k``.
 
-
-def cross_validated(
-    fit_candidates: Callable[[np.ndarray], Callable[[np.ndarray, int], np.ndarray]],
-    U: np.ndarray,
-    demo: np.ndarray,
-    max_k: int,
-    n_folds: int = 5,
-    seed: int = 0,
-    floor: float = 1e-9,
-) -> Selection:
-    """Gap rule on held-out NPOE.
-
-    ``fit_candidates(train_mask)`` fits on the training samples and returns
-    ``projection(test_mask, k)`` giving Ñ (n_test, q, q) of the k-constraint model.
-    The held-out NPOE of "all directions constrained" (Ñ = 0) closes the sequence.
+    ``values`` may hold one more candidate than ``max_k`` (it is shown, not chosen).
     """
-    from ccl_cli.linalg import total_variance
+    v = np.asarray(values, dtype=float)
+    if v.size == 0:
+        raise ConfigError("no candidate constraints to choose from")
+    top = max(float(np.max(v)), np.finfo(float).tiny)
+    vf = np.maximum(v, floor * top)
+    limit = factor * vf[0]
+    k = 1
+    while k < min(max_k, v.size) and vf[k] <= limit:
+        k += 1
+    if k < v.size:
+        why = (f"row {k + 1} has {vf[k] / vf[0]:.3g}× the residual of row 1 (> {factor:g}: "
+               "motion, not noise)")
+    else:
+        why = f"all {k} candidates within {factor:g}× the residual of row 1 (noise level)"
+    return Selection("ratio", k, list(v), why, criterion)
 
-    scores = np.zeros(max_k + 1)
-    for test in demo_folds(demo, n_folds, seed):
-        projection = fit_candidates(~test)
-        Ut = U[test]
-        var = total_variance(Ut) if test.sum() > 1 else 1.0
-        for k in range(1, max_k + 1):
-            Nt = projection(test, k)
-            res = Ut - np.einsum("nij,nj->ni", Nt, Ut)
-            scores[k - 1] += np.mean(np.sum(res**2, 1)) / var
-        scores[max_k] += np.mean(np.sum(Ut**2, 1)) / var
-    sel = gap(scores / n_folds, floor, rule="cv")
-    sel.reason = "held-out NPOE: " + sel.reason
+
+def cv_rule(increments: np.ndarray, max_k: int, factor: float = RATIO_FACTOR) -> Selection:
+    """One-standard-error rule on held-out energies.
+
+    ``increments`` (n_folds, m): per fold, the held-out NPOE added by row k (Δ_k =
+    NPOE_k − NPOE_{k−1}). Row k is kept while mean(Δ_k − factor·Δ_1) ≤ its standard
+    error over the folds.
+    """
+    inc = np.asarray(increments, dtype=float)
+    n_folds = inc.shape[0]
+    mean = inc.mean(0)
+    k = 1
+    while k < min(max_k, inc.shape[1]):
+        diff = inc[:, k] - factor * inc[:, 0]
+        se = diff.std(ddof=1) / np.sqrt(n_folds) if n_folds > 1 else 0.0
+        if diff.mean() > se:
+            break
+        k += 1
+    why = (f"row {k + 1} removes {mean[k] / max(mean[0], 1e-300):.3g}× the held-out energy of row 1 "
+           f"(more than {factor:g}× + 1 SE)" if k < inc.shape[1]
+           else f"all {k} rows remove held-out energy at the noise level")
+    sel = Selection("cv", k, list(np.cumsum(mean)), why, "held-out NPOE of the first k rows")
     return sel
+
+
+def cross_validated(model, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None, max_k: int,
+                    n_folds: int = 5, seed: int = 0, factor: float = RATIO_FACTOR) -> Selection:
+    """The ``cv`` rule for any nested constraint learner (one with ``projection_k``): a
+    clone with ``max_k`` rows is fitted per training fold by
+    :func:`ccl_cli.selection.cross_validate` and the held-out NPOE of its first k rows,
+    k = 1..max_k, is read on the test fold (the data the learner was given: joint-space
+    actions for lambda, not the task-space ones it fits its selection on)."""
+    from ccl_cli import selection as S
+    from ccl_cli.estimator import clone
+
+    est = clone(model).set_params(n_constraints=max_k)
+    res = S.cross_validate(est, X, U, demo, n_folds=n_folds, seed=seed,
+                           scorer=lambda m, Xt, Ut, dt: S.truncated_npoe(m, Xt, Ut, dt))
+    npoe = res.scores
+    inc = np.diff(np.concatenate([np.zeros((npoe.shape[0], 1)), npoe], 1), axis=1)
+    chosen = cv_rule(inc, max_k, factor)
+    chosen.reason += f"; {res.reason}"
+    return chosen

@@ -5,7 +5,8 @@
 * derivatives come from a local polynomial (Savitzky–Golay style) fitted by least
   squares on the real, non-uniform timestamps of a window of samples, inside each
   demonstration only — never across a gap;
-* demonstrations are one per file, split on time gaps, or given as time ranges.
+* demonstrations are one per file, split on time gaps, given as time ranges, and/or cut
+  into fixed windows (continuous recordings).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
 
 log = logging.getLogger("ccl")
@@ -28,33 +30,105 @@ def check_increasing(t_ns: np.ndarray, where: str) -> None:
                          f"({int(t_ns[k - 1])} ns then {int(t_ns[k])} ns)")
 
 
+DEMOS_KEYS = ("split_on_gap", "ranges", "window", "per_file")
+
+
 def segment_ids(t_s: np.ndarray, demos: dict[str, Any] | None, where: str) -> np.ndarray:
-    """Demo id per sample (−1 = outside every range) from the ``demos`` config:
-    ``{split_on_gap: seconds}``, ``{ranges: [[t0, t1], ...]}`` (seconds from the first
-    sample) or nothing (one demonstration)."""
+    """Demo id per sample (−1 = outside every range) from the ``demos`` config.
+
+    ``{split_on_gap: seconds}`` cuts where consecutive stamps are further apart;
+    ``{ranges: [[t0, t1], ...]}`` (seconds from the first sample) keeps only those spans;
+    ``{window: S}`` then cuts every resulting segment (the whole recording by default)
+    into fixed windows of S seconds from its first sample, a tail shorter than S/2 joining
+    the window before it. Nothing: one demonstration. t_s (N,) seconds → (N,) int.
+    """
     demos = demos or {}
-    unknown = set(demos) - {"split_on_gap", "ranges", "per_file"}
+    unknown = set(demos) - set(DEMOS_KEYS)
     if unknown:
-        raise InputError(f"unknown demos option(s): {', '.join(sorted(unknown))} "
-                         "(use split_on_gap, ranges or per_file)")
+        raise InputError(f"{where}: demos: unknown option(s) {', '.join(sorted(unknown))} "
+                         "(use split_on_gap, ranges, window or per_file)")
     n = len(t_s)
+    gap = demos.get("split_on_gap")
     if demos.get("ranges") is not None:
         ids = np.full(n, -1)
         rel = t_s - t_s[0]
-        for k, rng in enumerate(demos["ranges"]):
-            if len(rng) != 2 or not rng[0] < rng[1]:
-                raise InputError(f"demos.ranges[{k}] must be [start, end] with start < end, got {rng}")
+        ranges = demos["ranges"]
+        if not isinstance(ranges, list | tuple):
+            raise InputError(f"{where}: demos.ranges must be a list of [start, end] pairs, "
+                             f"got {ranges!r}"[:200])
+        for k, rng in enumerate(ranges):
+            numbers = isinstance(rng, list | tuple) and len(rng) == 2 and all(
+                isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v) for v in rng)
+            if not numbers or not rng[0] < rng[1]:
+                raise InputError(f"{where}: demos.ranges[{k}] must be [start, end] (finite seconds) with "
+                                 f"start < end, got {rng!r}"[:200])
             inside = (rel >= rng[0]) & (rel <= rng[1]) & (ids < 0)
             ids[inside] = k
         if (ids < 0).all():
             raise InputError(f"{where}: no samples inside demos.ranges")
+    elif gap is not None:
+        if isinstance(gap, bool) or not isinstance(gap, int | float) or not gap > 0:
+            raise InputError(f"{where}: demos.split_on_gap must be positive seconds, got {gap}")
+        ids = np.concatenate([[0], np.cumsum(np.diff(t_s) > gap)])
+    else:
+        ids = np.zeros(n, dtype=int)
+    window = demos.get("window")
+    if window is not None:
+        if isinstance(window, bool) or not isinstance(window, int | float) or not window > 0:
+            raise InputError(f"{where}: demos.window must be positive seconds, got {window!r}")
+        ids = cut_windows(t_s, ids, float(window))
+    return ids
+
+
+def cut_windows(t_s: np.ndarray, ids: np.ndarray, window: float) -> np.ndarray:
+    """Cut each contiguous run of equal ``ids`` (≥ 0) into windows of ``window`` seconds
+    from the run's first stamp; a last window shorter than ``window``/2 joins the one
+    before it; −1 stays −1. Returns consecutive ids 0, 1, ... in time order."""
+    n = len(t_s)
+    if n == 0:
         return ids
-    gap = demos.get("split_on_gap")
-    if gap is not None:
-        if not gap > 0:
-            raise InputError(f"demos.split_on_gap must be positive seconds, got {gap}")
-        return np.concatenate([[0], np.cumsum(np.diff(t_s) > gap)])
-    return np.zeros(n, dtype=int)
+    start = np.r_[True, ids[1:] != ids[:-1]]
+    run = np.cumsum(start) - 1
+    first = np.flatnonzero(start)
+    last = np.r_[first[1:], n] - 1
+    rel = t_s - t_s[first][run]
+    k = np.floor(rel / window).astype(int)
+    span = t_s[last] - t_s[first]  # per run
+    k_last = np.floor(span / window).astype(int)
+    short_tail = (span - k_last * window < window / 2) & (k_last > 0)
+    k = np.where((k == k_last[run]) & short_tail[run], k - 1, k)
+    change = np.r_[True, (run[1:] != run[:-1]) | (k[1:] != k[:-1])]
+    out = np.cumsum(change & (ids >= 0)) - 1
+    return np.where(ids >= 0, out, -1)
+
+
+def resegment(data: Demonstrations, demos: dict[str, Any] | None, where: str,
+              masks: dict[str, list[int]] | None = None
+              ) -> tuple[Demonstrations, dict[str, list[int]] | None]:
+    """Apply the ``demos`` config inside each demonstration of an already assembled dataset
+    (canonical HDF5): gaps, ranges (seconds from each demonstration's first sample) and
+    windows. Samples outside every range are dropped. Train/test ``masks`` (lists of demo
+    ids) are carried over: each new piece keeps the membership of the demonstration it came
+    from. Returns the re-cut dataset and masks."""
+    if not demos:
+        return data, masks
+    new = np.full(data.n_samples, -1)
+    parent: list[int] = []
+    for d in data.demo_ids:  # loop over demonstrations, not samples
+        rows = np.flatnonzero(data.demo == d)
+        ids = segment_ids(data.t[rows], demos, f"{where}: demo {int(d)}")
+        inside = ids >= 0
+        new[rows[inside]] = ids[inside] + len(parent)
+        parent += [int(d)] * (int(ids.max()) + 1 if inside.any() else 0)
+    keep = new >= 0
+    out = data.subset(keep)
+    out.demo = new[keep]
+    out.metadata = {**data.metadata, "demos": dict(demos)}
+    if masks:
+        parent_arr = np.asarray(parent)
+        masks = {name: [int(i) for i in np.flatnonzero(np.isin(parent_arr, ids))]
+                 for name, ids in masks.items()}
+    return out, masks
 
 
 def local_polynomial_derivative(t: np.ndarray, Y: np.ndarray, demo: np.ndarray, window: int = 9,
@@ -66,8 +140,12 @@ def local_polynomial_derivative(t: np.ndarray, Y: np.ndarray, demo: np.ndarray, 
     one batch of small least-squares problems.
     """
     n = len(t)
-    if window < order + 1 or window % 2 == 0:
-        raise InputError(f"derivative window must be odd and > order ({order}), got {window}")
+    if isinstance(order, bool) or not isinstance(order, int | np.integer) or order < 1:
+        raise InputError(f"derivative order must be an integer ≥ 1 (the first derivative is its "
+                         f"coefficient), got {order!r}")
+    if isinstance(window, bool) or not isinstance(window, int | np.integer) or window < order + 1 \
+            or window % 2 == 0:
+        raise InputError(f"derivative window must be odd and > order ({order}), got {window!r}")
     starts_of = np.flatnonzero(np.r_[True, demo[1:] != demo[:-1]])
     ends_of = np.r_[starts_of[1:], n]
     seg = np.cumsum(np.r_[True, demo[1:] != demo[:-1]]) - 1

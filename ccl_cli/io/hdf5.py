@@ -13,7 +13,10 @@
     /mask/train, /mask/test   names of demo groups (optional)
 
 Groups are ordered by their ``index`` attribute, never by name. Datasets of more than
-``CHUNK_ROWS`` rows are chunked and gzip-compressed. Writing is atomic.
+``CHUNK_ROWS`` rows are chunked and gzip-compressed. Writing is atomic, and the file
+carries its content hash in the HDF5 user block (:mod:`ccl_cli.io.h5safe`). Reading goes
+through :func:`~ccl_cli.io.h5safe.open_hdf5` (no links or storage outside the file, no
+libhdf5 hang) and checks every attribute and dataset for type, shape and finiteness.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ import numpy as np
 
 from ccl_cli.dataset import TRUTH_KEYS, Demonstrations
 from ccl_cli.errors import InputError
-from ccl_cli.io.atomic import atomic_path
+from ccl_cli.io import h5safe
 
 FORMAT = "ccl-demonstrations"
 FORMAT_VERSION = 1
@@ -35,12 +38,6 @@ CHUNK_ROWS = 100_000
 
 def _strings(values: list[str]) -> np.ndarray:
     return np.array([str(v) for v in values], dtype=object)
-
-
-def _attr_list(attrs, key: str, n: int) -> list[str]:
-    if key not in attrs:
-        return [""] * n
-    return [v.decode() if isinstance(v, bytes) else str(v) for v in attrs[key]]
 
 
 def _dataset(group, name: str, data: np.ndarray) -> None:
@@ -62,7 +59,7 @@ def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns:
     import h5py
 
     path = Path(path)
-    with atomic_path(path, force=force) as tmp, h5py.File(tmp, "w") as f:
+    with h5safe.create_hdf5(path, force=force) as f:
         f.attrs["format"] = FORMAT
         f.attrs["format_version"] = FORMAT_VERSION
         str_dt = h5py.string_dtype()
@@ -105,86 +102,104 @@ def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns:
 
 def check_header(attrs, where: str, fmt: str, version_key: str, version: int, what: str) -> None:
     """Refuse a file whose ``format`` attribute is not ``fmt`` or whose ``version_key``
-    attribute is not ``version`` (one message naming the file and what was found)."""
-    found = attrs.get("format")
-    found = found.decode() if isinstance(found, bytes) else found
+    attribute is not the integer ``version`` (one message naming the file and what was found)."""
+    found = h5safe.attr_str(attrs, "format", where, None) if "format" in attrs else None
     if found != fmt:
         raise InputError(f"{where}: not a {what} (format attribute {found!r})")
-    got = int(attrs.get(version_key, -1))
+    got = h5safe.attr_int(attrs, version_key, where)
     if got != version:
         raise InputError(f"{where}: {what} version {got} is not supported (this ccl reads version {version})")
 
 
 def is_canonical(path: Path) -> bool:
-    import h5py
+    """True for a ccl-demonstrations file (damaged or unsafe HDF5 raises InputError)."""
+    with h5safe.open_hdf5(path, "HDF5 file") as f:
+        return "format" in f.attrs and h5safe.attr_str(f.attrs, "format", str(path), "") == FORMAT
 
-    try:
-        with h5py.File(path, "r") as f:
-            return f.attrs.get("format") in (FORMAT, FORMAT.encode())
-    except OSError:
-        return False
+
+def _demo_arrays(g, where: str, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    label = f"{where}: /demos/{name}"
+    t = h5safe.numeric(g, "t", where, ndim=(1,))
+    x = h5safe.numeric(g, "x", where, ndim=(1, 2), finite=False)
+    u = h5safe.numeric(g, "u", where, ndim=(1, 2), finite=False)
+    x = x.reshape(-1, 1) if x.ndim == 1 else x
+    u = u.reshape(-1, 1) if u.ndim == 1 else u
+    n = t.shape[0]
+    if x.shape[0] != n or u.shape[0] != n:
+        raise InputError(f"{label}: t, x, u have {t.shape}, {x.shape}, {u.shape}")
+    if n == 0 or x.shape[1] == 0 or u.shape[1] == 0:
+        raise InputError(f"{label}: empty (t, x, u have {t.shape}, {x.shape}, {u.shape})")
+    if n > 1 and not np.all(np.diff(t) > 0):
+        raise InputError(f"{label}/t is not strictly increasing")
+    return t, x, u
+
+
+def _truth(g, where: str, name: str, n: int, q: int) -> dict[str, np.ndarray]:
+    tg = h5safe.group_of(g, "truth", f"{where}: /demos/{name}", required=False)
+    if tg is None:
+        return {}
+    out = {}
+    for key in tg:
+        if key not in TRUTH_KEYS:
+            continue
+        v = h5safe.numeric(tg, key, where, ndim=(1, 2, 3), finite=False)
+        per_sample = v.ndim >= 1 and v.shape[0] == n
+        ok = {"pi": v.shape == (n, q), "w": v.shape == (n, q), "v": v.shape == (n, q),
+              "b": v.ndim == 2 and per_sample,
+              "A": (v.ndim == 2 and v.shape[1] == q) or (v.ndim == 3 and per_sample and v.shape[2] == q),
+              "N": v.shape == (q, q) or v.shape == (n, q, q)}[key]
+        if not ok:
+            raise InputError(f"{where}: /demos/{name}/truth/{key} has shape {v.shape}, which does not "
+                             f"fit {n} samples of {q}-D actions")
+        out[key] = v
+    return out
 
 
 def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any]]:
     """Read a canonical file → (Demonstrations, info with time_origin_ns, masks, provenance).
 
-    Every structural problem (foreign file, missing dataset, wrong shapes, unknown
-    version) is an :class:`InputError` naming the file and the object at fault.
+    Every structural problem (foreign file, missing dataset, wrong types or shapes,
+    unknown version, links or storage outside the file) is an :class:`InputError`
+    naming the file and the object at fault.
     """
-    import h5py
-
     path = Path(path)
     where = str(path)
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise InputError(f"{where}: cannot open as HDF5 ({exc})") from None
-    with f:
+    with h5safe.open_hdf5(path, f"{FORMAT} file") as f:
         check_header(f.attrs, where, FORMAT, "format_version", FORMAT_VERSION, f"{FORMAT} file")
-        if "demos" not in f or not len(f["demos"]):
+        demos = h5safe.group_of(f, "demos", where, required=False)
+        if demos is None or not len(demos):
             raise InputError(f"{where}: no demonstrations under /demos")
         groups = []
-        for name, g in f["demos"].items():
-            if "index" not in g.attrs:
-                raise InputError(f"{where}: /demos/{name} has no index attribute")
-            groups.append((int(g.attrs["index"]), name, g))
+        for name in demos:
+            g = h5safe.group_of(demos, name, f"{where}: /demos")
+            groups.append((h5safe.attr_int(g.attrs, "index", f"{where}: /demos/{name}"), name, g))
         groups.sort(key=lambda item: item[0])
         X, U, T, demo, truth_parts = [], [], [], [], {}
         p = q = None
         truth_keys = None
         for order, (_, name, g) in enumerate(groups):
-            for key in ("t", "x", "u"):
-                if key not in g:
-                    raise InputError(f"{where}: /demos/{name}/{key} is missing")
-            try:
-                t, x, u = g["t"][()], g["x"][()], g["u"][()]
-            except Exception as exc:
-                raise InputError(f"{where}: cannot read /demos/{name} ({exc})") from None
-            x = x.reshape(-1, 1) if x.ndim == 1 else x
-            u = u.reshape(-1, 1) if u.ndim == 1 else u
+            t, x, u = _demo_arrays(g, where, name)
             n = t.shape[0]
-            if x.shape[0] != n or u.shape[0] != n or t.ndim != 1:
-                raise InputError(f"{where}: /demos/{name}: t, x, u have {t.shape}, {x.shape}, {u.shape}")
             if p is None:
                 p, q = x.shape[1], u.shape[1]
             elif (x.shape[1], u.shape[1]) != (p, q):
                 raise InputError(f"{where}: /demos/{name} has dimensions ({x.shape[1]}, {u.shape[1]}), "
                                  f"other demos ({p}, {q})")
-            if n > 1 and not np.all(np.diff(t) > 0):
-                raise InputError(f"{where}: /demos/{name}/t is not strictly increasing")
             X.append(x)
             U.append(u)
             T.append(t)
             demo.append(np.full(n, order))
-            keys = set(g["truth"].keys()) if "truth" in g else set()
-            truth_keys = keys if truth_keys is None else truth_keys & keys
-            for key in keys:
-                truth_parts.setdefault(key, []).append((n, g["truth"][key][()]))
+            parts = _truth(g, where, name, n, q)
+            truth_keys = set(parts) if truth_keys is None else truth_keys & set(parts)
+            for key, value in parts.items():
+                truth_parts.setdefault(key, []).append((n, value))
         truth: dict[str, np.ndarray] = {}
-        for key in truth_keys or ():
-            if key not in TRUTH_KEYS:
-                continue
+        for key in sorted(truth_keys or ()):
             parts = truth_parts[key]
+            if key == "b" and len({v.shape[1] for _, v in parts}) > 1:
+                raise InputError(f"{where}: truth/b has different widths across demonstrations")
+            if key == "A" and len({v.shape[-2] for _, v in parts}) > 1:
+                raise InputError(f"{where}: truth/A has different numbers of rows across demonstrations")
             const = key in ("A", "N") and all(v.ndim == 2 for _, v in parts)
             if const and all(np.array_equal(parts[0][1], v) for _, v in parts):
                 truth[key] = parts[0][1]
@@ -194,10 +209,11 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
                                              for n, v in parts])
         names = [name for _, name, _ in groups]
         masks = {}
-        if "mask" in f:
+        mask = h5safe.group_of(f, "mask", where, required=False)
+        if mask is not None:
             for key in ("train", "test"):
-                if key in f["mask"]:
-                    wanted = [v.decode() if isinstance(v, bytes) else str(v) for v in f["mask"][key][()]]
+                if key in mask:
+                    wanted = h5safe.strings(mask, key, where)
                     unknown = [w for w in wanted if w not in names]
                     if unknown:
                         raise InputError(f"{where}: /mask/{key} names unknown groups {unknown[:3]}")
@@ -205,16 +221,16 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
         data = Demonstrations(
             X=np.concatenate(X), U=np.concatenate(U), demo=np.concatenate(demo), t=np.concatenate(T),
             truth=truth,
-            state_names=_attr_list(f.attrs, "state_names", p),
-            action_names=_attr_list(f.attrs, "action_names", q),
-            state_units=_attr_list(f.attrs, "state_units", p),
-            action_units=_attr_list(f.attrs, "action_units", q),
+            state_names=h5safe.attr_strings(f.attrs, "state_names", where, p),
+            action_names=h5safe.attr_strings(f.attrs, "action_names", where, q),
+            state_units=h5safe.attr_strings(f.attrs, "state_units", where, p),
+            action_units=h5safe.attr_strings(f.attrs, "action_units", where, q),
             metadata={"source": where},
         )
-        try:
-            provenance = json.loads(f.attrs.get("provenance", "{}"))
-        except (TypeError, json.JSONDecodeError):
+        try:  # provenance is informative only: a damaged one is dropped, not fatal
+            provenance = h5safe.attr_json(f.attrs, "provenance", where, {}, dict)
+        except InputError:
             provenance = {}
-        info = {"time_origin_ns": int(f.attrs.get("time_origin_ns", 0)), "masks": masks,
+        info = {"time_origin_ns": h5safe.attr_int(f.attrs, "time_origin_ns", where, 0), "masks": masks,
                 "provenance": provenance, "groups": names}
         return data, info

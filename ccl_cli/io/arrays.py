@@ -1,0 +1,262 @@
+"""From arrays (HDF5 datasets, MATLAB variables, text matrices) to demonstrations.
+
+Array formats give, per demonstration, a state matrix, optionally an action matrix and
+a time vector. What is common to them lives here: orientation (``samples: rows`` — one
+sample per row, as NumPy/HDF5 writers store it — or ``columns``, as MATLAB code and the
+original C library do), a demo-index vector split into demonstrations, time from a rate,
+non-finite samples, and actions derived from the state (see :mod:`ccl_cli.io.assemble`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ccl_cli.dataset import Demonstrations
+from ccl_cli.errors import InputError
+from ccl_cli.io.assemble import local_polynomial_derivative
+
+SAMPLES = ("rows", "columns")
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+NAME_ATTRS = ("names", "column_names", "joint_names", "labels", "fields")
+
+
+@dataclass
+class Variable:
+    """One array as read, with where it came from and how its samples lie."""
+
+    values: np.ndarray
+    where: str
+    samples: str | None = None
+    names: list[str] | None = None
+
+
+@dataclass
+class Part:
+    """One demonstration: state (n, p), action (n, q) or None, time (n,) seconds or None."""
+
+    X: np.ndarray
+    U: np.ndarray | None
+    t: np.ndarray | None
+    label: str
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def numeric(values: Any, where: str, keep_int: bool = False) -> np.ndarray:
+    """``values`` as a float64 array (int64 if ``keep_int`` and integer), or a one-line
+    error saying what it is instead."""
+    arr = np.asarray(values)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+        kind = "text" if arr.dtype.kind in "SUa" else f"dtype {arr.dtype}"
+        raise InputError(f"{where}: not numeric ({kind})")
+    if np.iscomplexobj(arr):
+        raise InputError(f"{where}: complex numbers are not supported")
+    if arr.ndim > 2:
+        raise InputError(f"{where}: {arr.ndim}-D array {arr.shape}; expected a vector or a matrix")
+    if keep_int and np.issubdtype(arr.dtype, np.integer):
+        return arr.astype(np.int64)
+    return arr.astype(float)
+
+
+def _is_vector(shape: tuple[int, ...]) -> bool:
+    return len(shape) == 1 or (len(shape) == 2 and 1 in shape)
+
+
+def _side(var: Variable, default: str | None) -> str | None:
+    """rows, columns, vector (either way) or None (to be inferred)."""
+    if var.samples is not None:
+        return var.samples
+    if _is_vector(var.values.shape):
+        return "vector"
+    return default
+
+
+def orient(variables: dict[str, Variable], default: str | None, where: str) -> dict[str, np.ndarray]:
+    """Each variable as (n, d), one sample per row, all with the same n.
+
+    ``samples`` says which axis holds the samples; when it is not given (and ``default``
+    is None) the axis is the one whose length the other variables share; a matrix whose
+    two sides both fit (square) or a set of variables that allows two sample counts is
+    refused with the key to set. Vectors (1-D, or one side 1) fit either way.
+    """
+    sides = {}
+    for key, var in variables.items():
+        if var.samples is not None and var.samples not in SAMPLES:
+            raise InputError(f"{var.where}: samples must be rows or columns, got {var.samples!r}")
+        if var.values.ndim == 0 or var.values.size == 0:
+            raise InputError(f"{var.where}: empty or scalar; expected a matrix of samples")
+        sides[key] = _side(var, default)
+    known: dict[str, int] = {}
+    for key, var in variables.items():
+        shape, side = var.values.shape, sides[key]
+        if side == "vector":
+            known[key] = int(var.values.size)
+        elif side is not None:
+            known[key] = shape[0] if side == "rows" or len(shape) == 1 else shape[1]
+    if known:
+        counts = set(known.values())
+        if len(counts) > 1:
+            desc = ", ".join(f"{_name(variables[k])} has {n}" for k, n in known.items())
+            raise InputError(f"{where}: the variables disagree on the number of samples ({desc}); "
+                             "check samples: rows|columns")
+        n = counts.pop()
+    else:
+        common = set.intersection(*(set(v.values.shape) for v in variables.values()))
+        if len(common) != 1:
+            shapes = ", ".join(f"{_name(v)} {_shape(v.values)}" for v in variables.values())
+            raise InputError(f"{where}: cannot tell which side holds the samples ({shapes}); "
+                             "set samples: rows or samples: columns")
+        n = common.pop()
+    out = {}
+    for key, var in variables.items():
+        arr, side = var.values, sides[key]
+        if side is None:
+            rows_fit, cols_fit = arr.shape[0] == n, arr.shape[1] == n
+            if rows_fit and cols_fit:
+                raise InputError(f"{var.where}: square {_shape(arr)} matrix; "
+                                 "set samples: rows or samples: columns")
+            if not (rows_fit or cols_fit):
+                raise InputError(f"{var.where}: shape {_shape(arr)} has no side of length {n} "
+                                 "(the samples of the other variables)")
+            side = "rows" if rows_fit else "columns"
+        if side == "vector" or arr.ndim == 1:
+            out[key] = arr.reshape(-1, 1)
+        else:
+            out[key] = arr if side == "rows" else arr.T
+    return out
+
+
+def _name(var: Variable) -> str:
+    """The variable's own part of ``where`` (after the file name)."""
+    return var.where.rsplit(": ", 1)[-1]
+
+
+def _shape(arr: np.ndarray) -> str:
+    return "×".join(map(str, arr.shape))
+
+
+def split_by_index(arrays: dict[str, np.ndarray], demo: np.ndarray, where: str
+                   ) -> list[tuple[str, dict[str, np.ndarray]]]:
+    """Rows grouped by a demo-index vector (ids in order of first appearance; a demo's
+    samples keep their order) → [(label, arrays of that demo)]."""
+    ids = np.asarray(demo).ravel()
+    if not np.all(np.isfinite(ids)) or not np.all(ids == np.round(ids)):
+        raise InputError(f"{where}: the demo index must hold integers")
+    ids = ids.astype(np.int64)
+    uniq, first, inverse = np.unique(ids, return_index=True, return_inverse=True)
+    rank = np.argsort(np.argsort(first))[inverse]  # demo order = order of first appearance
+    order = np.argsort(rank, kind="stable")
+    bounds = np.flatnonzero(np.diff(rank[order])) + 1
+    chunks = np.split(order, bounds)
+    return [(f"demo {int(ids[c[0]])}", {k: v[c] for k, v in arrays.items()}) for c in chunks]
+
+
+def chunk_times(chunks: list[tuple[str, dict[str, np.ndarray]]], time_cfg: dict[str, Any], where: str
+                ) -> tuple[list[np.ndarray], int, str]:
+    """Seconds per demonstration, the time origin in ns, and what was used.
+
+    From the ``time`` arrays of the chunks scaled by ``time.unit`` (integer stamps without
+    a unit: ≥ 1e15 means ns, else s, as for CSV), or ``k / time.rate``. Integer stamps are
+    made relative to the file's first stamp in integer arithmetic (exact at epoch scale);
+    that stamp is the origin.
+    """
+    unit = time_cfg.get("unit")
+    if unit is not None and unit not in TIME_UNITS:
+        raise InputError(f"data.time.unit must be one of {', '.join(TIME_UNITS)}, got {unit!r}")
+    if "time" not in chunks[0][1]:
+        rate = time_cfg.get("rate")
+        if rate is None:
+            raise InputError(f"{where}: no time given; set data.time.rate (Hz) or the time dataset/variable")
+        if not rate > 0:
+            raise InputError(f"data.time.rate must be positive, got {rate}")
+        return [np.arange(a["state"].shape[0]) / float(rate) for _, a in chunks], 0, f"rate {rate} Hz"
+    raws = [a["time"][:, 0] for _, a in chunks]
+    if np.issubdtype(raws[0].dtype, np.integer):
+        origin = int(raws[0][0])
+        if unit is None:
+            unit = "ns" if max(int(np.abs(r).max()) for r in raws) >= 10**15 else "s"
+        scale = TIME_UNITS[unit]
+        return ([(r.astype(np.int64) - origin).astype(float) * scale for r in raws],
+                origin * round(scale * 1e9), f"integer stamps in {unit}")
+    unit = unit or "s"
+    return [r.astype(float) * TIME_UNITS[unit] for r in raws], 0, f"stamps in {unit}"
+
+
+def names_for(label: str, d: int, given: list[str] | None) -> list[str]:
+    if given is not None and len(given) == d:
+        return [str(g) for g in given]
+    return [label] if d == 1 else [f"{label}[{j}]" for j in range(d)]
+
+
+def assemble(parts: list[Part], data_cfg: dict[str, Any], where: str, state_names: list[str],
+             action_names: list[str] | None, meta: dict[str, Any]) -> Demonstrations:
+    """Per-demonstration arrays → one :class:`Demonstrations` (demo ids in part order).
+
+    Non-finite samples are dropped (``data.nonfinite: drop``) or refused (``fail``);
+    time must increase strictly within each demonstration; with ``action: {derive:
+    state}`` U is the local-polynomial derivative of X on the real timestamps.
+    """
+    if not parts:
+        raise InputError(f"{where}: no demonstrations found")
+    policy = data_cfg.get("nonfinite", "drop")
+    if policy not in ("drop", "fail"):
+        raise InputError(f"data.nonfinite must be drop or fail, got {policy!r}")
+    p = parts[0].X.shape[1]
+    q = parts[0].U.shape[1] if parts[0].U is not None else None
+    Xs, Us, Ts, demo, dropped = [], [], [], [], 0
+    for k, part in enumerate(parts):
+        here = f"{where}: {part.label}"
+        if part.X.shape[1] != p or (q is not None and part.U.shape[1] != q):
+            got = (part.X.shape[1], part.U.shape[1] if part.U is not None else None)
+            raise InputError(f"{here}: dimensions {got} differ from the first demonstration's {(p, q)}")
+        ok = np.isfinite(part.X).all(1)
+        if part.U is not None:
+            ok &= np.isfinite(part.U).all(1)
+        if not ok.all():
+            if policy == "fail":
+                raise InputError(f"{here}: {int((~ok).sum())} samples contain NaN or inf "
+                                 f"(first at sample {int(np.argmax(~ok))}); set data.nonfinite: drop")
+            dropped += int((~ok).sum())
+        if not ok.any():
+            raise InputError(f"{here}: no samples left")
+        t = part.t[ok]
+        if not np.isfinite(t).all():
+            raise InputError(f"{here}: time contains NaN or inf")
+        bad = np.flatnonzero(np.diff(t) <= 0)
+        if len(bad):
+            k = int(bad[0]) + 1
+            raise InputError(f"{here}: time is not strictly increasing at sample {k} "
+                             f"({t[k - 1]!r} s then {t[k]!r} s)")
+        Xs.append(part.X[ok])
+        Us.append(part.U[ok] if part.U is not None else None)
+        Ts.append(t)
+        demo.append(np.full(int(ok.sum()), k))
+    X, t, ids = np.concatenate(Xs), np.concatenate(Ts), np.concatenate(demo)
+    action_cfg = data_cfg.get("action") or {}
+    if q is None:
+        window, order = int(action_cfg.get("window", 9)), int(action_cfg.get("order", 2))
+        U = local_polynomial_derivative(t, X, ids, window, order)
+        action_names = [f"d{n}/dt" for n in state_names]
+        meta["action"] = {"derived": "local polynomial", "window": window, "order": order}
+    else:
+        U = np.concatenate(Us)
+    if dropped:
+        meta["dropped_nonfinite"] = dropped
+    meta["demos"] = [part.label for part in parts]
+    return Demonstrations(X=X, U=U, demo=ids, t=t, state_names=state_names, action_names=action_names,
+                          metadata=meta)
+
+
+def wants_derived(data_cfg: dict[str, Any], where: str) -> bool:
+    """True when ``action`` is absent or ``{derive: state}``."""
+    action = data_cfg.get("action")
+    if action is None:
+        return True
+    derive = action.get("derive")
+    if derive is None:
+        return False
+    if derive != "state":
+        raise InputError(f"data.action.derive must be 'state', got {derive!r}")
+    return True

@@ -1,0 +1,447 @@
+"""Opening HDF5 files as data, nothing more.
+
+Every HDF5 file ccl reads (canonical demonstrations, models, foreign HDF5 / MATLAB v7.3
+readers) goes through :func:`open_hdf5`, which
+
+1. refuses, before any value is read, external links, dangling soft links,
+   datasets with external storage (``H5Pget_external_count`` > 0) and virtual
+   datasets (:func:`check_tree`) — a file never makes ccl read another file;
+2. protects against libhdf5 hanging or crashing on a damaged file. Measured on
+   byte-mutated model and data files (``benchmarks/fuzz.py``): about 1 case in 170
+   never returned from libhdf5, always while reading a variable-length string
+   (corrupt global heap). Files ccl writes carry a content hash in their user block
+   (:func:`create_hdf5`: ``\\0ccl-sha256:<hex of every byte after the block>``); when it
+   matches, the file is exactly what ccl wrote and is opened directly. Any other file
+   (foreign, edited with h5py, damaged) is first parsed in a child process with a
+   time limit (:func:`probe`): every attribute, every string dataset and every
+   dataset up to ``PROBE_BYTES`` is read there. The hangs measured are CPU-bound loops,
+   so the limit is CPU time (``CPU_LIMIT``, via ``RLIMIT_CPU``: robust on a loaded
+   machine where wall time is not), with a wall-clock backstop (``TIMEOUT``). A child
+   over either limit, or killed by a signal, means the file is refused: one line, exit 2.
+
+Typed accessors (:func:`attr_str`, :func:`attr_int`, :func:`attr_float`,
+:func:`attr_strings`, :func:`numeric`) turn every attribute and dataset into a checked
+Python/NumPy value or an :class:`~ccl_cli.errors.InputError` naming the file and object.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import faulthandler
+import functools
+import hashlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ccl_cli.errors import InputError
+
+#: user-block size reserved in files ccl writes (HDF5 requires a power of two ≥ 512)
+USERBLOCK = 512
+SEAL = b"\x00ccl-sha256:"
+#: CPU seconds a foreign file may take to be parsed in the child process (a normal
+#: probe takes well under 0.1 s), and the wall-clock backstop
+CPU_LIMIT = int(os.environ.get("CCL_HDF5_CPU_LIMIT", "5"))
+TIMEOUT = float(os.environ.get("CCL_HDF5_TIMEOUT", "60"))
+#: datasets up to this many bytes are read in the child (larger ones: metadata only)
+PROBE_BYTES = 64 << 20
+#: a dataset may not claim more than this many bytes per byte of file (decompression bombs)
+MAX_EXPANSION = 1000
+MAX_OBJECTS = 100_000
+
+
+# -- writing ---------------------------------------------------------------------------------
+def _digest(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        f.seek(USERBLOCK)
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def seal(path: str | Path) -> None:
+    """Write the content hash of ``path`` (created with ``userblock_size=USERBLOCK``)
+    into its user block."""
+    path = Path(path)
+    head = SEAL + _digest(path).encode() + b"\n"
+    with open(path, "r+b") as f:
+        f.write(head + b"\x00" * (USERBLOCK - len(head)))
+
+
+@contextlib.contextmanager
+def create_hdf5(path: str | Path, force: bool = False) -> Iterator[Any]:
+    """An ``h5py.File`` written atomically at ``path`` and sealed with its content hash."""
+    import h5py
+
+    from ccl_cli.io.atomic import atomic_path
+
+    with atomic_path(path, force=force) as tmp:
+        with h5py.File(tmp, "w", userblock_size=USERBLOCK) as f:
+            yield f
+        seal(tmp)
+
+
+def sealed(path: str | Path) -> bool:
+    """True when ``path`` carries a ccl content hash that matches its content."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(SEAL) + 64)
+    except OSError:
+        return False
+    if not head.startswith(SEAL) or len(head) != len(SEAL) + 64:
+        return False
+    st = path.stat()
+    return _sealed(str(path.resolve()), st.st_size, st.st_mtime_ns, head[len(SEAL):].decode("latin-1"))
+
+
+@functools.lru_cache(maxsize=256)
+def _sealed(path: str, size: int, mtime_ns: int, claimed: str) -> bool:
+    return _digest(Path(path)) == claimed
+
+
+# -- the child-process probe ---------------------------------------------------------------
+def _walk(f) -> None:
+    """What the probe does: structure check, then read every attribute and every
+    dataset that is small enough (values discarded)."""
+    import h5py
+
+    check_tree(f, "")
+    budget = PROBE_BYTES
+
+    def attrs(obj) -> None:
+        for key in obj.attrs:
+            obj.attrs[key]
+
+    attrs(f)
+
+    def each(name: str, obj) -> None:
+        nonlocal budget
+        attrs(obj)
+        if isinstance(obj, h5py.Dataset):
+            nbytes = obj.size * obj.dtype.itemsize
+            if obj.dtype.kind == "O" or nbytes <= budget:
+                budget -= nbytes
+                obj[()]
+
+    f.visititems(each)
+
+
+def _probe_child(path: str, cpu_limit: int = CPU_LIMIT) -> None:
+    """Child side: parse the file; any Python exception is fine (the parent will meet
+    it again, and report it), only a hang or a crash of libhdf5 matters."""
+    import resource
+
+    import h5py
+
+    resource.setrlimit(resource.RLIMIT_CPU, (cpu_limit, cpu_limit + 1))
+
+    with h5py.File(path, "r") as f:
+        _walk(f)
+
+
+def _wait(pid: int, timeout: float) -> int | None:
+    """Exit code of child ``pid`` (negative: killed by that signal), None on timeout."""
+    t0 = time.monotonic()
+    try:
+        while time.monotonic() - t0 < timeout:
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                return os.waitstatus_to_exitcode(status)
+            time.sleep(0.002 if time.monotonic() - t0 < 0.1 else 0.02)
+    except BaseException:
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
+        raise
+    os.kill(pid, signal.SIGKILL)
+    os.waitpid(pid, 0)
+    return None
+
+
+def probe(path: Path, timeout: float = TIMEOUT, cpu_limit: int = CPU_LIMIT) -> None:
+    """Parse ``path`` in a child process first; refuse it if libhdf5 hangs or crashes there.
+
+    A fork of this process when it runs one thread (fast: h5py is already loaded);
+    otherwise a fresh interpreter (forking a threaded process could deadlock the child).
+    """
+    import h5py  # noqa: F401 - loaded before the fork, so the child does not import it
+
+    where = str(path)
+    if hasattr(os, "fork") and threading.active_count() == 1:
+        pid = os.fork()
+        if pid == 0:  # child: never returns into the caller's code
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
+                faulthandler.disable()  # a crash here is reported by the parent, in one line
+                _probe_child(str(path), cpu_limit)
+            finally:
+                os._exit(0)
+        code = _wait(pid, timeout)
+    else:
+        cmd = [sys.executable, "-c", "import sys; from ccl_cli.io.h5safe import _probe_child; "
+               "_probe_child(sys.argv[1], int(sys.argv[2]))", str(path), str(cpu_limit)]
+        try:
+            code = subprocess.run(cmd, timeout=timeout, stdin=subprocess.DEVNULL,
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
+        except subprocess.TimeoutExpired:
+            code = None
+    if code is None or code == -signal.SIGXCPU:
+        limit = f"{timeout:g} s" if code is None else f"{cpu_limit} s of CPU time"
+        raise InputError(f"{where}: libhdf5 did not finish parsing the file within {limit} "
+                         "(damaged HDF5?); refused")
+    if code < 0:
+        raise InputError(f"{where}: libhdf5 crashed parsing the file (signal {-code}; damaged HDF5?); "
+                         "refused")
+
+
+# -- opening ---------------------------------------------------------------------------------
+def open_hdf5(path: str | Path, what: str = "data file", timeout: float | None = None):
+    """An ``h5py.File`` (read-only) for ``path`` after the checks of this module.
+
+    ``what`` names the file in messages ("model file", "MATLAB file", ...). Raises
+    :class:`InputError` for a missing/unreadable file, a hang or crash of libhdf5 in the
+    probe, and anything :func:`check_tree` refuses. The caller closes the file.
+    """
+    import h5py
+
+    path = Path(path)
+    where = str(path)
+    if not path.is_file():
+        raise InputError(f"{where}: no such {what}")
+    if not sealed(path):
+        probe(path, TIMEOUT if timeout is None else timeout)
+    try:
+        f = h5py.File(path, "r")
+    except (OSError, ValueError, RuntimeError) as exc:
+        raise InputError(f"{where}: cannot open as HDF5 {what} ({_first(exc)})") from None
+    try:
+        check_tree(f, where)
+    except BaseException:
+        f.close()
+        raise
+    return f
+
+
+def check_tree(f, where: str) -> None:
+    """Refuse external links, dangling soft links, external-storage and virtual datasets
+    anywhere under ``f`` (an open ``h5py.File``). Reads metadata only, never a value."""
+    import h5py
+
+    count = 0
+    problem: list[str] = []
+
+    def visit(name: str, link) -> int | None:
+        nonlocal count
+        count += 1
+        if count > MAX_OBJECTS:
+            problem.append(f"more than {MAX_OBJECTS} objects; refused")
+        elif isinstance(link, h5py.ExternalLink):
+            problem.append(f"/{name} is an external link to {link.filename}:{link.path}; "
+                           "ccl reads nothing outside the file")
+        elif isinstance(link, h5py.SoftLink):
+            if f.get(name) is None:
+                problem.append(f"/{name} is a soft link to {link.path}, which does not exist")
+        elif isinstance(obj := f.get(name), h5py.Dataset):
+            dcpl = obj.id.get_create_plist()
+            if dcpl.get_layout() == h5py.h5d.VIRTUAL:
+                problem.append(f"/{name} is a virtual dataset (its data lives in other files); "
+                               "ccl reads nothing outside the file")
+            elif dcpl.get_external_count() > 0:
+                problem.append(f"/{name} stores its data in external files; ccl reads nothing outside "
+                               "the file")
+        return 1 if problem else None  # a non-None value stops the visit
+
+    try:
+        f.visititems_links(visit)
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+        raise InputError(f"{where}: damaged HDF5 structure ({_first(exc)})") from None
+    if problem:
+        raise InputError(f"{where}: {problem[0]}")
+
+
+# -- typed access ------------------------------------------------------------------------------
+_MISSING = object()
+
+
+def _first(exc: BaseException) -> str:
+    text = str(exc).splitlines()[0] if str(exc) else ""
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _attr(attrs, key: str, where: str, default: Any) -> Any:
+    try:
+        if key not in attrs:
+            if default is _MISSING:
+                raise InputError(f"{where}: attribute {key!r} is missing")
+            return default
+        return attrs[key]
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+        raise InputError(f"{where}: attribute {key!r} cannot be read ({_first(exc)})") from None
+
+
+def _describe(value: Any) -> str:
+    if isinstance(value, np.ndarray):
+        return f"an array {value.dtype} {value.shape}"
+    return f"{type(value).__name__} {value!r}"[:80]
+
+
+def _as_str(value: Any) -> str | None:
+    if isinstance(value, bytes | np.bytes_):
+        try:
+            return bytes(value).decode("utf-8")
+        except UnicodeDecodeError:
+            return None
+    if isinstance(value, str):
+        return str(value)
+    return None
+
+
+def attr_str(attrs, key: str, where: str, default: Any = _MISSING) -> str:
+    """A scalar string attribute (str or UTF-8 bytes)."""
+    value = _attr(attrs, key, where, default)
+    if value is default and default is not _MISSING:
+        return value
+    text = _as_str(value)
+    if text is None:
+        raise InputError(f"{where}: attribute {key!r} must be a string, got {_describe(value)}")
+    return text
+
+
+def attr_int(attrs, key: str, where: str, default: Any = _MISSING) -> int:
+    """A scalar integer attribute (not a bool, float or string)."""
+    value = _attr(attrs, key, where, default)
+    if value is default and default is not _MISSING:
+        return value
+    if isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_):
+        return int(value)
+    raise InputError(f"{where}: attribute {key!r} must be an integer, got {_describe(value)}")
+
+
+def attr_float(attrs, key: str, where: str, default: Any = _MISSING, positive: bool = False) -> float:
+    """A finite scalar number attribute."""
+    value = _attr(attrs, key, where, default)
+    if value is default and default is not _MISSING:
+        return value
+    if not isinstance(value, int | float | np.integer | np.floating) or isinstance(value, bool | np.bool_):
+        raise InputError(f"{where}: attribute {key!r} must be a number, got {_describe(value)}")
+    out = float(value)
+    if not np.isfinite(out) or (positive and not out > 0):
+        raise InputError(f"{where}: attribute {key!r} must be a finite{' positive' if positive else ''} "
+                         f"number, got {out}")
+    return out
+
+
+def attr_json(attrs, key: str, where: str, default: Any = _MISSING, kind: type | None = None) -> Any:
+    """A JSON-encoded string attribute, decoded (``kind``: the type the value must have)."""
+    value = _attr(attrs, key, where, default)
+    if value is default and default is not _MISSING:
+        return value
+    text = attr_str(attrs, key, where)
+    try:
+        out = json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise InputError(f"{where}: attribute {key!r} is not valid JSON ({_first(exc)})") from None
+    if kind is not None and not isinstance(out, kind):
+        raise InputError(f"{where}: attribute {key!r} must be a JSON {kind.__name__}, got {_describe(out)}")
+    return out
+
+
+def attr_strings(attrs, key: str, where: str, n: int) -> list[str]:
+    """A 1-D array of ``n`` strings (absent → ``n`` empty strings)."""
+    value = _attr(attrs, key, where, None)
+    if value is None:
+        return [""] * n
+    arr = np.asarray(value)
+    texts = [_as_str(v) for v in arr.ravel()] if arr.ndim == 1 else None
+    if texts is None or any(t is None for t in texts) or len(texts) != n:
+        raise InputError(f"{where}: attribute {key!r} must be {n} strings, got {_describe(value)}")
+    return texts  # type: ignore[return-value]
+
+
+def dataset(group, name: str, where: str):
+    """The ``h5py.Dataset`` ``name`` under ``group`` (InputError if absent or a group)."""
+    import h5py
+
+    try:
+        obj = group.get(name)
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+        raise InputError(f"{where}: {name} cannot be read ({_first(exc)})") from None
+    if obj is None:
+        raise InputError(f"{where}: {name} is missing")
+    if not isinstance(obj, h5py.Dataset):
+        raise InputError(f"{where}: {name} must be a dataset, got a {type(obj).__name__}")
+    return obj
+
+
+def group_of(parent, name: str, where: str, required: bool = True):
+    """The ``h5py.Group`` ``name`` under ``parent`` (None if absent and not ``required``)."""
+    import h5py
+
+    try:
+        obj = parent.get(name)
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+        raise InputError(f"{where}: {name} cannot be read ({_first(exc)})") from None
+    if obj is None:
+        if required:
+            raise InputError(f"{where}: {name} is missing")
+        return None
+    if not isinstance(obj, h5py.Group):
+        raise InputError(f"{where}: {name} must be a group, got a {type(obj).__name__}")
+    return obj
+
+
+def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite: bool = True,
+            limit: float | None = None) -> np.ndarray:
+    """A real numeric dataset as float64, of one of the dimensionalities ``ndim``.
+
+    Checked before reading: the type (integers or floats, no strings, compounds,
+    references) and the size (at most ``MAX_EXPANSION`` bytes per byte of file, against
+    decompression bombs); after: finiteness (``finite``) and magnitude (``|v| <= limit``).
+    """
+    ds = dataset(group, name, where)
+    label = f"{where}: {ds.name}"
+    if ds.dtype.kind not in "fiu":
+        raise InputError(f"{label} must be numeric, got dtype {ds.dtype}")
+    if ds.ndim not in ndim:
+        allowed = " or ".join(f"{d}-D" for d in ndim)
+        raise InputError(f"{label} must be {allowed}, got shape {ds.shape}")
+    nbytes = int(np.prod(ds.shape, dtype=np.float64)) * 8
+    limit = max(64 << 20, MAX_EXPANSION * os.path.getsize(ds.file.filename))
+    if nbytes > limit:
+        raise InputError(f"{label} claims shape {ds.shape} ({nbytes} bytes), far more than the file holds")
+    try:
+        value = np.asarray(ds[()], dtype=np.float64)
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+        raise InputError(f"{label} cannot be read ({_first(exc)})") from None
+    if finite and not np.isfinite(value).all():
+        raise InputError(f"{label} contains NaN or inf")
+    if limit is not None and value.size and float(np.abs(value).max()) > limit:
+        raise InputError(f"{label} holds values beyond ±{limit:g} (max |v| = {np.abs(value).max():.3g}); "
+                         "no fit produces them and predictions would overflow")
+    return value
+
+
+def strings(group, name: str, where: str) -> list[str]:
+    """A 1-D dataset of strings."""
+    ds = dataset(group, name, where)
+    label = f"{where}: {ds.name}"
+    if ds.ndim != 1 or ds.dtype.kind not in "OSU":
+        raise InputError(f"{label} must be a 1-D array of strings, got {ds.dtype} {ds.shape}")
+    try:
+        raw = ds[()]
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+        raise InputError(f"{label} cannot be read ({_first(exc)})") from None
+    texts = [_as_str(v) for v in raw]
+    if any(t is None for t in texts):
+        raise InputError(f"{label} must hold strings")
+    return texts  # type: ignore[return-value]

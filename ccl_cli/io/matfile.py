@@ -1,0 +1,333 @@
+"""MATLAB ``.mat`` files: v5/v7 (scipy.io.loadmat) and v7.3 (HDF5, via h5py).
+
+Configured by variable names, dotted for struct fields::
+
+    format: mat
+    state:  {variable: X, samples: columns}   # or data.X (a struct field)
+    action: {variable: U, samples: columns}   # or {derive: state}
+    time:   {rate: 500}                       # or {variable: t}
+    demos:  {variable: demo}                  # a demo id per sample (matrices only)
+
+A cell array holds one demonstration per cell (MATLAB's linear order); a struct array
+one per element; a matrix is one demonstration, or several with ``demos.variable``.
+``samples: columns`` (one sample per column, as the original library stores data) or
+``rows``; when not given, the side whose length the other variables share, refused
+when ambiguous.
+
+v7.3 files are HDF5 behind a 512-byte user block whose text starts "MATLAB 7.3 MAT-file";
+MATLAB writes every array transposed (column-major), marks each with a ``MATLAB_class``
+attribute and stores cell arrays as object references into ``/#refs#``. Only numeric and
+logical arrays, cells and structs are read: MATLAB objects, function handles and other
+opaque classes are refused, never loaded.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ccl_cli.dataset import Demonstrations
+from ccl_cli.errors import InputError
+from ccl_cli.io.arrays import (
+    Part,
+    Variable,
+    assemble,
+    chunk_times,
+    names_for,
+    numeric,
+    orient,
+    split_by_index,
+    wants_derived,
+)
+
+V5_MAGIC = b"MATLAB 5.0 MAT-file"
+V73_MAGIC = b"MATLAB 7.3 MAT-file"
+NUMERIC_CLASSES = {"double", "single", "int8", "uint8", "int16", "uint16", "int32", "uint32",
+                   "int64", "uint64", "logical"}
+CONTAINERS = {"cell", "struct"}
+
+Value = np.ndarray | list  # a numeric (or char) array, or one value per cell / struct element
+
+
+def sniff(path: Path, head: bytes) -> bool:
+    return head.startswith(V5_MAGIC) or head.startswith(V73_MAGIC)
+
+
+def _refuse(where: str, cls: str) -> InputError:
+    return InputError(f"{where}: a MATLAB {cls}; ccl reads only numeric arrays, cells and structs "
+                      "and never loads MATLAB objects or function handles")
+
+
+# -- v5 / v7 ------------------------------------------------------------------------------
+class _V5:
+    def __init__(self, path: Path) -> None:
+        from scipy.io import whosmat
+
+        self.path = path
+        try:
+            self.whos = {name: (tuple(shape), cls) for name, shape, cls in whosmat(str(path))}
+        except Exception as exc:  # scipy raises many types on corrupt files
+            raise InputError(f"{path}: cannot read as a MATLAB file ({type(exc).__name__}: {exc})") from None
+
+    def variables(self) -> list[tuple[str, tuple[int, ...], str]]:
+        return [(name, shape, cls) for name, (shape, cls) in self.whos.items()]
+
+    def _load(self, name: str) -> Any:
+        from scipy.io import loadmat
+
+        try:
+            return loadmat(str(self.path), variable_names=[name], squeeze_me=False,
+                           struct_as_record=True, chars_as_strings=False)[name]
+        except Exception as exc:  # scipy raises many types on corrupt files
+            raise InputError(f"{self.path}: cannot read variable {name!r} "
+                             f"({type(exc).__name__}: {exc})") from None
+
+    def get(self, dotted: str) -> Value:
+        where = f"{self.path}: {dotted}"
+        name, *fields = dotted.split(".")
+        if name not in self.whos:
+            raise InputError(f"{self.path}: variable {name!r} not found "
+                             f"(variables: {', '.join(self.whos) or 'none'})")
+        cls = self.whos[name][1]
+        if cls not in NUMERIC_CLASSES | CONTAINERS | {"char", "sparse"}:
+            raise _refuse(where, cls)
+        return self._walk(self._load(name), fields, name, where)
+
+    def _walk(self, value: Any, fields: list[str], at: str, where: str) -> Value:
+        from scipy.io.matlab import MatlabFunction, MatlabObject, MatlabOpaque
+
+        if isinstance(value, MatlabObject | MatlabFunction | MatlabOpaque):
+            raise _refuse(f"{self.path}: {at}", type(value).__name__)
+        if isinstance(value, list):
+            return [self._walk(v, fields, f"{at}({k + 1})", where) for k, v in enumerate(value)]
+        if hasattr(value, "tocsc"):  # scipy.sparse
+            value = value.toarray()
+        arr = np.asarray(value)
+        if arr.dtype.names:  # struct (array)
+            if not fields:
+                raise InputError(f"{self.path}: {at} is a struct; name a field (fields: "
+                                 f"{', '.join(arr.dtype.names)}), e.g. {at}.{arr.dtype.names[0]}")
+            field, rest = fields[0], fields[1:]
+            if field not in arr.dtype.names:
+                raise InputError(f"{self.path}: {at} has no field {field!r} "
+                                 f"(fields: {', '.join(arr.dtype.names)})")
+            elems = arr.ravel(order="F")
+            if len(elems) == 1:
+                return self._walk(elems[0][field], rest, f"{at}.{field}", where)
+            return [self._walk(e[field], rest, f"{at}({k + 1}).{field}", where) for k, e in enumerate(elems)]
+        if fields:
+            raise InputError(f"{self.path}: {at} is not a struct (cannot take field {fields[0]!r})")
+        if arr.dtype == object:  # cell array: one value per cell, MATLAB linear order
+            return [self._walk(c, [], f"{at}{{{k + 1}}}", where) for k, c in enumerate(arr.ravel(order="F"))]
+        return arr
+
+
+# -- v7.3 (HDF5) --------------------------------------------------------------------------
+def _cls(obj) -> str:
+    raw = obj.attrs.get("MATLAB_class", b"")
+    return raw.decode() if isinstance(raw, bytes) else str(raw)
+
+
+class _V73:
+    def __init__(self, path: Path) -> None:
+        from ccl_cli.io.h5safe import open_hdf5
+
+        self.path = path
+        self.f = open_hdf5(path, "MATLAB v7.3 file")
+
+    def close(self) -> None:
+        self.f.close()
+
+    def variables(self) -> list[tuple[str, tuple[int, ...], str]]:
+        out = []
+        for name, obj in self.f.items():
+            if name.startswith("#"):
+                continue
+            out.append((name, _matlab_shape(obj), _cls(obj)))
+        return out
+
+    def get(self, dotted: str) -> Value:
+        name, *fields = dotted.split(".")
+        if name.startswith("#") or name not in self.f:
+            names = ", ".join(n for n in self.f if not n.startswith("#")) or "none"
+            raise InputError(f"{self.path}: variable {name!r} not found (variables: {names})")
+        return self._walk(self.f[name], fields, name)
+
+    def _walk(self, obj, fields: list[str], at: str) -> Value:
+        import h5py
+
+        where = f"{self.path}: {at}"
+        cls = _cls(obj)
+        if cls == "struct" or (isinstance(obj, h5py.Group) and not cls):
+            if not isinstance(obj, h5py.Group):
+                raise InputError(f"{where}: struct stored as {type(obj).__name__}; not supported")
+            members = [k for k in obj if not k.startswith("#")]
+            if not fields:
+                raise InputError(f"{where} is a struct; name a field (fields: {', '.join(members)})")
+            field, rest = fields[0], fields[1:]
+            if field not in obj:
+                raise InputError(f"{where} has no field {field!r} (fields: {', '.join(members)})")
+            child = obj[field]
+            if isinstance(child, h5py.Dataset) and child.dtype == h5py.ref_dtype and _cls(child) != "cell":
+                refs = child[()].ravel()  # struct array: one reference per element
+                if len(refs) > 1:
+                    return [self._walk(self.f[r], rest, f"{at}({k + 1}).{field}") for k, r in enumerate(refs)]
+                return self._walk(self.f[refs[0]], rest, f"{at}.{field}")
+            return self._walk(child, rest, f"{at}.{field}")
+        if fields:
+            raise InputError(f"{where} is not a struct (cannot take field {fields[0]!r})")
+        if not isinstance(obj, h5py.Dataset):
+            raise InputError(f"{where}: a group of MATLAB class {cls!r}; not readable")
+        if cls == "cell":
+            refs = obj[()].ravel()  # stored transposed: C order here is MATLAB's linear order
+            return [self._walk(self.f[r], [], f"{at}{{{k + 1}}}") for k, r in enumerate(refs)]
+        if cls not in NUMERIC_CLASSES | {"char"} or "MATLAB_object_decode" in obj.attrs:
+            raise _refuse(where, cls or "value without MATLAB_class")
+        if obj.attrs.get("MATLAB_empty", 0):
+            return np.zeros((0, 0))
+        try:
+            raw = obj[()]
+        except (OSError, TypeError, ValueError) as exc:
+            raise InputError(f"{where}: cannot read ({exc})") from None
+        if raw.dtype.names and set(raw.dtype.names) == {"real", "imag"}:
+            raise InputError(f"{where}: complex numbers are not supported")
+        if cls == "char":
+            return np.asarray(raw, dtype=np.uint16).astype("U1") if raw.size else np.array([], "U1")
+        return np.asarray(raw).T  # back to MATLAB's orientation
+
+
+def _matlab_shape(obj) -> tuple[int, ...]:
+    import h5py
+
+    if isinstance(obj, h5py.Group):
+        return (1, 1)
+    if obj.attrs.get("MATLAB_empty", 0):
+        return (0, 0)
+    return tuple(reversed(obj.shape))
+
+
+def open_source(path: Path) -> _V5 | _V73:
+    try:
+        with open(path, "rb") as f:
+            head = f.read(128)
+    except OSError as exc:
+        raise InputError(f"{path}: {exc.strerror}") from None
+    if head.startswith(V73_MAGIC):
+        return _V73(path)
+    return _V5(path)
+
+
+# -- the reader ---------------------------------------------------------------------------
+def _variable(value: Value, where: str, samples: str | None, keep_int: bool = False) -> Variable:
+    return Variable(numeric(value, where, keep_int), where, samples)
+
+
+def read_mat(src: _V5 | _V73, path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations, int]:
+    """A .mat file → (Demonstrations, time origin ns); see the module docstring for the keys."""
+    where = str(path)
+    state = data_cfg.get("state") or {}
+    if state.get("variable") is None:
+        have = ", ".join(f"{n} ({'×'.join(map(str, s))} {c})" for n, s, c in src.variables()[:8])
+        raise InputError(f"{where}: data.state.variable is required for a .mat file "
+                         f"(variables: {have or 'none'})")
+    derive = wants_derived(data_cfg, where)
+    action = data_cfg.get("action") or {}
+    if not derive and action.get("variable") is None:
+        raise InputError(f"{where}: data.action needs variable: NAME (or derive: state)")
+    tcfg = data_cfg.get("time") or {}
+    demos = data_cfg.get("demos") or {}
+    unknown = set(demos) - {"variable"}
+    if unknown:
+        raise InputError(f"unknown demos option(s) for a .mat file: {', '.join(sorted(unknown))} "
+                         "(use variable, or cell arrays)")
+    specs = {"state": state} | ({} if derive else {"action": action})
+    if tcfg.get("variable") is not None:
+        specs["time"] = {"variable": tcfg["variable"]}
+    values = {key: src.get(spec["variable"]) for key, spec in specs.items()}
+    cells = {key: isinstance(v, list) for key, v in values.items()}
+    chunks: list[tuple[str, dict[str, np.ndarray]]] = []
+    if cells["state"]:
+        n_demo = len(values["state"])
+        for key, v in values.items():
+            if not isinstance(v, list) or len(v) != n_demo:
+                got = f"{len(v)} cells" if isinstance(v, list) else "a matrix"
+                raise InputError(f"{where}: {specs[key]['variable']} is {got} but "
+                                 f"{state['variable']} has {n_demo} cells; give each variable one "
+                                 "cell per demonstration")
+        if demos.get("variable") is not None:
+            raise InputError(f"{where}: demos.variable applies to matrices; {state['variable']} is a "
+                             "cell array (one demonstration per cell already)")
+        for k in range(n_demo):
+            label = f"{state['variable']}{{{k + 1}}}"
+            arrays = {key: _variable(v[k], f"{where}: {specs[key]['variable']}{{{k + 1}}}",
+                                     specs[key].get("samples"), key == "time") for key, v in values.items()}
+            chunks.append((label, orient(arrays, None, f"{where}: {label}")))
+    else:
+        for key, v in values.items():
+            if isinstance(v, list):
+                raise InputError(f"{where}: {specs[key]['variable']} is a cell array but "
+                                 f"{state['variable']} is a matrix")
+        arrays = {key: _variable(v, f"{where}: {specs[key]['variable']}", specs[key].get("samples"),
+                                 key == "time") for key, v in values.items()}
+        if demos.get("variable") is not None:
+            index = src.get(demos["variable"])
+            if isinstance(index, list):
+                raise InputError(f"{where}: {demos['variable']} is a cell array; a demo index is a vector")
+            arrays["demo"] = _variable(index, f"{where}: {demos['variable']}", None)
+            if not (arrays["demo"].values.ndim == 1 or 1 in arrays["demo"].values.shape):
+                raise InputError(f"{arrays['demo'].where}: a demo index must be a vector, "
+                                 f"got {'×'.join(map(str, arrays['demo'].values.shape))}")
+            oriented = orient(arrays, None, where)
+            index_col = oriented.pop("demo")[:, 0]
+            chunks = [(f"demo {label.split()[-1]}", a)
+                      for label, a in split_by_index(oriented, index_col, f"{where}: {demos['variable']}")]
+        else:
+            chunks = [(state["variable"], orient(arrays, None, where))]
+    times, origin, time_used = chunk_times(chunks, tcfg, where)
+    parts = [Part(a["state"], a.get("action"), t, label) for (label, a), t in zip(chunks, times, strict=True)]
+    from ccl_cli.io.h5layout import select_columns
+
+    state_names = names_for(state["variable"], parts[0].X.shape[1], None)
+    names = state_names
+    for part in parts:
+        part.X, names = select_columns(part.X, state_names, state.get("columns"), where)
+    state_names, action_names = names, None
+    if not derive:
+        action_names = names_for(action["variable"], parts[0].U.shape[1], None)
+        names = action_names
+        for part in parts:
+            part.U, names = select_columns(part.U, action_names, action.get("columns"), where)
+        action_names = names
+    meta = {"source": where, "format": "mat",
+            "mat_version": "7.3" if isinstance(src, _V73) else "5",
+            "variables": {k: s["variable"] for k, s in specs.items()},
+            "time": f"{tcfg['variable']}: {time_used}" if tcfg.get("variable") else time_used}
+    return assemble(parts, data_cfg, where, state_names, action_names, meta), origin
+
+
+class MatFile:
+    """A MATLAB .mat recording read through the ``data`` config section."""
+
+    def __init__(self, path: Path, data_cfg: dict[str, Any]) -> None:
+        self.path = Path(path)
+        self.data_cfg = data_cfg
+
+    def load(self) -> tuple[Demonstrations, int]:
+        src = open_source(self.path)
+        try:
+            return read_mat(src, self.path, self.data_cfg)
+        finally:
+            if isinstance(src, _V73):
+                src.close()
+
+    def inspect(self, gap: float | None = None) -> dict[str, Any]:
+        from ccl_cli.io.h5layout import summary
+        from ccl_cli.io.tree import describe_tree
+
+        out: dict[str, Any] = {"tree": describe_tree(self.path)}
+        if (self.data_cfg.get("state") or {}).get("variable") is not None:
+            data, _ = self.load()
+            out.update(summary(data))
+        return out

@@ -1,0 +1,432 @@
+"""The report's figures (plots/*.png), each one saying which model and which data it shows.
+
+* ``<stage>-field.png`` (2-D state and action): the learnt field on a grid over the data
+  (streamlines; for a constraint the learnt null-space directions) and, at one state per
+  grid cell, true (wide, light) against learnt (thin, dark) arrows, the dpl baseline for
+  a policy; legend outside the axes.
+* ``<stage>-time.png``: per action dimension against time for up to two held-out
+  demonstrations (training ones for a per-demonstration constraint, and the title says
+  so), names and units from the data.
+* ``learn-a-selection.png``: the criterion per candidate number of constraints k.
+* ``learn-a-constraint.png``: the learnt constraint rows by action name (at the mean
+  state when A depends on x), against the true ones when known, with the angle between
+  the learnt and true row spaces; per demonstration, that angle for every demonstration.
+
+Arrows are subsampled onto a grid and every figure is drawn once (< 0.5 s each).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ccl_cli.dataset import Demonstrations
+
+GRID = 22  # streamline grid per axis
+CELLS = 12  # arrow subsampling: at most one state per cell of a CELLS × CELLS grid
+MAX_DEMOS = 2  # demonstrations per time plot
+DPI = 90
+
+STYLE = {
+    "observed": {"color": "0.7", "lw": 2.2},
+    "true": {"color": "tab:green", "alpha": 0.45, "lw": 3.0},
+    "learnt": {"color": "tab:red", "lw": 1.1},
+    "baseline": {"color": "tab:blue", "lw": 0.9, "ls": ":"},
+}
+JOINT_UNITS = {"position": "rad", "velocity": "rad/s", "effort": "N m"}
+
+
+def pyplot():
+    """matplotlib's pyplot on the Agg backend, its font cache in a per-user cache folder and
+    its INFO logging (e.g. "generated new fontManager") kept away from the user."""
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "ccl" / "matplotlib"
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+        os.environ.setdefault("MPLCONFIGDIR", str(cache))
+    except OSError:
+        pass  # matplotlib then picks a temporary folder itself
+    logging.getLogger("matplotlib").setLevel(logging.WARNING)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+# -- labels ----------------------------------------------------------------------------------
+def _units(names: list[str], units: list[str] | None) -> list[str]:
+    """The data's units; where none is given, a JointState field's unit from its name."""
+    out = list(units or [""] * len(names))
+    for j, name in enumerate(names):
+        if not out[j] and "." in name:
+            out[j] = JOINT_UNITS.get(name.rsplit(".", 1)[1], "")
+    return out
+
+
+def label(name: str, unit: str) -> str:
+    return f"{name} [{unit}]" if unit else name
+
+
+def state_labels(d: Demonstrations) -> list[str]:
+    return [label(n, u) for n, u in zip(d.state_names, _units(d.state_names, d.state_units), strict=True)]
+
+
+def action_labels(d: Demonstrations) -> list[str]:
+    return [label(n, u) for n, u in zip(d.action_names, _units(d.action_names, d.action_units), strict=True)]
+
+
+def _short(names: list[str]) -> list[str]:
+    """Joint names without a common ``.field`` suffix (``lwr_arm_0_joint.velocity`` → ``lwr_arm_0_joint``)."""
+    suffixes = {n.rsplit(".", 1)[1] for n in names if "." in n}
+    if len(suffixes) == 1 and all("." in n for n in names):
+        return [n.rsplit(".", 1)[0] for n in names]
+    return list(names)
+
+
+def describe_data(part: str, d: Demonstrations, ids: np.ndarray | None = None) -> str:
+    """Which demonstrations a figure shows: all of ``d`` (``ids`` None) or the given ones."""
+    what = "held-out (test)" if part == "test" else "training"
+    if ids is None:
+        return f"the {d.n_demos} {what} demonstrations"
+    shown = ", ".join(str(int(i)) for i in ids[:MAX_DEMOS]) + (", …" if len(ids) > MAX_DEMOS else "")
+    return f"{what} demonstration{'s' if len(ids) > 1 else ''} {shown}"
+
+
+# -- geometry --------------------------------------------------------------------------------
+def grid_subsample(X2: np.ndarray, cells: int = CELLS) -> np.ndarray:
+    """Indices of at most one sample per cell of a ``cells × cells`` grid over X2 (N, 2)."""
+    lo, hi = X2.min(0), X2.max(0)
+    ij = np.floor((X2 - lo) / np.where(hi > lo, hi - lo, 1.0) * (cells - 1e-9)).astype(int)
+    _, first = np.unique(ij[:, 0] * cells + ij[:, 1], return_index=True)
+    return np.sort(first)
+
+
+def _grid(X2: np.ndarray, n: int = GRID) -> tuple[np.ndarray, np.ndarray]:
+    lo, hi = X2.min(0), X2.max(0)
+    pad = 0.05 * np.where(hi > lo, hi - lo, 1.0)
+    return np.meshgrid(np.linspace(lo[0] - pad[0], hi[0] + pad[0], n),
+                       np.linspace(lo[1] - pad[1], hi[1] + pad[1], n))
+
+
+def unit_rows(A: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (rows) of the row space of A (s, q), by SVD."""
+    _, sv, vh = np.linalg.svd(np.atleast_2d(A), full_matrices=False)
+    return vh[sv > 1e-10 * max(float(sv[0]), 1e-300)]
+
+
+def subspace_angle(A: np.ndarray, B: np.ndarray) -> float:
+    """Largest principal angle (degrees) between the row spaces of A (s, q) and B (s', q)
+    (over the min(s, s') directions the smaller one spans)."""
+    Qa, Qb = unit_rows(A), unit_rows(B)
+    cos = np.linalg.svd(Qa @ Qb.T, compute_uv=False)
+    return float(np.degrees(np.arccos(np.clip(cos.min(), -1.0, 1.0))))
+
+
+# -- figures ---------------------------------------------------------------------------------
+def _quiver(ax, X, V, style: str, label_: str, scale: float) -> None:
+    s = STYLE[style]
+    kw = {"angles": "xy", "scale_units": "xy", "scale": scale, "color": s["color"], "label": label_}
+    if style == "true":
+        ax.quiver(X[:, 0], X[:, 1], V[:, 0], V[:, 1], width=0.012, alpha=s["alpha"], zorder=1, **kw)
+    elif style == "observed":
+        ax.quiver(X[:, 0], X[:, 1], V[:, 0], V[:, 1], width=0.003, zorder=2, **kw)
+    else:
+        ax.quiver(X[:, 0], X[:, 1], V[:, 0], V[:, 1], width=0.004, zorder=3, **kw)
+
+
+def field_figure(plt, title: str, d: Demonstrations, part: str, arrows: dict[str, tuple[str, np.ndarray]],
+                 field_fn=None, field_label: str = "", directions: bool = False):
+    """Left: ``field_fn`` (grid (M, 2) → (M, 2)) as streamlines (or, with ``directions``,
+    headless direction segments); right: ``arrows`` (style → (label, (N, 2))) at one state
+    per grid cell. Returns the figure."""
+    ncols = 2 if field_fn is not None else 1
+    fig, axes = plt.subplots(1, ncols, figsize=(5.2 * ncols, 4.6), squeeze=False)
+    names = state_labels(d)
+    if field_fn is not None:
+        ax = axes[0, 0]
+        G1, G2 = _grid(d.X)
+        F = field_fn(np.column_stack([G1.ravel(), G2.ravel()]))
+        if directions:
+            step = (G1[0, 1] - G1[0, 0]) * 0.8
+            norm = np.linalg.norm(F, axis=1, keepdims=True)
+            F = F / np.where(norm > 0, norm, 1.0) * step
+            ax.quiver(G1.ravel(), G2.ravel(), F[:, 0], F[:, 1], angles="xy", scale_units="xy", scale=1,
+                      headwidth=0, headlength=0, headaxislength=0, pivot="middle",
+                      color=STYLE["learnt"]["color"], width=0.004)
+        else:
+            ax.streamplot(G1, G2, F[:, 0].reshape(G1.shape), F[:, 1].reshape(G1.shape), density=0.7,
+                          color=STYLE["learnt"]["color"], linewidth=0.8, arrowsize=0.8)
+        ax.plot(d.X[:, 0], d.X[:, 1], ".", ms=1, color="0.6", zorder=0)
+        ax.set_title(field_label, fontsize=9)
+        ax.set_xlabel(names[0])
+        ax.set_ylabel(names[1])
+    ax = axes[0, -1]
+    idx = grid_subsample(d.X)
+    Xs = d.X[idx]
+    # a typical (90th percentile) arrow spans 1.5 grid cells, whatever a few outliers do
+    typical = max(float(np.percentile(np.linalg.norm(V[idx], axis=1), 90)) for _, V in arrows.values())
+    lo, hi = d.X.min(0), d.X.max(0)
+    cell = float(np.min(np.where(hi > lo, hi - lo, 1.0))) / CELLS
+    scale = max(typical, 1e-12) / (1.5 * cell)
+    for style in ("true", "observed", "baseline", "learnt"):  # true first and widest: never hidden
+        if style in arrows:
+            name, V = arrows[style]
+            _quiver(ax, Xs, V[idx], style, name, scale)
+    ax.set_title(f"{len(idx)} states, one per grid cell", fontsize=9)
+    ax.set_xlabel(names[0])
+    ax.set_ylabel(names[1])
+    ax.set_aspect("equal", adjustable="datalim")
+    fig.suptitle(f"{title}\non {describe_data(part, d)}", fontsize=10)
+    fig.legend(*ax.get_legend_handles_labels(), loc="lower center", ncol=len(arrows), fontsize=8,
+               frameon=False)
+    fig.subplots_adjust(left=0.08, right=0.98, top=0.84, bottom=0.2, wspace=0.25)
+    return fig
+
+
+def time_figure(plt, title: str, part: str, d: Demonstrations, lines: dict[str, tuple[str, np.ndarray]]):
+    """One row per action dimension over time for up to MAX_DEMOS demonstrations of ``d``;
+    ``lines``: style → (label, (N, q))."""
+    ids = d.demo_ids[:MAX_DEMOS]
+    q = d.n_action
+    fig, axes = plt.subplots(q, len(ids), figsize=(4.2 * len(ids) + 1.5, 1.35 * q + 1.2), squeeze=False,
+                             sharex="col")
+    names = action_labels(d)
+    for c, k in enumerate(ids):
+        sel = d.demo == k
+        t = d.t[sel] - d.t[sel][0]
+        for j in range(q):
+            ax = axes[j, c]
+            for style in ("true", "observed", "baseline", "learnt"):
+                if style in lines:
+                    name, Y = lines[style]
+                    s = STYLE[style]
+                    ax.plot(t, Y[sel, j], label=name, **s)
+            ax.text(0.01, 0.96, names[j], transform=ax.transAxes, va="top", fontsize=7,
+                    bbox={"facecolor": "white", "alpha": 0.7, "lw": 0, "pad": 1})
+            ax.tick_params(labelsize=7)
+        axes[0, c].set_title(f"demonstration {int(k)}", fontsize=8)
+        axes[-1, c].set_xlabel("time from start of demonstration [s]", fontsize=8)
+    fig.suptitle(f"{title}\non {describe_data(part, d, ids)}", fontsize=10)
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", ncol=len(lines), fontsize=8,
+               frameon=False)
+    h = fig.get_figheight()
+    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.95 / h, bottom=1.0 / h, hspace=0.15, wspace=0.18)
+    return fig
+
+
+def selection_figure(plt, selection: dict[str, Any], q: int):
+    """The constraint-count criterion per candidate k (every per-k list in ``selection``),
+    the chosen k marked; per demonstration, how many demonstrations chose each k."""
+    chosen = int(selection.get("n_constraints", 0))
+    if "per_demo" in selection:
+        counts = np.bincount(list(selection["per_demo"].values()), minlength=q + 1)[1:]
+        fig, ax = plt.subplots(figsize=(5, 3.2))
+        ax.bar(np.arange(1, len(counts) + 1), counts, color=["tab:red" if k + 1 == chosen else "0.6"
+                                                              for k in range(len(counts))])
+        ax.set_xlabel("number of constraints k")
+        ax.set_ylabel("demonstrations")
+        ax.set_title(f"Constraint count per training demonstration ({selection.get('rule')}); "
+                     f"most common: {chosen}", fontsize=9)
+        fig.subplots_adjust(left=0.14, right=0.97, top=0.88, bottom=0.16)
+        return fig
+    series = {key: np.asarray(v, dtype=float) for key, v in selection.items()
+              if isinstance(v, list) and len(v) > 1 and all(isinstance(x, int | float) for x in v)}
+    if not series:
+        return None
+    fig, axes = plt.subplots(1, len(series), figsize=(4.6 * len(series), 3.4), squeeze=False)
+    for ax, (key, v) in zip(axes[0], series.items(), strict=True):
+        k = np.arange(1, len(v) + 1)
+        ax.semilogy(k, np.maximum(v, 1e-300), "o-", color="0.3", lw=1)
+        if 1 <= chosen <= len(v):
+            ax.semilogy([chosen], [max(v[chosen - 1], 1e-300)], "o", ms=10, mfc="none", mec="tab:red", mew=2,
+                        label=f"chosen k = {chosen}")
+            ax.legend(loc="upper left", bbox_to_anchor=(0, -0.22), fontsize=8, frameon=False)
+        ax.set_xticks(k)
+        ax.set_xlabel("candidate number of constraints k")
+        meaning = selection.get("criterion") or {
+            "cv": "cross-validated NPOE", "eigengap": "residual of candidate k",
+            "threshold": "residual of candidate k"}.get(str(selection.get("rule")), key)
+        ax.set_ylabel(f"{meaning if key == 'values' else key} (log)")
+    fig.suptitle(f"How the number of constraints was chosen: rule {selection.get('rule')}\n"
+                 f"{selection.get('reason', '')}", fontsize=9)
+    fig.subplots_adjust(left=0.16 / len(series), right=0.97, top=0.8, bottom=0.3, wspace=0.35)
+    return fig
+
+
+def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
+    """The learnt constraint in readable form, for the report and metrics.json.
+
+    One model: its rows (unit length, sign fixed so the largest entry is positive) at the
+    mean state (exactly the rows when A is constant), the action names, and with ground
+    truth the true rows at the sample nearest that state and the largest principal angle
+    between the two row spaces (for one row in 3-D: the angle between the plane normals).
+    Per demonstration: that angle per demonstration (with ground truth)."""
+    from ccl_cli.constraint import PerDemonstration
+
+    names = _short(d.action_names)
+    if isinstance(model, PerDemonstration):
+        if not d.has_truth("A"):
+            return None
+        angles = {}
+        for k, m in model.models_.items():
+            sel = np.flatnonzero(d.demo == k)
+            if sel.size == 0 or not hasattr(m, "constraint"):
+                continue
+            learnt = m.constraint(d.X[sel[:1]])[0]
+            angles[int(k)] = subspace_angle(learnt, d.truth_per_sample("A")[sel[0]])
+        if not angles:
+            return None
+        return {"per_demo_angle_deg": angles, "median_angle_deg": float(np.median(list(angles.values())))}
+    try:
+        i = int(np.argmin(np.sum((d.X - d.X.mean(0)) ** 2, axis=1)))
+        learnt = unit_rows(model.constraint(d.X[i:i + 1])[0])
+    except (AttributeError, NotImplementedError):
+        return None
+    learnt = learnt * np.sign(learnt[np.arange(len(learnt)), np.argmax(np.abs(learnt), axis=1)])[:, None]
+    out: dict[str, Any] = {"names": names, "rows": learnt.tolist(),
+                           "at": "constant" if getattr(model, "A_", None) is not None else
+                           f"state of sample {i} (nearest the mean state)"}
+    if d.has_truth("A"):
+        true = unit_rows(d.truth_per_sample("A")[i])
+        true = true * np.sign(true[np.arange(len(true)), np.argmax(np.abs(true), axis=1)])[:, None]
+        out["true_rows"] = true.tolist()
+        out["angle_deg"] = subspace_angle(learnt, true)
+    if d.n_action == 3 and len(learnt) == 1:
+        out["plane_normal"] = learnt[0].tolist()
+    return out
+
+
+def constraint_figure(plt, info: dict[str, Any], method: str, part: str, d: Demonstrations):
+    if "per_demo_angle_deg" in info:
+        ang = info["per_demo_angle_deg"]
+        fig, ax = plt.subplots(figsize=(6, 3.2))
+        ax.bar([str(k) for k in ang], list(ang.values()), color="tab:red")
+        ax.set_xlabel("training demonstration")
+        ax.set_ylabel("angle learnt vs true [deg]")
+        ax.tick_params(axis="x", labelsize=6, rotation=90)
+        ax.set_title(f"Learnt constraint of each training demonstration ({method}) against the true one;\n"
+                     f"median angle {info['median_angle_deg']:.2g}°", fontsize=9)
+        fig.subplots_adjust(left=0.11, right=0.98, top=0.84, bottom=0.2)
+        return fig
+    rows = np.asarray(info["rows"])
+    s, q = rows.shape
+    fig, axes = plt.subplots(s, 1, figsize=(max(7.0, 0.75 * q + 2.5), 1.9 * s + 1.6), squeeze=False)
+    x = np.arange(q)
+    for r in range(s):
+        ax = axes[r, 0]
+        width = 0.38 if "true_rows" in info else 0.7
+        ax.bar(x - (width / 2 if "true_rows" in info else 0), rows[r], width, color="tab:red", label="learnt")
+        if "true_rows" in info and r < len(info["true_rows"]):
+            ax.bar(x + width / 2, info["true_rows"][r], width, color="tab:green", alpha=0.6, label="true")
+        ax.axhline(0, color="0.3", lw=0.6)
+        ax.set_ylabel(f"row {r + 1}", fontsize=8)
+        ax.set_xticks(x, info["names"], fontsize=7, rotation=30 if q > 3 else 0,
+                      ha="right" if q > 3 else "center")
+    where = "constant" if info["at"] == "constant" else f"at the {info['at']}"
+    extra = ""
+    if "angle_deg" in info:
+        extra = f"; angle to the true {'normal' if 'plane_normal' in info else 'row space'} " \
+                f"{info['angle_deg']:.2g}°"
+    elif "plane_normal" in info:
+        extra = "; plane normal " + ", ".join(f"{v:+.3f}" for v in info["plane_normal"])
+    fig.suptitle(f"Learnt constraint rows Ã ({method}, unit length, {where}){extra.replace('; ', chr(10), 1)}"
+                 f"\nfitted on the training demonstrations", fontsize=9)
+    axes[0, 0].legend(loc="upper left", bbox_to_anchor=(1.01, 1), fontsize=8, frameon=False)
+    h = fig.get_figheight()
+    fig.subplots_adjust(left=0.12, right=0.86, top=1 - 0.8 / h, bottom=0.75 / h, hspace=0.5)
+    return fig
+
+
+# -- the report's plots --------------------------------------------------------------------
+def _save(fig, plt, path: Path) -> None:
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+
+
+def make_plots(outdir: Path, pipeline) -> list[tuple[str, str]]:
+    """Draw every figure of the run into ``outdir/plots``; returns (caption, relative path)
+    pairs, captions starting with the stage name."""
+    from ccl_cli.constraint import PerDemonstration
+    from ccl_cli.evaluate import task_part
+
+    plt = pyplot()
+    pdir = outdir / "plots"
+    pdir.mkdir(exist_ok=True)
+    plots: list[tuple[str, str]] = []
+    part, shown = pipeline.parts()[-1]
+
+    def save(fig, name: str, caption: str) -> None:
+        if fig is not None:
+            _save(fig, plt, pdir / name)
+            plots.append((caption, f"plots/{name}"))
+
+    planar = shown.n_state == 2 and shown.n_action == 2
+    for r in pipeline.results:
+        if r.model is None:
+            continue
+        d, dpart = shown, part
+        title = f"{r.name} ({r.method})"
+        if r.name == "learn-v":
+            w = r.model.predict(d.X)
+            arrows = {"observed": ("observed u", d.U), "learnt": ("learnt w̃", w)}
+            if d.has_truth("w"):
+                arrows["true"] = ("true w", d.truth["w"])
+            if planar:
+                save(field_figure(plt, f"{title}: null-space component w", d, dpart, arrows, r.model.predict,
+                                  "learnt w̃(x) on a grid"), "learn-v-field.png",
+                     "learn-v: learnt vs true null-space component")
+            save(time_figure(plt, f"{title}: null-space component w", dpart, d, arrows), "learn-v-time.png",
+                 "learn-v: learnt w̃ against the observations over time")
+        elif r.name == "learn-a":
+            if isinstance(r.model, PerDemonstration) and dpart != "train":
+                d, dpart = pipeline.split.train, "train"
+            N = r.model.projection(d.X, d.demo)
+            v = task_part(r.model, d.X, d.demo)
+            Y = d.U if v is None else d.U - v
+            arrows = {"observed": ("observed u" if v is None else "u − learnt ṽ", Y),
+                      "learnt": ("Ñ(u − ṽ)" if v is not None else "Ñ u", np.einsum("nij,nj->ni", N, Y))}
+            if d.has_truth("pi") and (d.has_truth("N") or d.has_truth("A")):
+                pi = d.truth["pi"]
+                arrows = {"observed": arrows["observed"],
+                          "true": ("true N π", np.einsum("nij,nj->ni", d.true_projection(), pi)),
+                          "learnt": ("Ñ π", np.einsum("nij,nj->ni", N, pi))}
+            title_a = f"{title}: projection onto the learnt null space"
+            if planar:
+                direction = None
+                if not isinstance(r.model, PerDemonstration):
+                    def direction(G, m=r.model):
+                        P = m.projection(G)
+                        cols = np.linalg.norm(P, axis=1)
+                        return P[np.arange(len(G)), :, np.argmax(cols, axis=1)]
+                save(field_figure(plt, title_a, d, dpart, arrows, direction,
+                                  "learnt null-space direction of Ñ(x) on a grid", directions=True),
+                     "learn-a-field.png", "learn-a: learnt vs true projections")
+            else:
+                save(time_figure(plt, title_a, dpart, d, arrows), "learn-a-time.png",
+                     "learn-a: learnt projection against the observations over time")
+            sel = r.info.get("selection") or {}
+            save(selection_figure(plt, sel, d.n_action), "learn-a-selection.png",
+                 "learn-a: how the number of constraints was chosen")
+            info = r.info.get("constraint")
+            if info:
+                save(constraint_figure(plt, info, r.method, dpart, d), "learn-a-constraint.png",
+                     "learn-a: the learnt constraint")
+        elif r.name == "learn-pi":
+            est = r.model.predict(d.X)
+            arrows = {"observed": ("observed u", d.U), "learnt": (f"learnt π̃ ({r.method})", est)}
+            if d.has_truth("pi"):
+                arrows["true"] = ("true π", d.truth["pi"])
+            if r.baseline is not None:
+                arrows["baseline"] = ("dpl baseline", r.baseline.predict(d.X))
+            if planar:
+                save(field_figure(plt, f"{title}: null-space policy π", d, dpart, arrows, r.model.predict,
+                                  "learnt π̃(x) on a grid"), "learn-pi-field.png",
+                     "learn-pi: learnt vs true policy")
+            save(time_figure(plt, f"{title}: null-space policy π", dpart, d, arrows), "learn-pi-time.png",
+                 "learn-pi: learnt policy over time")
+    return plots

@@ -1,0 +1,130 @@
+"""Splitters, the one cross-validation function, the rank rules (issue 9). Seeds fixed."""
+
+import numpy as np
+import pytest
+
+from ccl_cli import selection as S
+from ccl_cli import simulate as sim
+from ccl_cli.constraint import KnownFeatureConstraint, StateIndependentConstraint
+from ccl_cli.constraint import selection as rank
+from ccl_cli.errors import InputError
+from ccl_cli.nullspace import NullSpaceComponent
+from ccl_cli.policy import PolicyLearner
+
+
+def test_folds_by_demonstration_cover_every_sample_once():
+    groups = np.repeat(np.arange(7), 11)
+    folds = S.make_folds(groups, len(groups), n_folds=3, seed=1)
+    assert folds.kind == "demonstrations"
+    tests = np.concatenate([t for _, t in folds.pairs])
+    assert sorted(tests) == list(range(len(groups)))
+    for train, test in folds.pairs:  # a demonstration is never on both sides
+        assert not set(groups[train]) & set(groups[test])
+
+
+def test_blocks_have_guard_gaps_and_are_contiguous():
+    n, gap = 200, 7
+    folds = S.make_folds(np.zeros(n, int), n, n_folds=5, gap=gap)
+    assert folds.kind == "blocks" and "1 demonstration" in folds.reason
+    for train, test in folds.pairs:
+        assert np.all(np.diff(test) == 1)  # one contiguous block
+        dist = np.abs(train[:, None] - test[None, :]).min()
+        assert dist > gap  # no derivative window of `gap` samples reaches across
+        assert len(train) == n - len(test) - gap * (2 - (test[0] == 0) - (test[-1] == n - 1))
+    with pytest.raises(InputError, match="needs at least"):
+        S.make_folds(np.zeros(40, int), 40, n_folds=5, gap=gap)
+
+
+def test_holdout_split_blocks_for_one_recording_and_demos_otherwise():
+    one = S.holdout_split(np.zeros(1000, int), 0.3, seed=0, gap=9)
+    assert one.info["kind"] == "blocks" and one.info["n_test_blocks"] == 3
+    assert one.info["n_train_blocks"] == 7 and "single continuous recording" in one.info["reason"]
+    assert not (one.train & one.test).any()
+    assert one.test.sum() == 300 and one.info["n_train_samples"] == one.train.sum()
+    idx_tr, idx_te = np.flatnonzero(one.train), np.flatnonzero(one.test)
+    assert np.abs(idx_tr[:, None] - idx_te[None, :]).min() > 9
+    many = S.holdout_split(np.repeat(np.arange(10), 20), 0.3, seed=0)
+    assert many.info["kind"] == "demonstrations" and many.info["n_test_demos"] == 3
+    few = S.holdout_split(np.repeat(np.arange(3), 400), 0.3, seed=0)
+    assert few.info["kind"] == "blocks" and "only 3 demonstrations" in few.info["reason"]
+
+
+def test_cross_validate_scores_held_out_npoe_by_hand():
+    data = sim.arm7(rows=(0, 1), seed=2, n_demos=10)
+    est = StateIndependentConstraint(n_constraints=2)
+    res = S.cross_validate(est, data.X, data.U, data.demo, n_folds=5, seed=0)
+    folds = S.make_folds(data.demo, data.n_samples, 5, 0)
+    assert res.kind == "demonstrations" and res.scores.shape == (5,)
+    for (train, test), value in zip(folds.pairs, res.scores, strict=True):
+        U = data.U[train]
+        vecs = np.linalg.eigh(U.T @ U)[1][:, :2]  # the two smallest directions
+        Ut = data.U[test]
+        res_t = Ut @ vecs @ vecs.T
+        expected = np.mean(np.sum(res_t**2, 1)) / np.var(Ut, axis=0, ddof=1).sum()
+        assert value == pytest.approx(expected, rel=1e-9)
+
+
+def test_cross_validate_scores_policies_and_ncl_by_their_own_consistency_error():
+    data = sim.toy2d(policy="limit_cycle", vary_constraint=True, sampling="uniform", n_samples=500, seed=0)
+    res = S.cross_validate(PolicyLearner(method="pi", n_centres=16, tune=False), data.X, data.U, data.demo)
+    bad = S.cross_validate(PolicyLearner(method="pi", basis="linear", tune=False), data.X, data.U, data.demo)
+    assert res.mean < 0.5 * bad.mean  # the limit cycle is not linear: a linear basis fits worse
+    pi = np.array([[1.0, 0.0]])
+    assert S.inconsistency_score(pi, np.array([[1.0, 0.0]])) == 0.0  # û ûᵀ π = u
+    ncl = sim.toy2d(task=True, sampling="uniform", n_samples=400, seed=0)
+    res = S.cross_validate(NullSpaceComponent(n_centres=16, tune=False), ncl.X, ncl.U, ncl.demo, n_folds=3)
+    assert res.scores.shape == (3,) and np.all(res.scores < 0.05)
+
+
+def test_ratio_rule_counts_residuals_at_the_noise_level():
+    sel = rank.ratio(np.array([1e-4, 1.5e-4, 3e-4, 1.0]), max_k=3)
+    assert sel.n_constraints == 2 and "row 3" in sel.reason and sel.rule == "ratio"
+    exact = rank.ratio(np.array([1e-32, 1e-30, 1.0]), max_k=2)  # noise-free: zeros are equal
+    assert exact.n_constraints == 2
+    assert rank.ratio(np.array([1.0, 1.1]), max_k=1).n_constraints == 1
+    d = sel.as_dict()
+    assert set(d) == {"rule", "n_constraints", "values", "criterion", "reason"}
+
+
+def test_lambda_cross_validated_count_on_the_7dof_arm_scores_joint_space_data():
+    """lambda's old CV scored task-space data with joint-space projections (crashed here)."""
+    data = sim.arm7(rows=(0, 1), constraint="jacobian", seed=0, n_demos=12, n_steps=20)
+    model = KnownFeatureConstraint(features={"arm": "arm7", "rows": [0, 1, 2]}, n_centres=1,
+                                   selection="cv", n_restarts=1).fit(data.X, data.U, data.demo)
+    assert model.selection_["rule"] == "cv" and model.n_constraints_ == 2
+    assert len(model.selection_["values"]) == 2
+
+
+def test_default_rule_is_one_for_library_and_cli():
+    from ccl_cli import config as C
+    from ccl_cli.constraint import LinearConstraint, StateDependentConstraint
+
+    assert C.DEFAULTS["learn-a"]["selection"] == rank.DEFAULT_RULE
+    for cls in (StateIndependentConstraint, StateDependentConstraint, KnownFeatureConstraint,
+                LinearConstraint):
+        assert cls().selection == rank.DEFAULT_RULE
+
+
+def test_a_single_continuous_recording_gets_a_stated_block_split(tmp_path, capsys):
+    """The issue's bar: one recording → time blocks, stated in --json, stderr, report.md, run.json."""
+    import json
+
+    from ccl_cli.cli import main
+
+    h5 = tmp_path / "plane.h5"
+    assert main(["simulate", "tracker_plane", "-o", str(h5), "--seed", "3", "-q"]) == 0
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"data: {{files: [{h5}]}}\nlearn-a: {{method: nhat}}\n")
+    capsys.readouterr()
+    assert main(["learn-a", "-c", str(cfg), "-o", str(tmp_path / "out"), "--json", "-q"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    val = summary["validation"]
+    assert val["kind"] == "blocks" and "single continuous recording" in val["reason"]
+    assert val["n_test_blocks"] == 3 and val["n_train_blocks"] == 7
+    stage = summary["stages"]["learn-a"]
+    assert stage["n_constraints"] == 1 and stage["test"]["NPOE"] < 0.03
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "## Validation" in report and "**blocks**" in report
+    assert json.loads((tmp_path / "out" / "run.json").read_text())["validation"]["kind"] == "blocks"
+    assert main(["learn-a", "-c", str(cfg), "-o", str(tmp_path / "out2")]) == 0  # -q would hide it
+    assert "validation: blocks (a single continuous recording" in capsys.readouterr().err
