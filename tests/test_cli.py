@@ -337,7 +337,7 @@ def test_flag_overrides_a_basis_mapping_at_any_depth(capsys, tmp_path):
 
     cfg_path = tmp_path / "v.yaml"
     cfg_path.write_text(f"data: {{files: [{SAMPLES / 'toy2d_ncl.h5'}]}}\n"
-                        "learn-v: {basis: {kind: rbf, n_centres: 4}}\n")
+                        "learn-v: {basis: {kind: rbf, n_centres: 4}, tune: false}\n")  # fixed settings
     code, _, err = run_main(capsys, "learn-v", "-c", cfg_path, "--n-centres", "25", "-o", tmp_path / "o",
                             "-q")
     assert code == 0, err
