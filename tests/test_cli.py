@@ -352,6 +352,14 @@ def test_flag_errors_are_one_line_and_name_the_flag(capsys, tmp_path):
     from ccl_cli import config as C
     from ccl_cli.errors import ConfigError
 
+    for args, flag in ((("learn-a", "--selection", "often"), "'--selection'"),
+                       (("learn-pi", "--n-centres", "many"), "'--n-centres'"),
+                       (("lern-a",), "No such command"), (("run",), "Missing argument")):
+        code, out, err = run_main(capsys, *args)
+        assert code == 2 and out == "", args
+        assert err.count("\n") == 1 and err.startswith("ccl: error: ") and flag in err, (args, err)
+        assert "Usage:" not in err and "Value error" not in err
+
     with pytest.raises(ConfigError) as info:
         C.merge(C.load(CONFIGS / "arm7.yaml"), {"learn-a": {"selection": "often"}})
     assert info.value.message.startswith("--selection: learn-a.selection must be one of")
