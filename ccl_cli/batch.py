@@ -21,19 +21,17 @@ executor with ``scheduler`` — the same code path.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import json
 import logging
 import os
-import shutil
 import time
 from concurrent.futures import Executor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
-
-import yaml
 
 from ccl_cli import __version__
 from ccl_cli import config as C
@@ -104,48 +102,46 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
 
     if manifest is not None:
         mpath = Path(manifest)
-        try:
-            spec = yaml.safe_load(mpath.read_text()) or {}
-        except OSError as exc:
-            raise ConfigError(f"{mpath}: cannot read manifest ({exc.strerror})") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{mpath}: invalid YAML ({str(exc).splitlines()[0]})") from None
+        spec, _ = C.read_yaml(mpath, "manifest")
+        spec = {} if spec is None else spec
         if not isinstance(spec, dict) or not isinstance(spec.get("jobs"), list):
             raise ConfigError(f"{mpath}: a manifest needs a jobs: list of rules")
         unknown = set(spec) - MANIFEST_KEYS
         if unknown:
-            raise ConfigError(f"{mpath}: unknown manifest key(s) {', '.join(sorted(unknown))} "
+            raise ConfigError(f"{mpath}: unknown manifest key(s) {', '.join(sorted(map(str, unknown)))} "
                               f"(valid: {', '.join(sorted(MANIFEST_KEYS))})")
-        base = mpath.parent
+        base = mpath.resolve().parent
         rules = spec["jobs"]
         per_file = spec.get("overrides") or {}
-        out = Path(spec["out"]) if spec.get("out") else None
+        if not isinstance(per_file, dict) or not all(isinstance(k, str) and isinstance(v, dict | None)
+                                                       for k, v in per_file.items()):
+            raise ConfigError(f"{mpath}: overrides must map file paths (or globs) to config mappings")
+        out_value = spec.get("out")
+        if out_value is not None and not isinstance(out_value, str):
+            raise ConfigError(f"{mpath}: out must be a folder path, got {out_value!r}"[:200])
+        out = Path(out_value) if out_value else None
         if out is not None and not out.is_absolute():
             out = base / out
+        where = f"{mpath}: "
     else:
         if not files:
             raise ConfigError("give a manifest or --files with --config")
         base = Path.cwd()
         rules = [{"files": files, "config": config}]
-        per_file, out = {}, None
-    file_over = [(expand_files([k], base), v) for k, v in per_file.items()]
+        per_file, out, where = {}, None, ""
+    file_over = [(_resolved(expand_files([k], base)), v) for k, v in per_file.items()]
     jobs: list[Job] = []
     seen: set[str] = set()
     for i, rule in enumerate(rules):
-        if not isinstance(rule, dict) or "files" not in rule:
-            raise ConfigError(f"jobs[{i}] must be a mapping with files: (and config:)")
-        bad = set(rule) - RULE_KEYS
-        if bad:
-            raise ConfigError(f"jobs[{i}]: unknown key(s) {', '.join(sorted(bad))} "
-                              f"(valid: {', '.join(sorted(RULE_KEYS))})")
-        matched = [str(p) for p in expand_files(rule["files"], base)]
+        _check_rule(rule, f"{where}jobs[{i}]")
+        matched = _resolved(expand_files(rule["files"], base))
         groups = [matched] if rule.get("group") else [[f] for f in matched]
         for group in groups:
-            extra = [v for paths, v in file_over if any(str(p) in group for p in paths)]
+            extra = [v for paths, v in file_over if any(p in group for p in paths)]
             try:
                 cfg = _resolve_config(rule.get("config"), [rule.get("overrides") or {}, *extra], base)
             except CCLError as exc:
-                raise ConfigError(f"jobs[{i}]: {exc.message}") from None
+                raise ConfigError(f"{where}jobs[{i}]: {exc.message}") from None
             job = Job(_job_id(group), group, str(rule.get("config")), dict(cfg))
             if job.job_id in seen:
                 raise ConfigError(f"{group[0]} is matched by more than one rule")
@@ -154,6 +150,31 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
     if not jobs:
         raise ConfigError("the manifest matches no files")
     return jobs, out
+
+
+def _resolved(paths: list[Path]) -> list[str]:
+    """Absolute, symlink-free paths: a job is the same however its files were spelled."""
+    return [str(p.resolve()) for p in paths]
+
+
+def _check_rule(rule: Any, where: str) -> None:
+    """Types of one manifest rule (files, config, overrides, group)."""
+    if not isinstance(rule, dict) or "files" not in rule:
+        raise ConfigError(f"{where} must be a mapping with files: (and config:)")
+    bad = set(rule) - RULE_KEYS
+    if bad:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(sorted(map(str, bad)))} "
+                          f"(valid: {', '.join(sorted(RULE_KEYS))})")
+    files = rule["files"]
+    if not (isinstance(files, str) or (isinstance(files, list) and files and
+                                       all(isinstance(f, str) for f in files))):
+        raise ConfigError(f"{where}.files must be a path/glob or a list of them, got {files!r}"[:200])
+    if rule.get("config") is not None and not isinstance(rule["config"], str):
+        raise ConfigError(f"{where}.config must be a file path, got {rule['config']!r}"[:200])
+    if not isinstance(rule.get("overrides") or {}, dict):
+        raise ConfigError(f"{where}.overrides must be a mapping, got {rule['overrides']!r}"[:200])
+    if not isinstance(rule.get("group", False), bool):
+        raise ConfigError(f"{where}.group must be true or false, got {rule['group']!r}"[:200])
 
 
 # -- running -------------------------------------------------------------------------------
@@ -206,36 +227,32 @@ def make_executor(workers: int | None, scheduler: str | None) -> tuple[Executor,
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_all_start_methods, get_context
 
+    from ccl_cli.lifeline import PARENT_ENV, worker_init
+
     n = workers or os.cpu_count() or 1
     threads = str(max(1, (os.cpu_count() or 1) // n))
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, threads)  # workers share the cores, not oversubscribe them
+    os.environ[PARENT_ENV] = str(os.getpid())  # the fork server dies with this process
     if "forkserver" in get_all_start_methods():
         # workers fork from a server that has imported the learners once (fast start,
         # and no fork of this process's threads)
         ctx = get_context("forkserver")
-        ctx.set_forkserver_preload(["ccl_cli.runner", "ccl_cli.pipeline", "ccl_cli.models", "ccl_cli.io"])
+        ctx.set_forkserver_preload(["ccl_cli.lifeline", "ccl_cli.runner", "ccl_cli.pipeline",
+                                    "ccl_cli.models", "ccl_cli.io"])
     else:
         ctx = get_context("spawn")
-    return ProcessPoolExecutor(max_workers=n, mp_context=ctx), None
-
-
-def clean_stale(jobs_dir: Path) -> int:
-    """Remove temporary folders left by a batch that was killed (never job folders)."""
-    n = 0
-    if jobs_dir.exists():
-        for p in jobs_dir.iterdir():
-            if p.name.startswith(".") and (p.name.endswith(".tmp") or ".old-" in p.name):
-                shutil.rmtree(p, ignore_errors=True)
-                n += 1
-    return n
+    return ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=worker_init,
+                               initargs=(os.getpid(),)), None
 
 
 def run_batch(jobs: list[Job], out: Path, workers: int | None = None, scheduler: str | None = None,
               force: bool = False, progress=None) -> list[JobResult]:
     jobs_dir = out / "jobs"
     jobs_dir.mkdir(parents=True, exist_ok=True)
-    removed = clean_stale(jobs_dir)
+    from ccl_cli.io.atomic import clean_stale
+
+    removed = clean_stale(jobs_dir, every=True)
     if removed:
         log.info("removed %d unfinished job folder(s) of an interrupted batch", removed)
     executor, client = make_executor(workers, scheduler)
@@ -251,12 +268,26 @@ def run_batch(jobs: list[Job], out: Path, workers: int | None = None, scheduler:
             results.append(res)
             if progress is not None:
                 progress(res)
-    finally:
+    except BaseException:  # Ctrl-C or a failure here: do not wait for the running jobs
+        executor.shutdown(wait=False, cancel_futures=True)
+        _kill_workers(executor)
+        raise
+    else:
         executor.shutdown(wait=True)
+    finally:
         if client is not None:
             client.close()
     order = {j.job_id: i for i, j in enumerate(jobs)}
     return sorted(results, key=lambda r: order[r.job_id])
+
+
+def _kill_workers(executor: Executor) -> None:
+    """SIGKILL the pool's worker processes (their partial job folders are temporaries)."""
+    import signal
+
+    for proc in list((getattr(executor, "_processes", None) or {}).values()):
+        with contextlib.suppress(OSError):
+            os.kill(proc.pid, signal.SIGKILL)
 
 
 # -- aggregate -----------------------------------------------------------------------------

@@ -169,6 +169,9 @@ def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
         return
     if quiet or _QUIET[0]:
         return
+    val = summary.get("validation")
+    if val:
+        typer.echo(f"validation: {val.get('kind')} ({val.get('reason')})", err=True)
 
     def line(label: str, entry: dict[str, Any]) -> str:
         parts = [label]
@@ -375,8 +378,8 @@ def predict(
 # -- data commands --------------------------------------------------------------------------
 @app.command("simulate")
 def simulate(
-    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7, varying_constraint, tracker_plane or "
-                                                "tracker_sphere.")],
+    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7, varying_constraint, tracker_plane, "
+                                                "tracker_sphere or arm_at_rest.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     seed: Annotated[int, typer.Option(help="Seed.")] = 0,
     noise: Annotated[float | None, typer.Option(help="Std of noise on u (tracker_*: on positions, m).")]
@@ -425,8 +428,9 @@ def simulate(
     if test_fraction > 0:
         train, test = data.split(test_fraction, seed)
         masks = {"train": list(train.demo_ids), "test": list(test.demo_ids)}
-    write_demonstrations(out, data, provenance={"simulate": problem, "seed": seed, **kwargs}, masks=masks,
-                         force=force)
+    derivative = {"derivative": data.metadata["derivative"]} if "derivative" in data.metadata else {}
+    write_demonstrations(out, data, provenance={"simulate": problem, "seed": seed, **kwargs, **derivative},
+                         masks=masks, force=force)
     _wrote("simulate", out, data, json_out)
 
 
@@ -566,7 +570,13 @@ for _info in app.registered_commands:  # every command: one-line usage errors
 # -- entry point ---------------------------------------------------------------------------
 def main(argv: list[str] | None = None) -> int:
     """Console entry point: run the app and turn every failure into a one-line message."""
+    import signal
+
+    import ccl_cli
+
     try:
+        if signal.getsignal(signal.SIGINT) is ccl_cli._interrupted_while_starting:
+            signal.signal(signal.SIGINT, signal.default_int_handler)  # from here on: KeyboardInterrupt
         result = app(args=argv, prog_name="ccl", standalone_mode=False)
         if result == 130:  # typer turns Ctrl-C into this return value
             typer.echo("ccl: interrupted; no partial outputs were left", err=True)
@@ -598,7 +608,18 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def entry() -> None:
-    sys.exit(main())
+    """The ``ccl`` script: exit status of :func:`main`; Ctrl-C at any moment → 130 and one
+    line; a file-size limit (``ulimit -f``) is a write error (EFBIG), not a kill."""
+    import signal
+
+    if hasattr(signal, "SIGXFSZ"):
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    try:
+        code = main()
+    except KeyboardInterrupt:
+        typer.echo("ccl: interrupted; no partial outputs were left", err=True)
+        code = 130
+    sys.exit(code)
 
 
 if __name__ == "__main__":

@@ -18,8 +18,8 @@ from typing import Any
 
 import yaml
 
+from ccl_cli import selection as S
 from ccl_cli.errors import ConfigError
-from ccl_cli.selection import DEFAULT_RULE
 
 STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
 NUM = (int, float)
@@ -28,6 +28,8 @@ BASIS = {"kind": str, "n_centres": int, "centres": (str, list), "sigma2": NUM, "
 STREAM = {"topic": str, "field": str, "joints": list, "columns": list, "stamp": str,
           "dataset": str, "variable": str, "file": str, "samples": str}
 ACTION = {**STREAM, "derive": str, "window": int, "order": int}
+#: ``tune: {budget: seconds, folds: k}`` (or true/false) in a learner's section.
+TUNE = {"budget": NUM, "folds": int}
 
 SCHEMA: dict[str, Any] = {
     "seed": int,
@@ -38,9 +40,10 @@ SCHEMA: dict[str, Any] = {
         "demos": {"split_on_gap": NUM, "ranges": list, "window": NUM, "per_file": bool,
                   "group": str, "dataset": str, "variable": str},
         "nonfinite": str, "min_samples": int,
-        "test": {"fraction": NUM, "seed": int, "use_masks": bool},
+        "test": {"fraction": NUM, "seed": int, "use_masks": bool, "gap": int, "min_demos": int,
+                 "blocks": int},
     },
-    "learn-v": {"basis": (str, BASIS), "n_centres": int, "max_iter": int, "tol": NUM},
+    "learn-v": {"basis": (str, BASIS), "n_centres": int, "max_iter": int, "tol": NUM, "tune": (bool, TUNE)},
     "learn-a": {
         "method": str, "on": str, "per_demo": bool, "selection": str, "n_constraints": int,
         "threshold": NUM, "gap_floor": NUM, "max_constraints": int, "cv_folds": int,
@@ -48,10 +51,11 @@ SCHEMA: dict[str, Any] = {
         "basis": (str, BASIS), "n_centres": int,
         "features": (str, {"arm": str, "rows": list}),
         "regressors": str, "degree": int, "task": bool, "task_regressors": str, "whiten": str,
-        "reweight": int,
+        "reweight": int, "tune": (bool, TUNE),
     },
-    "learn-pi": {"method": str, "on": str, "basis": (str, BASIS), "n_centres": int, "cutoff": NUM,
-                 "min_norm": NUM, "projections": str, "baseline": bool},
+    "learn-pi": {"method": str, "on": str, "basis": (str, BASIS), "n_centres": int, "cutoff": (NUM, str),
+                 "cutoff_rule": str,
+                 "min_norm": NUM, "projections": str, "baseline": bool, "tune": (bool, TUNE)},
     "evaluate": {"convention": str},
     "metrics": {"convention": str},
     "output": {"plots": bool},
@@ -62,10 +66,11 @@ DEFAULTS: dict[str, Any] = {
     "seed": 0,
     "data": {"format": "auto", "nonfinite": "drop", "test": {"fraction": 0.3, "seed": 0,
                                                              "use_masks": True}},
-    "learn-v": {"basis": "rbf", "n_centres": 16},
-    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": DEFAULT_RULE},
+    "learn-v": {"basis": "rbf", "n_centres": 16, "tune": S.TUNE},
+    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": S.DEFAULT_RULE,
+                "tune": S.TUNE},
     "learn-pi": {"method": "pi", "on": "auto", "basis": "rbf", "n_centres": 16,
-                 "projections": "auto", "baseline": True},
+                 "projections": "auto", "baseline": True, "tune": S.TUNE},
     "metrics": {"convention": "ccl"},
     "output": {"plots": True},
 }
@@ -79,14 +84,38 @@ CHOICES = {
     ("learn-pi", "method"): ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"),
     ("learn-pi", "on"): ("auto", "u", "w"),
     ("learn-pi", "projections"): ("auto", "learnt", "true"),
+    ("learn-pi", "cutoff_rule"): ("relative", "absolute"),
     ("metrics", "convention"): ("ccl", "original"),
     ("evaluate", "convention"): ("ccl", "original"),
     ("data", "format"): ("auto", "hdf5", "csv", "bag", "mcap", "mat"),
     ("data", "nonfinite"): ("drop", "fail"),
 }
 
+#: limits of a YAML document (configs, manifests): nesting depth, nodes after expanding
+#: aliases (billion laughs), and size of the file
+MAX_DEPTH = 64
+MAX_NODES = 100_000
+MAX_BYTES = 16 << 20
+
+
 class _Loader(yaml.SafeLoader):
-    """SafeLoader with YAML 1.2 booleans: only true/false, so keys like ``on`` stay strings."""
+    """SafeLoader with YAML 1.2 booleans (only true/false, so keys like ``on`` stay
+    strings), bounded nesting depth and a budget of nodes counted with every alias
+    expanded (so an alias bomb is refused before anything walks it)."""
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self._depth = 0
+
+    def compose_node(self, parent, index):  # noqa: ANN001, ANN201 - PyYAML's signature
+        self._depth += 1
+        if self._depth > MAX_DEPTH:
+            mark = self.peek_event().start_mark
+            raise yaml.composer.ComposerError(None, None, f"nested deeper than {MAX_DEPTH} levels", mark)
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
 
 
 _Loader.yaml_implicit_resolvers = {
@@ -95,6 +124,77 @@ _Loader.yaml_implicit_resolvers = {
 }
 _Loader.add_implicit_resolver("tag:yaml.org,2002:bool", __import__("re").compile(r"^(?:true|True|TRUE|"
                               r"false|False|FALSE)$"), list("tTfF"))
+
+
+def _expanded_size(root: yaml.Node) -> int | None:
+    """Number of nodes of ``root`` with every alias expanded (shared nodes counted at each
+    use), computed once per distinct node; None if an alias refers to its own ancestor."""
+    size: dict[int, int] = {}
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    open_: set[int] = set()
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        children = [n for pair in node.value for n in pair] if isinstance(node, yaml.MappingNode) else \
+            list(node.value) if isinstance(node, yaml.SequenceNode) else []
+        if done:
+            size[key] = min(1 + sum(size[id(c)] for c in children), 1 << 62)
+            open_.discard(key)
+            continue
+        if key in size:
+            continue
+        if key in open_:
+            return None
+        open_.add(key)
+        stack.append((node, True))
+        for child in children:
+            if id(child) in open_:
+                return None
+            if id(child) not in size:
+                stack.append((child, False))
+    return size[id(root)]
+
+
+def read_yaml(path: str | Path, what: str = "config", error: type = ConfigError
+              ) -> tuple[Any, yaml.Node | None]:
+    """Parse one YAML document safely → (data, composed node).
+
+    Refused with a one-line ``error`` naming the file (and line, or byte offset): files
+    over ``MAX_BYTES``, bytes that are not UTF-8, YAML errors, nesting deeper than
+    ``MAX_DEPTH`` and more than ``MAX_NODES`` nodes once aliases are expanded.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(MAX_BYTES + 1)
+    except OSError as exc:
+        raise error(f"{path}: cannot read {what} ({exc.strerror})") from None
+    if len(raw) > MAX_BYTES:
+        raise error(f"{path}: {what} is larger than {MAX_BYTES >> 20} MB")
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: {what} is not UTF-8 text (byte {exc.start}: 0x{raw[exc.start]:02x})") from None
+    loader = _Loader(text)
+    try:
+        node = loader.get_single_node()
+        if node is not None:
+            total = _expanded_size(node)
+            if total is None:
+                raise error(f"{path}:{node.start_mark.line + 1}: invalid YAML (an alias refers to "
+                            "its own parent)")
+            if total > MAX_NODES:
+                raise error(f"{path}: {what} has {total} values once aliases are expanded "
+                            f"(limit {MAX_NODES}); refused")
+        data = loader.construct_document(node) if node is not None else None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark else str(path)
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise error(f"{where}: invalid YAML ({problem})") from None
+    finally:
+        loader.dispose()
+    return data, node
 
 
 _TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false",
@@ -136,18 +236,7 @@ def load(path: str | Path | None) -> Config:
     if path is None:
         return cfg
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read config ({exc.strerror})") from None
-    try:
-        node = yaml.compose(text, Loader=_Loader)
-        data = yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}" if mark else str(path)
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"{where}: invalid YAML ({problem})") from None
+    data, node = read_yaml(path, "config")
     if data is None:
         data = {}
     if not isinstance(data, dict):

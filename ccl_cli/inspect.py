@@ -62,17 +62,17 @@ def _joint_names(msg: Any) -> list[str] | None:
 
 def _bag_topics(reader) -> dict[str, tuple[np.ndarray, Any]]:
     """Log times (ns) of every message and the first message (decoded) of each topic of a bag."""
-    from ccl_cli.io.streams import decoding
+    from ccl_cli.io.streams import library_call, library_iter
 
     bag = reader._open()
     try:
         times: dict[str, list[int]] = {}
         first: dict[str, Any] = {}
-        with decoding(str(reader.path), list(bag.topics)):
-            for conn, log_ns, raw in bag.messages():
-                times.setdefault(conn.topic, []).append(log_ns)
-                if conn.topic not in first:
-                    first[conn.topic] = bag.deserialize(raw, conn.msgtype)
+        where, what = str(reader.path), "decode the bag's messages"
+        for conn, log_ns, raw in library_iter(where, what, bag.messages()):
+            times.setdefault(conn.topic, []).append(log_ns)
+            if conn.topic not in first:
+                first[conn.topic] = library_call(where, what, bag.deserialize, raw, conn.msgtype)
         return {k: (np.asarray(v, dtype=np.int64), first.get(k)) for k, v in times.items()}
     finally:
         bag.close()
@@ -82,27 +82,29 @@ def _mcap_topics(reader) -> dict[str, tuple[np.ndarray, Any]]:
     """Log times (ns) and the first decoded message of each topic of an MCAP file."""
     import json
 
+    from ccl_cli.io.streams import library_call, library_iter
+
     out: dict[str, tuple[np.ndarray, Any]] = {}
-    where = str(reader.path)
-    try:
-        with open(reader.path, "rb") as f:
-            mc = reader._reader(f)
-            times: dict[str, list[int]] = {}
-            enc: dict[str, str] = {}
-            for _, channel, message in mc.iter_messages():
-                times.setdefault(channel.topic, []).append(message.log_time)
-                enc[channel.topic] = channel.message_encoding
-            for topic in times:
-                f.seek(0)
-                mc = reader._reader(f)
-                if enc[topic] == "json":
-                    _, _, message = next(iter(mc.iter_messages(topics=[topic])))
-                    msg = json.loads(message.data)
-                else:
-                    msg = next(iter(mc.iter_decoded_messages(topics=[topic])))[3]
-                out[topic] = (np.asarray(times[topic], dtype=np.int64), msg)
-    except (OSError, ValueError, KeyError, StopIteration) as exc:
-        raise InputError(f"{where}: cannot read MCAP messages ({type(exc).__name__}: {exc})") from None
+    where, what = str(reader.path), "read MCAP messages"
+    with reader._open() as f:
+        mc, _ = reader._summary(f)
+        times: dict[str, list[int]] = {}
+        enc: dict[str, str] = {}
+        for _, channel, message in library_iter(where, what, mc.iter_messages()):
+            times.setdefault(channel.topic, []).append(message.log_time)
+            enc[channel.topic] = channel.message_encoding
+        for topic in times:
+            f.seek(0)
+            mc, _ = reader._summary(f)
+            if enc[topic] == "json":
+                found = next(library_iter(where, what, mc.iter_messages(topics=[topic])), None)
+                msg = library_call(where, what, json.loads, found[2].data) if found else None
+            else:
+                found = next(library_iter(where, what, mc.iter_decoded_messages(topics=[topic])), None)
+                msg = found[3] if found else None
+            if found is None:
+                raise InputError(f"{where}: topic {topic} lost its messages on a second read")
+            out[topic] = (np.asarray(times[topic], dtype=np.int64), msg)
     return out
 
 
@@ -124,7 +126,8 @@ def inspect_recording(path: str | Path, config: dict[str, Any] | None = None,
     fmt = out["format"]
     if fmt not in ("bag", "mcap", "csv"):
         return out
-    reader = open_reader(path, fmt if fmt else detect_format(Path(path)), config)
+    samples = (config.get("state") or {}).get("samples") if fmt == "csv" else None  # text matrices
+    reader = open_reader(path, fmt if fmt else detect_format(Path(path)), config, samples)
     if fmt == "csv":
         columns = out.get("columns") or []
         state = (config.get("state") or {}).get("columns") or [c for c in columns

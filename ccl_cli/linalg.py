@@ -49,15 +49,17 @@ def total_variance(Y: np.ndarray, ddof: int = 1) -> float:
     return float(np.var(Y, axis=0, ddof=ddof).sum())
 
 
-def eigen_lstsq(M: np.ndarray, r: np.ndarray, cutoff: float) -> np.ndarray:
+def eigen_lstsq(M: np.ndarray, r: np.ndarray, cutoff: float, absolute: bool = False) -> np.ndarray:
     """Solve the symmetric normal equations ``M w = r`` by eigen-decomposition.
 
-    Eigenvalues of ``M`` below ``cutoff · max(eig)`` are discarded (a regularised
+    Eigenvalues of ``M`` below ``cutoff · max(eig)`` (or below ``cutoff`` itself with
+    ``absolute``, the original library's rule) are discarded (a regularised
     pseudo-inverse, ALGORITHMS.md §4–§5). ``M`` is (..., d, d), ``r`` (..., d).
     """
     vals, vecs = np.linalg.eigh(M)
     top = np.maximum(vals[..., -1:], np.finfo(float).tiny)
-    inv = np.where(vals > cutoff * top, 1.0 / np.where(vals > 0, vals, 1.0), 0.0)
+    threshold = cutoff if absolute else cutoff * top
+    inv = np.where(vals > threshold, 1.0 / np.where(vals > 0, vals, 1.0), 0.0)
     coef = np.einsum("...ij,...i->...j", vecs, r) * inv
     return np.einsum("...ij,...j->...i", vecs, coef)
 
@@ -94,17 +96,6 @@ def kron_normal(G: np.ndarray, B: np.ndarray, r: np.ndarray | None = None
     return J.T @ J, (None if r is None else ((G * r[:, None]).T @ B).ravel())
 
 
-def solve_psd(M: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Solve M x = r for symmetric positive (semi)definite M: Cholesky, falling back to
-    the eigen pseudo-inverse (relative cut-off 1e-12) when M is numerically singular."""
-    try:
-        L = np.linalg.cholesky(M)
-    except np.linalg.LinAlgError:
-        return eigen_lstsq(M, r, 1e-12)
-    y = np.linalg.solve(L, r)
-    return np.linalg.solve(L.T, y)
-
-
 def kron_least_squares(
     W0: np.ndarray,
     blocks: Callable[[], Iterable[tuple[slice, np.ndarray]]],
@@ -121,10 +112,9 @@ def kron_least_squares(
     are summed block by block at the trial point, so an accepted step needs no further
     pass and no N × m K matrix is ever formed. Steps solve (JᵀJ + μ D) δ = −Jᵀr with D
     the running maximum of diag(JᵀJ) (Marquardt/MINPACK scaling; μ is raised if the
-    Cholesky factorisation fails) and μ updated from the gain ratio (Nielsen). Stops when the
-    cost falls by less than ``tol`` relatively, the
-    step is below ``tol`` relative to W, or the scaled gradient is below ``tol``;
-    ``max_iter`` bounds the passes.
+    Cholesky factorisation fails) and μ updated from the gain ratio (Nielsen). Stops
+    when the cost falls by less than ``tol`` relatively, the step is below ``tol``
+    relative to W, or the scaled gradient is below ``tol``; ``max_iter`` bounds the passes.
 
     Returns:
         (W (m, K), cost Σ r², passes over the data).

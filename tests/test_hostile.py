@@ -190,23 +190,32 @@ def test_libhdf5_hang_is_bounded(fixtures, tmp_path, monkeypatch):
     with h5py.File(edited, "a") as f:
         f.attrs["frame_id"] = "edited"
 
-    def hang(path):
+    def sleeps(path, cpu_limit):
         time.sleep(60)
 
-    monkeypatch.setattr(h5safe, "_probe_child", hang)
+    def spins(path, cpu_limit):
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_CPU, (1, 2))
+        while True:
+            pass
+
+    monkeypatch.setattr(h5safe, "_probe_child", sleeps)
     monkeypatch.setattr(h5safe.threading, "active_count", lambda: 1)  # fork even if a test left threads
-    monkeypatch.setattr(h5safe, "TIMEOUT", 0.5)
     t0 = time.perf_counter()
     with pytest.raises(h5safe.InputError, match="did not finish parsing the file within 0.5 s"):
         h5safe.open_hdf5(edited, timeout=0.5)
     assert time.perf_counter() - t0 < 5
+    monkeypatch.setattr(h5safe, "_probe_child", spins)  # the measured hangs are CPU-bound loops
+    with pytest.raises(h5safe.InputError, match="within 5 s of CPU time"):
+        h5safe.open_hdf5(edited)
 
 
 def test_libhdf5_crash_is_contained(fixtures, tmp_path, monkeypatch):
     edited = copy(fixtures["data"], tmp_path / "crashes.h5")
     with h5py.File(edited, "a") as f:
         f.attrs["frame_id"] = "edited"
-    monkeypatch.setattr(h5safe, "_probe_child", lambda path: os.kill(os.getpid(), 11))
+    monkeypatch.setattr(h5safe, "_probe_child", lambda path, cpu_limit: os.kill(os.getpid(), 11))
     monkeypatch.setattr(h5safe.threading, "active_count", lambda: 1)
     with pytest.raises(h5safe.InputError, match="crashed parsing the file"):
         h5safe.open_hdf5(edited)

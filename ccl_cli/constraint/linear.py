@@ -28,6 +28,7 @@ from ccl_cli.constraint import selection as sel
 from ccl_cli.constraint.base import ConstraintModel, check_xu
 from ccl_cli.errors import ConfigError
 from ccl_cli.linalg import row_chunks
+from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
 
 REGRESSORS = ("identity", "rbf", "polynomial")
 
@@ -61,6 +62,8 @@ class LinearConstraint(ConstraintModel):
         selection, n_constraints, gap_floor, threshold, max_constraints, cv_folds, seed:
             choice of s; the default (``ratio``, :mod:`ccl_cli.constraint.selection`) reads
             the squared singular values.
+        tune: with ``regressors="rbf"``, choose the basis by cross-validation
+            (:func:`ccl_cli.selection.tune`; True by default, False for fixed settings).
 
     Attributes:
         W_ (s, m), Wb_ (s, m_b) or None, singular_values_ (ascending), n_constraints_,
@@ -85,6 +88,7 @@ class LinearConstraint(ConstraintModel):
         max_constraints: int | None = None,
         cv_folds: int = 5,
         seed: int = 0,
+        tune: bool | dict = TUNE,
     ) -> None:
         self.regressors = regressors
         self.degree = degree
@@ -101,6 +105,12 @@ class LinearConstraint(ConstraintModel):
         self.max_constraints = max_constraints
         self.cv_folds = cv_folds
         self.seed = seed
+        self.tune = tune
+
+    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
+        if self.regressors != "rbf" or not rbf_tunable(self.basis):
+            return {}
+        return {"basis": basis_grid(X, (self.n_centres, 16, 9, 25, 36), (1.0, 0.5), self.seed)}
 
     # -- regressors -------------------------------------------------------------------
     def _features(self, X: np.ndarray) -> np.ndarray | None:
@@ -207,6 +217,8 @@ class LinearConstraint(ConstraintModel):
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None) -> LinearConstraint:
         X, U = check_xu(X, U)
         self._set_n_features(X)
+        if self._fit_tuned(X, U, demo=demo):
+            return self
         self.n_action_ = U.shape[1]
         if self.regressors == "rbf" or (self.task and self.task_regressors == "rbf"):
             self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)

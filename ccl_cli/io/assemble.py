@@ -52,16 +52,22 @@ def segment_ids(t_s: np.ndarray, demos: dict[str, Any] | None, where: str) -> np
     if demos.get("ranges") is not None:
         ids = np.full(n, -1)
         rel = t_s - t_s[0]
-        for k, rng in enumerate(demos["ranges"]):
-            if len(rng) != 2 or not rng[0] < rng[1]:
-                raise InputError(f"{where}: demos.ranges[{k}] must be [start, end] with start < end, "
-                                 f"got {rng}")
+        ranges = demos["ranges"]
+        if not isinstance(ranges, list | tuple):
+            raise InputError(f"{where}: demos.ranges must be a list of [start, end] pairs, "
+                             f"got {ranges!r}"[:200])
+        for k, rng in enumerate(ranges):
+            numbers = isinstance(rng, list | tuple) and len(rng) == 2 and all(
+                isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v) for v in rng)
+            if not numbers or not rng[0] < rng[1]:
+                raise InputError(f"{where}: demos.ranges[{k}] must be [start, end] (finite seconds) with "
+                                 f"start < end, got {rng!r}"[:200])
             inside = (rel >= rng[0]) & (rel <= rng[1]) & (ids < 0)
             ids[inside] = k
         if (ids < 0).all():
             raise InputError(f"{where}: no samples inside demos.ranges")
     elif gap is not None:
-        if not gap > 0:
+        if isinstance(gap, bool) or not isinstance(gap, int | float) or not gap > 0:
             raise InputError(f"{where}: demos.split_on_gap must be positive seconds, got {gap}")
         ids = np.concatenate([[0], np.cumsum(np.diff(t_s) > gap)])
     else:
@@ -134,8 +140,12 @@ def local_polynomial_derivative(t: np.ndarray, Y: np.ndarray, demo: np.ndarray, 
     one batch of small least-squares problems.
     """
     n = len(t)
-    if window < order + 1 or window % 2 == 0:
-        raise InputError(f"derivative window must be odd and > order ({order}), got {window}")
+    if isinstance(order, bool) or not isinstance(order, int | np.integer) or order < 1:
+        raise InputError(f"derivative order must be an integer ≥ 1 (the first derivative is its "
+                         f"coefficient), got {order!r}")
+    if isinstance(window, bool) or not isinstance(window, int | np.integer) or window < order + 1 \
+            or window % 2 == 0:
+        raise InputError(f"derivative window must be odd and > order ({order}), got {window!r}")
     starts_of = np.flatnonzero(np.r_[True, demo[1:] != demo[:-1]])
     ends_of = np.r_[starts_of[1:], n]
     seg = np.cumsum(np.r_[True, demo[1:] != demo[:-1]]) - 1

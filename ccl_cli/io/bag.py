@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.streams import Stream, StreamSpec, decoding, finish_topics, read_topics
+from ccl_cli.io.streams import Stream, StreamSpec, finish_topics, library_call, library_iter, read_topics
 
 
 def _typestore(name: str | None):
@@ -34,6 +34,15 @@ def bag_root(path: Path) -> Path:
     return path
 
 
+def _count(value, where: str) -> int:
+    """A count or time from bag metadata (metadata.yaml can hold anything)."""
+    if value is None:
+        return 0
+    if not isinstance(value, int) or isinstance(value, bool) or not -(2**63) <= value < 2**63:
+        raise InputError(f"{where}: bag metadata holds {value!r} where a count or time is expected"[:200])
+    return int(value)
+
+
 class BagReader:
     """One ROS 1 bag or ROS 2 bag directory."""
 
@@ -44,22 +53,23 @@ class BagReader:
     def _open(self):
         from rosbags.highlevel import AnyReader
 
-        try:
-            reader = AnyReader([bag_root(self.path)], default_typestore=_typestore(self.typestore))
-            reader.open()
-        except InputError:
-            raise
-        except Exception as exc:  # rosbags raises several types for corrupt/truncated bags
-            raise InputError(f"{self.path}: cannot read bag ({type(exc).__name__}: {exc})") from None
+        where = str(self.path)
+        typestore = _typestore(self.typestore)
+        reader = library_call(where, "read bag", AnyReader, [bag_root(self.path)],
+                              default_typestore=typestore)
+        library_call(where, "read bag", reader.open)
         return reader
 
     def inspect(self) -> dict[str, Any]:
         reader = self._open()
         try:
-            topics = {name: {"type": info.msgtype, "count": int(info.msgcount or 0)}
-                      for name, info in sorted(reader.topics.items())}
-            return {"start_ns": int(reader.start_time), "end_ns": int(reader.end_time),
-                    "topics": topics}
+            where = str(self.path)
+            items = library_call(where, "read bag metadata", lambda: sorted(reader.topics.items()))
+            topics = {name: {"type": str(info.msgtype), "count": _count(info.msgcount, where)}
+                      for name, info in items}
+            start, end = library_call(where, "read bag metadata",
+                                      lambda: (reader.start_time, reader.end_time))
+            return {"start_ns": _count(start, where), "end_ns": _count(end, where), "topics": topics}
         finally:
             reader.close()
 
@@ -75,14 +85,15 @@ class BagReader:
             for spec in specs:
                 found = [c for c in reader.connections if c.topic == spec.topic]
                 if not found:
-                    have = ", ".join(sorted(reader.topics)) or "none"
+                    have = ", ".join(sorted(map(str, reader.topics))) or "none"
                     raise InputError(f"{where}: topic {spec.topic!r} not found (topics: {have})")
-                msgtypes[spec.topic] = found[0].msgtype
+                msgtypes[spec.topic] = str(found[0].msgtype)
             collectors, slots = read_topics(specs, msgtypes, where)
             conns = [c for c in reader.connections if c.topic in collectors]
-            with decoding(where, collectors):
-                for conn, log_ns, raw in reader.messages(connections=conns):
-                    collectors[conn.topic].add(reader.deserialize(raw, conn.msgtype), log_ns)
+            what = f"decode {', '.join(collectors)}"
+            for conn, log_ns, raw in library_iter(where, what, reader.messages(connections=conns)):
+                msg = library_call(where, what, reader.deserialize, raw, conn.msgtype)
+                collectors[conn.topic].add(msg, log_ns)
             return finish_topics(collectors, slots)
         finally:
             reader.close()

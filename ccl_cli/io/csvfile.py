@@ -16,6 +16,7 @@ passed through float64.
 from __future__ import annotations
 
 import csv
+import math
 import re
 from pathlib import Path
 from typing import Any
@@ -48,14 +49,27 @@ def unique_names(header: list[str]) -> list[str]:
     return out
 
 
+_I64 = 2**63 - 1
+
+
+def _ns(value: int, v: str, i: int, where: str) -> int:
+    if not -_I64 <= value <= _I64:
+        raise InputError(f"{where}: time value {v[:40]!r} in row {i + 2} is out of range "
+                         "(beyond ±9.2e18 ns)")
+    return value
+
+
 def parse_time_ns(column: list[str], unit: str | None, where: str) -> np.ndarray:
     """Exact int64 nanoseconds from strings. ``unit`` None: integers ≥ 1e15 are ns,
-    everything else seconds."""
+    everything else seconds. Values that are not finite or do not fit int64 ns are an
+    :class:`InputError` naming the row."""
     if all(_INT.match(v) for v in column):
-        ints = np.array([int(v) for v in column], dtype=np.int64)
+        ints = [int(v) for v in column]
         if unit is None:
-            unit = "ns" if np.abs(ints).max(initial=0) >= 10**15 else "s"
-        return ints * UNITS[unit]
+            unit = "ns" if max(map(abs, ints), default=0) >= 10**15 else "s"
+        scale = UNITS[unit]
+        return np.array([_ns(x * scale, v, i, where)
+                         for i, (x, v) in enumerate(zip(ints, column, strict=True))], dtype=np.int64)
     unit = unit or "s"
     scale = UNITS[unit]
     digits = len(str(scale)) - 1
@@ -66,14 +80,17 @@ def parse_time_ns(column: list[str], unit: str | None, where: str) -> np.ndarray
             sign = -1 if m.group(1) == "-" else 1
             whole = int(m.group(2) or 0)
             frac = (m.group(3) + "0" * digits)[:digits] if digits else ""
-            out[i] = sign * (whole * scale + (int(frac) if frac else 0))
+            out[i] = _ns(sign * (whole * scale + (int(frac) if frac else 0)), v, i, where)
         elif _INT.match(v.strip()):
-            out[i] = int(v) * scale
+            out[i] = _ns(int(v) * scale, v, i, where)
         else:
             try:
-                out[i] = int(round(float(v) * scale))
+                value = float(v) * scale
             except ValueError:
-                raise InputError(f"{where}: time value {v!r} in row {i + 2} is not a number") from None
+                raise InputError(f"{where}: time value {v[:40]!r} in row {i + 2} is not a number") from None
+            if not math.isfinite(value):
+                raise InputError(f"{where}: time value {v[:40]!r} in row {i + 2} is not finite")
+            out[i] = _ns(int(round(value)), v, i, where)
     return out
 
 
@@ -88,6 +105,11 @@ class CsvReader:
         self.time_column = time_column
         self.time_unit = time_unit
         self.rate = rate
+        if delimiter is not None and delimiter != "whitespace" and (
+                not isinstance(delimiter, str) or len(delimiter) != 1 or delimiter in "\r\n\"" or
+                delimiter.isalnum()):
+            raise InputError(f"{path}: time.delimiter must be one character (or whitespace), got "
+                             f"{delimiter!r}"[:200])
         self.delimiter = delimiter
         if time_unit is not None and time_unit not in UNITS:
             raise InputError(f"time unit must be one of {', '.join(UNITS)}, got {time_unit!r}")
@@ -106,7 +128,12 @@ class CsvReader:
                 if delim in (" ", "whitespace"):
                     rows = [line.split() for line in f]
                 else:
-                    rows = list(csv.reader(f, delimiter=delim))
+                    reader = csv.reader(f, delimiter=delim)
+                    try:
+                        rows = list(reader)
+                    except csv.Error as exc:  # a field over csv.field_size_limit (128 kB), ...
+                        raise InputError(f"{self.path}: line {reader.line_num}: not a readable CSV row "
+                                         f"({exc})") from None
         except UnicodeDecodeError:
             raise InputError(f"{self.path}: not a text (CSV) file") from None
         except OSError as exc:
@@ -174,7 +201,7 @@ class CsvReader:
         t, col = self._time(names, body) if body else (np.zeros(0, np.int64), "")
         return {"start_ns": int(t[0]) if len(t) else 0, "end_ns": int(t[-1]) if len(t) else 0,
                 "columns": names, "rows": len(body), "time_column": col, "header": not self.headerless,
-                "samples": self.samples}
+                "sample_axis": self.samples}
 
     def read_many(self, specs: list[StreamSpec]) -> list[Stream]:
         return [self.read(spec) for spec in specs]
@@ -201,7 +228,7 @@ class CsvReader:
                                  f"({col[bad]!r})") from None
         labels = [f"{self.path.stem}[{names[k]}]" if self.headerless else names[k] for k in idx]
         return Stream(t_ns, values, labels, str(self.path),
-                      {"columns": [names[k] for k in idx], "time_column": tcol, "samples": self.samples})
+                      {"columns": [names[k] for k in idx], "time_column": tcol, "sample_axis": self.samples})
 
 
 _TIME_KEYS = {n.lower() for n in TIME_NAMES}
@@ -214,9 +241,18 @@ def find_time_column(names: list[str], body: list[list[str]]) -> int | None:
     for cand in TIME_NAMES:
         key = cand.lower()
         for k, name in enumerate(lower):
-            if name == key and body and all(_is_number(r[k]) for r in body):
+            if name == key and body and _numeric_column(body, k):
                 return k
     return None
+
+
+def _numeric_column(body: list[list[str]], k: int) -> bool:
+    """Every value of column ``k`` parses as a number (NumPy's C parser; '' and text fail)."""
+    try:
+        np.asarray([r[k] for r in body], dtype=float)
+    except ValueError:
+        return False
+    return True
 
 
 def _sniff_delimiter(sample: str) -> str:

@@ -14,8 +14,10 @@ readers) goes through :func:`open_hdf5`, which
    matches, the file is exactly what ccl wrote and is opened directly. Any other file
    (foreign, edited with h5py, damaged) is first parsed in a child process with a
    time limit (:func:`probe`): every attribute, every string dataset and every
-   dataset up to ``PROBE_BYTES`` is read there; a child that does not finish within
-   ``timeout`` seconds or dies by a signal means the file is refused, one line, exit 2.
+   dataset up to ``PROBE_BYTES`` is read there. The hangs measured are CPU-bound loops,
+   so the limit is CPU time (``CPU_LIMIT``, via ``RLIMIT_CPU``: robust on a loaded
+   machine where wall time is not), with a wall-clock backstop (``TIMEOUT``). A child
+   over either limit, or killed by a signal, means the file is refused: one line, exit 2.
 
 Typed accessors (:func:`attr_str`, :func:`attr_int`, :func:`attr_float`,
 :func:`attr_strings`, :func:`numeric`) turn every attribute and dataset into a checked
@@ -25,6 +27,7 @@ Python/NumPy value or an :class:`~ccl_cli.errors.InputError` naming the file and
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import functools
 import hashlib
 import json
@@ -45,8 +48,10 @@ from ccl_cli.errors import InputError
 #: user-block size reserved in files ccl writes (HDF5 requires a power of two ≥ 512)
 USERBLOCK = 512
 SEAL = b"\x00ccl-sha256:"
-#: seconds a foreign file may take to be parsed in the child process
-TIMEOUT = float(os.environ.get("CCL_HDF5_TIMEOUT", "10"))
+#: CPU seconds a foreign file may take to be parsed in the child process (a normal
+#: probe takes well under 0.1 s), and the wall-clock backstop
+CPU_LIMIT = int(os.environ.get("CCL_HDF5_CPU_LIMIT", "5"))
+TIMEOUT = float(os.environ.get("CCL_HDF5_TIMEOUT", "60"))
 #: datasets up to this many bytes are read in the child (larger ones: metadata only)
 PROBE_BYTES = 64 << 20
 #: a dataset may not claim more than this many bytes per byte of file (decompression bombs)
@@ -132,10 +137,14 @@ def _walk(f) -> None:
     f.visititems(each)
 
 
-def _probe_child(path: str) -> None:
+def _probe_child(path: str, cpu_limit: int = CPU_LIMIT) -> None:
     """Child side: parse the file; any Python exception is fine (the parent will meet
     it again, and report it), only a hang or a crash of libhdf5 matters."""
+    import resource
+
     import h5py
+
+    resource.setrlimit(resource.RLIMIT_CPU, (cpu_limit, cpu_limit + 1))
 
     with h5py.File(path, "r") as f:
         _walk(f)
@@ -159,7 +168,7 @@ def _wait(pid: int, timeout: float) -> int | None:
     return None
 
 
-def probe(path: Path, timeout: float = TIMEOUT) -> None:
+def probe(path: Path, timeout: float = TIMEOUT, cpu_limit: int = CPU_LIMIT) -> None:
     """Parse ``path`` in a child process first; refuse it if libhdf5 hangs or crashes there.
 
     A fork of this process when it runs one thread (fast: h5py is already loaded);
@@ -173,20 +182,22 @@ def probe(path: Path, timeout: float = TIMEOUT) -> None:
         if pid == 0:  # child: never returns into the caller's code
             try:
                 signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
-                _probe_child(str(path))
+                faulthandler.disable()  # a crash here is reported by the parent, in one line
+                _probe_child(str(path), cpu_limit)
             finally:
                 os._exit(0)
         code = _wait(pid, timeout)
     else:
         cmd = [sys.executable, "-c", "import sys; from ccl_cli.io.h5safe import _probe_child; "
-               "_probe_child(sys.argv[1])", str(path)]
+               "_probe_child(sys.argv[1], int(sys.argv[2]))", str(path), str(cpu_limit)]
         try:
             code = subprocess.run(cmd, timeout=timeout, stdin=subprocess.DEVNULL,
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
         except subprocess.TimeoutExpired:
             code = None
-    if code is None:
-        raise InputError(f"{where}: libhdf5 did not finish parsing the file within {timeout:g} s "
+    if code is None or code == -signal.SIGXCPU:
+        limit = f"{timeout:g} s" if code is None else f"{cpu_limit} s of CPU time"
+        raise InputError(f"{where}: libhdf5 did not finish parsing the file within {limit} "
                          "(damaged HDF5?); refused")
     if code < 0:
         raise InputError(f"{where}: libhdf5 crashed parsing the file (signal {-code}; damaged HDF5?); "
@@ -194,7 +205,7 @@ def probe(path: Path, timeout: float = TIMEOUT) -> None:
 
 
 # -- opening ---------------------------------------------------------------------------------
-def open_hdf5(path: str | Path, what: str = "data file", timeout: float = TIMEOUT):
+def open_hdf5(path: str | Path, what: str = "data file", timeout: float | None = None):
     """An ``h5py.File`` (read-only) for ``path`` after the checks of this module.
 
     ``what`` names the file in messages ("model file", "MATLAB file", ...). Raises
@@ -208,7 +219,7 @@ def open_hdf5(path: str | Path, what: str = "data file", timeout: float = TIMEOU
     if not path.is_file():
         raise InputError(f"{where}: no such {what}")
     if not sealed(path):
-        probe(path, timeout)
+        probe(path, TIMEOUT if timeout is None else timeout)
     try:
         f = h5py.File(path, "r")
     except (OSError, ValueError, RuntimeError) as exc:
@@ -246,7 +257,7 @@ def check_tree(f, where: str) -> None:
                 problem.append(f"/{name} is a virtual dataset (its data lives in other files); "
                                "ccl reads nothing outside the file")
             elif dcpl.get_external_count() > 0:
-                problem.append(f"/{name} stores its data in external file(s); ccl reads nothing outside "
+                problem.append(f"/{name} stores its data in external files; ccl reads nothing outside "
                                "the file")
         return 1 if problem else None  # a non-None value stops the visit
 

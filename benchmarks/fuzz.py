@@ -1,0 +1,529 @@
+"""Mutation fuzzing of every input ccl reads. Prints one JSON object with outcome counts.
+
+Fixtures are written at run time by the real writers (h5py through ccl's own
+write_demonstrations and save_model, rosbags, mcap, mcap-ros1/ros2, csv; see
+tests/writers.py): CSV, canonical HDF5, model files of every method, MCAP (ROS 2 CDR,
+ROS 1, JSON), ROS 1 bags, ROS 2 bags (sqlite3 and mcap storage, and their
+metadata.yaml), pipeline configs (YAML) and batch manifests. Each case mutates one of
+them — byte flips, truncation, zeroed blocks, inserted/deleted bytes, or a structural
+edit (a CSV cell, a YAML/JSON value, an HDF5 attribute or dataset replaced by one of
+another type, shape or value, links and external storage) — and runs the command that
+reads it (``ccl convert`` / ``learn-a`` / ``inspect`` for recordings, ``predict`` for
+models, ``run`` for configs, the manifest planner for manifests) in a forked child with
+a wall-clock limit.
+
+Outcomes per format: ``ok`` (exit 0), ``error`` (exit 2, one ``ccl: error:`` line),
+``exit1`` (a learning failure, one line), ``internal`` (anything but our error classes:
+an internal error, a traceback, a multi-line message), ``crash`` (killed by a signal)
+and ``timeout`` (over ``--timeout`` seconds). Internal errors are grouped by exception
+type and the innermost ccl_cli frame.
+
+Run:  python benchmarks/fuzz.py --cases 20000 [--seed 0] [--timeout 20] [--subprocess 200]
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import copy
+import json
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent / "tests"))
+
+OUTCOMES = ("ok", "error", "exit1", "internal", "crash", "timeout")
+VALUES: list[Any] = [0, -1, 1, 2, 3, 2.5, -0.5, 1e300, -1e300, 10**30, "", "x", "nan", "inf", "1.0", None,
+                     True, False, [], {}, [1, 2], [[1, 2], [3]], {"a": 1}, [0, 1e300], "é" * 3, [None]]
+
+
+# -- fixtures ------------------------------------------------------------------------------------
+def _yaml(data: Any) -> str:
+    import yaml
+
+    return yaml.safe_dump(data, sort_keys=False)
+
+
+def build_fixtures(root: Path) -> list[dict[str, Any]]:
+    """Every base input with the command that reads it. Returns a list of
+    {format, path (the file mutated), argv (with {path}/{out} placeholders) or plan}."""
+    import writers
+
+    from ccl_cli import simulate as sim
+    from ccl_cli.cli import main
+    from ccl_cli.io.hdf5 import write_demonstrations
+
+    root.mkdir(parents=True, exist_ok=True)
+    rec = writers.joint_recording(n=60, gap_after=30)
+    bases: list[dict[str, Any]] = []
+    joints = {"topic": "/joint_states", "field": "position", "joints": writers.JOINTS[:3]}
+    bag_cfg = root / "bag.yaml"
+    bag_cfg.write_text(_yaml({"data": {"state": joints, "action": {"derive": "state", "window": 5},
+                                       "demos": {"split_on_gap": 0.5}},
+                              "learn-a": {"method": "nhat"}, "stages": ["learn-a"],
+                              "output": {"plots": False}}))
+    for name in ("ros1", "ros2-sqlite3", "ros2-mcap", "mcap-ros2", "mcap-ros1", "mcap-json"):
+        d = root / name
+        d.mkdir()
+        out = writers.WRITERS[name](d, rec)
+        fmt = "ros2" if name.startswith("ros2") else "ros1" if name == "ros1" else "mcap"
+        files = [out] if out.is_file() else sorted(p for p in out.iterdir() if p.suffix in (".db3", ".mcap"))
+        for f in files:
+            bases.append({"format": fmt, "name": name, "path": f, "input": out, "config": bag_cfg})
+        if out.is_dir():
+            bases.append({"format": "ros2-metadata", "name": name, "path": out / "metadata.yaml",
+                          "input": out, "config": bag_cfg, "yaml": True})
+    csv_path = writers.write_csv(root / "rec.csv", rec)
+    csv_cfg = root / "csv.yaml"
+    csv_cfg.write_text(_yaml({"data": {"state": {"columns": ["x", "y", "z"]},
+                                       "action": {"derive": "state", "window": 5, "order": 2},
+                                       "time": {"column": "%time", "unit": "ns"},
+                                       "demos": {"split_on_gap": 0.5}},
+                              "learn-a": {"method": "nhat"}, "stages": ["learn-a"],
+                              "output": {"plots": False}}))
+    bases.append({"format": "csv", "name": "csv", "path": csv_path, "input": csv_path, "config": csv_cfg})
+    # canonical HDF5 and models
+    toy = root / "toy2d.h5"
+    write_demonstrations(toy, sim.toy2d(n_demos=4, n_steps=40, seed=0), masks={"train": [0, 1, 2],
+                                                                              "test": [3]})
+    parabola = root / "parabola.h5"
+    write_demonstrations(parabola, sim.toy2d(constraint="parabola", n_demos=4, n_steps=40, seed=1))
+    arm = root / "two_link.h5"
+    write_demonstrations(arm, sim.two_link(n_demos=3, n_steps=30, seed=2))
+    bases.append({"format": "hdf5", "name": "hdf5", "path": toy, "input": toy, "config": None})
+    models = {
+        "nhat": (toy, ["learn-a", "--method", "nhat"]),
+        "per_demo": (toy, ["learn-a", "--method", "nhat", "--per-demo"]),
+        "linear": (parabola, ["learn-a", "--method", "linear", "--regressors", "polynomial",
+                              "--degree", "2"]),
+        "alpha": (parabola, ["learn-a", "--method", "alpha", "--n-centres", "4"]),
+        "lambda": (arm, ["learn-a", "--method", "lambda", "--features", "arm2", "--n-centres", "4"]),
+        "ncl": (toy, ["learn-v", "--n-centres", "4"]),
+        "policy": (toy, ["learn-pi", "--n-centres", "4"]),
+        "lwpi": (toy, ["learn-pi", "--method", "lwpi", "--n-centres", "4"]),
+    }
+    for name, (data, argv) in models.items():
+        out = root / f"model_{name}"
+        null = os.open(os.devnull, os.O_WRONLY)
+        saved = os.dup(2)
+        os.dup2(null, 2)
+        try:
+            code = main([*argv, str(data), "-o", str(out), "-q", "--test-fraction", "0"])
+        finally:
+            os.dup2(saved, 2)
+            os.close(null)
+            os.close(saved)
+        if code == 0:
+            bases.append({"format": "model", "name": f"model-{name}", "path": out / "model.h5",
+                          "input": out / "model.h5", "data": data})
+    # a pipeline config and a batch manifest
+    cfg = root / "pipeline.yaml"
+    cfg.write_text(_yaml({"seed": 0, "data": {"files": [str(toy)], "test": {"fraction": 0.3, "seed": 0}},
+                          "learn-a": {"method": "nhat", "selection": "eigengap"},
+                          "learn-pi": {"method": "pi", "n_centres": 4},
+                          "stages": ["learn-a", {"learn-pi": {"on": "u"}}], "output": {"plots": False}}))
+    bases.append({"format": "config", "name": "config", "path": cfg, "input": cfg, "yaml": True})
+    csv_pipeline = root / "csv_pipeline.yaml"
+    csv_pipeline.write_text(csv_cfg.read_text().replace("data:", f"data:\n  files: [{csv_path}]", 1))
+    bases.append({"format": "config", "name": "config-csv", "path": csv_pipeline, "input": csv_pipeline,
+                  "yaml": True})
+    manifest = root / "batch.yaml"
+    manifest.write_text(_yaml({"out": "runs", "jobs": [
+        {"files": [str(toy), str(parabola)], "config": str(cfg),
+         "overrides": {"learn-a": {"n_constraints": 1}}},
+        {"files": str(arm), "config": str(cfg), "group": True}],
+        "overrides": {str(toy): {"seed": 3}}}))
+    bases.append({"format": "manifest", "name": "manifest", "path": manifest, "input": manifest,
+                  "yaml": True})
+    return bases
+
+
+# -- mutations -------------------------------------------------------------------------------------
+def byte_mutation(raw: bytes, rng: random.Random) -> tuple[str, bytes]:
+    b = bytearray(raw)
+    op = rng.choice(["flip", "flip", "zero", "truncate", "insert", "delete"])
+    if not b:
+        return "empty", bytes(b)
+    if op == "flip":
+        for _ in range(rng.randint(1, 8)):
+            k = rng.randrange(len(b))
+            b[k] ^= 1 << rng.randrange(8)
+    elif op == "zero":
+        k = rng.randrange(len(b))
+        n = rng.choice([1, 4, 16, 64, 512])
+        b[k:k + n] = bytes(len(b[k:k + n]))
+    elif op == "truncate":
+        b = b[:rng.randrange(len(b))]
+    elif op == "insert":
+        k = rng.randrange(len(b))
+        b[k:k] = bytes(rng.randrange(256) for _ in range(rng.randint(1, 16)))
+    else:
+        k = rng.randrange(len(b))
+        del b[k:k + rng.randint(1, 16)]
+    return op, bytes(b)
+
+
+def _paths(obj: Any, prefix: tuple = ()) -> list[tuple]:
+    out = [prefix]
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            out += _paths(v, (*prefix, k))
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            out += _paths(v, (*prefix, i))
+    return out
+
+
+def mutate_tree(data: Any, rng: random.Random) -> Any:
+    """A YAML/JSON value with one node replaced, deleted or given an unknown sibling."""
+    data = copy.deepcopy(data)
+    paths = [p for p in _paths(data) if p]
+    if not paths:
+        return rng.choice(VALUES)
+    path = rng.choice(paths)
+    parent = data
+    for key in path[:-1]:
+        parent = parent[key]
+    op = rng.random()
+    if op < 0.7:
+        parent[path[-1]] = copy.deepcopy(rng.choice(VALUES))
+    elif op < 0.85 and isinstance(parent, dict):
+        del parent[path[-1]]
+    elif isinstance(parent, dict):
+        parent[rng.choice(["unknown", "x", 1, "files"])] = copy.deepcopy(rng.choice(VALUES))
+    else:
+        parent.append(copy.deepcopy(rng.choice(VALUES)))
+    return data
+
+
+def yaml_mutation(raw: bytes, rng: random.Random) -> tuple[str, bytes]:
+    import yaml
+
+    r = rng.random()
+    if r < 0.05:
+        return "alias-bomb", ("a: &a [x, x, x, x, x, x, x, x]\n" + "".join(
+            f"{c}: &{c} [{', '.join(['*' + p] * 8)}]\n" for p, c in zip("abcdefgh", "bcdefghi", strict=True))
+            ).encode()
+    if r < 0.08:
+        n = rng.choice([100, 5000, 30000])
+        return "deep", ("data: " + "[" * n + "]" * n + "\n").encode()
+    if r < 0.11:
+        k = rng.randrange(max(1, len(raw)))
+        return "non-utf8", raw[:k] + bytes([rng.choice([0xC3, 0xE9, 0xFF, 0x80])]) + raw[k:]
+    data = yaml.safe_load(raw)
+    return "tree", yaml.safe_dump(mutate_tree(data, rng), sort_keys=False, allow_unicode=True).encode()
+
+
+def csv_mutation(raw: bytes, rng: random.Random) -> tuple[str, bytes]:
+    lines = raw.decode().splitlines()
+    i = rng.randrange(len(lines))
+    cells = lines[i].split(",")
+    j = rng.randrange(len(cells))
+    special = rng.choice(["1e300", "-1e300", "inf", "-inf", "nan", "", "x", "1e999", "0x10", "１２",
+                          "9" * 400, "x" * 200_000, "1.5.5", "+", "-", '"', "\x00", "1_000", "١"])
+    op = rng.random()
+    if op < 0.6:
+        cells[j] = special
+        lines[i] = ",".join(cells)
+    elif op < 0.7:
+        del lines[i]
+    elif op < 0.8:
+        lines.insert(i, lines[i])
+    elif op < 0.9:
+        lines[i] = ",".join(c for k, c in enumerate(cells) if k != j)
+    else:
+        lines[i], lines[-1] = lines[-1], lines[i]
+    return "cell", ("\n".join(lines) + "\n").encode()
+
+
+def hdf5_mutation(path: Path, rng: random.Random) -> str:
+    """Edit a copy of an HDF5 file in place with h5py (structural)."""
+    import h5py
+    import numpy as np
+
+    with h5py.File(path, "a") as f:
+        objects = [f]
+        f.visititems(lambda name, obj: objects.append(obj))
+        obj = rng.choice(objects)
+        op = rng.random()
+        if op < 0.35 and len(obj.attrs):
+            key = rng.choice(list(obj.attrs))
+            value = obj.attrs[key]
+            text = value.decode() if isinstance(value, bytes) else value
+            if isinstance(text, str) and text[:1] in "[{" and rng.random() < 0.7:
+                try:
+                    obj.attrs[key] = json.dumps(mutate_tree(json.loads(text), rng))
+                    return f"attr-json:{key}"
+                except (json.JSONDecodeError, TypeError, ValueError):
+                    pass
+            new = rng.choice(["1.0", "x", np.array([1, 2]), 1.5, -3, 10**18, np.nan, b"\xff\xfe",
+                              np.array(["a", "b"], dtype=object), np.zeros((2, 2)), True, ""])
+            if isinstance(new, np.ndarray) and new.dtype == object:
+                obj.attrs.create(key, new, dtype=h5py.string_dtype())
+            else:
+                obj.attrs[key] = new
+            return f"attr:{key}"
+        datasets = [o for o in objects if isinstance(o, h5py.Dataset)]
+        if op < 0.75 and datasets:
+            ds = rng.choice(datasets)
+            name, shape = ds.name, ds.shape
+            data = ds[()]
+            del f[name]
+            choice = rng.choice(["nan", "inf", "huge", "string", "3d", "scalar", "empty", "transpose",
+                                 "int", "short", "external", "softlink"])
+            if choice in ("nan", "inf", "huge") and getattr(data, "dtype", None) is not None \
+                    and data.dtype.kind == "f" and data.size:
+                data = np.array(data)
+                data.flat[rng.randrange(data.size)] = {"nan": np.nan, "inf": np.inf, "huge": 1e308}[choice]
+                f[name] = data
+            elif choice == "string":
+                f.create_dataset(name, data=np.array(["a", "b"], dtype=object), dtype=h5py.string_dtype())
+            elif choice == "3d":
+                f[name] = np.zeros((*shape[:2], 2)) if len(shape) else np.zeros((2, 2, 2))
+            elif choice == "scalar":
+                f[name] = 1.0
+            elif choice == "empty":
+                f[name] = np.zeros((0,) + tuple(shape[1:]))
+            elif choice == "transpose" and getattr(data, "ndim", 0) == 2:
+                f[name] = np.asarray(data).T
+            elif choice == "int":
+                f[name] = np.arange(max(1, int(np.prod(shape))) if shape else 1).reshape(shape or ())
+            elif choice == "short" and shape:
+                f[name] = np.asarray(data)[: max(0, shape[0] - 1)]
+            elif choice == "external":
+                f.create_dataset(name, shape=shape or (1,), dtype="f8",
+                                 external=[("/etc/hostname", 0, 8 * max(1, int(np.prod(shape or (1,)))))])
+            else:
+                f[name] = h5py.SoftLink("/nowhere")
+            return f"dataset:{choice}"
+        if op < 0.9 and obj.name != "/":
+            del f[obj.name]
+            return "delete"
+        f["extra"] = h5py.ExternalLink("/etc/hostname", "/x")
+        return "external-link"
+
+
+# -- one case ----------------------------------------------------------------------------------------
+def make_case(base: dict[str, Any], work: Path, rng: random.Random) -> tuple[str, list[str] | None, Path]:
+    """Copy the base input into ``work``, mutate it, and return (mutation, argv, path)."""
+    if work.exists():
+        shutil.rmtree(work)
+    work.mkdir(parents=True)
+    src: Path = base["input"]
+    dst = work / src.name
+    if src.is_dir():
+        shutil.copytree(src, dst)
+    else:
+        shutil.copy(src, dst)
+    target = dst / base["path"].name if src.is_dir() else dst
+    raw = target.read_bytes()
+    fmt = base["format"]
+    r = rng.random()
+    if base.get("yaml") and r < 0.6:
+        mutation, new = yaml_mutation(raw, rng)
+        target.write_bytes(new)
+    elif fmt == "csv" and r < 0.5:
+        mutation, new = csv_mutation(raw, rng)
+        target.write_bytes(new)
+    elif fmt in ("hdf5", "model") and r < 0.5:
+        mutation = hdf5_mutation(target, rng)
+    else:
+        mutation, new = byte_mutation(raw, rng)
+        target.write_bytes(new)
+    out = work / "out"
+    if fmt == "manifest":
+        return mutation, None, dst
+    if fmt == "config":
+        return mutation, ["run", str(dst), "-o", str(out), "-q"], dst
+    if fmt == "model":
+        return mutation, ["predict", str(dst), str(base["data"]), "-o", str(work / "p.csv"), "-q"], dst
+    cfg = ["-c", str(base["config"])] if base.get("config") else []
+    command = rng.choice(["convert", "learn-a", "inspect"])
+    if command == "convert":
+        return mutation, ["convert", str(dst), "-o", str(work / "c.h5"), "-q", *cfg], dst
+    if command == "learn-a":
+        return mutation, ["learn-a", str(dst), "-o", str(out), "-q", *cfg], dst
+    return mutation, ["inspect", str(dst), "--json", "-q", *cfg], dst
+
+
+def _child(argv: list[str] | None, manifest: Path, errfile: str) -> None:
+    """Forked child: run the case, write a verdict line, exit."""
+    fd = os.open(errfile, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
+    os.dup2(fd, 2)
+    os.dup2(fd, 1)
+    os.environ["CCL_DEBUG"] = "1"  # internal errors raise: we record where
+    code = 0
+    try:
+        from ccl_cli.errors import CCLError
+
+        if argv is None:
+            from ccl_cli.batch import plan
+
+            try:
+                plan(manifest)
+            except CCLError as exc:
+                sys.stderr.write(f"ccl: error: {exc.message}\n")
+                code = exc.exit_code
+        else:
+            from ccl_cli.cli import main
+
+            code = main(argv)
+    except BaseException as exc:  # noqa: BLE001 - the verdict of the case
+        frames = [f for f in traceback.extract_tb(exc.__traceback__) if "ccl_cli" in f.filename]
+        where = f"{Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else "?"
+        sys.stderr.write(f"\nINTERNAL {type(exc).__name__} at {where}: {str(exc)[:120]!r}\n")
+        code = 99
+    sys.stderr.flush()
+    sys.stdout.flush()
+    os._exit(code if 0 <= code < 256 else 98)
+
+
+def classify(code: int | None, err: str) -> tuple[str, str]:
+    if code is None:
+        return "timeout", ""
+    if code < 0:
+        return "crash", f"signal {-code}"
+    if "INTERNAL " in err:
+        return "internal", err.split("INTERNAL ", 1)[1].splitlines()[0]
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("ccl: dropped")
+             and "WARNING" not in ln and not ln.startswith("ccl: removed")]
+    if code == 0:
+        return "ok", ""
+    errors = [ln for ln in lines if ln.startswith("ccl: error: ")]
+    if len(errors) != 1 or any("Traceback" in ln for ln in lines):
+        return "internal", f"exit {code}, {len(lines)} lines: {lines[-1][:120] if lines else ''}"
+    if code == 2:
+        return "error", ""
+    if code == 1:
+        return "exit1", ""
+    return "internal", f"exit {code}: {errors[0][:120]}"
+
+
+def run_case(argv: list[str] | None, manifest: Path, errfile: Path, timeout: float
+             ) -> tuple[int | None, float]:
+    t0 = time.monotonic()
+    pid = os.fork()
+    if pid == 0:
+        _child(argv, manifest, str(errfile))
+    while True:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            return os.waitstatus_to_exitcode(status), time.monotonic() - t0
+        if time.monotonic() - t0 > timeout:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            return None, time.monotonic() - t0
+        time.sleep(0.002 if time.monotonic() - t0 < 0.2 else 0.02)
+
+
+def run_subprocess(argv: list[str] | None, manifest: Path, timeout: float) -> tuple[int | None, str]:
+    ccl = shutil.which("ccl") or str(Path(sys.executable).parent / "ccl")
+    cmd = [ccl, *argv] if argv is not None else [ccl, "batch", str(manifest), "-q", "--json"]
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return None, ""
+    return proc.returncode, proc.stderr
+
+
+def fuzz(cases: int, seed: int = 0, timeout: float = 20.0, subprocess_cases: int = 0,
+         keep: Path | None = None, formats: list[str] | None = None,
+         progress: Path | None = None) -> dict[str, Any]:
+    """Run ``cases`` mutated inputs (and ``subprocess_cases`` of them through the real
+    ``ccl`` executable); return the outcome counts and the internal-error groups."""
+    import h5py  # noqa: F401 - loaded once before forking
+    import yaml  # noqa: F401
+
+    import ccl_cli.batch  # noqa: F401
+    import ccl_cli.cli  # noqa: F401
+    import ccl_cli.io  # noqa: F401
+    import ccl_cli.pipeline  # noqa: F401
+
+    rng = random.Random(seed)
+    tmp = Path(tempfile.mkdtemp(prefix="ccl-fuzz-", dir=keep.mkdir(parents=True, exist_ok=True) or keep
+                                if keep else None))
+    t_start = time.monotonic()
+    try:
+        bases = build_fixtures(tmp / "fixtures")
+        if formats:
+            bases = [b for b in bases if b["format"] in formats]
+        counts: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+        groups: collections.Counter = collections.Counter()
+        examples: dict[str, str] = {}
+        slowest: list[tuple[float, str, str]] = []
+        sub_counts: collections.Counter = collections.Counter()
+        errfile = tmp / "stderr.txt"
+
+        def result(done: int) -> dict[str, Any]:
+            total: collections.Counter = collections.Counter()
+            for c in counts.values():
+                total.update(c)
+            return {"benchmark": "fuzz", "cases": done, "seed": seed, "timeout_s": timeout,
+                    "seconds": round(time.monotonic() - t_start, 1),
+                    "total": {k: total.get(k, 0) for k in OUTCOMES},
+                    "per_format": {f: {k: c.get(k, 0) for k in OUTCOMES} for f, c in sorted(counts.items())},
+                    "through_ccl_executable": {k: sub_counts.get(k, 0) for k in OUTCOMES},
+                    "internal_groups": groups.most_common(60), "examples": examples,
+                    "slowest": slowest}
+
+        for i in range(cases):
+            if progress is not None and i and i % 200 == 0:
+                progress.write_text(json.dumps(result(i)) + "\n")
+            base = bases[i % len(bases)] if i < len(bases) else rng.choice(bases)
+            mutation, argv, dst = make_case(base, tmp / "case", rng)
+            through_ccl = i < subprocess_cases
+            if through_ccl:
+                code, err = run_subprocess(argv, dst, timeout)
+                if argv is None and code == 1 and "failed" in err:  # batch ran: failures are per job
+                    code = 0
+                seconds = 0.0
+            else:
+                code, seconds = run_case(argv, dst, errfile, timeout)
+                err = errfile.read_text(errors="replace") if errfile.exists() else ""
+            outcome, detail = classify(code, err)
+            counts[base["format"]][outcome] += 1
+            if through_ccl:
+                sub_counts[outcome] += 1
+            slowest = sorted([*slowest, (round(seconds, 2), base["name"], mutation)], reverse=True)[:5]
+            if outcome in ("internal", "crash", "timeout"):
+                key = f"{base['format']}: {detail}"[:200]
+                groups[key] += 1
+                if keep is not None and key not in examples:
+                    keep.mkdir(parents=True, exist_ok=True)
+                    name = f"case_{i}_{base['name']}"
+                    shutil.copytree(tmp / "case", keep / name, dirs_exist_ok=True)
+                    (keep / name / "argv.json").write_text(json.dumps({"argv": argv, "mutation": mutation}))
+                    examples[key] = str(keep / name)
+        return result(cases)
+    finally:
+        if keep is None:  # with --keep the fixtures stay, so that kept cases can be re-run
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cases", type=int, default=2000)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--timeout", type=float, default=20.0)
+    ap.add_argument("--subprocess", type=int, default=0, help="cases run through the real ccl executable")
+    ap.add_argument("--keep", type=Path, default=None, help="copy one example per failure group here")
+    ap.add_argument("--formats", default=None, help="comma-separated subset of formats")
+    ap.add_argument("--progress", type=Path, default=None, help="write partial results here every 200 cases")
+    args = ap.parse_args()
+    result = fuzz(args.cases, args.seed, args.timeout, args.subprocess, args.keep,
+                  args.formats.split(",") if args.formats else None, args.progress)
+    sys.stdout.write(json.dumps(result) + "\n")
+
+
+if __name__ == "__main__":
+    main()
