@@ -119,10 +119,11 @@ ConvOpt = Annotated[Convention | None, typer.Option("--convention",
                                                     help="Metric normalisers (docs/metrics.md).",
                                                     show_default=_default("metrics", "convention"))]
 CentresOpt = Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres (also sets "
-                                                "basis.n_centres of a basis mapping).",
+                                                "basis.n_centres of a basis mapping; no basis search).",
                                                 show_default="config, else the stage's default")]
 BasisOpt = Annotated[BasisKind | None, typer.Option("--basis", help="Feature map (sets basis.kind of a "
-                                                    "basis mapping).", show_default="config, else rbf")]
+                                                    "basis mapping; no basis search).",
+                                                    show_default="config, else rbf")]
 
 
 def _version(value: bool) -> None:
@@ -167,11 +168,14 @@ def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
     if as_json:
         sys.stdout.write(json.dumps(summary, default=str) + "\n")
         return
-    if quiet or _QUIET[0]:
-        return
+    quiet = quiet or _QUIET[0]
     val = summary.get("validation")
-    if val:
+    # -q prints nothing on success, except a held-out test set that is not whole demonstrations
+    # (time blocks of continuous recordings): a choice the user must know about, like a warning
+    if val and (not quiet or val.get("kind") == "blocks"):
         typer.echo(f"validation: {val.get('kind')} ({val.get('reason')})", err=True)
+    if quiet:
+        return
 
     def line(label: str, entry: dict[str, Any]) -> str:
         parts = [label]

@@ -346,6 +346,7 @@ def test_flag_overrides_a_basis_mapping_at_any_depth(capsys, tmp_path):
     cfg = C.merge(C.load(cfg_path), {"learn-v": {"n_centres": 25, "basis": "rbf"}})
     opts = C.stage_options(cfg, "learn-v", {"basis": {"kind": "rbf", "n_centres": 9, "centres": "grid"}})
     assert opts["basis"] == {"kind": "rbf", "n_centres": 25, "centres": "grid"} and opts["n_centres"] == 25
+    assert opts["tune"] is False  # the basis given on the command line is used, not searched over
 
 
 def test_flag_errors_are_one_line_and_name_the_flag(capsys, tmp_path):
