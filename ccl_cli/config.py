@@ -352,7 +352,8 @@ FLAGS = "command line"
 def _override(opts: dict, flags: dict) -> dict:
     """``opts`` with a stage's flag values on top, at any depth: ``--n-centres`` also sets
     ``basis.n_centres`` and ``--basis KIND`` sets ``basis.kind`` when the basis is a mapping
-    (so a flag is never shadowed by, nor wipes out, a basis mapping of the config)."""
+    (so a flag is never shadowed by, nor wipes out, a basis mapping of the config); either
+    flag switches the stage's basis search off (``tune: false``), so the given basis is used."""
     out = deep_merge(opts, {k: v for k, v in flags.items() if k != "basis"})
     if "basis" in flags:
         old = opts.get("basis")
@@ -360,6 +361,8 @@ def _override(opts: dict, flags: dict) -> dict:
             isinstance(flags["basis"], str) else copy.deepcopy(flags["basis"])
     if "n_centres" in flags and isinstance(out.get("basis"), dict):
         out["basis"] = {**out["basis"], "n_centres": flags["n_centres"]}
+    if ("n_centres" in flags or "basis" in flags) and "tune" not in flags:
+        out["tune"] = False  # a basis given on the command line is used, not searched over
     return out
 
 
