@@ -27,7 +27,7 @@ def run_main(capsys, *args):
 
 
 def one_line_error(err: str) -> str:
-    lines = [ln for ln in err.splitlines() if ln.strip()]
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("ccl: warning: ")]
     assert len(lines) == 1 and lines[0].startswith("ccl: error: "), err
     assert "internal error" not in err and "Traceback" not in err
     return lines[0]
