@@ -91,7 +91,8 @@ def _short(names: list[str]) -> list[str]:
 
 def describe_data(part: str, d: Demonstrations, ids: np.ndarray | None = None) -> str:
     """Which demonstrations a figure shows: all of ``d`` (``ids`` None) or the given ones."""
-    what = "held-out (test)" if part == "test" else "training"
+    what = {"test": "held-out (test)", "train": "training",
+            "test-blocks": "held-out (test) time blocks of", "train-blocks": "training samples of"}[part]
     if ids is None:
         return f"the {d.n_demos} {what} demonstrations"
     shown = ", ".join(str(int(i)) for i in ids[:MAX_DEMOS]) + (", …" if len(ids) > MAX_DEMOS else "")
@@ -367,10 +368,12 @@ def make_plots(outdir: Path, pipeline) -> list[tuple[str, str]]:
             plots.append((caption, f"plots/{name}"))
 
     planar = shown.n_state == 2 and shown.n_action == 2
+    # a held-out set of time blocks (continuous recordings) is named so in every title
+    blocks = "-blocks" if (getattr(pipeline, "split_info", None) or {}).get("kind") == "blocks" else ""
     for r in pipeline.results:
         if r.model is None:
             continue
-        d, dpart = shown, part
+        d, dpart = shown, part + blocks
         title = f"{r.name} ({r.method})"
         if r.name == "learn-v":
             w = r.model.predict(d.X)
@@ -384,8 +387,8 @@ def make_plots(outdir: Path, pipeline) -> list[tuple[str, str]]:
             save(time_figure(plt, f"{title}: null-space component w", dpart, d, arrows), "learn-v-time.png",
                  "learn-v: learnt w̃ against the observations over time")
         elif r.name == "learn-a":
-            if isinstance(r.model, PerDemonstration) and dpart != "train":
-                d, dpart = pipeline.split.train, "train"
+            if isinstance(r.model, PerDemonstration) and not dpart.startswith("train"):
+                d, dpart = pipeline.split.train, "train" + blocks
             N = r.model.projection(d.X, d.demo)
             v = task_part(r.model, d.X, d.demo)
             Y = d.U if v is None else d.U - v
