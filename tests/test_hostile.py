@@ -495,16 +495,6 @@ def test_read_only_output_folder_is_one_line(capsys, fixtures, tmp_path):
 
 
 # -- faults ------------------------------------------------------------------------------------
-def _importing_ccl(pid: int) -> bool:
-    """True once ``pid`` runs ccl's code: numpy (imported by ccl_cli, after its Ctrl-C
-    guard) is mapped. Before that only the interpreter's own start-up runs, whose
-    Ctrl-C behaviour ccl cannot change."""
-    try:
-        return "_multiarray_umath" in Path(f"/proc/{pid}/maps").read_text()
-    except OSError:
-        return False
-
-
 @pytest.mark.parametrize("delay", [0.0, 0.05, 0.15, 0.4])
 def test_ctrl_c_at_any_moment_is_130_and_one_line(fixtures, tmp_path, delay):
     """SIGINT while ccl imports its modules (delay 0: the first ones), reads, learns or
@@ -512,13 +502,11 @@ def test_ctrl_c_at_any_moment_is_130_and_one_line(fixtures, tmp_path, delay):
     import signal
     import subprocess
 
-    from tests_paths import CCL
+    from tests_paths import CCL, wait_for_ccl_code
 
     proc = subprocess.Popen([CCL, "learn-v", str(fixtures["data"]), "-o", str(tmp_path / "o"), "-q"],
                             stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 60
-    while not _importing_ccl(proc.pid) and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.001)
+    wait_for_ccl_code(proc)
     time.sleep(delay)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
