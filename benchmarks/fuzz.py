@@ -361,6 +361,7 @@ def _child(argv: list[str] | None, manifest: Path, errfile: str) -> None:
     fd = os.open(errfile, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
     os.dup2(fd, 2)
     os.dup2(fd, 1)
+    sys.stdout = sys.stderr = open(fd, "w", buffering=1, closefd=False)  # also under pytest's capture
     os.environ["CCL_DEBUG"] = "1"  # internal errors raise: we record where
     code = 0
     try:

@@ -438,8 +438,8 @@ def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite
         allowed = " or ".join(f"{d}-D" for d in ndim)
         raise InputError(f"{label} must be {allowed}, got shape {ds.shape}")
     nbytes = int(np.prod(ds.shape, dtype=np.float64)) * 8
-    limit = max(64 << 20, MAX_EXPANSION * os.path.getsize(ds.file.filename))
-    if nbytes > limit:
+    max_bytes = max(64 << 20, MAX_EXPANSION * os.path.getsize(ds.file.filename))
+    if nbytes > max_bytes:
         raise InputError(f"{label} claims shape {ds.shape} ({nbytes} bytes), far more than the file holds")
     try:
         value = np.asarray(ds[()], dtype=np.float64)
