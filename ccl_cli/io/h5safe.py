@@ -269,8 +269,10 @@ def check_tree(f, where: str) -> None:
 
     try:
         f.visititems_links(visit)
-    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
-        raise InputError(f"{where}: damaged HDF5 structure ({_first(exc)})") from None
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError, SystemError) as exc:
+        # SystemError: h5py's own link lookup failed inside libhdf5's visit callback
+        cause = exc.__cause__ or exc.__context__ if isinstance(exc, SystemError) else exc
+        raise InputError(f"{where}: damaged HDF5 structure ({_first(cause or exc)})") from None
     if problem:
         raise InputError(f"{where}: {problem[0]}")
 
