@@ -98,7 +98,7 @@ def policy_problem(n: int, seed: int):
 
 
 # -- one benchmark row ----------------------------------------------------------------------
-def run(learner: str, n: int, k: int | None = None) -> None:
+def run(learner: str, n: int, k: int | None = None, options: dict | None = None) -> None:
     test_seed = 1000
     if learner == "nhat":
         tr, te = toy(n, constraint="fixed")
@@ -130,7 +130,7 @@ def run(learner: str, n: int, k: int | None = None) -> None:
         problem, metric = "two_link, 16 RBFs", "test NPPE"
     elif learner == "ncl":
         tr, te = toy(n, constraint="fixed", task=True)
-        fit = lambda: NullSpaceComponent(n_centres=k).fit(tr.X, tr.U)  # noqa: E731
+        fit = lambda: NullSpaceComponent(n_centres=k, **(options or {})).fit(tr.X, tr.U)  # noqa: E731
         inputs = tr.X.nbytes + tr.U.nbytes
         floor_rows = lambda m, s: kron_rows(m.basis_.transform(tr.X[s]), 2)  # noqa: E731
         problem, metric = f"toy2d fixed + task, {k} RBFs", "test NUPE(w)"
@@ -160,24 +160,26 @@ def run(learner: str, n: int, k: int | None = None) -> None:
     else:
         err = nupe(te.truth["pi"], model.predict(te.X)).value
     floor = min(gram_floor(lambda s: floor_rows(model, s), tr.n_samples) for _ in range(3))
-    emit(learner=learner, problem=problem, N=tr.n_samples, K=k, seconds=round(seconds, 4),
+    emit(learner=learner, options=options or {}, problem=problem, N=tr.n_samples, K=k,
+         seconds=round(seconds, 4),
          peak_mb=round(peak / 2**20, 2), mem_ratio=round(peak / inputs, 2),
          test_error=float(f"{err:.4g}"), metric=metric, floor_seconds=round(floor, 5),
          floor_ratio=round(seconds / floor, 1))
 
 
-PLAN = [  # (learner, N values, K)
-    ("nhat", (10_000, 100_000, 1_000_000), None),
-    ("linear", (10_000, 100_000, 1_000_000), None),
-    ("pi", (10_000, 100_000, 1_000_000), None),
-    ("pi-weighted", (10_000, 100_000, 1_000_000), None),
-    ("pi-coupled", (10_000, 100_000, 1_000_000), None),
-    ("lwpi", (10_000, 100_000, 1_000_000), None),
-    ("dpl", (10_000, 100_000, 1_000_000), None),
-    ("ncl", (10_000, 100_000, 1_000_000), 16),
-    ("ncl", (10_000,), 256),
-    ("alpha", (10_000, 100_000), None),
-    ("lambda", (10_000, 100_000), None),
+PLAN = [  # (learner, N values, K, options)
+    ("nhat", (10_000, 100_000, 1_000_000), None, None),
+    ("linear", (10_000, 100_000, 1_000_000), None, None),
+    ("pi", (10_000, 100_000, 1_000_000), None, None),
+    ("pi-weighted", (10_000, 100_000, 1_000_000), None, None),
+    ("pi-coupled", (10_000, 100_000, 1_000_000), None, None),
+    ("lwpi", (10_000, 100_000, 1_000_000), None, None),
+    ("dpl", (10_000, 100_000, 1_000_000), None, None),
+    ("ncl", (10_000, 100_000, 1_000_000), 16, None),
+    ("ncl", (10_000, 100_000, 1_000_000), 16, {"polish": False}),
+    ("ncl", (10_000,), 256, {"polish": False}),  # with polish: ~1000 passes, see issue 10 notes
+    ("alpha", (10_000, 100_000), None, None),
+    ("lambda", (10_000, 100_000), None, None),
 ]
 
 
@@ -191,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
     only = set(filter(None, args.only.split(",")))
     sizes = {int(float(s)) for s in args.sizes.split(",") if s}
     ks = {int(s) for s in args.k.split(",") if s}
-    for learner, ns, k in PLAN:
+    for learner, ns, k, options in PLAN:
         if only and learner not in only:
             continue
         if ks and k is not None and k not in ks:
@@ -203,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             if sizes and n not in sizes:
                 continue
-            run(learner, n, k)
+            run(learner, n, k, options)
     return 0
 
 

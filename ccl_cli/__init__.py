@@ -2,12 +2,15 @@
 
 Learn, from demonstrations ``(x_n, u_n)``, the constraint ``A(x)`` a motion obeys,
 the split ``u = v + w`` of each action into task- and null-space parts, and the
-unconstrained null-space policy ``pi(x)``. See ``ALGORITHMS.md`` for the equations.
+unconstrained null-space policy ``pi(x)``. See docs/methods.md for the equations.
 """
+
+from __future__ import annotations
 
 import os as _os
 import signal as _signal
 import sys as _sys
+from typing import Any
 
 
 def _interrupted_while_starting(signum, frame) -> None:  # noqa: ANN001
@@ -22,9 +25,17 @@ if _sys.argv and _os.path.basename(_sys.argv[0]) == "ccl" and \
         _signal.getsignal(_signal.SIGINT) is _signal.default_int_handler:
     _signal.signal(_signal.SIGINT, _interrupted_while_starting)
 
-from ccl_cli.dataset import Demonstrations  # noqa: E402 - after the Ctrl-C guard
-from ccl_cli.errors import CCLError  # noqa: E402
+from ccl_cli.errors import CCLError  # noqa: E402 - after the Ctrl-C guard
 
 __version__ = "0.1.0"
 
 __all__ = ["CCLError", "Demonstrations", "__version__"]
+
+
+def __getattr__(name: str) -> Any:
+    """``Demonstrations`` on first use, so ``import ccl_cli`` (and ``ccl --help``) stays light."""
+    if name == "Demonstrations":
+        from ccl_cli.dataset import Demonstrations
+
+        return Demonstrations
+    raise AttributeError(f"module 'ccl_cli' has no attribute {name!r}")

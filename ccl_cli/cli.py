@@ -12,17 +12,58 @@ import logging
 import os
 import sys
 import time
+from enum import Enum
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer vendors its click
+from typer.core import TyperCommand, TyperGroup
 
-from ccl_cli.errors import CCLError, InputError
+from ccl_cli.config import CHOICES, DEFAULTS
+from ccl_cli.errors import CCLError, ConfigError, InputError
 
 log = logging.getLogger("ccl")
 
+def _one_line(ctx: Any, exc: Exception) -> InputError:
+    """A usage error (bad flag value, unknown option or command) as one line, exit 2."""
+    message = exc.format_message().replace("Value error, ", "")
+    return InputError(f"{ctx.command_path}: {message} (see {ctx.command_path} --help)")
+
+
+class _Command(TyperCommand):
+    """Commands whose usage errors are one line (``ccl: error: ccl learn-a: Invalid value ...``)."""
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        try:
+            return super().parse_args(ctx, args)
+        except NoArgsIsHelpError:
+            raise
+        except UsageError as exc:
+            raise _one_line(ctx, exc) from None
+
+
+class _Group(TyperGroup):
+    """The ``ccl`` group: an unknown command or a bad top-level option is one line too."""
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        try:
+            return super().parse_args(ctx, args)
+        except NoArgsIsHelpError:
+            raise
+        except UsageError as exc:
+            raise _one_line(ctx, exc) from None
+
+    def resolve_command(self, ctx: Any, args: list[str]) -> Any:
+        try:
+            return super().resolve_command(ctx, args)
+        except UsageError as exc:
+            raise _one_line(ctx, exc) from None
+
+
 app = typer.Typer(
     name="ccl",
+    cls=_Group,
     help="Constraint Consistent Learning: learn constraints A(x), null-space components w(x) and "
          "null-space policies π(x) from demonstrations (HDF5, CSV, MCAP, ROS 1/2 bags).",
     no_args_is_help=True,
@@ -36,16 +77,68 @@ DataArg = Annotated[list[Path] | None, typer.Argument(
     help="Recordings (files, bag directories or globs); overrides data.files of the config.",
     show_default=False)]
 ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="YAML config (see README).")]
-OutOpt = Annotated[Path | None, typer.Option("--out", "-o", help="Output directory.")]
+OutOpt = Annotated[Path | None, typer.Option("--out", "-o", help="Output directory.",
+                                             show_default="runs/<config name or command>")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite existing outputs.")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="Only warnings and errors on stderr.")]
-SeedOpt = Annotated[int | None, typer.Option("--seed", help="Seed of every random choice.")]
-TestOpt = Annotated[float | None, typer.Option("--test-fraction",
-                                               help="Fraction of demonstrations held out (0: none).")]
-ConvOpt = Annotated[str | None, typer.Option("--convention", help="Metric normalisers: ccl or original.")]
-CentresOpt = Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres.")]
-BasisOpt = Annotated[str | None, typer.Option("--basis", help="Feature map: rbf or linear.")]
+SeedOpt = Annotated[int | None, typer.Option("--seed", help="Seed of every random choice.",
+                                             show_default=f"config, else {DEFAULTS['seed']}")]
+TestOpt = Annotated[float | None, typer.Option(
+    "--test-fraction", help="Fraction of demonstrations held out (0: none).",
+    show_default=f"config, else {DEFAULTS['data']['test']['fraction']}")]
+
+
+def _choices(name: str, section: str, key: str) -> type[Enum]:
+    """An Enum of the config's allowed values of ``section.key`` (shown as choices in --help)."""
+    return Enum(name, [(v.replace("-", "_"), v) for v in CHOICES[(section, key)]], type=str)
+
+
+def _default(section: str, key: str, otherwise: str = "the method's default") -> str:
+    """The config default of ``section.key`` as --help shows it (flags only override the config)."""
+    value = (DEFAULTS.get(section) or {}).get(key)
+    return "config, else the method's default" if value is None and otherwise is None else \
+        f"config, else {value if value is not None else otherwise}"
+
+
+def _value(v: Any) -> Any:
+    return v.value if isinstance(v, Enum) else v
+
+
+Convention = _choices("Convention", "metrics", "convention")
+LearnAMethod = _choices("LearnAMethod", "learn-a", "method")
+Selection = _choices("Selection", "learn-a", "selection")
+PiMethod = _choices("PiMethod", "learn-pi", "method")
+Projections = _choices("Projections", "learn-pi", "projections")
+BasisKind = Enum("BasisKind", [("rbf", "rbf"), ("linear", "linear")], type=str)
+Features = Enum("Features", [("arm2", "arm2"), ("arm7", "arm7")], type=str)
+Regressors = Enum("Regressors", [("identity", "identity"), ("rbf", "rbf"), ("polynomial", "polynomial")],
+                  type=str)
+
+ConvOpt = Annotated[Convention | None, typer.Option("--convention",
+                                                    help="Metric normalisers (docs/metrics.md).",
+                                                    show_default=_default("metrics", "convention"))]
+CentresOpt = Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres (also sets "
+                                                "basis.n_centres of a basis mapping; no basis search).",
+                                                show_default="config, else the stage's default")]
+BasisOpt = Annotated[BasisKind | None, typer.Option("--basis", help="Feature map (sets basis.kind of a "
+                                                    "basis mapping; no basis search).",
+                                                    show_default="config, else rbf")]
+
+
+def _version(value: bool) -> None:
+    if value:
+        from ccl_cli import __version__
+
+        typer.echo(f"ccl {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(version: Annotated[bool, typer.Option("--version", callback=_version, is_eager=True,
+                                                help="Print the version and exit.")] = False) -> None:
+    """Constraint Consistent Learning: learn constraints A(x), null-space components w(x) and
+    null-space policies π(x) from demonstrations (HDF5, CSV, MCAP, ROS 1/2 bags)."""
 
 
 _QUIET = [False]  # set by every command through _logging: -q silences the summaries too
@@ -59,7 +152,7 @@ def _logging(quiet: bool) -> None:
 
 def _common(seed, test_fraction, convention) -> dict[str, Any]:
     return {"seed": seed, "data": {"test": {"fraction": test_fraction}},
-            "metrics": {"convention": convention}}
+            "metrics": {"convention": _value(convention)}}
 
 
 def _config(path: Path | None, overrides: dict[str, Any]):
@@ -75,7 +168,13 @@ def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
     if as_json:
         sys.stdout.write(json.dumps(summary, default=str) + "\n")
         return
-    if quiet or _QUIET[0]:
+    quiet = quiet or _QUIET[0]
+    val = summary.get("validation")
+    # -q prints nothing on success, except a held-out test set that is not whole demonstrations
+    # (time blocks of continuous recordings): a choice the user must know about, like a warning
+    if val and (not quiet or val.get("kind") == "blocks"):
+        typer.echo(f"validation: {val.get('kind')} ({val.get('reason')})", err=True)
+    if quiet:
         return
 
     def line(label: str, entry: dict[str, Any]) -> str:
@@ -154,16 +253,23 @@ def _bar(label: str, total: int, quiet: bool):
 @app.command("learn-a")
 def learn_a(
     data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None,
-    method: Annotated[str | None, typer.Option(help="nhat (constant A, closed form), alpha "
-                                               "(state-dependent), lambda (known Φ), linear (closed form).")]
+    method: Annotated[LearnAMethod | None, typer.Option(
+        help="nhat (constant A, closed form), alpha (state-dependent), lambda (known Φ), linear "
+             "(closed form, docs/methods.md).", show_default=_default("learn-a", "method"))] = None,
+    selection: Annotated[Selection | None, typer.Option(
+        help="How the number of constraints s is chosen.", show_default=_default("learn-a", "selection"))]
     = None,
-    selection: Annotated[str | None, typer.Option(help="How s is chosen: eigengap, threshold, cv.")] = None,
-    n_constraints: Annotated[int | None, typer.Option(help="Fix the number of constraints s.")] = None,
-    features: Annotated[str | None, typer.Option(help="lambda: built-in Φ, arm2 or arm7.")] = None,
-    regressors: Annotated[str | None, typer.Option(help="linear: identity, rbf or polynomial.")] = None,
-    degree: Annotated[int | None, typer.Option(help="linear: polynomial degree.")] = None,
-    per_demo: Annotated[bool | None, typer.Option("--per-demo/--pooled",
-                                                  help="One constraint per demonstration.")] = None,
+    n_constraints: Annotated[int | None, typer.Option(help="Fix the number of constraints s.",
+                                                      show_default="chosen by --selection")] = None,
+    features: Annotated[Features | None, typer.Option(help="lambda: built-in Φ.", show_default="config")]
+    = None,
+    regressors: Annotated[Regressors | None, typer.Option(help="linear: regressors of A(x).",
+                                                          show_default="config, else identity")] = None,
+    degree: Annotated[int | None, typer.Option(help="linear: polynomial degree.",
+                                               show_default="config, else the method's default")] = None,
+    per_demo: Annotated[bool | None, typer.Option("--per-demo/--pooled", help="One constraint per "
+                                                  "demonstration.", show_default="config, else pooled")]
+    = None,
     n_centres: CentresOpt = None, basis: BasisOpt = None,
     seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
@@ -171,9 +277,9 @@ def learn_a(
     """Learn the constraint A(x) (and its projection N = I − A⁺A) from observed actions."""
     _logging(quiet)
     over = _common(seed, test_fraction, convention) | {"learn-a": {
-        "method": method, "selection": selection, "n_constraints": n_constraints, "features": features,
-        "regressors": regressors, "degree": degree, "per_demo": per_demo, "n_centres": n_centres,
-        "basis": basis}}
+        "method": _value(method), "selection": _value(selection), "n_constraints": n_constraints,
+        "features": _value(features), "regressors": _value(regressors), "degree": degree,
+        "per_demo": per_demo, "n_centres": n_centres, "basis": _value(basis)}}
     cfg = _config(config, over)
     _learn("learn-a", [("learn-a", {})], cfg, data, out, force, json_out, quiet)
 
@@ -188,16 +294,18 @@ def learn_v(
     """Learn the null-space component w(x) of u = v + w (and so the task part v = u − w)."""
     _logging(quiet)
     cfg = _config(config, _common(seed, test_fraction, convention) | {
-        "learn-v": {"n_centres": n_centres, "basis": basis}})
+        "learn-v": {"n_centres": n_centres, "basis": _value(basis)}})
     _learn("learn-v", [("learn-v", {})], cfg, data, out, force, json_out, quiet)
 
 
 @app.command("learn-pi")
 def learn_pi(
     data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None,
-    method: Annotated[str | None, typer.Option(help="pi, pi-weighted, pi-coupled, lwpi or dpl.")] = None,
-    projections: Annotated[str | None, typer.Option(help="pi-coupled: true (ground truth) or learnt.")]
-    = None,
+    method: Annotated[PiMethod | None, typer.Option(help="Policy learner (docs/methods.md).",
+                                                    show_default=_default("learn-pi", "method"))] = None,
+    projections: Annotated[Projections | None, typer.Option(
+        help="pi-coupled: projections from the ground truth (true) or a learn-a stage (learnt).",
+        show_default=_default("learn-pi", "projections"))] = None,
     n_centres: CentresOpt = None, basis: BasisOpt = None,
     seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
@@ -205,7 +313,8 @@ def learn_pi(
     """Learn the unconstrained null-space policy π(x) from demonstrations under varying constraints."""
     _logging(quiet)
     cfg = _config(config, _common(seed, test_fraction, convention) | {
-        "learn-pi": {"method": method, "projections": projections, "n_centres": n_centres, "basis": basis}})
+        "learn-pi": {"method": _value(method), "projections": _value(projections), "n_centres": n_centres,
+                     "basis": _value(basis)}})
     _learn("learn-pi", [("learn-pi", {})], cfg, data, out, force, json_out, quiet)
 
 
@@ -235,7 +344,7 @@ def evaluate(
     from ccl_cli.runner import read_data
 
     _logging(quiet)
-    cfg = _config(config, {"metrics": {"convention": convention}})
+    cfg = _config(config, {"metrics": {"convention": _value(convention)}})
     dataset, _ = read_data(cfg, data)
     summary = evaluate_saved(model, dataset, cfg["metrics"]["convention"], out, force)
     if json_out:
@@ -273,8 +382,8 @@ def predict(
 # -- data commands --------------------------------------------------------------------------
 @app.command("simulate")
 def simulate(
-    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7, varying_constraint, tracker_plane or "
-                                                "tracker_sphere.")],
+    problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7, varying_constraint, tracker_plane, "
+                                                "tracker_sphere or arm_at_rest.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     seed: Annotated[int, typer.Option(help="Seed.")] = 0,
     noise: Annotated[float | None, typer.Option(help="Std of noise on u (tracker_*: on positions, m).")]
@@ -323,8 +432,9 @@ def simulate(
     if test_fraction > 0:
         train, test = data.split(test_fraction, seed)
         masks = {"train": list(train.demo_ids), "test": list(test.demo_ids)}
-    write_demonstrations(out, data, provenance={"simulate": problem, "seed": seed, **kwargs}, masks=masks,
-                         force=force)
+    derivative = {"derivative": data.metadata["derivative"]} if "derivative" in data.metadata else {}
+    write_demonstrations(out, data, provenance={"simulate": problem, "seed": seed, **kwargs, **derivative},
+                         masks=masks, force=force)
     _wrote("simulate", out, data, json_out)
 
 
@@ -407,8 +517,8 @@ def batch(
     = None,
     config: ConfigOpt = None,
     out: OutOpt = None,
-    workers: Annotated[int | None, typer.Option("--workers", "-j", help="Local processes (default: cores).")]
-    = None,
+    workers: Annotated[int | None, typer.Option("--workers", "-j", help="Local processes.",
+                                                show_default="the number of cores")] = None,
     scheduler: Annotated[str | None, typer.Option(help="Address of a running Dask scheduler.")] = None,
     force: Annotated[bool, typer.Option("--force", help="Re-run jobs whose outputs are up to date.")] = False,
     json_out: JsonOpt = False, quiet: QuietOpt = False,
@@ -418,7 +528,10 @@ def batch(
 
     _logging(quiet)
     t0 = time.perf_counter()
+    if manifest is None and files and config is None:
+        raise ConfigError("batch --files needs --config/-c: a pipeline YAML with a stages: list")
     jobs, manifest_out = plan(manifest, files, str(config) if config else None)
+    _check_plan(jobs)
     outdir = out or manifest_out or Path("runs") / "batch"
     bar = _bar("jobs", len(jobs), quiet)
     try:
@@ -430,12 +543,32 @@ def batch(
     summary["outdir"] = str(outdir)
     if json_out:
         _emit({k: v for k, v in summary.items() if k != "results"}, True)
-    else:
+    elif not quiet or summary["failed"]:
         typer.echo(f"{summary['jobs']} jobs: {summary['ok']} ran, {summary['skipped']} skipped, "
                    f"{summary['failed']} failed; summary in {outdir / 'summary.md'}", err=True)
         for f in summary["failures"]:
             typer.echo(f"  failed {f['job']}: {f['error']}", err=True)
     return 1 if summary["failed"] else 0
+
+
+def _check_plan(jobs) -> None:
+    """Every job of a batch can run: its config names stages (raises ConfigError, exit 2,
+    before any job starts)."""
+    from ccl_cli.config import Config
+    from ccl_cli.pipeline import stage_list
+
+    for job in jobs:
+        cfg = Config(job.config)
+        cfg.source, cfg.lines = job.config_path or "the batch config", {}
+        try:
+            stage_list(cfg)
+        except ConfigError as exc:
+            raise ConfigError(f"job {job.job_id} ({job.files[0]}): {exc.message}") from None
+
+
+for _info in app.registered_commands:  # every command: one-line usage errors
+    if _info.cls in (None, TyperCommand):
+        _info.cls = _Command
 
 
 # -- entry point ---------------------------------------------------------------------------

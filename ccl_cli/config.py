@@ -18,8 +18,8 @@ from typing import Any
 
 import yaml
 
+from ccl_cli import selection as S
 from ccl_cli.errors import ConfigError
-from ccl_cli.selection import DEFAULT_RULE
 
 STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
 NUM = (int, float)
@@ -28,6 +28,8 @@ BASIS = {"kind": str, "n_centres": int, "centres": (str, list), "sigma2": NUM, "
 STREAM = {"topic": str, "field": str, "joints": list, "columns": list, "stamp": str,
           "dataset": str, "variable": str, "file": str, "samples": str}
 ACTION = {**STREAM, "derive": str, "window": int, "order": int}
+#: ``tune: {budget: seconds, folds: k}`` (or true/false) in a learner's section.
+TUNE = {"budget": NUM, "folds": int}
 
 SCHEMA: dict[str, Any] = {
     "seed": int,
@@ -38,9 +40,10 @@ SCHEMA: dict[str, Any] = {
         "demos": {"split_on_gap": NUM, "ranges": list, "window": NUM, "per_file": bool,
                   "group": str, "dataset": str, "variable": str},
         "nonfinite": str, "min_samples": int,
-        "test": {"fraction": NUM, "seed": int, "use_masks": bool},
+        "test": {"fraction": NUM, "seed": int, "use_masks": bool, "gap": int, "min_demos": int,
+                 "blocks": int},
     },
-    "learn-v": {"basis": (str, BASIS), "n_centres": int, "max_iter": int, "tol": NUM},
+    "learn-v": {"basis": (str, BASIS), "n_centres": int, "max_iter": int, "tol": NUM, "tune": (bool, TUNE)},
     "learn-a": {
         "method": str, "on": str, "per_demo": bool, "selection": str, "n_constraints": int,
         "threshold": NUM, "gap_floor": NUM, "max_constraints": int, "cv_folds": int,
@@ -48,10 +51,11 @@ SCHEMA: dict[str, Any] = {
         "basis": (str, BASIS), "n_centres": int,
         "features": (str, {"arm": str, "rows": list}),
         "regressors": str, "degree": int, "task": bool, "task_regressors": str, "whiten": str,
-        "reweight": int,
+        "reweight": int, "tune": (bool, TUNE),
     },
-    "learn-pi": {"method": str, "on": str, "basis": (str, BASIS), "n_centres": int, "cutoff": NUM,
-                 "min_norm": NUM, "projections": str, "baseline": bool},
+    "learn-pi": {"method": str, "on": str, "basis": (str, BASIS), "n_centres": int, "cutoff": (NUM, str),
+                 "cutoff_rule": str,
+                 "min_norm": NUM, "projections": str, "baseline": bool, "tune": (bool, TUNE)},
     "evaluate": {"convention": str},
     "metrics": {"convention": str},
     "output": {"plots": bool},
@@ -62,10 +66,11 @@ DEFAULTS: dict[str, Any] = {
     "seed": 0,
     "data": {"format": "auto", "nonfinite": "drop", "test": {"fraction": 0.3, "seed": 0,
                                                              "use_masks": True}},
-    "learn-v": {"basis": "rbf", "n_centres": 16},
-    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": DEFAULT_RULE},
+    "learn-v": {"basis": "rbf", "n_centres": 16, "tune": S.TUNE},
+    "learn-a": {"method": "nhat", "on": "auto", "per_demo": False, "selection": S.DEFAULT_RULE,
+                "tune": S.TUNE},
     "learn-pi": {"method": "pi", "on": "auto", "basis": "rbf", "n_centres": 16,
-                 "projections": "auto", "baseline": True},
+                 "projections": "auto", "baseline": True, "tune": S.TUNE},
     "metrics": {"convention": "ccl"},
     "output": {"plots": True},
 }
@@ -79,6 +84,7 @@ CHOICES = {
     ("learn-pi", "method"): ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"),
     ("learn-pi", "on"): ("auto", "u", "w"),
     ("learn-pi", "projections"): ("auto", "learnt", "true"),
+    ("learn-pi", "cutoff_rule"): ("relative", "absolute"),
     ("metrics", "convention"): ("ccl", "original"),
     ("evaluate", "convention"): ("ccl", "original"),
     ("data", "format"): ("auto", "hdf5", "csv", "bag", "mcap", "mat"),
@@ -218,6 +224,11 @@ class Config(dict):
     source: str = "<flags>"
     lines: dict[tuple, int]
     base: Path | None = None
+    flags: dict  # the command-line overrides merged in (see merge)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.flags = {}
 
 
 def load(path: str | Path | None) -> Config:
@@ -241,6 +252,8 @@ def load(path: str | Path | None) -> Config:
 
 
 def _where(cfg: Config, path: tuple) -> str:
+    if cfg.source == FLAGS and path:
+        return "--" + str(path[-1]).replace("_", "-")
     for cut in range(len(path), -1, -1):
         line = cfg.lines.get(path[:cut])
         if line is not None:
@@ -333,14 +346,49 @@ def deep_merge(base: dict, over: dict) -> dict:
     return out
 
 
+FLAGS = "command line"
+
+
+def _override(opts: dict, flags: dict) -> dict:
+    """``opts`` with a stage's flag values on top, at any depth: ``--n-centres`` also sets
+    ``basis.n_centres`` and ``--basis KIND`` sets ``basis.kind`` when the basis is a mapping
+    (so a flag is never shadowed by, nor wipes out, a basis mapping of the config); either
+    flag switches the stage's basis search off (``tune: false``), so the given basis is used."""
+    out = deep_merge(opts, {k: v for k, v in flags.items() if k != "basis"})
+    if "basis" in flags:
+        old = opts.get("basis")
+        out["basis"] = {**old, "kind": flags["basis"]} if isinstance(old, dict) and \
+            isinstance(flags["basis"], str) else copy.deepcopy(flags["basis"])
+    if "n_centres" in flags and isinstance(out.get("basis"), dict):
+        out["basis"] = {**out["basis"], "n_centres": flags["n_centres"]}
+    if ("n_centres" in flags or "basis" in flags) and "tune" not in flags:
+        out["tune"] = False  # a basis given on the command line is used, not searched over
+    return out
+
+
 def merge(cfg: Config, overrides: dict) -> Config:
     """``cfg`` with flag ``overrides`` (None values ignored) and defaults filled in;
-    the result is validated again (flags are checked like file keys)."""
+    the result is validated again (flags are checked like file keys, and named as flags
+    in errors). The flags are kept (``flags``) so :func:`stage_options` applies them over
+    a ``stages`` item's own options too."""
     clean = _drop_none(overrides)
-    merged = Config(deep_merge(DEFAULTS, deep_merge(dict(cfg), clean)))
-    merged.source = cfg.source if not clean else f"{cfg.source} + flags"
+    if clean:
+        check = Config(clean)
+        check.source, check.lines = FLAGS, {}
+        validate(check)
+    merged_dict = deep_merge(DEFAULTS, dict(cfg))
+    for key, value in clean.items():
+        if key in STAGES and isinstance(value, dict):
+            merged_dict[key] = _override(merged_dict.get(key) or {}, value)
+        elif isinstance(value, dict) and isinstance(merged_dict.get(key), dict):
+            merged_dict[key] = deep_merge(merged_dict[key], value)
+        else:
+            merged_dict[key] = copy.deepcopy(value)
+    merged = Config(merged_dict)
+    merged.source = cfg.source
     merged.lines = cfg.lines
     merged.base = cfg.base
+    merged.flags = deep_merge(getattr(cfg, "flags", {}), clean)
     validate(merged)
     return merged
 
@@ -358,8 +406,11 @@ def _drop_none(d: dict) -> dict:
 
 
 def stage_options(cfg: Config, name: str, extra: dict | None = None) -> dict:
-    """Options of stage ``name``: its section, then the ``stages`` item's own options."""
-    return deep_merge(cfg.get(name) or {}, extra or {})
+    """Options of stage ``name``: its section, then the ``stages`` item's own options, then
+    the command-line flags of that stage (flags win at any depth, see :func:`_override`)."""
+    opts = deep_merge(cfg.get(name) or {}, extra or {})
+    flags = (getattr(cfg, "flags", None) or {}).get(name)
+    return _override(opts, flags) if flags else opts
 
 
 #: allowed range (inclusive; None: unbounded) of numeric options, by key, wherever they

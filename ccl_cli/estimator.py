@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.errors import LearningError
+from ccl_cli.errors import InputError, LearningError
 
 
 class NotFittedError(LearningError):
@@ -76,6 +76,49 @@ class Estimator:
         """Raise :class:`NotFittedError` unless every learnt attribute in ``attrs`` exists."""
         if not all(hasattr(self, a) for a in attrs):
             raise NotFittedError(f"this {type(self).__name__} is not fitted yet: call fit(X, U) first")
+
+    # -- hyperparameter tuning (ccl_cli.selection.tune) ----------------------------------
+    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list[Any]]:
+        """The grid searched when ``tune`` is on: parameter → candidates (the current
+        default first). Learners with hyperparameters override this."""
+        return {}
+
+    def _fit_tuned(self, X: np.ndarray, U: np.ndarray, **fit_kw: Any) -> bool:
+        """When the learner's ``tune`` parameter is on (True, or a dict ``{budget: s,
+        grid: {...}, folds: k}``), choose its hyperparameters by cross-validation
+        (:func:`ccl_cli.selection.tune`), fit the winner on all of X, U and take over its
+        learnt attributes; ``tuning_`` records the grid, the CV curve and the choice.
+        The constructor parameters themselves are left unchanged. Returns False (and sets
+        ``tuning_ = None``) when there is nothing to tune: the caller then fits as usual.
+        """
+        from ccl_cli import selection as S
+
+        spec = getattr(self, "tune", False)
+        opts = spec if isinstance(spec, dict) else {}
+        grid = (opts.get("grid") or self._tune_grid(np.asarray(X, dtype=float), np.asarray(U, dtype=float))
+                ) if spec else {}
+        self.tuning_ = None
+        if not grid:
+            return False
+        base = clone(self).set_params(tune=False)
+        n = len(U)
+        groups = fit_kw.get("demo")
+        try:
+            S.make_folds(groups, n, int(opts.get("folds", S.TUNE_FOLDS)), 0, S.DEFAULT_GAP)
+        except InputError as exc:  # too little data to cross-validate: say so, fit as given
+            self.tuning_ = {"chosen": None, "reason": f"not tuned: {exc.message}"}
+            return False
+        chosen, info = S.tune(base, X, U, fit_kw.get("demo"), grid,
+                              budget=float(opts.get("budget", S.TUNE_BUDGET)),
+                              n_folds=int(opts.get("folds", S.TUNE_FOLDS)),
+                              seed=int(getattr(self, "seed", 0)),
+                              projections=fit_kw.get("projections"))
+        best = base.set_params(**chosen).fit(X, U, **fit_kw)
+        for name, value in vars(best).items():
+            if name.endswith("_") and not name.startswith("_"):
+                setattr(self, name, value)
+        self.tuning_ = info
+        return True
 
     def _set_n_features(self, X: np.ndarray) -> None:
         self.n_features_in_ = int(np.shape(X)[1])

@@ -126,7 +126,8 @@ def inspect_recording(path: str | Path, config: dict[str, Any] | None = None,
     fmt = out["format"]
     if fmt not in ("bag", "mcap", "csv"):
         return out
-    reader = open_reader(path, fmt if fmt else detect_format(Path(path)), config)
+    samples = (config.get("state") or {}).get("samples") if fmt == "csv" else None  # text matrices
+    reader = open_reader(path, fmt if fmt else detect_format(Path(path)), config, samples)
     if fmt == "csv":
         columns = out.get("columns") or []
         state = (config.get("state") or {}).get("columns") or [c for c in columns

@@ -49,20 +49,26 @@ def total_variance(Y: np.ndarray, ddof: int = 1) -> float:
     return float(np.var(Y, axis=0, ddof=ddof).sum())
 
 
-def eigen_lstsq(M: np.ndarray, r: np.ndarray, cutoff: float) -> np.ndarray:
+def eigen_lstsq(M: np.ndarray, r: np.ndarray, cutoff: float, absolute: bool = False) -> np.ndarray:
     """Solve the symmetric normal equations ``M w = r`` by eigen-decomposition.
 
-    Eigenvalues of ``M`` below ``cutoff · max(eig)`` are discarded (a regularised
+    Eigenvalues of ``M`` below ``cutoff · max(eig)`` (or below ``cutoff`` itself with
+    ``absolute``, the original library's rule) are discarded (a regularised
     pseudo-inverse, ALGORITHMS.md §4–§5). ``M`` is (..., d, d), ``r`` (..., d).
     """
     vals, vecs = np.linalg.eigh(M)
     top = np.maximum(vals[..., -1:], np.finfo(float).tiny)
-    inv = np.where(vals > cutoff * top, 1.0 / np.where(vals > 0, vals, 1.0), 0.0)
+    threshold = cutoff if absolute else cutoff * top
+    inv = np.where(vals > threshold, 1.0 / np.where(vals > 0, vals, 1.0), 0.0)
     coef = np.einsum("...ij,...i->...j", vecs, r) * inv
     return np.einsum("...ij,...j->...i", vecs, coef)
 
 
 # -- chunked normal equations (issue 10: memory independent of N) --------------------------
+
+#: Relative eigenvalue cut-off of the damped normal matrix in the LM steps: directions
+#: of JᵀJ weaker than this (near-collinear RBF features) are not stepped along.
+LM_CUTOFF = 1e-12
 
 #: Rows per block of the chunked passes: temporaries are O(CHUNK_ROWS · K q), not O(N · K q).
 CHUNK_ROWS = 8192
@@ -94,23 +100,13 @@ def kron_normal(G: np.ndarray, B: np.ndarray, r: np.ndarray | None = None
     return J.T @ J, (None if r is None else ((G * r[:, None]).T @ B).ravel())
 
 
-def solve_psd(M: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Solve M x = r for symmetric positive (semi)definite M: Cholesky, falling back to
-    the eigen pseudo-inverse (relative cut-off 1e-12) when M is numerically singular."""
-    try:
-        L = np.linalg.cholesky(M)
-    except np.linalg.LinAlgError:
-        return eigen_lstsq(M, r, 1e-12)
-    y = np.linalg.solve(L, r)
-    return np.linalg.solve(L.T, y)
-
-
 def kron_least_squares(
     W0: np.ndarray,
     blocks: Callable[[], Iterable[tuple[slice, np.ndarray]]],
     residual: Callable[[np.ndarray, slice, np.ndarray], tuple[np.ndarray, np.ndarray]],
     max_iter: int = 1000,
     tol: float = 1e-9,
+    cutoff: float = LM_CUTOFF,
 ) -> tuple[np.ndarray, float, int]:
     """Levenberg–Marquardt on accumulated normal equations for min_W Σ_n r_n(W)².
 
@@ -120,11 +116,12 @@ def kron_least_squares(
     yields (rows slice, features β (c, K)); JᵀJ (m K × m K, :func:`kron_normal`) and Jᵀr
     are summed block by block at the trial point, so an accepted step needs no further
     pass and no N × m K matrix is ever formed. Steps solve (JᵀJ + μ D) δ = −Jᵀr with D
-    the running maximum of diag(JᵀJ) (Marquardt/MINPACK scaling; μ is raised if the
-    Cholesky factorisation fails) and μ updated from the gain ratio (Nielsen). Stops when the
-    cost falls by less than ``tol`` relatively, the
-    step is below ``tol`` relative to W, or the scaled gradient is below ``tol``;
-    ``max_iter`` bounds the passes.
+    the running maximum of diag(JᵀJ) (Marquardt/MINPACK scaling), μ updated from the
+    gain ratio (Nielsen), by eigen-decomposition: eigenvalues below ``cutoff`` times the
+    largest are dropped (near-collinear RBF features give directions along which the
+    weights would otherwise grow without improving the fit). Stops when the cost falls
+    by less than ``tol`` relatively, the step is below ``tol`` relative to W, or the
+    scaled gradient is below ``tol``; ``max_iter`` bounds the passes.
 
     Returns:
         (W (m, K), cost Σ r², passes over the data).
@@ -153,13 +150,7 @@ def kron_least_squares(
         scaled = np.abs(Jtr) / np.sqrt(diag * max(cost, 1e-300))
         if np.max(scaled, initial=0.0) <= tol:
             break
-        while True:  # raise μ until JᵀJ + μD factorises (rank-deficient JᵀJ)
-            try:
-                L = np.linalg.cholesky(H + mu * np.diag(diag))
-                break
-            except np.linalg.LinAlgError:
-                mu *= 10.0
-        step = -np.linalg.solve(L.T, np.linalg.solve(L, Jtr))
+        step = -eigen_lstsq(H + mu * np.diag(diag), Jtr, cutoff)
         if np.linalg.norm(step) <= tol * (tol + np.linalg.norm(w)):
             break
         new_cost, new_H, new_Jtr, new_D = evaluate(w + step)

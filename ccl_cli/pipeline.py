@@ -15,7 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from ccl_cli import diagnostics
 from ccl_cli import evaluate as E
+from ccl_cli import selection as S
 from ccl_cli.config import Config, stage_entry, stage_options
 from ccl_cli.constraint import (
     KnownFeatureConstraint,
@@ -50,19 +52,49 @@ class StageResult:
 class Split:
     train: Demonstrations
     test: Demonstrations | None
+    #: how and why: {kind, reason, n_train_/n_test_ demos or blocks, n_train_/n_test_samples, ...}
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+def guard_gap(cfg: Config) -> int:
+    """Samples dropped at each train/test boundary of a time-block split: ``data.test.gap``,
+    else the derivative window of derived actions, else :data:`selection.DEFAULT_GAP`."""
+    data_cfg = cfg.get("data") or {}
+    tcfg = data_cfg.get("test") or {}
+    if tcfg.get("gap") is not None:
+        return int(tcfg["gap"])
+    action = data_cfg.get("action") or {}
+    if action.get("derive") and action.get("window"):
+        return max(int(action["window"]), 1)
+    return S.DEFAULT_GAP
 
 
 def split_data(data: Demonstrations, cfg: Config, masks: dict[str, list[int]] | None = None) -> Split:
+    """The reported train/test split, never silent: ``Split.info`` says which and why.
+
+    Stored masks (canonical HDF5) win unless ``data.test.use_masks: false``; otherwise
+    by demonstration when there are at least ``data.test.min_demos`` (default
+    :data:`selection.MIN_DEMOS`), else held-out contiguous time blocks with guard gaps
+    (:func:`selection.holdout_split`).
+    """
     tcfg = (cfg.get("data") or {}).get("test") or {}
     if masks and tcfg.get("use_masks", True) and "train" in masks:
         train = data.select_demos(masks["train"])
         test = data.select_demos(masks["test"]) if masks.get("test") else None
-        return Split(train, test if test is not None and test.n_samples else None)
+        test = test if test is not None and test.n_samples else None
+        info = {"kind": "masks", "reason": "train/test masks stored in the data file",
+                "n_train_demos": train.n_demos, "n_test_demos": test.n_demos if test else 0,
+                "n_train_samples": train.n_samples, "n_test_samples": test.n_samples if test else 0}
+        return Split(train, test, info)
     fraction = float(tcfg.get("fraction", 0.3))
     if fraction <= 0:
-        return Split(data, None)
-    train, test = data.split(fraction, int(tcfg.get("seed", 0)))
-    return Split(train, test if test.n_samples else None)
+        return Split(data, None, {"kind": "none", "reason": "data.test.fraction is 0: no held-out test "
+                                  "set, every metric is on training data",
+                                  "n_train_samples": data.n_samples, "n_test_samples": 0})
+    hold = S.holdout_split(data.demo, fraction, int(tcfg.get("seed", 0)), guard_gap(cfg),
+                           int(tcfg.get("min_demos", S.MIN_DEMOS)), int(tcfg.get("blocks", S.N_BLOCKS)))
+    train, test = data.subset(hold.train), data.subset(hold.test)
+    return Split(train, test if test.n_samples else None, hold.info)
 
 
 def _kwargs(options: dict, allowed: tuple[str, ...]) -> dict:
@@ -76,7 +108,7 @@ def make_constraint(options: dict, seed: int):
         kw = _kwargs(options, (*common, "threshold"))
         model = StateIndependentConstraint(method=options.get("variant", "closed_form"), seed=seed, **kw)
     elif method in ("alpha", "lambda"):
-        kw = _kwargs(options, (*common, "basis", "n_centres", "n_restarts", "max_iter", "tol"))
+        kw = _kwargs(options, (*common, "basis", "n_centres", "n_restarts", "max_iter", "tol", "tune"))
         if method == "alpha":
             model = StateDependentConstraint(seed=seed, **kw)
         else:
@@ -86,7 +118,7 @@ def make_constraint(options: dict, seed: int):
             model = KnownFeatureConstraint(features=options["features"], seed=seed, **kw)
     elif method == "linear":
         kw = _kwargs(options, (*common, "threshold", "basis", "n_centres", "regressors", "degree", "task",
-                               "task_regressors", "whiten", "reweight"))
+                               "task_regressors", "whiten", "reweight", "tune"))
         model = LinearConstraint(seed=seed, **kw)
     else:
         raise ConfigError(f"unknown learn-a method {method!r}")
@@ -100,11 +132,14 @@ class Pipeline:
         self.cfg = cfg
         self.data = data
         self.split = split_data(data, cfg, masks)
+        self.split_info = self.split.info
         self.seed = int(cfg.get("seed", 0))
         self.convention = (cfg.get("metrics") or {}).get("convention", "ccl")
         self.results: list[StageResult] = []
         self.w: dict[str, np.ndarray] = {}
         self.constraint: Any = None
+        #: coded data warnings ({code, message}); stages and other checks append to it
+        self.warnings: list[dict[str, str]] = diagnostics.emit(diagnostics.check_data(data))
 
     # -- helpers ------------------------------------------------------------------------
     def parts(self) -> list[tuple[str, Demonstrations]]:
@@ -136,9 +171,11 @@ class Pipeline:
 
     def _learn_v(self, opts: dict) -> StageResult:
         tr = self.split.train
-        model = NullSpaceComponent(**_kwargs(opts, ("basis", "n_centres", "max_iter", "tol")),
-                                   seed=self.seed).fit(tr.X, tr.U)
+        model = NullSpaceComponent(**_kwargs(opts, ("basis", "n_centres", "max_iter", "tol", "tune")),
+                                   seed=self.seed).fit(tr.X, tr.U, tr.demo)
         result = StageResult("learn-v", "ncl", model, info={"n_iter": model.n_iter_})
+        if getattr(model, "tuning_", None):
+            result.info["tuning"] = model.tuning_
         ws = {part: model.predict(d.X) for part, d in self.parts()}
         self.w.update(ws)
         result.score = lambda part, d, convention: E.nullspace_metrics(ws[part], d, convention)
@@ -155,12 +192,15 @@ class Pipeline:
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             raise LearningError(f"learn-a failed: {exc}") from None
         self.constraint = model
+        self.warnings += diagnostics.emit(diagnostics.low_rank_actions(tr, target, int(model.n_constraints_)))
         method = opts.get("method", "nhat") + (" per demonstration" if opts.get("per_demo") else "")
         on_w = on == "w" or (on == "auto" and bool(self.w))
         result = StageResult("learn-a", method, model,
                              info={"n_constraints": int(model.n_constraints_),
                                    "selection": model.selection_,
                                    "on": "w" if on_w else "u"})
+        if getattr(model, "tuning_", None):
+            result.info["tuning"] = model.tuning_
         from ccl_cli.plots import describe_constraint
 
         result.info["constraint"] = describe_constraint(model, tr)
@@ -181,7 +221,11 @@ class Pipeline:
         for part, d in self.parts():
             if isinstance(result.model, PerDemonstration) and part != "train":
                 continue  # a per-demonstration model knows only its own demonstrations
-            scored = result.score(part, d, convention or self.convention)
+            convention = convention or self.convention
+            if convention == self.convention and into is not result.metrics and part in result.metrics:
+                scored = dict(result.metrics[part])  # the same numbers: no need to score again
+            else:
+                scored = result.score(part, d, convention)
             into.setdefault(part, {}).update({prefix + k: {**m, "name": prefix + k}
                                               for k, m in scored.items()})
 
@@ -199,13 +243,23 @@ class Pipeline:
     def _learn_pi(self, opts: dict) -> StageResult:
         tr = self.split.train
         on = opts.get("on", "auto")
-        kw = _kwargs(opts, ("basis", "n_centres", "cutoff", "min_norm"))
+        kw = _kwargs(opts, ("basis", "n_centres", "cutoff", "cutoff_rule", "min_norm", "tune"))
+        if isinstance(kw.get("cutoff"), str):  # cutoff: absolute | relative (the rule, at 1e-6)
+            if kw["cutoff"] not in ("absolute", "relative"):
+                raise ConfigError("learn-pi.cutoff must be a number, absolute or relative, "
+                                  f"got {kw['cutoff']!r}")
+            kw["cutoff_rule"] = kw.pop("cutoff")
         model = PolicyLearner(method=opts.get("method", "pi"), seed=self.seed, **kw)
-        model.fit(tr.X, self._target(on, "train", tr), self._projections(opts, "train", tr))
+        model.fit(tr.X, self._target(on, "train", tr), self._projections(opts, "train", tr), demo=tr.demo)
         result = StageResult("learn-pi", model.method, model, info={"n_used": model.n_used_})
+        if getattr(model, "tuning_", None):
+            result.info["tuning"] = model.tuning_
         if opts.get("baseline", True) and model.method != "dpl":
-            result.baseline = PolicyLearner(method="dpl", seed=self.seed, **kw).fit(
-                tr.X, self._target(on, "train", tr))
+            base_kw = dict(kw)
+            if (model.tuning_ or {}).get("chosen"):  # the baseline regresses on the same basis
+                base_kw.update(model.tuning_["chosen"], tune=False)
+            result.baseline = PolicyLearner(method="dpl", seed=self.seed, **base_kw).fit(
+                tr.X, self._target(on, "train", tr), demo=tr.demo)
         constraint = self.constraint
         targets = {part: self._target(on, part, d) for part, d in self.parts()}
         of = "learnt w" if on == "w" or (on == "auto" and self.w) else "u"

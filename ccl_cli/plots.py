@@ -36,6 +36,7 @@ STYLE = {
     "true": {"color": "tab:green", "alpha": 0.45, "lw": 3.0},
     "learnt": {"color": "tab:red", "lw": 1.1},
     "baseline": {"color": "tab:blue", "lw": 0.9, "ls": ":"},
+    "predicted": {"color": "tab:purple", "lw": 1.0, "ls": "--"},
 }
 JOINT_UNITS = {"position": "rad", "velocity": "rad/s", "effort": "N m"}
 
@@ -201,7 +202,7 @@ def time_figure(plt, title: str, part: str, d: Demonstrations, lines: dict[str, 
         t = d.t[sel] - d.t[sel][0]
         for j in range(q):
             ax = axes[j, c]
-            for style in ("true", "observed", "baseline", "learnt"):
+            for style in ("true", "observed", "baseline", "learnt", "predicted"):
                 if style in lines:
                     name, Y = lines[style]
                     s = STYLE[style]
@@ -215,7 +216,7 @@ def time_figure(plt, title: str, part: str, d: Demonstrations, lines: dict[str, 
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", ncol=len(lines), fontsize=8,
                frameon=False)
     h = fig.get_figheight()
-    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.75 / h, bottom=1.0 / h, hspace=0.15, wspace=0.18)
+    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.95 / h, bottom=1.0 / h, hspace=0.15, wspace=0.18)
     return fig
 
 
@@ -248,8 +249,9 @@ def selection_figure(plt, selection: dict[str, Any], q: int):
             ax.legend(loc="upper left", bbox_to_anchor=(0, -0.22), fontsize=8, frameon=False)
         ax.set_xticks(k)
         ax.set_xlabel("candidate number of constraints k")
-        meaning = {"cv": "cross-validated NPOE", "eigengap": "residual of candidate k",
-                   "threshold": "residual of candidate k"}.get(str(selection.get("rule")), key)
+        meaning = selection.get("criterion") or {
+            "cv": "cross-validated NPOE", "eigengap": "residual of candidate k",
+            "threshold": "residual of candidate k"}.get(str(selection.get("rule")), key)
         ax.set_ylabel(f"{meaning if key == 'values' else key} (log)")
     fig.suptitle(f"How the number of constraints was chosen: rule {selection.get('rule')}\n"
                  f"{selection.get('reason', '')}", fontsize=9)
@@ -337,7 +339,7 @@ def constraint_figure(plt, info: dict[str, Any], method: str, part: str, d: Demo
                  f"\nfitted on the training demonstrations", fontsize=9)
     axes[0, 0].legend(loc="upper left", bbox_to_anchor=(1.01, 1), fontsize=8, frameon=False)
     h = fig.get_figheight()
-    fig.subplots_adjust(left=0.09, right=0.86, top=1 - 0.8 / h, bottom=0.75 / h, hspace=0.5)
+    fig.subplots_adjust(left=0.12, right=0.86, top=1 - 0.8 / h, bottom=0.75 / h, hspace=0.5)
     return fig
 
 
@@ -422,10 +424,16 @@ def make_plots(outdir: Path, pipeline) -> list[tuple[str, str]]:
                 arrows["true"] = ("true π", d.truth["pi"])
             if r.baseline is not None:
                 arrows["baseline"] = ("dpl baseline", r.baseline.predict(d.X))
+            lines = dict(arrows)
+            c = pipeline.constraint
+            if c is not None and not isinstance(c, PerDemonstration):  # held-out u predicted as ṽ + Ñπ̃
+                v = task_part(c, d.X, d.demo)
+                pred = np.einsum("nij,nj->ni", c.projection(d.X, d.demo), est) + (0 if v is None else v)
+                lines["predicted"] = ("predicted u = ṽ + Ñπ̃", pred)
             if planar:
                 save(field_figure(plt, f"{title}: null-space policy π", d, dpart, arrows, r.model.predict,
                                   "learnt π̃(x) on a grid"), "learn-pi-field.png",
                      "learn-pi: learnt vs true policy")
-            save(time_figure(plt, f"{title}: null-space policy π", dpart, d, arrows), "learn-pi-time.png",
-                 "learn-pi: learnt policy over time")
+            save(time_figure(plt, f"{title}: null-space policy π", dpart, d, lines), "learn-pi-time.png",
+                 "learn-pi: learnt policy (and the predicted u) over time")
     return plots

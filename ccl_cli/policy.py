@@ -4,7 +4,8 @@ All learners minimise a least-squares criterion that is linear in the weights, s
 each is solved in closed form (batched over samples, no iteration):
 
 * ``pi`` — inconsistency error Σ_n (û_nᵀ π̃(x_n) − ‖u_n‖)², π̃(x) = Wᵀβ(x)
-  (Howard et al. 2009); rows kron(β_n, û_n), eigen pseudo-inverse, cut-off 1e-6.
+  (Howard et al. 2009); rows kron(β_n, û_n), eigen pseudo-inverse (cut-off 1e-6 relative to
+  the largest eigenvalue; the original library's is absolute: ``cutoff_rule="absolute"``).
 * ``pi-weighted`` — the same residual times ‖u_n‖: u_nᵀ π̃(x_n) = ‖u_n‖², so samples
   at the noise level (random û) no longer get full weight.
 * ``pi-coupled`` — with projections Ñ_n (true or learnt): u_n ≈ Ñ_n Wᵀ β(x_n), rows
@@ -29,6 +30,7 @@ from ccl_cli.constraint.base import check_xu
 from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.estimator import Estimator
 from ccl_cli.linalg import eigen_lstsq, kron_rows, row_chunks
+from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
 
 METHODS = ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl")
 
@@ -39,9 +41,16 @@ class PolicyLearner(Estimator):
     Args:
         method: ``pi`` (default), ``pi-weighted``, ``pi-coupled``, ``lwpi``, ``dpl``.
         basis, n_centres, seed: feature map (``lwpi`` needs an RBF basis).
-        cutoff: relative eigenvalue cut-off of the pseudo-inverse (original: 1e-6).
+        cutoff: eigenvalue cut-off of the pseudo-inverse: eigenvalues of the normal matrix
+            below ``cutoff · λ_max`` are dropped (``cutoff_rule="relative"``, the default).
+        cutoff_rule: ``relative`` or ``absolute`` — eigenvalues below ``cutoff`` itself are
+            dropped: the original library's rule (absolute 1e-6). They are not the same rule:
+            with the tutorial settings ``absolute`` reproduces the original's numbers (README
+            "Reproducing the original library").
         min_norm: samples with ‖u‖ below this are dropped (not for ``dpl``/``pi-coupled``).
         chunk_size: rows per block of the normal-equation sums (default 8192).
+        tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
+            default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
     Attributes:
         basis_, W_ ((K, q); for lwpi (K, p + 1, q)), n_used_.
@@ -57,6 +66,8 @@ class PolicyLearner(Estimator):
         cutoff: float = 1e-6,
         min_norm: float = 1e-6,
         chunk_size: int | None = None,
+        tune: bool | dict = TUNE,
+        cutoff_rule: str = "relative",
     ) -> None:
         self.method = method
         self.basis = basis
@@ -65,13 +76,29 @@ class PolicyLearner(Estimator):
         self.cutoff = cutoff
         self.min_norm = min_norm
         self.chunk_size = chunk_size
+        self.tune = tune
+        self.cutoff_rule = cutoff_rule
 
-    def fit(self, X: np.ndarray, U: np.ndarray, projections: np.ndarray | None = None
-            ) -> PolicyLearner:
+    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
+        if not rbf_tunable(self.basis):
+            return {}
+        if self.method == "lwpi":
+            return {"basis": basis_grid(X, (self.n_centres, 9, 16, 25, 49), (1.0, 0.5, 0.25, 0.1, 0.05),
+                                        self.seed)}
+        return {"basis": basis_grid(X, (self.n_centres, 16, 49, 100), (1.0, 0.5, 0.25), self.seed)}
+
+    def fit(self, X: np.ndarray, U: np.ndarray, projections: np.ndarray | None = None,
+            demo: np.ndarray | None = None) -> PolicyLearner:
         """Fit on states X (N, p), actions U (N, q); ``pi-coupled`` needs ``projections``
-        Ñ_n (N, q, q) (true, or from a learnt constraint model)."""
+        Ñ_n (N, q, q) (true, or from a learnt constraint model). ``demo`` (N,) ids are
+        only used to cross-validate by demonstration when tuning."""
         X, U = check_xu(X, U)
         self._set_n_features(X)
+        if self._fit_tuned(X, U, projections=projections, demo=demo):
+            return self
+        if self.cutoff_rule not in ("relative", "absolute"):
+            raise ConfigError(f"unknown cutoff_rule {self.cutoff_rule!r} (use relative or absolute)")
+        absolute = self.cutoff_rule == "absolute"
         if self.method not in METHODS:
             raise ConfigError(f"unknown policy method {self.method!r} (use {', '.join(METHODS)})")
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
@@ -128,11 +155,11 @@ class PolicyLearner(Estimator):
                 M += (B.T @ (R[:, :, None] * R[:, None, :]).reshape(len(B), D * D)).reshape(K, D, D)
                 r += B.T @ (R * nb[:, None])
         if self.method == "dpl":
-            self.W_ = eigen_lstsq(M, r.T, self.cutoff).T
+            self.W_ = eigen_lstsq(M, r.T, self.cutoff, absolute).T
         elif self.method == "lwpi":
-            self.W_ = eigen_lstsq(M, r, self.cutoff).reshape(K, d, q)
+            self.W_ = eigen_lstsq(M, r, self.cutoff, absolute).reshape(K, d, q)
         else:
-            self.W_ = eigen_lstsq(M, r, self.cutoff).reshape(K, q)
+            self.W_ = eigen_lstsq(M, r, self.cutoff, absolute).reshape(K, q)
         return self
 
     def predict(self, X: np.ndarray) -> np.ndarray:

@@ -79,12 +79,15 @@ def metric_rows(entry: dict[str, Any]) -> list[str]:
 def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str, str]],
              data_info: dict[str, Any]) -> str:
     """report.md: the data, then per stage what was learnt, its metrics (docs/metrics.md) and plots."""
+    from ccl_cli.selection import tuning_markdown, validation_markdown
+
     lines = [f"# {title}", ""]
     lines += [f"- samples: {data_info.get('samples')} in {data_info.get('demos')} demonstrations "
               f"(train {data_info.get('train')}, test {data_info.get('test')})",
               f"- state dimension p = {data_info.get('p')}, action dimension q = {data_info.get('q')}",
               f"- inputs: {', '.join(data_info.get('files', [])) or '—'}",
               "- metrics: mean squared error / normaliser, both shown; see docs/metrics.md", ""]
+    lines += validation_markdown(data_info.get("validation"))
     for stage, entry in results_metrics.items():
         if stage == "evaluate":
             lines += [f"## evaluate: every learnt model re-scored under the {entry.get('convention')} "
@@ -107,6 +110,7 @@ def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str,
         if base:
             lines += [f"Baseline: direct policy learning ({base.get('method')}, u regressed on β(x), "
                       "ignoring the constraints) — its own errors:", "", *metric_rows(base)]
+        lines += tuning_markdown(stage, entry.get("tuning"))
         lines.append(f"Time: {entry.get('seconds', 0):.3f} s")
         lines.append("")
         for caption, rel in plots:

@@ -49,6 +49,7 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
     Returns the summary (status, outdir, per-stage method, constraint count and metric values).
     ``extra_files`` (name → JSON value) are written into the folder with the rest.
     """
+    from ccl_cli.diagnostics import markdown_section
     from ccl_cli.io.atomic import atomic_dir, check_replaceable
     from ccl_cli.models import save_model
     from ccl_cli.pipeline import Pipeline, stage_list
@@ -74,7 +75,9 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
                                                 "versions": versions()})
         plots = make_plots(tmp, pipeline) if (cfg.get("output") or {}).get("plots", True) else []
         write_json(tmp / "metrics.json", metrics)
-        (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, data_summary(pipeline)))
+        summary = {**data_summary(pipeline), "validation": pipeline.split_info}
+        (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, summary)
+                                       + "\n" + "\n".join(markdown_section(pipeline.warnings)))
         import yaml
 
         (tmp / "config.yaml").write_text(yaml.safe_dump(dict(cfg), sort_keys=False))
@@ -82,12 +85,14 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
             "command": command, "argv": sys.argv, "config": dict(cfg), "config_source": cfg.source,
             "inputs": hashes, "versions": versions(),
             "timings": {r.name: r.seconds for r in pipeline.results} | {"total": time.perf_counter() - t0},
-            "data": data_summary(pipeline),
+            "data": data_summary(pipeline), "validation": pipeline.split_info,
+            "warnings": pipeline.warnings,
         })
         for name, value in (extra_files or {}).items():
             write_json(tmp / name, value)
     return {"status": "ok", "command": command, "outdir": str(outdir),
-            "seconds": time.perf_counter() - t0, "stages": summarise(metrics)}
+            "seconds": time.perf_counter() - t0, "validation": pipeline.split_info,
+            "stages": summarise(metrics), "warnings": pipeline.warnings}
 
 
 def summarise(metrics: dict[str, Any]) -> dict[str, Any]:

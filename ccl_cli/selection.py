@@ -12,7 +12,8 @@
     (per truncation k = 1..s when asked, for choosing the number of constraints);
   - null-space component (ncl): NPE (§6), ``mean ‖P̃u − w̃‖² / Σ var(u)``;
   - policies: the normalised inconsistency error (§5) ``mean ‖u − ûûᵀ π̃(x)‖² / Σ var(u)``
-    (pi-coupled: ``mean ‖u − Ñ π̃(x)‖² / Σ var(u)`` with the given projections).
+    (pi-weighted: each term weighted by ‖u‖², its own criterion; pi-coupled:
+    ``mean ‖u − Ñ π̃(x)‖² / Σ var(u)`` with the given projections).
 
 * :func:`holdout_split` chooses the reported train/test split of a recording and says
   why; :func:`tune` searches a small grid of hyperparameters within a time budget.
@@ -28,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.estimator import clone
 
 #: Fewest demonstrations for splitting by demonstration; below it, time blocks.
@@ -44,6 +45,12 @@ N_FOLDS = 5
 DEFAULT_RULE = "ratio"
 #: ``ratio`` rule: row k is a constraint while its residual is ≤ this multiple of row 1's.
 RATIO_FACTOR = 2.0
+#: Hyperparameter tuning is on by default (learners' ``tune`` and the config agree).
+TUNE = True
+#: Seconds a learner's hyperparameter search may take (``tune: {budget: s}``).
+TUNE_BUDGET = 5.0
+#: Folds of the hyperparameter search (fewer than for choosing s: it fits many candidates).
+TUNE_FOLDS = 3
 
 
 # -- splitters ------------------------------------------------------------------------------
@@ -116,16 +123,20 @@ def npe_score(W: np.ndarray, U: np.ndarray) -> float:
     return float(np.mean(np.sum((proj - W) ** 2, 1)) / _var(U))
 
 
-def inconsistency_score(P: np.ndarray, U: np.ndarray, N: np.ndarray | None = None) -> float:
-    """mean ‖u − ûûᵀπ̃‖² / Σ var(u) (§5), or with projections N (n, q, q) mean ‖u − Ñπ̃‖²."""
+def inconsistency_score(P: np.ndarray, U: np.ndarray, N: np.ndarray | None = None,
+                        weighted: bool = False) -> float:
+    """mean ‖u − ûûᵀπ̃‖² / Σ var(u) (§5), or with projections N (n, q, q) mean ‖u − Ñπ̃‖²;
+    ``weighted`` (pi-weighted's own criterion): each sample's term weighted by ‖u‖² / mean ‖u‖²."""
     if N is not None:
         res = U - np.einsum("nij,nj->ni", N, P)
+        w = np.ones(len(U))
     else:
         norm = np.linalg.norm(U, axis=1)
         keep = norm > 0
         uh = U[keep] / norm[keep, None]
         res = U[keep] - uh * np.sum(uh * P[keep], 1)[:, None]
-    return float(np.mean(np.sum(res**2, 1)) / _var(U))
+        w = norm[keep] ** 2 if weighted else np.ones(int(keep.sum()))
+    return float(np.sum(w * np.sum(res**2, 1)) / max(np.sum(w), 1e-300) / _var(U))
 
 
 def score(model: Any, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None,
@@ -135,9 +146,10 @@ def score(model: Any, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = No
         return npoe_score(model.projection(X, demo), U)
     if hasattr(model, "task_component"):  # null-space component (ncl)
         return npe_score(model.predict(X), U)
-    if getattr(model, "method", None) == "pi-coupled":
+    method = getattr(model, "method", None)
+    if method == "pi-coupled":
         return inconsistency_score(model.predict(X), U, projections)
-    return inconsistency_score(model.predict(X), U)
+    return inconsistency_score(model.predict(X), U, weighted=method == "pi-weighted")
 
 
 def truncated_npoe(model: Any, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
@@ -200,7 +212,7 @@ def cross_validate(
         kw = {}
         if projections is not None:
             kw["projections"] = projections[train]
-        elif _takes_demo(model):
+        if _takes_demo(model):
             kw["demo"] = groups[train]
         model.fit(X[train], U[train], **kw)
         if scorer is not None:
@@ -237,20 +249,23 @@ def holdout_split(demo: np.ndarray, fraction: float = 0.3, seed: int = 0, gap: i
     n = len(demo)
     ids = np.unique(demo)
     rng = np.random.default_rng(seed)
-    if len(ids) >= max(min_demos, 2):
+    possible = min(n_blocks, n // (2 * gap + 4))  # blocks long enough for their guard gaps
+    if len(ids) >= max(min_demos, 2) or (possible < 3 and len(ids) >= 2):
         n_test = min(max(1, int(round(fraction * len(ids)))), len(ids) - 1)
         test_ids = rng.choice(ids, size=n_test, replace=False)
         test = np.isin(demo, test_ids)
-        info = {"kind": "demonstrations",
-                "reason": f"{len(ids)} demonstrations (≥ {min_demos}): {n_test} held out whole",
+        why = (f"{len(ids)} demonstrations (≥ {min_demos})" if len(ids) >= min_demos else
+               f"only {len(ids)} demonstrations (< {min_demos}) but {n} samples are too few for "
+               f"time blocks with guard gaps of {gap}")
+        info = {"kind": "demonstrations", "reason": f"{why}: {n_test} held out whole",
                 "n_train_demos": int(len(ids) - n_test), "n_test_demos": int(n_test)}
         return Holdout(~test, test, {**info, "n_train_samples": int((~test).sum()),
                                      "n_test_samples": int(test.sum()), "fraction": fraction})
-    blocks = _blocks(n, n_blocks)
-    if len(blocks) < 2 or n < n_blocks * (2 * gap + 4):
-        raise InputError(f"{n} samples in {len(ids)} demonstration(s) are too few for a held-out "
-                         f"test set of time blocks (need ≥ {n_blocks * (2 * gap + 4)}); add "
-                         "demonstrations or set data.test.fraction: 0")
+    if possible < 3:
+        raise InputError(f"{n} samples in one demonstration are too few for a held-out test set of "
+                         f"time blocks (need ≥ {3 * (2 * gap + 4)}); add demonstrations or set "
+                         "data.test.fraction: 0")
+    blocks = _blocks(n, possible)
     n_test = min(max(1, int(round(fraction * len(blocks)))), len(blocks) - 1)
     chosen = np.sort(rng.choice(len(blocks), size=n_test, replace=False))
     test_idx = np.concatenate([blocks[i] for i in chosen])
@@ -286,10 +301,10 @@ def tune(
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Grid search by :func:`cross_validate` within ``budget`` seconds.
 
-    Candidates are tried in the grid's order (put the cheap and the default first);
-    once the budget is spent the remaining ones are skipped (and listed as skipped).
-    The candidate with the smallest mean held-out error wins; among candidates within
-    one standard error of it, the first (simplest) one is taken.
+    Candidates are tried in the grid's order (the default and the cheap first); a
+    candidate is skipped (and counted in ``skipped``) when the time spent plus what the
+    previous candidate took would exceed ``budget``; the first always runs. The
+    candidate with the smallest mean held-out error wins.
 
     Returns:
         (chosen parameters, info) with info = {"grid", "scores": [{params, mean, se}],
@@ -305,30 +320,69 @@ def tune(
     t0 = time.perf_counter()
     rows: list[dict[str, Any]] = []
     skipped = 0
+    last, last_size = 0.0, 1
     for params in combos:
-        if rows and time.perf_counter() - t0 > budget:
+        size = _size(params)
+        if rows and time.perf_counter() - t0 + last * max(1.0, size / last_size) ** 2 > budget:
             skipped += 1
             continue
         est = clone(estimator).set_params(**params)
+        t1 = time.perf_counter()
         try:
             res = cross_validate(est, X, U, groups, folds=folds, projections=projections)
-        except (InputError, np.linalg.LinAlgError):
+        except (InputError, LearningError, np.linalg.LinAlgError):
             continue  # e.g. more centres than training samples in a fold
+        finally:
+            last, last_size = time.perf_counter() - t1, size
         mean = float(res.mean)
         rows.append({"params": params, "mean": mean if np.isfinite(mean) else float("inf"),
                      "se": float(res.se)})
     if not rows:
         raise InputError("no hyperparameter candidate could be cross-validated on this data")
     best = min(range(len(rows)), key=lambda i: rows[i]["mean"])
-    limit = rows[best]["mean"] + rows[best]["se"]
-    pick = next(i for i, r in enumerate(rows) if r["mean"] <= limit)
-    chosen = rows[pick]["params"]
+    chosen = rows[best]["params"]
     info = {"grid": {k: list(v) for k, v in grid.items()}, "scores": rows, "chosen": chosen,
-            "best": rows[best]["params"], "budget": budget,
-            "budget_used": round(time.perf_counter() - t0, 3), "skipped": skipped,
+            "budget": budget, "budget_used": round(time.perf_counter() - t0, 3), "skipped": skipped,
             "folds": {"kind": folds.kind, "n": len(folds.pairs), "reason": folds.reason},
-            "rule": "smallest held-out error; first candidate within one standard error"}
+            "rule": "smallest held-out error"}
     return chosen, info
+
+
+def _size(params: dict[str, Any]) -> int:
+    """Number of basis functions of a candidate (its cost grows with it)."""
+    basis = params.get("basis")
+    return int(basis.get("n_centres", 1)) if isinstance(basis, dict) else int(params.get("n_centres", 1))
+
+
+def rbf_tunable(basis: Any) -> bool:
+    """Only a default RBF basis (a name or a dict without explicit centres/width) is tuned;
+    a linear basis, a basis object or explicit centres/σ² are the user's choice."""
+    if basis is None or basis == "rbf":
+        return True
+    return isinstance(basis, dict) and basis.get("kind", "rbf") == "rbf" and \
+        "sigma2" not in basis and not isinstance(basis.get("centres"), list | np.ndarray)
+
+
+def basis_grid(X: np.ndarray, sizes: tuple[int, ...], widths: tuple[float, ...], seed: int = 0,
+               centres: str = "kmeans") -> list[dict[str, Any]]:
+    """Candidate RBF bases (``basis`` parameter values): for each number of centres K
+    (at most N/2; repeated values dropped) and width factor f, σ² = f · σ²_default(K)
+    (the default rule of ALGORITHMS.md §2 on those centres; f = 1 is left to the rule)."""
+    from ccl_cli.basis import RBFBasis
+
+    X = np.asarray(X, dtype=float)
+    out: list[dict[str, Any]] = []
+    for K in dict.fromkeys(int(k) for k in sizes):
+        if K > max(1, len(X) // 2):
+            continue
+        s0 = RBFBasis(n_centres=K, centres=centres, seed=seed).fit(X).sigma2_ if any(
+            f != 1 for f in widths) else 1.0
+        for f in widths:
+            spec: dict[str, Any] = {"kind": "rbf", "n_centres": int(K), "centres": centres}
+            if f != 1:
+                spec["sigma2"] = float(f * s0)
+            out.append(spec)
+    return out
 
 
 # -- report sections ------------------------------------------------------------------------
@@ -353,6 +407,8 @@ def tuning_markdown(stage: str, tuning: dict[str, Any] | None) -> list[str]:
     """Table of the cross-validation curve of one stage's hyperparameter search."""
     if not tuning:
         return []
+    if tuning.get("chosen") is None:
+        return [f"### {stage}: hyperparameters", "", tuning.get("reason", "not tuned"), ""]
     lines = [f"### {stage}: hyperparameters by cross-validation", "",
              f"Chosen: {tuning['chosen']} ({tuning['rule']}; {tuning['folds']['reason']}; "
              f"{tuning['budget_used']:.2f} s of {tuning['budget']} s"

@@ -518,6 +518,38 @@ def tracker_sphere(
                     drift=drift, seed=seed)
 
 
+def arm_at_rest(
+    duration: float = 30.0,
+    rate: float = 100.0,
+    noise: float = 2e-3,
+    position_noise: float = 1e-4,
+    n_recordings: int = 1,
+    seed: int = 0,
+) -> Demonstrations:
+    """A 7-DoF arm with a two-finger gripper recorded at rest (a data set with nothing to
+    learn, for the diagnostics): joint_states positions (rad; fingers in m) and recorded
+    velocities (rad/s, m/s) at ``rate`` Hz for ``duration`` s.
+
+    The seven arm joints hold a seeded posture within ± half their limits; their positions
+    carry white sensor noise of std ``position_noise`` rad and their velocities white noise
+    of std ``noise`` rad/s. The two finger joints are constant (0.04 m, velocity 0). X, U
+    (N, 9); no ground truth.
+    """
+    rng = np.random.default_rng(seed)
+    half = np.deg2rad(SevenDofArm().limits_deg) / 2.0
+    n = int(round(duration * rate))
+    posture = np.r_[rng.uniform(-half, half), 0.04, 0.04]
+    X = np.tile(posture, (n * n_recordings, 1))
+    X[:, :7] += rng.normal(scale=position_noise, size=(len(X), 7))
+    U = np.zeros_like(X)
+    U[:, :7] = rng.normal(scale=noise, size=(len(X), 7))
+    names = [f"lwr_arm_{i}_joint" for i in range(7)] + ["finger_joint_1", "finger_joint_2"]
+    return Demonstrations(X=X, U=U, demo=np.repeat(np.arange(n_recordings), n),
+                          t=np.tile(np.arange(n) / rate, n_recordings), state_names=names,
+                          action_names=[f"d{k}/dt" for k in names], state_units=["rad"] * 7 + ["m"] * 2,
+                          action_units=["rad/s"] * 7 + ["m/s"] * 2, metadata={"simulated": "arm_at_rest"})
+
+
 PROBLEMS = {
     "toy2d": toy2d,
     "two_link": two_link,
@@ -525,4 +557,5 @@ PROBLEMS = {
     "varying_constraint": varying_constraint,
     "tracker_plane": tracker_plane,
     "tracker_sphere": tracker_sphere,
+    "arm_at_rest": arm_at_rest,
 }

@@ -314,3 +314,91 @@ def test_inspect_rate_over_active_time_joints_and_default_demos(capsys, tmp_path
     assert json.loads(out)["demos"] == 1
     code, out, _ = run_main(capsys, "inspect", path)
     assert "500.0 Hz" in out and "joints:" in out and "demos:    2" in out
+
+
+# -- command-line conventions ------------------------------------------------------------------
+def test_version_and_help_show_defaults_and_choices(capsys):
+    from ccl_cli import __version__
+
+    code, out, _ = run_main(capsys, "--version")
+    assert code == 0 and out.strip() == f"ccl {__version__}"
+    from ccl_cli.config import CHOICES, DEFAULTS
+
+    proc = ccl("learn-a", "--help")
+    text = " ".join(proc.stdout.split())
+    rules = CHOICES[("learn-a", "selection")]
+    assert "<nhat|alpha|lambda|linear>" in text and f"<{'|'.join(rules)}>" in text
+    assert f"[default: (config, else {DEFAULTS['learn-a']['selection']})]" in text
+    assert "<ccl|original>" in text
+    assert "[default: (config, else pi)]" in " ".join(ccl("learn-pi", "--help").stdout.split())
+
+
+def test_flag_overrides_a_basis_mapping_at_any_depth(capsys, tmp_path):
+    from ccl_cli import config as C
+    from ccl_cli.models import load_model
+
+    cfg_path = tmp_path / "v.yaml"
+    cfg_path.write_text(f"data: {{files: [{SAMPLES / 'toy2d_ncl.h5'}]}}\n"
+                        "learn-v: {basis: {kind: rbf, n_centres: 4}, tune: false}\n")  # fixed settings
+    code, _, err = run_main(capsys, "learn-v", "-c", cfg_path, "--n-centres", "25", "-o", tmp_path / "o",
+                            "-q")
+    assert code == 0, err
+    assert load_model(tmp_path / "o" / "model.h5")[0].basis_.centres_.shape == (25, 2)
+    # over a stages item's own options too, and --basis keeps the mapping's other keys
+    cfg = C.merge(C.load(cfg_path), {"learn-v": {"n_centres": 25, "basis": "rbf"}})
+    opts = C.stage_options(cfg, "learn-v", {"basis": {"kind": "rbf", "n_centres": 9, "centres": "grid"}})
+    assert opts["basis"] == {"kind": "rbf", "n_centres": 25, "centres": "grid"} and opts["n_centres"] == 25
+    assert opts["tune"] is False  # the basis given on the command line is used, not searched over
+
+
+def test_flag_errors_are_one_line_and_name_the_flag(capsys, tmp_path):
+    from ccl_cli import config as C
+    from ccl_cli.errors import ConfigError
+
+    for args, flag in ((("learn-a", "--selection", "often"), "'--selection'"),
+                       (("learn-pi", "--n-centres", "many"), "'--n-centres'"),
+                       (("lern-a",), "No such command"), (("run",), "Missing argument")):
+        code, out, err = run_main(capsys, *args)
+        assert code == 2 and out == "", args
+        assert err.count("\n") == 1 and err.startswith("ccl: error: ") and flag in err, (args, err)
+        assert "Usage:" not in err and "Value error" not in err
+
+    with pytest.raises(ConfigError) as info:
+        C.merge(C.load(CONFIGS / "arm7.yaml"), {"learn-a": {"selection": "often"}})
+    assert info.value.message.startswith("--selection: learn-a.selection must be one of")
+    assert "<flags>" not in info.value.message and "\n" not in info.value.message
+
+
+def test_quiet_prints_nothing_on_success(capsys, tmp_path):
+    data = tmp_path / "d.h5"
+    for args in (("simulate", "toy2d", "-o", data, "--n-demos", "6"),
+                 ("learn-a", data, "-o", tmp_path / "a"),
+                 ("evaluate", tmp_path / "a" / "model.h5", data),
+                 ("predict", tmp_path / "a" / "model.h5", data, "-o", tmp_path / "p.csv"),
+                 ("convert", data, "-o", tmp_path / "c.h5"),
+                 ("run", CONFIGS / "arm7.yaml", "-o", tmp_path / "r")):
+        code, out, err = run_main(capsys, *args, "-q")
+        assert code == 0, (args, err)
+        assert out == "" and err == "", (args, out, err)
+
+
+def test_batch_validates_the_whole_plan_before_any_job(capsys, tmp_path):
+    code, _, err = run_main(capsys, "batch", "--files", str(SAMPLES / "*.h5"), "-o", tmp_path / "b")
+    assert code == 2 and "--config" in err and err.count("\n") == 1
+    assert not (tmp_path / "b").exists()
+    bare = tmp_path / "bare.yaml"
+    bare.write_text("learn-a: {method: nhat}\n")  # no stages: no job can run
+    code, _, err = run_main(capsys, "batch", "--files", str(SAMPLES / "arm7.h5"), "-c", bare, "-o",
+                            tmp_path / "b")
+    assert code == 2 and "no stages" in err
+    assert not (tmp_path / "b").exists()
+
+
+def test_matplotlib_font_cache_message_never_reaches_the_user(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "MPLCONFIGDIR"}
+    env |= {"XDG_CACHE_HOME": str(tmp_path / "c"), "HOME": str(tmp_path)}
+    proc = subprocess.run([CCL, "run", CONFIGS / "arm7.yaml", "-o", tmp_path / "r"], capture_output=True,
+                          text=True, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert "fontManager" not in proc.stderr and "Matplotlib" not in proc.stderr
+    assert (tmp_path / "c" / "ccl" / "matplotlib").is_dir()

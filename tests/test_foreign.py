@@ -46,7 +46,17 @@ def write_mat73(path: Path, variables: dict) -> Path:
     arrays (stored transposed), lists (cell arrays of arrays), dicts (structs)."""
 
     def put(parent, refs, name, value):
-        if isinstance(value, list):
+        if isinstance(value, list) and isinstance(value[0], dict):  # struct array: a field = references
+            g = parent.create_group(name)
+            g.attrs["MATLAB_class"] = np.bytes_("struct")
+            for key in value[0]:
+                rs = []
+                for k, elem in enumerate(value):
+                    ds = refs.create_dataset(f"{name}_{key}_{k}", data=np.asarray(elem[key], dtype=float).T)
+                    ds.attrs["MATLAB_class"] = np.bytes_("double")
+                    rs.append(ds.ref)
+                g.create_dataset(key, data=np.array(rs, dtype=h5py.ref_dtype).reshape(len(rs), 1))
+        elif isinstance(value, list):
             rs = []
             for k, item in enumerate(value):
                 ds = refs.create_dataset(f"{name}_{k}_{len(refs)}", data=np.asarray(item).T)
@@ -112,6 +122,12 @@ def test_robomimic_layout_round_trip_natural_order(tmp_path, arm):
     assert data.state_names == [f"j{i}" for i in range(7)]
     assert data.action_names == [f"joint_vel[{i}]" for i in range(7)]
     assert data.metadata["files"][0]["layout"]["demos"] == "data/demo_*"
+    picked = load({**ROBOMIMIC, "state": {"dataset": "obs/joint_pos", "columns": ["j1", 3]},
+                   "action": {"dataset": "obs/joint_vel", "columns": [1, 3]}}, path)
+    np.testing.assert_array_equal(picked.X, arm.X[:, [1, 3]])
+    assert picked.state_names == ["j1", "j3"] and picked.action_names == ["joint_vel[1]", "joint_vel[3]"]
+    bad({**ROBOMIMIC, "state": {"dataset": "obs/joint_pos", "columns": ["j9"]}}, path,
+        r"column 'j9' not found \(names: j0, j1")
 
 
 def test_flat_layout_with_demo_index_rate_and_derived_action(tmp_path, arm):
@@ -129,6 +145,23 @@ def test_flat_layout_with_demo_index_rate_and_derived_action(tmp_path, arm):
         f["q"] = np.repeat(np.arange(10.0)[:, None], 2, 1) * [1.0, -2.0]
     line = load({"state": {"dataset": "q"}, "time": {"rate": 10}}, path)
     np.testing.assert_allclose(line.U, np.tile([10.0, -20.0], (10, 1)), atol=1e-9)
+
+
+def test_integer_nanosecond_stamps_stay_exact(tmp_path):
+    epoch = 1_700_000_000_123_456_789
+    stamps = epoch + np.arange(2000, dtype=np.int64) * 1_000_000 + np.tile([0, 1], 1000)  # 1 kHz, ±1 ns
+    path = tmp_path / "ns.h5"
+    with h5py.File(path, "w") as f:
+        f["q"] = np.arange(2000.0)[:, None]
+        f["stamp"] = stamps
+    cfg = {"files": [str(path)], "state": {"dataset": "q"}, "time": {"dataset": "stamp"}}
+    data = load_demonstrations(cfg)
+    # exact to the ns (float64 of the epoch stamps would not be: 256 ns steps)
+    np.testing.assert_array_equal(np.round(data.t * 1e9).astype(np.int64), stamps - epoch)
+    assert data.metadata["time_origin_ns"] == epoch
+    assert data.metadata["files"][0]["layout"]["time"] == "stamp: integer stamps in ns"
+    with pytest.raises(InputError, match="not both"):
+        load_demonstrations({**cfg, "demos": {"group": "*", "dataset": "x"}})
 
 
 def test_samples_columns_in_hdf5(tmp_path, arm):
@@ -172,7 +205,7 @@ def test_hdf5_external_link_and_storage_refused(tmp_path, arm):
     path2 = tmp_path / "ext.h5"
     with h5py.File(path2, "w") as f:
         f.create_dataset("X", shape=arm.X.shape, dtype="<f8", external=[(str(raw), 0, h5py.h5f.UNLIMITED)])
-    bad({"state": {"dataset": "X"}, "time": {"rate": 20}}, path2, "external files")
+    bad({"state": {"dataset": "X"}, "time": {"rate": 20}}, path2, "stores its data in external file")
     path3 = tmp_path / "virtual.h5"
     with h5py.File(path3, "w") as f:
         layout = h5py.VirtualLayout(shape=arm.X.shape, dtype="f8")
@@ -186,8 +219,12 @@ MAT_CELLS = {"format": "mat", "state": {"variable": "X", "samples": "columns"},
              "action": {"variable": "U", "samples": "columns"}, "time": {"rate": 20}}
 
 
-def _cells(arm, key):
-    return np.array([getattr(arm, key)[arm.demo == d].T for d in arm.demo_ids] + [None], dtype=object)[:-1]
+def _cells(data, key):
+    """One (dims × samples) matrix per demonstration, as a 1-D object array (a cell row for savemat)."""
+    out = np.empty(data.n_demos, dtype=object)
+    for k, d in enumerate(data.demo_ids):
+        out[k] = getattr(data, key)[data.demo == d].T
+    return out
 
 
 def test_mat_v5_cells_one_sample_per_column(tmp_path, arm):
@@ -201,7 +238,9 @@ def test_mat_v5_cells_one_sample_per_column(tmp_path, arm):
     assert data.state_names[0] == "X[0]"
     # orientation found from the other variable when not given (7×20 matrices share both sides
     # with each other, but the time vector fixes n = 20)
-    t = np.array([arm.t[arm.demo == d][None, :] for d in arm.demo_ids] + [None], dtype=object)[:-1]
+    t = np.empty(arm.n_demos, dtype=object)
+    for k, d in enumerate(arm.demo_ids):
+        t[k] = arm.t[arm.demo == d][None, :]
     scipy.io.savemat(path, {"X": _cells(arm, "X")[None, :], "U": _cells(arm, "U")[None, :], "t": t[None, :]})
     auto = load({"format": "mat", "state": {"variable": "X"}, "action": {"variable": "U"},
                  "time": {"variable": "t"}}, path)
@@ -215,6 +254,19 @@ def test_mat_v5_struct_fields_matrix_and_demo_index(tmp_path, arm):
                  "demos": {"variable": "data.demo"}, "time": {"rate": 20}}, path)
     np.testing.assert_array_equal(data.X, arm.X)
     assert data.n_demos == arm.n_demos
+    runs = np.empty((1, 3), dtype=[("X", object), ("U", object)])  # a struct array: one demo per element
+    for k in range(3):
+        runs[0, k]["X"], runs[0, k]["U"] = arm.X[arm.demo == k].T, arm.U[arm.demo == k].T
+    scipy.io.savemat(path, {"run": runs})
+    cfg = {**MAT_CELLS, "state": {"variable": "run.X", "samples": "columns"},
+           "action": {"variable": "run.U", "samples": "columns"}}
+    data = load({**cfg, "time": {"rate": 20}}, path)
+    np.testing.assert_array_equal(data.U, arm.select_demos([0, 1, 2]).U)
+    assert data.n_demos == 3
+    # the same in v7.3 (fields of a struct array are reference datasets)
+    elems = [{"X": arm.X[arm.demo == k].T, "U": arm.U[arm.demo == k].T} for k in range(3)]
+    v73 = write_mat73(tmp_path / "sa73.mat", {"run": elems})
+    np.testing.assert_array_equal(load(cfg, v73).X, arm.select_demos([0, 1, 2]).X)
 
 
 def test_mat_v5_bad_cases_one_line(tmp_path, arm):
@@ -330,6 +382,25 @@ def test_bar_arm7_mat73_matrix_demo_index(tmp_path, capsys):
     cfg = {**MAT_CELLS, "demos": {"variable": "demo"}}
     _bar(tmp_path, capsys, lambda p, d: write_mat73(p.with_suffix(".mat"), {
         "X": d.X.T, "U": d.U.T, "demo": d.demo[None, :].astype(float)}), cfg)
+    # convert and evaluate read the same file with the same -c config
+    held, config = tmp_path / "held.mat", tmp_path / "c.yaml"
+    assert main(["convert", str(held), "-c", str(config), "-o", str(tmp_path / "held.h5"), "-q"]) == 0
+    with h5py.File(tmp_path / "held.h5") as f:
+        assert len(f["demos"]) == 10 and f["demos/demo_0000/x"].shape == (40, 7)
+    assert main(["evaluate", str(tmp_path / "out" / "model.h5"), str(held), "-c", str(config), "--json",
+                 "-q"]) == 0
+    metrics = json.loads(capsys.readouterr().out)["metrics"]
+    assert metrics["NPOE"] < 1e-3, metrics  # no ground truth in a .mat: the observed-action error
+
+
+def test_cli_inspect_lists_the_tree_and_demos(tmp_path, capsys, arm):
+    path = write_robomimic(tmp_path / "r.hdf5", demo_list(arm))
+    config = tmp_path / "c.yaml"
+    config.write_text(yaml.safe_dump({"data": ROBOMIMIC}))
+    assert main(["inspect", str(path), "-c", str(config)]) == 0
+    out = capsys.readouterr().out
+    assert "data/demo_11/obs/joint_pos  dataset  [20, 7]  float64" in out
+    assert "demos:    12" in out and "samples_per_demo: [20," in out
 
 
 def test_cli_bad_mat_exit_2(tmp_path, capsys):
@@ -359,7 +430,7 @@ def test_text_matrices_one_sample_per_column_one_file_per_variable(tmp_path, arm
     np.testing.assert_array_equal(data.U, first3.U)
     assert data.n_demos == 3 and data.state_names[0] == "X[0]" and data.action_names[6] == "U[6]"
     info = inspect_path(tmp_path / "demo0" / "X.txt", {**TEXT, "files": []})
-    assert info["samples"] == "columns" and info["rows"] == 20 and len(info["columns"]) == 7
+    assert info["sample_axis"] == "columns" and info["rows"] == 20 and len(info["columns"]) == 7
 
 
 def test_text_matrix_bad_cases_one_line(tmp_path, arm):

@@ -39,7 +39,8 @@ def fixtures(tmp_path_factory):
     root = tmp_path_factory.mktemp("hostile")
     data = root / "toy.h5"
     write_demonstrations(data, sim.toy2d(n_demos=4, n_steps=40, seed=0))
-    assert main(["learn-v", str(data), "-o", str(root / "v"), "-q", "--n-centres", "4"]) == 0
+    assert main(["learn-v", str(data), "-o", str(root / "v"), "-q", "--n-centres", "4",
+                 "--test-fraction", "0"]) == 0  # 4 demonstrations: too few for a held-out set
     return {"root": root, "data": data, "model": root / "v" / "model.h5"}
 
 

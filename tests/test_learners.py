@@ -14,6 +14,7 @@ from ccl_cli.constraint import (
     StateDependentConstraint,
     StateIndependentConstraint,
 )
+from ccl_cli.errors import ConfigError
 from ccl_cli.linalg import nullspace_projection, unit_rows
 from ccl_cli.metrics import nppe, nupe
 from ccl_cli.nullspace import NullSpaceComponent
@@ -162,9 +163,9 @@ def test_ncl_recovers_null_space_component():
     data = sim.toy2d(constraint="fixed", task=True, sampling="uniform", n_samples=1000,
                      n_demos=1, seed=0)
     train, test = data.subset(np.arange(500)), data.subset(np.arange(500, 1000))
-    model = NullSpaceComponent(n_centres=16).fit(train.X, train.U)
+    model = NullSpaceComponent(n_centres=16, tune=False).fit(train.X, train.U)
     ours = nupe(test.truth["w"], model.predict(test.X))
-    direct = PolicyLearner(method="dpl", n_centres=16).fit(train.X, train.U)
+    direct = PolicyLearner(method="dpl", n_centres=16, tune=False).fit(train.X, train.U)
     baseline = nupe(test.truth["w"], direct.predict(test.X))
     assert ours.value < 1e-3
     assert baseline.value > 100 * ours.value
@@ -195,7 +196,8 @@ def test_pi_variants_under_noise():
     train, test = policy_data(0.01)
     err = {}
     for method in ("pi", "pi-weighted", "pi-coupled", "dpl"):
-        model = PolicyLearner(method=method, basis=GRID).fit(train.X, train.U, train.true_projection())
+        model = PolicyLearner(method=method, basis=GRID, tune=False).fit(train.X, train.U,
+                                                                        train.true_projection())
         err[method] = nupe(test.truth["pi"], model.predict(test.X)).value
     assert err["pi-weighted"] * 5 < err["pi"]
     assert err["pi-coupled"] < err["pi-weighted"]
@@ -205,7 +207,7 @@ def test_pi_variants_under_noise():
 def test_lwpi_learns_a_linear_policy_locally():
     data = sim.toy2d(constraint="fixed", policy="linear", vary_constraint=True, noise=0.0)
     train, test = data.split(0.3, 0)
-    model = PolicyLearner(method="lwpi", n_centres=9).fit(train.X, train.U)
+    model = PolicyLearner(method="lwpi", n_centres=9, tune=False).fit(train.X, train.U)
     assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
 
 
@@ -278,3 +280,118 @@ def test_set_params_nested_and_keyword_only():
     assert PolicyLearner().set_params(n_centres=9).n_centres == 9
     with pytest.raises(TypeError):
         PolicyLearner("pi")  # the parameters are keyword-only
+
+
+def test_absolute_cutoff_is_the_original_rule_not_the_relative_one():
+    from ccl_cli.linalg import eigen_lstsq
+
+    M = np.diag([1e3, 5e-4, 1e-7])
+    r = np.array([1e3, 5e-4, 1e-7])
+    np.testing.assert_allclose(eigen_lstsq(M, r, 1e-6), [1.0, 0.0, 0.0])  # 5e-4 < 1e-6·1e3
+    np.testing.assert_allclose(eigen_lstsq(M, r, 1e-6, absolute=True), [1.0, 1.0, 0.0])
+    data = sim.toy2d(policy="limit_cycle", vary_constraint=True, sampling="uniform", n_samples=400, seed=0)
+    grid = {"kind": "rbf", "n_centres": 100, "centres": "grid", "sigma2": 0.5}
+    rel = PolicyLearner(basis=grid, tune=False).fit(data.X, data.U)
+    ab = PolicyLearner(basis=grid, tune=False, cutoff_rule="absolute").fit(data.X, data.U)
+    assert not np.allclose(rel.W_, ab.W_)  # 100 grid RBFs leave eigenvalues between the two cut-offs
+    with pytest.raises(ConfigError, match="cutoff_rule"):
+        PolicyLearner(cutoff_rule="absolut", tune=False).fit(data.X, data.U)
+
+
+# ---- issue 10 (scale): chunked normal equations give the unchunked answers ----------------
+
+from ccl_cli import linalg as _linalg  # noqa: E402
+from ccl_cli.basis import kmeans_centres  # noqa: E402
+from ccl_cli.constraint import angular as _angular  # noqa: E402
+
+
+def test_kron_normal_summed_over_blocks_equals_the_full_jacobian_products():
+    rng = np.random.default_rng(0)
+    G, B, r = rng.normal(size=(1000, 3)), rng.uniform(size=(1000, 7)), rng.normal(size=1000)
+    J = np.stack([np.outer(g, b).ravel() for g, b in zip(G, B, strict=True)])  # explicit N × mK rows
+    JtJ, Jtr = np.zeros((21, 21)), np.zeros(21)
+    for rows in _linalg.row_chunks(1000, 64):
+        M, g = _linalg.kron_normal(G[rows], B[rows], r[rows])
+        JtJ += M
+        Jtr += g
+    np.testing.assert_allclose(JtJ, J.T @ J, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(Jtr, J.T @ r, rtol=1e-10, atol=1e-10)
+
+
+def test_kron_least_squares_solves_a_separable_problem_like_scipy():
+    from scipy.optimize import least_squares
+
+    rng = np.random.default_rng(1)
+    B = rng.uniform(size=(400, 5))
+    B /= B.sum(1, keepdims=True)
+    W_true = rng.normal(size=(2, 5))
+    Y = np.exp(B @ W_true.T) + 0.01 * rng.normal(size=(400, 2))
+
+    def residual(W, rows, Bc):  # r = Σ_j exp(θ_j) − Σ_j y_j: scalar residual of a 2-vector
+        E = np.exp(Bc @ W.T)
+        return E.sum(1) - Y[rows].sum(1) + (E[:, 0] - Y[rows, 0]), E * np.array([2.0, 1.0])
+
+    blocks = [(rows, B[rows]) for rows in _linalg.row_chunks(400, 50)]
+    W, cost, _ = _linalg.kron_least_squares(np.zeros((2, 5)), lambda: blocks, residual)
+
+    def f(w):
+        return residual(w.reshape(2, 5), slice(None), B)[0]
+
+    ref = least_squares(f, np.zeros(10), method="trf", xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    assert cost <= 2 * ref.cost * (1 + 1e-8)
+
+
+@pytest.mark.parametrize("method", ["pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"])
+def test_policy_chunk_size_smaller_than_n_gives_the_same_fit(method):
+    train, test = policy_data(0.01)
+    P = train.true_projection()
+    whole = PolicyLearner(method=method, basis=GRID, tune=False).fit(train.X, train.U, P)
+    chunked = PolicyLearner(method=method, basis=GRID, chunk_size=97, tune=False).fit(train.X, train.U, P)
+    np.testing.assert_allclose(chunked.W_, whole.W_, rtol=1e-8, atol=1e-8 * np.abs(whole.W_).max())
+    np.testing.assert_allclose(chunked.predict(test.X), whole.predict(test.X), atol=1e-8)
+
+
+def test_ncl_chunk_size_smaller_than_n_gives_the_same_fit():
+    data = sim.toy2d(constraint="fixed", task=True, sampling="uniform", n_samples=600,
+                     n_demos=1, seed=0)
+    whole = NullSpaceComponent(n_centres=9, tune=False).fit(data.X, data.U)
+    chunked = NullSpaceComponent(n_centres=9, chunk_size=64, tune=False).fit(data.X, data.U)
+    assert chunked.cost_ == pytest.approx(whole.cost_, rel=1e-6)
+    np.testing.assert_allclose(chunked.predict(data.X), whole.predict(data.X), atol=1e-5)
+
+
+def test_linear_and_alpha_blocks_smaller_than_n_give_the_same_fit(monkeypatch):
+    data = sim.toy2d(constraint="parabola", seed=0, task=True)
+    models = lambda: [  # noqa: E731
+        LinearConstraint(task=True),
+        LinearConstraint(whiten="errors", reweight=2),
+        LinearConstraint(regressors="rbf", basis=RBFBasis(9), selection="threshold", tune=False),
+        StateDependentConstraint(n_restarts=1),
+    ]
+    whole = [m.fit(data.X, data.U) for m in models()]
+    monkeypatch.setattr(_linalg, "CHUNK_ROWS", 100)
+    chunked = [m.fit(data.X, data.U) for m in models()]
+    for a, b in zip(whole, chunked, strict=True):
+        np.testing.assert_allclose(b.projection(data.X), a.projection(data.X), atol=1e-5)
+
+
+def test_kmeans_on_a_subsample_finds_separated_clusters_and_stops_early():
+    rng = np.random.default_rng(0)
+    truth = np.array([[0.0, 0.0], [5.0, 0.0], [0.0, 5.0], [5.0, 5.0]])
+    X = truth[rng.integers(4, size=200_000)] + 0.1 * rng.normal(size=(200_000, 2))
+    centres = kmeans_centres(X, 4, seed=0, max_samples=5000)
+    order = np.lexsort(np.round(centres).T[::-1])  # by x, then y
+    np.testing.assert_allclose(centres[order], truth[[0, 2, 1, 3]], atol=0.02)
+
+
+def test_local_start_signs_agree_along_the_parabola_at_large_n():
+    """Regression guard: at N = 1e5 the old eigenvector sign rule flipped part of the domain
+    (alpha's test NPPE 0.006 at 1e4 → 0.24 at 1e5)."""
+    data = sim.toy2d(sampling="uniform", n_samples=100_000, n_demos=1, seed=0,
+                     constraint="parabola")
+    B = RBFBasis(25).fit(data.X).transform(data.X)
+    W0 = _angular._local_start(B, data.U, data.X, np.random.default_rng(0))
+    a = data.truth["A"][:, 0, :]
+    off = np.angle(np.exp(1j * ((B @ W0.T)[:, 0] - np.arctan2(a[:, 1], a[:, 0]))))
+    flipped = np.mean(np.abs(off) > np.pi / 2)
+    assert min(flipped, 1 - flipped) < 0.01

@@ -351,7 +351,7 @@ def _trakstar_rows(n=60, empty_header=False):
 
 
 @pytest.mark.parametrize("empty_header", [False, True])
-def test_raw_trakstar_export_reads_with_state_columns_only(tmp_path, empty_header):
+def test_raw_trakstar_export_reads_with_state_columns_only(tmp_path, capsys, empty_header):
     head, rows, t, p = _trakstar_rows(empty_header=empty_header)
     path = tmp_path / "trakstar.csv"
     path.write_text("\n".join(",".join(r) for r in [head, *rows]) + "\n")
@@ -362,6 +362,12 @@ def test_raw_trakstar_export_reads_with_state_columns_only(tmp_path, empty_heade
     info = inspect_path(path, {"state": {"columns": ["x", "y", "z"]}})
     assert info["time_column"] == "rosbagTimestamp" and info["state_names"] == ["x", "y", "z"]
     assert info["rate_hz"] == pytest.approx(50.0)
+    from ccl_cli.cli import main
+
+    (tmp_path / "c.yaml").write_text("data:\n  state: {columns: [x, y, z]}\n")
+    assert main(["inspect", str(path), "-c", str(tmp_path / "c.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "(time column rosbagTimestamp" in out and "state_names: ['x', 'y', 'z']" in out
 
 
 def test_csv_time_detection_never_picks_an_empty_or_text_column(tmp_path):

@@ -105,6 +105,12 @@ def test_task_term_is_not_in_npoe_and_policy_metrics_by_hand(tmp_path):
     check(metrics["learn-a"]["train"], "NPOE", float(np.mean(resid**2 / norm2)), tv(d.U), "u")
     assert metrics["learn-a"]["train"]["NPOE"]["value"] < 0.01  # 0.20 when A⁺b was counted
     assert "test" not in metrics["learn-a"]  # per-demonstration: no model for held-out demos
+    assert {p.name for p in (out / "plots").iterdir()} == {
+        "learn-a-field.png", "learn-a-selection.png", "learn-a-constraint.png", "learn-pi-field.png",
+        "learn-pi-time.png"}
+    report = (out / "report.md").read_text()
+    assert "NMSE" not in report and "baseline" in report.lower()
+    assert metrics["learn-a"]["constraint"]["median_angle_deg"] < 1.0
     N_est = np.eye(2)[None] - a[:, :, None] * a[:, None, :] / norm2[:, None, None]
     v_est = a * (b / norm2)[:, None]
     for part, d in data.items():
@@ -178,3 +184,23 @@ def test_evaluate_command_matches_the_stage_numbers(tmp_path, capsys):
     ev = json.loads(capsys.readouterr().out)
     for name, m in metrics["learn-a"]["test"].items():
         assert ev["metrics"][name] == pytest.approx(m["value"], rel=1e-12)
+
+
+def test_plot_helpers_subsample_and_angles():
+    from ccl_cli.inspect import activity
+    from ccl_cli.plots import grid_subsample, subspace_angle
+
+    X = np.random.default_rng(0).uniform(-1, 1, (5000, 2))
+    idx = grid_subsample(X, cells=10)
+    assert 90 <= len(idx) <= 100  # one state per occupied cell of a 10 × 10 grid
+    cells = np.floor((X[idx] + 1) / 2 * 10 - 1e-9).astype(int)
+    assert len({tuple(c) for c in cells}) == len(idx)
+    n1 = np.array([[0.0, 0.0, 1.0]])
+    n2 = np.array([[0.0, np.sin(np.radians(5)), np.cos(np.radians(5))]])
+    assert subspace_angle(n1, n2) == pytest.approx(5.0)
+    assert subspace_angle(n1, -n2) == pytest.approx(5.0)  # a normal's sign does not matter
+    # 500 Hz with one 2 s pause: the rate over the active time is 500 Hz, two demonstrations
+    t = np.concatenate([np.arange(500), 1500 + np.arange(500)]) * 2_000_000
+    act = activity(t)
+    assert act["rate_hz"] == pytest.approx(500.0) and act["demos"] == 2
+    assert activity(t, gap_s=3.0)["demos"] == 1

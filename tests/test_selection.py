@@ -47,6 +47,12 @@ def test_holdout_split_blocks_for_one_recording_and_demos_otherwise():
     assert many.info["kind"] == "demonstrations" and many.info["n_test_demos"] == 3
     few = S.holdout_split(np.repeat(np.arange(3), 400), 0.3, seed=0)
     assert few.info["kind"] == "blocks" and "only 3 demonstrations" in few.info["reason"]
+    short = S.holdout_split(np.repeat(np.arange(4), 15), 0.3, seed=0, gap=10)  # blocks < 2 gaps long
+    assert short.info["kind"] == "demonstrations" and "too few for time blocks" in short.info["reason"]
+    fewer_blocks = S.holdout_split(np.zeros(150, int), 0.3, seed=0, gap=10)
+    assert fewer_blocks.info["n_train_blocks"] + fewer_blocks.info["n_test_blocks"] == 6
+    with pytest.raises(InputError, match="too few"):
+        S.holdout_split(np.zeros(60, int), 0.3, seed=0, gap=10)
 
 
 def test_cross_validate_scores_held_out_npoe_by_hand():
@@ -66,13 +72,13 @@ def test_cross_validate_scores_held_out_npoe_by_hand():
 
 def test_cross_validate_scores_policies_and_ncl_by_their_own_consistency_error():
     data = sim.toy2d(policy="limit_cycle", vary_constraint=True, sampling="uniform", n_samples=500, seed=0)
-    res = S.cross_validate(PolicyLearner(method="pi", n_centres=16), data.X, data.U, data.demo)
-    bad = S.cross_validate(PolicyLearner(method="pi", basis="linear"), data.X, data.U, data.demo)
+    res = S.cross_validate(PolicyLearner(method="pi", n_centres=16, tune=False), data.X, data.U, data.demo)
+    bad = S.cross_validate(PolicyLearner(method="pi", basis="linear", tune=False), data.X, data.U, data.demo)
     assert res.mean < 0.5 * bad.mean  # the limit cycle is not linear: a linear basis fits worse
     pi = np.array([[1.0, 0.0]])
     assert S.inconsistency_score(pi, np.array([[1.0, 0.0]])) == 0.0  # û ûᵀ π = u
     ncl = sim.toy2d(task=True, sampling="uniform", n_samples=400, seed=0)
-    res = S.cross_validate(NullSpaceComponent(n_centres=16), ncl.X, ncl.U, ncl.demo, n_folds=3)
+    res = S.cross_validate(NullSpaceComponent(n_centres=16, tune=False), ncl.X, ncl.U, ncl.demo, n_folds=3)
     assert res.scores.shape == (3,) and np.all(res.scores < 0.05)
 
 
@@ -103,3 +109,28 @@ def test_default_rule_is_one_for_library_and_cli():
     for cls in (StateIndependentConstraint, StateDependentConstraint, KnownFeatureConstraint,
                 LinearConstraint):
         assert cls().selection == rank.DEFAULT_RULE
+
+
+def test_a_single_continuous_recording_gets_a_stated_block_split(tmp_path, capsys):
+    """The issue's bar: one recording → time blocks, stated in --json, stderr, report.md, run.json."""
+    import json
+
+    from ccl_cli.cli import main
+
+    h5 = tmp_path / "plane.h5"
+    assert main(["simulate", "tracker_plane", "-o", str(h5), "--seed", "3", "-q"]) == 0
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(f"data: {{files: [{h5}]}}\nlearn-a: {{method: nhat}}\n")
+    capsys.readouterr()
+    assert main(["learn-a", "-c", str(cfg), "-o", str(tmp_path / "out"), "--json", "-q"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    val = summary["validation"]
+    assert val["kind"] == "blocks" and "single continuous recording" in val["reason"]
+    assert val["n_test_blocks"] == 3 and val["n_train_blocks"] == 7
+    stage = summary["stages"]["learn-a"]
+    assert stage["n_constraints"] == 1 and stage["test"]["NPOE"] < 0.03
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "## Validation" in report and "**blocks**" in report
+    assert json.loads((tmp_path / "out" / "run.json").read_text())["validation"]["kind"] == "blocks"
+    assert main(["learn-a", "-c", str(cfg), "-o", str(tmp_path / "out2")]) == 0
+    assert "validation: blocks (a single continuous recording" in capsys.readouterr().err

@@ -12,8 +12,9 @@ by Levenberg–Marquardt with the analytic Jacobian
 whose rows vec(g_n β_nᵀ) are summed into JᵀJ and Jᵀr block by block, one pass over
 the data per iteration (:func:`~ccl_cli.linalg.kron_least_squares`; no N × (d−k)K matrix),
 
-from several seeded starts (the first one the best constant direction, from the
-closed form), keeping the best. The frame is then advanced with the Givens rotation
+from several seeded starts (the local closed form, the best constant direction, random
+ones): each start is screened for SCREEN_PASSES iterations and the best is run to
+convergence. The frame is then advanced with the Givens rotation
 of θ_n: Q_n ← blockdiag(I_{k−1}, R(θ_n)ᵀ) Q_n.
 """
 
@@ -25,6 +26,11 @@ import numpy as np
 
 from ccl_cli.angles import angles_of, frame, unit_vector, unit_vector_jacobian
 from ccl_cli.linalg import kron_least_squares, row_chunks, total_variance
+
+#: LM iterations every start gets before only the best one is continued.
+SCREEN_PASSES = 8
+#: Eigenvalue cut-off of the LM steps: the angle fits keep every direction (as before).
+ANGLE_CUTOFF = 1e-16
 
 
 @dataclass
@@ -140,12 +146,20 @@ def _fit_row(B: np.ndarray, Z: np.ndarray, n_restarts: int, rng: np.random.Gener
     while len(starts) < max(1, n_restarts):
         th = rng.uniform(0.0, np.pi, m - 1)
         starts.append(np.outer(th, lift) + rng.normal(scale=0.3, size=(m - 1, K)))
-    best_w, best_cost = starts[0], np.inf
-    for w0 in starts:
-        W, cost, _ = kron_least_squares(w0, lambda: blocks, residual, max_iter, tol)
-        if cost < best_cost:
-            best_w, best_cost = W, cost
-    return best_w, best_cost
+    if len(starts) == 1:
+        W, cost, _ = kron_least_squares(starts[0], lambda: blocks, residual, max_iter, tol,
+                                     ANGLE_CUTOFF)
+        return W, cost
+    # Screen: every start gets SCREEN_PASSES iterations, the best one is run to convergence.
+    screened = [kron_least_squares(w0, lambda: blocks, residual, min(SCREEN_PASSES, max_iter), tol,
+                                   ANGLE_CUTOFF)
+                for w0 in starts]
+    W, cost, used = min(screened, key=lambda fit: fit[1])
+    if used < min(SCREEN_PASSES, max_iter):  # converged while screening
+        return W, cost
+    W, cost, _ = kron_least_squares(W, lambda: blocks, residual, max(1, max_iter - used), tol,
+                                 ANGLE_CUTOFF)
+    return W, cost
 
 
 def fit_sequence(

@@ -1,10 +1,10 @@
 """Readers of demonstration recordings, one per format behind one interface.
 
 :mod:`ccl_cli.io.registry` holds the :class:`~ccl_cli.io.registry.Reader` protocol and
-the formats (canonical or config-described HDF5, CSV, ROS 1 bag, ROS 2 bag directory,
-standalone MCAP). ``detect_format`` looks at the content, not only the suffix;
-``load_demonstrations`` turns the ``data`` section of a config into one
-:class:`~ccl_cli.dataset.Demonstrations`. This package only re-exports.
+the formats (canonical or config-described HDF5, MATLAB .mat v5/v7.3, CSV and text
+matrices, ROS 1 bag, ROS 2 bag directory, standalone MCAP). ``detect_format`` looks at
+the content, not only the suffix; ``load_demonstrations`` turns the ``data`` section of a
+config into one :class:`~ccl_cli.dataset.Demonstrations`. This package only re-exports.
 """
 
 from __future__ import annotations

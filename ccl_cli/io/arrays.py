@@ -44,8 +44,9 @@ class Part:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
-def numeric(values: Any, where: str) -> np.ndarray:
-    """``values`` as a float64 array, or a one-line error saying what it is instead."""
+def numeric(values: Any, where: str, keep_int: bool = False) -> np.ndarray:
+    """``values`` as a float64 array (int64 if ``keep_int`` and integer), or a one-line
+    error saying what it is instead."""
     arr = np.asarray(values)
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
         kind = "text" if arr.dtype.kind in "SUa" else f"dtype {arr.dtype}"
@@ -54,6 +55,8 @@ def numeric(values: Any, where: str) -> np.ndarray:
         raise InputError(f"{where}: complex numbers are not supported")
     if arr.ndim > 2:
         raise InputError(f"{where}: {arr.ndim}-D array {arr.shape}; expected a vector or a matrix")
+    if keep_int and np.issubdtype(arr.dtype, np.integer):
+        return arr.astype(np.int64)
     return arr.astype(float)
 
 
@@ -95,14 +98,14 @@ def orient(variables: dict[str, Variable], default: str | None, where: str) -> d
     if known:
         counts = set(known.values())
         if len(counts) > 1:
-            desc = ", ".join(f"{variables[k].where} has {n}" for k, n in known.items())
+            desc = ", ".join(f"{_name(variables[k])} has {n}" for k, n in known.items())
             raise InputError(f"{where}: the variables disagree on the number of samples ({desc}); "
                              "check samples: rows|columns")
         n = counts.pop()
     else:
         common = set.intersection(*(set(v.values.shape) for v in variables.values()))
         if len(common) != 1:
-            shapes = ", ".join(f"{v.where} {_shape(v.values)}" for v in variables.values())
+            shapes = ", ".join(f"{_name(v)} {_shape(v.values)}" for v in variables.values())
             raise InputError(f"{where}: cannot tell which side holds the samples ({shapes}); "
                              "set samples: rows or samples: columns")
         n = common.pop()
@@ -125,6 +128,11 @@ def orient(variables: dict[str, Variable], default: str | None, where: str) -> d
     return out
 
 
+def _name(var: Variable) -> str:
+    """The variable's own part of ``where`` (after the file name)."""
+    return var.where.rsplit(": ", 1)[-1]
+
+
 def _shape(arr: np.ndarray) -> str:
     return "×".join(map(str, arr.shape))
 
@@ -145,25 +153,70 @@ def split_by_index(arrays: dict[str, np.ndarray], demo: np.ndarray, where: str
     return [(f"demo {int(ids[c[0]])}", {k: v[c] for k, v in arrays.items()}) for c in chunks]
 
 
-def time_of(n: int, t: np.ndarray | None, time_cfg: dict[str, Any], where: str) -> np.ndarray:
-    """Seconds (n,): the time vector scaled by ``time.unit``, or ``k / time.rate``."""
-    unit = time_cfg.get("unit") or "s"
-    if unit not in TIME_UNITS:
+def chunk_times(chunks: list[tuple[str, dict[str, np.ndarray]]], time_cfg: dict[str, Any], where: str
+                ) -> tuple[list[np.ndarray], int, str]:
+    """Seconds per demonstration, the time origin in ns, and what was used.
+
+    From the ``time`` arrays of the chunks scaled by ``time.unit`` (integer stamps without
+    a unit: ≥ 1e15 means ns, else s, as for CSV), or ``k / time.rate``. Integer stamps are
+    made relative to the file's first stamp in integer arithmetic (exact at epoch scale);
+    that stamp is the origin.
+    """
+    unit = time_cfg.get("unit")
+    if unit is not None and unit not in TIME_UNITS:
         raise InputError(f"data.time.unit must be one of {', '.join(TIME_UNITS)}, got {unit!r}")
-    if t is not None:
-        return np.asarray(t, dtype=float).ravel() * TIME_UNITS[unit]
-    rate = time_cfg.get("rate")
-    if rate is None:
-        raise InputError(f"{where}: no time given; set data.time.rate (Hz) or the time dataset/variable")
-    if not rate > 0:
-        raise InputError(f"data.time.rate must be positive, got {rate}")
-    return np.arange(n) / float(rate)
+    if "time" not in chunks[0][1]:
+        rate = time_cfg.get("rate")
+        if rate is None:
+            raise InputError(f"{where}: no time given; set data.time.rate (Hz) or the time dataset/variable")
+        if not rate > 0:
+            raise InputError(f"data.time.rate must be positive, got {rate}")
+        return [np.arange(a["state"].shape[0]) / float(rate) for _, a in chunks], 0, f"rate {rate} Hz"
+    raws = [a["time"][:, 0] for _, a in chunks]
+    if np.issubdtype(raws[0].dtype, np.integer):
+        origin = int(raws[0][0])
+        if unit is None:
+            unit = "ns" if max(int(np.abs(r).max()) for r in raws) >= 10**15 else "s"
+        scale = TIME_UNITS[unit]
+        return ([(r.astype(np.int64) - origin).astype(float) * scale for r in raws],
+                origin * round(scale * 1e9), f"integer stamps in {unit}")
+    unit = unit or "s"
+    return [r.astype(float) * TIME_UNITS[unit] for r in raws], 0, f"stamps in {unit}"
 
 
 def names_for(label: str, d: int, given: list[str] | None) -> list[str]:
     if given is not None and len(given) == d:
         return [str(g) for g in given]
     return [label] if d == 1 else [f"{label}[{j}]" for j in range(d)]
+
+
+def select_columns(mat: np.ndarray, names: list[str], columns: list[Any] | None, where: str
+                   ) -> tuple[np.ndarray, list[str]]:
+    """Columns of ``mat`` by 0-based index or by name."""
+    if not columns:
+        return mat, names
+    idx = []
+    for c in columns:
+        if isinstance(c, int) or (isinstance(c, str) and c.isdigit() and c not in names):
+            k = int(c)
+            if not 0 <= k < mat.shape[1]:
+                raise InputError(f"{where}: column {k} out of range (0..{mat.shape[1] - 1})")
+        elif c in names:
+            k = names.index(c)
+        else:
+            raise InputError(f"{where}: column {c!r} not found (names: {', '.join(names)})")
+        idx.append(k)
+    return mat[:, idx], [names[k] for k in idx]
+
+
+def pick_columns(parts: list[Part], attr: str, names: list[str], columns: list[Any] | None,
+                 where: str) -> list[str]:
+    """Keep ``columns`` of every part's ``attr`` (X or U) in place; the names kept."""
+    kept = names
+    for part in parts:
+        values, kept = select_columns(getattr(part, attr), names, columns, where)
+        setattr(part, attr, values)
+    return kept
 
 
 def assemble(parts: list[Part], data_cfg: dict[str, Any], where: str, state_names: list[str],

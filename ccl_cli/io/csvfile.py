@@ -201,7 +201,7 @@ class CsvReader:
         t, col = self._time(names, body) if body else (np.zeros(0, np.int64), "")
         return {"start_ns": int(t[0]) if len(t) else 0, "end_ns": int(t[-1]) if len(t) else 0,
                 "columns": names, "rows": len(body), "time_column": col, "header": not self.headerless,
-                "samples": self.samples}
+                "sample_axis": self.samples}
 
     def read_many(self, specs: list[StreamSpec]) -> list[Stream]:
         return [self.read(spec) for spec in specs]
@@ -228,7 +228,7 @@ class CsvReader:
                                  f"({col[bad]!r})") from None
         labels = [f"{self.path.stem}[{names[k]}]" if self.headerless else names[k] for k in idx]
         return Stream(t_ns, values, labels, str(self.path),
-                      {"columns": [names[k] for k in idx], "time_column": tcol, "samples": self.samples})
+                      {"columns": [names[k] for k in idx], "time_column": tcol, "sample_axis": self.samples})
 
 
 _TIME_KEYS = {n.lower() for n in TIME_NAMES}
@@ -241,9 +241,18 @@ def find_time_column(names: list[str], body: list[list[str]]) -> int | None:
     for cand in TIME_NAMES:
         key = cand.lower()
         for k, name in enumerate(lower):
-            if name == key and body and all(_is_number(r[k]) for r in body):
+            if name == key and body and _numeric_column(body, k):
                 return k
     return None
+
+
+def _numeric_column(body: list[list[str]], k: int) -> bool:
+    """Every value of column ``k`` parses as a number (NumPy's C parser; '' and text fail)."""
+    try:
+        np.asarray([r[k] for r in body], dtype=float)
+    except ValueError:
+        return False
+    return True
 
 
 def _sniff_delimiter(sample: str) -> str:

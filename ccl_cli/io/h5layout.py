@@ -14,8 +14,9 @@ row unless ``samples: columns``; ``columns: [...]`` picks columns (by index, or 
 when the dataset carries a ``names``/``column_names``/``joint_names`` attribute, which
 also names the state and action dimensions).
 
-Files are opened through :func:`open_checked`: external links, external storage and
-virtual datasets are refused before anything is read.
+Files are opened through :func:`ccl_cli.io.h5safe.open_hdf5`: external links, external
+storage and virtual datasets are refused before anything is read, and a file ccl did not
+write is parsed in a time-limited child process first.
 """
 
 from __future__ import annotations
@@ -29,33 +30,23 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
+from ccl_cli.io import h5safe
 from ccl_cli.io.arrays import (
     NAME_ATTRS,
     Part,
     Variable,
     assemble,
+    chunk_times,
     names_for,
     numeric,
     orient,
+    pick_columns,
     split_by_index,
-    time_of,
     wants_derived,
 )
 
 LAYOUT_KEYS = (("state", "dataset"), ("action", "dataset"), ("time", "dataset"), ("demos", "group"),
                ("demos", "dataset"))
-
-
-def open_checked(path: Path, what: str = "HDF5"):
-    """Open ``path`` read-only with h5py after checking every link and dataset of the file:
-    external links, external raw storage and virtual datasets (which read other files)
-    are refused with one line. Returns the open ``h5py.File``.
-
-    (The one place to swap for a shared safe-open function.)
-    """
-    from ccl_cli.io.h5safe import open_hdf5
-
-    return open_hdf5(path, what)
 
 
 def uses_layout(data_cfg: dict[str, Any]) -> bool:
@@ -108,62 +99,57 @@ def _contents(group, limit: int = 6) -> str:
     return (", ".join(found[:limit]) or "no datasets") + more
 
 
-def _dataset(group, rel: str, where: str, spec: dict[str, Any]) -> Variable:
+def _dataset(group, rel: str, where: str, spec: dict[str, Any], keep_int: bool = False,
+             names: bool = True) -> Variable:
+    """One dataset under ``group`` as a checked :class:`Variable` (read through h5py's
+    low-level API: the high-level object layer costs more than the read for small datasets)."""
     import h5py
 
-    here = f"{where}:/{group.name.strip('/') + '/' if group.name != '/' else ''}{rel.strip('/')}"
-    obj = group.get(rel.strip("/"))
-    if not isinstance(obj, h5py.Dataset):
-        what = "a group" if isinstance(obj, h5py.Group) else "missing"
-        raise InputError(f"{here}: {what}, not a dataset (this group has: {_contents(group)})")
+    rel = rel.strip("/")
+    here = f"{where}:/{group.name.strip('/') + '/' if group.name != '/' else ''}{rel}"
     try:
-        raw = obj[()]
-    except (OSError, TypeError, ValueError) as exc:
-        raise InputError(f"{here}: cannot read ({exc})") from None
-    names = None
-    for key in NAME_ATTRS:
-        if key in obj.attrs:
-            names = [v.decode() if isinstance(v, bytes) else str(v) for v in np.ravel(obj.attrs[key])]
+        oid = h5py.h5o.open(group.id, rel.encode())
+    except KeyError:
+        raise InputError(f"{here}: missing, not a dataset (this group has: {_contents(group)})") from None
+    if not isinstance(oid, h5py.h5d.DatasetID):
+        raise InputError(f"{here}: a group, not a dataset (this group has: {_contents(group)})")
+    dtype = oid.dtype
+    if dtype.kind not in "biuf":  # text, references, compounds: refused before reading
+        raw = np.zeros(0, dtype=dtype if dtype.kind in "SUOc" else "V1")
+    else:
+        raw = np.empty(oid.shape, dtype=dtype)
+        try:
+            if raw.size:
+                oid.read(h5py.h5s.ALL, h5py.h5s.ALL, raw)
+        except (OSError, TypeError, ValueError) as exc:
+            raise InputError(f"{here}: cannot read ({exc})") from None
+    found = None
+    attrs = h5py.Dataset(oid).attrs if names else {}
+    for key in NAME_ATTRS if names else ():
+        if key in attrs:
+            found = [v.decode() if isinstance(v, bytes) else str(v) for v in np.ravel(attrs[key])]
             break
-    return Variable(numeric(raw, here), here, spec.get("samples"), names)
+    return Variable(numeric(raw, here, keep_int), here, spec.get("samples"), found)
 
 
-def select_columns(mat: np.ndarray, names: list[str], columns: list[Any] | None, where: str
-                   ) -> tuple[np.ndarray, list[str]]:
-    """Columns of ``mat`` by 0-based index or by name."""
-    if not columns:
-        return mat, names
-    idx = []
-    for c in columns:
-        if isinstance(c, int) or (isinstance(c, str) and c.isdigit() and c not in names):
-            k = int(c)
-            if not 0 <= k < mat.shape[1]:
-                raise InputError(f"{where}: column {k} out of range (0..{mat.shape[1] - 1})")
-        elif c in names:
-            k = names.index(c)
-        else:
-            raise InputError(f"{where}: column {c!r} not found (names: {', '.join(names)})")
-        idx.append(k)
-    return mat[:, idx], [names[k] for k in idx]
-
-
-def _part(group, data_cfg: dict[str, Any], where: str, label: str, derive: bool
+def _part(group, data_cfg: dict[str, Any], where: str, label: str, derive: bool, names: bool = True
           ) -> tuple[dict[str, np.ndarray], dict[str, Variable]]:
+    """The oriented arrays of one group (names attributes read when ``names``)."""
     vars_: dict[str, Variable] = {"state": _dataset(group, data_cfg["state"]["dataset"], where,
-                                                    data_cfg["state"])}
+                                                    data_cfg["state"], names=names)}
     if not derive:
         action = data_cfg["action"]
         if action.get("dataset") is None:
             raise InputError(f"{where}: data.action needs dataset: PATH (or derive: state)")
-        vars_["action"] = _dataset(group, action["dataset"], where, action)
+        vars_["action"] = _dataset(group, action["dataset"], where, action, names=names)
     tcfg = data_cfg.get("time") or {}
     if tcfg.get("dataset") is not None:
-        vars_["time"] = _dataset(group, tcfg["dataset"], where, {})
+        vars_["time"] = _dataset(group, tcfg["dataset"], where, {}, keep_int=True)
     return orient(vars_, "rows", f"{where}: {label}"), vars_
 
 
-def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> Demonstrations:
-    """A foreign layout → Demonstrations (see the module docstring for the keys)."""
+def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations, int]:
+    """A foreign layout → (Demonstrations, time origin ns); see the module docstring for the keys."""
     where = str(path)
     state = data_cfg.get("state") or {}
     if state.get("dataset") is None:
@@ -175,6 +161,9 @@ def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> Demonstrations:
     if unknown:
         raise InputError(f"unknown demos option(s) for an HDF5 layout: {', '.join(sorted(unknown))} "
                          "(use group or dataset)")
+    if demos.get("group") is not None and demos.get("dataset") is not None:
+        raise InputError("data.demos: give group (one demonstration per group) or dataset (a demo id "
+                         "per sample), not both")
     tcfg = data_cfg.get("time") or {}
     chunks: list[tuple[str, dict[str, np.ndarray]]] = []
     variables: dict[str, Variable] = {}
@@ -183,8 +172,9 @@ def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> Demonstrations:
         if not groups:
             raise InputError(f"{where}: no group matches demos.group {demos['group']!r} "
                              f"(the file has: {_contents(f)})")
-        for name in groups:
-            arrays, variables = _part(f[name], data_cfg, where, name, derive)
+        for k, name in enumerate(groups):
+            arrays, found = _part(f[name], data_cfg, where, name, derive, names=k == 0)
+            variables = variables or found  # names from the first group's attributes
             chunks.append((name, arrays))
     else:
         arrays, variables = _part(f, data_cfg, where, "file", derive)
@@ -196,30 +186,22 @@ def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> Demonstrations:
             chunks = split_by_index(arrays, index.values, index.where)
         else:
             chunks = [("file", arrays)]
-    parts = []
-    for label, arrays in chunks:
-        n = arrays["state"].shape[0]
-        t = time_of(n, arrays["time"][:, 0] if "time" in arrays else None, tcfg, f"{where}: {label}")
-        parts.append(Part(arrays["state"], arrays.get("action"), t, label))
-    p = parts[0].X.shape[1]
-    leaf = state["dataset"].strip("/").split("/")[-1]
-    state_names = names_for(leaf, p, variables["state"].names)
-    for part in parts:
-        part.X, state_names2 = select_columns(part.X, state_names, state.get("columns"), where)
-    state_names = state_names2
+    times, origin, time_used = chunk_times(chunks, tcfg, where)
+    parts = [Part(a["state"], a.get("action"), t, label) for (label, a), t in zip(chunks, times, strict=True)]
+    state_names = pick_columns(parts, "X", names_for(state["dataset"].strip("/").split("/")[-1],
+                                                     parts[0].X.shape[1], variables["state"].names),
+                               state.get("columns"), where)
     action_names = None
     if not derive:
         action = data_cfg["action"]
-        q = parts[0].U.shape[1]
-        action_names = names_for(action["dataset"].strip("/").split("/")[-1], q, variables["action"].names)
-        for part in parts:
-            part.U, names = select_columns(part.U, action_names, action.get("columns"), where)
-        action_names = names
+        action_names = pick_columns(parts, "U", names_for(action["dataset"].strip("/").split("/")[-1],
+                                                          parts[0].U.shape[1], variables["action"].names),
+                                    action.get("columns"), where)
     meta = {"source": where, "format": "hdf5", "layout": {
         "state": state["dataset"], "action": "derived" if derive else data_cfg["action"]["dataset"],
-        "time": tcfg.get("dataset") or f"rate {tcfg.get('rate')} Hz",
+        "time": f"{tcfg['dataset']}: {time_used}" if tcfg.get("dataset") else time_used,
         "demos": demos.get("group") or demos.get("dataset") or "whole file"}}
-    return assemble(parts, data_cfg, where, state_names, action_names, meta)
+    return assemble(parts, data_cfg, where, state_names, action_names, meta), origin
 
 
 class Hdf5File:
@@ -233,10 +215,9 @@ class Hdf5File:
         from ccl_cli.io.assemble import resegment
         from ccl_cli.io.hdf5 import FORMAT, read_demonstrations
 
-        if uses_layout(self.data_cfg):
-            with open_checked(self.path) as f:
-                return read_layout(f, self.path, self.data_cfg), 0
-        with open_checked(self.path) as f:
+        with h5safe.open_hdf5(self.path, "HDF5 recording") as f:
+            if uses_layout(self.data_cfg):
+                return read_layout(f, self.path, self.data_cfg)
             found = f.attrs.get("format")
             found = found.decode() if isinstance(found, bytes) else found
             if found != FORMAT:
@@ -258,6 +239,7 @@ class Hdf5File:
         if uses_layout(self.data_cfg):
             data, _ = self.load()
             out.update(summary(data))
+            out["time"] = data.metadata["layout"]["time"]
         elif is_canonical(self.path):
             data, info = read_demonstrations(self.path)
             out.update(summary(data))

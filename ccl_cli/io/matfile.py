@@ -34,11 +34,12 @@ from ccl_cli.io.arrays import (
     Part,
     Variable,
     assemble,
+    chunk_times,
     names_for,
     numeric,
     orient,
+    pick_columns,
     split_by_index,
-    time_of,
     wants_derived,
 )
 
@@ -132,10 +133,10 @@ def _cls(obj) -> str:
 
 class _V73:
     def __init__(self, path: Path) -> None:
-        from ccl_cli.io.h5layout import open_checked
+        from ccl_cli.io.h5safe import open_hdf5
 
         self.path = path
-        self.f = open_checked(path, "MATLAB v7.3 file")
+        self.f = open_hdf5(path, "MATLAB v7.3 file")
 
     def close(self) -> None:
         self.f.close()
@@ -220,12 +221,12 @@ def open_source(path: Path) -> _V5 | _V73:
 
 
 # -- the reader ---------------------------------------------------------------------------
-def _variable(value: Value, where: str, samples: str | None) -> Variable:
-    return Variable(numeric(value, where), where, samples)
+def _variable(value: Value, where: str, samples: str | None, keep_int: bool = False) -> Variable:
+    return Variable(numeric(value, where, keep_int), where, samples)
 
 
-def read_mat(src: _V5 | _V73, path: Path, data_cfg: dict[str, Any]) -> Demonstrations:
-    """A .mat file → Demonstrations (see the module docstring for the keys)."""
+def read_mat(src: _V5 | _V73, path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations, int]:
+    """A .mat file → (Demonstrations, time origin ns); see the module docstring for the keys."""
     where = str(path)
     state = data_cfg.get("state") or {}
     if state.get("variable") is None:
@@ -262,15 +263,15 @@ def read_mat(src: _V5 | _V73, path: Path, data_cfg: dict[str, Any]) -> Demonstra
         for k in range(n_demo):
             label = f"{state['variable']}{{{k + 1}}}"
             arrays = {key: _variable(v[k], f"{where}: {specs[key]['variable']}{{{k + 1}}}",
-                                     specs[key].get("samples")) for key, v in values.items()}
+                                     specs[key].get("samples"), key == "time") for key, v in values.items()}
             chunks.append((label, orient(arrays, None, f"{where}: {label}")))
     else:
         for key, v in values.items():
             if isinstance(v, list):
                 raise InputError(f"{where}: {specs[key]['variable']} is a cell array but "
                                  f"{state['variable']} is a matrix")
-        arrays = {key: _variable(v, f"{where}: {specs[key]['variable']}", specs[key].get("samples"))
-                  for key, v in values.items()}
+        arrays = {key: _variable(v, f"{where}: {specs[key]['variable']}", specs[key].get("samples"),
+                                 key == "time") for key, v in values.items()}
         if demos.get("variable") is not None:
             index = src.get(demos["variable"])
             if isinstance(index, list):
@@ -285,29 +286,19 @@ def read_mat(src: _V5 | _V73, path: Path, data_cfg: dict[str, Any]) -> Demonstra
                       for label, a in split_by_index(oriented, index_col, f"{where}: {demos['variable']}")]
         else:
             chunks = [(state["variable"], orient(arrays, None, where))]
-    parts = []
-    for label, arrays in chunks:
-        n = arrays["state"].shape[0]
-        t = time_of(n, arrays["time"][:, 0] if "time" in arrays else None, tcfg, f"{where}: {label}")
-        parts.append(Part(arrays["state"], arrays.get("action"), t, label))
-    from ccl_cli.io.h5layout import select_columns
-
-    state_names = names_for(state["variable"], parts[0].X.shape[1], None)
-    names = state_names
-    for part in parts:
-        part.X, names = select_columns(part.X, state_names, state.get("columns"), where)
-    state_names, action_names = names, None
+    times, origin, time_used = chunk_times(chunks, tcfg, where)
+    parts = [Part(a["state"], a.get("action"), t, label) for (label, a), t in zip(chunks, times, strict=True)]
+    state_names = pick_columns(parts, "X", names_for(state["variable"], parts[0].X.shape[1], None),
+                               state.get("columns"), where)
+    action_names = None
     if not derive:
-        action_names = names_for(action["variable"], parts[0].U.shape[1], None)
-        names = action_names
-        for part in parts:
-            part.U, names = select_columns(part.U, action_names, action.get("columns"), where)
-        action_names = names
+        action_names = pick_columns(parts, "U", names_for(action["variable"], parts[0].U.shape[1], None),
+                                    action.get("columns"), where)
     meta = {"source": where, "format": "mat",
             "mat_version": "7.3" if isinstance(src, _V73) else "5",
             "variables": {k: s["variable"] for k, s in specs.items()},
-            "time": tcfg.get("variable") or f"rate {tcfg.get('rate')} Hz"}
-    return assemble(parts, data_cfg, where, state_names, action_names, meta)
+            "time": f"{tcfg['variable']}: {time_used}" if tcfg.get("variable") else time_used}
+    return assemble(parts, data_cfg, where, state_names, action_names, meta), origin
 
 
 class MatFile:
@@ -320,7 +311,7 @@ class MatFile:
     def load(self) -> tuple[Demonstrations, int]:
         src = open_source(self.path)
         try:
-            return read_mat(src, self.path, self.data_cfg), 0
+            return read_mat(src, self.path, self.data_cfg)
         finally:
             if isinstance(src, _V73):
                 src.close()

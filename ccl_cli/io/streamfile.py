@@ -165,7 +165,7 @@ class StreamFile:
                 topic["rate_hz"] = (topic["count"] - 1) / span if span > 0 and topic["count"] > 1 else None
             out["topics"] = info["topics"]
         else:
-            out.update({k: info[k] for k in ("columns", "rows", "time_column", "header", "samples")})
+            out.update({k: info[k] for k in ("columns", "rows", "time_column", "header", "sample_axis")})
             if info["rows"] > 1 and span > 0:
                 out["rate_hz"] = (info["rows"] - 1) / span
         if self.format == "csv":  # the columns a config would read (or all, for a text matrix)

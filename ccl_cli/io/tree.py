@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import InputError
+from ccl_cli.io import h5safe
 
 LIMIT = 500
 
@@ -39,8 +40,12 @@ def describe_tree(path: str | Path, limit: int = LIMIT) -> list[dict[str, Any]]:
 
 
 def _hdf5(path: Path, matlab: bool) -> list[dict[str, Any]]:
+    """The listing; links are described, not followed, so a file with an external link is
+    listed (and its entry says so) after the time-limited probe of :mod:`h5safe`."""
     import h5py
 
+    if not h5safe.sealed(path):
+        h5safe.probe(path)
     try:
         f = h5py.File(path, "r")
     except OSError as exc:

@@ -1,0 +1,301 @@
+"""Data checks that return coded warnings (ALGORITHMS.md §1 data model, §3.4 identifiability).
+
+Each check returns a list of ``{"code": ..., "message": ...}`` dicts; the pipeline keeps
+them in ``Pipeline.warnings``, the runner puts them in ``--json``/``run.json`` and report.md
+(:func:`markdown_section`), and :func:`emit` logs each as ``warning: <message>`` (the CLI
+prints ``ccl: warning: ...`` on stderr).
+
+Codes: ``constant_dimension``, ``no_motion``, ``noisy_actions``, ``few_demos``,
+``short_demos``, ``low_rank_actions``, ``duplicate_stamps``, ``jittery_stamps``.
+
+Noise levels are estimated from the data alone, per dimension and inside each
+demonstration, from second differences (MAD, robust to the smooth motion):
+σ̂² = (median|Δ²y| / 0.6745)² / 6 for white noise on y. Actions derived from the states
+(the readers' local polynomial) carry the states' noise through the derivative filter c
+(uniform stamps): σ̂²_u = σ̂²_x Σc². Recorded actions are taken as white. The signal-to-noise
+ratio of y is SNR = Σ var(y_j) / Σ σ̂²_j (1 for pure noise).
+
+Thresholds (measured with ``python benchmarks/diagnostics_thresholds.py``, JSON lines, seeds
+0–1): moving tracker recordings (plane/bowl, 50 Hz, noise 0–2 mm) have action SNR ≥ 10 (2 mm)
+and state SNR ≥ 300; at 500 Hz a 9-sample derivative window leaves action SNR 1.6 (→
+``noisy_actions``), the default 0.16-s window ~400. Recordings at rest (finger on a table,
+0.2–2 mm, derived velocities; a 9-joint arm with recorded velocities) have action SNR
+0.006–1.04 and states within 1.1 % of their magnitude. The reference problems have action
+SNR ≥ 100, except the uniformly sampled 2-D toy (not a trajectory: state SNR 0.83, states
+spread over 40× their mean), which the STILL_BAND condition keeps from a false alarm.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from ccl_cli import selection as _selection
+from ccl_cli.dataset import Demonstrations
+
+log = logging.getLogger("ccl")
+
+#: No motion: action SNR below this and the states within STILL_BAND of their magnitude.
+NO_MOTION_SNR = 3.0
+#: States move no more than this fraction of their magnitude (max std / RMS of the mean).
+STILL_BAND = 0.05
+#: Noisy actions (the states move smoothly, SNR_x ≥ SMOOTH_STATE_SNR): action SNR below this.
+NOISY_ACTION_SNR = 3.0
+SMOOTH_STATE_SNR = 100.0
+#: A dimension is constant when its std ≤ 1e-12·(1 + |mean|), near-constant when its std is
+#: below NEAR_CONSTANT of the largest std among the dimensions of the same kind.
+NEAR_CONSTANT = 1e-3
+#: Fewer demonstrations than this: the split falls back to time blocks (selection.MIN_DEMOS).
+MIN_DEMOS = _selection.MIN_DEMOS
+#: Demonstrations shorter than this (samples) are too short to derive, split or learn from.
+MIN_DEMO_SAMPLES = 10
+#: Directions whose action variance is below RANK_NOISE × the noise variance (or below
+#: RANK_RELATIVE × the largest) are not moved.
+RANK_NOISE = 3.0
+RANK_RELATIVE = 1e-4
+#: Stamp jitter: robust spread of the sampling intervals above this fraction of their median.
+JITTER = 0.1
+
+CODES = ("constant_dimension", "no_motion", "noisy_actions", "few_demos", "short_demos",
+         "low_rank_actions", "duplicate_stamps", "jittery_stamps")
+
+
+def warning(code: str, message: str) -> dict[str, str]:
+    """One coded warning ``{"code", "message"}`` (codes listed in :data:`CODES`)."""
+    if code not in CODES:
+        raise ValueError(f"unknown diagnostic code {code!r}")
+    return {"code": code, "message": message}
+
+
+def emit(warnings: list[dict[str, str]]) -> list[dict[str, str]]:
+    """Log each warning as ``warning: <message>`` on the ``ccl`` logger; returns them."""
+    for w in warnings:
+        log.warning("warning: %s", w["message"])
+    return warnings
+
+
+# -- noise estimates ----------------------------------------------------------------------
+def _second_differences(Y: np.ndarray, demo: np.ndarray) -> np.ndarray:
+    """Δ²y_n = y_{n+1} − 2y_n + y_{n−1} for the n whose three samples share a demonstration."""
+    if len(Y) < 3:
+        return np.zeros((0, Y.shape[1]))
+    same = (demo[2:] == demo[1:-1]) & (demo[1:-1] == demo[:-2])
+    return (Y[2:] - 2 * Y[1:-1] + Y[:-2])[same]
+
+
+def white_noise_var(Y: np.ndarray, demo: np.ndarray) -> np.ndarray:
+    """Per-dimension variance of white noise on ``Y`` (N, d): (median|Δ²y|/0.6745)²/6, (d,)."""
+    d2 = _second_differences(np.asarray(Y, float), demo)
+    if not len(d2):
+        return np.zeros(Y.shape[1])
+    return (np.median(np.abs(d2), axis=0) / 0.6745) ** 2 / 6.0
+
+
+def derivative_gain(dt: float, window: int = 9, order: int = 2) -> float:
+    """Σc² of the local-polynomial slope filter c (1/s) on uniform stamps ``dt`` apart: the
+    variance of a derived velocity per unit variance of white position noise."""
+    k = np.arange(window) - window // 2
+    V = (k[:, None] * dt) ** np.arange(order + 1)[None, :]
+    c = np.linalg.pinv(V)[1]
+    return float((c**2).sum())
+
+
+def _derived(data: Demonstrations) -> tuple[bool | None, int, int]:
+    """(are the actions derived from the states?, window, order) from the metadata:
+    True/False when a reader or the simulator said so, None when unknown."""
+    meta = data.metadata or {}
+    infos = [f.get("action") for f in meta.get("files", []) if isinstance(f, dict)]
+    infos += [meta.get("action"), (meta.get("provenance") or {}).get("derivative"), meta.get("derivative")]
+    for info in infos:
+        if isinstance(info, dict) and ("derived" in info or "window" in info):
+            return True, int(info.get("window") or 9), int(info.get("order") or 2)
+        if isinstance(info, dict):
+            return False, 9, 2
+    return None, 9, 2
+
+
+def noise_levels(data: Demonstrations) -> dict[str, Any]:
+    """Estimated noise variances and SNRs of states and actions.
+
+    Returns ``x_noise`` (p,), ``u_noise`` (q,), ``snr_x``, ``snr_u`` (floats),
+    ``band_x`` (max std of a state / RMS of the state's mean), ``derived`` (bool|None) and
+    ``temporal``: whether the samples are trajectories in time (states smooth, SNR_x ≥
+    SMOOTH_STATE_SNR, or at rest, band_x < STILL_BAND), without which differences in time
+    say nothing about noise.
+    """
+    X, U, demo = data.X, data.U, data.demo
+    x_noise = white_noise_var(X, demo)
+    u_white = white_noise_var(U, demo)
+    derived, window, order = _derived(data)
+    dt = _median_step(data)
+    if data.n_state == data.n_action and derived is not False and dt > 0:
+        via_x = x_noise * derivative_gain(dt, window, order)
+        u_noise = via_x if derived else np.maximum(u_white, via_x)
+    else:
+        u_noise = u_white
+    var_x = X.var(0, ddof=1) if len(X) > 1 else np.zeros(data.n_state)
+    var_u = U.var(0, ddof=1) if len(U) > 1 else np.zeros(data.n_action)
+    mean_rms = float(np.sqrt(np.mean(X.mean(0) ** 2)))
+    snr_x = _ratio(var_x.sum(), x_noise.sum())
+    band_x = _ratio(float(np.sqrt(var_x.max())), mean_rms)
+    return {"x_noise": x_noise, "u_noise": u_noise, "snr_x": snr_x,
+            "snr_u": _ratio(var_u.sum(), u_noise.sum()), "band_x": band_x, "derived": derived,
+            "temporal": bool(snr_x >= SMOOTH_STATE_SNR or band_x < STILL_BAND)}
+
+
+def _ratio(a: float, b: float) -> float:
+    if b > 0:
+        return float(a / b)
+    return float("inf") if a > 0 else float("nan")
+
+
+def _median_step(data: Demonstrations) -> float:
+    dt = np.diff(data.t)[data.demo[1:] == data.demo[:-1]]
+    dt = dt[dt > 0]
+    return float(np.median(dt)) if len(dt) else 0.0
+
+
+# -- the checks -----------------------------------------------------------------------------
+def constant_dimensions(data: Demonstrations) -> list[dict[str, str]]:
+    """``constant_dimension``: states or actions that never change (std ≤ 1e-12(1 + |mean|))
+    or barely change (std < NEAR_CONSTANT × the largest std of the same kind), by name."""
+    out = []
+    for kind, Y, names in (("state", data.X, data.state_names), ("action", data.U, data.action_names)):
+        if len(Y) < 2:
+            continue
+        std, mean = Y.std(0), Y.mean(0)
+        const = std <= 1e-12 * (1 + np.abs(mean))
+        near = ~const & (std < NEAR_CONSTANT * std.max())
+        if const.any():
+            listed = ", ".join(f"{names[j]} = {mean[j]:.6g}" for j in np.flatnonzero(const))
+            why = ("it never moves; a constant action counts as a constraint" if kind == "action"
+                   else "a constant state carries no information")
+            out.append(warning("constant_dimension", f"{kind} dimension(s) constant: {listed} ({why})"))
+        if near.any():
+            listed = ", ".join(f"{names[j]} (std {std[j]:.3g})" for j in np.flatnonzero(near))
+            out.append(warning("constant_dimension",
+                               f"{kind} dimension(s) nearly constant: {listed}, below "
+                               f"{NEAR_CONSTANT:g} of the largest {kind} std {std.max():.3g}"))
+    return out
+
+
+def motion(data: Demonstrations, levels: dict[str, Any] | None = None) -> list[dict[str, str]]:
+    """``no_motion`` (the actions are at their noise level and the states stay put) and
+    ``noisy_actions`` (the states move smoothly but the actions are mostly noise)."""
+    lv = levels or noise_levels(data)
+    snr_u, snr_x, band = lv["snr_u"], lv["snr_x"], lv["band_x"]
+    if not np.isfinite(snr_u) and np.isnan(snr_u):
+        return [warning("no_motion", "no motion: every action is constant")]
+    if snr_u < NO_MOTION_SNR and band < STILL_BAND:
+        return [warning("no_motion",
+                        f"no motion: the actions are at their noise level (signal-to-noise ratio "
+                        f"{snr_u:.2g}, < {NO_MOTION_SNR:g}) and the states stay within {100 * band:.2g} % of "
+                        "their magnitude; the recording looks at rest, and any constraint learnt from "
+                        "it describes noise")]
+    if snr_u < NOISY_ACTION_SNR and snr_x >= SMOOTH_STATE_SNR:
+        hint = (" (derived velocities: widen data.action.window)" if lv["derived"] else "")
+        return [warning("noisy_actions",
+                        f"noisy actions: the states move smoothly but the actions are mostly noise "
+                        f"(signal-to-noise ratio {snr_u:.2g}, < {NOISY_ACTION_SNR:g}){hint}")]
+    return []
+
+
+def demonstrations(data: Demonstrations) -> list[dict[str, str]]:
+    """``few_demos`` (fewer than MIN_DEMOS) and ``short_demos`` (any shorter than
+    MIN_DEMO_SAMPLES samples)."""
+    out = []
+    n = data.n_demos
+    if n < MIN_DEMOS:
+        out.append(warning("few_demos",
+                           f"only {n} demonstration{'s' if n != 1 else ''} (fewer than {MIN_DEMOS}): "
+                           "by default the held-out test set and cross-validation use contiguous time "
+                           "blocks rather than whole demonstrations; cut continuous recordings with "
+                           "data.demos: {window: S} (seconds) or record more demonstrations"))
+    sizes = np.bincount(np.unique(data.demo, return_inverse=True)[1])
+    short = int((sizes < MIN_DEMO_SAMPLES).sum())
+    if short:
+        out.append(warning("short_demos",
+                           f"{short} of {n} demonstrations have fewer than {MIN_DEMO_SAMPLES} samples "
+                           f"(shortest {int(sizes.min())})"))
+    return out
+
+
+def stamps(data: Demonstrations) -> list[dict[str, str]]:
+    """``duplicate_stamps`` (a sampling interval ≤ 0 inside a demonstration) and
+    ``jittery_stamps`` (1.4826·MAD of the intervals > JITTER × their median)."""
+    out = []
+    inside = data.demo[1:] == data.demo[:-1]
+    dt = np.diff(data.t)[inside]
+    if not len(dt):
+        return out
+    dup = int((dt <= 0).sum())
+    if dup:
+        out.append(warning("duplicate_stamps",
+                           f"{dup} samples repeat or precede the stamp of the sample before them"))
+    pos = dt[dt > 0]
+    if len(pos) >= 3:
+        med = float(np.median(pos))
+        spread = 1.4826 * float(np.median(np.abs(pos - med)))
+        if med > 0 and spread > JITTER * med:
+            out.append(warning("jittery_stamps",
+                               f"jittery stamps: the sampling interval varies by {100 * spread / med:.2g} % "
+                               f"around {med:.3g} s ({1 / med:.3g} Hz); derivatives use the real stamps, "
+                               "but stamp errors become velocity errors"))
+    return out
+
+
+def check_data(data: Demonstrations) -> list[dict[str, str]]:
+    """Every data check (not the rank check, which needs the learnt s): a list of warnings."""
+    levels = noise_levels(data)
+    return [*constant_dimensions(data), *motion(data, levels), *demonstrations(data), *stamps(data)]
+
+
+def action_rank(U: np.ndarray, noise_var: np.ndarray) -> int:
+    """Number of directions the actions U (N, q) move in beyond their noise: eigenvalues of
+    the second moment UᵀU/N above RANK_NOISE × the mean noise variance and RANK_RELATIVE ×
+    the largest eigenvalue."""
+    if len(U) == 0:
+        return 0
+    ev = np.linalg.eigvalsh(U.T @ U / len(U))
+    floor = max(RANK_NOISE * float(np.mean(noise_var)), RANK_RELATIVE * float(ev.max()), np.finfo(float).tiny)
+    return int((ev > floor).sum())
+
+
+def low_rank_actions(data: Demonstrations, U: np.ndarray, n_constraints: int,
+                     noise_var: np.ndarray | None = None) -> list[dict[str, str]]:
+    """``low_rank_actions`` after learning s = ``n_constraints`` on the actions ``U`` (N, q)
+    of ``data`` (the training set): the constraint is identifiable only when the actions
+    span the q − s free directions (§3.4). Warns when their rank r < q − s, and when
+    r = q − s but every training demonstration adds directions of its own (the rank is
+    limited by the number of demonstrations, so s may count unexplored directions)."""
+    q = U.shape[1]
+    if noise_var is None:
+        lv = noise_levels(data)
+        noise_var = lv["u_noise"] if lv["temporal"] else np.zeros(q)
+    r = action_rank(U, noise_var)
+    free = q - int(n_constraints)
+    if r < free:
+        return [warning("low_rank_actions",
+                        f"the training actions span {r} direction{'s' if r != 1 else ''} but {free} free "
+                        f"directions (q − s = {q} − {n_constraints}) are needed to identify the constraint")]
+    ids = data.demo_ids
+    if len(ids) >= 2 and 0 < r < q:
+        per = [action_rank(U[data.demo == d], noise_var) for d in ids]
+        if sum(per) == r:
+            return [warning("low_rank_actions",
+                            f"each of the {len(ids)} training demonstrations moves along directions of its "
+                            f"own ({r} in all, of q = {q}): s = {n_constraints} may count directions that "
+                            "no demonstration explored; more demonstrations would tell")]
+    return []
+
+
+def markdown_section(warnings: list[dict[str, str]]) -> list[str]:
+    """The "Diagnostics" section of report.md: one line per warning, or that none fired."""
+    lines = ["## Diagnostics", ""]
+    if not warnings:
+        return [*lines, "No warnings: the data checks found nothing to report.", ""]
+    lines += ["| code | warning |", "|---|---|"]
+    lines += [f"| `{w['code']}` | {w['message'].replace('|', '/')} |" for w in warnings]
+    return [*lines, ""]
