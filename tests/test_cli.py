@@ -12,6 +12,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from tests_paths import wait_for_ccl_code
 
 from ccl_cli.cli import main
 
@@ -267,6 +268,7 @@ def test_sigint_during_a_run_leaves_complete_or_nothing(tmp_path):
     env = dict(os.environ)
     proc = subprocess.Popen([CCL, "run", str(CONFIGS / "toy2d_learn_pi.yaml"), "-o", str(out), "-q"],
                             stderr=subprocess.PIPE, text=True, env=env)
+    wait_for_ccl_code(proc)  # not during the interpreter's own start-up (a loaded machine: > 1 s)
     time.sleep(1.0)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)

@@ -1,7 +1,26 @@
-"""Paths the end-to-end tests share (the ccl executable of this environment)."""
+"""What the end-to-end tests share: the ccl executable of this environment, and a way
+to know that a started ``ccl`` process runs ccl's code."""
 
 import shutil
 import sys
+import time
 from pathlib import Path
 
 CCL = shutil.which("ccl") or str(Path(sys.executable).parent / "ccl")
+
+
+def running_ccl_code(pid: int) -> bool:
+    """True once process ``pid`` runs ccl's code: numpy (imported by ccl_cli, after its
+    Ctrl-C guard) is mapped. Before that only the interpreter's own start-up runs, whose
+    Ctrl-C behaviour (a KeyboardInterrupt traceback) ccl cannot change."""
+    try:
+        return "_multiarray_umath" in Path(f"/proc/{pid}/maps").read_text()
+    except OSError:
+        return not Path("/proc/self/maps").exists()  # no /proc: cannot tell, assume it does
+
+
+def wait_for_ccl_code(proc, timeout: float = 60.0) -> None:
+    """Wait until the ``subprocess.Popen`` ``proc`` runs ccl's code (or has ended)."""
+    deadline = time.monotonic() + timeout
+    while not running_ccl_code(proc.pid) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.001)

@@ -55,6 +55,12 @@ class BagReader:
 
         where = str(self.path)
         typestore = _typestore(self.typestore)
+        root = bag_root(self.path)
+        if root.is_dir() and (root / "metadata.yaml").is_file():
+            # bounded first (size, depth, aliases): rosbags' YAML parser is not
+            from ccl_cli.config import read_yaml
+
+            read_yaml(root / "metadata.yaml", "ROS 2 bag metadata", error=InputError)
         reader = library_call(where, "read bag", AnyReader, [bag_root(self.path)],
                               default_typestore=typestore)
         library_call(where, "read bag", reader.open)

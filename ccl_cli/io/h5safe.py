@@ -50,7 +50,7 @@ USERBLOCK = 512
 SEAL = b"\x00ccl-sha256:"
 #: CPU seconds a foreign file may take to be parsed in the child process (a normal
 #: probe takes well under 0.1 s), and the wall-clock backstop
-CPU_LIMIT = int(os.environ.get("CCL_HDF5_CPU_LIMIT", "5"))
+CPU_LIMIT = int(os.environ.get("CCL_HDF5_CPU_LIMIT", "2"))
 TIMEOUT = float(os.environ.get("CCL_HDF5_TIMEOUT", "60"))
 #: datasets up to this many bytes are read in the child (larger ones: metadata only)
 PROBE_BYTES = 64 << 20
@@ -130,7 +130,7 @@ def _walk(f) -> None:
         attrs(obj)
         if isinstance(obj, h5py.Dataset):
             nbytes = obj.size * obj.dtype.itemsize
-            if obj.dtype.kind == "O" or nbytes <= budget:
+            if (obj.dtype.kind == "O" and obj.size <= 1_000_000) or nbytes <= budget:
                 budget -= nbytes
                 obj[()]
 
@@ -241,6 +241,13 @@ def check_tree(f, where: str) -> None:
     problem: list[str] = []
 
     def visit(name: str, link) -> int | None:
+        try:  # an exception must not cross libhdf5's callback: it is recorded instead
+            _visit(name, link)
+        except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+            problem.append(f"damaged HDF5 structure at /{name} ({_first(exc)})")
+        return 1 if problem else None  # a non-None value stops the visit
+
+    def _visit(name: str, link) -> None:
         nonlocal count
         count += 1
         if count > MAX_OBJECTS:
@@ -259,12 +266,13 @@ def check_tree(f, where: str) -> None:
             elif dcpl.get_external_count() > 0:
                 problem.append(f"/{name} stores its data in external files; ccl reads nothing outside "
                                "the file")
-        return 1 if problem else None  # a non-None value stops the visit
 
     try:
         f.visititems_links(visit)
-    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
-        raise InputError(f"{where}: damaged HDF5 structure ({_first(exc)})") from None
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError, SystemError) as exc:
+        # SystemError: h5py's own link lookup failed inside libhdf5's visit callback
+        cause = exc.__cause__ or exc.__context__ if isinstance(exc, SystemError) else exc
+        raise InputError(f"{where}: damaged HDF5 structure ({_first(cause or exc)})") from None
     if problem:
         raise InputError(f"{where}: {problem[0]}")
 
@@ -432,8 +440,8 @@ def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite
         allowed = " or ".join(f"{d}-D" for d in ndim)
         raise InputError(f"{label} must be {allowed}, got shape {ds.shape}")
     nbytes = int(np.prod(ds.shape, dtype=np.float64)) * 8
-    limit = max(64 << 20, MAX_EXPANSION * os.path.getsize(ds.file.filename))
-    if nbytes > limit:
+    max_bytes = max(64 << 20, MAX_EXPANSION * os.path.getsize(ds.file.filename))
+    if nbytes > max_bytes:
         raise InputError(f"{label} claims shape {ds.shape} ({nbytes} bytes), far more than the file holds")
     try:
         value = np.asarray(ds[()], dtype=np.float64)
