@@ -148,7 +148,8 @@ def test_tracker_simulations_get_one_constraint_and_small_held_out_npoe():
         assert sum(k == 1 for k in ks) >= 19, (noise, ks)
     for make, model in ((sim.tracker_plane, StateIndependentConstraint), (sim.tracker_sphere,
                                                                           StateDependentConstraint)):
-        for seed in range(3 if model is StateDependentConstraint else 5):
+        # the bowl's seeds 3, 4, 8 were over the bar with a fixed 25-centre basis (0.12, 0.07, 0.07)
+        for seed in ((3, 4, 8) if model is StateDependentConstraint else range(5)):
             data = make(noise=1e-3, seed=seed)
             hold = S.holdout_split(data.demo, 0.3, seed=0, gap=9)
             tr, te = data.subset(hold.train), data.subset(hold.test)
