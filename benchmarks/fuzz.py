@@ -361,6 +361,9 @@ def _child(argv: list[str] | None, manifest: Path, errfile: str) -> None:
     fd = os.open(errfile, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
     os.dup2(fd, 2)
     os.dup2(fd, 1)
+    # Python-level streams too: under pytest they are capture objects, not fds 1 and 2
+    sys.stdout = open(1, "w", buffering=1, closefd=False)  # noqa: SIM115
+    sys.stderr = open(2, "w", buffering=1, closefd=False)  # noqa: SIM115
     os.environ["CCL_DEBUG"] = "1"  # internal errors raise: we record where
     code = 0
     try:

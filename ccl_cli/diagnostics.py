@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from ccl_cli import selection as _selection
 from ccl_cli.dataset import Demonstrations
 
 log = logging.getLogger("ccl")
@@ -46,8 +47,8 @@ SMOOTH_STATE_SNR = 100.0
 #: A dimension is constant when its std ≤ 1e-12·(1 + |mean|), near-constant when its std is
 #: below NEAR_CONSTANT of the largest std among the dimensions of the same kind.
 NEAR_CONSTANT = 1e-3
-#: Fewer demonstrations than this make held-out metrics rest on one or two pieces.
-MIN_DEMOS = 5
+#: Fewer demonstrations than this: the split falls back to time blocks (selection.MIN_DEMOS).
+MIN_DEMOS = _selection.MIN_DEMOS
 #: Demonstrations shorter than this (samples) are too short to derive, split or learn from.
 MIN_DEMO_SAMPLES = 10
 #: Directions whose action variance is below RANK_NOISE × the noise variance (or below
@@ -208,9 +209,10 @@ def demonstrations(data: Demonstrations) -> list[dict[str, str]]:
     n = data.n_demos
     if n < MIN_DEMOS:
         out.append(warning("few_demos",
-                           f"only {n} demonstration{'s' if n != 1 else ''}: a split by demonstration "
-                           f"needs at least {MIN_DEMOS} for held-out metrics to mean much; cut "
-                           "continuous recordings with data.demos: {window: S} (seconds)"))
+                           f"only {n} demonstration{'s' if n != 1 else ''} (fewer than {MIN_DEMOS}): "
+                           "by default the held-out test set and cross-validation use contiguous time "
+                           "blocks rather than whole demonstrations; cut continuous recordings with "
+                           "data.demos: {window: S} (seconds) or record more demonstrations"))
     sizes = np.bincount(np.unique(data.demo, return_inverse=True)[1])
     short = int((sizes < MIN_DEMO_SAMPLES).sum())
     if short:

@@ -5,8 +5,9 @@
 Simulated problems are written with ``ccl simulate``'s library function and the
 canonical HDF5 writer; the "real format" samples are written by the third-party
 writers: a Trakstar-style CSV export (csv module) of a finger sliding on a tilted
-plane at 50 Hz, and a ROS 1 bag (rosbags) of a 7-DoF KUKA-like arm publishing
-sensor_msgs/JointState at 100 Hz while its end-effector height is held fixed.
+plane at 50 Hz, one continuous 60-s recording of a finger in a bowl (CSV), and a ROS 1
+bag (rosbags) of a 7-DoF KUKA-like arm publishing sensor_msgs/JointState at 100 Hz while its
+end-effector height is held fixed.
 """
 
 from __future__ import annotations
@@ -64,6 +65,18 @@ def trakstar_csv(path: Path, n_demos: int = 6, rate: float = 50.0, seconds: floa
         w.writerows(rows)
 
 
+def trakstar_bowl_csv(path: Path, seconds: float = 60.0) -> None:
+    """One continuous recording (``ccl simulate tracker_sphere``): a finger tracing circles and
+    figure-eights inside a bowl (sphere of radius 0.25 m), 50 Hz, position noise 1 mm, pauses
+    and varying speed; positions written in metres to the micrometre, as a tracker exports."""
+    data = sim.tracker_sphere(duration=seconds, rate=50.0, noise=1e-3, seed=0)
+    stamps = EPOCH_NS + np.round(data.t * 1e9).astype(np.int64)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["%time", "x", "y", "z"])
+        w.writerows([[int(s), *(f"{v:.6f}" for v in x)] for s, x in zip(stamps, data.X, strict=True)])
+
+
 def kuka_bag(path: Path, n_demos: int = 4, rate: float = 100.0, seconds: float = 3.0) -> None:
     """JointState of the 7-DoF chain moving with π = q* − q under A(q) = J_z(q)
     (end-effector height held), positions and velocities, joints published in a
@@ -103,6 +116,7 @@ def kuka_bag(path: Path, n_demos: int = 4, rate: float = 100.0, seconds: float =
 if __name__ == "__main__":
     simulated()
     trakstar_csv(HERE / "trakstar_plane.csv")
+    trakstar_bowl_csv(HERE / "trakstar_bowl.csv")
     (HERE / "kuka_wipe.bag").unlink(missing_ok=True)
     kuka_bag(HERE / "kuka_wipe.bag")
     for p in sorted(HERE.iterdir()):

@@ -2,6 +2,7 @@
 
 import csv
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -103,3 +104,22 @@ def test_run_with_windows_from_the_config(tmp_path, capsys):
     assert main(["run", str(bad), "-o", str(tmp_path / "out2"), "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "window" in err[0]
+
+
+def test_shipped_continuous_bowl_recording_windows_or_blocks(tmp_path, capsys):
+    """configs/trakstar_bowl.yaml: one 60-s recording cut into 4-s windows → split by window,
+    k = 1 and held-out NPOE < 0.03; without the cut it gets a block split and few_demos."""
+    root = Path(__file__).resolve().parent.parent
+    cfg = root / "configs" / "trakstar_bowl.yaml"
+    assert main(["run", str(cfg), "-o", str(tmp_path / "w"), "--json", "-q"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["validation"]["kind"] == "demonstrations" and summary["warnings"] == []
+    assert summary["stages"]["learn-a"]["n_constraints"] == 1
+    assert summary["stages"]["learn-a"]["test"]["NPOE"] < 0.03
+    whole = tmp_path / "whole.yaml"
+    whole.write_text(cfg.read_text().replace("  demos: {window: 4}\n", "").replace(
+        "../sample_data/", f"{root / 'sample_data'}/"))
+    assert main(["run", str(whole), "-o", str(tmp_path / "b"), "--json", "-q"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["validation"]["kind"] == "blocks"
+    assert [w["code"] for w in summary["warnings"]] == ["few_demos"]
