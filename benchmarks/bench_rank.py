@@ -80,7 +80,8 @@ def held_out_npoe(data, make) -> tuple[float, int]:
 
 def npoe_stats(values: list[float]) -> dict[str, float]:
     return {"test_npoe_blocks_median": float(np.median(values)),
-            "test_npoe_blocks_max": float(np.max(values))}
+            "test_npoe_blocks_max": float(np.max(values)),
+            "test_npoe_blocks_below_0.03": int(np.sum(np.asarray(values) < 0.03))}
 
 
 def emit(rows: list[dict], case: str, noise, truth: int, extra: dict | None = None) -> None:
