@@ -53,7 +53,7 @@ def cluster_sums(X: np.ndarray, label: np.ndarray, k: int) -> np.ndarray:
 
 
 def kmeans_centres(
-    X: np.ndarray, n_centres: int, seed: int = 0, max_iter: int = 100, tol: float = 1e-4,
+    X: np.ndarray, n_centres: int, seed: int = 0, max_iter: int = 100, tol: float = 1e-6,
     max_samples: int | None = None,
 ) -> np.ndarray:
     """Seeded k-means (k-means++ start, Lloyd iterations) on the rows of X (N, p) → (K, p).

@@ -352,11 +352,9 @@ def _plot(out: Path, rows: list[dict], columns: list[str]) -> bool:
     cols = [c for c in columns if any(isinstance(r.get(c), float) and r[c] > 0 for r in rows)][:6]
     if not cols:
         return False
-    import matplotlib
+    from ccl_cli.plots import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()  # Agg, a per-user font cache, matplotlib's INFO logging kept quiet
     methods = sorted({r["method"] for r in rows if r["status"] != "failed"})
     colours = {m: plt.cm.tab10(i % 10) for i, m in enumerate(methods)}
     fig, axes = plt.subplots(len(cols), 1, figsize=(max(6, 0.25 * len(rows) + 3), 2.2 * len(cols)),

@@ -17,14 +17,53 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer vendors its click
+from typer.core import TyperCommand, TyperGroup
 
 from ccl_cli.config import CHOICES, DEFAULTS
 from ccl_cli.errors import CCLError, ConfigError, InputError
 
 log = logging.getLogger("ccl")
 
+def _one_line(ctx: Any, exc: Exception) -> InputError:
+    """A usage error (bad flag value, unknown option or command) as one line, exit 2."""
+    message = exc.format_message().replace("Value error, ", "")
+    return InputError(f"{ctx.command_path}: {message} (see {ctx.command_path} --help)")
+
+
+class _Command(TyperCommand):
+    """Commands whose usage errors are one line (``ccl: error: ccl learn-a: Invalid value ...``)."""
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        try:
+            return super().parse_args(ctx, args)
+        except NoArgsIsHelpError:
+            raise
+        except UsageError as exc:
+            raise _one_line(ctx, exc) from None
+
+
+class _Group(TyperGroup):
+    """The ``ccl`` group: an unknown command or a bad top-level option is one line too."""
+
+    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
+        try:
+            return super().parse_args(ctx, args)
+        except NoArgsIsHelpError:
+            raise
+        except UsageError as exc:
+            raise _one_line(ctx, exc) from None
+
+    def resolve_command(self, ctx: Any, args: list[str]) -> Any:
+        try:
+            return super().resolve_command(ctx, args)
+        except UsageError as exc:
+            raise _one_line(ctx, exc) from None
+
+
 app = typer.Typer(
     name="ccl",
+    cls=_Group,
     help="Constraint Consistent Learning: learn constraints A(x), null-space components w(x) and "
          "null-space policies π(x) from demonstrations (HDF5, CSV, MCAP, ROS 1/2 bags).",
     no_args_is_help=True,
@@ -80,10 +119,11 @@ ConvOpt = Annotated[Convention | None, typer.Option("--convention",
                                                     help="Metric normalisers (docs/metrics.md).",
                                                     show_default=_default("metrics", "convention"))]
 CentresOpt = Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres (also sets "
-                                                "basis.n_centres of a basis mapping).",
+                                                "basis.n_centres of a basis mapping; no basis search).",
                                                 show_default="config, else the stage's default")]
 BasisOpt = Annotated[BasisKind | None, typer.Option("--basis", help="Feature map (sets basis.kind of a "
-                                                    "basis mapping).", show_default="config, else rbf")]
+                                                    "basis mapping; no basis search).",
+                                                    show_default="config, else rbf")]
 
 
 def _version(value: bool) -> None:
@@ -128,11 +168,14 @@ def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
     if as_json:
         sys.stdout.write(json.dumps(summary, default=str) + "\n")
         return
-    if quiet or _QUIET[0]:
-        return
+    quiet = quiet or _QUIET[0]
     val = summary.get("validation")
-    if val:
+    # -q prints nothing on success, except a held-out test set that is not whole demonstrations
+    # (time blocks of continuous recordings): a choice the user must know about, like a warning
+    if val and (not quiet or val.get("kind") == "blocks"):
         typer.echo(f"validation: {val.get('kind')} ({val.get('reason')})", err=True)
+    if quiet:
+        return
 
     def line(label: str, entry: dict[str, Any]) -> str:
         parts = [label]
@@ -521,6 +564,11 @@ def _check_plan(jobs) -> None:
             stage_list(cfg)
         except ConfigError as exc:
             raise ConfigError(f"job {job.job_id} ({job.files[0]}): {exc.message}") from None
+
+
+for _info in app.registered_commands:  # every command: one-line usage errors
+    if _info.cls in (None, TyperCommand):
+        _info.cls = _Command
 
 
 # -- entry point ---------------------------------------------------------------------------

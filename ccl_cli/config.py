@@ -175,8 +175,9 @@ def read_yaml(path: str | Path, what: str = "config", error: type = ConfigError
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise error(f"{path}: {what} is not UTF-8 text (byte {exc.start}: 0x{raw[exc.start]:02x})") from None
-    loader = _Loader(text)
+    loader = None
     try:
+        loader = _Loader(text)
         node = loader.get_single_node()
         if node is not None:
             total = _expanded_size(node)
@@ -193,7 +194,8 @@ def read_yaml(path: str | Path, what: str = "config", error: type = ConfigError
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise error(f"{where}: invalid YAML ({problem})") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
     return data, node
 
 
@@ -314,6 +316,7 @@ def validate(cfg: Config) -> None:
     for i, item in enumerate(cfg.get("stages") or []):
         name, options = stage_entry(item, cfg, i)
         _check(cfg, options, SCHEMA[name], ("stages", i, name))
+    check_ranges(cfg, dict(cfg), ())
 
 
 def stage_entry(item: Any, cfg: Config, i: int) -> tuple[str, dict]:
@@ -349,7 +352,8 @@ FLAGS = "command line"
 def _override(opts: dict, flags: dict) -> dict:
     """``opts`` with a stage's flag values on top, at any depth: ``--n-centres`` also sets
     ``basis.n_centres`` and ``--basis KIND`` sets ``basis.kind`` when the basis is a mapping
-    (so a flag is never shadowed by, nor wipes out, a basis mapping of the config)."""
+    (so a flag is never shadowed by, nor wipes out, a basis mapping of the config); either
+    flag switches the stage's basis search off (``tune: false``), so the given basis is used."""
     out = deep_merge(opts, {k: v for k, v in flags.items() if k != "basis"})
     if "basis" in flags:
         old = opts.get("basis")
@@ -357,6 +361,8 @@ def _override(opts: dict, flags: dict) -> dict:
             isinstance(flags["basis"], str) else copy.deepcopy(flags["basis"])
     if "n_centres" in flags and isinstance(out.get("basis"), dict):
         out["basis"] = {**out["basis"], "n_centres": flags["n_centres"]}
+    if ("n_centres" in flags or "basis" in flags) and "tune" not in flags:
+        out["tune"] = False  # a basis given on the command line is used, not searched over
     return out
 
 
@@ -405,3 +411,33 @@ def stage_options(cfg: Config, name: str, extra: dict | None = None) -> dict:
     opts = deep_merge(cfg.get(name) or {}, extra or {})
     flags = (getattr(cfg, "flags", None) or {}).get(name)
     return _override(opts, flags) if flags else opts
+
+
+#: allowed range (inclusive; None: unbounded) of numeric options, by key, wherever they
+#: appear (stage sections, stages items, basis specs, data); every number must be finite
+RANGES: dict[str, tuple[float | None, float | None]] = {
+    "seed": (0, 2**63 - 1), "n_centres": (1, 100_000), "max_iter": (1, 10_000_000),
+    "n_restarts": (1, 10_000), "window": (1, 1_000_000), "order": (1, 20), "min_samples": (1, None),
+    "max_constraints": (1, 100_000), "n_constraints": (0, 100_000), "cv_folds": (2, 1000),
+    "degree": (0, 10), "reweight": (0, 1000), "sigma2": (1e-300, None), "tol": (0, None),
+    "rate": (1e-9, 1e12), "threshold": (0, None), "gap_floor": (0, None), "cutoff": (0, None),
+    "min_norm": (0, None), "fraction": (0, 1),
+}
+
+
+def check_ranges(cfg: Config, value: Any, path: tuple) -> None:
+    """Numbers finite and, for the keys of :data:`RANGES`, within range (ConfigError)."""
+    if isinstance(value, dict):
+        for key, sub in value.items():
+            check_ranges(cfg, sub, (*path, key))
+    elif isinstance(value, list):
+        for i, sub in enumerate(value):
+            check_ranges(cfg, sub, (*path, i))
+    elif isinstance(value, int | float) and not isinstance(value, bool):
+        key = next((p for p in reversed(path) if isinstance(p, str)), "")
+        lo, hi = RANGES.get(key, (None, None)) if path and path[-1] == key else (None, None)
+        if isinstance(value, float) and value != value or value in (float("inf"), float("-inf")):
+            raise ConfigError(f"{_where(cfg, path)}: {_dotted(path)} must be a finite number, got {value!r}")
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            span = f"at least {lo:g}" if hi is None else f"between {lo:g} and {hi:g}"
+            raise ConfigError(f"{_where(cfg, path)}: {_dotted(path)} must be {span}, got {value!r}"[:200])

@@ -66,6 +66,10 @@ def eigen_lstsq(M: np.ndarray, r: np.ndarray, cutoff: float, absolute: bool = Fa
 
 # -- chunked normal equations (issue 10: memory independent of N) --------------------------
 
+#: Relative eigenvalue cut-off of the damped normal matrix in the LM steps: directions
+#: of JᵀJ weaker than this (near-collinear RBF features) are not stepped along.
+LM_CUTOFF = 1e-12
+
 #: Rows per block of the chunked passes: temporaries are O(CHUNK_ROWS · K q), not O(N · K q).
 CHUNK_ROWS = 8192
 
@@ -102,6 +106,7 @@ def kron_least_squares(
     residual: Callable[[np.ndarray, slice, np.ndarray], tuple[np.ndarray, np.ndarray]],
     max_iter: int = 1000,
     tol: float = 1e-9,
+    cutoff: float = LM_CUTOFF,
 ) -> tuple[np.ndarray, float, int]:
     """Levenberg–Marquardt on accumulated normal equations for min_W Σ_n r_n(W)².
 
@@ -111,10 +116,12 @@ def kron_least_squares(
     yields (rows slice, features β (c, K)); JᵀJ (m K × m K, :func:`kron_normal`) and Jᵀr
     are summed block by block at the trial point, so an accepted step needs no further
     pass and no N × m K matrix is ever formed. Steps solve (JᵀJ + μ D) δ = −Jᵀr with D
-    the running maximum of diag(JᵀJ) (Marquardt/MINPACK scaling; μ is raised if the
-    Cholesky factorisation fails) and μ updated from the gain ratio (Nielsen). Stops
-    when the cost falls by less than ``tol`` relatively, the step is below ``tol``
-    relative to W, or the scaled gradient is below ``tol``; ``max_iter`` bounds the passes.
+    the running maximum of diag(JᵀJ) (Marquardt/MINPACK scaling), μ updated from the
+    gain ratio (Nielsen), by eigen-decomposition: eigenvalues below ``cutoff`` times the
+    largest are dropped (near-collinear RBF features give directions along which the
+    weights would otherwise grow without improving the fit). Stops when the cost falls
+    by less than ``tol`` relatively, the step is below ``tol`` relative to W, or the
+    scaled gradient is below ``tol``; ``max_iter`` bounds the passes.
 
     Returns:
         (W (m, K), cost Σ r², passes over the data).
@@ -143,13 +150,7 @@ def kron_least_squares(
         scaled = np.abs(Jtr) / np.sqrt(diag * max(cost, 1e-300))
         if np.max(scaled, initial=0.0) <= tol:
             break
-        while True:  # raise μ until JᵀJ + μD factorises (rank-deficient JᵀJ)
-            try:
-                L = np.linalg.cholesky(H + mu * np.diag(diag))
-                break
-            except np.linalg.LinAlgError:
-                mu *= 10.0
-        step = -np.linalg.solve(L.T, np.linalg.solve(L, Jtr))
+        step = -eigen_lstsq(H + mu * np.diag(diag), Jtr, cutoff)
         if np.linalg.norm(step) <= tol * (tol + np.linalg.norm(w)):
             break
         new_cost, new_H, new_Jtr, new_D = evaluate(w + step)

@@ -223,10 +223,10 @@ def _read(group, method: str, where: str) -> Any:
     arrays = h5safe.group_of(group, "arrays", where)
     for name in ARRAYS[method]:
         setattr(model, name, h5safe.numeric(arrays, name, where, ndim=(1, 2, 3), limit=MAX_MAGNITUDE)
-                if name in arrays else None)
+                if h5safe.has(arrays, name, where) else None)
     if method in ("alpha", "lambda"):
         n = model.n_constraints_
-        missing = [i for i in range(n) if f"weights_{i}" not in arrays]
+        missing = [i for i in range(n) if not h5safe.has(arrays, f"weights_{i}", where)]
         if missing:
             raise InputError(f"{where}: expected {n} weight arrays, weights_{missing[0]} is missing")
         model.weights_ = [h5safe.numeric(arrays, f"weights_{i}", where, ndim=(2,), limit=MAX_MAGNITUDE)
@@ -365,7 +365,7 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
             model = PerDemonstration(template)
             demos = h5safe.group_of(f, "demos", where)
             models = {}
-            for k in demos:
+            for k in h5safe.members(demos, where):
                 if not k.lstrip("-").isdigit() or len(k) > 18:
                     raise InputError(f"{where}: /demos/{k} is not a demonstration id")
                 models[int(k)] = _read(h5safe.group_of(demos, k, where), base, f"{where}:/demos/{k}")

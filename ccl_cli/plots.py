@@ -36,6 +36,7 @@ STYLE = {
     "true": {"color": "tab:green", "alpha": 0.45, "lw": 3.0},
     "learnt": {"color": "tab:red", "lw": 1.1},
     "baseline": {"color": "tab:blue", "lw": 0.9, "ls": ":"},
+    "predicted": {"color": "tab:purple", "lw": 1.0, "ls": "--"},
 }
 JOINT_UNITS = {"position": "rad", "velocity": "rad/s", "effort": "N m"}
 
@@ -201,7 +202,7 @@ def time_figure(plt, title: str, part: str, d: Demonstrations, lines: dict[str, 
         t = d.t[sel] - d.t[sel][0]
         for j in range(q):
             ax = axes[j, c]
-            for style in ("true", "observed", "baseline", "learnt"):
+            for style in ("true", "observed", "baseline", "learnt", "predicted"):
                 if style in lines:
                     name, Y = lines[style]
                     s = STYLE[style]
@@ -423,10 +424,16 @@ def make_plots(outdir: Path, pipeline) -> list[tuple[str, str]]:
                 arrows["true"] = ("true π", d.truth["pi"])
             if r.baseline is not None:
                 arrows["baseline"] = ("dpl baseline", r.baseline.predict(d.X))
+            lines = dict(arrows)
+            c = pipeline.constraint
+            if c is not None and not isinstance(c, PerDemonstration):  # held-out u predicted as ṽ + Ñπ̃
+                v = task_part(c, d.X, d.demo)
+                pred = np.einsum("nij,nj->ni", c.projection(d.X, d.demo), est) + (0 if v is None else v)
+                lines["predicted"] = ("predicted u = ṽ + Ñπ̃", pred)
             if planar:
                 save(field_figure(plt, f"{title}: null-space policy π", d, dpart, arrows, r.model.predict,
                                   "learnt π̃(x) on a grid"), "learn-pi-field.png",
                      "learn-pi: learnt vs true policy")
-            save(time_figure(plt, f"{title}: null-space policy π", dpart, d, arrows), "learn-pi-time.png",
-                 "learn-pi: learnt policy over time")
+            save(time_figure(plt, f"{title}: null-space policy π", dpart, d, lines), "learn-pi-time.png",
+                 "learn-pi: learnt policy (and the predicted u) over time")
     return plots

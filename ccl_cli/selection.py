@@ -249,20 +249,23 @@ def holdout_split(demo: np.ndarray, fraction: float = 0.3, seed: int = 0, gap: i
     n = len(demo)
     ids = np.unique(demo)
     rng = np.random.default_rng(seed)
-    if len(ids) >= max(min_demos, 2):
+    possible = min(n_blocks, n // (2 * gap + 4))  # blocks long enough for their guard gaps
+    if len(ids) >= max(min_demos, 2) or (possible < 3 and len(ids) >= 2):
         n_test = min(max(1, int(round(fraction * len(ids)))), len(ids) - 1)
         test_ids = rng.choice(ids, size=n_test, replace=False)
         test = np.isin(demo, test_ids)
-        info = {"kind": "demonstrations",
-                "reason": f"{len(ids)} demonstrations (≥ {min_demos}): {n_test} held out whole",
+        why = (f"{len(ids)} demonstrations (≥ {min_demos})" if len(ids) >= min_demos else
+               f"only {len(ids)} demonstrations (< {min_demos}) but {n} samples are too few for "
+               f"time blocks with guard gaps of {gap}")
+        info = {"kind": "demonstrations", "reason": f"{why}: {n_test} held out whole",
                 "n_train_demos": int(len(ids) - n_test), "n_test_demos": int(n_test)}
         return Holdout(~test, test, {**info, "n_train_samples": int((~test).sum()),
                                      "n_test_samples": int(test.sum()), "fraction": fraction})
-    blocks = _blocks(n, n_blocks)
-    if len(blocks) < 2 or n < n_blocks * (2 * gap + 4):
-        raise InputError(f"{n} samples in {len(ids)} demonstration(s) are too few for a held-out "
-                         f"test set of time blocks (need ≥ {n_blocks * (2 * gap + 4)}); add "
-                         "demonstrations or set data.test.fraction: 0")
+    if possible < 3:
+        raise InputError(f"{n} samples in one demonstration are too few for a held-out test set of "
+                         f"time blocks (need ≥ {3 * (2 * gap + 4)}); add demonstrations or set "
+                         "data.test.fraction: 0")
+    blocks = _blocks(n, possible)
     n_test = min(max(1, int(round(fraction * len(blocks)))), len(blocks) - 1)
     chosen = np.sort(rng.choice(len(blocks), size=n_test, replace=False))
     test_idx = np.concatenate([blocks[i] for i in chosen])

@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -173,3 +174,74 @@ def test_resume_after_kill(recordings, tmp_path):
     # a third run skips everything that succeeded; --force re-runs
     third = json.loads(subprocess.run([*args, "--json"], capture_output=True, text=True).stdout)
     assert third["skipped"] == N_GOOD and third["ok"] == 0
+
+
+def _session(sid: int) -> list[tuple[int, str]]:
+    """Processes of session ``sid`` (the batch and everything it started)."""
+    out = []
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                fields = Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()
+                if int(fields[3]) == sid and fields[0] != "Z":
+                    out.append((int(d), Path(f"/proc/{d}/cmdline").read_text().replace("\0", " ")[:80]))
+            except (OSError, IndexError, ValueError):
+                pass
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_sigkill_of_a_two_worker_batch_leaves_no_process(recordings, tmp_path):
+    out = tmp_path / "killed"
+    args = [CCL, "batch", "--files", str(recordings / "rec_0*.h5"), "-c", str(recordings / "pipeline.yaml"),
+            "-o", str(out), "-j", "2", "-q"]
+    proc = subprocess.Popen(args, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and len(_session(proc.pid)) < 5:  # ccl, tracker, server, 2 workers
+        time.sleep(0.05)
+    assert len(_session(proc.pid)) >= 5, _session(proc.pid)
+    os.kill(proc.pid, signal.SIGKILL)  # ccl alone: its children must follow
+    proc.wait()
+    deadline = time.time() + 15
+    while time.time() < deadline and _session(proc.pid):
+        time.sleep(0.1)
+    assert _session(proc.pid) == []
+    again = subprocess.run([*args, "--json"], capture_output=True, text=True, timeout=600)
+    summary = json.loads(again.stdout)
+    assert again.returncode == 0 and summary["ok"] + summary["skipped"] == 10
+    assert not [p for p in (out / "jobs").iterdir() if p.name.startswith(".")]
+
+
+def test_resume_does_not_depend_on_how_the_manifest_is_spelled(capsys, recordings, tmp_path, monkeypatch):
+    manifest = tmp_path / "m.yaml"
+    shutil.copy(recordings / "pipeline.yaml", tmp_path / "pipeline.yaml")
+    for i in range(3):
+        shutil.copy(recordings / f"rec_{i:02d}.h5", tmp_path / f"rec_{i:02d}.h5")
+    manifest.write_text("out: out\njobs:\n  - files: [rec_0*.h5]\n    config: pipeline.yaml\n")
+    code, summary, err = batch(capsys, manifest.resolve(), "-j", 1)
+    assert code == 0 and summary["ok"] == 3, err
+    monkeypatch.chdir(tmp_path)
+    code, summary, err = batch(capsys, "m.yaml", "-j", 1)
+    assert code == 0 and summary["skipped"] == 3 and summary["ok"] == 0, err
+    monkeypatch.chdir(tmp_path.parent)
+    code, summary, err = batch(capsys, Path(tmp_path.name) / ".." / tmp_path.name / "m.yaml", "-j", 1)
+    assert code == 0 and summary["skipped"] == 3, err
+    assert len(list((tmp_path / "out" / "jobs").iterdir())) == 3
+
+
+@pytest.mark.parametrize("text,match", [
+    ("jobs:\n  - files: 3\n", r"jobs\[0\].files must be a path/glob"),
+    ("jobs:\n  - files: [a.h5, 2.5]\n", r"jobs\[0\].files must be"),
+    ("jobs:\n  - {files: x.h5, config: [a]}\n", r"jobs\[0\].config must be a file path"),
+    ("jobs:\n  - {files: x.h5, group: 'yes'}\n", r"jobs\[0\].group must be true or false"),
+    ("jobs:\n  - {files: x.h5, overrides: [1]}\n", r"jobs\[0\].overrides must be a mapping"),
+    ("out: [1]\njobs: []\n", "out must be a folder path"),
+    ("jobs: []\noverrides: [1, 2]\n", "overrides must map file paths"),
+    ("jobs: {a: 1}\n", "needs a jobs: list"),
+    ("jobs:\n  - &a [*a]\n", "alias refers to its own parent"),
+])
+def test_manifest_fields_are_typed(capsys, tmp_path, text, match):
+    manifest = tmp_path / "m.yaml"
+    manifest.write_text(text)
+    code, _, err = batch(capsys, manifest, "-o", tmp_path / "o")
+    assert code == 2 and re.search(match, err) and err.count("\n") == 1, err

@@ -337,7 +337,7 @@ def test_flag_overrides_a_basis_mapping_at_any_depth(capsys, tmp_path):
 
     cfg_path = tmp_path / "v.yaml"
     cfg_path.write_text(f"data: {{files: [{SAMPLES / 'toy2d_ncl.h5'}]}}\n"
-                        "learn-v: {basis: {kind: rbf, n_centres: 4}}\n")
+                        "learn-v: {basis: {kind: rbf, n_centres: 4}, tune: false}\n")  # fixed settings
     code, _, err = run_main(capsys, "learn-v", "-c", cfg_path, "--n-centres", "25", "-o", tmp_path / "o",
                             "-q")
     assert code == 0, err
@@ -346,11 +346,20 @@ def test_flag_overrides_a_basis_mapping_at_any_depth(capsys, tmp_path):
     cfg = C.merge(C.load(cfg_path), {"learn-v": {"n_centres": 25, "basis": "rbf"}})
     opts = C.stage_options(cfg, "learn-v", {"basis": {"kind": "rbf", "n_centres": 9, "centres": "grid"}})
     assert opts["basis"] == {"kind": "rbf", "n_centres": 25, "centres": "grid"} and opts["n_centres"] == 25
+    assert opts["tune"] is False  # the basis given on the command line is used, not searched over
 
 
 def test_flag_errors_are_one_line_and_name_the_flag(capsys, tmp_path):
     from ccl_cli import config as C
     from ccl_cli.errors import ConfigError
+
+    for args, flag in ((("learn-a", "--selection", "often"), "'--selection'"),
+                       (("learn-pi", "--n-centres", "many"), "'--n-centres'"),
+                       (("lern-a",), "No such command"), (("run",), "Missing argument")):
+        code, out, err = run_main(capsys, *args)
+        assert code == 2 and out == "", args
+        assert err.count("\n") == 1 and err.startswith("ccl: error: ") and flag in err, (args, err)
+        assert "Usage:" not in err and "Value error" not in err
 
     with pytest.raises(ConfigError) as info:
         C.merge(C.load(CONFIGS / "arm7.yaml"), {"learn-a": {"selection": "often"}})

@@ -122,6 +122,12 @@ def test_robomimic_layout_round_trip_natural_order(tmp_path, arm):
     assert data.state_names == [f"j{i}" for i in range(7)]
     assert data.action_names == [f"joint_vel[{i}]" for i in range(7)]
     assert data.metadata["files"][0]["layout"]["demos"] == "data/demo_*"
+    picked = load({**ROBOMIMIC, "state": {"dataset": "obs/joint_pos", "columns": ["j1", 3]},
+                   "action": {"dataset": "obs/joint_vel", "columns": [1, 3]}}, path)
+    np.testing.assert_array_equal(picked.X, arm.X[:, [1, 3]])
+    assert picked.state_names == ["j1", "j3"] and picked.action_names == ["joint_vel[1]", "joint_vel[3]"]
+    bad({**ROBOMIMIC, "state": {"dataset": "obs/joint_pos", "columns": ["j9"]}}, path,
+        r"column 'j9' not found \(names: j0, j1")
 
 
 def test_flat_layout_with_demo_index_rate_and_derived_action(tmp_path, arm):

@@ -39,7 +39,8 @@ def fixtures(tmp_path_factory):
     root = tmp_path_factory.mktemp("hostile")
     data = root / "toy.h5"
     write_demonstrations(data, sim.toy2d(n_demos=4, n_steps=40, seed=0))
-    assert main(["learn-v", str(data), "-o", str(root / "v"), "-q", "--n-centres", "4"]) == 0
+    assert main(["learn-v", str(data), "-o", str(root / "v"), "-q", "--n-centres", "4",
+                 "--test-fraction", "0"]) == 0  # 4 demonstrations: too few for a held-out set
     return {"root": root, "data": data, "model": root / "v" / "model.h5"}
 
 
@@ -239,3 +240,292 @@ def test_model_json_attributes_are_typed(fixtures, tmp_path):
         f.attrs["fitted"] = "[" * 100_000
     with pytest.raises(h5safe.InputError, match="not valid JSON"):
         load_model(model)
+
+
+# -- YAML safely -----------------------------------------------------------------------------
+def billion_laughs(path: Path) -> Path:
+    """Nine levels of nine aliases: 9^9 ≈ 387 million strings once expanded, in < 1 kB."""
+    import yaml
+
+    doc: dict = {"a0": ["lol"] * 9}
+    text = yaml.safe_dump(doc)
+    for i in range(1, 10):
+        text = text.replace(f"a{i - 1}:", f"a{i - 1}: &a{i - 1}", 1)
+        text += f"a{i}: [" + ", ".join([f"*a{i - 1}"] * 9) + "]\n"
+    path.write_text(text.replace("a0:", "a0: &a0", 1) if "&a0" not in text else text)
+    return path
+
+
+def test_billion_laughs_is_refused_fast_and_small(capsys, tmp_path):
+    import tracemalloc
+
+    from ccl_cli import config as C
+
+    bomb = billion_laughs(tmp_path / "bomb.yaml")
+    assert bomb.stat().st_size < 1000
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    with pytest.raises(C.ConfigError, match="once aliases are expanded"):
+        C.load(bomb)
+    seconds = time.perf_counter() - t0
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert seconds < 1.0 and peak < 100e6
+    code, _, err = run_main(capsys, "learn-a", "-c", bomb)
+    assert code == 2 and "aliases" in one_line_error(err)
+
+
+@pytest.mark.parametrize("case", ["deep_flow", "deep_block", "recursive", "not_utf8", "huge"])
+def test_hostile_yaml_configs(capsys, tmp_path, case):
+    path = tmp_path / "c.yaml"
+    if case == "deep_flow":
+        path.write_text("data: " + "[" * 20000 + "]" * 20000 + "\n")
+        match = "nested deeper than 64"
+    elif case == "deep_block":
+        path.write_text("".join(" " * i + f"k{i}:\n" for i in range(2000)))
+        match = "nested deeper than 64"
+    elif case == "recursive":
+        path.write_text("data: &a {files: *a}\n")
+        match = "alias refers to its own parent"
+    elif case == "not_utf8":
+        path.write_bytes(b"seed: 1\ndata: {files: [caf" + "é".encode("latin-1") + b".h5]}\n")
+        match = r"not UTF-8 text \(byte 26: 0xe9\)"
+    else:
+        path.write_text("seed: 1\n" + "#" * (17 << 20) + "\n")
+        match = "larger than 16 MB"
+    t0 = time.perf_counter()
+    code, _, err = run_main(capsys, "learn-a", "-c", path)
+    assert code == 2 and time.perf_counter() - t0 < 5
+    import re
+
+    assert re.search(match, one_line_error(err))
+
+
+@pytest.mark.parametrize("text,match", [
+    ("learn-a: {n_centres: 0}", "learn-a.n_centres must be between 1 and 100000, got 0"),
+    ("learn-pi: {basis: {kind: rbf, n_centres: -3}}", "n_centres must be between 1"),
+    ("data: {action: {derive: state, order: 0}}", "data.action.order must be between 1 and 20"),
+    ("seed: -1", "seed must be between 0"),
+    ("learn-a: {tol: .nan}", "must be a finite number"),
+    ("stages: [{learn-v: {max_iter: 0}}]", "max_iter must be between 1"),
+])
+def test_config_numbers_in_range(capsys, tmp_path, text, match):
+    path = tmp_path / "c.yaml"
+    path.write_text(text + "\n")
+    code, _, err = run_main(capsys, "learn-a", "-c", path)
+    assert code == 2 and match in one_line_error(err)
+
+
+# -- boundary cases of the readers ------------------------------------------------------------
+@pytest.fixture()
+def csv_rec(tmp_path):
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    import writers
+
+    return writers.write_csv(tmp_path / "rec.csv", writers.joint_recording(n=40))
+
+
+CSV_CFG = "data:\n  state: {columns: [x, y, z]}\n  time: {column: '%time', unit: UNIT}\n"
+
+
+@pytest.mark.parametrize("case,match", [
+    ("time_1e300", "time value '1e300' in row 4 is out of range"),
+    ("time_inf", "time value 'inf' in row 4 is not finite"),
+    ("time_huge_int", "in row 4 is out of range"),
+    ("field_256k", "line 4: not a readable CSV row (field larger than field limit"),
+    ("order_0", "derivative order must be an integer"),
+    ("ranges_flat", "demos.ranges[0] must be [start, end]"),
+    ("ranges_text", "demos.ranges[0] must be [start, end]"),
+    ("delimiter", "time.delimiter must be one character"),
+    ("format_mcap", "not an MCAP file"),
+])
+def test_reader_boundaries(capsys, tmp_path, csv_rec, case, match):
+    lines = csv_rec.read_text().splitlines()
+    cfg = CSV_CFG.replace("UNIT", "ns")
+    first, rest = lines[3].split(",", 1)
+    if case == "time_1e300":
+        lines[3] = "1e300," + rest
+    elif case == "time_inf":
+        lines[3] = "inf," + rest
+    elif case == "time_huge_int":
+        lines[3] = "9" * 30 + "," + rest
+    elif case == "field_256k":
+        lines[3] = first + "," + "1" * 256_000 + "," + rest.split(",", 1)[1]
+    elif case == "order_0":
+        cfg += "  action: {derive: state, order: 0}\n"
+    elif case == "ranges_flat":
+        cfg += "  demos: {ranges: [0, 1]}\n"
+    elif case == "ranges_text":
+        cfg += "  demos: {ranges: [[a, b]]}\n"
+    elif case == "delimiter":
+        cfg = cfg.replace("unit: ns", "unit: ns, delimiter: ';;'")
+    elif case == "format_mcap":
+        cfg += "  format: mcap\n"
+    csv_rec.write_text("\n".join(lines) + "\n")
+    (tmp_path / "c.yaml").write_text(cfg)
+    if case == "order_0":  # the config check comes first; the reader refuses it on its own too
+        from ccl_cli.io.assemble import local_polynomial_derivative
+
+        with pytest.raises(h5safe.InputError, match=match):
+            local_polynomial_derivative(np.arange(5.0), np.ones((5, 1)), np.zeros(5, int), 3, 0)
+        match = "order must be between 1 and 20"
+    code, _, err = run_main(capsys, "convert", csv_rec, "-c", tmp_path / "c.yaml", "-o", tmp_path / "o.h5")
+    assert code == 2 and match in one_line_error(err)
+    assert not (tmp_path / "o.h5").exists()
+
+
+@pytest.mark.parametrize("edit", ["count_text", "topics_int", "duration_list", "storage_map"])
+def test_ros2_metadata_with_odd_types(capsys, tmp_path, edit):
+    import sys
+
+    import yaml
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    import writers
+
+    bag = writers.write_ros2_bag(tmp_path / "bag", writers.joint_recording(n=20))
+    meta_path = bag / "metadata.yaml"
+    meta = yaml.safe_load(meta_path.read_text())
+    info = meta["rosbag2_bagfile_information"]
+    if edit == "count_text":
+        info["message_count"] = "many"
+        info["topics_with_message_count"][0]["message_count"] = "many"
+    elif edit == "topics_int":
+        info["topics_with_message_count"] = 5
+    elif edit == "duration_list":
+        info["duration"] = [1, 2]
+    else:
+        info["storage_identifier"] = {"a": 1}
+    meta_path.write_text(yaml.safe_dump(meta))
+    (tmp_path / "c.yaml").write_text("data:\n  state: {topic: /joint_states, field: position}\n")
+    for command in (["inspect", bag], ["convert", bag, "-o", tmp_path / "o.h5"]):
+        code, _, err = run_main(capsys, *command, "-c", tmp_path / "c.yaml")
+        assert code in (0, 2), err
+        if code == 2:
+            one_line_error(err)
+
+
+# -- never lose data ---------------------------------------------------------------------------
+def test_force_never_replaces_a_folder_ccl_did_not_write(capsys, fixtures, tmp_path):
+    mine = tmp_path / "thesis"
+    mine.mkdir()
+    (mine / "chapter1.tex").write_text("years of work")
+    (mine / "metrics.json").write_text("{}")  # looks a bit like an output, still not ours
+    code, _, err = run_main(capsys, "learn-v", fixtures["data"], "-o", mine, "--force", "-q")
+    assert code == 2 and "was not written by ccl" in one_line_error(err)
+    assert (mine / "chapter1.tex").read_text() == "years of work"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["thesis"]
+    afile = tmp_path / "notes.txt"
+    afile.write_text("mine")
+    code, _, err = run_main(capsys, "learn-v", fixtures["data"], "-o", afile, "--force", "-q")
+    assert code == 2 and afile.read_text() == "mine"
+    # a folder ccl wrote is replaced, and carries the marker
+    out = tmp_path / "out"
+    for _ in range(2):
+        code, _, err = run_main(capsys, "learn-v", fixtures["data"], "-o", out, "--force", "-q")
+        assert code == 0, err
+    assert (out / ".ccl-output").is_file()
+
+
+def test_stale_temporaries_of_a_killed_run_are_removed(capsys, fixtures, tmp_path):
+    import subprocess
+    import sys
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    out = tmp_path / "out"
+    stale = tmp_path / f".out.{dead.pid}.k1ll3d.tmp"
+    stale.mkdir()
+    (stale / "model.h5").write_bytes(b"half")
+    stale_old = tmp_path / f".out.old-{dead.pid}"
+    stale_old.mkdir()
+    live = tmp_path / f".out.{os.getpid()}.busy.tmp"  # a run still going: left alone
+    live.mkdir()
+    code, _, err = run_main(capsys, "learn-v", fixtures["data"], "-o", out, "-q")
+    assert code == 0, err
+    assert not stale.exists() and not stale_old.exists() and live.exists()
+
+
+@pytest.mark.parametrize("umask,dmode,fmode", [(0o022, 0o755, 0o644), (0o077, 0o700, 0o600)])
+def test_outputs_follow_the_umask(capsys, fixtures, tmp_path, umask, dmode, fmode):
+    old = os.umask(umask)
+    try:
+        code, _, err = run_main(capsys, "learn-v", fixtures["data"], "-o", tmp_path / "o", "-q")
+        code2, _, _ = run_main(capsys, "predict", tmp_path / "o" / "model.h5", fixtures["data"],
+                               "-o", tmp_path / "p.h5")
+    finally:
+        os.umask(old)
+    assert code == 0 and code2 == 0, err
+    assert (tmp_path / "o").stat().st_mode & 0o777 == dmode
+    for path in [*(tmp_path / "o").rglob("*"), tmp_path / "p.h5"]:
+        assert path.stat().st_mode & 0o777 == (dmode if path.is_dir() else fmode), path
+
+
+def test_disk_full_is_one_line_and_leaves_nothing(fixtures, tmp_path):
+    """RLIMIT_FSIZE makes every write past 64 kB fail (EFBIG), as a full disk would."""
+    import resource
+    import subprocess
+
+    from tests_paths import CCL
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (64_000, 64_000))
+
+    proc = subprocess.run([CCL, "learn-v", str(fixtures["data"]), "-o", str(tmp_path / "o"), "-q"],
+                          capture_output=True, text=True, preexec_fn=limit, timeout=300)
+    assert proc.returncode == 2, proc.stderr
+    line = one_line_error(proc.stderr)
+    assert "cannot write the output" in line and "nothing was written" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_read_only_output_folder_is_one_line(capsys, fixtures, tmp_path):
+    if os.geteuid() == 0:
+        pytest.skip("root writes into read-only folders")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        code, _, err = run_main(capsys, "learn-v", fixtures["data"], "-o", ro / "o", "-q")
+    finally:
+        ro.chmod(0o755)
+    assert code == 2 and "cannot write the output" in one_line_error(err)
+    assert list(ro.iterdir()) == []
+
+
+# -- faults ------------------------------------------------------------------------------------
+def _importing_ccl(pid: int) -> bool:
+    """True once ``pid`` runs ccl's code: numpy (imported by ccl_cli, after its Ctrl-C
+    guard) is mapped. Before that only the interpreter's own start-up runs, whose
+    Ctrl-C behaviour ccl cannot change."""
+    try:
+        return "_multiarray_umath" in Path(f"/proc/{pid}/maps").read_text()
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.05, 0.15, 0.4])
+def test_ctrl_c_at_any_moment_is_130_and_one_line(fixtures, tmp_path, delay):
+    """SIGINT while ccl imports its modules (delay 0: the first ones), reads, learns or
+    writes: exit 130, one line, nothing left."""
+    import signal
+    import subprocess
+
+    from tests_paths import CCL
+
+    proc = subprocess.Popen([CCL, "learn-v", str(fixtures["data"]), "-o", str(tmp_path / "o"), "-q"],
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not _importing_ccl(proc.pid) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.001)
+    time.sleep(delay)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    if proc.returncode == 0:  # finished first: complete
+        assert (tmp_path / "o" / "model.h5").exists()
+        return
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines() == ["ccl: interrupted; no partial outputs were left"]
+    assert list(tmp_path.iterdir()) == []

@@ -372,7 +372,7 @@ def test_linear_and_alpha_blocks_smaller_than_n_give_the_same_fit(monkeypatch):
     monkeypatch.setattr(_linalg, "CHUNK_ROWS", 100)
     chunked = [m.fit(data.X, data.U) for m in models()]
     for a, b in zip(whole, chunked, strict=True):
-        np.testing.assert_allclose(b.projection(data.X), a.projection(data.X), atol=1e-6)
+        np.testing.assert_allclose(b.projection(data.X), a.projection(data.X), atol=1e-5)
 
 
 def test_kmeans_on_a_subsample_finds_separated_clusters_and_stops_early():

@@ -47,6 +47,12 @@ def test_holdout_split_blocks_for_one_recording_and_demos_otherwise():
     assert many.info["kind"] == "demonstrations" and many.info["n_test_demos"] == 3
     few = S.holdout_split(np.repeat(np.arange(3), 400), 0.3, seed=0)
     assert few.info["kind"] == "blocks" and "only 3 demonstrations" in few.info["reason"]
+    short = S.holdout_split(np.repeat(np.arange(4), 15), 0.3, seed=0, gap=10)  # blocks < 2 gaps long
+    assert short.info["kind"] == "demonstrations" and "too few for time blocks" in short.info["reason"]
+    fewer_blocks = S.holdout_split(np.zeros(150, int), 0.3, seed=0, gap=10)
+    assert fewer_blocks.info["n_train_blocks"] + fewer_blocks.info["n_test_blocks"] == 6
+    with pytest.raises(InputError, match="too few"):
+        S.holdout_split(np.zeros(60, int), 0.3, seed=0, gap=10)
 
 
 def test_cross_validate_scores_held_out_npoe_by_hand():
@@ -126,5 +132,5 @@ def test_a_single_continuous_recording_gets_a_stated_block_split(tmp_path, capsy
     report = (tmp_path / "out" / "report.md").read_text()
     assert "## Validation" in report and "**blocks**" in report
     assert json.loads((tmp_path / "out" / "run.json").read_text())["validation"]["kind"] == "blocks"
-    assert main(["learn-a", "-c", str(cfg), "-o", str(tmp_path / "out2")]) == 0  # -q would hide it
+    assert main(["learn-a", "-c", str(cfg), "-o", str(tmp_path / "out2")]) == 0
     assert "validation: blocks (a single continuous recording" in capsys.readouterr().err

@@ -29,6 +29,8 @@ from ccl_cli.linalg import kron_least_squares, row_chunks, total_variance
 
 #: LM iterations every start gets before only the best one is continued.
 SCREEN_PASSES = 8
+#: Eigenvalue cut-off of the LM steps: the angle fits keep every direction (as before).
+ANGLE_CUTOFF = 1e-16
 
 
 @dataclass
@@ -145,15 +147,18 @@ def _fit_row(B: np.ndarray, Z: np.ndarray, n_restarts: int, rng: np.random.Gener
         th = rng.uniform(0.0, np.pi, m - 1)
         starts.append(np.outer(th, lift) + rng.normal(scale=0.3, size=(m - 1, K)))
     if len(starts) == 1:
-        W, cost, _ = kron_least_squares(starts[0], lambda: blocks, residual, max_iter, tol)
+        W, cost, _ = kron_least_squares(starts[0], lambda: blocks, residual, max_iter, tol,
+                                     ANGLE_CUTOFF)
         return W, cost
     # Screen: every start gets SCREEN_PASSES iterations, the best one is run to convergence.
-    screened = [kron_least_squares(w0, lambda: blocks, residual, min(SCREEN_PASSES, max_iter), tol)
+    screened = [kron_least_squares(w0, lambda: blocks, residual, min(SCREEN_PASSES, max_iter), tol,
+                                   ANGLE_CUTOFF)
                 for w0 in starts]
     W, cost, used = min(screened, key=lambda fit: fit[1])
     if used < min(SCREEN_PASSES, max_iter):  # converged while screening
         return W, cost
-    W, cost, _ = kron_least_squares(W, lambda: blocks, residual, max(1, max_iter - used), tol)
+    W, cost, _ = kron_least_squares(W, lambda: blocks, residual, max(1, max_iter - used), tol,
+                                 ANGLE_CUTOFF)
     return W, cost
 
 

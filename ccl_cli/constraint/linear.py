@@ -31,6 +31,8 @@ from ccl_cli.linalg import row_chunks
 from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
 
 REGRESSORS = ("identity", "rbf", "polynomial")
+#: Regressor rows of all samples are cached between the reweighting passes up to this size.
+H_CACHE_BYTES = 256 * 2**20
 
 
 def polynomial_features(X: np.ndarray, degree: int) -> np.ndarray:
@@ -175,7 +177,16 @@ class LinearConstraint(ConstraintModel):
             raise ConfigError(f"unknown whiten {self.whiten!r} (use errors, rms or none)")
         n = len(X)
         chunks = row_chunks(n)
-        colsq = sum(np.sum(self._stack(X[r], U[r]) ** 2, axis=0) for r in chunks)
+        first = self._stack(X[:1], U[:1])
+        # Regressor rows are kept per block when they fit in H_CACHE_BYTES (the reweighting
+        # passes then reuse them), else rebuilt per pass: memory stays O(chunk) in N.
+        cached = [self._stack(X[r], U[r]) for r in chunks] \
+            if n * first.shape[1] * 8 <= H_CACHE_BYTES else None
+
+        def rows_of(i: int, r: slice) -> np.ndarray:
+            return cached[i] if cached is not None else self._stack(X[r], U[r])
+
+        colsq = sum(np.sum(rows_of(i, r) ** 2, axis=0) for i, r in enumerate(chunks))
         d = colsq.shape[0]
         if self.whiten == "rms":
             scale = np.sqrt(colsq / n)
@@ -186,19 +197,22 @@ class LinearConstraint(ConstraintModel):
         W = None
         for step in range(self.reweight + 1):
             S, T, wsum = np.zeros((d, d)), None, 0.0
-            for rows in chunks:
-                Hs = self._stack(X[rows], U[rows]) / scale
-                phi = self._phi(X[rows]) if (W is not None or self.whiten == "errors") else None
+            for i, rows in enumerate(chunks):
+                Hs = rows_of(i, rows) / scale
+                f = self._features(X[rows]) if W is not None else None
+                phi = self._phi(X[rows]) if self.whiten == "errors" or (
+                    W is not None and f is None) else None
                 if W is None:
                     weight = np.ones(len(Hs))
-                else:
-                    A = np.einsum("km,nmq->nkq", W, phi, optimize=True)
+                else:  # Ã_n = W Φ_A(x_n); with Φ_A = f ⊗ I_q, Ã_n = Σ_j f_j W_j (no Φ_A)
+                    A = np.einsum("km,nmq->nkq", W, phi) if f is None else \
+                        np.einsum("nj,kjq->nkq", f, W.reshape(len(W), f.shape[1], -1))
                     weight = k / np.maximum(np.sum(A**2, axis=(1, 2)), 1e-12)
                 wsum += float(weight.sum())
                 S += (Hs * weight[:, None]).T @ Hs
                 if self.whiten == "errors":
                     m = phi.shape[1]
-                    Tb = np.einsum("n,nmq,nkq->mk", weight, phi, phi, optimize=True)
+                    Tb = np.einsum("nmq,nkq->mk", phi * weight[:, None, None], phi)
                     T = Tb if T is None else T + Tb
             S /= wsum / n  # the weights normalised to mean 1
             if self.whiten == "errors":

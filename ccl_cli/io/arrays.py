@@ -190,6 +190,35 @@ def names_for(label: str, d: int, given: list[str] | None) -> list[str]:
     return [label] if d == 1 else [f"{label}[{j}]" for j in range(d)]
 
 
+def select_columns(mat: np.ndarray, names: list[str], columns: list[Any] | None, where: str
+                   ) -> tuple[np.ndarray, list[str]]:
+    """Columns of ``mat`` by 0-based index or by name."""
+    if not columns:
+        return mat, names
+    idx = []
+    for c in columns:
+        if isinstance(c, int) or (isinstance(c, str) and c.isdigit() and c not in names):
+            k = int(c)
+            if not 0 <= k < mat.shape[1]:
+                raise InputError(f"{where}: column {k} out of range (0..{mat.shape[1] - 1})")
+        elif c in names:
+            k = names.index(c)
+        else:
+            raise InputError(f"{where}: column {c!r} not found (names: {', '.join(names)})")
+        idx.append(k)
+    return mat[:, idx], [names[k] for k in idx]
+
+
+def pick_columns(parts: list[Part], attr: str, names: list[str], columns: list[Any] | None,
+                 where: str) -> list[str]:
+    """Keep ``columns`` of every part's ``attr`` (X or U) in place; the names kept."""
+    kept = names
+    for part in parts:
+        values, kept = select_columns(getattr(part, attr), names, columns, where)
+        setattr(part, attr, values)
+    return kept
+
+
 def assemble(parts: list[Part], data_cfg: dict[str, Any], where: str, state_names: list[str],
              action_names: list[str] | None, meta: dict[str, Any]) -> Demonstrations:
     """Per-demonstration arrays → one :class:`Demonstrations` (demo ids in part order).

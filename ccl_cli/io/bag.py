@@ -71,7 +71,7 @@ class BagReader:
                                       lambda: (reader.start_time, reader.end_time))
             return {"start_ns": _count(start, where), "end_ns": _count(end, where), "topics": topics}
         finally:
-            reader.close()
+            library_call(str(self.path), "close bag", reader.close)
 
     def read(self, spec: StreamSpec) -> Stream:
         return self.read_many([spec])[0]
@@ -96,4 +96,4 @@ class BagReader:
                 collectors[conn.topic].add(msg, log_ns)
             return finish_topics(collectors, slots)
         finally:
-            reader.close()
+            library_call(str(self.path), "close bag", reader.close)

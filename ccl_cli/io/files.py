@@ -14,6 +14,8 @@ def expand_files(files: list[str] | str, base: Path | None = None) -> list[Path]
     """Paths and globs → existing paths, in the order given (globs sorted)."""
     if isinstance(files, str | Path):
         files = [str(files)]
+    if not isinstance(files, list | tuple) or not all(isinstance(f, str | Path) for f in files):
+        raise InputError(f"files must be a path or a list of paths, got {files!r}"[:200])
     out: list[Path] = []
     for entry in files:
         p = Path(entry)

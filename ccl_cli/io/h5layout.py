@@ -40,6 +40,7 @@ from ccl_cli.io.arrays import (
     names_for,
     numeric,
     orient,
+    pick_columns,
     split_by_index,
     wants_derived,
 )
@@ -131,25 +132,6 @@ def _dataset(group, rel: str, where: str, spec: dict[str, Any], keep_int: bool =
     return Variable(numeric(raw, here, keep_int), here, spec.get("samples"), found)
 
 
-def select_columns(mat: np.ndarray, names: list[str], columns: list[Any] | None, where: str
-                   ) -> tuple[np.ndarray, list[str]]:
-    """Columns of ``mat`` by 0-based index or by name."""
-    if not columns:
-        return mat, names
-    idx = []
-    for c in columns:
-        if isinstance(c, int) or (isinstance(c, str) and c.isdigit() and c not in names):
-            k = int(c)
-            if not 0 <= k < mat.shape[1]:
-                raise InputError(f"{where}: column {k} out of range (0..{mat.shape[1] - 1})")
-        elif c in names:
-            k = names.index(c)
-        else:
-            raise InputError(f"{where}: column {c!r} not found (names: {', '.join(names)})")
-        idx.append(k)
-    return mat[:, idx], [names[k] for k in idx]
-
-
 def _part(group, data_cfg: dict[str, Any], where: str, label: str, derive: bool, names: bool = True
           ) -> tuple[dict[str, np.ndarray], dict[str, Variable]]:
     """The oriented arrays of one group (names attributes read when ``names``)."""
@@ -206,20 +188,15 @@ def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations
             chunks = [("file", arrays)]
     times, origin, time_used = chunk_times(chunks, tcfg, where)
     parts = [Part(a["state"], a.get("action"), t, label) for (label, a), t in zip(chunks, times, strict=True)]
-    p = parts[0].X.shape[1]
-    leaf = state["dataset"].strip("/").split("/")[-1]
-    state_names = names_for(leaf, p, variables["state"].names)
-    for part in parts:
-        part.X, state_names2 = select_columns(part.X, state_names, state.get("columns"), where)
-    state_names = state_names2
+    state_names = pick_columns(parts, "X", names_for(state["dataset"].strip("/").split("/")[-1],
+                                                     parts[0].X.shape[1], variables["state"].names),
+                               state.get("columns"), where)
     action_names = None
     if not derive:
         action = data_cfg["action"]
-        q = parts[0].U.shape[1]
-        action_names = names_for(action["dataset"].strip("/").split("/")[-1], q, variables["action"].names)
-        for part in parts:
-            part.U, names = select_columns(part.U, action_names, action.get("columns"), where)
-        action_names = names
+        action_names = pick_columns(parts, "U", names_for(action["dataset"].strip("/").split("/")[-1],
+                                                          parts[0].U.shape[1], variables["action"].names),
+                                    action.get("columns"), where)
     meta = {"source": where, "format": "hdf5", "layout": {
         "state": state["dataset"], "action": "derived" if derive else data_cfg["action"]["dataset"],
         "time": f"{tcfg['dataset']}: {time_used}" if tcfg.get("dataset") else time_used,

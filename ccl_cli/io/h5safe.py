@@ -368,6 +368,22 @@ def attr_strings(attrs, key: str, where: str, n: int) -> list[str]:
     return texts  # type: ignore[return-value]
 
 
+def members(group, where: str) -> list[str]:
+    """Names of the members of ``group`` (a damaged group index is an InputError)."""
+    try:
+        return list(group)
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+        raise InputError(f"{where}: {group.name} cannot be listed ({_first(exc)})") from None
+
+
+def has(group, name: str, where: str) -> bool:
+    """``name in group``, with a damaged group an InputError."""
+    try:
+        return name in group
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+        raise InputError(f"{where}: {group.name}/{name} cannot be looked up ({_first(exc)})") from None
+
+
 def dataset(group, name: str, where: str):
     """The ``h5py.Dataset`` ``name`` under ``group`` (InputError if absent or a group)."""
     import h5py

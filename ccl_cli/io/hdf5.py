@@ -103,7 +103,7 @@ def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns:
 def check_header(attrs, where: str, fmt: str, version_key: str, version: int, what: str) -> None:
     """Refuse a file whose ``format`` attribute is not ``fmt`` or whose ``version_key``
     attribute is not the integer ``version`` (one message naming the file and what was found)."""
-    found = h5safe.attr_str(attrs, "format", where, None) if "format" in attrs else None
+    found = h5safe.attr_str(attrs, "format", where, None)
     if found != fmt:
         raise InputError(f"{where}: not a {what} (format attribute {found!r})")
     got = h5safe.attr_int(attrs, version_key, where)
@@ -113,8 +113,8 @@ def check_header(attrs, where: str, fmt: str, version_key: str, version: int, wh
 
 def is_canonical(path: Path) -> bool:
     """True for a ccl-demonstrations file (damaged or unsafe HDF5 raises InputError)."""
-    with h5safe.open_hdf5(path, "HDF5 file") as f:
-        return "format" in f.attrs and h5safe.attr_str(f.attrs, "format", str(path), "") == FORMAT
+    with h5safe.open_hdf5(path, "file") as f:
+        return h5safe.attr_str(f.attrs, "format", str(path), "") == FORMAT
 
 
 def _demo_arrays(g, where: str, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -139,7 +139,7 @@ def _truth(g, where: str, name: str, n: int, q: int) -> dict[str, np.ndarray]:
     if tg is None:
         return {}
     out = {}
-    for key in tg:
+    for key in h5safe.members(tg, where):
         if key not in TRUTH_KEYS:
             continue
         v = h5safe.numeric(tg, key, where, ndim=(1, 2, 3), finite=False)
@@ -167,10 +167,11 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
     with h5safe.open_hdf5(path, f"{FORMAT} file") as f:
         check_header(f.attrs, where, FORMAT, "format_version", FORMAT_VERSION, f"{FORMAT} file")
         demos = h5safe.group_of(f, "demos", where, required=False)
-        if demos is None or not len(demos):
+        names = h5safe.members(demos, where) if demos is not None else []
+        if not names:
             raise InputError(f"{where}: no demonstrations under /demos")
         groups = []
-        for name in demos:
+        for name in names:
             g = h5safe.group_of(demos, name, f"{where}: /demos")
             groups.append((h5safe.attr_int(g.attrs, "index", f"{where}: /demos/{name}"), name, g))
         groups.sort(key=lambda item: item[0])
@@ -212,7 +213,7 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
         mask = h5safe.group_of(f, "mask", where, required=False)
         if mask is not None:
             for key in ("train", "test"):
-                if key in mask:
+                if h5safe.has(mask, key, where):
                     wanted = h5safe.strings(mask, key, where)
                     unknown = [w for w in wanted if w not in names]
                     if unknown:

@@ -38,6 +38,7 @@ from ccl_cli.io.arrays import (
     names_for,
     numeric,
     orient,
+    pick_columns,
     split_by_index,
     wants_derived,
 )
@@ -287,19 +288,12 @@ def read_mat(src: _V5 | _V73, path: Path, data_cfg: dict[str, Any]) -> tuple[Dem
             chunks = [(state["variable"], orient(arrays, None, where))]
     times, origin, time_used = chunk_times(chunks, tcfg, where)
     parts = [Part(a["state"], a.get("action"), t, label) for (label, a), t in zip(chunks, times, strict=True)]
-    from ccl_cli.io.h5layout import select_columns
-
-    state_names = names_for(state["variable"], parts[0].X.shape[1], None)
-    names = state_names
-    for part in parts:
-        part.X, names = select_columns(part.X, state_names, state.get("columns"), where)
-    state_names, action_names = names, None
+    state_names = pick_columns(parts, "X", names_for(state["variable"], parts[0].X.shape[1], None),
+                               state.get("columns"), where)
+    action_names = None
     if not derive:
-        action_names = names_for(action["variable"], parts[0].U.shape[1], None)
-        names = action_names
-        for part in parts:
-            part.U, names = select_columns(part.U, action_names, action.get("columns"), where)
-        action_names = names
+        action_names = pick_columns(parts, "U", names_for(action["variable"], parts[0].U.shape[1], None),
+                                    action.get("columns"), where)
     meta = {"source": where, "format": "mat",
             "mat_version": "7.3" if isinstance(src, _V73) else "5",
             "variables": {k: s["variable"] for k, s in specs.items()},

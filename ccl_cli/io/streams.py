@@ -422,7 +422,7 @@ def library_errors() -> tuple[type[BaseException], ...]:
 
 #: packages whose own exception classes the readers meet (the libraries, and what they use:
 #: compression and sqlite)
-LIBRARY_PACKAGES = {"rosbags", "mcap", "mcap_ros1", "mcap_ros2", "zstandard", "backports", "lz4",
+LIBRARY_PACKAGES = {"rosbags", "mcap", "mcap_ros1", "mcap_ros2", "zstandard", "backports", "lz4", "apsw",
                     "sqlite3", "_sqlite3", "ruamel", "yaml", "bz2", "_bz2", "zlib", "lzma", "_lzma"}
 
 
