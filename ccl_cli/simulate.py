@@ -3,7 +3,10 @@
 Each returns :class:`~ccl_cli.dataset.Demonstrations` with ``truth`` holding
 ``pi`` (unconstrained policy), ``w = Nπ``, ``v = A⁺b``, ``b``, ``A`` and ``N``.
 Observation noise (``noise`` std, or ``snr_db``) is added to ``U`` only; the state
-is integrated with the noise-free action.
+is integrated with the noise-free action — except in the tracker recordings
+(``tracker_plane``, ``tracker_sphere``), where the noise is on the positions and the
+velocities are derived from them as the readers do. ``arm_at_rest`` is a recording with
+nothing to learn (for the data diagnostics).
 """
 
 from __future__ import annotations
