@@ -234,47 +234,54 @@ def open_hdf5(path: str | Path, what: str = "data file", timeout: float | None =
 
 def check_tree(f, where: str) -> None:
     """Refuse external links, dangling soft links, external-storage and virtual datasets
-    anywhere under ``f`` (an open ``h5py.File``). Reads metadata only, never a value."""
-    import h5py
+    anywhere under ``f`` (an open ``h5py.File``). Reads metadata only, never a value.
 
-    count = 0
-    problem: list[str] = []
+    Walks the link table with h5py's low-level API (one libhdf5 visit collecting
+    (name, link type), then one ``H5Oopen`` per hard link): ~10× faster than the
+    high-level ``visititems_links``, which builds a Python object per link.
+    """
+    from h5py import h5d, h5l, h5o
 
-    def visit(name: str, link) -> int | None:
-        try:  # an exception must not cross libhdf5's callback: it is recorded instead
-            _visit(name, link)
-        except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
-            problem.append(f"damaged HDF5 structure at /{name} ({_first(exc)})")
-        return 1 if problem else None  # a non-None value stops the visit
+    links: list[tuple[bytes, int]] = []
 
-    def _visit(name: str, link) -> None:
-        nonlocal count
-        count += 1
-        if count > MAX_OBJECTS:
-            problem.append(f"more than {MAX_OBJECTS} objects; refused")
-        elif isinstance(link, h5py.ExternalLink):
-            problem.append(f"/{name} is an external link to {link.filename}:{link.path}; "
-                           "ccl reads nothing outside the file")
-        elif isinstance(link, h5py.SoftLink):
-            if f.get(name) is None:
-                problem.append(f"/{name} is a soft link to {link.path}, which does not exist")
-        elif isinstance(obj := f.get(name), h5py.Dataset):
-            dcpl = obj.id.get_create_plist()
-            if dcpl.get_layout() == h5py.h5d.VIRTUAL:
-                problem.append(f"/{name} is a virtual dataset (its data lives in other files); "
-                               "ccl reads nothing outside the file")
-            elif dcpl.get_external_count() > 0:
-                problem.append(f"/{name} stores its data in external files; ccl reads nothing outside "
-                               "the file")
+    def collect(name: bytes, info) -> int | None:
+        links.append((name, info.type))
+        return 1 if len(links) > MAX_OBJECTS else None  # a non-None value stops the visit
 
     try:
-        f.visititems_links(visit)
+        f.id.links.visit(collect, info=True)
     except (OSError, KeyError, RuntimeError, ValueError, TypeError, SystemError) as exc:
-        # SystemError: h5py's own link lookup failed inside libhdf5's visit callback
+        # SystemError: a lookup failed inside libhdf5's visit callback
         cause = exc.__cause__ or exc.__context__ if isinstance(exc, SystemError) else exc
         raise InputError(f"{where}: damaged HDF5 structure ({_first(cause or exc)})") from None
-    if problem:
-        raise InputError(f"{where}: {problem[0]}")
+    if len(links) > MAX_OBJECTS:
+        raise InputError(f"{where}: more than {MAX_OBJECTS} objects; refused")
+    for raw, kind in links:
+        name = raw.decode("utf-8", "replace")
+        try:
+            if kind == h5l.TYPE_EXTERNAL:
+                link = f.get(name, getlink=True)
+                raise InputError(f"{where}: /{name} is an external link to {link.filename}:{link.path}; "
+                                 "ccl reads nothing outside the file")
+            if kind == h5l.TYPE_SOFT:
+                if not f.id.links.exists(raw) or f.get(name) is None:
+                    target = f.get(name, getlink=True).path
+                    raise InputError(f"{where}: /{name} is a soft link to {target}, which does not exist")
+                continue
+            if kind != h5l.TYPE_HARD:
+                raise InputError(f"{where}: /{name} is a user-defined link; ccl reads nothing outside "
+                                 "the file")
+            obj = h5o.open(f.id, raw)
+            if isinstance(obj, h5d.DatasetID):
+                dcpl = obj.get_create_plist()
+                if dcpl.get_layout() == h5d.VIRTUAL:
+                    raise InputError(f"{where}: /{name} is a virtual dataset (its data lives in other "
+                                     "files); ccl reads nothing outside the file")
+                if dcpl.get_external_count() > 0:
+                    raise InputError(f"{where}: /{name} stores its data in external files; ccl reads "
+                                     "nothing outside the file")
+        except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+            raise InputError(f"{where}: damaged HDF5 structure at /{name} ({_first(exc)})") from None
 
 
 # -- typed access ------------------------------------------------------------------------------
@@ -396,8 +403,8 @@ def dataset(group, name: str, where: str):
     """The ``h5py.Dataset`` ``name`` under ``group`` (InputError if absent or a group)."""
     import h5py
 
-    try:
-        obj = group.get(name)
+    try:  # ``in`` + ``[]``: Group.get builds a File object per call (a third of a read's time)
+        obj = group[name] if name in group else None
     except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
         raise InputError(f"{where}: {name} cannot be read ({_first(exc)})") from None
     if obj is None:
@@ -440,8 +447,7 @@ def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite
         allowed = " or ".join(f"{d}-D" for d in ndim)
         raise InputError(f"{label} must be {allowed}, got shape {ds.shape}")
     nbytes = int(np.prod(ds.shape, dtype=np.float64)) * 8
-    max_bytes = max(64 << 20, MAX_EXPANSION * os.path.getsize(ds.file.filename))
-    if nbytes > max_bytes:
+    if nbytes > (64 << 20) and nbytes > MAX_EXPANSION * os.path.getsize(ds.file.filename):
         raise InputError(f"{label} claims shape {ds.shape} ({nbytes} bytes), far more than the file holds")
     try:
         value = np.asarray(ds[()], dtype=np.float64)
