@@ -303,7 +303,8 @@ def tune(
 
     Candidates are tried in the grid's order (the default and the cheap first); a
     candidate is skipped (and counted in ``skipped``) when the time spent plus what the
-    previous candidate took would exceed ``budget``; the first always runs. The
+    previous candidate took would exceed ``budget``; the first two always run (so a
+    two-candidate grid gives the same answer on a slow or busy machine). The
     candidate with the smallest mean held-out error wins.
 
     Returns:
@@ -323,7 +324,7 @@ def tune(
     last, last_size = 0.0, 1
     for params in combos:
         size = _size(params)
-        if rows and time.perf_counter() - t0 + last * max(1.0, size / last_size) ** 2 > budget:
+        if len(rows) >= 2 and time.perf_counter() - t0 + last * max(1.0, size / last_size) ** 2 > budget:
             skipped += 1
             continue
         est = clone(estimator).set_params(**params)
