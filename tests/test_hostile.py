@@ -38,7 +38,7 @@ def fixtures(tmp_path_factory):
     """A data file and a learnt null-space model (learn-v), both written by ccl."""
     root = tmp_path_factory.mktemp("hostile")
     data = root / "toy.h5"
-    write_demonstrations(data, sim.toy2d(n_demos=4, n_steps=40, seed=0))
+    write_demonstrations(data, sim.toy2d(n_demos=6, n_steps=40, seed=0))  # ≥ 5: no few-demos warning
     assert main(["learn-v", str(data), "-o", str(root / "v"), "-q", "--n-centres", "4",
                  "--test-fraction", "0"]) == 0  # 4 demonstrations: too few for a held-out set
     return {"root": root, "data": data, "model": root / "v" / "model.h5"}
@@ -181,7 +181,7 @@ def test_files_ccl_writes_are_sealed_and_edits_are_probed(fixtures, tmp_path):
         f.attrs["frame_id"] = "edited"
     assert not h5safe.sealed(edited)  # the hash no longer matches: parsed in a child first
     data, _ = read_demonstrations(edited)
-    assert data.n_demos == 4
+    assert data.n_demos == 6
 
 
 def test_libhdf5_hang_is_bounded(fixtures, tmp_path, monkeypatch):

@@ -441,14 +441,18 @@ def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite
     """
     ds = dataset(group, name, where)
     label = f"{where}: {ds.name}"
-    if ds.dtype.kind not in "fiu":
+    try:
+        kind, shape = ds.dtype.kind, tuple(ds.shape)
+    except (OSError, RuntimeError, ValueError, TypeError) as exc:  # a damaged datatype or dataspace
+        raise InputError(f"{label} has an unreadable type or shape ({_first(exc)})") from None
+    if kind not in "fiu":
         raise InputError(f"{label} must be numeric, got dtype {ds.dtype}")
-    if ds.ndim not in ndim:
+    if len(shape) not in ndim:
         allowed = " or ".join(f"{d}-D" for d in ndim)
-        raise InputError(f"{label} must be {allowed}, got shape {ds.shape}")
-    nbytes = int(np.prod(ds.shape, dtype=np.float64)) * 8
+        raise InputError(f"{label} must be {allowed}, got shape {shape}")
+    nbytes = int(np.prod(shape, dtype=np.float64)) * 8
     if nbytes > (64 << 20) and nbytes > MAX_EXPANSION * os.path.getsize(ds.file.filename):
-        raise InputError(f"{label} claims shape {ds.shape} ({nbytes} bytes), far more than the file holds")
+        raise InputError(f"{label} claims shape {shape} ({nbytes} bytes), far more than the file holds")
     try:
         value = np.asarray(ds[()], dtype=np.float64)
     except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:

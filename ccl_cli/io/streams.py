@@ -405,7 +405,7 @@ def library_errors() -> tuple[type[BaseException], ...]:
                                         AttributeError, UnicodeDecodeError, EOFError, OverflowError,
                                         RuntimeError, OSError, AssertionError, NotImplementedError,
                                         RecursionError, MemoryError, LookupError,
-                                        SyntaxError]  # mcap-ros1 compiles message classes
+                                        SyntaxError, NameError]  # mcap-ros1/2 build message classes
     for module, names in (("rosbags.rosbag1", ["ReaderError"]), ("rosbags.rosbag2", ["ReaderError"]),
                           ("rosbags.serde", ["SerdeError"]), ("rosbags.typesys", ["TypesysError"]),
                           ("rosbags.highlevel", ["AnyReaderError"]), ("mcap.exceptions", ["McapError"]),
