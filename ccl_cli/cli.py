@@ -31,28 +31,24 @@ def _one_line(ctx: Any, exc: Exception) -> InputError:
     return InputError(f"{ctx.command_path}: {message} (see {ctx.command_path} --help)")
 
 
-class _Command(TyperCommand):
-    """Commands whose usage errors are one line (``ccl: error: ccl learn-a: Invalid value ...``)."""
+class _OneLineUsage:
+    """Usage errors as one line (``ccl: error: ccl learn-a: Invalid value ...``)."""
 
     def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
         try:
-            return super().parse_args(ctx, args)
+            return super().parse_args(ctx, args)  # type: ignore[misc]
         except NoArgsIsHelpError:
             raise
         except UsageError as exc:
             raise _one_line(ctx, exc) from None
 
 
-class _Group(TyperGroup):
+class _Command(_OneLineUsage, TyperCommand):
+    """Commands whose usage errors are one line."""
+
+
+class _Group(_OneLineUsage, TyperGroup):
     """The ``ccl`` group: an unknown command or a bad top-level option is one line too."""
-
-    def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
-        try:
-            return super().parse_args(ctx, args)
-        except NoArgsIsHelpError:
-            raise
-        except UsageError as exc:
-            raise _one_line(ctx, exc) from None
 
     def resolve_command(self, ctx: Any, args: list[str]) -> Any:
         try:

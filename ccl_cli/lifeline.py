@@ -33,11 +33,12 @@ def worker_init(parent: int) -> None:
     directly); exit at once if it is already gone. Ctrl-C is handled by ccl alone."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent()
-    if os.getppid() == 1 or not _alive(parent):
+    if os.getppid() == 1 or not pid_alive(parent):
         os._exit(1)
 
 
-def _alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """True while process ``pid`` exists (signal 0 probes without sending anything)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -50,7 +51,7 @@ def _alive(pid: int) -> bool:
 def _forkserver_hook() -> None:
     if os.environ.get(PARENT_ENV) == str(os.getppid()):
         die_with_parent()
-        if not _alive(os.getppid()) or os.getppid() == 1:
+        if not pid_alive(os.getppid()) or os.getppid() == 1:
             os._exit(1)
 
 

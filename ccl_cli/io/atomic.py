@@ -23,6 +23,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from ccl_cli.errors import InputError
+from ccl_cli.lifeline import pid_alive
 
 #: file every output folder ccl writes holds (JSON: written_by, version)
 MARKER = ".ccl-output"
@@ -73,16 +74,6 @@ def check_replaceable(path: Path, force: bool) -> None:
 _TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.[A-Za-z0-9_]+\.tmp$|^\.(?P<old>.+)\.old-(?P<opid>\d+)$")
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def clean_stale(path: Path, every: bool = False) -> int:
     """Remove temporaries of ``path`` (``every``: of anything in the folder ``path``) left
     by ccl processes that no longer run. Returns how many were removed."""
@@ -96,7 +87,7 @@ def clean_stale(path: Path, every: bool = False) -> int:
         m = _TEMP.match(p.name)
         if not m or (not every and (m.group("name") or m.group("old")) != path.name):
             continue
-        if _alive(int(m.group("pid") or m.group("opid"))):
+        if pid_alive(int(m.group("pid") or m.group("opid"))):
             continue
         if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
