@@ -339,9 +339,14 @@ class TopicCollector:
                                  f"({len(ex.names or [])} → {rows.shape[1]})")
             self._blocks[k].append(rows)
             self._rows[k] = []
-        stamps = np.array(self._stamps, dtype=np.int64).reshape(n, 2)
+        try:  # a damaged container can hand back stamps that are not integers
+            stamps = np.array(self._stamps, dtype=np.int64).reshape(n, 2)
+            logs = np.array(self._logs, dtype=np.int64)
+        except (ValueError, TypeError, OverflowError):
+            raise InputError(f"{self.where}: {self.topic} has message stamps or log times that are not "
+                             "integers (damaged file?)") from None
         self._tblocks.append(stamps[:, 0] * 1_000_000_000 + stamps[:, 1])
-        self._lblocks.append(np.array(self._logs, dtype=np.int64))
+        self._lblocks.append(logs)
         self._stamps, self._logs = [], []
 
     def finish(self) -> list[Stream]:
