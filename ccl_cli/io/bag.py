@@ -64,6 +64,12 @@ class BagReader:
         reader = library_call(where, "read bag", AnyReader, [bag_root(self.path)],
                               default_typestore=typestore)
         library_call(where, "read bag", reader.open)
+        for conn in reader.connections:  # metadata.yaml is the bag's own text: names typed here
+            if not isinstance(conn.topic, str) or not isinstance(conn.msgtype, str):
+                library_call(where, "close bag", reader.close)
+                raise InputError(f"{where}: a connection's topic or message type is not a string "
+                                 f"({type(conn.topic).__name__}, {type(conn.msgtype).__name__}); "
+                                 "damaged bag metadata?")
         return reader
 
     def inspect(self) -> dict[str, Any]:
