@@ -296,7 +296,7 @@ def test_evaluate_stage_applies_its_convention(capsys, tmp_path):
 # -- inspect: rates over the active time, joint names, demonstrations ---------------------------
 @pytest.mark.parametrize("writer", ["ros2", "mcap"])
 def test_inspect_rate_over_active_time_joints_and_default_demos(capsys, tmp_path, writer):
-    from tests.writers import JOINTS, joint_recording, write_mcap_ros2, write_ros2_bag
+    from writers import JOINTS, joint_recording, write_mcap_ros2, write_ros2_bag
 
     rec = joint_recording(n=1001, rate=500.0, gap_after=400, gap_s=1.5)  # 500 Hz, one 1.5 s pause
     path = write_ros2_bag(tmp_path / "b", rec) if writer == "ros2" else \
