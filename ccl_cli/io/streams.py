@@ -376,9 +376,9 @@ def _identity(x: Any) -> Any:
 
 def _stamp_getter(msg: Any) -> Callable[[Any], tuple[int, int]] | None:
     """A getter of (sec, nanosec) of ``header.stamp`` for messages shaped like ``msg``."""
-    if not _has(msg, "header"):
-        return None
-    stamp = _get(_get(msg, "header"), "stamp")
+    if not _has(msg, "header") or not _has(header := _get(msg, "header"), "stamp"):
+        return None  # no std_msgs/Header stamp (e.g. a custom header): log time is used
+    stamp = _get(header, "stamp")
     for s_key, n_key in (("sec", "nanosec"), ("secs", "nsecs"), ("sec", "nsec")):
         if _has(stamp, s_key) and _has(stamp, n_key):
             if isinstance(msg, dict):
