@@ -118,6 +118,8 @@ def _grid(X2: np.ndarray, n: int = GRID) -> tuple[np.ndarray, np.ndarray]:
 def unit_rows(A: np.ndarray) -> np.ndarray:
     """Orthonormal basis (rows) of the row space of A (s, q), by SVD."""
     _, sv, vh = np.linalg.svd(np.atleast_2d(A), full_matrices=False)
+    if sv.size == 0:  # an empty constraint (e.g. a ground truth with no rows)
+        return vh[:0]
     return vh[sv > 1e-10 * max(float(sv[0]), 1e-300)]
 
 
@@ -125,6 +127,8 @@ def subspace_angle(A: np.ndarray, B: np.ndarray) -> float:
     """Largest principal angle (degrees) between the row spaces of A (s, q) and B (s', q)
     (over the min(s, s') directions the smaller one spans)."""
     Qa, Qb = unit_rows(A), unit_rows(B)
+    if not len(Qa) or not len(Qb):
+        return float("nan")
     cos = np.linalg.svd(Qa @ Qb.T, compute_uv=False)
     return float(np.degrees(np.arccos(np.clip(cos.min(), -1.0, 1.0))))
 
