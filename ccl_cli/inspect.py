@@ -104,7 +104,12 @@ def _mcap_topics(reader) -> dict[str, tuple[np.ndarray, Any]]:
                 msg = found[3] if found else None
             if found is None:
                 raise InputError(f"{where}: topic {topic} lost its messages on a second read")
-            out[topic] = (np.asarray(times[topic], dtype=np.int64), msg)
+            try:  # a damaged file can claim log times beyond int64
+                stamps = np.asarray(times[topic], dtype=np.int64)
+            except OverflowError:
+                raise InputError(f"{where}: topic {topic} has log times beyond 64-bit nanoseconds "
+                                 "(damaged file?)") from None
+            out[topic] = (stamps, msg)
     return out
 
 
