@@ -277,6 +277,7 @@ def run_batch(jobs: list[Job], out: Path, workers: int | None = None, scheduler:
     finally:
         if client is not None:
             client.close()
+    clean_stale(jobs_dir, every=True)  # temporaries of processes that were still dying at the start
     order = {j.job_id: i for i, j in enumerate(jobs)}
     return sorted(results, key=lambda r: order[r.job_id])
 

@@ -38,14 +38,19 @@ def worker_init(parent: int) -> None:
 
 
 def pid_alive(pid: int) -> bool:
-    """True while process ``pid`` exists (signal 0 probes without sending anything)."""
+    """True while process ``pid`` exists and is not a zombie (signal 0 probes without
+    sending anything; a killed process that is not yet reaped still answers it)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
         return True
-    return True
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+    except (OSError, IndexError):
+        return True  # no /proc: the signal probe is all there is
 
 
 def _forkserver_hook() -> None:
