@@ -168,6 +168,16 @@ def _wait(pid: int, timeout: float) -> int | None:
     return None
 
 
+#: files (by :func:`_identity`) whose probe passed in this process
+_PROBED: set[tuple[str, int, int, int]] = set()
+
+
+def _identity(path: Path) -> tuple[str, int, int, int]:
+    """(resolved path, inode, size, mtime in ns): any edit of the file changes it."""
+    st = path.stat()
+    return str(path.resolve()), st.st_ino, st.st_size, st.st_mtime_ns
+
+
 def probe(path: Path, timeout: float = TIMEOUT, cpu_limit: int = CPU_LIMIT) -> None:
     """Parse ``path`` in a child process first; refuse it if libhdf5 hangs or crashes there.
 
@@ -219,7 +229,10 @@ def open_hdf5(path: str | Path, what: str = "data file", timeout: float | None =
     if not path.is_file():
         raise InputError(f"{where}: no such {what}")
     if not sealed(path):
-        probe(path, TIMEOUT if timeout is None else timeout)
+        key = _identity(path)
+        if key not in _PROBED:  # one probe per file version and process (a run opens a file twice)
+            probe(path, TIMEOUT if timeout is None else timeout)
+            _PROBED.add(key)
     try:
         f = h5py.File(path, "r")
     except (OSError, ValueError, RuntimeError) as exc:
