@@ -209,13 +209,17 @@ def _matlab_shape(obj) -> tuple[int, ...]:
     return tuple(reversed(obj.shape))
 
 
-def open_source(path: Path) -> _V5 | _V73:
+def read_header(path: Path) -> bytes:
+    """The first 128 bytes of ``path`` (a .mat file's text header)."""
     try:
         with open(path, "rb") as f:
-            head = f.read(128)
+            return f.read(128)
     except OSError as exc:
         raise InputError(f"{path}: {exc.strerror}") from None
-    if head.startswith(V73_MAGIC):
+
+
+def open_source(path: Path) -> _V5 | _V73:
+    if read_header(path).startswith(V73_MAGIC):
         return _V73(path)
     return _V5(path)
 

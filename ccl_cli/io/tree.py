@@ -22,14 +22,10 @@ def describe_tree(path: str | Path, limit: int = LIMIT) -> list[dict[str, Any]]:
     """Entries ``{path, kind, shape, dtype, class?, attrs?}`` of an HDF5 or .mat file
     (``kind``: group, dataset, soft link, external link, variable); at most ``limit``
     entries (a last entry ``{kind: "truncated", count}`` says how many were left out)."""
-    from ccl_cli.io.matfile import V5_MAGIC, V73_MAGIC
+    from ccl_cli.io.matfile import V5_MAGIC, V73_MAGIC, read_header
 
     path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            head = f.read(128)
-    except OSError as exc:
-        raise InputError(f"{path}: {exc.strerror}") from None
+    head = read_header(path)
     if head.startswith(V5_MAGIC):
         entries = _mat_v5(path)
     else:
