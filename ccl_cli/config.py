@@ -18,7 +18,7 @@ from typing import Any
 
 import yaml
 
-from ccl_cli import selection as S
+from ccl_cli import defaults as S
 from ccl_cli.errors import ConfigError
 
 STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")

@@ -1,0 +1,28 @@
+"""Defaults shared by the learners, the cross-validation code and the config.
+
+A module of plain constants (no NumPy), so the command line can build its config
+defaults and ``--help`` without importing the numerical stack; :mod:`ccl_cli.selection`
+re-exports them.
+"""
+
+from __future__ import annotations
+
+#: Fewest demonstrations for splitting by demonstration; below it, time blocks.
+MIN_DEMOS = 5
+#: Blocks a recording is cut into for the held-out test set.
+N_BLOCKS = 10
+#: Samples dropped from the training side of each train/test boundary (≥ the derivative window).
+DEFAULT_GAP = 10
+N_FOLDS = 5
+#: The rule choosing the number of constraints, for every learner and the command line
+#: (one source of truth: the learners' constructors and config.DEFAULTS read it; the
+#: rules live in :mod:`ccl_cli.constraint.selection`).
+DEFAULT_RULE = "ratio"
+#: ``ratio`` rule: row k is a constraint while its residual is ≤ this multiple of row 1's.
+RATIO_FACTOR = 2.0
+#: Hyperparameter tuning is on by default (learners' ``tune`` and the config agree).
+TUNE = True
+#: Seconds a learner's hyperparameter search may take (``tune: {budget: s}``).
+TUNE_BUDGET = 5.0
+#: Folds of the hyperparameter search (fewer than for choosing s: it fits many candidates).
+TUNE_FOLDS = 3
