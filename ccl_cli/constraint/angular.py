@@ -29,6 +29,14 @@ from ccl_cli.linalg import kron_least_squares, row_chunks, total_variance
 
 #: LM iterations every start gets before only the best one is continued.
 SCREEN_PASSES = 8
+#: Above this many samples the starts of a row are searched on a seeded subsample of this
+#: size and only the winner is refined on all the data (every tutorial problem is smaller).
+SEARCH_ROWS = 4096
+#: LM passes over all the data that refine the winner of the subsample search. Measured on
+#: the parabola at N = 1e5: the cost after 6 passes is within 0.1 % of running to ``tol``
+#: (24 passes, a slow crawl along near-collinear RBF directions) and the test NPPE agrees
+#: to 2 digits (0.0117 either way).
+REFINE_PASSES = 6
 #: Eigenvalue cut-off of the LM steps: the angle fits keep every direction (as before).
 ANGLE_CUTOFF = 1e-16
 
@@ -125,19 +133,25 @@ def ridge(B: np.ndarray, Y: np.ndarray, rel: float = 1e-6) -> np.ndarray:
     return np.linalg.solve(G + lam * np.eye(G.shape[0]), B.T @ Y)
 
 
-def _fit_row(B: np.ndarray, Z: np.ndarray, n_restarts: int, rng: np.random.Generator,
-             max_iter: int, tol: float, X: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-    """min_W Σ_n (a(W β_n)ᵀ z_n)² for Z (N, m), m ≥ 2 → (W (m−1, K), cost)."""
-    n, K = B.shape
-    m = Z.shape[1]
-
-    blocks = [(rows, B[rows]) for rows in row_chunks(n)]
+def _residual(Z: np.ndarray):
+    """r_n = a(W β_n)ᵀ z_n and g_n = ∂r_n/∂θ_n = (∂a/∂θ)ᵀ z_n for the rows of one block."""
 
     def residual(W: np.ndarray, rows: slice, Bc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         Zc = Z[rows]
         a, J = unit_vector_jacobian(Bc @ W.T)  # (c, m), (c, m, m−1)
         return np.einsum("nj,nj->n", a, Zc), np.einsum("nji,nj->ni", J, Zc)
 
+    return residual
+
+
+def _search(B: np.ndarray, Z: np.ndarray, n_restarts: int, rng: np.random.Generator,
+            max_iter: int, tol: float, X: np.ndarray | None) -> tuple[np.ndarray, float, int]:
+    """The seeded starts on B (n, K), Z (n, m), screened and the best run to convergence →
+    (W (m−1, K), cost, LM passes used)."""
+    n, K = B.shape
+    m = Z.shape[1]
+    blocks = [(rows, B[rows]) for rows in row_chunks(n)]
+    residual = _residual(Z)
     lift = ridge(B, np.ones(n))
     starts = [_local_start(B, Z, X, rng)] if X is not None else []
     # The best constant direction (smallest eigenvector of Σ z zᵀ), in the features.
@@ -147,18 +161,39 @@ def _fit_row(B: np.ndarray, Z: np.ndarray, n_restarts: int, rng: np.random.Gener
         th = rng.uniform(0.0, np.pi, m - 1)
         starts.append(np.outer(th, lift) + rng.normal(scale=0.3, size=(m - 1, K)))
     if len(starts) == 1:
-        W, cost, _ = kron_least_squares(starts[0], lambda: blocks, residual, max_iter, tol,
-                                     ANGLE_CUTOFF)
-        return W, cost
+        return kron_least_squares(starts[0], lambda: blocks, residual, max_iter, tol, ANGLE_CUTOFF)
     # Screen: every start gets SCREEN_PASSES iterations, the best one is run to convergence.
     screened = [kron_least_squares(w0, lambda: blocks, residual, min(SCREEN_PASSES, max_iter), tol,
                                    ANGLE_CUTOFF)
                 for w0 in starts]
     W, cost, used = min(screened, key=lambda fit: fit[1])
     if used < min(SCREEN_PASSES, max_iter):  # converged while screening
+        return W, cost, used
+    W, cost, more = kron_least_squares(W, lambda: blocks, residual, max(1, max_iter - used), tol,
+                                       ANGLE_CUTOFF)
+    return W, cost, used + more
+
+
+def _fit_row(B: np.ndarray, Z: np.ndarray, n_restarts: int, rng: np.random.Generator,
+             max_iter: int, tol: float, X: np.ndarray | None = None,
+             search_rows: int | None = None) -> tuple[np.ndarray, float]:
+    """min_W Σ_n (a(W β_n)ᵀ z_n)² for Z (N, m), m ≥ 2 → (W (m−1, K), cost).
+
+    Up to ``search_rows`` (default :data:`SEARCH_ROWS`) samples the starts are searched on
+    all of them; above it, on a seeded subsample of that many rows (local start, screening
+    and the run to convergence), and the winner is then refined by LM passes over all N
+    rows for at most :data:`REFINE_PASSES` passes — it starts next to the optimum (issue 10:
+    full-data passes only for the winning start)."""
+    n = B.shape[0]
+    limit = int(search_rows or SEARCH_ROWS)
+    if n <= limit:
+        W, cost, _ = _search(B, Z, n_restarts, rng, max_iter, tol, X)
         return W, cost
-    W, cost, _ = kron_least_squares(W, lambda: blocks, residual, max(1, max_iter - used), tol,
-                                 ANGLE_CUTOFF)
+    idx = np.sort(rng.choice(n, limit, replace=False))
+    W, _, used = _search(B[idx], Z[idx], n_restarts, rng, max_iter, tol, None if X is None else X[idx])
+    blocks = [(rows, B[rows]) for rows in row_chunks(n)]
+    W, cost, _ = kron_least_squares(W, lambda: blocks, _residual(Z),
+                                    max(1, min(REFINE_PASSES, max_iter - used)), tol, ANGLE_CUTOFF)
     return W, cost
 
 
