@@ -216,10 +216,10 @@ def models_for_property_tests(seed):
     arm = sim.two_link(seed=seed, n_demos=10, n_steps=20)
     return [
         (StateIndependentConstraint().fit(data.X, data.U), data),
-        (StateDependentConstraint(n_restarts=1).fit(data.X, data.U), data),
+        (StateDependentConstraint(n_restarts=1, tune=False).fit(data.X, data.U), data),
         (LinearConstraint().fit(data.X, data.U), data),
         (LinearConstraint(regressors="rbf", basis=RBFBasis(9)).fit(data.X, data.U), data),
-        (KnownFeatureConstraint(features="arm2", n_restarts=1).fit(arm.X, arm.U), arm),
+        (KnownFeatureConstraint(features="arm2", n_restarts=1, tune=False).fit(arm.X, arm.U), arm),
     ]
 
 

@@ -155,4 +155,6 @@ def test_tracker_simulations_get_one_constraint_and_small_held_out_npoe():
             tr, te = data.subset(hold.train), data.subset(hold.test)
             fitted = model().fit(tr.X, tr.U, tr.demo)
             assert fitted.n_constraints_ == 1 and fitted.selection_["rule"] == "ratio"
+            if model is StateDependentConstraint:  # tuned by default: 9 centres win the CV
+                assert fitted.tuning_["chosen"]["basis"]["n_centres"] == 9
             assert S.npoe_score(fitted.projection(te.X), te.U) < 0.03, (make.__name__, seed)
