@@ -12,6 +12,10 @@
   (features of every sample and the Gram matrix of its regressor rows, in 8192-row chunks),
   and fit seconds divided by it.
 
+alpha and lambda are fitted with their fixed default bases (``tune=False``: the 25 and 16
+RBFs the rows name); a tuned fit cross-validates several candidates (3 folds each) before
+the final fit, see ``benchmarks/bench_tuning.py``.
+
 Run:  python benchmarks/bench_core.py [--quick] [--only NAME[,NAME]] [--sizes 1e4,1e5]
 (single-threaded BLAS is forced, as on one core of the 2-core VM).
 """
@@ -114,13 +118,13 @@ def run(learner: str, n: int, k: int | None = None, options: dict | None = None)
         problem, metric = "toy2d parabola uniform, polynomial 1", "test NPPE"
     elif learner == "alpha":
         tr, te = toy(n, constraint="parabola")
-        fit = lambda: StateDependentConstraint().fit(tr.X, tr.U)  # noqa: E731
+        fit = lambda: StateDependentConstraint(tune=False).fit(tr.X, tr.U)  # noqa: E731
         inputs = tr.X.nbytes + tr.U.nbytes
         floor_rows = lambda m, s: kron_rows(m.basis_.transform(tr.X[s]), 1)  # noqa: E731
         problem, metric = "toy2d parabola uniform, 25 RBFs", "test NPPE"
     elif learner == "lambda":
         tr, te = arm(n, 0), arm(N_TEST, test_seed)
-        fit = lambda: KnownFeatureConstraint(features="arm2").fit(tr.X, tr.U)  # noqa: E731
+        fit = lambda: KnownFeatureConstraint(features="arm2", tune=False).fit(tr.X, tr.U)  # noqa: E731
         inputs = tr.X.nbytes + tr.U.nbytes
 
         def floor_rows(m, s):

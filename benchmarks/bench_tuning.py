@@ -1,6 +1,6 @@
 """Tuned defaults vs the original tutorials' hand-tuned settings (issue 9).
 
-    python benchmarks/bench_tuning.py [--seeds 5] [--only accuracy,time,configs]
+    python benchmarks/bench_tuning.py [--seeds 5] [--only accuracy,angles,time,configs]
 
 JSON lines on stdout:
 
@@ -11,6 +11,10 @@ JSON lines on stdout:
   (tuning on), and whether (c) ≤ (a). Tutorial data: 500 training + 500 test states uniform
   in [−1, 1]² (split by demonstration, 50 groups), noise std 0.01, a new constraint per
   demonstration for π.
+* ``angles`` — alpha and lambda, tuned vs untuned (their fixed default bases), median over
+  seeds of the test error: alpha on the parabola toy (test NPPE, 30 % of the demonstrations
+  held out) and on the tracker bowl at 1 mm noise (NPOE on held-out time blocks), lambda on
+  the two-link arm (test NPPE); with fit seconds and the chosen bases.
 * ``time`` — fit seconds of every learner, tuned vs untuned, on its tutorial problem.
 * ``configs`` — wall seconds of ``ccl run`` on every shipped config (tuning on).
 """
@@ -83,6 +87,52 @@ def accuracy(seeds: range) -> None:
                       "meets_bar": bool(med[1] <= med[0]), "seeds": len(seeds)}), flush=True)
 
 
+def angles(seeds: range) -> None:
+    from ccl_cli import selection as S
+    from ccl_cli.metrics import nppe
+
+    def parabola(seed):
+        train, test = sim.toy2d(constraint="parabola", seed=seed).split(0.3, seed)
+        return train, test, lambda m: nppe(test.true_projection(), m.projection(test.X), test.truth["pi"],
+                                           test.U).value
+
+    def arm(seed):
+        train, test = sim.two_link(seed=seed).split(0.3, seed)
+        return train, test, lambda m: nppe(test.true_projection(), m.projection(test.X), test.truth["pi"],
+                                           test.U).value
+
+    def bowl(seed):
+        data = sim.tracker_sphere(noise=1e-3, seed=seed)
+        hold = S.holdout_split(data.demo, 0.3, seed=0, gap=9)
+        train, test = data.subset(hold.train), data.subset(hold.test)
+        return train, test, lambda m: S.npoe_score(m.projection(test.X), test.U)
+
+    cases = [("alpha", "toy2d parabola", "test NPPE", parabola, StateDependentConstraint),
+             ("alpha", "tracker bowl 1 mm", "test NPOE (held-out blocks)", bowl, StateDependentConstraint),
+             ("lambda", "two_link", "test NPPE", arm,
+              lambda **kw: KnownFeatureConstraint(features="arm2", **kw))]
+    for learner, problem, metric, make_data, make in cases:
+        err: dict[str, list] = {"untuned": [], "tuned": []}
+        secs: dict[str, list] = {"untuned": [], "tuned": []}
+        chosen = []
+        for seed in seeds:
+            train, _, score = make_data(seed)
+            for tag, tune in (("untuned", False), ("tuned", True)):
+                t0 = time.perf_counter()
+                model = make(seed=seed, tune=tune).fit(train.X, train.U, train.demo)
+                secs[tag].append(time.perf_counter() - t0)
+                err[tag].append(score(model))
+            basis = (model.tuning_ or {}).get("chosen", {}).get("basis", {})
+            chosen.append(f"{basis.get('n_centres')}{' wide' if 'sigma2' in basis else ''}")
+        med = {k: float(np.median(v)) for k, v in err.items()}
+        print(json.dumps({"bench": "angles", "learner": learner, "problem": problem, "metric": metric,
+                          "untuned": med["untuned"], "tuned": med["tuned"],
+                          "tuned_not_worse": bool(med["tuned"] <= med["untuned"]),
+                          "seconds_untuned": round(float(np.median(secs["untuned"])), 3),
+                          "seconds_tuned": round(float(np.median(secs["tuned"])), 3),
+                          "chosen_centres": chosen, "seeds": len(seeds)}), flush=True)
+
+
 def fit_times() -> None:
     pi_train = policy_data("limit_cycle", 0).split(0.5, 0)[0]
     ncl_train = ncl_data(0).split(0.5, 0)[0]
@@ -94,6 +144,8 @@ def fit_times() -> None:
         "ncl": (lambda tune: NullSpaceComponent(tune=tune), ncl_train),
         "nhat": (lambda tune: StateIndependentConstraint(), sim.toy2d(seed=0)),
         "alpha": (lambda tune: StateDependentConstraint(tune=tune), parabola),
+        "alpha (tracker bowl)": (lambda tune: StateDependentConstraint(tune=tune),
+                                 sim.tracker_sphere(seed=0)),
         "lambda": (lambda tune: KnownFeatureConstraint(features="arm2", tune=tune), arm),
         "linear-rbf": (lambda tune: LinearConstraint(regressors="rbf", tune=tune), parabola),
     }
@@ -133,11 +185,13 @@ def configs(tmp: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--only", default="accuracy,time,configs")
+    ap.add_argument("--only", default="accuracy,angles,time,configs")
     args = ap.parse_args()
     parts = set(args.only.split(","))
     if "accuracy" in parts:
         accuracy(range(args.seeds))
+    if "angles" in parts:
+        angles(range(args.seeds))
     if "time" in parts:
         fit_times()
     if "configs" in parts:
