@@ -11,7 +11,7 @@ import numpy as np
 
 from ccl_cli.basis import Basis, make_basis
 from ccl_cli.constraint import selection as sel
-from ccl_cli.constraint.angular import fit_sequence, rows_from_weights
+from ccl_cli.constraint.angular import chunked_features, fit_sequence, rows_from_weights
 from ccl_cli.constraint.base import ConstraintModel, check_xu
 from ccl_cli.errors import ConfigError
 from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
@@ -132,7 +132,7 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
             return self
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
         self.n_action_ = U.shape[1]
-        B = self.basis_.transform(X)
+        B = chunked_features(self.basis_, X)
         demo = np.zeros(len(X), int) if demo is None else np.asarray(demo)
         self._X, self._U, self._demo = X, U, demo
         self._learn_rows(B, U, X, demo)

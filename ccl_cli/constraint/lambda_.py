@@ -16,7 +16,7 @@ import numpy as np
 from ccl_cli.basis import Basis, make_basis
 from ccl_cli.constraint import selection as sel
 from ccl_cli.constraint.alpha import AngularConstraintMixin
-from ccl_cli.constraint.angular import rows_from_weights
+from ccl_cli.constraint.angular import chunked_features, rows_from_weights
 from ccl_cli.constraint.base import ConstraintModel, check_xu
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.kinematics import ArmFeatures
@@ -122,7 +122,7 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
         self.n_action_ = U.shape[1]
         self.n_task_ = V.shape[1]
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
-        B = self.basis_.transform(X)
+        B = chunked_features(self.basis_, X)
         self._X, self._U, self._demo = X_all, U, demo_all
         self._learn_rows(B, V, X, demo)
         del self._X, self._U, self._demo
