@@ -395,3 +395,27 @@ def test_local_start_signs_agree_along_the_parabola_at_large_n():
     off = np.angle(np.exp(1j * ((B @ W0.T)[:, 0] - np.arctan2(a[:, 1], a[:, 0]))))
     flipped = np.mean(np.abs(off) > np.pi / 2)
     assert min(flipped, 1 - flipped) < 0.01
+
+
+@pytest.mark.parametrize("learner", ["alpha", "lambda"])
+def test_subsample_search_then_refinement_matches_the_full_search(monkeypatch, learner):
+    """Above SEARCH_ROWS samples the starts are searched on a subsample and only the winner is
+    refined on all rows (issue 10). On 12,000 samples it lands where searching every start on
+    all rows lands: same residual to 2 % (measured 0.4 %, 0.9 %), same test error to 10 %
+    (measured 2 %, 4 %)."""
+    if learner == "alpha":
+        data = sim.toy2d(sampling="uniform", n_samples=14_000, n_demos=1, seed=0, constraint="parabola")
+        train, test = data.subset(np.arange(12_000)), data.subset(np.arange(12_000, 14_000))
+        make = lambda: StateDependentConstraint(tune=False)  # noqa: E731
+    else:
+        train, test = sim.two_link(n_demos=300, seed=0), sim.two_link(n_demos=50, seed=1)
+        make = lambda: KnownFeatureConstraint(features="arm2", tune=False)  # noqa: E731
+    assert train.n_samples > _angular.SEARCH_ROWS
+    fast = make().fit(train.X, train.U)
+    monkeypatch.setattr(_angular, "SEARCH_ROWS", 10**9)
+    full = make().fit(train.X, train.U)
+    assert fast.nmse_[0] == pytest.approx(full.nmse_[0], rel=0.02)
+    err = [nppe(test.true_projection(), m.projection(test.X), test.truth["pi"], test.U).value
+           for m in (fast, full)]
+    assert err[0] == pytest.approx(err[1], rel=0.1), err
+    assert err[0] < (1e-2 if learner == "alpha" else 1e-6), err
