@@ -155,21 +155,27 @@ def two_link(
     dt: float = 0.01,
     a: float = 2.0,
     target_deg: tuple[float, float] = (10.0, -10.0),
+    task: bool = False,
     noise: float = 0.0,
     seed: int = 0,
 ) -> Demonstrations:
     """2-link planar arm in joint space: A(q) = Λ(q) J(q), Λ = [2a·x_ee, −1] (normalised),
-    π = q* − q with q* = (10°, −10°); start near (0°, 90°) + U(0°, 10°) per joint."""
+    π = q* − q with q* = (10°, −10°); start near (0°, 90°) + U(0°, 10°) per joint.
+
+    ``task`` adds a task part (the ncl problem, u = A⁺b + N π): b ~ U(−1, 1) per
+    demonstration, constant along it, as for the toy's ncl tutorial (ALGORITHMS.md §7)."""
     rng = np.random.default_rng(seed)
     arm = TwoLinkArm()
     target = np.deg2rad(np.asarray(target_deg))
     q = np.deg2rad(np.array([0.0, 90.0]) + rng.uniform(0.0, 10.0, (n_demos, 2)))
+    b = rng.uniform(-1.0, 1.0, (n_demos, 1)) if task else np.zeros((n_demos, 1))
     Xs, As, Bs, Ps, alive = [], [], [], [], []
     for _ in range(n_steps):
         A = two_link_constraint(q, a, arm)
         pi = target - q
-        u = np.einsum("nij,nj->ni", nullspace_projection(A), pi)
-        Xs.append(q.copy()), As.append(A), Bs.append(np.zeros((n_demos, 1))), Ps.append(pi)
+        u = (np.einsum("nij,nj->ni", nullspace_projection(A), pi)
+             + np.einsum("nqs,ns->nq", np.linalg.pinv(A), b))
+        Xs.append(q.copy()), As.append(A), Bs.append(b), Ps.append(pi)
         alive.append(np.ones(n_demos, bool))
         q = q + dt * u
     return _stack_trajectories(Xs, As, Bs, Ps, alive, dt, rng, noise, None, names=["q1", "q2"])
