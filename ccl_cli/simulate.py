@@ -27,6 +27,9 @@ Policy = Callable[[np.ndarray], np.ndarray]
 LINEAR_POLICY = np.array([[-0.5, 1.0], [-1.0, -0.5]])
 
 
+ESCAPE = 5.0  # toy trajectories end beyond five times the sampling box
+
+
 def toy_policy(name: str) -> Policy:
     """Null-space policies of the toy problem: attractor, limit_cycle, linear."""
     if name == "attractor":
@@ -97,7 +100,9 @@ def toy2d(
         constraint: ``fixed`` (a random unit row) or ``parabola`` (A = [2a x₁, −1]).
         policy: ``attractor`` π = −0.5x, ``limit_cycle`` (r = 0.75, ω = 1), ``linear``.
         task: add a task part b ~ U(−1, 1) (per sample when uniform, per demo otherwise).
-        sampling: ``trajectory`` (Euler, ``dt``, ``n_steps``, stopped when ‖w‖ < 1e-3)
+        sampling: ``trajectory`` (Euler, ``dt``, ``n_steps``, stopped when ‖w‖ < 1e-3, or
+            when the state leaves [−ESCAPE, ESCAPE]²: the limit cycle of §7 repels, so a
+            start outside it spirals out and would overflow)
             or ``uniform`` (``n_samples`` states uniform in the box, dealt round-robin
             into ``n_demos`` groups).
         vary_constraint: a new constraint per demonstration (a random unit row, or
@@ -129,9 +134,9 @@ def toy2d(
         N = nullspace_projection(A)
         w = np.einsum("nij,nj->ni", N, pi)
         v = np.einsum("nqs,ns->nq", np.linalg.pinv(A), b_demo)
-        live &= np.linalg.norm(w, axis=1) >= 1e-3
+        live &= (np.linalg.norm(w, axis=1) >= 1e-3) & np.all(np.abs(x) <= ESCAPE, axis=1)
         Xs.append(x.copy()), As.append(A), Bs.append(b_demo), Ps.append(pi), alive.append(live.copy())
-        x = x + dt * (v + w)
+        x = x + dt * (v + w) * live[:, None]  # ended trajectories stay put (then cut)
     return _stack_trajectories(Xs, As, Bs, Ps, alive, dt, rng, noise, snr_db)
 
 

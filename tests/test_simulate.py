@@ -137,3 +137,13 @@ def test_two_link_task_part_lies_in_the_constrained_space():
     plain = sim.two_link(seed=3, n_demos=6, n_steps=15)
     assert np.allclose(plain.truth["v"], 0.0) and plain.X.shape == d.X.shape
     np.testing.assert_allclose(plain.X[d.demo == 0][0], d.X[d.demo == 0][0])
+
+
+def test_limit_cycle_trajectories_end_before_they_overflow():
+    """The §7 limit cycle repels: starts outside r spiral out. Trajectories end when they
+    leave the escape box, so every sample is finite (it overflowed to inf before)."""
+    for seed in range(3):
+        d = sim.toy2d(policy="limit_cycle", seed=seed)
+        assert np.isfinite(d.U).all() and np.isfinite(d.X).all()
+        assert np.abs(d.X).max() <= sim.ESCAPE
+        assert 300 < len(d.X) < 1000  # some trajectories escape, most run on
