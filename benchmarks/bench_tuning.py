@@ -8,9 +8,10 @@ JSON lines on stdout:
   π for policies, NUPE of w for ncl) with (a) the tutorial's hand-tuned settings
   (ALGORITHMS.md §7: a 10×10 grid of RBFs with σ² = 0.5 for pi, pi-weighted and lwpi;
   16 k-means RBFs for ncl on the toy, 100 on the 2-link arm with a task part), (b) the
-  untuned defaults (``tune=False``), (c) the defaults (tuning on), and whether (c) ≤ (a). Tutorial data: 500 training + 500 test states uniform
-  in [−1, 1]² (split by demonstration, 50 groups), noise std 0.01, a new constraint per
-  demonstration for π.
+  untuned defaults (``tune=False``), (c) the defaults (tuning on), and whether (c) ≤ (a).
+  Tutorial data: 500 training + 500 test states uniform in [−1, 1]² (split by demonstration,
+  50 groups), noise std 0.01, a new constraint per demonstration for π; the 2-link arm:
+  40 demonstrations × 40 steps, 30 % of them held out.
 * ``time`` — fit seconds of every learner, tuned vs untuned, on its tutorial problem.
 * ``configs`` — wall seconds of ``ccl run`` on every shipped config (tuning on).
 """
