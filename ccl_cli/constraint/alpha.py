@@ -11,7 +11,7 @@ import numpy as np
 
 from ccl_cli.basis import Basis, make_basis
 from ccl_cli.constraint import selection as sel
-from ccl_cli.constraint.angular import chunked_features, fit_sequence, rows_from_weights
+from ccl_cli.constraint.angular import MAX_ITER, chunked_features, fit_sequence, rows_from_weights
 from ccl_cli.constraint.base import ConstraintModel, check_xu
 from ccl_cli.errors import ConfigError
 from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
@@ -68,7 +68,8 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
             ``n_constraints`` (see :mod:`ccl_cli.constraint.selection`).
         max_constraints: at most this many rows (default q − 1).
         n_restarts: LM starts per row (the first the best constant direction).
-        seed, max_iter, tol, gap_floor, cv_folds.
+        max_iter: LM passes per row at most (:data:`~ccl_cli.constraint.angular.MAX_ITER`).
+        seed, tol, gap_floor, cv_folds.
         tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
             default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
@@ -86,7 +87,7 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
         max_constraints: int | None = None,
         n_restarts: int = 3,
         seed: int = 0,
-        max_iter: int = 1000,
+        max_iter: int = MAX_ITER,
         tol: float = 1e-9,
         gap_floor: float = 1e-9,
         cv_folds: int = 5,
@@ -110,14 +111,16 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
         k-means-placed, in that order (the budget of :func:`ccl_cli.selection.tune` may skip
         the last, the slowest: wide bases need many LM passes).
 
-        Measured (issue 9; median test error over seeds 0–4, tuned vs untuned K = 25):
-        parabola toy (test NPPE) 0.039 → 0.027; tracker bowl at 1 mm (NPOE on held-out
-        blocks) 0.018 → 0.011 (9 centres chosen in 5/5 seeds). On the parabola held-out NPOE
-        is a noisy guide (the fits have local optima and NPOE cannot see the constraint
-        where u ≈ 0): {25, 9} alone chose 9 in 2/5 seeds and raised the median to 0.14, the
-        wide 25 wins those seeds back. Wider grids (16 or 36 centres, σ² × ½) were worse or
-        no better on one of the two problems; the LM cut-off (1e-16 … 1e-6) only made the
-        parabola worse (median 0.039 → 0.07–0.24), so it is not tuned."""
+        Measured (issue 9; median test error over seeds 0–4, untuned K = 25 → tuned;
+        ``python benchmarks/bench_tuning.py --only angles``): parabola toy (test NPPE)
+        0.039 → 0.021 (25 wide chosen in 3/5 seeds, 25 in 2/5); tracker bowl at 1 mm (NPOE on
+        held-out blocks) 0.018 → 0.011 (9 centres in 5/5 seeds); fit 0.02 → 0.2 s and
+        0.2–0.7 → 1.4–5.7 s (busy 2-core VM). On the parabola held-out NPOE is a noisy guide
+        (the fits have local optima and NPOE cannot see the constraint where u ≈ 0): {25, 9}
+        alone chose 9 in 2/5 seeds and raised the median to 0.14; the wide 25 wins those
+        seeds back. Wider grids (16 or 36 centres, σ² × ½) were worse or no better on one of
+        the two problems; the LM cut-off (1e-16 … 1e-6) only made the parabola worse (median
+        0.039 → 0.07–0.24), so it is not tuned."""
         if not rbf_tunable(self.basis):
             return {}
         grid = [*basis_grid(X, (self.n_centres, 9), (1.0,), self.seed),
