@@ -14,8 +14,10 @@ the data per iteration (:func:`~ccl_cli.linalg.kron_least_squares`; no N × (d�
 
 from several seeded starts (the local closed form, the best constant direction, random
 ones): each start is screened for SCREEN_PASSES iterations and the best is run to
-convergence. The frame is then advanced with the Givens rotation
-of θ_n: Q_n ← blockdiag(I_{k−1}, R(θ_n)ᵀ) Q_n.
+convergence (at most MAX_ITER passes). Above SEARCH_ROWS samples this search runs on a
+seeded subsample of SEARCH_ROWS rows and the winner is refined by at most REFINE_PASSES
+passes over all the data, so a row costs a handful of full passes. The frame is then
+advanced with the Givens rotation of θ_n: Q_n ← blockdiag(I_{k−1}, R(θ_n)ᵀ) Q_n.
 """
 
 from __future__ import annotations
