@@ -75,6 +75,10 @@ def test_pipeline_arm7_two_link_and_real_formats(capsys, tmp_path):
         stage = json.loads(out)["stages"]["learn-a"]
         assert stage["test"][metric] < bar, (name, stage)
     assert metrics_of(tmp_path / "arm7")["learn-a"]["n_constraints"] == 2
+    tuning = metrics_of(tmp_path / "two_link")["learn-a"]["tuning"]  # lambda's default grid: 16, 25 centres
+    assert [r["params"]["basis"]["n_centres"] for r in tuning["scores"]] == [16, 25]
+    assert tuning["chosen"]["basis"]["n_centres"] == 25
+    assert "learn-a: hyperparameters by cross-validation" in (tmp_path / "two_link" / "report.md").read_text()
 
 
 def test_pipeline_learn_pi_coupled_to_learnt_constraints(capsys, tmp_path):
