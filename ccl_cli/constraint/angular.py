@@ -23,11 +23,15 @@ advanced with the Givens rotation of θ_n: Q_n ← blockdiag(I_{k−1}, R(θ_n)�
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ccl_cli.angles import angles_of, frame, unit_vector, unit_vector_jacobian
 from ccl_cli.linalg import kron_least_squares, row_chunks, total_variance
+
+if TYPE_CHECKING:
+    from ccl_cli.basis import Basis
 
 #: Default bound on the LM passes of one row (alpha's and lambda's ``max_iter``). Measured
 #: (issue 9/10): every fit with default-width bases on the parabola toy, the two-link arm and
@@ -59,7 +63,7 @@ class AngleFit:
     cost: float
 
 
-def chunked_features(basis, X: np.ndarray) -> np.ndarray:
+def chunked_features(basis: Basis, X: np.ndarray) -> np.ndarray:
     """β(X) (N, K) computed in :func:`~ccl_cli.linalg.row_chunks` blocks (the per-row
     transform on cache-sized blocks: ~3× faster than one (N, K) pass at N = 1e5)."""
     out = np.empty((len(X), basis.n_features))
