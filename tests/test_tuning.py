@@ -150,3 +150,18 @@ def test_alpha_grid_the_wide_candidate_wins_back_the_parabola():
     err = [nppe(test.true_projection(), m.projection(test.X), test.truth["pi"], test.U).value
            for m in (model, narrow)]
     assert err[0] < 0.04 < 0.1 < err[1], err
+
+
+def test_alpha_and_lambda_with_too_few_samples_for_any_candidate_fit_as_given():
+    """16 samples in 8 demonstrations: no grid basis fits in (≤ N/2 centres), so there is no
+    grid and the configured basis is fitted (no 'no candidate' error)."""
+    from ccl_cli.constraint import KnownFeatureConstraint, StateDependentConstraint
+
+    toy = sim.toy2d(constraint="parabola", seed=0, n_demos=8, n_steps=2)
+    arm = sim.two_link(seed=0, n_demos=8, n_steps=2)
+    assert toy.n_samples == arm.n_samples == 16
+    alpha = StateDependentConstraint(n_centres=12).fit(toy.X, toy.U, toy.demo)
+    lam = KnownFeatureConstraint(features="arm2", n_centres=12).fit(arm.X, arm.U, arm.demo)
+    for model in (alpha, lam):
+        assert model.tuning_ is None and model.basis_.n_features == 12
+        assert np.isfinite(model.projection(toy.X if model is alpha else arm.X)).all()

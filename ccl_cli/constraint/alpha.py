@@ -125,7 +125,7 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
             return {}
         grid = [*basis_grid(X, (self.n_centres, 9), (1.0,), self.seed),
                 *basis_grid(X, (self.n_centres,), (2.0,), self.seed)]
-        return {"basis": grid}
+        return {"basis": grid} if grid else {}  # too few samples for any candidate: fit as given
 
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
             ) -> StateDependentConstraint:

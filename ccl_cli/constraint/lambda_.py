@@ -98,7 +98,8 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
         if not rbf_tunable(self.basis):
             return {}
         k = int(self.n_centres)
-        return {"basis": basis_grid(X, (k, (isqrt(k) + 1) ** 2), (1.0,), self.seed)}
+        grid = basis_grid(X, (k, (isqrt(k) + 1) ** 2), (1.0,), self.seed)
+        return {"basis": grid} if grid else {}  # too few samples for any candidate: fit as given
 
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
             ) -> KnownFeatureConstraint:
