@@ -177,7 +177,7 @@ PLAN = [  # (learner, N values, K, options)
     ("dpl", (10_000, 100_000, 1_000_000), None, None),
     ("ncl", (10_000, 100_000, 1_000_000), 16, None),
     ("ncl", (10_000, 100_000, 1_000_000), 16, {"polish": False}),
-    ("ncl", (10_000,), 256, {"polish": False}),  # with polish: ~1000 passes, see issue 10 notes
+    ("ncl", (10_000,), 256, None),
     ("alpha", (10_000, 100_000), None, None),
     ("lambda", (10_000, 100_000), None, None),
 ]

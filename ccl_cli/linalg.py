@@ -130,7 +130,9 @@ def kron_least_squares(
     A trial after an accepted step is evaluated by a full pass (it is usually accepted
     too); after a rejection, trials are cost passes and the accepted point then gets its
     full pass. Stops when an accepted step lowers the cost by less than ``tol``
-    relatively ("cost"), the step is below ``tol`` relative to W ("step"), the scaled
+    relatively ("cost"), the undamped Gauss–Newton step predicts a decrease below ``tol``
+    times the cost (the Newton decrement (Jᵀr)ᵀ(JᵀJ)⁺Jᵀr, "predicted": this saves the
+    pass that would only confirm convergence), the step is below ``tol`` relative to W ("step"), the scaled
     gradient is below ``tol`` ("gradient"), or after ``max_iter`` passes of either kind
     ("max_iter"); a non-finite cost at the start stops at once ("non-finite").
 
@@ -185,6 +187,11 @@ def kron_least_squares(
         s = 1.0 / np.sqrt(diag)
         vals, vecs = np.linalg.eigh(H * s[:, None] * s[None, :])
         proj = vecs.T @ (Jtr * s)
+        # Newton decrement of the Gauss–Newton model: Jᵀr (JᵀJ)⁺ Jᵀr is the cost decrease
+        # its undamped step predicts; below tol · cost no step is worth a pass.
+        solid = vals > cutoff * max(float(vals[-1]), np.finfo(float).tiny)
+        if float(np.sum(np.where(solid, proj**2 / np.where(solid, vals, 1.0), 0.0))) <= tol * cost:
+            return done("predicted", w, cost)
         while True:
             if counts["full_passes"] + counts["cost_passes"] >= max_iter:
                 return done("max_iter", w, cost)
