@@ -67,6 +67,8 @@ SMOOTHING = 1e-4
 STAGE_TOL = 1e-4
 #: Rows of the subsample the first stages run on (at least 20 per parameter).
 SUBSAMPLE_ROWS = 10_000
+#: Passes of the last stage (the original residual, from the smoothed optimum).
+ORIGINAL_PASSES = 5
 
 
 def subsample_size(n: int, n_params: int) -> int:
@@ -185,10 +187,11 @@ class NullSpaceComponent(Estimator):
         self.stages_: list[dict] = []
 
         def stage(name: str, W: np.ndarray, on_all: bool, residual: Residual, tol: float,
-                  mu0: float, delta2: float | None = None) -> tuple[np.ndarray, float]:
+                  mu0: float, delta2: float | None = None, passes: int | None = None
+                  ) -> tuple[np.ndarray, float]:
             info: dict = {}
             W, cost, _ = kron_least_squares(W, blocks if on_all else sub_blocks, residual,
-                                            self.max_iter, tol, info=info, mu0=mu0)
+                                            passes or self.max_iter, tol, info=info, mu0=mu0)
             self.stages_.append({"stage": name, "rows": n if on_all else m, "delta2": delta2,
                                  **info})
             return W, cost
@@ -208,6 +211,11 @@ class NullSpaceComponent(Estimator):
                                 STAGE_TOL * 1e-2, 1e-8, delta2)
             W, cost = stage("smoothed original", W, True, wall_residual(U, delta2), self.tol,
                             1e-12 if m < n else 1e-8, delta2)
+            if delta2 > 0:
+                W, cost = stage("original", W, True, wall_residual(U, 0.0), self.tol, 1e-12, 0.0,
+                                min(ORIGINAL_PASSES, self.max_iter))
+                if self.stages_[-1]["stop"] == "max_iter":
+                    self.stages_[-1]["stop"] = "budget"
         self.W_, self.objective_ = W, cost
         original = wall_residual(U, 0.0)
         self.cost_ = 0.0
