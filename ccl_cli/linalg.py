@@ -187,10 +187,11 @@ def kron_least_squares(
         s = 1.0 / np.sqrt(diag)
         vals, vecs = np.linalg.eigh(H * s[:, None] * s[None, :])
         proj = vecs.T @ (Jtr * s)
-        # Newton decrement of the Gauss–Newton model: Jᵀr (JᵀJ)⁺ Jᵀr is the cost decrease
-        # its undamped step predicts; below tol · cost no step is worth a pass.
-        solid = vals > cutoff * max(float(vals[-1]), np.finfo(float).tiny)
-        if float(np.sum(np.where(solid, proj**2 / np.where(solid, vals, 1.0), 0.0))) <= tol * cost:
+        # Newton decrement of the Gauss–Newton model: Jᵀr (JᵀJ)⁻¹ Jᵀr is the cost decrease
+        # its undamped step predicts (eigenvalues floored at the cut-off, so weak directions
+        # count at their largest); below tol · cost no step is worth a pass.
+        floor = cutoff * max(float(vals[-1]), np.finfo(float).tiny)
+        if float(np.sum(proj**2 / np.maximum(vals, floor))) <= tol * cost:
             return done("predicted", w, cost)
         while True:
             if counts["full_passes"] + counts["cost_passes"] >= max_iter:

@@ -9,33 +9,40 @@ pseudo-inverse, eigenvalues below 1e-8 of the largest dropped).
 
 That residual has a wall: r_n = u_nᵀŵ_n − ‖w̃_n‖ jumps with the direction ŵ_n where w̃_n
 crosses 0, and its gradient grows as 1/√c there. On 1e4 samples a single sample next to
-the zero set of w̃ held 99 % of JᵀJ; Levenberg–Marquardt then crawls (hundreds of
-passes, and at N = 1e5 it had not converged after 1000: test NUPE 9.6e-7 against 1.8e-7
-at the optimum below). So we minimise, in three stages,
+the zero set of w̃ held 99 % of JᵀJ, and Levenberg–Marquardt crawled: hundreds of passes,
+and at N = 1e5 it had not converged after 1000 (25 s). So the fit runs in four stages:
 
 1. the smooth residual r'_n = a − c (same zero set, no wall; ∂r'/∂w̃ = u − 2w̃) from the
-   OLS start, to a loose tolerance (:data:`STAGE_TOL`);
+   OLS start, to the loose tolerance :data:`STAGE_TOL`;
 2. the *smoothed* original residual
 
        r_n = (a − c + 1e-8) / √(c + δ²),   δ² = ``smoothing`` · mean_n ‖w̃_n‖²
 
-   with w̃ the stage-1 solution (default 1e-4: δ is 1 % of the RMS of w̃). Samples with
-   ‖w̃_n‖ ≫ δ keep the original residual; the few near w̃ = 0 are smoothly down-weighted
-   instead of dominating. Jacobian ∂r_n/∂W = [(u − 2w̃)/√(c+δ²) − r w̃/(c+δ²)] β_nᵀ.
-   ``smoothing=0`` is the original residual exactly (slow: see above).
+   with w̃ the stage-1 solution (default 1e-4: δ is 1 % of the RMS of w̃), to
+   STAGE_TOL/100. Samples with ‖w̃_n‖ ≫ δ keep the original residual; the few near
+   w̃ = 0 are smoothly down-weighted instead of dominating. Jacobian
+   ∂r_n/∂W = [(u − 2w̃)/√(c+δ²) − r w̃/(c+δ²)] β_nᵀ;
+3. the same residual on all rows from that start with almost no damping (μ₀ = 1e-12:
+   the start is near the optimum; with μ₀ = 1e-3 the damped steps needed ~20 passes to
+   open up along the flat directions that matter for the test error, μ₀ = 1e-12 took 7),
+   to ``tol``;
+4. the original residual (δ = 0) for at most :data:`ORIGINAL_PASSES` passes, from the
+   stage-3 optimum: near it the wall samples are few and placed, so these passes lower
+   the original cost to, or below, where 1000 passes from the smooth start ended.
 
-Stages 1 and 2 run first on a seeded subsample of :func:`subsample_size` rows when N is
-larger, then stage 2 once more on all rows from that start with almost no damping
-(μ₀ = 1e-12: the start is near the optimum, and the damped steps of the default μ₀
-needed ~20 passes to open up along the flat directions that matter for the test error;
-μ₀ = 1e-12 takes 7). ``polish=False`` stops after stage 1 (on all rows).
+Stages 1 and 2 run on a seeded subsample of :func:`subsample_size` rows when N is larger
+(otherwise on all rows, and stage 3 is their continuation). ``smoothing=0`` minimises
+the original residual itself in stages 2–3 (the original's optimum, slowly: ~180 passes
+on 500 samples); ``polish=False`` stops after stage 1 (then run on all rows).
 
-Measured (benchmarks/bench_core.py, toy 2-D with a task part, 16 RBFs; test NUPE of w on
-1e4 held-out samples; before → after): N = 1e4: 2.7e-6 → 2.1e-6; N = 1e5: 9.6e-7 (not
-converged in 1000 passes, 25 s) → 1.8e-7 (0.5 s); the ncl tutorial (ALGORITHMS.md §7,
-5 seeds) equal to 1 %. The original cost Σ r² at the end (``cost_``) is within 1 % of
-the original's on the benchmark (lower where the original did not converge), and up to
-8 % higher on the tutorials, where the difference sits on the samples nearest w̃ = 0.
+Measured, before → after (before: stage 1, then the original residual to tol 1e-9 or
+1000 passes). benchmarks/bench_core.py, toy 2-D fixed constraint + task part, 16 RBFs,
+test NUPE of w on 1e4 held-out samples: N = 1e4 2.7e-6 → 2.1e-6, original cost 1.0001 →
+1.0002; N = 1e5 9.5e-7 → 1.8e-7, cost 10.44 → 10.02, 24.6 s → 0.4 s. The ncl tutorial
+(ALGORITHMS.md §7, limit cycle + task, 500/500, 5 seeds): test NUPE and original cost
+equal (to 5 digits) or lower on every seed (median 1.52e-4 both). ``configs/toy2d_learn_v.yaml``:
+train NPE (the normalised original cost) 1.9968e-4 → 1.9929e-4, test NUPE_w 5.14e-5 →
+5.10e-5.
 
 Scale: the Jacobian row of sample n is vec(g_n β_nᵀ) with g_n ∈ R^q the bracket above, so
 each Levenberg–Marquardt iteration is one pass over the data in row blocks that sums
@@ -110,14 +117,16 @@ class NullSpaceComponent(Estimator):
         basis, n_centres, seed: feature map (normalised RBF by default); ``seed`` also
             draws the subsample of the first stages.
         max_iter: passes over the data of each stage at most (original: 1000).
-        tol: tolerance of the last stage: it stops when an accepted step lowers the cost
-            by less than ``tol`` relatively, the step is below ``tol`` relative to W, or
-            the scaled gradient is below ``tol`` (original: 1e-9); earlier stages use
-            :data:`STAGE_TOL`.
+        tol: tolerance of stages 3 and 4: each stops when an accepted step lowers the cost
+            by less than ``tol`` relatively, the Gauss–Newton model predicts a decrease
+            below ``tol`` times the cost, the step is below ``tol`` relative to W, or the
+            scaled gradient is below ``tol`` (:func:`~ccl_cli.linalg.kron_least_squares`;
+            original: 1e-9); stages 1–2 use :data:`STAGE_TOL` and STAGE_TOL/100.
         chunk_size: rows per block of the passes over the data (default 8192).
-        polish: run stage 2, the smoothed original residual (default). ``False`` stops
-            after stage 1 (the smooth residual).
-        smoothing: δ² of stage 2 relative to mean ‖w̃‖² (0: the original residual).
+        polish: run stages 2–4 (default). ``False`` stops after stage 1 (the smooth
+            residual: ~2× fewer passes, 1.5–9× higher test error in the benchmark).
+        smoothing: δ² of stages 2–3 relative to mean ‖w̃‖² (0: the original residual
+            throughout, and no stage 4).
         tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
             default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
@@ -125,8 +134,9 @@ class NullSpaceComponent(Estimator):
         basis_, W_ (q, K), cost_ (Σ r² of the original residual at W_), objective_ (the
         minimised Σ r² of the last stage), n_iter_ (passes over the data of all stages,
         full or residual-only, on the subsample or on all rows), stop_reason_ (why the
-        last stage stopped: "cost", "step", "gradient", "max_iter" or "non-finite"),
-        stages_ (per stage: name, rows, delta2, full_passes, cost_passes, accepted, stop).
+        last stage stopped: "cost", "predicted", "step", "gradient", "max_iter",
+        "non-finite", or "budget" when stage 4 used its ORIGINAL_PASSES), stages_ (per
+        stage: stage name, rows, delta2, full_passes, cost_passes, accepted, stop).
     """
 
     def __init__(
@@ -206,10 +216,11 @@ class NullSpaceComponent(Estimator):
             for _, B in sub_blocks():
                 Wt2 += float(np.sum((B @ W.T) ** 2))
             delta2 = self.smoothing * Wt2 / m
+            name = "smoothed original" if delta2 > 0 else "original"
             if m < n:
-                W, cost = stage("smoothed original", W, False, wall_residual(U_s, delta2),
-                                STAGE_TOL * 1e-2, 1e-8, delta2)
-            W, cost = stage("smoothed original", W, True, wall_residual(U, delta2), self.tol,
+                W, cost = stage(name, W, False, wall_residual(U_s, delta2), STAGE_TOL * 1e-2,
+                                1e-8, delta2)
+            W, cost = stage(name, W, True, wall_residual(U, delta2), self.tol,
                             1e-12 if m < n else 1e-8, delta2)
             if delta2 > 0:
                 W, cost = stage("original", W, True, wall_residual(U, 0.0), self.tol, 1e-12, 0.0,
@@ -217,11 +228,13 @@ class NullSpaceComponent(Estimator):
                 if self.stages_[-1]["stop"] == "max_iter":
                     self.stages_[-1]["stop"] = "budget"
         self.W_, self.objective_ = W, cost
-        original = wall_residual(U, 0.0)
-        self.cost_ = 0.0
-        for rows, B in blocks():
-            r = original(W, rows, B)[0]
-            self.cost_ += float(r @ r)
+        if self.stages_[-1]["delta2"] == 0.0 and self.stages_[-1]["rows"] == n:
+            self.cost_ = cost  # the last stage minimised the original residual itself
+        else:
+            original, self.cost_ = wall_residual(U, 0.0), 0.0
+            for rows, B in blocks():
+                r = original(W, rows, B)[0]
+                self.cost_ += float(r @ r)
         self.n_iter_ = sum(s["full_passes"] + s["cost_passes"] for s in self.stages_)
         self.stop_reason_ = self.stages_[-1]["stop"]
         self.n_action_ = q
