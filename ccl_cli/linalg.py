@@ -134,7 +134,8 @@ def kron_least_squares(
     times the cost (the Newton decrement (Jᵀr)ᵀ(JᵀJ)⁺Jᵀr, "predicted": this saves the
     pass that would only confirm convergence), the step is below ``tol`` relative to W ("step"), the scaled
     gradient is below ``tol`` ("gradient"), or after ``max_iter`` passes of either kind
-    ("max_iter"); a non-finite cost at the start stops at once ("non-finite").
+    ("max_iter"); a non-finite cost or normal matrix at the start stops at once, and one
+    at an accepted trial leaves W at the last finite point ("non-finite").
 
     Args:
         info: if given, receives ``stop`` (the reason above), ``full_passes``,
@@ -173,7 +174,7 @@ def kron_least_squares(
 
     w = np.asarray(W0, dtype=float).ravel().copy()
     cost, H, Jtr = full(w)
-    if not np.isfinite(cost):
+    if not (np.isfinite(cost) and np.isfinite(H).all() and np.isfinite(Jtr).all()):
         return done("non-finite", w, cost)
     D = np.diag(H)
     diag = np.maximum(D, 1e-12 * max(float(np.max(D)), 1e-300))
@@ -205,6 +206,8 @@ def kron_least_squares(
             if optimistic:
                 new_cost, new_H, new_Jtr = full(trial)
                 counts["full_passes"] += 1
+                if not (np.isfinite(new_H).all() and np.isfinite(new_Jtr).all()):
+                    new_cost = np.inf  # a point whose normal equations overflow is rejected
             else:
                 new_cost = cost_only(trial)
                 counts["cost_passes"] += 1
@@ -219,6 +222,8 @@ def kron_least_squares(
         if not optimistic:
             new_cost, new_H, new_Jtr = full(trial)
             counts["full_passes"] += 1
+            if not (np.isfinite(new_H).all() and np.isfinite(new_Jtr).all()):
+                return done("non-finite", w, cost)  # stay at the last point that had them
         counts["accepted"] += 1
         w, cost, H, Jtr = trial, new_cost, new_H, new_Jtr
         diag = np.maximum(diag, np.diag(H))  # MINPACK: the scaling only grows

@@ -59,7 +59,7 @@ import numpy as np
 
 from ccl_cli.basis import Basis, feature_blocks, make_basis
 from ccl_cli.constraint.base import check_xu
-from ccl_cli.errors import ConfigError
+from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.estimator import Estimator
 from ccl_cli.linalg import eigen_lstsq, kron_least_squares, row_chunks
 from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
@@ -135,7 +135,8 @@ class NullSpaceComponent(Estimator):
         minimised Σ r² of the last stage), n_iter_ (passes over the data of all stages,
         full or residual-only, on the subsample or on all rows), stop_reason_ (why the
         last stage stopped: "cost", "predicted", "step", "gradient", "max_iter",
-        "non-finite", or "budget" when stage 4 used its ORIGINAL_PASSES), stages_ (per
+        "non-finite", "budget" when stage 4 used its ORIGINAL_PASSES, or "zero start" when
+        the least-squares start is W = 0 — BᵀU = 0, e.g. u ≡ 0 — and is kept), stages_ (per
         stage: stage name, rows, delta2, full_passes, cost_passes, accepted, stop).
     """
 
@@ -200,18 +201,21 @@ class NullSpaceComponent(Estimator):
             U_s, sub_blocks = U[keep], feature_blocks(self.basis_, X[keep], self.chunk_size)
         else:
             U_s, sub_blocks = U, blocks
-        self.stages_: list[dict] = []
 
         def stage(name: str, W: np.ndarray, on_all: bool, residual: Residual, tol: float,
                   mu0: float, delta2: float | None = None, passes: int | None = None
                   ) -> tuple[np.ndarray, float]:
             info: dict = {}
-            W, cost, _ = kron_least_squares(W, blocks if on_all else sub_blocks, residual,
-                                            passes or self.max_iter, tol, info=info, mu0=mu0)
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # checked below
+                W, cost, _ = kron_least_squares(W, blocks if on_all else sub_blocks, residual,
+                                                passes or self.max_iter, tol, info=info, mu0=mu0)
             self.stages_.append({"stage": name, "rows": n if on_all else m, "delta2": delta2,
                                  **info})
             return W, cost
 
+        self.stages_: list[dict] = []
+        if not np.any(W):  # BᵀU = 0: no action has a component along the features
+            return self._finish(W, 0.0, 0.0, "zero start", q)
         last = not self.polish and m == n
         W, cost = stage("smooth", W, m == n, smooth_residual(U_s),
                         self.tol if last else STAGE_TOL, 1e-3)
@@ -219,8 +223,9 @@ class NullSpaceComponent(Estimator):
             W, cost = stage("smooth", W, True, smooth_residual(U), self.tol, 1e-12)
         if self.polish:
             Wt2 = 0.0
-            for _, B in sub_blocks():
-                Wt2 += float(np.sum((B @ W.T) ** 2))
+            with np.errstate(over="ignore", invalid="ignore"):
+                for _, B in sub_blocks():
+                    Wt2 += float(np.sum((B @ W.T) ** 2))
             delta2 = self.smoothing * Wt2 / m
             name = "smoothed original" if delta2 > 0 else "original"
             if m < n:
@@ -233,16 +238,24 @@ class NullSpaceComponent(Estimator):
                                 min(ORIGINAL_PASSES, self.max_iter))
                 if self.stages_[-1]["stop"] == "max_iter":
                     self.stages_[-1]["stop"] = "budget"
-        self.W_, self.objective_ = W, cost
         if self.stages_[-1]["delta2"] == 0.0 and self.stages_[-1]["rows"] == n:
-            self.cost_ = cost  # the last stage minimised the original residual itself
+            original_cost = cost  # the last stage minimised the original residual itself
         else:
-            original, self.cost_ = wall_residual(U, 0.0), 0.0
-            for rows, B in blocks():
-                r = original(W, rows, B)[0]
-                self.cost_ += float(r @ r)
+            original, original_cost = wall_residual(U, 0.0), 0.0
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                for rows, B in blocks():
+                    r = original(W, rows, B)[0]
+                    original_cost += float(r @ r)
+        if not np.isfinite(original_cost):
+            bad = next((s["stage"] for s in self.stages_ if s["stop"] == "non-finite"), "original")
+            raise LearningError(f"ncl: the cost is not finite in stage {bad!r} "
+                                f"(actions of magnitude {np.abs(U).max():.3g} overflow its squares)")
+        return self._finish(W, cost, original_cost, self.stages_[-1]["stop"], q)
+
+    def _finish(self, W: np.ndarray, objective: float, cost: float, stop: str, q: int
+                ) -> NullSpaceComponent:
+        self.W_, self.objective_, self.cost_, self.stop_reason_ = W, objective, cost, stop
         self.n_iter_ = sum(s["full_passes"] + s["cost_passes"] for s in self.stages_)
-        self.stop_reason_ = self.stages_[-1]["stop"]
         self.n_action_ = q
         return self
 

@@ -14,7 +14,7 @@ from ccl_cli.constraint import (
     StateDependentConstraint,
     StateIndependentConstraint,
 )
-from ccl_cli.errors import ConfigError
+from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.linalg import nullspace_projection, unit_rows
 from ccl_cli.metrics import nppe, nupe
 from ccl_cli.nullspace import NullSpaceComponent
@@ -385,6 +385,15 @@ def test_ncl_stages_reach_the_original_optimum_in_a_fraction_of_the_passes():
     assert staged.stages_[-1]["full_passes"] + staged.stages_[-1]["cost_passes"] <= 5
     with pytest.raises(ConfigError, match="smoothing"):
         NullSpaceComponent(smoothing=-1.0, tune=False).fit(train.X, train.U)
+
+
+def test_ncl_degenerate_actions_are_a_result_or_an_error_never_a_crash():
+    train, _ = ncl_halves()
+    rest = NullSpaceComponent(n_centres=9, tune=False).fit(train.X, np.zeros_like(train.U))
+    assert rest.stop_reason_ == "zero start" and rest.n_iter_ == 0 and rest.cost_ == 0.0
+    np.testing.assert_array_equal(rest.predict(train.X), 0.0)  # u ≡ 0: w̃ ≡ 0
+    with pytest.raises(LearningError, match="not finite"):
+        NullSpaceComponent(n_centres=9, tune=False).fit(train.X, 1e200 * train.U)
 
 
 def test_ncl_stages_on_a_subsample_end_at_the_all_rows_optimum(monkeypatch):
