@@ -36,13 +36,18 @@ the original residual itself in stages 2–3 (the original's optimum, slowly: ~1
 on 500 samples); ``polish=False`` stops after stage 1 (then run on all rows).
 
 Measured, before → after (before: stage 1, then the original residual to tol 1e-9 or
-1000 passes). benchmarks/bench_core.py, toy 2-D fixed constraint + task part, 16 RBFs,
-test NUPE of w on 1e4 held-out samples: N = 1e4 2.7e-6 → 2.1e-6, original cost 1.0001 →
-1.0002; N = 1e5 9.5e-7 → 1.8e-7, cost 10.44 → 10.02, 24.6 s → 0.4 s. The ncl tutorial
-(ALGORITHMS.md §7, limit cycle + task, 500/500, 5 seeds): test NUPE and original cost
-equal (to 5 digits) or lower on every seed (median 1.52e-4 both). ``configs/toy2d_learn_v.yaml``:
-train NPE (the normalised original cost) 1.9968e-4 → 1.9929e-4, test NUPE_w 5.14e-5 →
-5.10e-5.
+1000 passes). benchmarks/bench_core.py (single-threaded BLAS; toy 2-D fixed constraint +
+task part, 16 RBFs; test NUPE of w on 1e4 held-out samples): N = 1e4 1.1 s → 0.2 s, test
+2.7e-6 → 2.1e-6, original cost 1.0001 → 1.0002; N = 1e5 24.6 s (839× the one-pass
+floor) → 0.37 s (13–15×, of which k-means ~6×), test 9.5e-7 → 1.8e-7, cost 10.44 →
+10.02; N = 1e6 96.5 s → 2.0 s, test 5.0e-8; K = 256 at N = 1e4 407 s → 2.0 s, test
+2.7e-6. The ncl tutorial (ALGORITHMS.md §7, limit cycle + task, 500/500, 5 seeds): test
+NUPE and original cost equal (to 5 digits) or lower on every seed (median 1.52e-4 both).
+``configs/toy2d_learn_v.yaml``: train NPE (the normalised original cost) 1.9968e-4 →
+1.9929e-4, test NUPE_w 5.14e-5 → 5.10e-5. Not everywhere: with a parabola constraint +
+limit cycle + task (not a tutorial; ncl fits it poorly, test NUPE ≈ 0.1 with 16–100 RBFs)
+the stages end in another local minimum, 1.5–5 % higher original cost and 2–9 % higher
+test NUPE than the old path at N = 1e4.
 
 Scale: the Jacobian row of sample n is vec(g_n β_nᵀ) with g_n ∈ R^q the bracket above, so
 each Levenberg–Marquardt iteration is one pass over the data in row blocks that sums
@@ -124,7 +129,7 @@ class NullSpaceComponent(Estimator):
             original: 1e-9); stages 1–2 use :data:`STAGE_TOL` and STAGE_TOL/100.
         chunk_size: rows per block of the passes over the data (default 8192).
         polish: run stages 2–4 (default). ``False`` stops after stage 1 (the smooth
-            residual: ~2× fewer passes, 1.5–9× higher test error in the benchmark).
+            residual: about half the time, 2–30× the test error in the benchmark).
         smoothing: δ² of stages 2–3 relative to mean ‖w̃‖² (0: the original residual
             throughout, and no stage 4).
         tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
