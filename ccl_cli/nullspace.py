@@ -38,9 +38,9 @@ on 500 samples); ``polish=False`` stops after stage 1 (then run on all rows).
 Measured, before → after (before: stage 1, then the original residual to tol 1e-9 or
 1000 passes). benchmarks/bench_core.py (single-threaded BLAS; toy 2-D fixed constraint +
 task part, 16 RBFs; test NUPE of w on 1e4 held-out samples): N = 1e4 1.1 s → 0.2 s, test
-2.7e-6 → 2.1e-6, original cost 1.0001 → 1.0002; N = 1e5 24.6 s (839× the one-pass
-floor) → 0.37 s (13–15×, of which k-means ~6×), test 9.5e-7 → 1.8e-7, cost 10.44 →
-10.02; N = 1e6 96.5 s → 2.0 s, test 5.0e-8; K = 256 at N = 1e4 407 s → 2.0 s, test
+2.7e-6 → 2.1e-6, original cost 1.00033 → 1.00024; N = 1e5 16–25 s (1000 passes, not
+converged; 839× the one-pass floor) → 0.37 s (13–15×, of which k-means ~6×), test
+9.5e-7 → 1.8e-7, cost 10.446 → 10.018; N = 1e6 96.5 s → 2.0 s, test 5.0e-8; K = 256 at N = 1e4 407 s → 2.0 s, test
 2.7e-6. The ncl tutorial (ALGORITHMS.md §7, limit cycle + task, 500/500, 5 seeds): test
 NUPE and original cost equal (to 5 digits) or lower on every seed (median 1.52e-4 both).
 ``configs/toy2d_learn_v.yaml``: train NPE (the normalised original cost) 1.9968e-4 →
