@@ -130,12 +130,17 @@ def kron_least_squares(
     A trial after an accepted step is evaluated by a full pass (it is usually accepted
     too); after a rejection, trials are cost passes and the accepted point then gets its
     full pass. Stops when an accepted step lowers the cost by less than ``tol``
-    relatively ("cost"), the undamped Gauss–Newton step predicts a decrease below ``tol``
-    times the cost (the Newton decrement (Jᵀr)ᵀ(JᵀJ)⁺Jᵀr, "predicted": this saves the
-    pass that would only confirm convergence), the step is below ``tol`` relative to W ("step"), the scaled
-    gradient is below ``tol`` ("gradient"), or after ``max_iter`` passes of either kind
-    ("max_iter"); a non-finite cost or normal matrix at the start stops at once, and one
+    relatively ("cost"); when the undamped Gauss–Newton step predicts a decrease below
+    ``tol`` times the cost ("predicted": the Newton decrement (Jᵀr)ᵀ(JᵀJ)⁻¹Jᵀr with the
+    eigenvalues floored at the cut-off; this saves the pass that would only confirm
+    convergence); when the step is below ``tol`` relative to W ("step") or the scaled
+    gradient below ``tol`` ("gradient"); or after ``max_iter`` passes of either kind
+    ("max_iter"). A non-finite cost or normal matrix at the start stops at once, and one
     at an accepted trial leaves W at the last finite point ("non-finite").
+
+    ``mu0`` is the starting damping (relative to the scaled diagonal): 1e-3 from a rough
+    start; near-zero from a start close to the optimum, where the damped steps would
+    otherwise need many passes to open up along flat directions.
 
     Args:
         info: if given, receives ``stop`` (the reason above), ``full_passes``,

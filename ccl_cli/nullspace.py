@@ -40,9 +40,10 @@ Measured, before → after (before: stage 1, then the original residual to tol 1
 task part, 16 RBFs; test NUPE of w on 1e4 held-out samples): N = 1e4 1.1 s → 0.2 s, test
 2.7e-6 → 2.1e-6, original cost 1.00033 → 1.00024; N = 1e5 16–25 s (1000 passes, not
 converged; 839× the one-pass floor) → 0.37 s (13–15×, of which k-means ~6×), test
-9.5e-7 → 1.8e-7, cost 10.446 → 10.018; N = 1e6 96.5 s → 2.0 s, test 5.0e-8; K = 256 at N = 1e4 407 s → 2.0 s, test
-2.7e-6. The ncl tutorial (ALGORITHMS.md §7, limit cycle + task, 500/500, 5 seeds): test
-NUPE and original cost equal (to 5 digits) or lower on every seed (median 1.52e-4 both).
+9.5e-7 → 1.8e-7, cost 10.446 → 10.018; N = 1e6 96.5 s → 2.0 s, test 5.0e-8; K = 256 at
+N = 1e4 407 s → 2.0 s, test 2.7e-6. The ncl tutorial (ALGORITHMS.md §7, limit cycle +
+task, 500/500, 5 seeds): test NUPE and original cost equal (to 5 digits) or lower on every
+seed (median 1.52e-4 both).
 ``configs/toy2d_learn_v.yaml``: train NPE (the normalised original cost) 1.9968e-4 →
 1.9929e-4, test NUPE_w 5.14e-5 → 5.10e-5. Not everywhere: with a parabola constraint +
 limit cycle + task (not a tutorial; ncl fits it poorly, test NUPE ≈ 0.1 with 16–100 RBFs)
