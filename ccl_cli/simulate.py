@@ -15,9 +15,10 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ccl_cli import defaults
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError
-from ccl_cli.io.assemble import local_polynomial_derivative
+from ccl_cli.io.assemble import local_polynomial_derivative, window_for_rate
 from ccl_cli.kinematics import SevenDofArm, TwoLinkArm
 from ccl_cli.linalg import nullspace_projection, unit_rows
 
@@ -25,6 +26,9 @@ Policy = Callable[[np.ndarray], np.ndarray]
 
 #: The fixed matrix of the toy "linear" policy π(x) = M x.
 LINEAR_POLICY = np.array([[-0.5, 1.0], [-1.0, -0.5]])
+
+
+ESCAPE = 5.0  # toy trajectories end beyond five times the sampling box
 
 
 def toy_policy(name: str) -> Policy:
@@ -97,7 +101,9 @@ def toy2d(
         constraint: ``fixed`` (a random unit row) or ``parabola`` (A = [2a x₁, −1]).
         policy: ``attractor`` π = −0.5x, ``limit_cycle`` (r = 0.75, ω = 1), ``linear``.
         task: add a task part b ~ U(−1, 1) (per sample when uniform, per demo otherwise).
-        sampling: ``trajectory`` (Euler, ``dt``, ``n_steps``, stopped when ‖w‖ < 1e-3)
+        sampling: ``trajectory`` (Euler, ``dt``, ``n_steps``, stopped when ‖w‖ < 1e-3, or
+            when the state leaves [−ESCAPE, ESCAPE]²: the limit cycle of §7 repels, so a
+            start outside it spirals out and would overflow)
             or ``uniform`` (``n_samples`` states uniform in the box, dealt round-robin
             into ``n_demos`` groups).
         vary_constraint: a new constraint per demonstration (a random unit row, or
@@ -129,9 +135,9 @@ def toy2d(
         N = nullspace_projection(A)
         w = np.einsum("nij,nj->ni", N, pi)
         v = np.einsum("nqs,ns->nq", np.linalg.pinv(A), b_demo)
-        live &= np.linalg.norm(w, axis=1) >= 1e-3
+        live &= (np.linalg.norm(w, axis=1) >= 1e-3) & np.all(np.abs(x) <= ESCAPE, axis=1)
         Xs.append(x.copy()), As.append(A), Bs.append(b_demo), Ps.append(pi), alive.append(live.copy())
-        x = x + dt * (v + w)
+        x = x + dt * (v + w) * live[:, None]  # ended trajectories stay put (then cut)
     return _stack_trajectories(Xs, As, Bs, Ps, alive, dt, rng, noise, snr_db)
 
 
@@ -155,21 +161,27 @@ def two_link(
     dt: float = 0.01,
     a: float = 2.0,
     target_deg: tuple[float, float] = (10.0, -10.0),
+    task: bool = False,
     noise: float = 0.0,
     seed: int = 0,
 ) -> Demonstrations:
     """2-link planar arm in joint space: A(q) = Λ(q) J(q), Λ = [2a·x_ee, −1] (normalised),
-    π = q* − q with q* = (10°, −10°); start near (0°, 90°) + U(0°, 10°) per joint."""
+    π = q* − q with q* = (10°, −10°); start near (0°, 90°) + U(0°, 10°) per joint.
+
+    ``task`` adds a task part (the ncl problem, u = A⁺b + N π): b ~ U(−1, 1) per
+    demonstration, constant along it, as for the toy's ncl tutorial (ALGORITHMS.md §7)."""
     rng = np.random.default_rng(seed)
     arm = TwoLinkArm()
     target = np.deg2rad(np.asarray(target_deg))
     q = np.deg2rad(np.array([0.0, 90.0]) + rng.uniform(0.0, 10.0, (n_demos, 2)))
+    b = rng.uniform(-1.0, 1.0, (n_demos, 1)) if task else np.zeros((n_demos, 1))
     Xs, As, Bs, Ps, alive = [], [], [], [], []
     for _ in range(n_steps):
         A = two_link_constraint(q, a, arm)
         pi = target - q
-        u = np.einsum("nij,nj->ni", nullspace_projection(A), pi)
-        Xs.append(q.copy()), As.append(A), Bs.append(np.zeros((n_demos, 1))), Ps.append(pi)
+        u = (np.einsum("nij,nj->ni", nullspace_projection(A), pi)
+             + np.einsum("nqs,ns->nq", np.linalg.pinv(A), b))
+        Xs.append(q.copy()), As.append(A), Bs.append(b), Ps.append(pi)
         alive.append(np.ones(n_demos, bool))
         q = q + dt * u
     return _stack_trajectories(Xs, As, Bs, Ps, alive, dt, rng, noise, None, names=["q1", "q2"])
@@ -262,9 +274,8 @@ def armesto_policy(X: np.ndarray, rho: float = -0.5) -> np.ndarray:
 
 # -- realistic tracker recordings --------------------------------------------------------
 
-#: Half the time span (s) of the default derivative window of the tracker simulations:
-#: 9 samples at 50 Hz (the readers' default window), the same 0.16 s at other rates.
-DERIVATIVE_HALF_SPAN_S = 0.08
+#: Half the time span (s) of the default derivative window, shared with the readers.
+DERIVATIVE_HALF_SPAN_S = defaults.DERIVATIVE_HALF_SPAN_S
 
 #: Shapes of the strokes a tracker simulation draws (codes in the segment table).
 _PAUSE, _LINE, _CIRCLE, _EIGHT = 0, 1, 2, 3
@@ -378,7 +389,7 @@ def _tracker(surface: str, *, duration: float, rate: float, noise: float, n_reco
     if not 1.0 <= rate <= 10_000.0:
         raise ConfigError(f"tracker rate must be in [1, 10000] Hz, got {rate}")
     if window is None:
-        window = 2 * int(round(DERIVATIVE_HALF_SPAN_S * rate)) + 1
+        window = window_for_rate(rate, order)
     if duration * rate < max(window, order + 1):
         raise ConfigError(f"tracker recording of {duration} s at {rate} Hz is shorter than the "
                           f"derivative window ({window} samples)")

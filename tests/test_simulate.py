@@ -121,3 +121,29 @@ def test_spread_and_wobble():
     off = rocking.X @ rocking.truth["A"][0]
     assert abs(off.std() / 1e-3 - 1.0) < 0.35  # a slow signal: few cycles in 60 s
     assert np.allclose(rocking.truth["pi"], even.truth["pi"])  # the intention is unchanged
+
+
+def test_two_link_task_part_lies_in_the_constrained_space():
+    """u = A⁺b + Nπ: A u reproduces each demonstration's b, N u is the null-space part w,
+    and without ``task`` the seeds give the same arm as before (v = 0)."""
+    d = sim.two_link(task=True, seed=3, n_demos=6, n_steps=15)
+    t = d.truth
+    b = np.einsum("nsq,nq->ns", t["A"], d.U)
+    np.testing.assert_allclose(b, t["b"], atol=1e-12)
+    assert np.ptp(t["b"]) > 0.1 and np.all(np.abs(t["b"]) <= 1.0)
+    assert np.allclose([np.ptp(t["b"][d.demo == k]) for k in range(6)], 0.0)
+    np.testing.assert_allclose(np.einsum("nij,nj->ni", t["N"], d.U), t["w"], atol=1e-12)
+    np.testing.assert_allclose(t["v"] + t["w"], d.U, atol=1e-12)
+    plain = sim.two_link(seed=3, n_demos=6, n_steps=15)
+    assert np.allclose(plain.truth["v"], 0.0) and plain.X.shape == d.X.shape
+    np.testing.assert_allclose(plain.X[d.demo == 0][0], d.X[d.demo == 0][0])
+
+
+def test_limit_cycle_trajectories_end_before_they_overflow():
+    """The §7 limit cycle repels: starts outside r spiral out. Trajectories end when they
+    leave the escape box, so every sample is finite (it overflowed to inf before)."""
+    for seed in range(3):
+        d = sim.toy2d(policy="limit_cycle", seed=seed)
+        assert np.isfinite(d.U).all() and np.isfinite(d.X).all()
+        assert np.abs(d.X).max() <= sim.ESCAPE
+        assert 300 < len(d.X) < 1000  # some trajectories escape, most run on
