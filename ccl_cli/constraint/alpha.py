@@ -113,9 +113,9 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
 
         Measured (issue 9; median test error over seeds 0–4, untuned K = 25 → tuned;
         ``python benchmarks/bench_tuning.py --only angles``): parabola toy (test NPPE)
-        0.039 → 0.021 (25 wide chosen in 3/5 seeds, 25 in 2/5); tracker bowl at 1 mm (NPOE on
-        held-out blocks) 0.018 → 0.011 (9 centres in 5/5 seeds); fit 0.02 → 0.2 s and
-        0.2–0.7 → 1.4–5.7 s (busy 2-core VM). On the parabola held-out NPOE is a noisy guide
+        0.039 → 0.029 (25 wide chosen in 3/5 seeds, 25 and 9 in one each); tracker bowl at
+        1 mm (NPOE on held-out blocks) 0.018 → 0.011 (9 centres in 5/5 seeds); fit 0.02 →
+        0.25 s and 0.2 → 1.7 s (busy 2-core VM). On the parabola held-out NPOE is a noisy guide
         (the fits have local optima and NPOE cannot see the constraint where u ≈ 0): {25, 9}
         alone chose 9 in 2/5 seeds and raised the median to 0.14; the wide 25 wins those
         seeds back. Wider grids (16 or 36 centres, σ² × ½) were worse or no better on one of

@@ -47,7 +47,7 @@ SCREEN_PASSES = 8
 SEARCH_ROWS = 4096
 #: LM passes over all the data that refine the winner of the subsample search (the first
 #: only evaluates the start). Measured on the parabola at N = 1e5: after 4 passes the cost is
-#: within 0.13 % of running to ``tol`` (24 passes, a slow crawl along near-collinear RBF
+#: within 0.13 % of running to ``tol`` (~24 passes, a slow crawl along near-collinear RBF
 #: directions) and the test NPPE agrees to 2 digits (0.0117 either way).
 REFINE_PASSES = 4
 #: Eigenvalue cut-off of the LM steps: the angle fits keep every direction (as before).
