@@ -29,7 +29,7 @@ STREAM = {"topic": str, "field": str, "joints": list, "columns": list, "stamp": 
           "dataset": str, "variable": str, "file": str, "samples": str}
 ACTION = {**STREAM, "derive": str, "window": int, "order": int}
 #: ``tune: {budget: seconds, folds: k}`` (or true/false) in a learner's section.
-TUNE = {"budget": NUM, "folds": int}
+TUNE = {"budget": NUM, "folds": int, "max_rows": int}
 
 SCHEMA: dict[str, Any] = {
     "seed": int,
@@ -421,7 +421,7 @@ RANGES: dict[str, tuple[float | None, float | None]] = {
     "max_constraints": (1, 100_000), "n_constraints": (0, 100_000), "cv_folds": (2, 1000),
     "degree": (0, 10), "reweight": (0, 1000), "sigma2": (1e-300, None), "tol": (0, None),
     "rate": (1e-9, 1e12), "threshold": (0, None), "gap_floor": (0, None), "cutoff": (0, None),
-    "min_norm": (0, None), "fraction": (0, 1),
+    "min_norm": (0, None), "fraction": (0, 1), "max_rows": (100, None),
 }
 
 

@@ -32,3 +32,6 @@ TUNE = True
 TUNE_BUDGET = 5.0
 #: Folds of the hyperparameter search (fewer than for choosing s: it fits many candidates).
 TUNE_FOLDS = 3
+#: Above this many samples the search runs on a seeded subset of about this size (whole
+#: demonstrations, or spread pieces of one recording); the winner is then fitted on all.
+TUNE_MAX_ROWS = 20_000

@@ -88,9 +88,11 @@ class Estimator:
 
     def _fit_tuned(self, X: np.ndarray, U: np.ndarray, **fit_kw: Any) -> bool:
         """When the learner's ``tune`` parameter is on (True, or a dict ``{budget: s,
-        grid: {...}, folds: k}``), choose its hyperparameters by cross-validation
-        (:func:`ccl_cli.selection.tune`), fit the winner on all of X, U and take over its
-        learnt attributes; ``tuning_`` records the grid, the CV curve and the choice.
+        grid: {...}, folds: k, max_rows: m}``), choose its hyperparameters by
+        cross-validation (:func:`ccl_cli.selection.tune`) — on a seeded subset of about
+        ``max_rows`` samples (:func:`ccl_cli.selection.tuning_subset`) when there are more —
+        fit the winner on all of X, U and take over its learnt attributes; ``tuning_``
+        records the grid, the CV curve, the choice and any subset.
         The constructor parameters themselves are left unchanged. Returns False (and sets
         ``tuning_ = None``) when there is nothing to tune: the caller then fits as usual.
         """
@@ -104,19 +106,25 @@ class Estimator:
         if not grid:
             return False
         base = clone(self).set_params(tune=False)
-        n = len(U)
-        groups = fit_kw.get("demo")
+        groups, projections = fit_kw.get("demo"), fit_kw.get("projections")
+        Xs, Us = X, U
+        seed = int(getattr(self, "seed", 0))
+        subset = S.tuning_subset(groups, len(U), seed, opts.get("max_rows"))
+        if subset is not None:  # large N: search on a seeded subset, fit the winner on all
+            rows, groups, subset_note = subset
+            Xs, Us = np.asarray(X)[rows], np.asarray(U)[rows]
+            projections = None if projections is None else np.asarray(projections)[rows]
         folds = int(opts.get("folds", self.TUNE_FOLDS or S.TUNE_FOLDS))
         try:
-            S.make_folds(groups, n, folds, 0, S.DEFAULT_GAP)
+            S.make_folds(groups, len(Us), folds, 0, S.DEFAULT_GAP)
         except InputError as exc:  # too little data to cross-validate: say so, fit as given
             self.tuning_ = {"chosen": None, "reason": f"not tuned: {exc.message}"}
             return False
-        chosen, info = S.tune(base, X, U, fit_kw.get("demo"), grid,
+        chosen, info = S.tune(base, Xs, Us, groups, grid,
                               budget=float(opts.get("budget", S.TUNE_BUDGET)),
-                              n_folds=folds,
-                              seed=int(getattr(self, "seed", 0)),
-                              projections=fit_kw.get("projections"))
+                              n_folds=folds, seed=seed, projections=projections)
+        if subset is not None:
+            info["subset"] = subset_note
         best = base.set_params(**chosen).fit(X, U, **fit_kw)
         for name, value in vars(best).items():
             if name.endswith("_") and not name.startswith("_"):

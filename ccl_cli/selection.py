@@ -39,6 +39,7 @@ from ccl_cli.defaults import (  # noqa: F401 - the shared defaults, re-exported 
     TUNE,
     TUNE_BUDGET,
     TUNE_FOLDS,
+    TUNE_MAX_ROWS,
 )
 from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.estimator import clone
@@ -277,6 +278,41 @@ def holdout_split(demo: np.ndarray, fraction: float = 0.3, seed: int = 0, gap: i
 
 
 # -- hyperparameter tuning ------------------------------------------------------------------
+def tuning_subset(groups: np.ndarray | None, n: int, seed: int = 0,
+                  max_rows: int | None = None) -> tuple[np.ndarray, np.ndarray, str] | None:
+    """Rows on which to search hyperparameters when there are more than ``max_rows``
+    (default :data:`TUNE_MAX_ROWS`): whole demonstrations in a seeded random order until
+    about ``max_rows`` samples (at least :data:`MIN_DEMOS` of them), or — with fewer
+    demonstrations than that — :data:`N_BLOCKS` contiguous pieces spread over each
+    recording, which then act as the groups of the search's folds.
+
+    Returns (row indices (m,), their groups (m,), a sentence saying what was taken), or
+    None when all rows are used.
+    """
+    max_rows = int(max_rows or TUNE_MAX_ROWS)
+    if n <= max_rows:
+        return None
+    g = np.zeros(n, int) if groups is None else np.asarray(groups)
+    ids, sizes = np.unique(g, return_counts=True)
+    rng = np.random.default_rng(seed)
+    if len(ids) >= MIN_DEMOS:
+        order = rng.permutation(len(ids))
+        take = np.cumsum(sizes[order]) <= max_rows
+        take[:MIN_DEMOS] = True
+        chosen = ids[order[take]]
+        rows = np.flatnonzero(np.isin(g, chosen))
+        if len(rows) < n:
+            return rows, g[rows], (f"searched on {len(rows)} of {n} samples: {len(chosen)} of "
+                                   f"{len(ids)} whole demonstrations (seed {seed})")
+        return None
+    piece = max_rows // N_BLOCKS
+    starts = np.linspace(0, n - piece, N_BLOCKS).astype(int)
+    rows = (starts[:, None] + np.arange(piece)[None, :]).ravel()
+    return rows, np.repeat(np.arange(N_BLOCKS), piece), (
+        f"searched on {len(rows)} of {n} samples: {N_BLOCKS} contiguous pieces of {piece} "
+        "spread over the recording, each a group of the folds")
+
+
 def tune(
     estimator: Any,
     X: np.ndarray,
@@ -405,8 +441,10 @@ def tuning_markdown(stage: str, tuning: dict[str, Any] | None) -> list[str]:
              f"Chosen: {tuning['chosen']} ({tuning['rule']}; {tuning['folds']['reason']}; "
              f"{tuning['budget_used']:.2f} s of {tuning['budget']} s"
              + (f", {tuning['skipped']} candidates skipped" if tuning.get("skipped") else "") + ")", "",
+             *([tuning["subset"][0].upper() + tuning["subset"][1:] + "; the chosen setting was then "
+                "fitted on all of them.", ""] if tuning.get("subset") else []),
              "| candidate | held-out error | SE |", "|---|---|---|"]
     for r in tuning["scores"]:
         mark = " **←**" if r["params"] == tuning["chosen"] else ""
-        lines.append(f"| {r['params']} | {r['mean']:.3e} | {r['se']:.1e} |{mark}")
+        lines.append(f"| {r['params']}{mark} | {r['mean']:.3e} | {r['se']:.1e} |")
     return [*lines, ""]

@@ -204,3 +204,28 @@ def test_ncl_defaults_match_the_hand_tuned_100_centres_on_the_two_link_arm():
         model = NullSpaceComponent(n_centres=100, seed=seed, tune=False).fit(train.X, train.U)
         hand.append(nupe(test.truth["w"], model.predict(test.X)).value)
     assert np.median(tuned) <= np.median(hand), (tuned, hand)
+
+
+def test_large_data_is_tuned_on_a_seeded_subset_and_the_winner_fitted_on_all():
+    """Above max_rows the grid is searched on whole demonstrations (or spread pieces of one
+    recording) drawn with the seed; the chosen basis is refitted on every sample."""
+    from ccl_cli.selection import tuning_subset
+
+    many = np.repeat(np.arange(40), 100)  # 40 demonstrations of 100 samples
+    rows, groups, note = tuning_subset(many, len(many), seed=3, max_rows=1000)
+    assert 500 <= len(rows) <= 1000 and len(np.unique(groups)) >= 5
+    assert all(np.sum(many[rows] == g) == 100 for g in np.unique(groups))  # whole demonstrations
+    np.testing.assert_array_equal(tuning_subset(many, len(many), 3, 1000)[0], rows)  # seeded
+    assert "whole demonstrations (seed 3)" in note
+    assert tuning_subset(many, len(many), 3, 4000) is None
+    rows, groups, note = tuning_subset(None, 50_000, seed=0, max_rows=2000)
+    assert len(rows) == 2000 and rows.min() == 0 and rows.max() == 49_999
+    assert np.all(np.diff(rows)[np.diff(groups) == 0] == 1)  # contiguous pieces
+    assert len(np.unique(groups)) == 10 and "contiguous pieces" in note
+
+    data = tutorial_data("attractor", 0)
+    model = PolicyLearner(method="pi", tune={"max_rows": 400}).fit(data.X, data.U, demo=data.demo)
+    assert "of 1000 samples" in model.tuning_["subset"]
+    assert model.basis_.n_features == model.tuning_["chosen"]["basis"]["n_centres"]
+    full = PolicyLearner(method="pi", tune=False, basis=model.tuning_["chosen"]["basis"]).fit(data.X, data.U)
+    np.testing.assert_allclose(model.W_, full.W_)  # the winner is fitted on all samples
