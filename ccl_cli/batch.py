@@ -353,13 +353,15 @@ def _plot(out: Path, rows: list[dict], columns: list[str]) -> bool:
     cols = [c for c in columns if any(isinstance(r.get(c), float) and r[c] > 0 for r in rows)][:6]
     if not cols:
         return False
-    from ccl_cli.plots import pyplot
+    from ccl_cli.plots import save_figure, subplots
 
-    plt = pyplot()  # Agg, a per-user font cache, matplotlib's INFO logging kept quiet
+    fig, axes = subplots(len(cols), 1, figsize=(max(6, 0.25 * len(rows) + 3), 2.2 * len(cols)),
+                         squeeze=False)  # Agg, no pyplot; a per-user font cache
+    import matplotlib
+
     methods = sorted({r["method"] for r in rows if r["status"] != "failed"})
-    colours = {m: plt.cm.tab10(i % 10) for i, m in enumerate(methods)}
-    fig, axes = plt.subplots(len(cols), 1, figsize=(max(6, 0.25 * len(rows) + 3), 2.2 * len(cols)),
-                             squeeze=False)
+    tab10 = matplotlib.colormaps["tab10"]
+    colours = {m: tab10(i % 10) for i, m in enumerate(methods)}
     for ax, col in zip(axes[:, 0], cols, strict=True):
         for m in methods:
             pts = [(i, r[col]) for i, r in enumerate(rows)
@@ -374,6 +376,5 @@ def _plot(out: Path, rows: list[dict], columns: list[str]) -> bool:
     from ccl_cli.io.atomic import atomic_path
 
     with atomic_path(out / "summary.png", force=True) as tmp:
-        fig.savefig(tmp, format="png", dpi=80)
-    plt.close(fig)
+        save_figure(fig, tmp, dpi=80)
     return True
