@@ -59,6 +59,7 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
     check_replaceable(outdir, force)  # before any work: a folder ccl did not write is never replaced
     data, masks = read_data(cfg, files)
     data.check_finite()
+    t_read = time.perf_counter() - t0
     stages = stages if stages is not None else stage_list(cfg)
     pipeline = Pipeline(cfg, data, masks)
     pipeline.run(stages, progress=progress)
@@ -84,7 +85,8 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
         write_json(tmp / "run.json", {
             "command": command, "argv": sys.argv, "config": dict(cfg), "config_source": cfg.source,
             "inputs": hashes, "versions": versions(),
-            "timings": {r.name: r.seconds for r in pipeline.results} | {"total": time.perf_counter() - t0},
+            "timings": {"read": t_read} | {r.name: r.seconds for r in pipeline.results}
+            | {"total": time.perf_counter() - t0},
             "data": data_summary(pipeline), "validation": pipeline.split_info,
             "warnings": pipeline.warnings,
         })
