@@ -57,8 +57,10 @@ t_imp = time.perf_counter()
 cfg = C.merge(C.load(sys.argv[1]), {})
 data, masks = read_data(cfg, None)
 t_read = time.perf_counter()
-p = Pipeline(cfg, data, masks)
-p.run(stage_list(cfg))
+from ccl_cli import blas
+with blas.threads(blas.stage_threads(data.n_samples)):  # as run_to_dir does
+    p = Pipeline(cfg, data, masks)
+    p.run(stage_list(cfg))
 t_stages = time.perf_counter()
 from ccl_cli.plots import make_plots
 out = Path(sys.argv[2]); out.mkdir(parents=True, exist_ok=True)
@@ -69,7 +71,8 @@ def save(*a):
     t = time.perf_counter(); orig(*a); times.append(round(time.perf_counter() - t, 3))
 P._save = save
 t_p0 = time.perf_counter()
-make_plots(out, p)
+with blas.threads(blas.stage_threads(data.n_samples)):
+    make_plots(out, p)
 t_plots = time.perf_counter()
 print(json.dumps({"import_cli_s": round(t_cli - t0, 3), "import_pipeline_s": round(t_imp - t_cli, 3),
                   "read_s": round(t_read - t_imp, 3), "stages_s": round(t_stages - t_read, 3),

