@@ -420,8 +420,9 @@ def has(group, name: str, where: str) -> bool:
         raise InputError(f"{where}: {group.name}/{name} cannot be looked up ({_first(exc)})") from None
 
 
-def dataset(group, name: str, where: str):
-    """The ``h5py.Dataset`` ``name`` under ``group`` (InputError if absent or a group)."""
+def _dataset_id(group, name: str, where: str):
+    """The low-level ``DatasetID`` of ``name`` under ``group`` (InputError if absent or not
+    a dataset)."""
     import h5py
     from h5py import h5d, h5o
 
@@ -430,16 +431,24 @@ def dataset(group, name: str, where: str):
             obj = group[name] if name in group else None
         else:  # one link: libhdf5 directly (h5py's ``in`` + ``[]`` cost 4× as much)
             raw = name.encode()
-            oid = h5o.open(group.id, raw) if group.id.links.exists(raw) else None
-            obj = None if oid is None else h5py.Dataset(oid) if isinstance(oid, h5d.DatasetID) \
-                else group[name]
+            obj = h5o.open(group.id, raw) if group.id.links.exists(raw) else None
     except (OSError, KeyError, RuntimeError, ValueError, TypeError, UnicodeEncodeError) as exc:
         raise InputError(f"{where}: {name} cannot be read ({_first(exc)})") from None
     if obj is None:
         raise InputError(f"{where}: {name} is missing")
-    if not isinstance(obj, h5py.Dataset):
-        raise InputError(f"{where}: {name} must be a dataset, got a {type(obj).__name__}")
-    return obj
+    if isinstance(obj, h5d.DatasetID):
+        return obj
+    if isinstance(obj, h5py.Dataset):
+        return obj.id
+    kind = type(obj).__name__ if isinstance(obj, h5py.HLObject) else type(group[name]).__name__
+    raise InputError(f"{where}: {name} must be a dataset, got a {kind}")
+
+
+def dataset(group, name: str, where: str):
+    """The ``h5py.Dataset`` ``name`` under ``group`` (InputError if absent or a group)."""
+    import h5py
+
+    return h5py.Dataset(_dataset_id(group, name, where))
 
 
 def group_of(parent, name: str, where: str, required: bool = True):
@@ -467,20 +476,22 @@ def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite
     references) and the size (at most ``MAX_EXPANSION`` bytes per byte of file, against
     decompression bombs); after: finiteness (``finite``) and magnitude (``|v| <= limit``).
     """
-    ds = dataset(group, name, where)
-    dsid = ds.id
+    import h5py
+
+    dsid = _dataset_id(group, name, where)  # no high-level Dataset: it costs as much as the read
+    ds = functools.partial(h5py.Dataset, dsid)  # for messages: ds().name, ds().file
     try:
         dtype, shape = dsid.dtype, tuple(dsid.shape)
     except (OSError, RuntimeError, ValueError, TypeError) as exc:  # a damaged datatype or dataspace
-        raise InputError(f"{where}: {ds.name} has an unreadable type or shape ({_first(exc)})") from None
+        raise InputError(f"{where}: {ds().name} has an unreadable type or shape ({_first(exc)})") from None
     if dtype.kind not in "fiu":
-        raise InputError(f"{where}: {ds.name} must be numeric, got dtype {dtype}")
+        raise InputError(f"{where}: {ds().name} must be numeric, got dtype {dtype}")
     if len(shape) not in ndim:
         allowed = " or ".join(f"{d}-D" for d in ndim)
-        raise InputError(f"{where}: {ds.name} must be {allowed}, got shape {shape}")
+        raise InputError(f"{where}: {ds().name} must be {allowed}, got shape {shape}")
     nbytes = math.prod(shape) * 8
-    if nbytes > (64 << 20) and nbytes > MAX_EXPANSION * os.path.getsize(ds.file.filename):
-        raise InputError(f"{where}: {ds.name} claims shape {shape} ({nbytes} bytes), far more than the "
+    if nbytes > (64 << 20) and nbytes > MAX_EXPANSION * os.path.getsize(ds().file.filename):
+        raise InputError(f"{where}: {ds().name} claims shape {shape} ({nbytes} bytes), far more than the "
                          "file holds")
     from h5py import h5s
 
@@ -489,11 +500,11 @@ def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite
         if value.size:
             dsid.read(h5s.ALL, h5s.ALL, value)
     except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
-        raise InputError(f"{where}: {ds.name} cannot be read ({_first(exc)})") from None
+        raise InputError(f"{where}: {ds().name} cannot be read ({_first(exc)})") from None
     if finite and not np.isfinite(value).all():
-        raise InputError(f"{where}: {ds.name} contains NaN or inf")
+        raise InputError(f"{where}: {ds().name} contains NaN or inf")
     if limit is not None and value.size and float(np.abs(value).max()) > limit:
-        raise InputError(f"{where}: {ds.name} holds values beyond ±{limit:g} (max |v| = "
+        raise InputError(f"{where}: {ds().name} holds values beyond ±{limit:g} (max |v| = "
                          f"{np.abs(value).max():.3g}); no fit produces them and predictions would overflow")
     return value
 
