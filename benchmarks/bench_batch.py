@@ -9,7 +9,7 @@
   is also shown on its own (it grows with the file: 9 HDF5 datasets per demonstration).
 * {"measure": "speedup", "jobs", "job_s_median" (at -j 1), "job_s_median_j2", "seconds_j1",
   "seconds_j2", "speedup_2_over_1", "blas_threads", "load"}: jobs of >= 0.5 s each (ncl,
-  49 centres, 100 demonstrations) at ``-j 1`` then ``-j 2``, each in a fresh process as
+  64 centres, 100 demonstrations) at ``-j 1`` then ``-j 2``, each in a fresh process as
   ``ccl batch`` runs them, timed after a warm-up batch; BLAS single-threaded by default
   (``--blas-threads``) so that the ratio measures the process parallelism (ccl's own
   default gives a ``-j 1`` worker the BLAS threads of every core).
@@ -41,7 +41,7 @@ output: {plots: false}
 LONG = """
 data:
   test: {fraction: 0.3, seed: 0}
-learn-v: {n_centres: 49, tune: false}
+learn-v: {n_centres: 64, tune: false}
 stages: [learn-v]
 output: {plots: false}
 """
