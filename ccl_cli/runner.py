@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ccl_cli import blas
-from ccl_cli.config import Config
+from ccl_cli.config import Config, stage_entry
 from ccl_cli.errors import ConfigError
 
 
@@ -115,3 +115,13 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
         return out
 
     return {name: one(e) for name, e in metrics.items()}
+
+
+def stage_list(cfg: Config, default: list[str] | None = None) -> list[tuple[str, dict]]:
+    """The config's stages as (name, options) pairs (``default`` names when it has none)."""
+    items = cfg.get("stages")
+    if not items:
+        if default is None:
+            raise ConfigError(f"{cfg.source}: no stages to run (add a stages: list)")
+        return [(name, {}) for name in default]
+    return [stage_entry(item, cfg, i) for i, item in enumerate(items)]
