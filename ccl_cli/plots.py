@@ -53,13 +53,19 @@ def _matplotlib() -> None:
     logging.getLogger("matplotlib").setLevel(logging.WARNING)
 
 
-def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], **kw: Any):
-    """(figure, axes) as ``pyplot.subplots`` makes them, drawn by the Agg canvas directly:
-    no pyplot import, no backend selection, no global figure registry to close."""
+def _import_matplotlib():
+    """(Figure, FigureCanvasAgg), matplotlib set up by :func:`_matplotlib` first."""
     _matplotlib()
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    return Figure, FigureCanvasAgg
+
+
+def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], **kw: Any):
+    """(figure, axes) as ``pyplot.subplots`` makes them, drawn by the Agg canvas directly:
+    no pyplot import, no backend selection, no global figure registry to close."""
+    Figure, FigureCanvasAgg = _import_matplotlib()
     fig = Figure(figsize=figsize)
     FigureCanvasAgg(fig)
     return fig, fig.subplots(nrows, ncols, **kw)
@@ -365,9 +371,12 @@ def _save(fig, path: Path) -> None:
     save_figure(fig, path)
 
 
-def make_plots(outdir: Path, pipeline) -> list[tuple[str, str]]:
+def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None) -> list[tuple[str, str]]:
     """Draw every figure of the run into ``outdir/plots``; returns (caption, relative path)
-    pairs, captions starting with the stage name."""
+    pairs, captions starting with the stage name. ``seconds`` (if given) receives the time
+    of each figure (its data, drawing and PNG; file name → s) and of matplotlib's import."""
+    import time
+
     from ccl_cli.constraint import PerDemonstration
     from ccl_cli.evaluate import task_part
 
@@ -375,11 +384,20 @@ def make_plots(outdir: Path, pipeline) -> list[tuple[str, str]]:
     pdir.mkdir(exist_ok=True)
     plots: list[tuple[str, str]] = []
     part, shown = pipeline.parts()[-1]
+    clock = [time.perf_counter()]
+    _import_matplotlib()
+    if seconds is not None:
+        seconds["matplotlib import"] = time.perf_counter() - clock[0]
+    clock[0] = time.perf_counter()
 
     def save(fig, name: str, caption: str) -> None:
         if fig is not None:
             _save(fig, pdir / name)
             plots.append((caption, f"plots/{name}"))
+        now = time.perf_counter()
+        if seconds is not None and fig is not None:
+            seconds[name] = now - clock[0]
+        clock[0] = now
 
     planar = shown.n_state == 2 and shown.n_action == 2
     # a held-out set of time blocks (continuous recordings) is named so in every title

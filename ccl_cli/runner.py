@@ -78,7 +78,9 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
                 path.parent.mkdir(exist_ok=True)
                 save_model(path, r.model, training={"stage": r.name, "config": dict(cfg), "inputs": hashes,
                                                     "versions": versions()})
-            plots = make_plots(tmp, pipeline) if (cfg.get("output") or {}).get("plots", True) else []
+            plot_seconds: dict[str, float] = {}
+            plots = make_plots(tmp, pipeline, plot_seconds) if (cfg.get("output") or {}).get("plots", True) \
+                else []
             write_json(tmp / "metrics.json", metrics)
             summary = {**data_summary(pipeline), "validation": pipeline.split_info}
             (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, summary)
@@ -92,7 +94,7 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
                 "timings": {"read": t_read} | {r.name: r.seconds for r in pipeline.results}
                 | {"total": time.perf_counter() - t0},
                 "data": data_summary(pipeline), "validation": pipeline.split_info,
-                "warnings": pipeline.warnings,
+                "warnings": pipeline.warnings, "plot_seconds": plot_seconds,
                 "blas": {"threads": blas_threads, "rule": f"1 below {blas.SMALL_SAMPLES} samples, else the "
                          "library's own count (None: a BLAS ccl cannot control)"},
             })
