@@ -14,6 +14,12 @@ N_BLOCKS = 10
 #: Samples dropped from the training side of each train/test boundary (≥ the derivative window).
 DEFAULT_GAP = 10
 N_FOLDS = 5
+#: Half the time span (s) of the default window of derived velocities (readers and the
+#: tracker simulations): 9 samples at 50 Hz, the same 0.16 s at any rate — a window fixed
+#: in samples would shrink with the rate and let sensor noise through at 500 Hz.
+DERIVATIVE_HALF_SPAN_S = 0.08
+#: Upper bound of that default window (samples), which keeps its memory bounded at kHz rates.
+DERIVATIVE_MAX_WINDOW = 101
 #: The rule choosing the number of constraints, for every learner and the command line
 #: (one source of truth: the learners' constructors and config.DEFAULTS read it; the
 #: rules live in :mod:`ccl_cli.constraint.selection`).

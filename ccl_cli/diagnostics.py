@@ -104,7 +104,7 @@ def derivative_gain(dt: float, window: int = 9, order: int = 2) -> float:
     return float((c**2).sum())
 
 
-def _derived(data: Demonstrations) -> tuple[bool | None, int, int]:
+def derivation(data: Demonstrations) -> tuple[bool | None, int, int]:
     """(are the actions derived from the states?, window, order) from the metadata:
     True/False when a reader or the simulator said so, None when unknown."""
     meta = data.metadata or {}
@@ -130,7 +130,7 @@ def noise_levels(data: Demonstrations) -> dict[str, Any]:
     X, U, demo = data.X, data.U, data.demo
     x_noise = white_noise_var(X, demo)
     u_white = white_noise_var(U, demo)
-    derived, window, order = _derived(data)
+    derived, window, order = derivation(data)
     dt = _median_step(data)
     if data.n_state == data.n_action and derived is not False and dt > 0:
         via_x = x_noise * derivative_gain(dt, window, order)

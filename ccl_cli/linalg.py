@@ -107,28 +107,51 @@ def kron_least_squares(
     max_iter: int = 1000,
     tol: float = 1e-9,
     cutoff: float = LM_CUTOFF,
+    info: dict | None = None,
+    mu0: float = 1e-3,
 ) -> tuple[np.ndarray, float, int]:
     """Levenberg–Marquardt on accumulated normal equations for min_W Σ_n r_n(W)².
 
     The model is r_n = r(W β_n, data_n) with W (m, K), so the Jacobian row of sample n is
     vec(g_n β_nᵀ), g_n = ∂r_n/∂(W β_n) (m,). ``residual(W, rows, β)`` returns
-    (r (c,), g (c, m)). Every iteration is ONE chunked pass over the data: ``blocks()``
-    yields (rows slice, features β (c, K)); JᵀJ (m K × m K, :func:`kron_normal`) and Jᵀr
-    are summed block by block at the trial point, so an accepted step needs no further
-    pass and no N × m K matrix is ever formed. Steps solve (JᵀJ + μ D) δ = −Jᵀr with D
-    the running maximum of diag(JᵀJ) (Marquardt/MINPACK scaling), μ updated from the
-    gain ratio (Nielsen), by eigen-decomposition: eigenvalues below ``cutoff`` times the
-    largest are dropped (near-collinear RBF features give directions along which the
-    weights would otherwise grow without improving the fit). Stops when the cost falls
-    by less than ``tol`` relatively, the step is below ``tol`` relative to W, or the
-    scaled gradient is below ``tol``; ``max_iter`` bounds the passes.
+    (r (c,), g (c, m)); ``blocks()`` yields (rows slice, features β (c, K)). No N × m K
+    matrix is ever formed; there are two kinds of chunked pass over the data:
+
+    * a *full* pass sums JᵀJ (m K × m K, :func:`kron_normal`), Jᵀr and Σ r² block by block
+      — O(N (mK)²) flops;
+    * a *cost* pass sums only Σ r² — O(N m K) flops, 4–20× cheaper.
+
+    Steps solve (JᵀJ + μ D) δ = −Jᵀr with D the running maximum of diag(JᵀJ)
+    (Marquardt/MINPACK scaling) and μ updated from the gain ratio (Nielsen). The scaled
+    matrix D^{-1/2} JᵀJ D^{-1/2} is eigen-decomposed once per accepted point, so a rejected
+    step costs one cost pass and no new factorisation; directions whose damped eigenvalue
+    is below ``cutoff`` times the largest are not stepped along (near-collinear RBF
+    features, along which the weights would otherwise grow without improving the fit).
+    A trial after an accepted step is evaluated by a full pass (it is usually accepted
+    too); after a rejection, trials are cost passes and the accepted point then gets its
+    full pass. Stops when an accepted step lowers the cost by less than ``tol``
+    relatively ("cost"); when the undamped Gauss–Newton step predicts a decrease below
+    ``tol`` times the cost ("predicted": the Newton decrement (Jᵀr)ᵀ(JᵀJ)⁻¹Jᵀr with the
+    eigenvalues floored at the cut-off; this saves the pass that would only confirm
+    convergence); when the step is below ``tol`` relative to W ("step") or the scaled
+    gradient below ``tol`` ("gradient"); or after ``max_iter`` passes of either kind
+    ("max_iter"). A non-finite cost or normal matrix at the start stops at once, and one
+    at an accepted trial leaves W at the last finite point ("non-finite").
+
+    ``mu0`` is the starting damping (relative to the scaled diagonal): 1e-3 from a rough
+    start; near-zero from a start close to the optimum, where the damped steps would
+    otherwise need many passes to open up along flat directions.
+
+    Args:
+        info: if given, receives ``stop`` (the reason above), ``full_passes``,
+            ``cost_passes`` and ``accepted`` (steps).
 
     Returns:
-        (W (m, K), cost Σ r², passes over the data).
+        (W (m, K), cost Σ r², passes over the data of either kind).
     """
     shape = np.shape(W0)
 
-    def evaluate(w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    def full(w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
         W = w.reshape(shape)
         cost, H, Jtr = 0.0, np.zeros((w.size, w.size)), np.zeros(w.size)
         for rows, B in blocks():
@@ -137,35 +160,80 @@ def kron_least_squares(
             H += M
             Jtr += g
             cost += float(r @ r)
-        return cost, H, Jtr, np.diag(H).copy()
+        return cost, H, Jtr
+
+    def cost_only(w: np.ndarray) -> float:
+        W = w.reshape(shape)
+        cost = 0.0
+        for rows, B in blocks():
+            r = residual(W, rows, B)[0]
+            cost += float(r @ r)
+        return cost
+
+    counts = {"full_passes": 1, "cost_passes": 0, "accepted": 0}
+
+    def done(reason: str, w: np.ndarray, cost: float) -> tuple[np.ndarray, float, int]:
+        if info is not None:
+            info.update(counts, stop=reason)
+        return w.reshape(shape), cost, counts["full_passes"] + counts["cost_passes"]
 
     w = np.asarray(W0, dtype=float).ravel().copy()
-    cost, H, Jtr, D = evaluate(w)
-    passes = 1
-    if not np.isfinite(cost):
-        return w.reshape(shape), cost, passes
+    cost, H, Jtr = full(w)
+    if not (np.isfinite(cost) and np.isfinite(H).all() and np.isfinite(Jtr).all()):
+        return done("non-finite", w, cost)
+    D = np.diag(H)
     diag = np.maximum(D, 1e-12 * max(float(np.max(D)), 1e-300))
-    mu, nu = 1e-3, 2.0
-    while passes < max_iter:
+    mu, nu = mu0, 2.0
+    optimistic = True  # evaluate the next trial with a full pass
+    new_H = new_Jtr = None
+    while True:
         scaled = np.abs(Jtr) / np.sqrt(diag * max(cost, 1e-300))
         if np.max(scaled, initial=0.0) <= tol:
-            break
-        step = -eigen_lstsq(H + mu * np.diag(diag), Jtr, cutoff)
-        if np.linalg.norm(step) <= tol * (tol + np.linalg.norm(w)):
-            break
-        new_cost, new_H, new_Jtr, new_D = evaluate(w + step)
-        passes += 1
-        predicted = float(-Jtr @ step + mu * step @ (diag * step))
-        gain = (cost - new_cost) / predicted if predicted > 0 else -1.0
-        if np.isfinite(new_cost) and gain > 0:
-            reduction = cost - new_cost
-            w, cost, H, Jtr = w + step, new_cost, new_H, new_Jtr
-            diag = np.maximum(diag, new_D)  # MINPACK: the scaling only grows
-            mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
-            nu = 2.0
-            if reduction <= tol * cost:
+            return done("gradient", w, cost)
+        s = 1.0 / np.sqrt(diag)
+        vals, vecs = np.linalg.eigh(H * s[:, None] * s[None, :])
+        proj = vecs.T @ (Jtr * s)
+        # Newton decrement of the Gauss–Newton model: Jᵀr (JᵀJ)⁻¹ Jᵀr is the cost decrease
+        # its undamped step predicts (eigenvalues floored at the cut-off, so weak directions
+        # count at their largest); below tol · cost no step is worth a pass.
+        floor = cutoff * max(float(vals[-1]), np.finfo(float).tiny)
+        if float(np.sum(proj**2 / np.maximum(vals, floor))) <= tol * cost:
+            return done("predicted", w, cost)
+        while True:
+            if counts["full_passes"] + counts["cost_passes"] >= max_iter:
+                return done("max_iter", w, cost)
+            damped = vals + mu
+            keep = damped > cutoff * max(float(damped[-1]), np.finfo(float).tiny)
+            step = -s * (vecs @ np.where(keep, proj / np.where(keep, damped, 1.0), 0.0))
+            if np.linalg.norm(step) <= tol * (tol + np.linalg.norm(w)):
+                return done("step", w, cost)
+            trial = w + step
+            if optimistic:
+                new_cost, new_H, new_Jtr = full(trial)
+                counts["full_passes"] += 1
+                if not (np.isfinite(new_H).all() and np.isfinite(new_Jtr).all()):
+                    new_cost = np.inf  # a point whose normal equations overflow is rejected
+            else:
+                new_cost = cost_only(trial)
+                counts["cost_passes"] += 1
+            predicted = float(-Jtr @ step + mu * step @ (diag * step))
+            gain = (cost - new_cost) / predicted if predicted > 0 else -1.0
+            if np.isfinite(new_cost) and gain > 0:
                 break
-        else:
             mu *= nu
             nu *= 2.0
-    return w.reshape(shape), cost, passes
+            optimistic = False
+        reduction = cost - new_cost
+        if not optimistic:
+            new_cost, new_H, new_Jtr = full(trial)
+            counts["full_passes"] += 1
+            if not (np.isfinite(new_H).all() and np.isfinite(new_Jtr).all()):
+                return done("non-finite", w, cost)  # stay at the last point that had them
+        counts["accepted"] += 1
+        w, cost, H, Jtr = trial, new_cost, new_H, new_Jtr
+        diag = np.maximum(diag, np.diag(H))  # MINPACK: the scaling only grows
+        mu *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+        nu = 2.0
+        optimistic = True
+        if reduction <= tol * cost:
+            return done("cost", w, cost)

@@ -3,52 +3,147 @@
 Model w̃(x) = W β(x), W ∈ R^{q×K}. Since N u = w and v ⟂ w, a consistent model equals
 the projection of u onto itself: minimise E[w̃] = Σ_n ‖P̃_n u_n − w̃_n‖², with
 P̃_n = w̃_n w̃_nᵀ / ‖w̃_n‖². With a = u_nᵀ w̃_n and c = ‖w̃_n‖², the residual norm is
-|a − c| / √c; as in the original the scalar residual r_n = (a − c + 1e-8) / √c is
-minimised by Levenberg–Marquardt with its analytic Jacobian
+|a − c| / √c; the original minimises the scalar residual r_n = (a − c + 1e-8) / √c by
+Levenberg–Marquardt from ordinary least squares of U on β (eigen-decomposition
+pseudo-inverse, eigenvalues below 1e-8 of the largest dropped).
 
-    ∂r_n/∂W = [ (u_n − 2 w̃_n) / √c − (a − c + 1e-8) w̃_n / c^{3/2} ] β_nᵀ,
+That residual has a wall: r_n = u_nᵀŵ_n − ‖w̃_n‖ jumps with the direction ŵ_n where w̃_n
+crosses 0, and its gradient grows as 1/√c there. On 1e4 samples a single sample next to
+the zero set of w̃ held 99 % of JᵀJ, and Levenberg–Marquardt crawled: hundreds of passes,
+and at N = 1e5 it had not converged after 1000 (25 s). So the fit runs in four stages:
 
-started from ordinary least squares of U on β (eigen-decomposition pseudo-inverse,
-eigenvalues below 1e-8 of the largest dropped), improved first on the smooth residual
-r'_n = √c · r_n ≈ u_nᵀ w̃_n − ‖w̃_n‖² (∂r'/∂w̃ = u − 2w̃): it has the same zero set but no
-1/√c wall where w̃_n crosses 0, so it converges in ~20 iterations from the OLS start to
-near the optimum that the original residual then only polishes.
+1. the smooth residual r'_n = a − c (same zero set, no wall; ∂r'/∂w̃ = u − 2w̃) from the
+   OLS start, to the loose tolerance :data:`STAGE_TOL`;
+2. the *smoothed* original residual
+
+       r_n = (a − c + 1e-8) / √(c + δ²),   δ² = ``smoothing`` · mean_n ‖w̃_n‖²
+
+   with w̃ the stage-1 solution (default 1e-4: δ is 1 % of the RMS of w̃), to
+   STAGE_TOL/100. Samples with ‖w̃_n‖ ≫ δ keep the original residual; the few near
+   w̃ = 0 are smoothly down-weighted instead of dominating. Jacobian
+   ∂r_n/∂W = [(u − 2w̃)/√(c+δ²) − r w̃/(c+δ²)] β_nᵀ;
+3. the same residual on all rows from that start with almost no damping (μ₀ = 1e-12:
+   the start is near the optimum; with μ₀ = 1e-3 the damped steps needed ~20 passes to
+   open up along the flat directions that matter for the test error, μ₀ = 1e-12 took 7),
+   to ``tol``;
+4. the original residual (δ = 0) for at most :data:`ORIGINAL_PASSES` passes, from the
+   stage-3 optimum: near it the wall samples are few and placed, so these passes lower
+   the original cost to, or below, where 1000 passes from the smooth start ended.
+
+Stages 1 and 2 run on a seeded subsample of :func:`subsample_size` rows when N is larger
+(otherwise on all rows, and stage 3 is their continuation). ``smoothing=0`` minimises
+the original residual itself in stages 2–3 (the original's optimum, slowly: ~180 passes
+on 500 samples); ``polish=False`` stops after stage 1 (then run on all rows).
+
+Measured, before → after (before: stage 1, then the original residual to tol 1e-9 or
+1000 passes). benchmarks/bench_core.py (single-threaded BLAS; toy 2-D fixed constraint +
+task part, 16 RBFs; test NUPE of w on 1e4 held-out samples): N = 1e4 1.1 s → 0.2 s, test
+2.7e-6 → 2.1e-6, original cost 1.00033 → 1.00024; N = 1e5 16–25 s (1000 passes, not
+converged; 839× the one-pass floor) → 0.37 s (13–15×, of which k-means ~6×), test
+9.5e-7 → 1.8e-7, cost 10.446 → 10.018; N = 1e6 96.5 s → 2.0 s, test 5.0e-8; K = 256 at
+N = 1e4 407 s → 2.0 s, test 2.7e-6. The ncl tutorial (ALGORITHMS.md §7, limit cycle +
+task, 500/500, 5 seeds): test NUPE and original cost equal (to 5 digits) or lower on every
+seed (median 1.52e-4 both).
+``configs/toy2d_learn_v.yaml``: train NPE (the normalised original cost) 1.9968e-4 →
+1.9929e-4, test NUPE_w 5.14e-5 → 5.10e-5. Not everywhere: with a parabola constraint +
+limit cycle + task (not a tutorial; ncl fits it poorly, test NUPE ≈ 0.1 with 16–100 RBFs)
+the stages end in another local minimum, 1.5–5 % higher original cost and 2–9 % higher
+test NUPE than the old path at N = 1e4.
 
 Scale: the Jacobian row of sample n is vec(g_n β_nᵀ) with g_n ∈ R^q the bracket above, so
 each Levenberg–Marquardt iteration is one pass over the data in row blocks that sums
 JᵀJ = Σ kron(g gᵀ, β βᵀ) and Jᵀr (:func:`~ccl_cli.linalg.kron_least_squares`): the
-cost is O(N (Kq)²) flops per iteration and memory O(chunk · Kq + (Kq)²), never N × Kq.
+cost is O(N (Kq)²) flops per accepted step (a rejected one costs a residual pass,
+O(N K q)) and memory O(chunk · Kq + (Kq)²), never N × Kq.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
 from ccl_cli.basis import Basis, feature_blocks, make_basis
 from ccl_cli.constraint.base import check_xu
+from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.estimator import Estimator
 from ccl_cli.linalg import eigen_lstsq, kron_least_squares, row_chunks
-from ccl_cli.selection import TUNE
+from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
+
+#: ``residual(W, rows, β)`` → (r (c,), ∂r/∂w̃ (c, q)), the callback of kron_least_squares.
+Residual = Callable[[np.ndarray, slice, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 EPS_RESIDUAL = 1e-8
+#: δ² of the smoothed residual, relative to the mean ‖w̃_n‖² of the stage-1 solution.
+SMOOTHING = 1e-4
+#: Relative tolerance of the stages before the last (the last uses ``tol``).
+STAGE_TOL = 1e-4
+#: Rows of the subsample the first stages run on (at least 20 per parameter).
+SUBSAMPLE_ROWS = 10_000
+#: Passes of the last stage (the original residual, from the smoothed optimum).
+ORIGINAL_PASSES = 5
+
+
+def subsample_size(n: int, n_params: int) -> int:
+    """Rows of the stage-1/2 subsample: max(10 000, 20 · K q), or all n when not larger."""
+    return min(n, max(SUBSAMPLE_ROWS, 20 * n_params))
+
+
+def smooth_residual(U: np.ndarray) -> Residual:
+    """r'_n = u_nᵀw̃_n − ‖w̃_n‖², ∂r'/∂w̃ = u − 2w̃ (stage 1)."""
+
+    def residual(W: np.ndarray, rows: slice, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        Ub = U[rows]
+        Wt = B @ W.T  # (c, q)
+        return np.einsum("nq,nq->n", Ub - Wt, Wt), Ub - 2.0 * Wt
+
+    return residual
+
+
+def wall_residual(U: np.ndarray, delta2: float) -> Residual:
+    """r_n = (a − c + 1e-8)/√(c + δ²) and its w̃-gradient (stage 2; δ² = 0: the original)."""
+
+    def residual(W: np.ndarray, rows: slice, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        Ub = U[rows]
+        Wt = B @ W.T  # (c, q)
+        a = np.einsum("nq,nq->n", Ub, Wt)
+        c = np.einsum("nq,nq->n", Wt, Wt)
+        d = np.maximum(c + delta2, 1e-300)
+        sd = np.sqrt(d)
+        r = (a - c + EPS_RESIDUAL) / sd
+        return r, (Ub - 2.0 * Wt) / sd[:, None] - (r / d)[:, None] * Wt
+
+    return residual
 
 
 class NullSpaceComponent(Estimator):
-    """Learns w̃(x) = W β(x) from observations u = v + w.
+    """Learns w̃(x) = W β(x) from observations u = v + w (the stages: module docstring).
 
     Args:
-        basis, n_centres, seed: feature map (normalised RBF by default).
-        max_iter: LM iterations (passes over the data) at most (original: 1000).
-        tol: LM tolerances (relative cost decrease, step, scaled gradient; original: 1e-9).
+        basis, n_centres, seed: feature map (normalised RBF by default); ``seed`` also
+            draws the subsample of the first stages.
+        max_iter: passes over the data of each stage at most (original: 1000).
+        tol: tolerance of stages 3 and 4: each stops when an accepted step lowers the cost
+            by less than ``tol`` relatively, the Gauss–Newton model predicts a decrease
+            below ``tol`` times the cost, the step is below ``tol`` relative to W, or the
+            scaled gradient is below ``tol`` (:func:`~ccl_cli.linalg.kron_least_squares`;
+            original: 1e-9); stages 1–2 use :data:`STAGE_TOL` and STAGE_TOL/100.
         chunk_size: rows per block of the passes over the data (default 8192).
-        polish: after the smooth stage, minimise the original residual (default: the
-            original optimum). ``False`` stops after the smooth stage: ~10× fewer passes
-            on large N, at a slightly higher original cost.
+        polish: run stages 2–4 (default). ``False`` stops after stage 1 (the smooth
+            residual: about half the time, 2–30× the test error in the benchmark).
+        smoothing: δ² of stages 2–3 relative to mean ‖w̃‖² (0: the original residual
+            throughout, and no stage 4).
         tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
             default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
     Attributes:
-        basis_, W_ (q, K), cost_ (final Σ r²), n_iter_.
+        basis_, W_ (q, K), cost_ (Σ r² of the original residual at W_), objective_ (the
+        minimised Σ r² of the last stage), n_iter_ (passes over the data of all stages,
+        full or residual-only, on the subsample or on all rows), stop_reason_ (why the
+        last stage stopped: "cost", "predicted", "step", "gradient", "max_iter",
+        "non-finite", "budget" when stage 4 used its ORIGINAL_PASSES, or "zero start" when
+        the least-squares start is W = 0 — BᵀU = 0, e.g. u ≡ 0 — and is kept), stages_ (per
+        stage: stage name, rows, delta2, full_passes, cost_passes, accepted, stop).
     """
 
     def __init__(
@@ -61,6 +156,7 @@ class NullSpaceComponent(Estimator):
         tol: float = 1e-9,
         chunk_size: int | None = None,
         polish: bool = True,
+        smoothing: float = SMOOTHING,
         tune: bool | dict = TUNE,
     ) -> None:
         self.basis = basis
@@ -70,15 +166,24 @@ class NullSpaceComponent(Estimator):
         self.tol = tol
         self.chunk_size = chunk_size
         self.polish = polish
+        self.smoothing = smoothing
         self.tune = tune
 
     def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
-        """No default grid: measured (issue 9), one cross-validated LM fit with 25–36
-        centres takes 20–30 s where the default fit takes 0.03 s (the LM runs to
-        ``max_iter``), for test NUPE_w that is not reliably better (5 seeds of the ncl
-        tutorial: median 1.5e-4 → 1.1e-4, but worse on 2 of 4 other seeds). ``tune: {grid:
-        {basis: [...]}}`` searches a grid of the user's."""
-        return {}
+        """Default grid: the number of k-means RBF centres K ∈ {n_centres, 16, 36, 64, 100}
+        (at most N/2; default width rule), scored by held-out NPE. Measured (5 seeds, test
+        NUPE_w median, untuned K = 16 → tuned): ncl tutorial (ALGORITHMS.md §7, limit cycle
+        + task, 500 training samples) 1.5e-4 → 4.4e-5, 0.02 s → 0.75 s per fit;
+        ``simulate.two_link(task=True)`` (70 % training) 8.9e-4 → 6.3e-5, 0.02 s → 1.05 s —
+        but the hand-tuned 100 centres reach 5.5e-5 there: on noise-free arm data the
+        held-out NPE of every K ≥ 36 is within one standard error of the best, and the
+        smallest mean picked 36 or 64 on 2 of 5 seeds (up to 196 centres the test NUPE
+        keeps falling). With output noise 0.01 K = 16 is best and is chosen. Width factors
+        (1, 0.5, 0.25) on top tripled the time for the same medians, so the width stays
+        with its rule. A basis the user fixed (linear, explicit centres or σ²) is not tuned."""
+        if not rbf_tunable(self.basis):
+            return {}
+        return {"basis": basis_grid(X, (self.n_centres, 16, 36, 64, 100), (1.0,), self.seed)}
 
     def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
             ) -> NullSpaceComponent:
@@ -86,34 +191,79 @@ class NullSpaceComponent(Estimator):
         self._set_n_features(X)
         if self._fit_tuned(X, U, demo=demo):
             return self
+        if self.smoothing < 0:
+            raise ConfigError(f"smoothing: must be ≥ 0, got {self.smoothing}")
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
         blocks = feature_blocks(self.basis_, X, self.chunk_size)
         K = self.basis_.n_features
-        q = U.shape[1]
+        n, q = U.shape
         BtB, BtU = np.zeros((K, K)), np.zeros((K, q))
         for rows, B in blocks():
             BtB += B.T @ B
             BtU += B.T @ U[rows]
-        W0 = eigen_lstsq(BtB, BtU.T, 1e-8)  # (q, K): the OLS start
+        W = eigen_lstsq(BtB, BtU.T, 1e-8)  # (q, K): the OLS start
 
-        def smooth(W: np.ndarray, rows: slice, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            Ub = U[rows]
-            Wt = B @ W.T  # (c, q)
-            return np.einsum("nq,nq->n", Ub - Wt, Wt), Ub - 2.0 * Wt
+        m = subsample_size(n, K * q)
+        if m < n:
+            keep = np.sort(np.random.default_rng(self.seed).choice(n, m, replace=False))
+            U_s, sub_blocks = U[keep], feature_blocks(self.basis_, X[keep], self.chunk_size)
+        else:
+            U_s, sub_blocks = U, blocks
 
-        def residual(W: np.ndarray, rows: slice, B: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            Ub = U[rows]
-            Wt = B @ W.T  # (c, q)
-            a = np.einsum("nq,nq->n", Ub, Wt)
-            c = np.maximum(np.einsum("nq,nq->n", Wt, Wt), 1e-300)
-            sc = np.sqrt(c)
-            r = (a - c + EPS_RESIDUAL) / sc
-            return r, (Ub - 2.0 * Wt) / sc[:, None] - (r / c)[:, None] * Wt
+        def stage(name: str, W: np.ndarray, on_all: bool, residual: Residual, tol: float,
+                  mu0: float, delta2: float | None = None, passes: int | None = None
+                  ) -> tuple[np.ndarray, float]:
+            info: dict = {}
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # checked below
+                W, cost, _ = kron_least_squares(W, blocks if on_all else sub_blocks, residual,
+                                                passes or self.max_iter, tol, info=info, mu0=mu0)
+            self.stages_.append({"stage": name, "rows": n if on_all else m, "delta2": delta2,
+                                 **info})
+            return W, cost
 
-        W1, _, first = kron_least_squares(W0, blocks, smooth, self.max_iter, self.tol)
-        budget = max(1, self.max_iter - first) if self.polish else 1  # 1: cost only
-        self.W_, self.cost_, polish = kron_least_squares(W1, blocks, residual, budget, self.tol)
-        self.n_iter_ = first + polish
+        self.stages_: list[dict] = []
+        if not np.any(W):  # BᵀU = 0: no action has a component along the features
+            return self._finish(W, 0.0, 0.0, "zero start", q)
+        last = not self.polish and m == n
+        W, cost = stage("smooth", W, m == n, smooth_residual(U_s),
+                        self.tol if last else STAGE_TOL, 1e-3)
+        if not self.polish and m < n:
+            W, cost = stage("smooth", W, True, smooth_residual(U), self.tol, 1e-12)
+        if self.polish:
+            Wt2 = 0.0
+            with np.errstate(over="ignore", invalid="ignore"):
+                for _, B in sub_blocks():
+                    Wt2 += float(np.sum((B @ W.T) ** 2))
+            delta2 = self.smoothing * Wt2 / m
+            name = "smoothed original" if delta2 > 0 else "original"
+            if m < n:
+                W, cost = stage(name, W, False, wall_residual(U_s, delta2), STAGE_TOL * 1e-2,
+                                1e-8, delta2)
+            W, cost = stage(name, W, True, wall_residual(U, delta2), self.tol,
+                            1e-12 if m < n else 1e-8, delta2)
+            if delta2 > 0:
+                W, cost = stage("original", W, True, wall_residual(U, 0.0), self.tol, 1e-12, 0.0,
+                                min(ORIGINAL_PASSES, self.max_iter))
+                if self.stages_[-1]["stop"] == "max_iter":
+                    self.stages_[-1]["stop"] = "budget"
+        if self.stages_[-1]["delta2"] == 0.0 and self.stages_[-1]["rows"] == n:
+            original_cost = cost  # the last stage minimised the original residual itself
+        else:
+            original, original_cost = wall_residual(U, 0.0), 0.0
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                for rows, B in blocks():
+                    r = original(W, rows, B)[0]
+                    original_cost += float(r @ r)
+        if not np.isfinite(original_cost):
+            bad = next((s["stage"] for s in self.stages_ if s["stop"] == "non-finite"), "original")
+            raise LearningError(f"ncl: the cost is not finite in stage {bad!r} "
+                                f"(actions of magnitude {np.abs(U).max():.3g} overflow its squares)")
+        return self._finish(W, cost, original_cost, self.stages_[-1]["stop"], q)
+
+    def _finish(self, W: np.ndarray, objective: float, cost: float, stop: str, q: int
+                ) -> NullSpaceComponent:
+        self.W_, self.objective_, self.cost_, self.stop_reason_ = W, objective, cost, stop
+        self.n_iter_ = sum(s["full_passes"] + s["cost_passes"] for s in self.stages_)
         self.n_action_ = q
         return self
 

@@ -57,14 +57,21 @@ class Split:
     info: dict[str, Any] = field(default_factory=dict)
 
 
-def guard_gap(cfg: Config) -> int:
+def guard_gap(cfg: Config, data: Demonstrations | None = None) -> int:
     """Samples dropped at each train/test boundary of a time-block split: ``data.test.gap``,
-    else the derivative window of derived actions, else :data:`selection.DEFAULT_GAP`."""
+    else the derivative window the reader used for derived actions (configured, or chosen
+    from the rate and recorded in the data's metadata), else :data:`selection.DEFAULT_GAP`."""
     data_cfg = cfg.get("data") or {}
     tcfg = data_cfg.get("test") or {}
     if tcfg.get("gap") is not None:
         return int(tcfg["gap"])
     action = data_cfg.get("action") or {}
+    if data is not None:
+        from ccl_cli.diagnostics import derivation
+
+        derived, window, _ = derivation(data)
+        if derived:
+            return max(window, S.DEFAULT_GAP)
     if action.get("derive") and action.get("window"):
         return max(int(action["window"]), 1)
     return S.DEFAULT_GAP
@@ -92,7 +99,7 @@ def split_data(data: Demonstrations, cfg: Config, masks: dict[str, list[int]] | 
         return Split(data, None, {"kind": "none", "reason": "data.test.fraction is 0: no held-out test "
                                   "set, every metric is on training data",
                                   "n_train_samples": data.n_samples, "n_test_samples": 0})
-    hold = S.holdout_split(data.demo, fraction, int(tcfg.get("seed", 0)), guard_gap(cfg),
+    hold = S.holdout_split(data.demo, fraction, int(tcfg.get("seed", 0)), guard_gap(cfg, data),
                            int(tcfg.get("min_demos", S.MIN_DEMOS)), int(tcfg.get("blocks", S.N_BLOCKS)))
     train, test = data.subset(hold.train), data.subset(hold.test)
     return Split(train, test if test.n_samples else None, hold.info)

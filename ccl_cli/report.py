@@ -86,6 +86,7 @@ def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str,
               f"(train {data_info.get('train')}, test {data_info.get('test')})",
               f"- state dimension p = {data_info.get('p')}, action dimension q = {data_info.get('q')}",
               f"- inputs: {', '.join(data_info.get('files', [])) or '—'}",
+              *([f"- actions: {data_info['actions']}"] if data_info.get("actions") else []),
               "- metrics: mean squared error / normaliser, both shown; see docs/metrics.md", ""]
     lines += validation_markdown(data_info.get("validation"))
     for stage, entry in results_metrics.items():
@@ -155,4 +156,19 @@ def data_summary(pipeline) -> dict[str, Any]:
     return {"samples": d.n_samples, "demos": d.n_demos, "p": d.n_state, "q": d.n_action,
             "train": pipeline.split.train.n_samples,
             "test": pipeline.split.test.n_samples if pipeline.split.test is not None else 0,
-            "files": [f["path"] for f in d.metadata.get("files", [])]}
+            "files": [f["path"] for f in d.metadata.get("files", [])],
+            "actions": derived_actions(d.metadata)}
+
+
+def derived_actions(metadata: dict[str, Any]) -> str | None:
+    """How the readers derived the actions from the states (window, order and why), one
+    phrase per distinct setting; None when the actions were read as recorded."""
+    seen = []
+    for f in metadata.get("files", []):
+        a = f.get("action") if isinstance(f, dict) else None
+        if isinstance(a, dict) and a.get("derived"):
+            text = (f"derived from the states ({a['derived']}, order {a.get('order')}, window "
+                    f"{a.get('window')} samples: {a.get('window_rule', 'configured')})")
+            if text not in seen:
+                seen.append(text)
+    return "; ".join(seen) or None

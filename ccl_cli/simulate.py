@@ -15,9 +15,10 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ccl_cli import defaults
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError
-from ccl_cli.io.assemble import local_polynomial_derivative
+from ccl_cli.io.assemble import local_polynomial_derivative, window_for_rate
 from ccl_cli.kinematics import SevenDofArm, TwoLinkArm
 from ccl_cli.linalg import nullspace_projection, unit_rows
 
@@ -273,9 +274,8 @@ def armesto_policy(X: np.ndarray, rho: float = -0.5) -> np.ndarray:
 
 # -- realistic tracker recordings --------------------------------------------------------
 
-#: Half the time span (s) of the default derivative window of the tracker simulations:
-#: 9 samples at 50 Hz (the readers' default window), the same 0.16 s at other rates.
-DERIVATIVE_HALF_SPAN_S = 0.08
+#: Half the time span (s) of the default derivative window, shared with the readers.
+DERIVATIVE_HALF_SPAN_S = defaults.DERIVATIVE_HALF_SPAN_S
 
 #: Shapes of the strokes a tracker simulation draws (codes in the segment table).
 _PAUSE, _LINE, _CIRCLE, _EIGHT = 0, 1, 2, 3
@@ -389,7 +389,7 @@ def _tracker(surface: str, *, duration: float, rate: float, noise: float, n_reco
     if not 1.0 <= rate <= 10_000.0:
         raise ConfigError(f"tracker rate must be in [1, 10000] Hz, got {rate}")
     if window is None:
-        window = 2 * int(round(DERIVATIVE_HALF_SPAN_S * rate)) + 1
+        window = window_for_rate(rate, order)
     if duration * rate < max(window, order + 1):
         raise ConfigError(f"tracker recording of {duration} s at {rate} Hz is shorter than the "
                           f"derivative window ({window} samples)")

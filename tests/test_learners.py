@@ -14,7 +14,7 @@ from ccl_cli.constraint import (
     StateDependentConstraint,
     StateIndependentConstraint,
 )
-from ccl_cli.errors import ConfigError
+from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.linalg import nullspace_projection, unit_rows
 from ccl_cli.metrics import nppe, nupe
 from ccl_cli.nullspace import NullSpaceComponent
@@ -358,6 +358,80 @@ def test_ncl_chunk_size_smaller_than_n_gives_the_same_fit():
     chunked = NullSpaceComponent(n_centres=9, chunk_size=64, tune=False).fit(data.X, data.U)
     assert chunked.cost_ == pytest.approx(whole.cost_, rel=1e-6)
     np.testing.assert_allclose(chunked.predict(data.X), whole.predict(data.X), atol=1e-5)
+
+
+def ncl_halves():
+    data = sim.toy2d(constraint="fixed", task=True, sampling="uniform", n_samples=1000,
+                     n_demos=1, seed=0)
+    return data.subset(np.arange(500)), data.subset(np.arange(500, 1000))
+
+
+def test_ncl_stages_reach_the_original_optimum_in_a_fraction_of_the_passes():
+    train, test = ncl_halves()
+    staged = NullSpaceComponent(n_centres=16, tune=False).fit(train.X, train.U)
+    original = NullSpaceComponent(n_centres=16, smoothing=0.0, tune=False).fit(train.X, train.U)
+    assert [s["stage"] for s in staged.stages_] == ["smooth", "smoothed original", "original"]
+    assert [s["stage"] for s in original.stages_] == ["smooth", "original"]
+    assert staged.stages_[1]["delta2"] > 0 and staged.stages_[2]["delta2"] == 0.0
+    # cost_ is Σ r² of the original residual (ALGORITHMS.md §4) for both: the staged fit
+    # ends at least as low, in under a third of the passes, with no worse a test error.
+    assert staged.cost_ <= original.cost_
+    assert 3 * staged.n_iter_ < original.n_iter_
+    assert nupe(test.truth["w"], staged.predict(test.X)).value <= \
+        nupe(test.truth["w"], original.predict(test.X)).value
+    assert staged.n_iter_ == sum(s["full_passes"] + s["cost_passes"] for s in staged.stages_)
+    assert staged.stop_reason_ == staged.stages_[-1]["stop"]
+    assert staged.stop_reason_ in ("budget", "cost", "predicted", "step", "gradient")
+    assert staged.stages_[-1]["full_passes"] + staged.stages_[-1]["cost_passes"] <= 5
+    with pytest.raises(ConfigError, match="smoothing"):
+        NullSpaceComponent(smoothing=-1.0, tune=False).fit(train.X, train.U)
+
+
+def test_ncl_degenerate_actions_are_a_result_or_an_error_never_a_crash():
+    train, _ = ncl_halves()
+    rest = NullSpaceComponent(n_centres=9, tune=False).fit(train.X, np.zeros_like(train.U))
+    assert rest.stop_reason_ == "zero start" and rest.n_iter_ == 0 and rest.cost_ == 0.0
+    np.testing.assert_array_equal(rest.predict(train.X), 0.0)  # u ≡ 0: w̃ ≡ 0
+    with pytest.raises(LearningError, match="not finite"):
+        NullSpaceComponent(n_centres=9, tune=False).fit(train.X, 1e200 * train.U)
+
+
+def test_ncl_stages_on_a_subsample_end_at_the_all_rows_optimum(monkeypatch):
+    from ccl_cli import nullspace
+
+    train, test = ncl_halves()
+    whole = NullSpaceComponent(n_centres=4, tune=False).fit(train.X, train.U)
+    monkeypatch.setattr(nullspace, "SUBSAMPLE_ROWS", 200)  # 20 K q = 160 < 200 < 500 rows
+    sub = NullSpaceComponent(n_centres=4, tune=False).fit(train.X, train.U)
+    assert [s["rows"] for s in whole.stages_] == [500, 500, 500]
+    assert [s["rows"] for s in sub.stages_] == [200, 200, 500, 500]
+    assert sub.cost_ == pytest.approx(whole.cost_, rel=1e-6)
+    scale = np.abs(whole.predict(test.X)).max()
+    np.testing.assert_allclose(sub.predict(test.X), whole.predict(test.X), atol=1e-4 * scale)
+
+
+def test_kron_least_squares_forms_normal_equations_only_at_accepted_points(monkeypatch):
+    rng = np.random.default_rng(2)
+    B = rng.uniform(size=(300, 4))
+    Y = np.exp(B @ rng.normal(size=4))
+
+    def residual(W, rows, Bc):  # exp(Wβ) − y from W = −3: the first steps overshoot
+        E = np.exp(Bc @ W[0])
+        return E - Y[rows], E[:, None]
+
+    blocks = [(rows, B[rows]) for rows in _linalg.row_chunks(300, 100)]
+    formed = []
+    real = _linalg.kron_normal
+    monkeypatch.setattr(_linalg, "kron_normal", lambda G, Bc, r=None: formed.append(1) or real(G, Bc, r))
+    info = {}
+    W, cost, passes = _linalg.kron_least_squares(np.full((1, 4), -3.0), lambda: blocks, residual,
+                                                 info=info)
+    assert info["cost_passes"] > 0  # rejected trials after a rejection: residuals only
+    assert len(formed) == 3 * info["full_passes"]  # JᵀJ blocks only on full passes
+    assert passes == info["full_passes"] + info["cost_passes"]
+    assert info["accepted"] <= info["full_passes"] - 1  # each accepted point has its full pass
+    assert info["stop"] in ("cost", "predicted", "step", "gradient")
+    assert cost < 1e-12 and cost == pytest.approx(float(np.sum(residual(W, slice(None), B)[0] ** 2)))
 
 
 def test_linear_and_alpha_blocks_smaller_than_n_give_the_same_fit(monkeypatch):

@@ -123,3 +123,28 @@ def test_shipped_continuous_bowl_recording_windows_or_blocks(tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)
     assert summary["validation"]["kind"] == "blocks"
     assert [w["code"] for w in summary["warnings"]] == ["few_demos"]
+
+
+@pytest.mark.parametrize(("rate", "window"), [(50.0, 9), (100.0, 17), (500.0, 81), (2000.0, 101)])
+def test_default_derivative_window_spans_the_same_time_at_any_rate(tmp_path, rate, window):
+    """Without data.action.window the reader derives over ±0.08 s at the recording's median
+    rate (capped at 101 samples), records the window and why, and guards the time-block split
+    with it; at 500 Hz that cuts the velocity noise several-fold against a fixed 9 samples."""
+    rec = sim.tracker_plane(duration=8.0, rate=rate, noise=1e-3, seed=1)
+    path = write_tracker_csv(tmp_path / "finger.csv", rec)
+    cfg = {k: v for k, v in CSV_CFG.items() if k != "action"} | {"action": {"derive": "state"}}
+    data = load_demonstrations({**cfg, "files": [str(path)]})
+    info = data.metadata["files"][0]["action"]
+    assert info["window"] == window and info["order"] == 2
+    assert f"{rate:.4g} Hz" in info["window_rule"]
+    true_u = sim.tracker_plane(duration=8.0, rate=rate, noise=0.0, seed=1).U
+    err_default = np.sqrt(np.mean((data.U - true_u) ** 2))
+    if rate == 500.0:
+        fixed = load_demonstrations({**cfg, "files": [str(path)],
+                                     "action": {"derive": "state", "window": 9}})
+        err_fixed = np.sqrt(np.mean((fixed.U - true_u) ** 2))
+        assert err_default < err_fixed / 5
+    from ccl_cli.pipeline import guard_gap
+    assert guard_gap(Config({"data": cfg}), data) == max(window, 10)
+    from ccl_cli.report import derived_actions  # the report.md / run.json line
+    assert f"window {window} samples: default: ±0.08 s at the median rate" in derived_actions(data.metadata)

@@ -96,3 +96,24 @@ def test_too_little_data_to_tune_is_said_not_hidden():
     data = sim.two_link(seed=1, n_demos=2, n_steps=10)
     model = PolicyLearner(method="pi", n_centres=4).fit(data.X, data.U)
     assert model.tuning_["chosen"] is None and "not tuned" in model.tuning_["reason"]
+
+
+def test_ncl_default_grid_beats_the_tutorials_16_centres():
+    """ncl tutorial (ALGORITHMS.md §7: limit cycle + task part, 500/500, 16 RBFs by hand):
+    the default grid K ∈ {16, 36, 64, 100} is no worse in the median of 3 seeds."""
+    from ccl_cli.nullspace import NullSpaceComponent
+
+    tuned, hand = [], []
+    for seed in range(3):
+        data = sim.toy2d(policy="limit_cycle", task=True, sampling="uniform", n_samples=1000, seed=seed)
+        train, test = data.split(0.5, seed)
+        model = NullSpaceComponent(seed=seed).fit(train.X, train.U, train.demo)
+        assert [b["n_centres"] for b in model.tuning_["grid"]["basis"]] == [16, 36, 64, 100]
+        assert model.tuning_["chosen"]["basis"]["n_centres"] == model.basis_.n_features
+        tuned.append(nupe(test.truth["w"], model.predict(test.X)).value)
+        model = NullSpaceComponent(n_centres=16, seed=seed, tune=False).fit(train.X, train.U)
+        assert model.tuning_ is None
+        hand.append(nupe(test.truth["w"], model.predict(test.X)).value)
+    assert np.median(tuned) <= np.median(hand), (tuned, hand)
+    fixed = NullSpaceComponent(basis={"kind": "rbf", "n_centres": 9, "sigma2": 0.5}).fit(train.X, train.U)
+    assert fixed.tuning_ is None and fixed.basis_.n_features == 9  # a basis the user fixed

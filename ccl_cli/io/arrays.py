@@ -16,7 +16,7 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
-from ccl_cli.io.assemble import local_polynomial_derivative
+from ccl_cli.io.assemble import derive_actions
 
 SAMPLES = ("rows", "columns")
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -265,10 +265,8 @@ def assemble(parts: list[Part], data_cfg: dict[str, Any], where: str, state_name
     X, t, ids = np.concatenate(Xs), np.concatenate(Ts), np.concatenate(demo)
     action_cfg = data_cfg.get("action") or {}
     if q is None:
-        window, order = int(action_cfg.get("window", 9)), int(action_cfg.get("order", 2))
-        U = local_polynomial_derivative(t, X, ids, window, order)
+        U, meta["action"] = derive_actions(t, X, ids, action_cfg)
         action_names = [f"d{n}/dt" for n in state_names]
-        meta["action"] = {"derived": "local polynomial", "window": window, "order": order}
     else:
         U = np.concatenate(Us)
     if dropped:

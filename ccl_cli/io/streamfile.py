@@ -17,8 +17,8 @@ from ccl_cli.errors import InputError
 from ccl_cli.io.assemble import (
     align,
     check_increasing,
+    derive_actions,
     drop_nonfinite,
-    local_polynomial_derivative,
     segment_ids,
 )
 from ccl_cli.io.streams import Stream, StreamSpec
@@ -140,16 +140,13 @@ class StreamFile:
                 raise InputError(f"data.action.derive must be 'state', got {derive!r}")
             U = None
             action_names = [f"d{n}/dt" for n in state.names]
-            meta["action"] = {"derived": "local polynomial", "window": action_cfg.get("window", 9),
-                              "order": action_cfg.get("order", 2)}
         t_s = (t_ns - t_ns[0]) / 1e9
         demo = segment_ids(t_s, data_cfg.get("demos"), str(path))
         keep = demo >= 0
         if not keep.all():  # samples outside every demos.range
             t_ns, t_s, X, demo = t_ns[keep], t_s[keep], X[keep], demo[keep]
         if U is None:
-            U = local_polynomial_derivative(t_s, X, demo, int(action_cfg.get("window", 9)),
-                                            int(action_cfg.get("order", 2)))
+            U, meta["action"] = derive_actions(t_s, X, demo, action_cfg)
         elif not keep.all():
             U = U[keep]
         data = Demonstrations(X=X, U=U, demo=demo, t=(t_ns - t_ns[0]) / 1e9,
