@@ -36,8 +36,9 @@ def _candidates() -> tuple[str, ...]:
         spec = importlib.util.find_spec(package)
         if spec is None or not spec.origin:
             continue
-        folder = os.path.dirname(spec.origin) + ".libs"  # auditwheel's vendored libraries
-        paths += sorted(glob.glob(os.path.join(folder, "lib*openblas*.so*")))
+        here = os.path.dirname(spec.origin)
+        paths += sorted(glob.glob(os.path.join(here + ".libs", "lib*openblas*.so*")))  # auditwheel (Linux)
+        paths += sorted(glob.glob(os.path.join(here, ".dylibs", "lib*openblas*.dylib")))  # delocate (macOS)
     return tuple(paths)
 
 
@@ -48,10 +49,11 @@ def _libraries() -> list[tuple[ctypes.CDLL, str]]:
     """(library, entry-point tag) of every candidate OpenBLAS already loaded by NumPy or
     SciPy (one not loaded yet is left alone: loading it would start its threads)."""
     out = []
-    for path in _candidates():
+    noload = getattr(os, "RTLD_NOLOAD", None)
+    for path in _candidates() if noload is not None else ():
         if path not in _LOADED:
             try:
-                lib = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_LAZY)
+                lib = ctypes.CDLL(path, mode=noload | os.RTLD_LAZY)
             except OSError:  # not loaded (yet)
                 continue
             _LOADED[path] = None
