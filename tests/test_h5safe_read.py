@@ -28,6 +28,10 @@ def sample(tmp_path):
         g.create_group("sub")["deep"] = np.arange(3.0)
         g["soft"] = h5py.SoftLink("/g/f64")
         g["chunked"] = np.linspace(0, 1, 1000)
+        g["f16"] = np.array([1.5, -2.25], dtype=np.float16)
+        g.create_dataset("enum", data=np.array([0, 1, 1], dtype=np.int8),
+                         dtype=h5py.enum_dtype({"off": 0, "on": 1}, basetype="i1"))
+        g["flags"] = np.array([True, False])
         f["g"].create_dataset("gz", data=np.arange(12.0).reshape(4, 3), compression="gzip", chunks=(2, 3))
     return path
 
@@ -35,7 +39,7 @@ def sample(tmp_path):
 def test_numeric_values_and_types_round_trip(sample):
     with h5py.File(sample, "r") as f:
         g = f["g"]
-        for name in ("f64", "f32_be", "i16", "u64_be", "chunked", "gz"):
+        for name in ("f64", "f32_be", "i16", "u64_be", "chunked", "gz", "f16", "enum"):
             got = h5safe.numeric(g, name, "w", ndim=(1, 2))
             want = np.asarray(g[name][()], dtype=np.float64)
             assert got.dtype == np.float64 and got.shape == want.shape
@@ -54,6 +58,7 @@ def test_numeric_values_and_types_round_trip(sample):
     ("text", {}, "w: /g/text must be numeric"),
     ("cube", {}, "w: /g/cube must be 1-D or 2-D, got shape (2, 2, 2)"),
     ("nan", {}, "w: /g/nan contains NaN or inf"),
+    ("flags", {}, "w: /g/flags must be numeric, got dtype bool"),
     ("f64", {"limit": 1e-3}, "w: /g/f64 holds values beyond ±0.001"),
 ])
 def test_numeric_refusals_name_the_object(sample, name, kwargs, message):
