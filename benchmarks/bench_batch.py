@@ -7,6 +7,9 @@
   worker hand-off, the job's content key (input hash), reading the recording, writing
   the job folder (model, metrics, report, run.json with versions and hashes). Reading
   is also shown on its own (it grows with the file: 9 HDF5 datasets per demonstration).
+* {"measure": "cli", "seconds_1_job", "seconds", "seconds_per_job", "marginal_per_job_s"}:
+  ``ccl batch -j 1`` in a fresh process on 1 and on N trivial 5-demonstration jobs (the
+  fixed cost: imports, fork server, summary; the marginal cost of one more job).
 * {"measure": "speedup", "jobs", "job_s_median" (at -j 1), "job_s_median_j2", "seconds_j1",
   "seconds_j2", "speedup_2_over_1", "blas_threads", "load"}: jobs of >= 0.5 s each (ncl,
   64 centres, 100 demonstrations) at ``-j 1`` then ``-j 2``, each in a fresh process as
@@ -29,6 +32,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
+import subprocess
 import sys
 import tempfile
 import time
@@ -95,8 +100,6 @@ def fresh_process(root: Path, workers: int, blas_threads: int) -> dict[str, floa
     """The long jobs at ``-j workers`` in a new process (as ``ccl batch`` runs them: the
     workers' BLAS threads are set when the fork server starts: ``blas_threads``, or with 0
     ccl's default of cores / workers), timed after a warm-up batch started the fork server."""
-    import subprocess
-
     env = dict(os.environ)
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         if blas_threads:
@@ -106,6 +109,9 @@ def fresh_process(root: Path, workers: int, blas_threads: int) -> dict[str, floa
     out = subprocess.run([sys.executable, "-c", CHILD, str(root), str(workers), str(Path(__file__).parent)],
                          capture_output=True, text=True, check=True, env=env)
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+CCL = [shutil.which("ccl")] if shutil.which("ccl") else [sys.executable, "-m", "ccl_cli.cli"]
 
 
 def load() -> float:
@@ -148,6 +154,19 @@ def main() -> int:
                               "overhead_per_job_s": round((seconds - fit) / n, 4),
                               "overhead_beyond_read_per_job_s": round((seconds - fit - read) / n, 4),
                               "load": [before, load()], "cpus": os.cpu_count()}), flush=True)
+        # the command as a user runs it: a fresh process per batch (imports, fork server, summary)
+        cli = {}
+        for n, files in ((1, str(root / "d5" / "r000.h5")), (args.jobs, str(root / "d5" / "r*.h5"))):
+            t = time.perf_counter()
+            subprocess.run([*CCL, "batch", "--files", files, "-c", str(root / "trivial.yaml"), "-o",
+                            str(root / f"out-cli{n}"), "--force", "-q", "-j", "1"], check=True,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            cli[n] = time.perf_counter() - t
+        print(json.dumps({"measure": "cli", "jobs": args.jobs, "workers": 1,
+                          "seconds_1_job": round(cli[1], 3), "seconds": round(cli[args.jobs], 3),
+                          "seconds_per_job": round(cli[args.jobs] / args.jobs, 4),
+                          "marginal_per_job_s": round((cli[args.jobs] - cli[1]) / (args.jobs - 1), 4),
+                          "load": load()}), flush=True)
         if args.long_jobs:
             plan(files=recordings(root / "long", args.long_jobs, 100, "l"), config=str(root / "long.yaml"))
             before = load()
