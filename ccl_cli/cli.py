@@ -531,6 +531,9 @@ def batch(
     jobs, manifest_out = plan(manifest, files, str(config) if config else None)
     _check_plan(jobs)
     outdir = out or manifest_out or Path("runs") / "batch"
+    from ccl_cli.plots import preload_in_background
+
+    preload_in_background()  # matplotlib for summary.png, imported while this process waits on the jobs
     bar = _bar("jobs", len(jobs), quiet)
     try:
         results = run_batch(jobs, outdir, workers, scheduler, force, progress=bar.advance if bar else None)

@@ -62,6 +62,28 @@ def _import_matplotlib():
     return Figure, FigureCanvasAgg
 
 
+def preload_in_background():
+    """Import matplotlib's figure and Agg canvas in a daemon thread, for a process that
+    will draw later and waits on something else meanwhile (``ccl batch`` on its workers).
+    A failed import is left to the later, foreground import to report."""
+    import threading
+
+    _matplotlib()
+
+    def load() -> None:
+        import importlib
+
+        for module in ("matplotlib.figure", "matplotlib.backends.backend_agg"):
+            try:
+                importlib.import_module(module)
+            except ImportError:
+                return
+
+    thread = threading.Thread(target=load, name="ccl-preload-matplotlib", daemon=True)
+    thread.start()
+    return thread
+
+
 def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], **kw: Any):
     """(figure, axes) as ``pyplot.subplots`` makes them, drawn by the Agg canvas directly:
     no pyplot import, no backend selection, no global figure registry to close."""
