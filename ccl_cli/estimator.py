@@ -78,6 +78,9 @@ class Estimator:
             raise NotFittedError(f"this {type(self).__name__} is not fitted yet: call fit(X, U) first")
 
     # -- hyperparameter tuning (ccl_cli.selection.tune) ----------------------------------
+    #: Folds of this learner's default hyperparameter search (None: selection.TUNE_FOLDS).
+    TUNE_FOLDS: int | None = None
+
     def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list[Any]]:
         """The grid searched when ``tune`` is on: parameter → candidates (the current
         default first). Learners with hyperparameters override this."""
@@ -103,14 +106,15 @@ class Estimator:
         base = clone(self).set_params(tune=False)
         n = len(U)
         groups = fit_kw.get("demo")
+        folds = int(opts.get("folds", self.TUNE_FOLDS or S.TUNE_FOLDS))
         try:
-            S.make_folds(groups, n, int(opts.get("folds", S.TUNE_FOLDS)), 0, S.DEFAULT_GAP)
+            S.make_folds(groups, n, folds, 0, S.DEFAULT_GAP)
         except InputError as exc:  # too little data to cross-validate: say so, fit as given
             self.tuning_ = {"chosen": None, "reason": f"not tuned: {exc.message}"}
             return False
         chosen, info = S.tune(base, X, U, fit_kw.get("demo"), grid,
                               budget=float(opts.get("budget", S.TUNE_BUDGET)),
-                              n_folds=int(opts.get("folds", S.TUNE_FOLDS)),
+                              n_folds=folds,
                               seed=int(getattr(self, "seed", 0)),
                               projections=fit_kw.get("projections"))
         best = base.set_params(**chosen).fit(X, U, **fit_kw)

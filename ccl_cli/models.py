@@ -67,7 +67,7 @@ SCALARS = {
     "alpha": ["n_constraints_", "n_action_", "selection_", "nmse_"],
     "lambda": ["n_constraints_", "n_action_", "n_task_", "selection_", "nmse_", "n_dropped_"],
     "linear": ["n_constraints_", "n_action_", "selection_"],
-    "ncl": ["n_action_", "cost_", "n_iter_"],
+    "ncl": ["n_action_", "cost_", "n_iter_", "stop_reason_"],
     "policy": ["n_action_", "n_used_"],
 }
 

@@ -181,7 +181,8 @@ class Pipeline:
         tr = self.split.train
         model = NullSpaceComponent(**_kwargs(opts, ("basis", "n_centres", "max_iter", "tol", "tune")),
                                    seed=self.seed).fit(tr.X, tr.U, tr.demo)
-        result = StageResult("learn-v", "ncl", model, info={"n_iter": model.n_iter_})
+        result = StageResult("learn-v", "ncl", model, info={"n_iter": model.n_iter_,
+                                                            "stop_reason": model.stop_reason_})
         if getattr(model, "tuning_", None):
             result.info["tuning"] = model.tuning_
         ws = {part: model.predict(d.X) for part, d in self.parts()}

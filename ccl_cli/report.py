@@ -17,6 +17,19 @@ PACKAGES = ("ccl_cli", "numpy", "scipy", "h5py", "rosbags", "mcap", "mcap-ros1-s
             "mcap-ros2-support", "typer", "pyyaml", "matplotlib")
 
 
+#: Why an iterative fit stopped (``stop_reason_``), in words.
+STOPS = {
+    "cost": "a relative cost decrease below tol",
+    "predicted": "a predicted cost decrease below tol (converged)",
+    "step": "a step below tol relative to the weights",
+    "gradient": "a scaled gradient below tol (converged)",
+    "max_iter": "max_iter passes (not converged: raise max_iter)",
+    "non-finite": "a non-finite cost",
+    "budget": "the pass budget of the final stage on the original residual",
+    "zero start": "a zero least-squares start (the actions are orthogonal to every feature)",
+}
+
+
 @functools.cache
 def _versions() -> tuple[tuple[str, str], ...]:
     out = {"python": sys.version.split()[0], "platform": platform.platform()}
@@ -111,6 +124,10 @@ def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str,
         if base:
             lines += [f"Baseline: direct policy learning ({base.get('method')}, u regressed on β(x), "
                       "ignoring the constraints) — its own errors:", "", *metric_rows(base)]
+        if entry.get("stop_reason"):
+            reason = entry["stop_reason"]
+            lines += [f"Optimiser: {entry.get('n_iter')} passes over the data; stopped on "
+                      f"{STOPS.get(reason, reason)}.", ""]
         lines += tuning_markdown(stage, entry.get("tuning"))
         lines.append(f"Time: {entry.get('seconds', 0):.3f} s")
         lines.append("")

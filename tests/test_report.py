@@ -16,6 +16,7 @@ from ccl_cli.cli import main
 from ccl_cli.io.hdf5 import read_demonstrations
 from ccl_cli.models import load_model
 from ccl_cli.pipeline import split_data
+from ccl_cli.report import STOPS
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"
@@ -82,6 +83,11 @@ def test_learn_a_on_learnt_w_npoe_is_normalised_by_var_of_learnt_w(tmp_path):
             for name, m in metrics[stage][part].items():
                 assert metrics["evaluate"][part][f"{stage}.{name}"]["value"] == m["value"]
     assert metrics["learn-a"]["on"] == "w"
+    # the optimiser's stop is saved with the model, in metrics.json and (in words) in report.md
+    assert v_model.stop_reason_ == metrics["learn-v"]["stop_reason"] in STOPS
+    assert v_model.n_iter_ == metrics["learn-v"]["n_iter"] > 0
+    assert f"Optimiser: {v_model.n_iter_} passes over the data; stopped on {STOPS[v_model.stop_reason_]}" \
+        in (out / "report.md").read_text()
 
 
 def test_task_term_is_not_in_npoe_and_policy_metrics_by_hand(tmp_path):

@@ -117,3 +117,21 @@ def test_ncl_default_grid_beats_the_tutorials_16_centres():
     assert np.median(tuned) <= np.median(hand), (tuned, hand)
     fixed = NullSpaceComponent(basis={"kind": "rbf", "n_centres": 9, "sigma2": 0.5}).fit(train.X, train.U)
     assert fixed.tuning_ is None and fixed.basis_.n_features == 9  # a basis the user fixed
+
+
+def test_ncl_defaults_match_the_hand_tuned_100_centres_on_the_two_link_arm():
+    """ncl on the 2-link arm with a task part (b ~ U(−1, 1) per demonstration, 30 % of the
+    demonstrations held out): the defaults are no worse than the hand-tuned 100 centres, median
+    of 5 seeds (measured: 5.2e-5 vs 5.5e-5; the untuned 16 centres 8.9e-4). The budget is lifted
+    so the test does not depend on the machine's load; grid and folds are the defaults."""
+    from ccl_cli.nullspace import NullSpaceComponent
+
+    tuned, hand = [], []
+    for seed in range(5):
+        train, test = sim.two_link(task=True, seed=seed).split(0.3, seed)
+        model = NullSpaceComponent(seed=seed, tune={"budget": 600}).fit(train.X, train.U, train.demo)
+        assert model.tuning_["skipped"] == 0 and len(model.tuning_["scores"]) == 4
+        tuned.append(nupe(test.truth["w"], model.predict(test.X)).value)
+        model = NullSpaceComponent(n_centres=100, seed=seed, tune=False).fit(train.X, train.U)
+        hand.append(nupe(test.truth["w"], model.predict(test.X)).value)
+    assert np.median(tuned) <= np.median(hand), (tuned, hand)
