@@ -1,68 +1,199 @@
-"""ccl batch throughput. One JSON object per line:
-{"executor", "workers", "jobs", "seconds", "jobs_per_s"} and a final
-{"speedup_2_over_1", "dask_overhead_per_job_s"}.
+"""ccl batch: per-job overhead, 2-over-1 worker speed-up, Dask overhead. One JSON object per line:
 
-Run:  python benchmarks/bench_batch.py [--jobs 24]
+* {"measure": "overhead", "demos_per_file", "jobs", "workers": 1, "seconds", "fit_s_per_job",
+  "read_s_per_job", "overhead_per_job_s", "overhead_beyond_read_per_job_s", "load"}:
+  N trivial jobs (one linear constraint on a toy recording, ~5 ms fit) at ``-j 1``;
+  overhead = (batch wall − Σ stage seconds) / N, i.e. everything that is not the fit:
+  worker hand-off, the job's content key (input hash), reading the recording, writing
+  the job folder (model, metrics, report, run.json with versions and hashes). Reading
+  is also shown on its own (it grows with the file: 9 HDF5 datasets per demonstration).
+* {"measure": "cli", "seconds_1_job", "seconds", "seconds_per_job", "marginal_per_job_s"}:
+  ``ccl batch -j 1`` in a fresh process on 1 and on N trivial 5-demonstration jobs (the
+  fixed cost: imports, fork server, summary; the marginal cost of one more job).
+* {"measure": "speedup", "jobs", "job_s_median" (at -j 1), "job_s_median_j2", "seconds_j1",
+  "seconds_j2", "speedup_2_over_1", "blas_threads", "load"}: jobs of >= 0.5 s each (ncl,
+  64 centres, 100 demonstrations) at ``-j 1`` then ``-j 2``, each in a fresh process as
+  ``ccl batch`` runs them, timed after a warm-up batch; BLAS single-threaded by default
+  (``--blas-threads``) so that the ratio measures the process parallelism (ccl's own
+  default gives a ``-j 1`` worker the BLAS threads of every core). "pool_efficiency_j2" =
+  Σ job seconds at -j 2 / (2 × wall): how busy the pool kept both workers; when a
+  neighbour takes a core, each job slows down ("job_s_median_j2" > "job_s_median") and
+  the speed-up falls below 2 although the efficiency stays near 1.
+* {"measure": "dask", ...} (with ``--dask``): the trivial jobs on a 2-worker LocalCluster.
+
+``load`` is the 1-minute load average before/after each measurement, and ``cpus`` the
+cores: on a shared machine a busy neighbour takes cores from ``-j 2``.
+
+Run:  python benchmarks/bench_batch.py [--jobs 24] [--long-jobs 8] [--dask]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import shutil
+import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-CONFIG = """
+TRIVIAL = """
 data:
   test: {fraction: 0.3, seed: 0}
 learn-a: {method: linear, regressors: polynomial, degree: 1}
 stages: [learn-a]
 output: {plots: false}
 """
+LONG = """
+data:
+  test: {fraction: 0.3, seed: 0}
+learn-v: {n_centres: 64, tune: false}
+stages: [learn-v]
+output: {plots: false}
+"""
 
 
-def timed_batch(jobs, out: Path, workers: int | None, scheduler: str | None) -> float:
+def timed_batch(jobs, out: Path, workers: int | None, scheduler: str | None = None) -> tuple[float, list]:
     from ccl_cli.batch import run_batch
 
     t = time.perf_counter()
     results = run_batch(jobs, out, workers=workers, scheduler=scheduler, force=True)
+    seconds = time.perf_counter() - t
     assert all(r.status == "ok" for r in results), [r.error for r in results if r.status != "ok"]
-    return time.perf_counter() - t
+    return seconds, results
+
+
+def timings(out: Path, results) -> list[dict[str, float]]:
+    return [json.loads((out / "jobs" / r.job_id / "run.json").read_text())["timings"] for r in results]
+
+
+def recordings(root: Path, n: int, demos: int, tag: str) -> list[str]:
+    from ccl_cli import simulate as sim
+    from ccl_cli.io.hdf5 import write_demonstrations
+
+    root.mkdir(parents=True, exist_ok=True)
+    for i in range(n):
+        data = sim.toy2d(constraint="parabola", n_demos=demos, seed=i)
+        write_demonstrations(root / f"{tag}{i:03d}.h5", data)
+    return [str(root / f"{tag}*.h5")]
+
+
+CHILD = r"""
+import json, statistics, sys, time
+from pathlib import Path
+sys.path.insert(0, sys.argv[3])
+from bench_batch import timed_batch
+from ccl_cli.batch import plan
+root, workers = Path(sys.argv[1]), int(sys.argv[2])
+warm, _ = plan(files=[str(root / "warm" / "w*.h5")], config=str(root / "trivial.yaml"))
+timed_batch(warm, root / f"out-warm-j{workers}", workers)  # fork server and workers started
+jobs, _ = plan(files=[str(root / "long" / "l*.h5")], config=str(root / "long.yaml"))
+seconds, results = timed_batch(jobs, root / f"out-long-j{workers}", workers)
+print(json.dumps({"seconds": round(seconds, 3), "job_s_sum": round(sum(r.seconds for r in results), 3),
+                  "job_s_median": round(statistics.median(r.seconds for r in results), 3)}))
+"""
+
+
+def fresh_process(root: Path, workers: int, blas_threads: int) -> dict[str, float]:
+    """The long jobs at ``-j workers`` in a new process (as ``ccl batch`` runs them: the
+    workers' BLAS threads are set when the fork server starts: ``blas_threads``, or with 0
+    ccl's default of cores / workers), timed after a warm-up batch started the fork server."""
+    env = dict(os.environ)
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        if blas_threads:
+            env[var] = str(blas_threads)
+        else:
+            env.pop(var, None)
+    out = subprocess.run([sys.executable, "-c", CHILD, str(root), str(workers), str(Path(__file__).parent)],
+                         capture_output=True, text=True, check=True, env=env)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+CCL = [shutil.which("ccl")] if shutil.which("ccl") else [sys.executable, "-m", "ccl_cli.cli"]
+
+
+def load() -> float:
+    return round(os.getloadavg()[0], 2)
 
 
 def main() -> int:
-    from ccl_cli import simulate as sim
-    from ccl_cli.batch import plan
-    from ccl_cli.io.hdf5 import write_demonstrations
+    import logging
 
+    from ccl_cli.batch import plan
+
+    logging.getLogger("ccl").setLevel(logging.ERROR)
     ap = argparse.ArgumentParser()
     ap.add_argument("--jobs", type=int, default=24)
+    ap.add_argument("--long-jobs", type=int, default=8)
+    ap.add_argument("--blas-threads", type=int, default=1,
+                    help="BLAS threads per worker in the speed-up runs (0: ccl's default, cores / workers); "
+                         "1 measures process parallelism alone")
+    ap.add_argument("--dask", action="store_true", help="also run the trivial jobs on a Dask LocalCluster")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        for i in range(args.jobs):
-            write_demonstrations(root / f"r{i:03d}.h5", sim.toy2d(constraint="parabola", seed=i))
-        (root / "p.yaml").write_text(CONFIG)
-        jobs, _ = plan(files=[str(root / "r*.h5")], config=str(root / "p.yaml"))
-        times = {}
-        timed_batch(jobs[:2], root / "warm-local", 2, None)  # start the fork server once
-        for workers in (1, 2):
-            s = timed_batch(jobs, root / f"local{workers}", workers, None)
-            times[workers] = s
-            print(json.dumps({"executor": "local", "workers": workers, "jobs": len(jobs),
-                              "seconds": round(s, 3), "jobs_per_s": round(len(jobs) / s, 2)}), flush=True)
-        from distributed import LocalCluster
+        (root / "trivial.yaml").write_text(TRIVIAL)
+        (root / "long.yaml").write_text(LONG)
+        warm, _ = plan(files=recordings(root / "warm", 2, 5, "w"), config=str(root / "trivial.yaml"))
+        timed_batch(warm, root / "out-warm", 1)  # the fork server starts once per process
+        for demos in (5, 50):
+            jobs, _ = plan(files=recordings(root / f"d{demos}", args.jobs, demos, "r"),
+                           config=str(root / "trivial.yaml"))
+            before = load()
+            out = root / f"out-d{demos}"
+            seconds, results = timed_batch(jobs, out, 1)
+            t = timings(out, results)
+            fit = sum(sum(v for k, v in x.items() if k not in ("total", "read")) for x in t)
+            read = sum(x.get("read", 0.0) for x in t)
+            n = len(jobs)
+            print(json.dumps({"measure": "overhead", "demos_per_file": demos, "jobs": n, "workers": 1,
+                              "seconds": round(seconds, 3), "fit_s_per_job": round(fit / n, 4),
+                              "read_s_per_job": round(read / n, 4),
+                              "overhead_per_job_s": round((seconds - fit) / n, 4),
+                              "overhead_beyond_read_per_job_s": round((seconds - fit - read) / n, 4),
+                              "load": [before, load()], "cpus": os.cpu_count()}), flush=True)
+        # the command as a user runs it: a fresh process per batch (imports, fork server, summary)
+        cli = {}
+        for n, files in ((1, str(root / "d5" / "r000.h5")), (args.jobs, str(root / "d5" / "r*.h5"))):
+            t = time.perf_counter()
+            subprocess.run([*CCL, "batch", "--files", files, "-c", str(root / "trivial.yaml"), "-o",
+                            str(root / f"out-cli{n}"), "--force", "-q", "-j", "1"], check=True,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            cli[n] = time.perf_counter() - t
+        print(json.dumps({"measure": "cli", "jobs": args.jobs, "workers": 1,
+                          "seconds_1_job": round(cli[1], 3), "seconds": round(cli[args.jobs], 3),
+                          "seconds_per_job": round(cli[args.jobs] / args.jobs, 4),
+                          "marginal_per_job_s": round((cli[args.jobs] - cli[1]) / (args.jobs - 1), 4),
+                          "load": load()}), flush=True)
+        if args.long_jobs:
+            plan(files=recordings(root / "long", args.long_jobs, 100, "l"), config=str(root / "long.yaml"))
+            before = load()
+            runs = {w: fresh_process(root, w, args.blas_threads) for w in (1, 2)}
+            print(json.dumps({"measure": "speedup", "jobs": args.long_jobs,
+                              "job_s_median": runs[1]["job_s_median"],
+                              "job_s_median_j2": runs[2]["job_s_median"],
+                              "seconds_j1": runs[1]["seconds"], "seconds_j2": runs[2]["seconds"],
+                              "speedup_2_over_1": round(runs[1]["seconds"] / runs[2]["seconds"], 2),
+                              # Σ job seconds at -j 2 / (2 × wall): 1.0 when the pool keeps both
+                              # workers busy, whatever a busy neighbour does to each job's time
+                              "pool_efficiency_j2": round(runs[2]["job_s_sum"] / (2 * runs[2]["seconds"]), 2),
+                              "blas_threads": args.blas_threads or "ccl's default (cores / workers)",
+                              "load": [before, load()], "cpus": os.cpu_count()}), flush=True)
+        if args.dask:
+            from distributed import LocalCluster
 
-        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                          dashboard_address=None) as cluster:
-            timed_batch(jobs[:2], root / "warm", None, cluster.scheduler_address)  # worker imports
-            s = timed_batch(jobs, root / "dask", None, cluster.scheduler_address)
-        print(json.dumps({"executor": "dask", "workers": 2, "jobs": len(jobs), "seconds": round(s, 3),
-                          "jobs_per_s": round(len(jobs) / s, 2)}), flush=True)
-        print(json.dumps({"speedup_2_over_1": round(times[1] / times[2], 2),
-                          "dask_overhead_per_job_s": round((s - times[2]) / len(jobs), 4)}), flush=True)
+            jobs, _ = plan(files=[str(root / "d5" / "r*.h5")], config=str(root / "trivial.yaml"))
+            s_local, _ = timed_batch(jobs, root / "out-local2", 2)
+            with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                              dashboard_address=None) as cluster:
+                timed_batch(jobs[:2], root / "out-dask-warm", None, cluster.scheduler_address)
+                s_dask, _ = timed_batch(jobs, root / "out-dask", None, cluster.scheduler_address)
+            print(json.dumps({"measure": "dask", "workers": 2, "jobs": len(jobs),
+                              "seconds": round(s_dask, 3), "local_seconds": round(s_local, 3),
+                              "dask_overhead_per_job_s": round((s_dask - s_local) / len(jobs), 4)}),
+                  flush=True)
     return 0
 
 

@@ -520,15 +520,20 @@ def batch(
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> int:
     """Run a pipeline per recording (or group) in parallel; resumable; summary.csv/.md/.png."""
-    from ccl_cli.batch import plan, run_batch, write_summary
+    from ccl_cli.batch import plan, run_batch, start_workers, write_summary
 
     _logging(quiet)
     t0 = time.perf_counter()
     if manifest is None and files and config is None:
         raise ConfigError("batch --files needs --config/-c: a pipeline YAML with a stages: list")
+    if scheduler is None:
+        start_workers(workers)  # the workers' imports overlap the planning
     jobs, manifest_out = plan(manifest, files, str(config) if config else None)
     _check_plan(jobs)
     outdir = out or manifest_out or Path("runs") / "batch"
+    from ccl_cli.plots import preload_in_background
+
+    preload_in_background()  # matplotlib for summary.png, imported while this process waits on the jobs
     bar = _bar("jobs", len(jobs), quiet)
     try:
         results = run_batch(jobs, outdir, workers, scheduler, force, progress=bar.advance if bar else None)
@@ -551,7 +556,7 @@ def _check_plan(jobs) -> None:
     """Every job of a batch can run: its config names stages (raises ConfigError, exit 2,
     before any job starts)."""
     from ccl_cli.config import Config
-    from ccl_cli.pipeline import stage_list
+    from ccl_cli.runner import stage_list  # not ccl_cli.pipeline: no learner imports here
 
     for job in jobs:
         cfg = Config(job.config)

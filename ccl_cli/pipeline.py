@@ -18,7 +18,7 @@ import numpy as np
 from ccl_cli import diagnostics
 from ccl_cli import evaluate as E
 from ccl_cli import selection as S
-from ccl_cli.config import Config, stage_entry, stage_options
+from ccl_cli.config import Config, stage_options
 from ccl_cli.constraint import (
     KnownFeatureConstraint,
     LinearConstraint,
@@ -30,6 +30,7 @@ from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.nullspace import NullSpaceComponent
 from ccl_cli.policy import PolicyLearner
+from ccl_cli.runner import stage_list  # noqa: F401 - re-exported (it lives where no learner is imported)
 
 log = logging.getLogger("ccl")
 
@@ -296,12 +297,3 @@ class Pipeline:
             if r.score is not None:
                 self._score_parts(r, convention, result.metrics, f"{r.name}.")
         return result
-
-
-def stage_list(cfg: Config, default: list[str] | None = None) -> list[tuple[str, dict]]:
-    items = cfg.get("stages")
-    if not items:
-        if default is None:
-            raise ConfigError(f"{cfg.source}: no stages to run (add a stages: list)")
-        return [(name, {}) for name in default]
-    return [stage_entry(item, cfg, i) for i, item in enumerate(items)]

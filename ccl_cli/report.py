@@ -137,11 +137,11 @@ def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str,
     return "\n".join(lines)
 
 
-def make_plots(outdir: Path, pipeline) -> list[tuple[str, str]]:
-    """The run's figures (see :mod:`ccl_cli.plots`)."""
+def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None) -> list[tuple[str, str]]:
+    """The run's figures (see :mod:`ccl_cli.plots`); ``seconds`` receives each one's time."""
     from ccl_cli.plots import make_plots as draw
 
-    return draw(outdir, pipeline)
+    return draw(outdir, pipeline, seconds)
 
 
 def constraint_lines(info: dict[str, Any]) -> list[str]:

@@ -9,7 +9,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ccl_cli.config import Config
+from ccl_cli import blas
+from ccl_cli.config import Config, stage_entry
 from ccl_cli.errors import ConfigError
 
 
@@ -59,40 +60,49 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
     check_replaceable(outdir, force)  # before any work: a folder ccl did not write is never replaced
     data, masks = read_data(cfg, files)
     data.check_finite()
-    stages = stages if stages is not None else stage_list(cfg)
-    pipeline = Pipeline(cfg, data, masks)
-    pipeline.run(stages, progress=progress)
-    metrics = stage_metrics(pipeline.results)
-    hashes = {f["path"]: f["sha256"] for f in data.metadata.get("files", [])}
-    with atomic_dir(outdir, force=force) as tmp:
-        single = len([r for r in pipeline.results if r.model is not None]) == 1
-        for r in pipeline.results:
-            if r.model is None:
-                continue
-            path = tmp / "model.h5" if single else tmp / "models" / f"{r.name}.h5"
-            path.parent.mkdir(exist_ok=True)
-            save_model(path, r.model, training={"stage": r.name, "config": dict(cfg), "inputs": hashes,
-                                                "versions": versions()})
-        plots = make_plots(tmp, pipeline) if (cfg.get("output") or {}).get("plots", True) else []
-        write_json(tmp / "metrics.json", metrics)
-        summary = {**data_summary(pipeline), "validation": pipeline.split_info}
-        (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, summary)
-                                       + "\n" + "\n".join(markdown_section(pipeline.warnings)))
-        import yaml
+    t_read = time.perf_counter() - t0
+    # small problems run single-threaded BLAS (ccl_cli.blas: threads cost more than they
+    # give there, and stall on shared cores); the choice goes into run.json
+    with blas.threads(blas.stage_threads(data.n_samples)) as blas_threads:
+        stages = stages if stages is not None else stage_list(cfg)
+        pipeline = Pipeline(cfg, data, masks)
+        pipeline.run(stages, progress=progress)
+        metrics = stage_metrics(pipeline.results)
+        hashes = {f["path"]: f["sha256"] for f in data.metadata.get("files", [])}
+        with atomic_dir(outdir, force=force) as tmp:
+            single = len([r for r in pipeline.results if r.model is not None]) == 1
+            for r in pipeline.results:
+                if r.model is None:
+                    continue
+                path = tmp / "model.h5" if single else tmp / "models" / f"{r.name}.h5"
+                path.parent.mkdir(exist_ok=True)
+                save_model(path, r.model, training={"stage": r.name, "config": dict(cfg), "inputs": hashes,
+                                                    "versions": versions()})
+            plot_seconds: dict[str, float] = {}
+            plots = make_plots(tmp, pipeline, plot_seconds) if (cfg.get("output") or {}).get("plots", True) \
+                else []
+            write_json(tmp / "metrics.json", metrics)
+            summary = {**data_summary(pipeline), "validation": pipeline.split_info}
+            (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, summary)
+                                           + "\n" + "\n".join(markdown_section(pipeline.warnings)))
+            import yaml
 
-        (tmp / "config.yaml").write_text(yaml.safe_dump(dict(cfg), sort_keys=False))
-        write_json(tmp / "run.json", {
-            "command": command, "argv": sys.argv, "config": dict(cfg), "config_source": cfg.source,
-            "inputs": hashes, "versions": versions(),
-            "timings": {r.name: r.seconds for r in pipeline.results} | {"total": time.perf_counter() - t0},
-            "data": data_summary(pipeline), "validation": pipeline.split_info,
-            "warnings": pipeline.warnings,
-        })
-        for name, value in (extra_files or {}).items():
-            write_json(tmp / name, value)
-    return {"status": "ok", "command": command, "outdir": str(outdir),
-            "seconds": time.perf_counter() - t0, "validation": pipeline.split_info,
-            "stages": summarise(metrics), "warnings": pipeline.warnings}
+            (tmp / "config.yaml").write_text(yaml.safe_dump(dict(cfg), sort_keys=False))
+            write_json(tmp / "run.json", {
+                "command": command, "argv": sys.argv, "config": dict(cfg), "config_source": cfg.source,
+                "inputs": hashes, "versions": versions(),
+                "timings": {"read": t_read} | {r.name: r.seconds for r in pipeline.results}
+                | {"total": time.perf_counter() - t0},
+                "data": data_summary(pipeline), "validation": pipeline.split_info,
+                "warnings": pipeline.warnings, "plot_seconds": plot_seconds,
+                "blas": {"threads": blas_threads, "rule": f"1 below {blas.SMALL_SAMPLES} samples, else the "
+                         "library's own count (None: a BLAS ccl cannot control)"},
+            })
+            for name, value in (extra_files or {}).items():
+                write_json(tmp / name, value)
+        return {"status": "ok", "command": command, "outdir": str(outdir),
+                "seconds": time.perf_counter() - t0, "validation": pipeline.split_info,
+                "stages": summarise(metrics), "warnings": pipeline.warnings}
 
 
 def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
@@ -107,3 +117,13 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
         return out
 
     return {name: one(e) for name, e in metrics.items()}
+
+
+def stage_list(cfg: Config, default: list[str] | None = None) -> list[tuple[str, dict]]:
+    """The config's stages as (name, options) pairs (``default`` names when it has none)."""
+    items = cfg.get("stages")
+    if not items:
+        if default is None:
+            raise ConfigError(f"{cfg.source}: no stages to run (add a stages: list)")
+        return [(name, {}) for name in default]
+    return [stage_entry(item, cfg, i) for i, item in enumerate(items)]

@@ -44,8 +44,8 @@ def file_hash(path: Path) -> str:
     """
     path = Path(path)
     paths = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
-    key = tuple((str(p.resolve()), p.stat().st_size, p.stat().st_mtime_ns) for p in paths)
-    return _sha256_of(key)
+    stats = [(p, p.stat()) for p in paths]
+    return _sha256_of(tuple((str(p.resolve()), st.st_size, st.st_mtime_ns) for p, st in stats))
 
 
 @functools.lru_cache(maxsize=1024)

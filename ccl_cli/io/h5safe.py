@@ -31,6 +31,7 @@ import faulthandler
 import functools
 import hashlib
 import json
+import math
 import os
 import signal
 import subprocess
@@ -170,6 +171,10 @@ def _wait(pid: int, timeout: float) -> int | None:
 
 #: files (by :func:`_identity`) whose probe passed in this process
 _PROBED: set[tuple[str, int, int, int]] = set()
+#: files (by :func:`_identity`) whose tree passed :func:`check_tree` in this process (a
+#: canonical input is opened twice: the format check, then the read; a batch job hashes
+#: and reads the same file)
+_CHECKED: set[tuple[str, int, int, int]] = set()
 
 
 def _identity(path: Path) -> tuple[str, int, int, int]:
@@ -228,20 +233,23 @@ def open_hdf5(path: str | Path, what: str = "data file", timeout: float | None =
     where = str(path)
     if not path.is_file():
         raise InputError(f"{where}: no such {what}")
-    if not sealed(path):
-        key = _identity(path)
-        if key not in _PROBED:  # one probe per file version and process (a run opens a file twice)
-            probe(path, TIMEOUT if timeout is None else timeout)
-            _PROBED.add(key)
+    key = _identity(path)
+    if key not in _PROBED and not sealed(path):
+        # one probe per file version and process (a run opens a file twice)
+        probe(path, TIMEOUT if timeout is None else timeout)
+        _PROBED.add(key)
     try:
         f = h5py.File(path, "r")
     except (OSError, ValueError, RuntimeError) as exc:
         raise InputError(f"{where}: cannot open as HDF5 {what} ({_first(exc)})") from None
+    if key in _CHECKED:  # this version of the file passed check_tree in this process
+        return f
     try:
         check_tree(f, where)
     except BaseException:
         f.close()
         raise
+    _CHECKED.add(key)
     return f
 
 
@@ -412,19 +420,35 @@ def has(group, name: str, where: str) -> bool:
         raise InputError(f"{where}: {group.name}/{name} cannot be looked up ({_first(exc)})") from None
 
 
+def _dataset_id(group, name: str, where: str):
+    """The low-level ``DatasetID`` of ``name`` under ``group`` (InputError if absent or not
+    a dataset)."""
+    import h5py
+    from h5py import h5d, h5o
+
+    try:
+        if "/" in name or name in (".", ""):  # a path: h5py's lookup walks it
+            obj = group[name] if name in group else None
+        else:  # one link: libhdf5 directly (h5py's ``in`` + ``[]`` cost 4× as much)
+            raw = name.encode()
+            obj = h5o.open(group.id, raw) if group.id.links.exists(raw) else None
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError, UnicodeEncodeError) as exc:
+        raise InputError(f"{where}: {name} cannot be read ({_first(exc)})") from None
+    if obj is None:
+        raise InputError(f"{where}: {name} is missing")
+    if isinstance(obj, h5d.DatasetID):
+        return obj
+    if isinstance(obj, h5py.Dataset):
+        return obj.id
+    kind = type(obj).__name__ if isinstance(obj, h5py.HLObject) else type(group[name]).__name__
+    raise InputError(f"{where}: {name} must be a dataset, got a {kind}")
+
+
 def dataset(group, name: str, where: str):
     """The ``h5py.Dataset`` ``name`` under ``group`` (InputError if absent or a group)."""
     import h5py
 
-    try:  # ``in`` + ``[]``: Group.get builds a File object per call (a third of a read's time)
-        obj = group[name] if name in group else None
-    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
-        raise InputError(f"{where}: {name} cannot be read ({_first(exc)})") from None
-    if obj is None:
-        raise InputError(f"{where}: {name} is missing")
-    if not isinstance(obj, h5py.Dataset):
-        raise InputError(f"{where}: {name} must be a dataset, got a {type(obj).__name__}")
-    return obj
+    return h5py.Dataset(_dataset_id(group, name, where))
 
 
 def group_of(parent, name: str, where: str, required: bool = True):
@@ -452,29 +476,36 @@ def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite
     references) and the size (at most ``MAX_EXPANSION`` bytes per byte of file, against
     decompression bombs); after: finiteness (``finite``) and magnitude (``|v| <= limit``).
     """
-    ds = dataset(group, name, where)
-    label = f"{where}: {ds.name}"
+    import h5py
+
+    dsid = _dataset_id(group, name, where)  # no high-level Dataset: it costs as much as the read
+    ds = functools.partial(h5py.Dataset, dsid)  # for messages: ds().name, ds().file
     try:
-        kind, shape = ds.dtype.kind, tuple(ds.shape)
+        dtype, shape = dsid.dtype, tuple(dsid.shape)
     except (OSError, RuntimeError, ValueError, TypeError) as exc:  # a damaged datatype or dataspace
-        raise InputError(f"{label} has an unreadable type or shape ({_first(exc)})") from None
-    if kind not in "fiu":
-        raise InputError(f"{label} must be numeric, got dtype {ds.dtype}")
+        raise InputError(f"{where}: {ds().name} has an unreadable type or shape ({_first(exc)})") from None
+    if dtype.kind not in "fiu":
+        raise InputError(f"{where}: {ds().name} must be numeric, got dtype {dtype}")
     if len(shape) not in ndim:
         allowed = " or ".join(f"{d}-D" for d in ndim)
-        raise InputError(f"{label} must be {allowed}, got shape {shape}")
-    nbytes = int(np.prod(shape, dtype=np.float64)) * 8
-    if nbytes > (64 << 20) and nbytes > MAX_EXPANSION * os.path.getsize(ds.file.filename):
-        raise InputError(f"{label} claims shape {shape} ({nbytes} bytes), far more than the file holds")
-    try:
-        value = np.asarray(ds[()], dtype=np.float64)
+        raise InputError(f"{where}: {ds().name} must be {allowed}, got shape {shape}")
+    nbytes = math.prod(shape) * 8
+    if nbytes > (64 << 20) and nbytes > MAX_EXPANSION * os.path.getsize(ds().file.filename):
+        raise InputError(f"{where}: {ds().name} claims shape {shape} ({nbytes} bytes), far more than the "
+                         "file holds")
+    from h5py import h5s
+
+    try:  # libhdf5 converts to float64 while reading (h5py's ``ds[()]`` costs 4× as much)
+        value = np.empty(shape, dtype=np.float64)
+        if value.size:
+            dsid.read(h5s.ALL, h5s.ALL, value)
     except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
-        raise InputError(f"{label} cannot be read ({_first(exc)})") from None
+        raise InputError(f"{where}: {ds().name} cannot be read ({_first(exc)})") from None
     if finite and not np.isfinite(value).all():
-        raise InputError(f"{label} contains NaN or inf")
+        raise InputError(f"{where}: {ds().name} contains NaN or inf")
     if limit is not None and value.size and float(np.abs(value).max()) > limit:
-        raise InputError(f"{label} holds values beyond ±{limit:g} (max |v| = {np.abs(value).max():.3g}); "
-                         "no fit produces them and predictions would overflow")
+        raise InputError(f"{where}: {ds().name} holds values beyond ±{limit:g} (max |v| = "
+                         f"{np.abs(value).max():.3g}); no fit produces them and predictions would overflow")
     return value
 
 
