@@ -120,9 +120,12 @@ class Estimator:
         except InputError as exc:  # too little data to cross-validate: say so, fit as given
             self.tuning_ = {"chosen": None, "reason": f"not tuned: {exc.message}"}
             return False
-        chosen, info = S.tune(base, Xs, Us, groups, grid,
-                              budget=float(opts.get("budget", S.TUNE_BUDGET)),
-                              n_folds=folds, seed=seed, projections=projections)
+        from ccl_cli import blas
+
+        with blas.threads(blas.stage_threads(len(Us))):  # many small fits: one BLAS thread
+            chosen, info = S.tune(base, Xs, Us, groups, grid,
+                                  budget=float(opts.get("budget", S.TUNE_BUDGET)),
+                                  n_folds=folds, seed=seed, projections=projections)
         if subset is not None:
             info["subset"] = subset_note
         best = base.set_params(**chosen).fit(X, U, **fit_kw)

@@ -21,7 +21,6 @@ from collections.abc import Callable
 from itertools import combinations_with_replacement
 
 import numpy as np
-from scipy.linalg import eigh
 
 from ccl_cli.basis import Basis, make_basis
 from ccl_cli.constraint import selection as sel
@@ -219,6 +218,8 @@ class LinearConstraint(ConstraintModel):
                 Tf = np.zeros((d, d))
                 Tf[:m, :m] = T / (wsum / n)
                 Tf[np.diag_indices(d)] += 1e-10 * np.trace(Tf) / d + np.finfo(float).tiny
+                from scipy.linalg import eigh  # the generalised problem (whiten="errors") only
+
                 vals, vecs = eigh(S, Tf)
             else:
                 vals, vecs = np.linalg.eigh(S)
