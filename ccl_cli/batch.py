@@ -201,7 +201,7 @@ def run_job(job: Job, jobs_dir: str, force: bool) -> JobResult:
 
         summary = run_to_dir("run", cfg, job.files, outdir, force=True,
                              extra_files={"job.json": {"key": key, "files": job.files,
-                                                       "config": job.config_path}})
+                                                       "config": job.config_path}}, plot_workers=1)
         return JobResult(job.job_id, job.files, "ok", time.perf_counter() - t0, stages=summary["stages"])
     except CCLError as exc:
         return JobResult(job.job_id, job.files, "failed", time.perf_counter() - t0, exc.message,

@@ -17,8 +17,12 @@ Arrows are subsampled onto a grid and every figure is drawn once (< 0.5 s each).
 
 from __future__ import annotations
 
+import json
 import logging
 import os
+import time
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -389,37 +393,106 @@ def constraint_figure(info: dict[str, Any], method: str, part: str, d: Demonstra
 
 
 # -- the report's plots --------------------------------------------------------------------
-def _save(fig, path: Path) -> None:
+def _draw(make: Callable[[], Any], path: Path) -> float | None:
+    """Make one figure and write it to ``path``: its seconds, or None when there is nothing
+    to draw (``make`` returned None)."""
+    t0 = time.perf_counter()
+    fig = make()
+    if fig is None:
+        return None
     save_figure(fig, path)
+    return time.perf_counter() - t0
 
 
-def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None) -> list[tuple[str, str]]:
+def _fork_draw(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path) -> tuple[int, int] | None:
+    """Draw ``jobs`` in a forked child (it dies with this process); returns (pid, the read
+    end of a pipe on which it sends {name: seconds or None} as JSON), or None when no child
+    could be started."""
+    import warnings
+
+    from ccl_cli.lifeline import die_with_parent
+
+    read, write = os.pipe()
+    try:
+        with warnings.catch_warnings():  # 3.12+: fork() beside the BLAS's own (idle) threads
+            warnings.simplefilter("ignore", DeprecationWarning)
+            pid = os.fork()
+    except OSError:
+        os.close(read), os.close(write)
+        return None
+    if pid == 0:  # the child: draw, report, leave without running the parent's exit handlers
+        code = 1
+        try:
+            os.close(read)
+            die_with_parent()
+            out = {name: _draw(make, pdir / name) for name, _, make in jobs}
+            os.write(write, json.dumps(out).encode())
+            code = 0
+        except BaseException:  # noqa: BLE001 - the parent redraws whatever the child did not
+            pass
+        finally:
+            os._exit(code)
+    os.close(write)
+    return pid, read
+
+
+def _collect(pid: int, read: int) -> dict[str, float | None]:
+    """The child's report, or {} when it failed (its figures are then drawn again)."""
+    chunks = []
+    try:
+        while chunk := os.read(read, 65536):
+            chunks.append(chunk)
+    finally:
+        os.close(read)
+        _, status = os.waitpid(pid, 0)
+    if not os.WIFEXITED(status) or os.WEXITSTATUS(status) != 0:
+        return {}
+    try:
+        return json.loads(b"".join(chunks))
+    except ValueError:
+        return {}
+
+
+def render(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path, workers: int = 1
+           ) -> dict[str, float | None]:
+    """Draw every (file name, caption, make) job into ``pdir``; with ``workers`` ≥ 2 (and
+    fork) every other job is drawn by a forked child meanwhile — the figures are
+    independent, and drawing them is most of a small run's time. Returns {name: seconds, or
+    None for a job with nothing to draw}. A child that fails costs only time: the parent
+    then draws its jobs too, so the files are the same either way."""
+    child = None
+    theirs = jobs[1::2] if workers > 1 and len(jobs) > 1 and hasattr(os, "fork") else []
+    if theirs:
+        child = _fork_draw(theirs, pdir)
+    if child is None:
+        theirs = []
+    mine = jobs[0::2] if theirs else jobs
+    done = {name: _draw(make, pdir / name) for name, _, make in mine}
+    got = _collect(*child) if child is not None else {}
+    for name, _, make in theirs:
+        done[name] = got[name] if name in got else _draw(make, pdir / name)
+    return done
+
+
+def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None,
+               workers: int = 1) -> list[tuple[str, str]]:
     """Draw every figure of the run into ``outdir/plots``; returns (caption, relative path)
     pairs, captions starting with the stage name. ``seconds`` (if given) receives the time
     of each figure (its data, drawing and PNG; file name → s) and of matplotlib's import."""
-    import time
-
     from ccl_cli.constraint import PerDemonstration
     from ccl_cli.evaluate import task_part
 
     pdir = outdir / "plots"
     pdir.mkdir(exist_ok=True)
-    plots: list[tuple[str, str]] = []
+    jobs: list[tuple[str, str, Callable[[], Any]]] = []
     part, shown = pipeline.parts()[-1]
-    clock = [time.perf_counter()]
+    t0 = time.perf_counter()
     _import_matplotlib()
     if seconds is not None:
-        seconds["matplotlib import"] = time.perf_counter() - clock[0]
-    clock[0] = time.perf_counter()
+        seconds["matplotlib import"] = time.perf_counter() - t0
 
-    def save(fig, name: str, caption: str) -> None:
-        if fig is not None:
-            _save(fig, pdir / name)
-            plots.append((caption, f"plots/{name}"))
-        now = time.perf_counter()
-        if seconds is not None and fig is not None:
-            seconds[name] = now - clock[0]
-        clock[0] = now
+    def save(make: Callable[[], Any], name: str, caption: str) -> None:
+        jobs.append((name, caption, make))
 
     planar = shown.n_state == 2 and shown.n_action == 2
     # a held-out set of time blocks (continuous recordings) is named so in every title
@@ -435,11 +508,11 @@ def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None) 
             if d.has_truth("w"):
                 arrows["true"] = ("true w", d.truth["w"])
             if planar:
-                save(field_figure(f"{title}: null-space component w", d, dpart, arrows, r.model.predict,
-                                  "learnt w̃(x) on a grid"), "learn-v-field.png",
+                save(partial(field_figure, f"{title}: null-space component w", d, dpart, arrows,
+                             r.model.predict, "learnt w̃(x) on a grid"), "learn-v-field.png",
                      "learn-v: learnt vs true null-space component")
-            save(time_figure(f"{title}: null-space component w", dpart, d, arrows), "learn-v-time.png",
-                 "learn-v: learnt w̃ against the observations over time")
+            save(partial(time_figure, f"{title}: null-space component w", dpart, d, arrows),
+                 "learn-v-time.png", "learn-v: learnt w̃ against the observations over time")
         elif r.name == "learn-a":
             if isinstance(r.model, PerDemonstration) and not dpart.startswith("train"):
                 d, dpart = pipeline.split.train, "train" + blocks
@@ -461,18 +534,18 @@ def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None) 
                         P = m.projection(G)
                         cols = np.linalg.norm(P, axis=1)
                         return P[np.arange(len(G)), :, np.argmax(cols, axis=1)]
-                save(field_figure(title_a, d, dpart, arrows, direction,
+                save(partial(field_figure, title_a, d, dpart, arrows, direction,
                                   "learnt null-space direction of Ñ(x) on a grid", directions=True),
                      "learn-a-field.png", "learn-a: learnt vs true projections")
             else:
-                save(time_figure(title_a, dpart, d, arrows), "learn-a-time.png",
+                save(partial(time_figure, title_a, dpart, d, arrows), "learn-a-time.png",
                      "learn-a: learnt projection against the observations over time")
             sel = r.info.get("selection") or {}
-            save(selection_figure(sel, d.n_action), "learn-a-selection.png",
+            save(partial(selection_figure, sel, d.n_action), "learn-a-selection.png",
                  "learn-a: how the number of constraints was chosen")
             info = r.info.get("constraint")
             if info:
-                save(constraint_figure(info, r.method, dpart, d), "learn-a-constraint.png",
+                save(partial(constraint_figure, info, r.method, dpart, d), "learn-a-constraint.png",
                      "learn-a: the learnt constraint")
         elif r.name == "learn-pi":
             est = r.model.predict(d.X)
@@ -488,9 +561,12 @@ def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None) 
                 pred = np.einsum("nij,nj->ni", c.projection(d.X, d.demo), est) + (0 if v is None else v)
                 lines["predicted"] = ("predicted u = ṽ + Ñπ̃", pred)
             if planar:
-                save(field_figure(f"{title}: null-space policy π", d, dpart, arrows, r.model.predict,
+                save(partial(field_figure, f"{title}: null-space policy π", d, dpart, arrows, r.model.predict,
                                   "learnt π̃(x) on a grid"), "learn-pi-field.png",
                      "learn-pi: learnt vs true policy")
-            save(time_figure(f"{title}: null-space policy π", dpart, d, lines), "learn-pi-time.png",
+            save(partial(time_figure, f"{title}: null-space policy π", dpart, d, lines), "learn-pi-time.png",
                  "learn-pi: learnt policy (and the predicted u) over time")
-    return plots
+    drawn = render(jobs, pdir, workers)
+    if seconds is not None:
+        seconds.update({name: t for name, t in drawn.items() if t is not None})
+    return [(caption, f"plots/{name}") for name, caption, _ in jobs if drawn.get(name) is not None]

@@ -137,11 +137,13 @@ def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str,
     return "\n".join(lines)
 
 
-def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None) -> list[tuple[str, str]]:
-    """The run's figures (see :mod:`ccl_cli.plots`); ``seconds`` receives each one's time."""
+def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None,
+               workers: int = 1) -> list[tuple[str, str]]:
+    """The run's figures (see :mod:`ccl_cli.plots`); ``seconds`` receives each one's time;
+    ``workers`` processes draw them."""
     from ccl_cli.plots import make_plots as draw
 
-    return draw(outdir, pipeline, seconds)
+    return draw(outdir, pipeline, seconds, workers)
 
 
 def constraint_lines(info: dict[str, Any]) -> list[str]:

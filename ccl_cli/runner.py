@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -44,8 +45,12 @@ def default_outdir(command: str, cfg: Config) -> Path:
 def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = False,
                stages: list[tuple[str, dict]] | None = None,
                progress: Callable[[], None] | None = None,
-               extra_files: dict[str, Any] | None = None) -> dict[str, Any]:
+               extra_files: dict[str, Any] | None = None,
+               plot_workers: int | None = None) -> dict[str, Any]:
     """Read the data, run the stages, write every output into ``outdir`` atomically.
+
+    The figures are drawn by ``plot_workers`` processes (default: 2 on a machine with two
+    or more cores; ``ccl batch`` passes 1, its jobs already fill the cores).
 
     Returns the summary (status, outdir, per-stage method, constraint count and metric values).
     ``extra_files`` (name → JSON value) are written into the folder with the rest.
@@ -79,8 +84,10 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
                 save_model(path, r.model, training={"stage": r.name, "config": dict(cfg), "inputs": hashes,
                                                     "versions": versions()})
             plot_seconds: dict[str, float] = {}
-            plots = make_plots(tmp, pipeline, plot_seconds) if (cfg.get("output") or {}).get("plots", True) \
-                else []
+            if plot_workers is None:
+                plot_workers = 2 if (os.cpu_count() or 1) >= 2 else 1
+            plots = make_plots(tmp, pipeline, plot_seconds, plot_workers) \
+                if (cfg.get("output") or {}).get("plots", True) else []
             write_json(tmp / "metrics.json", metrics)
             summary = {**data_summary(pipeline), "validation": pipeline.split_info}
             (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, summary)
