@@ -179,11 +179,12 @@ class NullSpaceComponent(Estimator):
         (at most N/2; default width rule), scored by held-out NPE. Measured (5 seeds, test
         NUPE_w median, untuned K = 16 → tuned): ncl tutorial (ALGORITHMS.md §7, limit cycle
         + task, 500 training samples) 1.5e-4 → 4.4e-5, 0.02 s → 0.75 s per fit;
-        ``simulate.two_link(task=True)`` (70 % training) 8.9e-4 → 6.3e-5, 0.02 s → 1.05 s —
-        but the hand-tuned 100 centres reach 5.5e-5 there: on noise-free arm data the
-        held-out NPE of every K ≥ 36 is within one standard error of the best, and the
-        smallest mean picked 36 or 64 on 2 of 5 seeds (up to 196 centres the test NUPE
-        keeps falling). With output noise 0.01 K = 16 is best and is chosen. Width factors
+        ``simulate.two_link(task=True)`` (70 % training) 8.9e-4 → 5.2e-5 with 5 folds
+        (:attr:`TUNE_FOLDS`), the hand-tuned 100 centres 5.5e-5; with 3 folds 6.3e-5: on
+        noise-free arm data the held-out NPE of every K ≥ 36 is within about one standard
+        error of the best, and 3 folds picked 36 or 64 on 2 of 5 seeds (up to 196 centres
+        the test NUPE keeps falling). With output noise 0.01 K = 16 is chosen, and is best
+        (median 0.0085 against 0.018 for 100 centres). Width factors
         (1, 0.5, 0.25) on top tripled the time for the same medians, so the width stays
         with its rule. A basis the user fixed (linear, explicit centres or σ²) is not tuned."""
         if not rbf_tunable(self.basis):
