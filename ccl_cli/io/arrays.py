@@ -219,6 +219,24 @@ def pick_columns(parts: list[Part], attr: str, names: list[str], columns: list[A
     return kept
 
 
+def named_parts(chunks: list[tuple[str, dict[str, np.ndarray]]], data_cfg: dict[str, Any], where: str,
+                labels: dict[str, str], given: dict[str, list[str] | None], derive: bool
+                ) -> tuple[list[Part], list[str], list[str] | None, int, str]:
+    """(label, arrays) chunks → one :class:`Part` per demonstration with its seconds
+    (:func:`chunk_times`), and the state and action column names: ``given[key]`` when it
+    fits, else ``labels[key]`` numbered (:func:`names_for`), then the config's ``columns``
+    (:func:`pick_columns`). Returns (parts, state names, action names — None when derived —,
+    time origin ns, what the time was read from)."""
+    times, origin, time_used = chunk_times(chunks, data_cfg.get("time") or {}, where)
+    parts = [Part(a["state"], a.get("action"), t, label) for (label, a), t in zip(chunks, times, strict=True)]
+
+    def names(key: str, attr: str) -> list[str]:
+        default = names_for(labels[key], getattr(parts[0], attr).shape[1], given.get(key))
+        return pick_columns(parts, attr, default, (data_cfg.get(key) or {}).get("columns"), where)
+
+    return parts, names("state", "X"), None if derive else names("action", "U"), origin, time_used
+
+
 def assemble(parts: list[Part], data_cfg: dict[str, Any], where: str, state_names: list[str],
              action_names: list[str] | None, meta: dict[str, Any]) -> Demonstrations:
     """Per-demonstration arrays → one :class:`Demonstrations` (demo ids in part order).

@@ -33,14 +33,11 @@ from ccl_cli.errors import InputError
 from ccl_cli.io import h5safe
 from ccl_cli.io.arrays import (
     NAME_ATTRS,
-    Part,
     Variable,
     assemble,
-    chunk_times,
-    names_for,
+    named_parts,
     numeric,
     orient,
-    pick_columns,
     split_by_index,
     wants_derived,
 )
@@ -186,17 +183,10 @@ def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations
             chunks = split_by_index(arrays, index.values, index.where)
         else:
             chunks = [("file", arrays)]
-    times, origin, time_used = chunk_times(chunks, tcfg, where)
-    parts = [Part(a["state"], a.get("action"), t, label) for (label, a), t in zip(chunks, times, strict=True)]
-    state_names = pick_columns(parts, "X", names_for(state["dataset"].strip("/").split("/")[-1],
-                                                     parts[0].X.shape[1], variables["state"].names),
-                               state.get("columns"), where)
-    action_names = None
-    if not derive:
-        action = data_cfg["action"]
-        action_names = pick_columns(parts, "U", names_for(action["dataset"].strip("/").split("/")[-1],
-                                                          parts[0].U.shape[1], variables["action"].names),
-                                    action.get("columns"), where)
+    keys = ("state",) if derive else ("state", "action")
+    parts, state_names, action_names, origin, time_used = named_parts(
+        chunks, data_cfg, where, {k: data_cfg[k]["dataset"].strip("/").split("/")[-1] for k in keys},
+        {k: variables[k].names for k in keys}, derive)
     meta = {"source": where, "format": "hdf5", "layout": {
         "state": state["dataset"], "action": "derived" if derive else data_cfg["action"]["dataset"],
         "time": f"{tcfg['dataset']}: {time_used}" if tcfg.get("dataset") else time_used,

@@ -31,14 +31,11 @@ import numpy as np
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
 from ccl_cli.io.arrays import (
-    Part,
     Variable,
     assemble,
-    chunk_times,
-    names_for,
+    named_parts,
     numeric,
     orient,
-    pick_columns,
     split_by_index,
     wants_derived,
 )
@@ -290,14 +287,8 @@ def read_mat(src: _V5 | _V73, path: Path, data_cfg: dict[str, Any]) -> tuple[Dem
                       for label, a in split_by_index(oriented, index_col, f"{where}: {demos['variable']}")]
         else:
             chunks = [(state["variable"], orient(arrays, None, where))]
-    times, origin, time_used = chunk_times(chunks, tcfg, where)
-    parts = [Part(a["state"], a.get("action"), t, label) for (label, a), t in zip(chunks, times, strict=True)]
-    state_names = pick_columns(parts, "X", names_for(state["variable"], parts[0].X.shape[1], None),
-                               state.get("columns"), where)
-    action_names = None
-    if not derive:
-        action_names = pick_columns(parts, "U", names_for(action["variable"], parts[0].U.shape[1], None),
-                                    action.get("columns"), where)
+    parts, state_names, action_names, origin, time_used = named_parts(
+        chunks, data_cfg, where, {k: s["variable"] for k, s in specs.items()}, {}, derive)
     meta = {"source": where, "format": "mat",
             "mat_version": "7.3" if isinstance(src, _V73) else "5",
             "variables": {k: s["variable"] for k, s in specs.items()},
