@@ -56,49 +56,40 @@ def ncl_data(seed: int):
     return sim.toy2d(policy="limit_cycle", task=True, sampling="uniform", n_samples=1000, seed=seed)
 
 
+def compare(problem: str, learner: str, seeds: range, data, hand: dict, fit, truth: str) -> None:
+    """One accuracy row: the median over seeds of the test NUPE (of ``truth``) with the
+    hand-tuned settings ``hand``, the untuned defaults and the defaults. ``data(seed)`` →
+    (train, test); ``fit(kw, seed, train)`` → a fitted model."""
+    rows = []
+    for seed in seeds:
+        train, test = data(seed)
+        rows.append([nupe(test.truth[truth], fit(kw, seed, train).predict(test.X)).value
+                     for kw in (hand, {"tune": False}, {})])
+    med = np.median(np.array(rows), axis=0)
+    print(json.dumps({"bench": "accuracy", "problem": problem, "learner": learner,
+                      "metric": f"test NUPE{'_w' if truth == 'w' else ''}", "tutorial": med[0],
+                      "untuned_default": med[1], "default_tuned": med[2],
+                      "meets_bar": bool(med[2] <= med[0]), "seeds": len(seeds)}), flush=True)
+
+
 def accuracy(seeds: range) -> None:
     cases = [(p, m) for p in ("attractor", "limit_cycle") for m in ("pi", "pi-weighted")]
     cases.append(("limit_cycle", "lwpi"))
     for policy, method in cases:
-        rows = []
-        for seed in seeds:
-            train, test = policy_data(policy, seed).split(0.5, seed)
-            out = []
-            for kw in ({"basis": TUTORIAL_PI, "tune": False}, {"tune": False}, {}):
-                model = PolicyLearner(method=method, seed=seed, **kw).fit(train.X, train.U, demo=train.demo)
-                out.append(nupe(test.truth["pi"], model.predict(test.X)).value)
-            rows.append(out)
-        med = np.median(np.array(rows), axis=0)
-        print(json.dumps({"bench": "accuracy", "problem": f"toy2d {policy}", "learner": method,
-                          "metric": "test NUPE", "tutorial": med[0], "untuned_default": med[1],
-                          "default_tuned": med[2], "meets_bar": bool(med[2] <= med[0]),
-                          "seeds": len(seeds)}), flush=True)
-    rows = []
-    for seed in seeds:
-        train, test = ncl_data(seed).split(0.5, seed)
-        out = []
-        for kw in ({"n_centres": 16, "tune": False}, {}):
-            model = NullSpaceComponent(seed=seed, **kw).fit(train.X, train.U, train.demo)
-            out.append(nupe(test.truth["w"], model.predict(test.X)).value)
-        rows.append(out)
-    med = np.median(np.array(rows), axis=0)
-    print(json.dumps({"bench": "accuracy", "problem": "toy2d ncl (limit cycle, task b ~ U(-1, 1))",
-                      "learner": "ncl", "metric": "test NUPE_w", "tutorial": med[0],
-                      "untuned_default": med[0], "default_tuned": med[1],
-                      "meets_bar": bool(med[1] <= med[0]), "seeds": len(seeds)}), flush=True)
-    rows = []
-    for seed in seeds:  # the 2-link arm's hand-tuned ncl setting: 100 k-means RBFs
-        train, test = sim.two_link(task=True, seed=seed).split(0.3, seed)
-        out = []
-        for kw in ({"n_centres": 100, "tune": False}, {"tune": False}, {}):
-            model = NullSpaceComponent(seed=seed, **kw).fit(train.X, train.U, train.demo)
-            out.append(nupe(test.truth["w"], model.predict(test.X)).value)
-        rows.append(out)
-    med = np.median(np.array(rows), axis=0)
-    print(json.dumps({"bench": "accuracy", "problem": "two_link ncl (task b ~ U(-1, 1) per demo)",
-                      "learner": "ncl", "metric": "test NUPE_w", "tutorial": med[0],
-                      "untuned_default": med[1], "default_tuned": med[2],
-                      "meets_bar": bool(med[2] <= med[0]), "seeds": len(seeds)}), flush=True)
+        compare(f"toy2d {policy}", method, seeds,
+                lambda seed, p=policy: policy_data(p, seed).split(0.5, seed), {"basis": TUTORIAL_PI, "tune": False},
+                lambda kw, seed, tr, m=method: PolicyLearner(method=m, seed=seed, **kw).fit(
+                    tr.X, tr.U, demo=tr.demo), "pi")
+
+    def ncl(kw, seed, tr):
+        return NullSpaceComponent(seed=seed, **kw).fit(tr.X, tr.U, tr.demo)
+
+    compare("toy2d ncl (limit cycle, task b ~ U(-1, 1))", "ncl", seeds,
+            lambda seed: ncl_data(seed).split(0.5, seed), {"n_centres": 16, "tune": False}, ncl, "w")
+    # the 2-link arm's hand-tuned ncl setting: 100 k-means RBFs
+    compare("two_link ncl (task b ~ U(-1, 1) per demo)", "ncl", seeds,
+            lambda seed: sim.two_link(task=True, seed=seed).split(0.3, seed),
+            {"n_centres": 100, "tune": False}, ncl, "w")
 
 
 def angles(seeds: range) -> None:
