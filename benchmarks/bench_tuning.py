@@ -77,7 +77,8 @@ def accuracy(seeds: range) -> None:
     cases.append(("limit_cycle", "lwpi"))
     for policy, method in cases:
         compare(f"toy2d {policy}", method, seeds,
-                lambda seed, p=policy: policy_data(p, seed).split(0.5, seed), {"basis": TUTORIAL_PI, "tune": False},
+                lambda seed, p=policy: policy_data(p, seed).split(0.5, seed),
+                {"basis": TUTORIAL_PI, "tune": False},
                 lambda kw, seed, tr, m=method: PolicyLearner(method=m, seed=seed, **kw).fit(
                     tr.X, tr.U, demo=tr.demo), "pi")
 
