@@ -43,13 +43,13 @@ def current() -> int | None:
 def threads(n: int | None) -> Iterator[int | None]:
     """Run the block with ``n`` BLAS threads (None: unchanged); yields the threads in force
     (None when the BLAS cannot be controlled). The previous counts are restored after."""
-    if n is None or not controllable():
-        yield current() if n is None else None
+    if n is None:
+        yield current()
         return
     from threadpoolctl import threadpool_limits
 
-    with threadpool_limits(limits=int(n), user_api="blas"):
-        yield n
+    with threadpool_limits(limits=int(n), user_api="blas") as limiter:  # one scan of the libraries
+        yield n if limiter.get_original_num_threads().get("blas") is not None else None
 
 
 def stage_threads(n_samples: int) -> int | None:
