@@ -397,7 +397,8 @@ def constraint_figure(info: dict[str, Any], method: str, part: str, d: Demonstra
         extra = f"; angle to the true {'normal' if 'plane_normal' in info else 'row space'} " \
                 f"{info['angle_deg']:.2g}°"
     elif "plane_normal" in info:
-        extra = "; plane normal " + ", ".join(f"{v:+.3f}" for v in info["plane_normal"])
+        kind = "plane normal" if info["at"] == "constant" else "surface normal there"
+        extra = f"; {kind} " + ", ".join(f"{v:+.3f}" for v in info["plane_normal"])
     fig.suptitle(f"Learnt constraint rows Ã ({method}, unit length, {where}){extra.replace('; ', chr(10), 1)}"
                  f"\nfitted on the training demonstrations", fontsize=9)
     axes[0, 0].legend(loc="upper left", bbox_to_anchor=(1.01, 1), fontsize=8, frameon=False)

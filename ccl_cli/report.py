@@ -163,7 +163,8 @@ def constraint_lines(info: dict[str, Any]) -> list[str]:
     out.append("")
     if "plane_normal" in info:
         angle = f"; angle to the true normal {info['angle_deg']:.3g}°" if "angle_deg" in info else ""
-        out += ["Plane normal: (" + ", ".join(f"{v:+.4f}" for v in info["plane_normal"]) + f"){angle}.", ""]
+        kind = "Plane normal" if info["at"] == "constant" else "Surface normal at that state"
+        out += [f"{kind}: (" + ", ".join(f"{v:+.4f}" for v in info["plane_normal"]) + f"){angle}.", ""]
     elif "angle_deg" in info:
         out += [f"Largest principal angle between the learnt and true row spaces: {info['angle_deg']:.3g}°.",
                 ""]

@@ -247,3 +247,13 @@ def test_figures_drawn_by_a_forked_child_are_the_same_files_and_a_failed_child_i
     assert not (one / "f4.png").exists() and not (two / "f4.png").exists()
     save_figure(figure(1), tmp_path / "direct.png")  # the helper the jobs use
     assert (tmp_path / "direct.png").read_bytes() == (one / "f1.png").read_bytes()
+
+
+def test_a_state_dependent_normal_is_not_called_a_plane_normal():
+    from ccl_cli.report import constraint_lines
+
+    info = {"names": ["dx/dt", "dy/dt", "dz/dt"], "rows": [[0.0, 0.6, 0.8]], "plane_normal": [0.0, 0.6, 0.8]}
+    flat = "\n".join(constraint_lines({**info, "at": "constant"}))
+    bowl = "\n".join(constraint_lines({**info, "at": "state of sample 7"}))
+    assert "Plane normal: (+0.0000, +0.6000, +0.8000)." in flat and "Surface normal" not in flat
+    assert "Surface normal at that state: (+0.0000, +0.6000, +0.8000)." in bowl and "Plane" not in bowl
