@@ -46,10 +46,14 @@ def threads(n: int | None) -> Iterator[int | None]:
     if n is None:
         yield current()
         return
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import ThreadpoolController
 
-    with threadpool_limits(limits=int(n), user_api="blas") as limiter:  # one scan of the libraries
-        yield n if limiter.get_original_num_threads().get("blas") is not None else None
+    pools = ThreadpoolController().select(user_api="blas")  # one scan of the loaded libraries
+    if not pools:
+        yield None
+        return
+    with pools.limit(limits=int(n)):
+        yield n
 
 
 def stage_threads(n_samples: int) -> int | None:
