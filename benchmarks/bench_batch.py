@@ -56,7 +56,7 @@ output: {plots: false}
 
 
 def timed_batch(jobs, out: Path, workers: int | None, scheduler: str | None = None) -> tuple[float, list]:
-    from ccl_cli.batch import run_batch
+    from ccl_cli.app.batch import run_batch
 
     t = time.perf_counter()
     results = run_batch(jobs, out, workers=workers, scheduler=scheduler, force=True)
@@ -85,7 +85,7 @@ import json, statistics, sys, time
 from pathlib import Path
 sys.path.insert(0, sys.argv[3])
 from bench_batch import timed_batch
-from ccl_cli.batch import plan
+from ccl_cli.app.batch import plan
 root, workers = Path(sys.argv[1]), int(sys.argv[2])
 warm, _ = plan(files=[str(root / "warm" / "w*.h5")], config=str(root / "trivial.yaml"))
 timed_batch(warm, root / f"out-warm-j{workers}", workers)  # fork server and workers started
@@ -121,7 +121,7 @@ def load() -> float:
 def main() -> int:
     import logging
 
-    from ccl_cli.batch import plan
+    from ccl_cli.app.batch import plan
 
     logging.getLogger("ccl").setLevel(logging.ERROR)
     ap = argparse.ArgumentParser()

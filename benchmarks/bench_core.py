@@ -41,15 +41,15 @@ from types import SimpleNamespace  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ccl_cli import simulate as sim  # noqa: E402
-from ccl_cli.constraint import (  # noqa: E402
+from ccl_cli.learn.constraint import (  # noqa: E402
     KnownFeatureConstraint,
     LinearConstraint,
     StateDependentConstraint,
     StateIndependentConstraint,
 )
+from ccl_cli.learn.nullspace import NullSpaceComponent  # noqa: E402
+from ccl_cli.learn.policy import PolicyLearner  # noqa: E402
 from ccl_cli.metrics import nppe, nupe  # noqa: E402
-from ccl_cli.nullspace import NullSpaceComponent  # noqa: E402
-from ccl_cli.policy import PolicyLearner  # noqa: E402
 
 CHUNK = 8192
 N_TEST = 10_000

@@ -30,14 +30,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from ccl_cli import selection as S  # noqa: E402
 from ccl_cli import simulate as sim  # noqa: E402
-from ccl_cli.constraint import (  # noqa: E402
+from ccl_cli.learn import model_selection as S  # noqa: E402
+from ccl_cli.learn.constraint import (  # noqa: E402
     KnownFeatureConstraint,
     StateDependentConstraint,
     StateIndependentConstraint,
 )
-from ccl_cli.constraint import selection as rank  # noqa: E402
+from ccl_cli.learn.constraint import selection as rank  # noqa: E402
 
 NOISES_MM = (0.2, 0.5, 1.0, 2.0)
 

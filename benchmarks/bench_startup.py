@@ -51,20 +51,20 @@ from pathlib import Path
 import ccl_cli.cli  # the CLI module as `ccl` imports it
 t_cli = time.perf_counter()
 from ccl_cli import config as C
-from ccl_cli.runner import read_data
-from ccl_cli.pipeline import Pipeline, stage_list
+from ccl_cli.app.run import read_data
+from ccl_cli.app.stages import Pipeline, stage_list
 t_imp = time.perf_counter()
 cfg = C.merge(C.load(sys.argv[1]), {})
 data, masks = read_data(cfg, None)
 t_read = time.perf_counter()
-from ccl_cli import blas
+from ccl_cli.learn import blas
 with blas.threads(blas.stage_threads(data.n_samples)):  # as run_to_dir does
     p = Pipeline(cfg, data, masks)
     p.run(stage_list(cfg))
 t_stages = time.perf_counter()
-from ccl_cli.plots import make_plots
+from ccl_cli.render.figures import make_plots
 out = Path(sys.argv[2]); out.mkdir(parents=True, exist_ok=True)
-import ccl_cli.plots as P
+import ccl_cli.render.figures as P
 times = []
 orig = P._save
 def save(*a):

@@ -35,15 +35,15 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from ccl_cli import simulate as sim  # noqa: E402
-from ccl_cli.constraint import (  # noqa: E402
+from ccl_cli.learn.constraint import (  # noqa: E402
     KnownFeatureConstraint,
     LinearConstraint,
     StateDependentConstraint,
     StateIndependentConstraint,
 )
+from ccl_cli.learn.nullspace import NullSpaceComponent  # noqa: E402
+from ccl_cli.learn.policy import PolicyLearner  # noqa: E402
 from ccl_cli.metrics import nupe  # noqa: E402
-from ccl_cli.nullspace import NullSpaceComponent  # noqa: E402
-from ccl_cli.policy import PolicyLearner  # noqa: E402
 
 TUTORIAL_PI = {"kind": "rbf", "n_centres": 100, "centres": "grid", "sigma2": 0.5}
 
@@ -94,7 +94,7 @@ def accuracy(seeds: range) -> None:
 
 
 def angles(seeds: range) -> None:
-    from ccl_cli import selection as S
+    from ccl_cli.learn import model_selection as S
     from ccl_cli.metrics import nppe
 
     def parabola(seed):

@@ -368,7 +368,7 @@ def _child(argv: list[str] | None, manifest: Path, errfile: str) -> None:
         from ccl_cli.errors import CCLError
 
         if argv is None:
-            from ccl_cli.batch import plan
+            from ccl_cli.app.batch import plan
 
             try:
                 plan(manifest)
@@ -445,10 +445,10 @@ def fuzz(cases: int, seed: int = 0, timeout: float = 20.0, subprocess_cases: int
     import h5py  # noqa: F401 - loaded once before forking
     import yaml  # noqa: F401
 
-    import ccl_cli.batch  # noqa: F401
+    import ccl_cli.app.batch  # noqa: F401
+    import ccl_cli.app.stages  # noqa: F401
     import ccl_cli.cli  # noqa: F401
     import ccl_cli.io  # noqa: F401
-    import ccl_cli.pipeline  # noqa: F401
 
     rng = random.Random(seed)
     tmp = Path(tempfile.mkdtemp(prefix="ccl-fuzz-", dir=keep.mkdir(parents=True, exist_ok=True) or keep

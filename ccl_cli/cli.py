@@ -202,8 +202,8 @@ def _wrote(command: str, out: Path, data, as_json: bool) -> None:
 
 def _learn(command: str, stages: list[tuple[str, dict]] | None, cfg, files, out: Path | None,
            force: bool, as_json: bool, quiet: bool) -> None:
-    from ccl_cli.pipeline import stage_list
-    from ccl_cli.runner import default_outdir, run_to_dir
+    from ccl_cli.app.run import default_outdir, run_to_dir
+    from ccl_cli.app.stages import stage_list
 
     outdir = out or default_outdir(command, cfg)
     stages = stages if stages is not None else stage_list(cfg)
@@ -336,8 +336,8 @@ def evaluate(
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Metrics of a saved model on data (every metric its ground truth allows; docs/metrics.md)."""
-    from ccl_cli.evaluate import evaluate_saved
-    from ccl_cli.runner import read_data
+    from ccl_cli.app.evaluate import evaluate_saved
+    from ccl_cli.app.run import read_data
 
     _logging(quiet)
     cfg = _config(config, {"metrics": {"convention": _value(convention)}})
@@ -362,8 +362,8 @@ def predict(
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Predict on new states: projections N(x) (constraint), w and v (null-space), π (policy)."""
-    from ccl_cli.evaluate import predict_saved
-    from ccl_cli.runner import read_data
+    from ccl_cli.app.evaluate import predict_saved
+    from ccl_cli.app.run import read_data
 
     _logging(quiet)
     cfg = _config(config, {})
@@ -445,7 +445,7 @@ def inspect_cmd(
 ) -> None:
     """Topics (type, count, rate over the active time, fields, joint names), CSV columns, time span
     and the demonstrations a gap split finds (default gap: 5 × the median sampling interval)."""
-    from ccl_cli.inspect import inspect_recording
+    from ccl_cli.io.describe import inspect_recording
 
     _logging(quiet)
     cfg = _config(config, {})
@@ -494,8 +494,8 @@ def convert(
     config: ConfigOpt = None, force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Convert recordings (CSV, bags, MCAP) into the canonical ccl-demonstrations HDF5."""
+    from ccl_cli.app.run import read_data
     from ccl_cli.io.hdf5 import write_demonstrations
-    from ccl_cli.runner import read_data
 
     _logging(quiet)
     cfg = _config(config, {})
@@ -520,7 +520,7 @@ def batch(
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> int:
     """Run a pipeline per recording (or group) in parallel; resumable; summary.csv/.md/.png."""
-    from ccl_cli.batch import plan, run_batch, start_workers, write_summary
+    from ccl_cli.app.batch import plan, run_batch, start_workers, write_summary
 
     _logging(quiet)
     t0 = time.perf_counter()
@@ -531,7 +531,7 @@ def batch(
     jobs, manifest_out = plan(manifest, files, str(config) if config else None)
     _check_plan(jobs)
     outdir = out or manifest_out or Path("runs") / "batch"
-    from ccl_cli.plots import preload_in_background
+    from ccl_cli.render.figures import preload_in_background
 
     preload_in_background()  # matplotlib for summary.png, imported while this process waits on the jobs
     bar = _bar("jobs", len(jobs), quiet)
@@ -555,8 +555,8 @@ def batch(
 def _check_plan(jobs) -> None:
     """Every job of a batch can run: its config names stages (raises ConfigError, exit 2,
     before any job starts)."""
+    from ccl_cli.app.run import stage_list  # not ccl_cli.app.stages: no learner imports here
     from ccl_cli.config import Config
-    from ccl_cli.runner import stage_list  # not ccl_cli.pipeline: no learner imports here
 
     for job in jobs:
         cfg = Config(job.config)

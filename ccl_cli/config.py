@@ -18,8 +18,8 @@ from typing import Any
 
 import yaml
 
-from ccl_cli import defaults as S
 from ccl_cli.errors import ConfigError
+from ccl_cli.learn import defaults as S
 
 STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
 NUM = (int, float)

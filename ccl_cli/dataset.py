@@ -120,7 +120,7 @@ class Demonstrations:
         if "N" in self.truth:
             return np.asarray(self.truth_per_sample("N"))
         if "A" in self.truth:
-            from ccl_cli.linalg import nullspace_projection
+            from ccl_cli.learn.linalg import nullspace_projection
 
             return nullspace_projection(np.asarray(self.truth_per_sample("A")))
         raise InputError("no ground-truth constraint (A or N) in this dataset")

@@ -34,8 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli import selection as _selection
 from ccl_cli.dataset import Demonstrations
+from ccl_cli.learn import model_selection as _selection
 
 log = logging.getLogger("ccl")
 

@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ccl_cli.errors import ConfigError
-from ccl_cli.linalg import total_variance
+from ccl_cli.learn.linalg import total_variance
 
 CONVENTIONS = ("ccl", "original")
 

@@ -28,19 +28,19 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.basis import basis_from_state
-from ccl_cli.constraint import (
+from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.io import h5safe
+from ccl_cli.io.hdf5 import check_header
+from ccl_cli.learn.basis import basis_from_state
+from ccl_cli.learn.constraint import (
     KnownFeatureConstraint,
     LinearConstraint,
     PerDemonstration,
     StateDependentConstraint,
     StateIndependentConstraint,
 )
-from ccl_cli.errors import ConfigError, InputError
-from ccl_cli.io import h5safe
-from ccl_cli.io.hdf5 import check_header
-from ccl_cli.nullspace import NullSpaceComponent
-from ccl_cli.policy import PolicyLearner
+from ccl_cli.learn.nullspace import NullSpaceComponent
+from ccl_cli.learn.policy import PolicyLearner
 
 FORMAT = "ccl-model"
 SCHEMA_VERSION = 1
@@ -256,8 +256,8 @@ def _read(group, method: str, where: str) -> Any:
 
 
 def _check_features(model: Any, where: str) -> None:
-    from ccl_cli.constraint.lambda_ import make_features
-    from ccl_cli.kinematics import ARMS
+    from ccl_cli.learn.constraint.lambda_ import make_features
+    from ccl_cli.learn.kinematics import ARMS
 
     spec = model.features
     spec = {"arm": spec} if isinstance(spec, str) else spec

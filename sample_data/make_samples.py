@@ -19,8 +19,8 @@ import numpy as np
 
 from ccl_cli import simulate as sim
 from ccl_cli.io.hdf5 import write_demonstrations
-from ccl_cli.kinematics import SevenDofArm
-from ccl_cli.linalg import nullspace_projection
+from ccl_cli.learn.kinematics import SevenDofArm
+from ccl_cli.learn.linalg import nullspace_projection
 
 HERE = Path(__file__).resolve().parent
 EPOCH_NS = 1_700_000_000_000_000_000

@@ -2,8 +2,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ccl_cli.angles import angles_of, frame, unit_vector, unit_vector_jacobian
-from ccl_cli.basis import (
+from ccl_cli.learn.angles import angles_of, frame, unit_vector, unit_vector_jacobian
+from ccl_cli.learn.basis import (
     LinearBasis,
     RBFBasis,
     default_sigma2,

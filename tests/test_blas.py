@@ -1,4 +1,4 @@
-"""ccl_cli.blas: BLAS threads set at run time around a small problem, restored after."""
+"""ccl_cli.learn.blas: BLAS threads set at run time around a small problem, restored after."""
 
 import json
 from pathlib import Path
@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccl_cli import blas
 from ccl_cli.cli import main
+from ccl_cli.learn import blas
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 

@@ -119,15 +119,15 @@ def test_simulate_learn_evaluate_predict_round_trip(tmp_path):
 @pytest.mark.parametrize("kind", ["alpha", "lambda", "linear", "ncl", "policy", "per_demo"])
 def test_every_model_kind_reloads_bit_identically(tmp_path, kind):
     from ccl_cli import simulate as sim
-    from ccl_cli.constraint import (
+    from ccl_cli.learn.constraint import (
         KnownFeatureConstraint,
         LinearConstraint,
         PerDemonstration,
         StateDependentConstraint,
     )
+    from ccl_cli.learn.nullspace import NullSpaceComponent
+    from ccl_cli.learn.policy import PolicyLearner
     from ccl_cli.models import load_model, save_model
-    from ccl_cli.nullspace import NullSpaceComponent
-    from ccl_cli.policy import PolicyLearner
 
     if kind == "lambda":
         d = sim.two_link(n_demos=8, n_steps=20)
@@ -256,7 +256,7 @@ def test_corrupt_model_is_refused(tmp_path):
 
 # -- interruption leaves nothing half-written ------------------------------------------------
 def test_interrupted_write_leaves_no_output(capsys, tmp_path, monkeypatch):
-    import ccl_cli.report as report
+    import ccl_cli.render.report as report
 
     def boom(*a, **k):
         raise KeyboardInterrupt

@@ -10,10 +10,10 @@ from test_segment import CSV_CFG, write_tracker_csv
 from ccl_cli import diagnostics as D
 from ccl_cli import simulate as sim
 from ccl_cli.cli import main
-from ccl_cli.constraint import StateIndependentConstraint
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.io import load_demonstrations
 from ccl_cli.io.assemble import local_polynomial_derivative
+from ccl_cli.learn.constraint import StateIndependentConstraint
 
 
 def codes(warnings):

@@ -6,19 +6,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ccl_cli import simulate as sim
-from ccl_cli.basis import RBFBasis
-from ccl_cli.constraint import (
+from ccl_cli.errors import ConfigError, LearningError
+from ccl_cli.learn.basis import RBFBasis
+from ccl_cli.learn.constraint import (
     KnownFeatureConstraint,
     LinearConstraint,
     PerDemonstration,
     StateDependentConstraint,
     StateIndependentConstraint,
 )
-from ccl_cli.errors import ConfigError, LearningError
-from ccl_cli.linalg import nullspace_projection, unit_rows
+from ccl_cli.learn.linalg import nullspace_projection, unit_rows
+from ccl_cli.learn.nullspace import NullSpaceComponent
+from ccl_cli.learn.policy import PolicyLearner
 from ccl_cli.metrics import nppe, nupe
-from ccl_cli.nullspace import NullSpaceComponent
-from ccl_cli.policy import PolicyLearner
 
 
 def test_nhat_closed_form_recovers_7dof_rank2_constraint():
@@ -249,7 +249,7 @@ LEARNERS = [
 @pytest.mark.parametrize("make", LEARNERS)
 def test_estimator_base_params_clone_and_not_fitted(make):
     from ccl_cli.errors import LearningError
-    from ccl_cli.estimator import NotFittedError, clone
+    from ccl_cli.learn.base import NotFittedError, clone
 
     model = make()
     params = model.get_params(deep=False)
@@ -283,7 +283,7 @@ def test_set_params_nested_and_keyword_only():
 
 
 def test_absolute_cutoff_is_the_original_rule_not_the_relative_one():
-    from ccl_cli.linalg import eigen_lstsq
+    from ccl_cli.learn.linalg import eigen_lstsq
 
     M = np.diag([1e3, 5e-4, 1e-7])
     r = np.array([1e3, 5e-4, 1e-7])
@@ -300,9 +300,9 @@ def test_absolute_cutoff_is_the_original_rule_not_the_relative_one():
 
 # ---- issue 10 (scale): chunked normal equations give the unchunked answers ----------------
 
-from ccl_cli import linalg as _linalg  # noqa: E402
-from ccl_cli.basis import kmeans_centres  # noqa: E402
-from ccl_cli.constraint import angular as _angular  # noqa: E402
+from ccl_cli.learn import linalg as _linalg  # noqa: E402
+from ccl_cli.learn.basis import kmeans_centres  # noqa: E402
+from ccl_cli.learn.constraint import angular as _angular  # noqa: E402
 
 
 def test_kron_normal_summed_over_blocks_equals_the_full_jacobian_products():
@@ -397,7 +397,7 @@ def test_ncl_degenerate_actions_are_a_result_or_an_error_never_a_crash():
 
 
 def test_ncl_stages_on_a_subsample_end_at_the_all_rows_optimum(monkeypatch):
-    from ccl_cli import nullspace
+    from ccl_cli.learn import nullspace
 
     train, test = ncl_halves()
     whole = NullSpaceComponent(n_centres=4, tune=False).fit(train.X, train.U)

@@ -1,7 +1,7 @@
 """Every metric a stage reports, recomputed by hand from the saved models and the data.
 
 The recomputations below use only NumPy on the saved model's predictions and the data
-file (never ccl_cli.metrics or ccl_cli.evaluate), so a wrong normaliser, label or
+file (never ccl_cli.metrics or ccl_cli.app.evaluate), so a wrong normaliser, label or
 formula in the reports fails here.
 """
 
@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import yaml
 
+from ccl_cli.app.stages import split_data
 from ccl_cli.cli import main
 from ccl_cli.io.hdf5 import read_demonstrations
 from ccl_cli.models import load_model
-from ccl_cli.pipeline import split_data
-from ccl_cli.report import STOPS
+from ccl_cli.render.report import STOPS
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "configs"
@@ -154,9 +154,9 @@ def test_original_convention_changes_the_normalisers_it_should(tmp_path):
 
 
 def test_original_convention_state_independent_and_npe(tmp_path):
-    from ccl_cli.constraint import StateIndependentConstraint
+    from ccl_cli.app.evaluate import constraint_metrics, nullspace_metrics
     from ccl_cli.dataset import Demonstrations
-    from ccl_cli.evaluate import constraint_metrics, nullspace_metrics
+    from ccl_cli.learn.constraint import StateIndependentConstraint
 
     data, _ = read_demonstrations(SAMPLES / "arm7.h5")
     model = StateIndependentConstraint().fit(data.X, data.U)
@@ -193,8 +193,8 @@ def test_evaluate_command_matches_the_stage_numbers(tmp_path, capsys):
 
 
 def test_plot_helpers_subsample_and_angles():
-    from ccl_cli.inspect import activity
-    from ccl_cli.plots import grid_subsample, subspace_angle
+    from ccl_cli.io.describe import activity
+    from ccl_cli.render.figures import grid_subsample, subspace_angle
 
     X = np.random.default_rng(0).uniform(-1, 1, (5000, 2))
     idx = grid_subsample(X, cells=10)
@@ -218,7 +218,7 @@ def test_figures_drawn_by_a_forked_child_are_the_same_files_and_a_failed_child_i
     drawn by the parent (nothing is missing)."""
     import os
 
-    from ccl_cli.plots import render, save_figure, subplots
+    from ccl_cli.render.figures import render, save_figure, subplots
 
     def figure(k):
         fig, ax = subplots(figsize=(3, 2))
@@ -250,7 +250,7 @@ def test_figures_drawn_by_a_forked_child_are_the_same_files_and_a_failed_child_i
 
 
 def test_a_state_dependent_normal_is_not_called_a_plane_normal():
-    from ccl_cli.report import constraint_lines
+    from ccl_cli.render.report import constraint_lines
 
     info = {"names": ["dx/dt", "dy/dt", "dz/dt"], "rows": [[0.0, 0.6, 0.8]], "plane_normal": [0.0, 0.6, 0.8]}
     flat = "\n".join(constraint_lines({**info, "at": "constant"}))

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from ccl_cli import simulate as sim
+from ccl_cli.app.run import read_data
 from ccl_cli.cli import main
 from ccl_cli.config import Config
 from ccl_cli.errors import InputError
 from ccl_cli.io import load_demonstrations
 from ccl_cli.io.assemble import local_polynomial_derivative, segment_ids
 from ccl_cli.io.hdf5 import write_demonstrations
-from ccl_cli.runner import read_data
 
 EPOCH_NS = 1_700_000_000_000_000_000
 
@@ -144,7 +144,7 @@ def test_default_derivative_window_spans_the_same_time_at_any_rate(tmp_path, rat
                                      "action": {"derive": "state", "window": 9}})
         err_fixed = np.sqrt(np.mean((fixed.U - true_u) ** 2))
         assert err_default < err_fixed / 5
-    from ccl_cli.pipeline import guard_gap
+    from ccl_cli.app.stages import guard_gap
     assert guard_gap(Config({"data": cfg}), data) == max(window, 10)
-    from ccl_cli.report import derived_actions  # the report.md / run.json line
+    from ccl_cli.render.report import derived_actions  # the report.md / run.json line
     assert f"window {window} samples: default: ±0.08 s at the median rate" in derived_actions(data.metadata)

@@ -3,13 +3,12 @@
 import numpy as np
 import pytest
 
-from ccl_cli import selection as S
 from ccl_cli import simulate as sim
-from ccl_cli.constraint import KnownFeatureConstraint, StateIndependentConstraint
-from ccl_cli.constraint import selection as rank
 from ccl_cli.errors import InputError
-from ccl_cli.nullspace import NullSpaceComponent
-from ccl_cli.policy import PolicyLearner
+from ccl_cli.learn import model_selection as S
+from ccl_cli.learn.constraint import KnownFeatureConstraint, StateIndependentConstraint, rank
+from ccl_cli.learn.nullspace import NullSpaceComponent
+from ccl_cli.learn.policy import PolicyLearner
 
 
 def test_folds_by_demonstration_cover_every_sample_once():
@@ -103,7 +102,7 @@ def test_lambda_cross_validated_count_on_the_7dof_arm_scores_joint_space_data():
 
 def test_default_rule_is_one_for_library_and_cli():
     from ccl_cli import config as C
-    from ccl_cli.constraint import LinearConstraint, StateDependentConstraint
+    from ccl_cli.learn.constraint import LinearConstraint, StateDependentConstraint
 
     assert C.DEFAULTS["learn-a"]["selection"] == rank.DEFAULT_RULE
     for cls in (StateIndependentConstraint, StateDependentConstraint, KnownFeatureConstraint,
@@ -140,7 +139,7 @@ def test_tracker_simulations_get_one_constraint_and_small_held_out_npoe():
     """Issue 9's tracker bars with the default rule (20 seeds per noise level in
     benchmarks/bench_rank.py; here the extreme noise levels for the plane and 3 seeds of
     the bowl, which take alpha fits). Test NPOE on held-out time blocks at 1 mm < 0.03."""
-    from ccl_cli.constraint import StateDependentConstraint
+    from ccl_cli.learn.constraint import StateDependentConstraint
 
     for noise in (2e-4, 2e-3):
         ks = [StateIndependentConstraint().fit(None, sim.tracker_plane(noise=noise, seed=s).U).n_constraints_

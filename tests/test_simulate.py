@@ -145,5 +145,5 @@ def test_limit_cycle_trajectories_end_before_they_overflow():
     for seed in range(3):
         d = sim.toy2d(policy="limit_cycle", seed=seed)
         assert np.isfinite(d.U).all() and np.isfinite(d.X).all()
-        assert np.abs(d.X).max() <= sim.ESCAPE
+        assert np.abs(d.X).max() <= sim.reference.ESCAPE
         assert 300 < len(d.X) < 1000  # some trajectories escape, most run on

@@ -13,10 +13,10 @@ import pytest
 
 from ccl_cli import config as C
 from ccl_cli import simulate as sim
+from ccl_cli.app.stages import Pipeline
 from ccl_cli.cli import main
+from ccl_cli.learn.policy import PolicyLearner
 from ccl_cli.metrics import nupe
-from ccl_cli.pipeline import Pipeline
-from ccl_cli.policy import PolicyLearner
 
 TUTORIAL = {"kind": "rbf", "n_centres": 100, "centres": "grid", "sigma2": 0.5}
 
@@ -102,7 +102,7 @@ def test_too_little_data_to_tune_is_said_not_hidden():
 def test_lambda_tuning_on_the_two_link_arm_beats_the_fixed_basis():
     """Grid {16, 25} centres: held-out NPOE picks 25 and the test NPPE falls 20× (measured
     over seeds 0–4: median 3.2e-7 → 1.7e-9)."""
-    from ccl_cli.constraint import KnownFeatureConstraint
+    from ccl_cli.learn.constraint import KnownFeatureConstraint
     from ccl_cli.metrics import nppe
 
     train, test = sim.two_link(seed=0).split(0.3, 0)
@@ -119,7 +119,7 @@ def test_lambda_tuning_on_the_two_link_arm_beats_the_fixed_basis():
 
 def test_lambda_tuning_on_the_7dof_arm_picks_from_its_grid():
     """The 7-DoF arm with one centre (as configs/kuka_bag.yaml): grid {1, 4}, folds by demonstration."""
-    from ccl_cli.constraint import KnownFeatureConstraint
+    from ccl_cli.learn.constraint import KnownFeatureConstraint
 
     data = sim.arm7(rows=(0, 1), constraint="jacobian", seed=0, n_demos=12, n_steps=20)
     model = KnownFeatureConstraint(features={"arm": "arm7", "rows": [0, 1, 2]}, n_centres=1,
@@ -136,7 +136,7 @@ def test_lambda_tuning_on_the_7dof_arm_picks_from_its_grid():
 def test_alpha_grid_the_wide_candidate_wins_back_the_parabola():
     """Parabola seed 4: with {25, 9} centres held-out NPOE chose 9 (test NPPE 0.14); the
     third candidate, 25 centres twice as wide, wins the CV and gives 0.025 (untuned 0.039)."""
-    from ccl_cli.constraint import StateDependentConstraint
+    from ccl_cli.learn.constraint import StateDependentConstraint
     from ccl_cli.metrics import nppe
 
     train, test = sim.toy2d(constraint="parabola", seed=4).split(0.3, 4)
@@ -155,7 +155,7 @@ def test_alpha_grid_the_wide_candidate_wins_back_the_parabola():
 def test_alpha_and_lambda_with_too_few_samples_for_any_candidate_fit_as_given():
     """16 samples in 8 demonstrations: no grid basis fits in (≤ N/2 centres), so there is no
     grid and the configured basis is fitted (no 'no candidate' error)."""
-    from ccl_cli.constraint import KnownFeatureConstraint, StateDependentConstraint
+    from ccl_cli.learn.constraint import KnownFeatureConstraint, StateDependentConstraint
 
     toy = sim.toy2d(constraint="parabola", seed=0, n_demos=8, n_steps=2)
     arm = sim.two_link(seed=0, n_demos=8, n_steps=2)
@@ -170,7 +170,7 @@ def test_alpha_and_lambda_with_too_few_samples_for_any_candidate_fit_as_given():
 def test_ncl_default_grid_beats_the_tutorials_16_centres():
     """ncl tutorial (ALGORITHMS.md §7: limit cycle + task part, 500/500, 16 RBFs by hand):
     the default grid K ∈ {16, 36, 64, 100} is no worse in the median of 3 seeds."""
-    from ccl_cli.nullspace import NullSpaceComponent
+    from ccl_cli.learn.nullspace import NullSpaceComponent
 
     tuned, hand = [], []
     for seed in range(3):
@@ -193,7 +193,7 @@ def test_ncl_defaults_match_the_hand_tuned_100_centres_on_the_two_link_arm():
     demonstrations held out): the defaults are no worse than the hand-tuned 100 centres, median
     of 5 seeds (measured: 5.2e-5 vs 5.5e-5; the untuned 16 centres 8.9e-4). The budget is lifted
     so the test does not depend on the machine's load; grid and folds are the defaults."""
-    from ccl_cli.nullspace import NullSpaceComponent
+    from ccl_cli.learn.nullspace import NullSpaceComponent
 
     tuned, hand = [], []
     for seed in range(5):
@@ -209,7 +209,7 @@ def test_ncl_defaults_match_the_hand_tuned_100_centres_on_the_two_link_arm():
 def test_large_data_is_tuned_on_a_seeded_subset_and_the_winner_fitted_on_all():
     """Above max_rows the grid is searched on whole demonstrations (or spread pieces of one
     recording) drawn with the seed; the chosen basis is refitted on every sample."""
-    from ccl_cli.selection import tuning_subset
+    from ccl_cli.learn.model_selection import tuning_subset
 
     many = np.repeat(np.arange(40), 100)  # 40 demonstrations of 100 samples
     rows, groups, note = tuning_subset(many, len(many), seed=3, max_rows=1000)

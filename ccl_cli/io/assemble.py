@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli import defaults
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
+from ccl_cli.learn import defaults
 
 log = logging.getLogger("ccl")
 
@@ -134,8 +134,8 @@ def resegment(data: Demonstrations, demos: dict[str, Any] | None, where: str,
 
 def window_for_rate(rate: float, order: int = 2) -> int:
     """The default derivative window at ``rate`` Hz: the odd number of samples spanning
-    ±:data:`~ccl_cli.defaults.DERIVATIVE_HALF_SPAN_S` (9 at 50 Hz, 81 at 500 Hz), at least
-    order + 2 and at most :data:`~ccl_cli.defaults.DERIVATIVE_MAX_WINDOW`."""
+    ±:data:`~ccl_cli.learn.defaults.DERIVATIVE_HALF_SPAN_S` (9 at 50 Hz, 81 at 500 Hz), at least
+    order + 2 and at most :data:`~ccl_cli.learn.defaults.DERIVATIVE_MAX_WINDOW`."""
     half = int(round(defaults.DERIVATIVE_HALF_SPAN_S * float(rate))) if np.isfinite(rate) else 0
     window = 2 * half + 1
     lo = order + 2 + (order + 2 + 1) % 2  # the smallest odd window > order + 1

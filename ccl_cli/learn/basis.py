@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
-from ccl_cli.linalg import row_chunks
+from ccl_cli.learn.linalg import row_chunks
 
 #: Feature blocks of iterative learners are kept in memory up to this many bytes (N K · 8);
 #: above it they are recomputed on every pass, so memory stays bounded in N.

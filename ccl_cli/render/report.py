@@ -92,7 +92,7 @@ def metric_rows(entry: dict[str, Any]) -> list[str]:
 def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str, str]],
              data_info: dict[str, Any]) -> str:
     """report.md: the data, then per stage what was learnt, its metrics (docs/metrics.md) and plots."""
-    from ccl_cli.selection import tuning_markdown, validation_markdown
+    from ccl_cli.learn.model_selection import tuning_markdown, validation_markdown
 
     lines = [f"# {title}", ""]
     lines += [f"- samples: {data_info.get('samples')} in {data_info.get('demos')} demonstrations "
@@ -139,9 +139,9 @@ def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str,
 
 def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None,
                workers: int = 1) -> list[tuple[str, str]]:
-    """The run's figures (see :mod:`ccl_cli.plots`); ``seconds`` receives each one's time;
+    """The run's figures (see :mod:`ccl_cli.render.figures`); ``seconds`` receives each one's time;
     ``workers`` processes draw them."""
-    from ccl_cli.plots import make_plots as draw
+    from ccl_cli.render.figures import make_plots as draw
 
     return draw(outdir, pipeline, seconds, workers)
 

@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ccl_cli.basis import Basis, RBFBasis, make_basis
-from ccl_cli.constraint.base import check_xu
 from ccl_cli.errors import ConfigError, InputError, LearningError
-from ccl_cli.estimator import Estimator
-from ccl_cli.linalg import eigen_lstsq, kron_rows, row_chunks
-from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
+from ccl_cli.learn.base import Estimator
+from ccl_cli.learn.basis import Basis, RBFBasis, make_basis
+from ccl_cli.learn.constraint.base import check_xu
+from ccl_cli.learn.linalg import eigen_lstsq, kron_rows, row_chunks
+from ccl_cli.learn.model_selection import TUNE, basis_grid, rbf_tunable
 
 METHODS = ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl")
 
@@ -49,7 +49,7 @@ class PolicyLearner(Estimator):
             "Reproducing the original library").
         min_norm: samples with ‖u‖ below this are dropped (not for ``dpl``/``pi-coupled``).
         chunk_size: rows per block of the normal-equation sums (default 8192).
-        tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
+        tune: choose the basis by cross-validation (:func:`ccl_cli.learn.model_selection.tune`; True by
             default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
     Attributes:

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ccl_cli.angles import unit_vector
-from ccl_cli.constraint import selection as sel
-from ccl_cli.constraint.base import ConstraintModel, check_xu
 from ccl_cli.errors import ConfigError
+from ccl_cli.learn.angles import unit_vector
+from ccl_cli.learn.constraint import rank as sel
+from ccl_cli.learn.constraint.base import ConstraintModel, check_xu
 
 #: Grid of the original search: 20 angles per axis in [0, π − π/20].
 SEARCH_STEPS = 20
@@ -43,7 +43,7 @@ class StateIndependentConstraint(ConstraintModel):
     Args:
         method: ``"closed_form"`` (default) or ``"search"`` (the original grid search,
             q ≤ 6; for comparison only).
-        selection: how s is chosen (:mod:`ccl_cli.constraint.selection`): ``ratio``
+        selection: how s is chosen (:mod:`ccl_cli.learn.constraint.rank`): ``ratio``
             (the noise-aware default), ``threshold`` (the original), ``eigengap``, ``cv``,
             or fixed via ``n_constraints``.
         n_constraints: fix s.

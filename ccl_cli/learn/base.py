@@ -77,7 +77,7 @@ class Estimator:
         if not all(hasattr(self, a) for a in attrs):
             raise NotFittedError(f"this {type(self).__name__} is not fitted yet: call fit(X, U) first")
 
-    # -- hyperparameter tuning (ccl_cli.selection.tune) ----------------------------------
+    # -- hyperparameter tuning (ccl_cli.learn.model_selection.tune) ----------------------------------
     #: Folds of this learner's default hyperparameter search (None: selection.TUNE_FOLDS).
     TUNE_FOLDS: int | None = None
 
@@ -89,14 +89,14 @@ class Estimator:
     def _fit_tuned(self, X: np.ndarray, U: np.ndarray, **fit_kw: Any) -> bool:
         """When the learner's ``tune`` parameter is on (True, or a dict ``{budget: s,
         grid: {...}, folds: k, max_rows: m}``), choose its hyperparameters by
-        cross-validation (:func:`ccl_cli.selection.tune`) — on a seeded subset of about
-        ``max_rows`` samples (:func:`ccl_cli.selection.tuning_subset`) when there are more —
+        cross-validation (:func:`ccl_cli.learn.model_selection.tune`) — on a seeded subset of about
+        ``max_rows`` samples (:func:`ccl_cli.learn.model_selection.tuning_subset`) when there are more —
         fit the winner on all of X, U and take over its learnt attributes; ``tuning_``
         records the grid, the CV curve, the choice and any subset.
         The constructor parameters themselves are left unchanged. Returns False (and sets
         ``tuning_ = None``) when there is nothing to tune: the caller then fits as usual.
         """
-        from ccl_cli import selection as S
+        from ccl_cli.learn import model_selection as S
 
         spec = getattr(self, "tune", False)
         opts = spec if isinstance(spec, dict) else {}
@@ -120,7 +120,7 @@ class Estimator:
         except InputError as exc:  # too little data to cross-validate: say so, fit as given
             self.tuning_ = {"chosen": None, "reason": f"not tuned: {exc.message}"}
             return False
-        from ccl_cli import blas
+        from ccl_cli.learn import blas
 
         with blas.threads(blas.stage_threads(len(Us))):  # many small fits: one BLAS thread
             chosen, info = S.tune(base, Xs, Us, groups, grid,

@@ -7,8 +7,8 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import InputError
-from ccl_cli.estimator import Estimator, clone
-from ccl_cli.linalg import nullspace_projection
+from ccl_cli.learn.base import Estimator, clone
+from ccl_cli.learn.linalg import nullspace_projection
 
 
 class ConstraintModel(Estimator):

@@ -10,7 +10,7 @@ by Levenberg–Marquardt with the analytic Jacobian
     ∂r_n/∂W_k[i, j] = (∂a/∂θ_i(θ_n) · z_n) β_j(x_n),
 
 whose rows vec(g_n β_nᵀ) are summed into JᵀJ and Jᵀr block by block, one pass over
-the data per iteration (:func:`~ccl_cli.linalg.kron_least_squares`; no N × (d−k)K matrix),
+the data per iteration (:func:`~ccl_cli.learn.linalg.kron_least_squares`; no N × (d−k)K matrix),
 
 from several seeded starts (the local closed form, the best constant direction, random
 ones): each start is screened for SCREEN_PASSES iterations and the best is run to
@@ -27,11 +27,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ccl_cli.angles import angles_of, frame, unit_vector, unit_vector_jacobian
-from ccl_cli.linalg import kron_least_squares, row_chunks, total_variance
+from ccl_cli.learn.angles import angles_of, frame, unit_vector, unit_vector_jacobian
+from ccl_cli.learn.linalg import kron_least_squares, row_chunks, total_variance
 
 if TYPE_CHECKING:
-    from ccl_cli.basis import Basis
+    from ccl_cli.learn.basis import Basis
 
 #: Default bound on the LM passes of one row (alpha's and lambda's ``max_iter``). Measured
 #: (issue 9/10): every fit with default-width bases on the parabola toy, the two-link arm and
@@ -64,7 +64,7 @@ class AngleFit:
 
 
 def chunked_features(basis: Basis, X: np.ndarray) -> np.ndarray:
-    """β(X) (N, K) computed in :func:`~ccl_cli.linalg.row_chunks` blocks (the per-row
+    """β(X) (N, K) computed in :func:`~ccl_cli.learn.linalg.row_chunks` blocks (the per-row
     transform on cache-sized blocks: ~3× faster than one (N, K) pass at N = 1e5)."""
     out = np.empty((len(X), basis.n_features))
     for rows in row_chunks(len(X)):
@@ -108,7 +108,7 @@ def _local_start(B: np.ndarray, Z: np.ndarray, X: np.ndarray, rng: np.random.Gen
     unwrapped around its circular mean, and the per-sample angles of each sample's
     cluster are lifted into the features by ridge regression.
     """
-    from ccl_cli.basis import cluster_sums, kmeans_centres, pairwise_sqdist
+    from ccl_cli.learn.basis import cluster_sums, kmeans_centres, pairwise_sqdist
 
     n, m = Z.shape
     k = int(min(n_clusters, max(1, n // (4 * m))))

@@ -10,9 +10,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ccl_cli import blas
 from ccl_cli.config import Config, stage_entry
 from ccl_cli.errors import ConfigError
+from ccl_cli.learn import blas
 
 
 def read_data(cfg: Config, files: list[Path] | list[str] | None):
@@ -55,18 +55,18 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
     Returns the summary (status, outdir, per-stage method, constraint count and metric values).
     ``extra_files`` (name → JSON value) are written into the folder with the rest.
     """
+    from ccl_cli.app.stages import Pipeline, stage_list
     from ccl_cli.diagnostics import markdown_section
     from ccl_cli.io.atomic import atomic_dir, check_replaceable
     from ccl_cli.models import save_model
-    from ccl_cli.pipeline import Pipeline, stage_list
-    from ccl_cli.report import data_summary, make_plots, markdown, stage_metrics, versions, write_json
+    from ccl_cli.render.report import data_summary, make_plots, markdown, stage_metrics, versions, write_json
 
     t0 = time.perf_counter()
     check_replaceable(outdir, force)  # before any work: a folder ccl did not write is never replaced
     data, masks = read_data(cfg, files)
     data.check_finite()
     t_read = time.perf_counter() - t0
-    # small problems run single-threaded BLAS (ccl_cli.blas: threads cost more than they
+    # small problems run single-threaded BLAS (ccl_cli.learn.blas: threads cost more than they
     # give there, and stall on shared cores); the choice goes into run.json
     with blas.threads(blas.stage_threads(data.n_samples)) as blas_threads:
         stages = stages if stages is not None else stage_list(cfg)

@@ -52,7 +52,7 @@ test NUPE than the old path at N = 1e4.
 
 Scale: the Jacobian row of sample n is vec(g_n β_nᵀ) with g_n ∈ R^q the bracket above, so
 each Levenberg–Marquardt iteration is one pass over the data in row blocks that sums
-JᵀJ = Σ kron(g gᵀ, β βᵀ) and Jᵀr (:func:`~ccl_cli.linalg.kron_least_squares`): the
+JᵀJ = Σ kron(g gᵀ, β βᵀ) and Jᵀr (:func:`~ccl_cli.learn.linalg.kron_least_squares`): the
 cost is O(N (Kq)²) flops per accepted step (a rejected one costs a residual pass,
 O(N K q)) and memory O(chunk · Kq + (Kq)²), never N × Kq.
 """
@@ -63,12 +63,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ccl_cli.basis import Basis, feature_blocks, make_basis
-from ccl_cli.constraint.base import check_xu
 from ccl_cli.errors import ConfigError, LearningError
-from ccl_cli.estimator import Estimator
-from ccl_cli.linalg import eigen_lstsq, kron_least_squares, row_chunks
-from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
+from ccl_cli.learn.base import Estimator
+from ccl_cli.learn.basis import Basis, feature_blocks, make_basis
+from ccl_cli.learn.constraint.base import check_xu
+from ccl_cli.learn.linalg import eigen_lstsq, kron_least_squares, row_chunks
+from ccl_cli.learn.model_selection import TUNE, basis_grid, rbf_tunable
 
 #: ``residual(W, rows, β)`` → (r (c,), ∂r/∂w̃ (c, q)), the callback of kron_least_squares.
 Residual = Callable[[np.ndarray, slice, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -126,14 +126,14 @@ class NullSpaceComponent(Estimator):
         tol: tolerance of stages 3 and 4: each stops when an accepted step lowers the cost
             by less than ``tol`` relatively, the Gauss–Newton model predicts a decrease
             below ``tol`` times the cost, the step is below ``tol`` relative to W, or the
-            scaled gradient is below ``tol`` (:func:`~ccl_cli.linalg.kron_least_squares`;
+            scaled gradient is below ``tol`` (:func:`~ccl_cli.learn.linalg.kron_least_squares`;
             original: 1e-9); stages 1–2 use :data:`STAGE_TOL` and STAGE_TOL/100.
         chunk_size: rows per block of the passes over the data (default 8192).
         polish: run stages 2–4 (default). ``False`` stops after stage 1 (the smooth
             residual: about half the time, 2–30× the test error in the benchmark).
         smoothing: δ² of stages 2–3 relative to mean ‖w̃‖² (0: the original residual
             throughout, and no stage 4).
-        tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
+        tune: choose the basis by cross-validation (:func:`ccl_cli.learn.model_selection.tune`; True by
             default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
     Attributes:

@@ -16,21 +16,21 @@ from typing import Any
 import numpy as np
 
 from ccl_cli import diagnostics
-from ccl_cli import evaluate as E
-from ccl_cli import selection as S
+from ccl_cli.app import evaluate as E
+from ccl_cli.app.run import stage_list  # noqa: F401 - re-exported (it lives where no learner is imported)
 from ccl_cli.config import Config, stage_options
-from ccl_cli.constraint import (
+from ccl_cli.dataset import Demonstrations
+from ccl_cli.errors import ConfigError, LearningError
+from ccl_cli.learn import model_selection as S
+from ccl_cli.learn.constraint import (
     KnownFeatureConstraint,
     LinearConstraint,
     PerDemonstration,
     StateDependentConstraint,
     StateIndependentConstraint,
 )
-from ccl_cli.dataset import Demonstrations
-from ccl_cli.errors import ConfigError, LearningError
-from ccl_cli.nullspace import NullSpaceComponent
-from ccl_cli.policy import PolicyLearner
-from ccl_cli.runner import stage_list  # noqa: F401 - re-exported (it lives where no learner is imported)
+from ccl_cli.learn.nullspace import NullSpaceComponent
+from ccl_cli.learn.policy import PolicyLearner
 
 log = logging.getLogger("ccl")
 
@@ -210,7 +210,7 @@ class Pipeline:
                                    "on": "w" if on_w else "u"})
         if getattr(model, "tuning_", None):
             result.info["tuning"] = model.tuning_
-        from ccl_cli.plots import describe_constraint
+        from ccl_cli.render.figures import describe_constraint
 
         result.info["constraint"] = describe_constraint(model, tr)
         if isinstance(model, PerDemonstration):

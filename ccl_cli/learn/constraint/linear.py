@@ -22,12 +22,12 @@ from itertools import combinations_with_replacement
 
 import numpy as np
 
-from ccl_cli.basis import Basis, make_basis
-from ccl_cli.constraint import selection as sel
-from ccl_cli.constraint.base import ConstraintModel, check_xu
 from ccl_cli.errors import ConfigError
-from ccl_cli.linalg import row_chunks
-from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
+from ccl_cli.learn.basis import Basis, make_basis
+from ccl_cli.learn.constraint import rank as sel
+from ccl_cli.learn.constraint.base import ConstraintModel, check_xu
+from ccl_cli.learn.linalg import row_chunks
+from ccl_cli.learn.model_selection import TUNE, basis_grid, rbf_tunable
 
 REGRESSORS = ("identity", "rbf", "polynomial")
 #: Regressor rows of all samples are cached between the reweighting passes up to this size.
@@ -61,10 +61,10 @@ class LinearConstraint(ConstraintModel):
             constraint rows (the objective of §3) and samples where the unnormalised
             Ã(x) is large do not dominate; 0 gives the plain SVD.
         selection, n_constraints, gap_floor, threshold, max_constraints, cv_folds, seed:
-            choice of s; the default (``ratio``, :mod:`ccl_cli.constraint.selection`) reads
+            choice of s; the default (``ratio``, :mod:`ccl_cli.learn.constraint.rank`) reads
             the squared singular values.
         tune: with ``regressors="rbf"``, choose the basis by cross-validation
-            (:func:`ccl_cli.selection.tune`; True by default, False for fixed settings).
+            (:func:`ccl_cli.learn.model_selection.tune`; True by default, False for fixed settings).
 
     Attributes:
         W_ (s, m), Wb_ (s, m_b) or None, singular_values_ (ascending), n_constraints_,
@@ -168,7 +168,7 @@ class LinearConstraint(ConstraintModel):
         ``"none"`` takes the plain SVD. ``k`` rows define the reweighting ω (normalised
         to mean 1). msq = mean_n ‖h_n / scale‖².
 
-        Every sum runs over blocks of rows (:func:`~ccl_cli.linalg.row_chunks`), one pass
+        Every sum runs over blocks of rows (:func:`~ccl_cli.learn.linalg.row_chunks`), one pass
         per reweighting step (plus one for the RMS scale): h, Φ_A are never formed for
         all N at once.
         """
@@ -271,7 +271,7 @@ class LinearConstraint(ConstraintModel):
 
     def projection_k(self, X: np.ndarray, k: int) -> np.ndarray:
         """Ñ(X) of the first ``k`` rows of W_ (nested up to the reweighting): (N, q, q)."""
-        from ccl_cli.linalg import nullspace_projection
+        from ccl_cli.learn.linalg import nullspace_projection
 
         self._check_fitted("W_")
         X = np.asarray(X, dtype=float)

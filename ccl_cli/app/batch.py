@@ -190,14 +190,14 @@ def run_job(job: Job, jobs_dir: str, force: bool) -> JobResult:
             try:
                 if json.loads(marker.read_text()).get("key") == key:
                     stages = json.loads((outdir / "metrics.json").read_text())
-                    from ccl_cli.runner import summarise
+                    from ccl_cli.app.run import summarise
 
                     return JobResult(job.job_id, job.files, "skipped", 0.0, stages=summarise(stages))
             except (json.JSONDecodeError, OSError):
                 pass
         cfg = C.Config(job.config)
         cfg.source, cfg.lines, cfg.base = job.config_path or "<batch>", {}, None
-        from ccl_cli.runner import run_to_dir
+        from ccl_cli.app.run import run_to_dir
 
         summary = run_to_dir("run", cfg, job.files, outdir, force=True,
                              extra_files={"job.json": {"key": key, "files": job.files,
@@ -235,8 +235,8 @@ def make_executor(workers: int | None, scheduler: str | None) -> tuple[Executor,
 
 
 #: modules the fork server imports once, so that every worker starts with them
-PRELOAD = ["ccl_cli.lifeline", "ccl_cli.runner", "ccl_cli.pipeline", "ccl_cli.models", "ccl_cli.io",
-           "ccl_cli.io.hdf5", "ccl_cli.report", "ccl_cli.blas"]
+PRELOAD = ["ccl_cli.lifeline", "ccl_cli.app.run", "ccl_cli.app.stages", "ccl_cli.models", "ccl_cli.io",
+           "ccl_cli.io.hdf5", "ccl_cli.render.report", "ccl_cli.learn.blas"]
 
 
 def local_context(n: int):
@@ -377,7 +377,7 @@ def _plot(out: Path, rows: list[dict], columns: list[str]) -> bool:
     cols = [c for c in columns if any(isinstance(r.get(c), float) and r[c] > 0 for r in rows)][:6]
     if not cols:
         return False
-    from ccl_cli.plots import save_figure, subplots
+    from ccl_cli.render.figures import save_figure, subplots
 
     fig, axes = subplots(len(cols), 1, figsize=(max(6, 0.25 * len(rows) + 3), 2.2 * len(cols)),
                          squeeze=False)  # Agg, no pyplot; a per-user font cache

@@ -13,15 +13,15 @@ from math import isqrt
 
 import numpy as np
 
-from ccl_cli.basis import Basis, make_basis
-from ccl_cli.constraint import selection as sel
-from ccl_cli.constraint.alpha import AngularConstraintMixin
-from ccl_cli.constraint.angular import MAX_ITER, chunked_features, rows_from_weights
-from ccl_cli.constraint.base import ConstraintModel, check_xu
 from ccl_cli.errors import ConfigError, LearningError
-from ccl_cli.kinematics import ArmFeatures
-from ccl_cli.linalg import nullspace_projection
-from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
+from ccl_cli.learn.basis import Basis, make_basis
+from ccl_cli.learn.constraint import rank as sel
+from ccl_cli.learn.constraint.alpha import AngularConstraintMixin
+from ccl_cli.learn.constraint.angular import MAX_ITER, chunked_features, rows_from_weights
+from ccl_cli.learn.constraint.base import ConstraintModel, check_xu
+from ccl_cli.learn.kinematics import ArmFeatures
+from ccl_cli.learn.linalg import nullspace_projection
+from ccl_cli.learn.model_selection import TUNE, basis_grid, rbf_tunable
 
 Features = Callable[[np.ndarray], np.ndarray]
 #: ‖Φu‖ below this carries no information about Λ.
@@ -48,7 +48,7 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
 
     Args:
         features: Φ — a callable X → (N, r, q), or a built-in arm name/spec.
-        Other arguments (``tune`` too) as :class:`~ccl_cli.constraint.alpha.StateDependentConstraint`.
+        Other arguments (``tune`` too) as :class:`~ccl_cli.learn.constraint.alpha.StateDependentConstraint`.
 
     Attributes:
         basis_, weights_, n_constraints_, nmse_, selection_, n_dropped_.

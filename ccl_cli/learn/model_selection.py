@@ -29,7 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.defaults import (  # noqa: F401 - the shared defaults, re-exported here
+from ccl_cli.errors import ConfigError, InputError, LearningError
+from ccl_cli.learn.base import clone
+from ccl_cli.learn.defaults import (  # noqa: F401 - the shared defaults, re-exported here
     DEFAULT_GAP,
     DEFAULT_RULE,
     MIN_DEMOS,
@@ -41,8 +43,6 @@ from ccl_cli.defaults import (  # noqa: F401 - the shared defaults, re-exported 
     TUNE_FOLDS,
     TUNE_MAX_ROWS,
 )
-from ccl_cli.errors import ConfigError, InputError, LearningError
-from ccl_cli.estimator import clone
 
 
 # -- splitters ------------------------------------------------------------------------------
@@ -396,7 +396,7 @@ def basis_grid(X: np.ndarray, sizes: tuple[int, ...], widths: tuple[float, ...],
     """Candidate RBF bases (``basis`` parameter values): for each number of centres K
     (at most N/2; repeated values dropped) and width factor f, σ² = f · σ²_default(K)
     (the default rule of ALGORITHMS.md §2 on those centres; f = 1 is left to the rule)."""
-    from ccl_cli.basis import RBFBasis
+    from ccl_cli.learn.basis import RBFBasis
 
     X = np.asarray(X, dtype=float)
     out: list[dict[str, Any]] = []

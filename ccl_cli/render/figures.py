@@ -330,7 +330,7 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
     truth the true rows at the sample nearest that state and the largest principal angle
     between the two row spaces (for one row in 3-D: the angle between the plane normals).
     Per demonstration: that angle per demonstration (with ground truth)."""
-    from ccl_cli.constraint import PerDemonstration
+    from ccl_cli.learn.constraint import PerDemonstration
 
     names = _short(d.action_names)
     if isinstance(model, PerDemonstration):
@@ -494,8 +494,8 @@ def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None,
     """Draw every figure of the run into ``outdir/plots``; returns (caption, relative path)
     pairs, captions starting with the stage name. ``seconds`` (if given) receives the time
     of each figure (its data, drawing and PNG; file name → s) and of matplotlib's import."""
-    from ccl_cli.constraint import PerDemonstration
-    from ccl_cli.evaluate import task_part
+    from ccl_cli.app.evaluate import task_part
+    from ccl_cli.learn.constraint import PerDemonstration
 
     pdir = outdir / "plots"
     pdir.mkdir(exist_ok=True)

@@ -1,7 +1,7 @@
 """Defaults shared by the learners, the cross-validation code and the config.
 
 A module of plain constants (no NumPy), so the command line can build its config
-defaults and ``--help`` without importing the numerical stack; :mod:`ccl_cli.selection`
+defaults and ``--help`` without importing the numerical stack; :mod:`ccl_cli.learn.model_selection`
 re-exports them.
 """
 
@@ -22,7 +22,7 @@ DERIVATIVE_HALF_SPAN_S = 0.08
 DERIVATIVE_MAX_WINDOW = 101
 #: The rule choosing the number of constraints, for every learner and the command line
 #: (one source of truth: the learners' constructors and config.DEFAULTS read it; the
-#: rules live in :mod:`ccl_cli.constraint.selection`).
+#: rules live in :mod:`ccl_cli.learn.constraint.rank`).
 DEFAULT_RULE = "ratio"
 #: ``ratio`` rule: row k is a constraint while its residual is ≤ this multiple of row 1's.
 RATIO_FACTOR = 2.0

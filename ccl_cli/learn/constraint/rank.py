@@ -20,7 +20,7 @@ singular values of the scaled regressors); the rules read it:
   along carries the motion on top of the noise; a constraint direction carries only noise.
 * ``threshold`` — the original library's rule for the learner at hand;
 * ``eigengap`` — the largest ratio between consecutive residuals;
-* ``cv`` — held-out NPOE by cross-validation (:func:`ccl_cli.selection.cross_validate`):
+* ``cv`` — held-out NPOE by cross-validation (:func:`ccl_cli.learn.model_selection.cross_validate`):
   the held-out energy Δ_k removed by row k, kept while Δ_k is within one standard error
   (paired over folds) of RATIO_FACTOR · Δ_1;
 * ``fixed`` — the user's number.
@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ccl_cli.errors import ConfigError
-from ccl_cli.selection import DEFAULT_RULE, RATIO_FACTOR
+from ccl_cli.learn.model_selection import DEFAULT_RULE, RATIO_FACTOR
 
 RULES = ("ratio", "threshold", "eigengap", "cv", "fixed")
 __all__ = ["DEFAULT_RULE", "RATIO_FACTOR", "RULES", "Selection"]
@@ -136,11 +136,11 @@ def cross_validated(model, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None
                     n_folds: int = 5, seed: int = 0, factor: float = RATIO_FACTOR) -> Selection:
     """The ``cv`` rule for any nested constraint learner (one with ``projection_k``): a
     clone with ``max_k`` rows is fitted per training fold by
-    :func:`ccl_cli.selection.cross_validate` and the held-out NPOE of its first k rows,
+    :func:`ccl_cli.learn.model_selection.cross_validate` and the held-out NPOE of its first k rows,
     k = 1..max_k, is read on the test fold (the data the learner was given: joint-space
     actions for lambda, not the task-space ones it fits its selection on)."""
-    from ccl_cli import selection as S
-    from ccl_cli.estimator import clone
+    from ccl_cli.learn import model_selection as S
+    from ccl_cli.learn.base import clone
 
     est = clone(model).set_params(n_constraints=max_k)
     res = S.cross_validate(est, X, U, demo, n_folds=n_folds, seed=seed,

@@ -2,19 +2,19 @@
 
 Each row of Ã(x) is a unit vector a(θ(x)) with θ(x) = W β(x); rows are found one at
 a time, each orthogonal to the earlier ones, by minimising Σ_n (a(θ(x_n))ᵀ u_n)²
-(see :mod:`ccl_cli.constraint.angular`).
+(see :mod:`ccl_cli.learn.constraint.angular`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ccl_cli.basis import Basis, make_basis
-from ccl_cli.constraint import selection as sel
-from ccl_cli.constraint.angular import MAX_ITER, chunked_features, fit_sequence, rows_from_weights
-from ccl_cli.constraint.base import ConstraintModel, check_xu
 from ccl_cli.errors import ConfigError
-from ccl_cli.selection import TUNE, basis_grid, rbf_tunable
+from ccl_cli.learn.basis import Basis, make_basis
+from ccl_cli.learn.constraint import rank as sel
+from ccl_cli.learn.constraint.angular import MAX_ITER, chunked_features, fit_sequence, rows_from_weights
+from ccl_cli.learn.constraint.base import ConstraintModel, check_xu
+from ccl_cli.learn.model_selection import TUNE, basis_grid, rbf_tunable
 
 
 class AngularConstraintMixin:
@@ -65,12 +65,12 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
         n_centres: RBF centres when ``basis`` is a name.
         selection: ``ratio`` (the noise-aware default, on the per-row nmse sequence),
             ``threshold`` (the original stopping rule), ``eigengap``, ``cv``; or fix
-            ``n_constraints`` (see :mod:`ccl_cli.constraint.selection`).
+            ``n_constraints`` (see :mod:`ccl_cli.learn.constraint.rank`).
         max_constraints: at most this many rows (default q − 1).
         n_restarts: LM starts per row (the first the best constant direction).
-        max_iter: LM passes per row at most (:data:`~ccl_cli.constraint.angular.MAX_ITER`).
+        max_iter: LM passes per row at most (:data:`~ccl_cli.learn.constraint.angular.MAX_ITER`).
         seed, tol, gap_floor, cv_folds.
-        tune: choose the basis by cross-validation (:func:`ccl_cli.selection.tune`; True by
+        tune: choose the basis by cross-validation (:func:`ccl_cli.learn.model_selection.tune`; True by
             default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
 
     Attributes:
@@ -108,7 +108,7 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
 
     def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
         """The configured K centres, 9 centres, then K centres twice as wide (σ² × 2), all
-        k-means-placed, in that order (the budget of :func:`ccl_cli.selection.tune` may skip
+        k-means-placed, in that order (the budget of :func:`ccl_cli.learn.model_selection.tune` may skip
         the last, the slowest: wide bases need many LM passes).
 
         Measured (issue 9; median test error over seeds 0–4, untuned K = 25 → tuned;

@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 
 from ccl_cli import metrics as M
-from ccl_cli.constraint import PerDemonstration, StateIndependentConstraint
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
+from ccl_cli.learn.constraint import PerDemonstration, StateIndependentConstraint
 
 KINDS = {"learn-a": "constraint", "learn-v": "nullspace", "learn-pi": "policy"}
 
@@ -164,7 +164,7 @@ def evaluate_saved(model_path: Path, data: Demonstrations, convention: str = "cc
     entry = {"method": info["method"], "kind": info["kind"], "convention": convention, "all": metrics}
     if out is not None:
         from ccl_cli.io.atomic import atomic_dir
-        from ccl_cli.report import metric_rows, versions, write_json
+        from ccl_cli.render.report import metric_rows, versions, write_json
 
         with atomic_dir(out, force=force) as tmp:
             write_json(tmp / "metrics.json", {"evaluate": entry})

@@ -1,0 +1,1 @@
+"""The application layer: stages, runs, evaluation, batches, provenance."""
