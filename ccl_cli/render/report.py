@@ -92,8 +92,6 @@ def metric_rows(entry: dict[str, Any]) -> list[str]:
 def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str, str]],
              data_info: dict[str, Any]) -> str:
     """report.md: the data, then per stage what was learnt, its metrics (docs/metrics.md) and plots."""
-    from ccl_cli.learn.model_selection import tuning_markdown, validation_markdown
-
     lines = [f"# {title}", ""]
     lines += [f"- samples: {data_info.get('samples')} in {data_info.get('demos')} demonstrations "
               f"(train {data_info.get('train')}, test {data_info.get('test')})",
@@ -192,3 +190,40 @@ def derived_actions(metadata: dict[str, Any]) -> str | None:
             if text not in seen:
                 seen.append(text)
     return "; ".join(seen) or None
+
+
+# -- sections of report.md ------------------------------------------------------------------
+def validation_markdown(split_info: dict[str, Any] | None) -> list[str]:
+    """The "Validation" section of report.md: how train and test were split, and why."""
+    if not split_info:
+        return []
+    lines = ["## Validation", "", f"Split: **{split_info.get('kind')}** — {split_info.get('reason')}", ""]
+    unit = "demos" if split_info.get("kind") == "demonstrations" else "blocks"
+    if split_info.get("kind") in ("demonstrations", "blocks"):
+        lines += [f"| | {unit} | samples |", "|---|---|---|"]
+        for part in ("train", "test"):
+            lines.append(f"| {part} | {split_info.get(f'n_{part}_{unit}', '—')} | "
+                         f"{split_info.get(f'n_{part}_samples')} |")
+        if split_info.get("n_dropped_samples"):
+            lines.append(f"| guard gaps (dropped) | | {split_info['n_dropped_samples']} |")
+        lines.append("")
+    return lines
+
+
+def tuning_markdown(stage: str, tuning: dict[str, Any] | None) -> list[str]:
+    """Table of the cross-validation curve of one stage's hyperparameter search."""
+    if not tuning:
+        return []
+    if tuning.get("chosen") is None:
+        return [f"### {stage}: hyperparameters", "", tuning.get("reason", "not tuned"), ""]
+    lines = [f"### {stage}: hyperparameters by cross-validation", "",
+             f"Chosen: {tuning['chosen']} ({tuning['rule']}; {tuning['folds']['reason']}; "
+             f"{tuning['budget_used']:.2f} s of {tuning['budget']} s"
+             + (f", {tuning['skipped']} candidates skipped" if tuning.get("skipped") else "") + ")", "",
+             *([tuning["subset"][0].upper() + tuning["subset"][1:] + "; the chosen setting was then "
+                "fitted on all of them.", ""] if tuning.get("subset") else []),
+             "| candidate | held-out error | SE |", "|---|---|---|"]
+    for r in tuning["scores"]:
+        mark = " **←**" if r["params"] == tuning["chosen"] else ""
+        lines.append(f"| {r['params']}{mark} | {r['mean']:.3e} | {r['se']:.1e} |")
+    return [*lines, ""]
