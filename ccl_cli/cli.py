@@ -202,19 +202,20 @@ def _wrote(command: str, out: Path, data, as_json: bool) -> None:
 
 def _learn(command: str, stages: list[tuple[str, dict]] | None, cfg, files, out: Path | None,
            force: bool, as_json: bool, quiet: bool) -> None:
-    from ccl_cli.app.run import default_outdir, run_to_dir
-    from ccl_cli.app.stages import stage_list
+    from ccl_cli.app.run import default_outdir, execute
+    from ccl_cli.config import stage_list
+    from ccl_cli.render.outputs import check_output, write_run
 
     outdir = out or default_outdir(command, cfg)
+    check_output(outdir, force)  # before any work: a folder ccl did not write is never replaced
     stages = stages if stages is not None else stage_list(cfg)
     bar = _bar("stages", len(stages), quiet)
     try:
-        summary = run_to_dir(command, cfg, files, outdir, force, stages,
-                             progress=bar.advance if bar else None)
+        result = execute(command, cfg, files, stages, progress=bar.advance if bar else None)
     finally:
         if bar:
             bar.stop()
-    _emit(summary, as_json, quiet)
+    _emit(write_run(result, outdir, force), as_json, quiet)
 
 
 def _bar(label: str, total: int, quiet: bool):
@@ -338,11 +339,18 @@ def evaluate(
     """Metrics of a saved model on data (every metric its ground truth allows; docs/metrics.md)."""
     from ccl_cli.app.evaluate import evaluate_saved
     from ccl_cli.app.run import read_data
+    from ccl_cli.render.outputs import check_output, write_evaluation
 
     _logging(quiet)
     cfg = _config(config, {"metrics": {"convention": _value(convention)}})
+    if out is not None:
+        check_output(out, force)
     dataset, _ = read_data(cfg, data)
-    summary = evaluate_saved(model, dataset, cfg["metrics"]["convention"], out, force)
+    summary = evaluate_saved(model, dataset, cfg["metrics"]["convention"])
+    if out is not None:
+        write_evaluation(summary, out, force)
+    summary = {k: v for k, v in summary.items() if k not in ("entry", "inputs", "samples", "demos")}
+    summary["outdir"] = str(out) if out else None
     if json_out:
         _emit({**summary, "metrics": {k: v["value"] for k, v in summary["metrics"].items()}}, True)
     elif not quiet:
@@ -520,14 +528,16 @@ def batch(
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> int:
     """Run a pipeline per recording (or group) in parallel; resumable; summary.csv/.md/.png."""
-    from ccl_cli.app.batch import plan, run_batch, start_workers, write_summary
+    from ccl_cli.app.batch import plan, run_batch, start_workers
+    from ccl_cli.render.outputs import write_run
+    from ccl_cli.render.summary import write_summary
 
     _logging(quiet)
     t0 = time.perf_counter()
     if manifest is None and files and config is None:
         raise ConfigError("batch --files needs --config/-c: a pipeline YAML with a stages: list")
     if scheduler is None:
-        start_workers(workers)  # the workers' imports overlap the planning
+        start_workers(workers, (write_run.__module__,))  # the workers' imports overlap the planning
     jobs, manifest_out = plan(manifest, files, str(config) if config else None)
     _check_plan(jobs)
     outdir = out or manifest_out or Path("runs") / "batch"
@@ -536,7 +546,8 @@ def batch(
     preload_in_background()  # matplotlib for summary.png, imported while this process waits on the jobs
     bar = _bar("jobs", len(jobs), quiet)
     try:
-        results = run_batch(jobs, outdir, workers, scheduler, force, progress=bar.advance if bar else None)
+        results = run_batch(jobs, outdir, write_run, workers, scheduler, force,
+                            progress=bar.advance if bar else None)
     finally:
         if bar:
             bar.stop()
@@ -555,8 +566,7 @@ def batch(
 def _check_plan(jobs) -> None:
     """Every job of a batch can run: its config names stages (raises ConfigError, exit 2,
     before any job starts)."""
-    from ccl_cli.app.run import stage_list  # not ccl_cli.app.stages: no learner imports here
-    from ccl_cli.config import Config
+    from ccl_cli.config import Config, stage_list
 
     for job in jobs:
         cfg = Config(job.config)

@@ -441,3 +441,13 @@ def check_ranges(cfg: Config, value: Any, path: tuple) -> None:
         if (lo is not None and value < lo) or (hi is not None and value > hi):
             span = f"at least {lo:g}" if hi is None else f"between {lo:g} and {hi:g}"
             raise ConfigError(f"{_where(cfg, path)}: {_dotted(path)} must be {span}, got {value!r}"[:200])
+
+
+def stage_list(cfg: Config, default: list[str] | None = None) -> list[tuple[str, dict]]:
+    """The config's stages as (name, options) pairs (``default`` names when it has none)."""
+    items = cfg.get("stages")
+    if not items:
+        if default is None:
+            raise ConfigError(f"{cfg.source}: no stages to run (add a stages: list)")
+        return [(name, {}) for name in default]
+    return [stage_entry(item, cfg, i) for i, item in enumerate(items)]

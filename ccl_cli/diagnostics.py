@@ -291,13 +291,3 @@ def low_rank_actions(data: Demonstrations, U: np.ndarray, n_constraints: int,
                             f"own ({r} in all, of q = {q}): s = {n_constraints} may count directions that "
                             "no demonstration explored; more demonstrations would tell")]
     return []
-
-
-def markdown_section(warnings: list[dict[str, str]]) -> list[str]:
-    """The "Diagnostics" section of report.md: one line per warning, or that none fired."""
-    lines = ["## Diagnostics", ""]
-    if not warnings:
-        return [*lines, "No warnings: the data checks found nothing to report.", ""]
-    lines += ["| code | warning |", "|---|---|"]
-    lines += [f"| `{w['code']}` | {w['message'].replace('|', '/')} |" for w in warnings]
-    return [*lines, ""]

@@ -150,3 +150,23 @@ def nmse(Y: np.ndarray, Y_est: np.ndarray, ddof: int = 1) -> np.ndarray:
     var = np.var(Y, axis=0, ddof=ddof)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(var > 0, mse / var, np.nan)
+
+
+# -- angles between constraints ---------------------------------------------------------------
+def row_basis(A: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (rows) of the row space of A (s, q), by SVD: (s, q) → (r, q)."""
+    _, sv, vh = np.linalg.svd(np.atleast_2d(A), full_matrices=False)
+    if sv.size == 0:  # an empty constraint (e.g. a ground truth with no rows)
+        return vh[:0]
+    return vh[sv > 1e-10 * max(float(sv[0]), 1e-300)]
+
+
+def subspace_angle(A: np.ndarray, B: np.ndarray) -> float:
+    """Largest principal angle (degrees) between the row spaces of A (s, q) and B (s', q),
+    over the min(s, s') directions the smaller one spans (for one row each in 3-D: the
+    angle between two plane normals); NaN when either is empty."""
+    Qa, Qb = row_basis(A), row_basis(B)
+    if not len(Qa) or not len(Qb):
+        return float("nan")
+    cos = np.linalg.svd(Qa @ Qb.T, compute_uv=False)
+    return float(np.degrees(np.arccos(np.clip(cos.min(), -1.0, 1.0))))

@@ -256,7 +256,7 @@ def test_corrupt_model_is_refused(tmp_path):
 
 # -- interruption leaves nothing half-written ------------------------------------------------
 def test_interrupted_write_leaves_no_output(capsys, tmp_path, monkeypatch):
-    import ccl_cli.render.report as report
+    import ccl_cli.render.outputs as report
 
     def boom(*a, **k):
         raise KeyboardInterrupt

@@ -128,9 +128,11 @@ def test_low_rank_actions_below_the_free_directions():
 
 
 def test_markdown_section_and_codes():
-    assert D.markdown_section([])[:3] == ["## Diagnostics", "",
+    from ccl_cli.render.report import diagnostics_lines
+
+    assert diagnostics_lines([])[:3] == ["## Diagnostics", "",
                                           "No warnings: the data checks found nothing to report."]
-    lines = D.markdown_section([D.warning("no_motion", "a | b")])
+    lines = diagnostics_lines([D.warning("no_motion", "a | b")])
     assert lines[2:5] == ["| code | warning |", "|---|---|", "| `no_motion` | a / b |"]
     with pytest.raises(ValueError):
         D.warning("nothing_moved", "x")

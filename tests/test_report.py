@@ -194,7 +194,8 @@ def test_evaluate_command_matches_the_stage_numbers(tmp_path, capsys):
 
 def test_plot_helpers_subsample_and_angles():
     from ccl_cli.io.describe import activity
-    from ccl_cli.render.figures import grid_subsample, subspace_angle
+    from ccl_cli.metrics import subspace_angle
+    from ccl_cli.render.figures import grid_subsample
 
     X = np.random.default_rng(0).uniform(-1, 1, (5000, 2))
     idx = grid_subsample(X, cells=10)

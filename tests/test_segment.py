@@ -146,5 +146,5 @@ def test_default_derivative_window_spans_the_same_time_at_any_rate(tmp_path, rat
         assert err_default < err_fixed / 5
     from ccl_cli.app.stages import guard_gap
     assert guard_gap(Config({"data": cfg}), data) == max(window, 10)
-    from ccl_cli.render.report import derived_actions  # the report.md / run.json line
+    from ccl_cli.app.provenance import derived_actions  # the report.md / run.json line
     assert f"window {window} samples: default: ±0.08 s at the median rate" in derived_actions(data.metadata)

@@ -22,14 +22,14 @@ executor with ``scheduler`` — the same code path.
 from __future__ import annotations
 
 import contextlib
-import csv
 import hashlib
 import json
 import logging
 import os
 import time
+from collections.abc import Callable
 from concurrent.futures import Executor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +38,8 @@ from ccl_cli import config as C
 from ccl_cli.errors import CCLError, ConfigError
 
 log = logging.getLogger("ccl")
+#: writes one job's folder: (RunResult, outdir, *, force, plot_workers, extra_files) → summary
+Writer = Callable[..., dict[str, Any]]
 MANIFEST_KEYS = {"out", "jobs", "overrides"}
 RULE_KEYS = {"files", "config", "overrides", "group"}
 
@@ -178,8 +180,11 @@ def _check_rule(rule: Any, where: str) -> None:
 
 
 # -- running -------------------------------------------------------------------------------
-def run_job(job: Job, jobs_dir: str, force: bool) -> JobResult:
-    """Run one job into ``jobs_dir/<job_id>`` (in a worker process or on a Dask worker)."""
+def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
+    """Run one job into ``jobs_dir/<job_id>`` (in a worker process or on a Dask worker);
+    ``write(result, outdir, force=, plot_workers=, extra_files=)`` writes its folder (the
+    command line passes :func:`ccl_cli.render.outputs.write_run`: a module-level function,
+    so it pickles to the workers)."""
     logging.getLogger("ccl").setLevel(logging.WARNING)
     t0 = time.perf_counter()
     outdir = Path(jobs_dir) / job.job_id
@@ -197,11 +202,10 @@ def run_job(job: Job, jobs_dir: str, force: bool) -> JobResult:
                 pass
         cfg = C.Config(job.config)
         cfg.source, cfg.lines, cfg.base = job.config_path or "<batch>", {}, None
-        from ccl_cli.app.run import run_to_dir
+        from ccl_cli.app.run import execute
 
-        summary = run_to_dir("run", cfg, job.files, outdir, force=True,
-                             extra_files={"job.json": {"key": key, "files": job.files,
-                                                       "config": job.config_path}}, plot_workers=1)
+        summary = write(execute("run", cfg, job.files), outdir, force=True, plot_workers=1,
+                        extra_files={"job.json": {"key": key, "files": job.files, "config": job.config_path}})
         return JobResult(job.job_id, job.files, "ok", time.perf_counter() - t0, stages=summary["stages"])
     except CCLError as exc:
         return JobResult(job.job_id, job.files, "failed", time.perf_counter() - t0, exc.message,
@@ -212,7 +216,8 @@ def run_job(job: Job, jobs_dir: str, force: bool) -> JobResult:
                          f"internal error: {type(exc).__name__}: {first}", 1)
 
 
-def make_executor(workers: int | None, scheduler: str | None) -> tuple[Executor, Any]:
+def make_executor(workers: int | None, scheduler: str | None,
+                  preload: tuple[str, ...] = ()) -> tuple[Executor, Any]:
     """A process pool, or the executor of a dask.distributed client at ``scheduler``."""
     if scheduler:
         try:
@@ -229,20 +234,22 @@ def make_executor(workers: int | None, scheduler: str | None) -> tuple[Executor,
     from ccl_cli.lifeline import worker_init
 
     n = workers or os.cpu_count() or 1
-    ctx = local_context(n)
+    ctx = local_context(n, preload)
     return ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=worker_init,
                                initargs=(os.getpid(),)), None
 
 
-#: modules the fork server imports once, so that every worker starts with them
+#: modules the fork server imports once, so that every worker starts with them (the command
+#: line adds the module of its writer)
 PRELOAD = ["ccl_cli.lifeline", "ccl_cli.app.run", "ccl_cli.app.stages", "ccl_cli.models", "ccl_cli.io",
-           "ccl_cli.io.hdf5", "ccl_cli.render.report", "ccl_cli.learn.blas"]
+           "ccl_cli.io.hdf5", "ccl_cli.learn.blas"]
 
 
-def local_context(n: int):
+def local_context(n: int, preload: tuple[str, ...] = ()):
     """The multiprocessing context of the local pool of ``n`` workers: BLAS threads per
     worker (cores / n, unless set), the parent's pid for :mod:`ccl_cli.lifeline`, and a
-    fork server that has imported :data:`PRELOAD` (spawn where there is no fork server)."""
+    fork server that has imported :data:`PRELOAD` and ``preload`` (spawn where there is no
+    fork server)."""
     from multiprocessing import get_all_start_methods, get_context
 
     from ccl_cli.lifeline import PARENT_ENV
@@ -256,22 +263,25 @@ def local_context(n: int):
     # workers fork from a server that has imported the learners once (fast start, and no
     # fork of this process's threads)
     ctx = get_context("forkserver")
-    ctx.set_forkserver_preload(PRELOAD)
+    ctx.set_forkserver_preload([*PRELOAD, *preload])
     return ctx
 
 
-def start_workers(workers: int | None) -> None:
-    """Start the local fork server now: its imports (:data:`PRELOAD`, ~1 s) then overlap
-    the planning of the batch instead of delaying the first job."""
-    ctx = local_context(workers or os.cpu_count() or 1)
+def start_workers(workers: int | None, preload: tuple[str, ...] = ()) -> None:
+    """Start the local fork server now: its imports (:data:`PRELOAD` and ``preload``) then
+    overlap the planning of the batch instead of delaying the first job."""
+    ctx = local_context(workers or os.cpu_count() or 1, preload)
     if ctx.get_start_method() == "forkserver":
         from multiprocessing import forkserver
 
         forkserver.ensure_running()
 
 
-def run_batch(jobs: list[Job], out: Path, workers: int | None = None, scheduler: str | None = None,
-              force: bool = False, progress=None) -> list[JobResult]:
+def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = None,
+              scheduler: str | None = None, force: bool = False, progress=None) -> list[JobResult]:
+    """Run ``jobs`` into ``out/jobs/`` over ``workers`` local processes (or the Dask cluster at
+    ``scheduler``), each job's folder written by ``write`` (see :func:`run_job`); results in
+    the jobs' order. ``progress(result)`` is called as each job ends."""
     jobs_dir = out / "jobs"
     jobs_dir.mkdir(parents=True, exist_ok=True)
     from ccl_cli.io.atomic import clean_stale
@@ -279,10 +289,10 @@ def run_batch(jobs: list[Job], out: Path, workers: int | None = None, scheduler:
     removed = clean_stale(jobs_dir, every=True)
     if removed:
         log.info("removed %d unfinished job folder(s) of an interrupted batch", removed)
-    executor, client = make_executor(workers, scheduler)
+    executor, client = make_executor(workers, scheduler, (write.__module__,))
     results: list[JobResult] = []
     try:
-        futures = {executor.submit(run_job, job, str(jobs_dir.resolve()), force): job for job in jobs}
+        futures = {executor.submit(run_job, job, str(jobs_dir.resolve()), force, write): job for job in jobs}
         for fut in as_completed(futures):
             job = futures[fut]
             try:
@@ -313,92 +323,3 @@ def _kill_workers(executor: Executor) -> None:
     for proc in list((getattr(executor, "_processes", None) or {}).values()):
         with contextlib.suppress(OSError):
             os.kill(proc.pid, signal.SIGKILL)
-
-
-# -- aggregate -----------------------------------------------------------------------------
-def _flat(res: JobResult) -> dict[str, Any]:
-    row: dict[str, Any] = {"job": res.job_id, "files": ";".join(res.files), "status": res.status,
-                           "seconds": round(res.seconds, 3), "error": res.error}
-    methods, counts = [], []
-    for stage, entry in res.stages.items():
-        if entry.get("method"):
-            methods.append(f"{stage}:{entry['method']}")
-        if "n_constraints" in entry:
-            counts.append(str(entry["n_constraints"]))
-        for split in ("train", "test"):
-            for name, value in (entry.get(split) or {}).items():
-                row[f"{stage}.{split}.{name}"] = value
-    row["method"] = " ".join(methods)
-    row["n_constraints"] = ";".join(counts)
-    return row
-
-
-def write_summary(out: Path, results: list[JobResult], seconds: float) -> dict[str, Any]:
-    """summary.csv, summary.md, summary.json and summary.png under ``out`` (atomic each)."""
-    from ccl_cli.io.atomic import atomic_path
-
-    rows = [_flat(r) for r in results]
-    fixed = ["job", "files", "method", "n_constraints", "status", "seconds", "error"]
-    metric_cols = sorted({k for r in rows for k in r} - set(fixed))
-    with atomic_path(out / "summary.csv", force=True) as tmp, open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fixed[:6] + metric_cols + ["error"])
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: r.get(k, "") for k in w.fieldnames})
-    counts = {s: sum(r.status == s for r in results) for s in ("ok", "skipped", "failed")}
-    lines = [f"# ccl batch — {len(results)} jobs: {counts['ok']} ran, {counts['skipped']} skipped, "
-             f"{counts['failed']} failed ({seconds:.1f} s)", ""]
-    shown = [c for c in metric_cols if ".test." in c] or metric_cols
-    lines.append("| job | method | s | status | time [s] | " + " | ".join(shown) + " |")
-    lines.append("|" + "---|" * (5 + len(shown)))
-    for r in rows:
-        vals = " | ".join(f"{r[c]:.3e}" if isinstance(r.get(c), float) else "—" for c in shown)
-        lines.append(f"| {r['job']} | {r['method']} | {r['n_constraints']} | {r['status']} | "
-                     f"{r['seconds']:.2f} | {vals} |")
-    failed = [r for r in results if r.status == "failed"]
-    if failed:
-        lines += ["", "## Failures", ""]
-        lines += [f"- `{r.job_id}` ({', '.join(r.files)}): {r.error}" for r in failed]
-    if _plot(out, rows, shown):
-        lines += ["", "![metrics across jobs](summary.png)"]
-    with atomic_path(out / "summary.md", force=True) as tmp:
-        tmp.write_text("\n".join(lines) + "\n")
-    summary = {"status": "ok" if not failed else "failed", "jobs": len(results), **counts,
-               "seconds": seconds, "failures": [{"job": r.job_id, "files": r.files, "error": r.error}
-                                                for r in failed],
-               "results": [asdict(r) for r in results]}
-    with atomic_path(out / "summary.json", force=True) as tmp:
-        tmp.write_text(json.dumps(summary, indent=2, default=str) + "\n")
-    return summary
-
-
-def _plot(out: Path, rows: list[dict], columns: list[str]) -> bool:
-    """One panel per metric: its value per job, coloured by method (log scale)."""
-    cols = [c for c in columns if any(isinstance(r.get(c), float) and r[c] > 0 for r in rows)][:6]
-    if not cols:
-        return False
-    from ccl_cli.render.figures import save_figure, subplots
-
-    fig, axes = subplots(len(cols), 1, figsize=(max(6, 0.25 * len(rows) + 3), 2.2 * len(cols)),
-                         squeeze=False)  # Agg, no pyplot; a per-user font cache
-    import matplotlib
-
-    methods = sorted({r["method"] for r in rows if r["status"] != "failed"})
-    tab10 = matplotlib.colormaps["tab10"]
-    colours = {m: tab10(i % 10) for i, m in enumerate(methods)}
-    for ax, col in zip(axes[:, 0], cols, strict=True):
-        for m in methods:
-            pts = [(i, r[col]) for i, r in enumerate(rows)
-                   if r["method"] == m and isinstance(r.get(col), float) and r[col] > 0]
-            if pts:
-                ax.scatter(*zip(*pts, strict=True), color=colours[m], label=m, s=18)
-        ax.set_yscale("log")
-        ax.set_ylabel(col, fontsize=7)
-    axes[-1, 0].set_xlabel("job")
-    axes[0, 0].legend(fontsize=6, loc="best")
-    fig.tight_layout()
-    from ccl_cli.io.atomic import atomic_path
-
-    with atomic_path(out / "summary.png", force=True) as tmp:
-        save_figure(fig, tmp, dpi=80)
-    return True

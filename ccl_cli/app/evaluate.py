@@ -152,33 +152,18 @@ def check_dimensions(model: Any, data: Demonstrations) -> None:
 
 
 # -- using saved models ------------------------------------------------------------------
-def evaluate_saved(model_path: Path, data: Demonstrations, convention: str = "ccl",
-                   out: Path | None = None, force: bool = False) -> dict[str, Any]:
-    """``ccl evaluate``: score the model saved at ``model_path`` on ``data``; with ``out``
-    write metrics.json, report.md and run.json there atomically. Returns the summary."""
+def evaluate_saved(model_path: Path, data: Demonstrations, convention: str = "ccl") -> dict[str, Any]:
+    """``ccl evaluate``: score the model saved at ``model_path`` on ``data``. Returns the
+    summary (``metrics``: name → Metric dict) with ``entry``, metrics.json's content."""
     from ccl_cli.models import load_model
 
     est, info = load_model(model_path)
     check_dimensions(est, data)
     metrics = evaluate_model(est, info["kind"], data, convention)
     entry = {"method": info["method"], "kind": info["kind"], "convention": convention, "all": metrics}
-    if out is not None:
-        from ccl_cli.io.atomic import atomic_dir
-        from ccl_cli.render.report import metric_rows, versions, write_json
-
-        with atomic_dir(out, force=force) as tmp:
-            write_json(tmp / "metrics.json", {"evaluate": entry})
-            lines = [f"# ccl evaluate: {info['kind']} model {info['method']} ({model_path})", "",
-                     f"On {data.n_samples} samples in {data.n_demos} demonstrations; "
-                     f"normalisers: {convention} convention (docs/metrics.md).", ""]
-            lines += metric_rows({"all": metrics}) or ["No metric: the data has no ground truth for this "
-                                                       "model.", ""]
-            (tmp / "report.md").write_text("\n".join(lines))
-            write_json(tmp / "run.json", {"command": "evaluate", "model": str(model_path),
-                                          "inputs": data.metadata.get("files"), "versions": versions()})
     return {"status": "ok", "command": "evaluate", "model": str(model_path), "kind": info["kind"],
-            "method": info["method"], "convention": convention, "metrics": metrics,
-            "outdir": str(out) if out else None}
+            "method": info["method"], "convention": convention, "metrics": metrics, "entry": entry,
+            "samples": data.n_samples, "demos": data.n_demos, "inputs": data.metadata.get("files")}
 
 
 def predict(model: Any, kind: str, data: Demonstrations) -> dict[str, np.ndarray]:

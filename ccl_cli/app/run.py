@@ -1,16 +1,23 @@
-"""Running a configured pipeline into an output folder: what ``ccl run`` (and each
-``ccl batch`` job) does, as a library function returning a summary."""
+"""Running a configured pipeline: what ``ccl run`` (and each ``ccl batch`` job) computes.
+
+:func:`execute` reads the data, runs the stages and returns a :class:`RunResult` holding
+everything the outputs are made of — the fitted models, metrics.json's content, the
+summary, the provenance and the figures' data. Writing the output folder is the
+renderers' job (:mod:`ccl_cli.render.outputs`); nothing here formats or draws.
+"""
 
 from __future__ import annotations
 
-import os
-import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ccl_cli.config import Config, stage_entry
+from ccl_cli.app import provenance
+from ccl_cli.app.views import View
+from ccl_cli.config import Config, stage_list
+from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError
 from ccl_cli.learn import blas
 
@@ -37,32 +44,33 @@ def read_data(cfg: Config, files: list[Path] | list[str] | None):
     return load_demonstrations(data_cfg, files=[str(p) for p in paths]), None
 
 
-def default_outdir(command: str, cfg: Config) -> Path:
-    stem = Path(cfg.source.split(" + ")[0]).stem if command == "run" and cfg.source != "<flags>" else command
-    return Path("runs") / stem
+@dataclass
+class RunResult:
+    """A finished run: the pipeline with its stage results (models, metrics, info,
+    figures' data), metrics.json's content, the summary (``--json``, batch rows) and the
+    provenance record (run.json without the figures' timings)."""
+
+    command: str
+    cfg: Config
+    data: Demonstrations
+    pipeline: Any  # ccl_cli.app.stages.Pipeline
+    metrics: dict[str, Any]
+    summary: dict[str, Any]
+    record: dict[str, Any]
+    views: list[View] = field(default_factory=list)
+
+    @property
+    def results(self) -> list[Any]:
+        return self.pipeline.results
 
 
-def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = False,
-               stages: list[tuple[str, dict]] | None = None,
-               progress: Callable[[], None] | None = None,
-               extra_files: dict[str, Any] | None = None,
-               plot_workers: int | None = None) -> dict[str, Any]:
-    """Read the data, run the stages, write every output into ``outdir`` atomically.
-
-    The figures are drawn by ``plot_workers`` processes (default: 2 on a machine with two
-    or more cores; ``ccl batch`` passes 1, its jobs already fill the cores).
-
-    Returns the summary (status, outdir, per-stage method, constraint count and metric values).
-    ``extra_files`` (name → JSON value) are written into the folder with the rest.
-    """
-    from ccl_cli.app.stages import Pipeline, stage_list
-    from ccl_cli.diagnostics import markdown_section
-    from ccl_cli.io.atomic import atomic_dir, check_replaceable
-    from ccl_cli.models import save_model
-    from ccl_cli.render.report import data_summary, make_plots, markdown, stage_metrics, versions, write_json
+def execute(command: str, cfg: Config, files, stages: list[tuple[str, dict]] | None = None,
+            progress: Callable[[], None] | None = None, views: bool | None = None) -> RunResult:
+    """Read the data, run the stages (each calls ``progress`` when done) and collect the
+    results; with ``views`` (default: the config's ``output.plots``) also the figures' data."""
+    from ccl_cli.app.stages import Pipeline
 
     t0 = time.perf_counter()
-    check_replaceable(outdir, force)  # before any work: a folder ccl did not write is never replaced
     data, masks = read_data(cfg, files)
     data.check_finite()
     t_read = time.perf_counter() - t0
@@ -72,44 +80,27 @@ def run_to_dir(command: str, cfg: Config, files, outdir: Path, force: bool = Fal
         stages = stages if stages is not None else stage_list(cfg)
         pipeline = Pipeline(cfg, data, masks)
         pipeline.run(stages, progress=progress)
-        metrics = stage_metrics(pipeline.results)
-        hashes = {f["path"]: f["sha256"] for f in data.metadata.get("files", [])}
-        with atomic_dir(outdir, force=force) as tmp:
-            single = len([r for r in pipeline.results if r.model is not None]) == 1
-            for r in pipeline.results:
-                if r.model is None:
-                    continue
-                path = tmp / "model.h5" if single else tmp / "models" / f"{r.name}.h5"
-                path.parent.mkdir(exist_ok=True)
-                save_model(path, r.model, training={"stage": r.name, "config": dict(cfg), "inputs": hashes,
-                                                    "versions": versions()})
-            plot_seconds: dict[str, float] = {}
-            if plot_workers is None:
-                plot_workers = 2 if (os.cpu_count() or 1) >= 2 else 1
-            plots = make_plots(tmp, pipeline, plot_seconds, plot_workers) \
-                if (cfg.get("output") or {}).get("plots", True) else []
-            write_json(tmp / "metrics.json", metrics)
-            summary = {**data_summary(pipeline), "validation": pipeline.split_info}
-            (tmp / "report.md").write_text(markdown(f"ccl {command}", metrics, plots, summary)
-                                           + "\n" + "\n".join(markdown_section(pipeline.warnings)))
-            import yaml
+        shown = pipeline.views() if (views if views is not None else
+                                     (cfg.get("output") or {}).get("plots", True)) else []
+    metrics = stage_metrics(pipeline.results)
+    seconds = time.perf_counter() - t0
+    summary = {"status": "ok", "command": command, "seconds": seconds, "validation": pipeline.split_info,
+               "stages": summarise(metrics), "warnings": pipeline.warnings}
+    record = provenance.run_record(command, cfg, data, pipeline, blas_threads,
+                                   {"read": t_read} | {r.name: r.seconds for r in pipeline.results}
+                                   | {"total": seconds})
+    return RunResult(command, cfg, data, pipeline, metrics, summary, record, shown)
 
-            (tmp / "config.yaml").write_text(yaml.safe_dump(dict(cfg), sort_keys=False))
-            write_json(tmp / "run.json", {
-                "command": command, "argv": sys.argv, "config": dict(cfg), "config_source": cfg.source,
-                "inputs": hashes, "versions": versions(),
-                "timings": {"read": t_read} | {r.name: r.seconds for r in pipeline.results}
-                | {"total": time.perf_counter() - t0},
-                "data": data_summary(pipeline), "validation": pipeline.split_info,
-                "warnings": pipeline.warnings, "plot_seconds": plot_seconds,
-                "blas": {"threads": blas_threads, "rule": f"1 below {blas.SMALL_SAMPLES} samples, else the "
-                         "library's own count (None: a BLAS ccl cannot control)"},
-            })
-            for name, value in (extra_files or {}).items():
-                write_json(tmp / name, value)
-        return {"status": "ok", "command": command, "outdir": str(outdir),
-                "seconds": time.perf_counter() - t0, "validation": pipeline.split_info,
-                "stages": summarise(metrics), "warnings": pipeline.warnings}
+
+def stage_metrics(results) -> dict[str, Any]:
+    """metrics.json: per stage its method, seconds, info and metrics per split."""
+    out = {}
+    for r in results:
+        entry = {"method": r.method, "seconds": round(r.seconds, 4), **{k: v for k, v in r.info.items()
+                                                                         if k != "summary"}}
+        entry.update(r.metrics)
+        out[r.name] = entry
+    return out
 
 
 def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
@@ -126,11 +117,6 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
     return {name: one(e) for name, e in metrics.items()}
 
 
-def stage_list(cfg: Config, default: list[str] | None = None) -> list[tuple[str, dict]]:
-    """The config's stages as (name, options) pairs (``default`` names when it has none)."""
-    items = cfg.get("stages")
-    if not items:
-        if default is None:
-            raise ConfigError(f"{cfg.source}: no stages to run (add a stages: list)")
-        return [(name, {}) for name in default]
-    return [stage_entry(item, cfg, i) for i, item in enumerate(items)]
+def default_outdir(command: str, cfg: Config) -> Path:
+    stem = Path(cfg.source.split(" + ")[0]).stem if command == "run" and cfg.source != "<flags>" else command
+    return Path("runs") / stem

@@ -17,7 +17,7 @@ import numpy as np
 
 from ccl_cli import diagnostics
 from ccl_cli.app import evaluate as E
-from ccl_cli.app.run import stage_list  # noqa: F401 - re-exported (it lives where no learner is imported)
+from ccl_cli.app.views import View, describe_constraint, stage_views
 from ccl_cli.config import Config, stage_options
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, LearningError
@@ -47,6 +47,8 @@ class StageResult:
     #: (part, data, convention) → metrics of this model; the stage and the evaluate stage
     #: both call it, so one model gets one set of numbers wherever it is reported.
     score: Callable[[str, Demonstrations, str], dict] | None = None
+    #: the figures of this stage (:meth:`Pipeline.views`), drawn by ccl_cli.render.figures
+    views: list[View] = field(default_factory=list)
 
 
 @dataclass
@@ -210,8 +212,6 @@ class Pipeline:
                                    "on": "w" if on_w else "u"})
         if getattr(model, "tuning_", None):
             result.info["tuning"] = model.tuning_
-        from ccl_cli.render.figures import describe_constraint
-
         result.info["constraint"] = describe_constraint(model, tr)
         if isinstance(model, PerDemonstration):
             result.info["per_demo_note"] = ("One constraint per training demonstration: a held-out "
@@ -286,6 +286,15 @@ class Pipeline:
             self._score_parts(baseline)
             result.info["baseline"] = {"method": "dpl", **baseline.metrics}
         return result
+
+    def views(self) -> list[View]:
+        """Compute every stage's figures (:func:`~ccl_cli.app.views.stage_views`) on the
+        held-out data (the training data when there is none) into ``result.views``."""
+        part, shown = self.parts()[-1]
+        blocks = self.split_info.get("kind") == "blocks"
+        for r in self.results:
+            r.views = stage_views(r, shown, part, self.split.train, blocks, self.constraint)
+        return [v for r in self.results for v in r.views]
 
     def _evaluate(self, opts: dict) -> StageResult:
         """Every learnt model of the earlier stages on train and test, under this stage's

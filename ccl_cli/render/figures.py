@@ -31,7 +31,6 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations
 
-GRID = 22  # streamline grid per axis
 CELLS = 12  # arrow subsampling: at most one state per cell of a CELLS × CELLS grid
 MAX_DEMOS = 2  # demonstrations per time plot
 DPI = 90
@@ -139,14 +138,6 @@ def action_labels(d: Demonstrations) -> list[str]:
     return [label(n, u) for n, u in zip(d.action_names, _units(d.action_names, d.action_units), strict=True)]
 
 
-def _short(names: list[str]) -> list[str]:
-    """Joint names without a common ``.field`` suffix (``lwr_arm_0_joint.velocity`` → ``lwr_arm_0_joint``)."""
-    suffixes = {n.rsplit(".", 1)[1] for n in names if "." in n}
-    if len(suffixes) == 1 and all("." in n for n in names):
-        return [n.rsplit(".", 1)[0] for n in names]
-    return list(names)
-
-
 def describe_data(part: str, d: Demonstrations, ids: np.ndarray | None = None) -> str:
     """Which demonstrations a figure shows: all of ``d`` (``ids`` None) or the given ones."""
     what = {"test": "held-out (test)", "train": "training",
@@ -166,31 +157,6 @@ def grid_subsample(X2: np.ndarray, cells: int = CELLS) -> np.ndarray:
     return np.sort(first)
 
 
-def _grid(X2: np.ndarray, n: int = GRID) -> tuple[np.ndarray, np.ndarray]:
-    lo, hi = X2.min(0), X2.max(0)
-    pad = 0.05 * np.where(hi > lo, hi - lo, 1.0)
-    return np.meshgrid(np.linspace(lo[0] - pad[0], hi[0] + pad[0], n),
-                       np.linspace(lo[1] - pad[1], hi[1] + pad[1], n))
-
-
-def unit_rows(A: np.ndarray) -> np.ndarray:
-    """Orthonormal basis (rows) of the row space of A (s, q), by SVD."""
-    _, sv, vh = np.linalg.svd(np.atleast_2d(A), full_matrices=False)
-    if sv.size == 0:  # an empty constraint (e.g. a ground truth with no rows)
-        return vh[:0]
-    return vh[sv > 1e-10 * max(float(sv[0]), 1e-300)]
-
-
-def subspace_angle(A: np.ndarray, B: np.ndarray) -> float:
-    """Largest principal angle (degrees) between the row spaces of A (s, q) and B (s', q)
-    (over the min(s, s') directions the smaller one spans)."""
-    Qa, Qb = unit_rows(A), unit_rows(B)
-    if not len(Qa) or not len(Qb):
-        return float("nan")
-    cos = np.linalg.svd(Qa @ Qb.T, compute_uv=False)
-    return float(np.degrees(np.arccos(np.clip(cos.min(), -1.0, 1.0))))
-
-
 # -- figures ---------------------------------------------------------------------------------
 def _quiver(ax, X, V, style: str, label_: str, scale: float) -> None:
     s = STYLE[style]
@@ -204,17 +170,16 @@ def _quiver(ax, X, V, style: str, label_: str, scale: float) -> None:
 
 
 def field_figure(title: str, d: Demonstrations, part: str, arrows: dict[str, tuple[str, np.ndarray]],
-                 field_fn=None, field_label: str = "", directions: bool = False):
-    """Left: ``field_fn`` (grid (M, 2) → (M, 2)) as streamlines (or, with ``directions``,
-    headless direction segments); right: ``arrows`` (style → (label, (N, 2))) at one state
-    per grid cell. Returns the figure."""
-    ncols = 2 if field_fn is not None else 1
+                 field: dict[str, np.ndarray] | None = None, field_label: str = "", directions: bool = False):
+    """Left: ``field`` ({"G1", "G2": grid (n, n) each, "F": values (n², 2)}) as streamlines
+    (or, with ``directions``, headless direction segments); right: ``arrows`` (style →
+    (label, (N, 2))) at one state per grid cell. Returns the figure."""
+    ncols = 2 if field is not None else 1
     fig, axes = subplots(1, ncols, figsize=(5.2 * ncols, 4.6), squeeze=False)
     names = state_labels(d)
-    if field_fn is not None:
+    if field is not None:
         ax = axes[0, 0]
-        G1, G2 = _grid(d.X)
-        F = field_fn(np.column_stack([G1.ravel(), G2.ravel()]))
+        G1, G2, F = field["G1"], field["G2"], field["F"]
         if directions:
             step = (G1[0, 1] - G1[0, 0]) * 0.8
             norm = np.linalg.norm(F, axis=1, keepdims=True)
@@ -322,50 +287,7 @@ def selection_figure(selection: dict[str, Any], q: int):
     return fig
 
 
-def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
-    """The learnt constraint in readable form, for the report and metrics.json.
-
-    One model: its rows (unit length, sign fixed so the largest entry is positive) at the
-    mean state (exactly the rows when A is constant), the action names, and with ground
-    truth the true rows at the sample nearest that state and the largest principal angle
-    between the two row spaces (for one row in 3-D: the angle between the plane normals).
-    Per demonstration: that angle per demonstration (with ground truth)."""
-    from ccl_cli.learn.constraint import PerDemonstration
-
-    names = _short(d.action_names)
-    if isinstance(model, PerDemonstration):
-        if not d.has_truth("A"):
-            return None
-        angles = {}
-        for k, m in model.models_.items():
-            sel = np.flatnonzero(d.demo == k)
-            if sel.size == 0 or not hasattr(m, "constraint"):
-                continue
-            learnt = m.constraint(d.X[sel[:1]])[0]
-            angles[int(k)] = subspace_angle(learnt, d.truth_per_sample("A")[sel[0]])
-        if not angles:
-            return None
-        return {"per_demo_angle_deg": angles, "median_angle_deg": float(np.median(list(angles.values())))}
-    try:
-        i = int(np.argmin(np.sum((d.X - d.X.mean(0)) ** 2, axis=1)))
-        learnt = unit_rows(model.constraint(d.X[i:i + 1])[0])
-    except (AttributeError, NotImplementedError):
-        return None
-    learnt = learnt * np.sign(learnt[np.arange(len(learnt)), np.argmax(np.abs(learnt), axis=1)])[:, None]
-    out: dict[str, Any] = {"names": names, "rows": learnt.tolist(),
-                           "at": "constant" if getattr(model, "A_", None) is not None else
-                           f"state of sample {i} (nearest the mean state)"}
-    if d.has_truth("A"):
-        true = unit_rows(d.truth_per_sample("A")[i])
-        true = true * np.sign(true[np.arange(len(true)), np.argmax(np.abs(true), axis=1)])[:, None]
-        out["true_rows"] = true.tolist()
-        out["angle_deg"] = subspace_angle(learnt, true)
-    if d.n_action == 3 and len(learnt) == 1:
-        out["plane_normal"] = learnt[0].tolist()
-    return out
-
-
-def constraint_figure(info: dict[str, Any], method: str, part: str, d: Demonstrations):
+def constraint_figure(info: dict[str, Any], method: str):
     if "per_demo_angle_deg" in info:
         ang = info["per_demo_angle_deg"]
         fig, ax = subplots(figsize=(6, 3.2))
@@ -489,99 +411,27 @@ def render(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path, workers: 
     return done
 
 
-def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None,
-               workers: int = 1) -> list[tuple[str, str]]:
-    """Draw every figure of the run into ``outdir/plots``; returns (caption, relative path)
-    pairs, captions starting with the stage name. ``seconds`` (if given) receives the time
-    of each figure (its data, drawing and PNG; file name → s) and of matplotlib's import."""
-    from ccl_cli.app.evaluate import task_part
-    from ccl_cli.learn.constraint import PerDemonstration
+#: the drawing function of each kind of :class:`~ccl_cli.app.views.View`
+DRAW: dict[str, Callable[..., Any]] = {}
 
+
+def draw_views(outdir: Path, views: list[Any], seconds: dict[str, float] | None = None,
+               workers: int = 1) -> list[tuple[str, str]]:
+    """Draw every figure of a run (:class:`~ccl_cli.app.views.View` data) into
+    ``outdir/plots``; returns (caption, relative path) pairs, captions starting with the
+    stage name. ``seconds`` (if given) receives the time of each figure (drawing and PNG;
+    file name → s) and of matplotlib's import."""
     pdir = outdir / "plots"
     pdir.mkdir(exist_ok=True)
-    jobs: list[tuple[str, str, Callable[[], Any]]] = []
-    part, shown = pipeline.parts()[-1]
     t0 = time.perf_counter()
     _import_matplotlib()
     if seconds is not None:
         seconds["matplotlib import"] = time.perf_counter() - t0
-
-    def save(make: Callable[[], Any], name: str, caption: str) -> None:
-        jobs.append((name, caption, make))
-
-    planar = shown.n_state == 2 and shown.n_action == 2
-    # a held-out set of time blocks (continuous recordings) is named so in every title
-    blocks = "-blocks" if (getattr(pipeline, "split_info", None) or {}).get("kind") == "blocks" else ""
-    for r in pipeline.results:
-        if r.model is None:
-            continue
-        d, dpart = shown, part + blocks
-        title = f"{r.name} ({r.method})"
-        if r.name == "learn-v":
-            w = r.model.predict(d.X)
-            arrows = {"observed": ("observed u", d.U), "learnt": ("learnt w̃", w)}
-            if d.has_truth("w"):
-                arrows["true"] = ("true w", d.truth["w"])
-            if planar:
-                save(partial(field_figure, f"{title}: null-space component w", d, dpart, arrows,
-                             r.model.predict, "learnt w̃(x) on a grid"), "learn-v-field.png",
-                     "learn-v: learnt vs true null-space component")
-            save(partial(time_figure, f"{title}: null-space component w", dpart, d, arrows),
-                 "learn-v-time.png", "learn-v: learnt w̃ against the observations over time")
-        elif r.name == "learn-a":
-            if isinstance(r.model, PerDemonstration) and not dpart.startswith("train"):
-                d, dpart = pipeline.split.train, "train" + blocks
-            N = r.model.projection(d.X, d.demo)
-            v = task_part(r.model, d.X, d.demo)
-            Y = d.U if v is None else d.U - v
-            arrows = {"observed": ("observed u" if v is None else "u − learnt ṽ", Y),
-                      "learnt": ("Ñ(u − ṽ)" if v is not None else "Ñ u", np.einsum("nij,nj->ni", N, Y))}
-            if d.has_truth("pi") and (d.has_truth("N") or d.has_truth("A")):
-                pi = d.truth["pi"]
-                arrows = {"observed": arrows["observed"],
-                          "true": ("true N π", np.einsum("nij,nj->ni", d.true_projection(), pi)),
-                          "learnt": ("Ñ π", np.einsum("nij,nj->ni", N, pi))}
-            title_a = f"{title}: projection onto the learnt null space"
-            if planar:
-                direction = None
-                if not isinstance(r.model, PerDemonstration):
-                    def direction(G, m=r.model):
-                        P = m.projection(G)
-                        cols = np.linalg.norm(P, axis=1)
-                        return P[np.arange(len(G)), :, np.argmax(cols, axis=1)]
-                save(partial(field_figure, title_a, d, dpart, arrows, direction,
-                                  "learnt null-space direction of Ñ(x) on a grid", directions=True),
-                     "learn-a-field.png", "learn-a: learnt vs true projections")
-            else:
-                save(partial(time_figure, title_a, dpart, d, arrows), "learn-a-time.png",
-                     "learn-a: learnt projection against the observations over time")
-            sel = r.info.get("selection") or {}
-            save(partial(selection_figure, sel, d.n_action), "learn-a-selection.png",
-                 "learn-a: how the number of constraints was chosen")
-            info = r.info.get("constraint")
-            if info:
-                save(partial(constraint_figure, info, r.method, dpart, d), "learn-a-constraint.png",
-                     "learn-a: the learnt constraint")
-        elif r.name == "learn-pi":
-            est = r.model.predict(d.X)
-            arrows = {"observed": ("observed u", d.U), "learnt": (f"learnt π̃ ({r.method})", est)}
-            if d.has_truth("pi"):
-                arrows["true"] = ("true π", d.truth["pi"])
-            if r.baseline is not None:
-                arrows["baseline"] = ("dpl baseline", r.baseline.predict(d.X))
-            lines = dict(arrows)
-            c = pipeline.constraint
-            if c is not None and not isinstance(c, PerDemonstration):  # held-out u predicted as ṽ + Ñπ̃
-                v = task_part(c, d.X, d.demo)
-                pred = np.einsum("nij,nj->ni", c.projection(d.X, d.demo), est) + (0 if v is None else v)
-                lines["predicted"] = ("predicted u = ṽ + Ñπ̃", pred)
-            if planar:
-                save(partial(field_figure, f"{title}: null-space policy π", d, dpart, arrows, r.model.predict,
-                                  "learnt π̃(x) on a grid"), "learn-pi-field.png",
-                     "learn-pi: learnt vs true policy")
-            save(partial(time_figure, f"{title}: null-space policy π", dpart, d, lines), "learn-pi-time.png",
-                 "learn-pi: learnt policy (and the predicted u) over time")
+    jobs = [(v.name, v.caption, partial(DRAW[v.kind], **v.args)) for v in views]
     drawn = render(jobs, pdir, workers)
     if seconds is not None:
-        seconds.update({name: t for name, t in drawn.items() if t is not None})
+        seconds.update({name: s for name, s in drawn.items() if s is not None})
     return [(caption, f"plots/{name}") for name, caption, _ in jobs if drawn.get(name) is not None]
+
+
+DRAW.update(field=field_figure, time=time_figure, selection=selection_figure, constraint=constraint_figure)

@@ -1,21 +1,12 @@
-"""Run outputs: metrics.json, report.md (tables with the plots embedded), plots/*.png
-and run.json (config, package versions, timings, input hashes)."""
+"""report.md: what each stage learnt from, its metrics (docs/metrics.md), the chosen
+number of constraints and why, the validation split, the diagnostics and the figures —
+read from a run's results, never computed here."""
 
 from __future__ import annotations
 
-import functools
-import json
-import platform
-import sys
-from importlib import metadata
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-PACKAGES = ("ccl_cli", "numpy", "scipy", "h5py", "rosbags", "mcap", "mcap-ros1-support",
-            "mcap-ros2-support", "typer", "pyyaml", "matplotlib")
-
 
 #: Why an iterative fit stopped (``stop_reason_``), in words.
 STOPS = {
@@ -28,44 +19,6 @@ STOPS = {
     "budget": "the pass budget of the final stage on the original residual",
     "zero start": "a zero least-squares start (the actions are orthogonal to every feature)",
 }
-
-
-@functools.cache
-def _versions() -> tuple[tuple[str, str], ...]:
-    out = {"python": sys.version.split()[0], "platform": platform.platform()}
-    for name in PACKAGES:
-        try:
-            out[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            out[name] = "not installed"
-    return tuple(out.items())
-
-
-def versions() -> dict[str, str]:
-    """Python, platform and package versions (computed once per process)."""
-    return dict(_versions())
-
-
-def write_json(path: Path, value: Any) -> None:
-    path.write_text(json.dumps(value, indent=2, default=_default) + "\n")
-
-
-def _default(value: Any) -> Any:
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.integer | np.floating):
-        return value.item()
-    return str(value)
-
-
-def stage_metrics(results) -> dict[str, Any]:
-    out = {}
-    for r in results:
-        entry = {"method": r.method, "seconds": round(r.seconds, 4), **{k: v for k, v in r.info.items()
-                                                                         if k != "summary"}}
-        entry.update(r.metrics)
-        out[r.name] = entry
-    return out
 
 
 def _fmt(value: float) -> str:
@@ -89,9 +42,12 @@ def metric_rows(entry: dict[str, Any]) -> list[str]:
     return ["| data | metric | value | error (mean sq.) | normaliser |", "|---|---|---|---|---|", *rows, ""]
 
 
-def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str, str]],
-             data_info: dict[str, Any]) -> str:
-    """report.md: the data, then per stage what was learnt, its metrics (docs/metrics.md) and plots."""
+def markdown(title: str, result: Any, plots: list[tuple[str, str]]) -> str:
+    """report.md of a :class:`~ccl_cli.app.run.RunResult`: the data, then per stage what was
+    learnt, its metrics (docs/metrics.md) and figures (``plots``: (caption, relative path)),
+    then the diagnostics."""
+    results_metrics = result.metrics
+    data_info = {**result.record["data"], "validation": result.record["validation"]}
     lines = [f"# {title}", ""]
     lines += [f"- samples: {data_info.get('samples')} in {data_info.get('demos')} demonstrations "
               f"(train {data_info.get('train')}, test {data_info.get('test')})",
@@ -132,16 +88,7 @@ def markdown(title: str, results_metrics: dict[str, Any], plots: list[tuple[str,
         for caption, rel in plots:
             if caption.split(":")[0] == stage:
                 lines += [f"![{caption}]({rel})", ""]
-    return "\n".join(lines)
-
-
-def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None,
-               workers: int = 1) -> list[tuple[str, str]]:
-    """The run's figures (see :mod:`ccl_cli.render.figures`); ``seconds`` receives each one's time;
-    ``workers`` processes draw them."""
-    from ccl_cli.render.figures import make_plots as draw
-
-    return draw(outdir, pipeline, seconds, workers)
+    return "\n".join(lines) + "\n" + "\n".join(diagnostics_lines(result.record["warnings"]))
 
 
 def constraint_lines(info: dict[str, Any]) -> list[str]:
@@ -167,29 +114,6 @@ def constraint_lines(info: dict[str, Any]) -> list[str]:
         out += [f"Largest principal angle between the learnt and true row spaces: {info['angle_deg']:.3g}°.",
                 ""]
     return out
-
-
-def data_summary(pipeline) -> dict[str, Any]:
-    d = pipeline.data
-    return {"samples": d.n_samples, "demos": d.n_demos, "p": d.n_state, "q": d.n_action,
-            "train": pipeline.split.train.n_samples,
-            "test": pipeline.split.test.n_samples if pipeline.split.test is not None else 0,
-            "files": [f["path"] for f in d.metadata.get("files", [])],
-            "actions": derived_actions(d.metadata)}
-
-
-def derived_actions(metadata: dict[str, Any]) -> str | None:
-    """How the readers derived the actions from the states (window, order and why), one
-    phrase per distinct setting; None when the actions were read as recorded."""
-    seen = []
-    for f in metadata.get("files", []):
-        a = f.get("action") if isinstance(f, dict) else None
-        if isinstance(a, dict) and a.get("derived"):
-            text = (f"derived from the states ({a['derived']}, order {a.get('order')}, window "
-                    f"{a.get('window')} samples: {a.get('window_rule', 'configured')})")
-            if text not in seen:
-                seen.append(text)
-    return "; ".join(seen) or None
 
 
 # -- sections of report.md ------------------------------------------------------------------
@@ -226,4 +150,14 @@ def tuning_markdown(stage: str, tuning: dict[str, Any] | None) -> list[str]:
     for r in tuning["scores"]:
         mark = " **←**" if r["params"] == tuning["chosen"] else ""
         lines.append(f"| {r['params']}{mark} | {r['mean']:.3e} | {r['se']:.1e} |")
+    return [*lines, ""]
+
+
+def diagnostics_lines(warnings: list[dict[str, str]]) -> list[str]:
+    """The "Diagnostics" section of report.md: one line per warning, or that none fired."""
+    lines = ["## Diagnostics", ""]
+    if not warnings:
+        return [*lines, "No warnings: the data checks found nothing to report.", ""]
+    lines += ["| code | warning |", "|---|---|"]
+    lines += [f"| `{w['code']}` | {w['message'].replace('|', '/')} |" for w in warnings]
     return [*lines, ""]

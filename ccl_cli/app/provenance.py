@@ -1,0 +1,79 @@
+"""What a run records next to its outputs: the config, the inputs' hashes, the package
+versions, the timings, the data and how it was split — run.json's content."""
+
+from __future__ import annotations
+
+import functools
+import platform
+import sys
+from importlib import metadata
+from typing import Any
+
+from ccl_cli.dataset import Demonstrations
+from ccl_cli.learn import blas
+
+PACKAGES = ("ccl_cli", "numpy", "scipy", "h5py", "rosbags", "mcap", "mcap-ros1-support",
+            "mcap-ros2-support", "typer", "pyyaml", "matplotlib")
+
+
+@functools.cache
+def _versions() -> tuple[tuple[str, str], ...]:
+    out = {"python": sys.version.split()[0], "platform": platform.platform()}
+    for name in PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return tuple(out.items())
+
+
+def versions() -> dict[str, str]:
+    """Python, platform and package versions (computed once per process)."""
+    return dict(_versions())
+
+
+def input_hashes(data: Demonstrations) -> dict[str, str]:
+    """sha256 of every input file the data came from: path → hex digest."""
+    return {f["path"]: f["sha256"] for f in data.metadata.get("files", [])}
+
+
+def derived_actions(meta: dict[str, Any]) -> str | None:
+    """How the readers derived the actions from the states (window, order and why), one
+    phrase per distinct setting; None when the actions were read as recorded."""
+    seen = []
+    for f in meta.get("files", []):
+        a = f.get("action") if isinstance(f, dict) else None
+        if isinstance(a, dict) and a.get("derived"):
+            text = (f"derived from the states ({a['derived']}, order {a.get('order')}, window "
+                    f"{a.get('window')} samples: {a.get('window_rule', 'configured')})")
+            if text not in seen:
+                seen.append(text)
+    return "; ".join(seen) or None
+
+
+def data_summary(pipeline: Any) -> dict[str, Any]:
+    """Sizes of the data and of its train/test parts, the input files, how actions were made."""
+    d = pipeline.data
+    return {"samples": d.n_samples, "demos": d.n_demos, "p": d.n_state, "q": d.n_action,
+            "train": pipeline.split.train.n_samples,
+            "test": pipeline.split.test.n_samples if pipeline.split.test is not None else 0,
+            "files": [f["path"] for f in d.metadata.get("files", [])],
+            "actions": derived_actions(d.metadata)}
+
+
+def run_record(command: str, cfg: Any, data: Demonstrations, pipeline: Any, blas_threads: int | None,
+               timings: dict[str, float]) -> dict[str, Any]:
+    """run.json: command, argv, config, inputs' sha256, versions, timings, data, validation,
+    warnings and the BLAS threads used."""
+    return {
+        "command": command, "argv": sys.argv, "config": dict(cfg), "config_source": cfg.source,
+        "inputs": input_hashes(data), "versions": versions(), "timings": timings,
+        "data": data_summary(pipeline), "validation": pipeline.split_info, "warnings": pipeline.warnings,
+        "blas": {"threads": blas_threads, "rule": f"1 below {blas.SMALL_SAMPLES} samples, else the "
+                 "library's own count (None: a BLAS ccl cannot control)"},
+    }
+
+
+def training_record(stage: str, cfg: Any, data: Demonstrations) -> dict[str, Any]:
+    """What a saved model records of its training: stage, config, input hashes, versions."""
+    return {"stage": stage, "config": dict(cfg), "inputs": input_hashes(data), "versions": versions()}

@@ -1,0 +1,197 @@
+"""What the figures show, computed once from the learnt models.
+
+A stage result carries :class:`View` objects: plain data (arrays, labels, the
+demonstrations shown) that :mod:`ccl_cli.render.figures` draws without calling a model.
+Every array here is a prediction of the same fitted model that produced the stage's
+metrics, on the same data, so a figure and metrics.json never disagree.
+
+* ``field``: for 2-D states and actions, the learnt field on a ``GRID × GRID`` grid over
+  the shown data (or, for a constraint, its null-space direction) and arrows at the
+  samples (true, observed, learnt, dpl baseline);
+* ``time``: per action dimension over time, the same series;
+* ``selection``: the criterion per candidate number of constraints;
+* ``constraint``: the learnt constraint rows (:func:`describe_constraint`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ccl_cli.dataset import Demonstrations
+from ccl_cli.learn.constraint import PerDemonstration
+from ccl_cli.metrics import row_basis, subspace_angle
+
+GRID = 22  # points per axis of the grid a 2-D field is evaluated on
+
+
+@dataclass
+class View:
+    """One figure: its file name, caption (starting with the stage name), kind (``field``,
+    ``time``, ``selection``, ``constraint``) and the keyword arguments of its drawing
+    function in :mod:`ccl_cli.render.figures` (data only)."""
+
+    name: str
+    caption: str
+    kind: str
+    args: dict[str, Any] = field(default_factory=dict)
+
+
+def grid_over(X2: np.ndarray, n: int = GRID) -> tuple[np.ndarray, np.ndarray]:
+    """A regular n × n grid over the bounding box of X2 (N, 2), widened by 5 % per side."""
+    lo, hi = X2.min(0), X2.max(0)
+    pad = 0.05 * np.where(hi > lo, hi - lo, 1.0)
+    return np.meshgrid(np.linspace(lo[0] - pad[0], hi[0] + pad[0], n),
+                       np.linspace(lo[1] - pad[1], hi[1] + pad[1], n))
+
+
+def field_on_grid(d: Demonstrations, fn) -> dict[str, np.ndarray]:
+    """``fn`` (M, 2) → (M, 2) on the grid over the shown states: {"G1", "G2", "F"}."""
+    G1, G2 = grid_over(d.X)
+    return {"G1": G1, "G2": G2, "F": fn(np.column_stack([G1.ravel(), G2.ravel()]))}
+
+
+def null_direction(model: Any):
+    """For a 2-D constraint: the column of Ñ(x) with the largest norm, i.e. the learnt
+    null-space direction at each grid state (a function (M, 2) → (M, 2))."""
+
+    def direction(G: np.ndarray) -> np.ndarray:
+        P = model.projection(G)
+        cols = np.linalg.norm(P, axis=1)
+        return P[np.arange(len(G)), :, np.argmax(cols, axis=1)]
+
+    return direction
+
+
+def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
+    """The learnt constraint in readable form, for the report and metrics.json.
+
+    One model: its rows (unit length, sign fixed so the largest entry is positive) at the
+    mean state (exactly the rows when A is constant), the action names, and with ground
+    truth the true rows at the sample nearest that state and the largest principal angle
+    between the two row spaces (for one row in 3-D: the angle between the plane normals).
+    Per demonstration: that angle per demonstration (with ground truth)."""
+    names = short_names(d.action_names)
+    if isinstance(model, PerDemonstration):
+        if not d.has_truth("A"):
+            return None
+        angles = {}
+        for k, m in model.models_.items():
+            sel = np.flatnonzero(d.demo == k)
+            if sel.size == 0 or not hasattr(m, "constraint"):
+                continue
+            learnt = m.constraint(d.X[sel[:1]])[0]
+            angles[int(k)] = subspace_angle(learnt, d.truth_per_sample("A")[sel[0]])
+        if not angles:
+            return None
+        return {"per_demo_angle_deg": angles, "median_angle_deg": float(np.median(list(angles.values())))}
+    try:
+        i = int(np.argmin(np.sum((d.X - d.X.mean(0)) ** 2, axis=1)))
+        learnt = row_basis(model.constraint(d.X[i:i + 1])[0])
+    except (AttributeError, NotImplementedError):
+        return None
+    learnt = learnt * np.sign(learnt[np.arange(len(learnt)), np.argmax(np.abs(learnt), axis=1)])[:, None]
+    out: dict[str, Any] = {"names": names, "rows": learnt.tolist(),
+                           "at": "constant" if getattr(model, "A_", None) is not None else
+                           f"state of sample {i} (nearest the mean state)"}
+    if d.has_truth("A"):
+        true = row_basis(d.truth_per_sample("A")[i])
+        true = true * np.sign(true[np.arange(len(true)), np.argmax(np.abs(true), axis=1)])[:, None]
+        out["true_rows"] = true.tolist()
+        out["angle_deg"] = subspace_angle(learnt, true)
+    if d.n_action == 3 and len(learnt) == 1:
+        out["plane_normal"] = learnt[0].tolist()
+    return out
+
+
+def short_names(names: list[str]) -> list[str]:
+    """Joint names without a common ``.field`` suffix (``lwr_arm_0_joint.velocity`` → ``lwr_arm_0_joint``)."""
+    suffixes = {n.rsplit(".", 1)[1] for n in names if "." in n}
+    if len(suffixes) == 1 and all("." in n for n in names):
+        return [n.rsplit(".", 1)[0] for n in names]
+    return list(names)
+
+
+def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrations, blocks: bool,
+                constraint: Any = None) -> list[View]:
+    """The figures of one stage ``result`` (a :class:`~ccl_cli.app.stages.StageResult`) on
+    the ``shown`` data (``part``: ``test`` or ``train``; ``blocks``: the split is by time
+    blocks, so titles say so; a per-demonstration constraint is shown on its ``train``
+    demonstrations), with ``constraint`` the learnt constraint model of an earlier learn-a
+    stage (for the predicted u = ṽ + Ñπ̃ of a policy)."""
+    from ccl_cli.app.evaluate import task_part
+
+    model = result.model
+    if model is None:
+        return []
+    suffix = "-blocks" if blocks else ""
+    d, dpart = shown, part + suffix
+    title = f"{result.name} ({result.method})"
+    planar = shown.n_state == 2 and shown.n_action == 2
+    out: list[View] = []
+    if result.name == "learn-v":
+        w = model.predict(d.X)
+        arrows = {"observed": ("observed u", d.U), "learnt": ("learnt w̃", w)}
+        if d.has_truth("w"):
+            arrows["true"] = ("true w", d.truth["w"])
+        if planar:
+            out.append(View("learn-v-field.png", "learn-v: learnt vs true null-space component", "field",
+                            {"title": f"{title}: null-space component w", "d": d, "part": dpart,
+                             "arrows": arrows, "field": field_on_grid(d, model.predict),
+                             "field_label": "learnt w̃(x) on a grid"}))
+        out.append(View("learn-v-time.png", "learn-v: learnt w̃ against the observations over time",
+                        "time", {"title": f"{title}: null-space component w", "part": dpart, "d": d,
+                                 "lines": arrows}))
+    elif result.name == "learn-a":
+        if isinstance(model, PerDemonstration) and not dpart.startswith("train"):
+            d, dpart = train, "train" + suffix
+        N = model.projection(d.X, d.demo)
+        v = task_part(model, d.X, d.demo)
+        Y = d.U if v is None else d.U - v
+        arrows = {"observed": ("observed u" if v is None else "u − learnt ṽ", Y),
+                  "learnt": ("Ñ(u − ṽ)" if v is not None else "Ñ u", np.einsum("nij,nj->ni", N, Y))}
+        if d.has_truth("pi") and (d.has_truth("N") or d.has_truth("A")):
+            pi = d.truth["pi"]
+            arrows = {"observed": arrows["observed"],
+                      "true": ("true N π", np.einsum("nij,nj->ni", d.true_projection(), pi)),
+                      "learnt": ("Ñ π", np.einsum("nij,nj->ni", N, pi))}
+        title_a = f"{title}: projection onto the learnt null space"
+        if planar:
+            grid = None if isinstance(model, PerDemonstration) else field_on_grid(d, null_direction(model))
+            out.append(View("learn-a-field.png", "learn-a: learnt vs true projections", "field",
+                            {"title": title_a, "d": d, "part": dpart, "arrows": arrows, "field": grid,
+                             "field_label": "learnt null-space direction of Ñ(x) on a grid",
+                             "directions": True}))
+        else:
+            out.append(View("learn-a-time.png",
+                            "learn-a: learnt projection against the observations over time",
+                            "time", {"title": title_a, "part": dpart, "d": d, "lines": arrows}))
+        out.append(View("learn-a-selection.png", "learn-a: how the number of constraints was chosen",
+                        "selection", {"selection": result.info.get("selection") or {}, "q": d.n_action}))
+        info = result.info.get("constraint")
+        if info:
+            out.append(View("learn-a-constraint.png", "learn-a: the learnt constraint", "constraint",
+                            {"info": info, "method": result.method}))
+    elif result.name == "learn-pi":
+        est = model.predict(d.X)
+        arrows = {"observed": ("observed u", d.U), "learnt": (f"learnt π̃ ({result.method})", est)}
+        if d.has_truth("pi"):
+            arrows["true"] = ("true π", d.truth["pi"])
+        if result.baseline is not None:
+            arrows["baseline"] = ("dpl baseline", result.baseline.predict(d.X))
+        lines = dict(arrows)
+        if constraint is not None and not isinstance(constraint, PerDemonstration):
+            v = task_part(constraint, d.X, d.demo)
+            pred = np.einsum("nij,nj->ni", constraint.projection(d.X, d.demo), est) + (0 if v is None else v)
+            lines["predicted"] = ("predicted u = ṽ + Ñπ̃", pred)
+        if planar:
+            out.append(View("learn-pi-field.png", "learn-pi: learnt vs true policy", "field",
+                            {"title": f"{title}: null-space policy π", "d": d, "part": dpart,
+                             "arrows": arrows, "field": field_on_grid(d, model.predict),
+                             "field_label": "learnt π̃(x) on a grid"}))
+        out.append(View("learn-pi-time.png", "learn-pi: learnt policy (and the predicted u) over time",
+                        "time", {"title": f"{title}: null-space policy π", "part": dpart, "d": d,
+                                 "lines": lines}))
+    return out

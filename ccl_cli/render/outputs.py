@@ -1,0 +1,89 @@
+"""Writing a run's output folder from its :class:`~ccl_cli.app.run.RunResult`.
+
+``OUTDIR/`` gets ``model.h5`` (one model) or ``models/<stage>.h5``, ``plots/*.png``,
+``metrics.json``, ``report.md``, ``config.yaml`` and ``run.json``, all written into a
+temporary sibling and renamed into place (:func:`ccl_cli.io.atomic.atomic_dir`), so an
+interrupted or failed run leaves nothing half-written.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ccl_cli.app.provenance import training_record
+from ccl_cli.app.run import RunResult
+
+
+def write_json(path: Path, value: Any) -> None:
+    path.write_text(json.dumps(value, indent=2, default=_default) + "\n")
+
+
+def _default(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.integer | np.floating):
+        return value.item()
+    return str(value)
+
+
+def check_output(outdir: Path, force: bool) -> None:
+    """Before any work: an existing folder ccl did not write is never replaced (InputError)."""
+    from ccl_cli.io.atomic import check_replaceable
+
+    check_replaceable(outdir, force)
+
+
+def write_run(result: RunResult, outdir: Path, force: bool = False, plot_workers: int | None = None,
+              extra_files: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Write every output of ``result`` into ``outdir`` atomically; returns the run's
+    summary with ``outdir`` filled in. The figures are drawn by ``plot_workers`` processes
+    (default: 2 on a machine with two or more cores; ``ccl batch`` passes 1, its jobs
+    already fill the cores). ``extra_files`` (name → JSON value) go into the folder too."""
+    import yaml
+
+    from ccl_cli.io.atomic import atomic_dir
+    from ccl_cli.models import save_model
+    from ccl_cli.render.figures import draw_views
+    from ccl_cli.render.report import markdown
+
+    models = [r for r in result.results if r.model is not None]
+    with atomic_dir(outdir, force=force) as tmp:
+        for r in models:
+            path = tmp / "model.h5" if len(models) == 1 else tmp / "models" / f"{r.name}.h5"
+            path.parent.mkdir(exist_ok=True)
+            save_model(path, r.model, training=training_record(r.name, result.cfg, result.data))
+        plot_seconds: dict[str, float] = {}
+        if plot_workers is None:
+            plot_workers = 2 if (os.cpu_count() or 1) >= 2 else 1
+        plots = draw_views(tmp, result.views, plot_seconds, plot_workers) if result.views else []
+        write_json(tmp / "metrics.json", result.metrics)
+        (tmp / "report.md").write_text(markdown(f"ccl {result.command}", result, plots))
+        (tmp / "config.yaml").write_text(yaml.safe_dump(dict(result.cfg), sort_keys=False))
+        write_json(tmp / "run.json", {**result.record, "plot_seconds": plot_seconds})
+        for name, value in (extra_files or {}).items():
+            write_json(tmp / name, value)
+    return {**result.summary, "outdir": str(outdir)}
+
+
+def write_evaluation(summary: dict[str, Any], out: Path, force: bool = False) -> None:
+    """``ccl evaluate -o DIR``: metrics.json, report.md and run.json of an evaluation
+    (:func:`ccl_cli.app.evaluate.evaluate_saved`'s summary), atomically."""
+    from ccl_cli.app.provenance import versions
+    from ccl_cli.io.atomic import atomic_dir
+    from ccl_cli.render.report import metric_rows
+
+    with atomic_dir(out, force=force) as tmp:
+        write_json(tmp / "metrics.json", {"evaluate": summary["entry"]})
+        lines = [f"# ccl evaluate: {summary['kind']} model {summary['method']} ({summary['model']})", "",
+                 f"On {summary['samples']} samples in {summary['demos']} demonstrations; "
+                 f"normalisers: {summary['convention']} convention (docs/metrics.md).", ""]
+        lines += metric_rows({"all": summary["metrics"]}) or ["No metric: the data has no ground truth for "
+                                                             "this model.", ""]
+        (tmp / "report.md").write_text("\n".join(lines))
+        write_json(tmp / "run.json", {"command": "evaluate", "model": summary["model"],
+                                      "inputs": summary["inputs"], "versions": versions()})

@@ -1,0 +1,100 @@
+"""The summary of a ``ccl batch``: summary.csv, summary.md, summary.json and summary.png,
+one row per job, from the jobs' results (:class:`~ccl_cli.app.batch.JobResult`)."""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from ccl_cli.app.batch import JobResult
+
+
+def _flat(res: JobResult) -> dict[str, Any]:
+    row: dict[str, Any] = {"job": res.job_id, "files": ";".join(res.files), "status": res.status,
+                           "seconds": round(res.seconds, 3), "error": res.error}
+    methods, counts = [], []
+    for stage, entry in res.stages.items():
+        if entry.get("method"):
+            methods.append(f"{stage}:{entry['method']}")
+        if "n_constraints" in entry:
+            counts.append(str(entry["n_constraints"]))
+        for split in ("train", "test"):
+            for name, value in (entry.get(split) or {}).items():
+                row[f"{stage}.{split}.{name}"] = value
+    row["method"] = " ".join(methods)
+    row["n_constraints"] = ";".join(counts)
+    return row
+
+
+def write_summary(out: Path, results: list[JobResult], seconds: float) -> dict[str, Any]:
+    """summary.csv, summary.md, summary.json and summary.png under ``out`` (atomic each)."""
+    from ccl_cli.io.atomic import atomic_path
+
+    rows = [_flat(r) for r in results]
+    fixed = ["job", "files", "method", "n_constraints", "status", "seconds", "error"]
+    metric_cols = sorted({k for r in rows for k in r} - set(fixed))
+    with atomic_path(out / "summary.csv", force=True) as tmp, open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fixed[:6] + metric_cols + ["error"])
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: r.get(k, "") for k in w.fieldnames})
+    counts = {s: sum(r.status == s for r in results) for s in ("ok", "skipped", "failed")}
+    lines = [f"# ccl batch — {len(results)} jobs: {counts['ok']} ran, {counts['skipped']} skipped, "
+             f"{counts['failed']} failed ({seconds:.1f} s)", ""]
+    shown = [c for c in metric_cols if ".test." in c] or metric_cols
+    lines.append("| job | method | s | status | time [s] | " + " | ".join(shown) + " |")
+    lines.append("|" + "---|" * (5 + len(shown)))
+    for r in rows:
+        vals = " | ".join(f"{r[c]:.3e}" if isinstance(r.get(c), float) else "—" for c in shown)
+        lines.append(f"| {r['job']} | {r['method']} | {r['n_constraints']} | {r['status']} | "
+                     f"{r['seconds']:.2f} | {vals} |")
+    failed = [r for r in results if r.status == "failed"]
+    if failed:
+        lines += ["", "## Failures", ""]
+        lines += [f"- `{r.job_id}` ({', '.join(r.files)}): {r.error}" for r in failed]
+    if _plot(out, rows, shown):
+        lines += ["", "![metrics across jobs](summary.png)"]
+    with atomic_path(out / "summary.md", force=True) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+    summary = {"status": "ok" if not failed else "failed", "jobs": len(results), **counts,
+               "seconds": seconds, "failures": [{"job": r.job_id, "files": r.files, "error": r.error}
+                                                for r in failed],
+               "results": [asdict(r) for r in results]}
+    with atomic_path(out / "summary.json", force=True) as tmp:
+        tmp.write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    return summary
+
+
+def _plot(out: Path, rows: list[dict], columns: list[str]) -> bool:
+    """One panel per metric: its value per job, coloured by method (log scale)."""
+    cols = [c for c in columns if any(isinstance(r.get(c), float) and r[c] > 0 for r in rows)][:6]
+    if not cols:
+        return False
+    from ccl_cli.render.figures import save_figure, subplots
+
+    fig, axes = subplots(len(cols), 1, figsize=(max(6, 0.25 * len(rows) + 3), 2.2 * len(cols)),
+                         squeeze=False)  # Agg, no pyplot; a per-user font cache
+    import matplotlib
+
+    methods = sorted({r["method"] for r in rows if r["status"] != "failed"})
+    tab10 = matplotlib.colormaps["tab10"]
+    colours = {m: tab10(i % 10) for i, m in enumerate(methods)}
+    for ax, col in zip(axes[:, 0], cols, strict=True):
+        for m in methods:
+            pts = [(i, r[col]) for i, r in enumerate(rows)
+                   if r["method"] == m and isinstance(r.get(col), float) and r[col] > 0]
+            if pts:
+                ax.scatter(*zip(*pts, strict=True), color=colours[m], label=m, s=18)
+        ax.set_yscale("log")
+        ax.set_ylabel(col, fontsize=7)
+    axes[-1, 0].set_xlabel("job")
+    axes[0, 0].legend(fontsize=6, loc="best")
+    fig.tight_layout()
+    from ccl_cli.io.atomic import atomic_path
+
+    with atomic_path(out / "summary.png", force=True) as tmp:
+        save_figure(fig, tmp, dpi=80)
+    return True
