@@ -159,36 +159,13 @@ def _config(path: Path | None, overrides: dict[str, Any]):
 
 def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
     """The summary: JSON on stdout (``--json``), else one line per stage on stderr (none with -q)."""
-    import json
+    from ccl_cli.render import text
 
     if as_json:
-        sys.stdout.write(json.dumps(summary, default=str) + "\n")
+        sys.stdout.write(text.json_line(summary))
         return
-    quiet = quiet or _QUIET[0]
-    val = summary.get("validation")
-    # -q prints nothing on success, except a held-out test set that is not whole demonstrations
-    # (time blocks of continuous recordings): a choice the user must know about, like a warning
-    if val and (not quiet or val.get("kind") == "blocks"):
-        typer.echo(f"validation: {val.get('kind')} ({val.get('reason')})", err=True)
-    if quiet:
-        return
-
-    def line(label: str, entry: dict[str, Any]) -> str:
-        parts = [label]
-        if "n_constraints" in entry:
-            parts.append(f"s={entry['n_constraints']}")
-        for split in ("train", "test"):
-            for name, value in (entry.get(split) or {}).items():
-                parts.append(f"{split} {name}={value:.3e}")
-        return "  ".join(parts)
-
-    for stage, entry in (summary.get("stages") or {}).items():
-        typer.echo(line(f"{stage} ({entry.get('method')})", entry), err=True)
-        if entry.get("baseline"):
-            typer.echo(line(f"{stage} baseline ({entry['baseline'].get('method')})", entry["baseline"]),
-                       err=True)
-    if summary.get("outdir"):
-        typer.echo(f"outputs in {summary['outdir']}", err=True)
+    for line in text.summary_lines(summary, quiet or _QUIET[0]):
+        typer.echo(line, err=True)
 
 
 def _wrote(command: str, out: Path, data, as_json: bool) -> None:
@@ -461,38 +438,10 @@ def inspect_cmd(
     if json_out:
         _emit(info, True)
         return
-    for line in _inspect_lines(info):
+    from ccl_cli.render.text import inspect_lines
+
+    for line in inspect_lines(info):
         typer.echo(line)
-
-
-def _inspect_lines(info: dict[str, Any]) -> list[str]:
-    """``ccl inspect``'s text rendering (one function, so every format's listing shows here)."""
-    out = [f"path:     {info['path']}", f"format:   {info['format']}  ({info['size_bytes']} bytes)"]
-    if "duration_s" in info:
-        span = "summed over demonstrations" if info["format"] == "hdf5" else "first to last message"
-        out.append(f"duration: {info['duration_s']:.3f} s ({span})")
-    for topic, t in (info.get("topics") or {}).items():
-        rate = f"{t['rate_hz']:.1f} Hz" if t.get("rate_hz") else "-"
-        out.append(f"  {topic:30s} {t['type']:36s} {t['count']:>9d} msgs  {rate:>10s}"
-                   + (f" over {t['active_s']:.2f} s active" if t.get("active_s") else ""))
-        if t.get("fields"):
-            out.append(f"  {'':30s} fields: {', '.join(t['fields'])}")
-        if t.get("joint_names"):
-            out.append(f"  {'':30s} joints: {', '.join(t['joint_names'])}")
-    if "columns" in info:
-        out.append(f"columns:  {', '.join(map(str, info['columns']))}")
-        rate = f", {info['rate_hz']:.1f} Hz over {info['active_s']:.2f} s active" \
-            if info.get("rate_hz") else ""
-        out.append(f"rows:     {info['rows']} (time column {info['time_column']}{rate})")
-    for node in info.get("tree", []):  # HDF5 / .mat contents
-        out.append("  " + "  ".join(str(v) for k, v in node.items() if k != "names"))
-    if "gap_s" in info and "demos" in info:
-        out.append(f"demos:    {info['demos']} in {info.get('demos_from')} (split on pauses > "
-                   f"{info['gap_s']:.3g} s: {info.get('gap_rule')}; change with --gap)")
-    for key in ("samples", "demos", "samples_per_demo", "state_names", "action_names", "truth", "masks"):
-        if key in info and not (key == "demos" and "gap_s" in info):
-            out.append(f"{key + ':':9s} {info[key]}")
-    return out
 
 
 @app.command("convert")

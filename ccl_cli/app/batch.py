@@ -224,6 +224,7 @@ def make_executor(workers: int | None, scheduler: str | None,
             from distributed import Client
         except ImportError:
             raise ConfigError("--scheduler needs dask.distributed: pip install 'ccl_cli[dask]'") from None
+        _check_reachable(scheduler)
         try:
             client = Client(scheduler, timeout="10s")
         except Exception as exc:
@@ -237,6 +238,23 @@ def make_executor(workers: int | None, scheduler: str | None,
     ctx = local_context(n, preload)
     return ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=worker_init,
                                initargs=(os.getpid(),)), None
+
+
+def _check_reachable(address: str) -> None:
+    """A refused or unresolvable ``tcp://host:port`` scheduler address is a ConfigError at once
+    (dask.distributed would retry it until its connect timeout)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    if parts.scheme != "tcp" or not parts.hostname or parts.port is None:
+        return  # other transports (tls, inproc, ...): left to dask.distributed
+    try:
+        with socket.create_connection((parts.hostname, parts.port), timeout=5):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise ConfigError(f"cannot connect to the Dask scheduler at {address} ({reason})") from None
 
 
 #: modules the fork server imports once, so that every worker starts with them (the command
