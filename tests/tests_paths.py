@@ -24,3 +24,12 @@ def wait_for_ccl_code(proc, timeout: float = 60.0) -> None:
     deadline = time.monotonic() + timeout
     while not running_ccl_code(proc.pid) and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.001)
+
+
+def cpu_seconds() -> float:
+    """CPU seconds used so far by this process and its waited-for children: a measure of
+    work that a loaded machine does not inflate (tests never assert wall-clock time)."""
+    import resource
+
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
