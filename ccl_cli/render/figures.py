@@ -531,7 +531,7 @@ def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None,
         elif r.name == "learn-a":
             if isinstance(r.model, PerDemonstration) and not dpart.startswith("train"):
                 d, dpart = pipeline.split.train, "train" + blocks
-            N = r.model.projection(d.X, d.demo)
+            N = r.model.projection(d.X, groups=d.demo)
             v = task_part(r.model, d.X, d.demo)
             Y = d.U if v is None else d.U - v
             arrows = {"observed": ("observed u" if v is None else "u − learnt ṽ", Y),
@@ -573,7 +573,8 @@ def make_plots(outdir: Path, pipeline, seconds: dict[str, float] | None = None,
             c = pipeline.constraint
             if c is not None and not isinstance(c, PerDemonstration):  # held-out u predicted as ṽ + Ñπ̃
                 v = task_part(c, d.X, d.demo)
-                pred = np.einsum("nij,nj->ni", c.projection(d.X, d.demo), est) + (0 if v is None else v)
+                pred = np.einsum("nij,nj->ni", c.projection(d.X, groups=d.demo), est) + (
+                    0 if v is None else v)
                 lines["predicted"] = ("predicted u = ṽ + Ñπ̃", pred)
             if planar:
                 save(partial(field_figure, f"{title}: null-space policy π", d, dpart, arrows, r.model.predict,
