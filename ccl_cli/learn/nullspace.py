@@ -33,7 +33,8 @@ and at N = 1e5 it had not converged after 1000 (25 s). So the fit runs in four s
 Stages 1 and 2 run on a seeded subsample of :func:`subsample_size` rows when N is larger
 (otherwise on all rows, and stage 3 is their continuation). ``smoothing=0`` minimises
 the original residual itself in stages 2–3 (the original's optimum, slowly: ~180 passes
-on 500 samples); ``polish=False`` stops after stage 1 (then run on all rows).
+on 500 samples); ``polish=False`` stops after stage 1 (then run on all rows). Times and
+errors before → after the staging: docs/measurements.md ("ncl").
 
 Scale: the Jacobian row of sample n is vec(g_n β_nᵀ) with g_n ∈ R^q the bracket above, so
 each Levenberg–Marquardt iteration is one pass over the data in row blocks that sums
@@ -117,7 +118,7 @@ class NullSpaceComponent(Tunable, Estimator):
             original: 1e-9); stages 1–2 use :data:`STAGE_TOL` and STAGE_TOL/100.
         chunk_size: rows per block of the passes over the data (default 8192).
         polish: run stages 2–4 (default). ``False`` stops after stage 1 (the smooth
-            residual: about half the time, 2–30× the test error in the benchmark).
+            residual; docs/measurements.md).
         smoothing: δ² of stages 2–3 relative to mean ‖w̃‖² (0: the original residual
             throughout, and no stage 4).
         tune: choose the basis by cross-validation (:class:`ccl_cli.learn.model_selection.Tuned`;
