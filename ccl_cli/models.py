@@ -159,7 +159,7 @@ def _allowed_types(cls: type, name: str, default: Any) -> tuple[type, ...]:
         hint = None
     if hint is None:
         return _JSON_TYPES if default is None else (type(default),)
-    args = typing.get_args(hint) or (hint,)
+    args = (hint,) if typing.get_origin(hint) is typing.Literal else typing.get_args(hint) or (hint,)
     out = tuple(a for arg in args for a in ((type(v) for v in typing.get_args(arg))
                                             if typing.get_origin(arg) is typing.Literal
                                             else (typing.get_origin(arg) or arg,))

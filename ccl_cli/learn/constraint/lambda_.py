@@ -20,21 +20,21 @@ from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.alpha import ANGLE_FIT_PARAMS, AngularConstraintMixin
 from ccl_cli.learn.constraint.angular import MAX_ITER, chunked_features, rows_from_weights
 from ccl_cli.learn.constraint.base import ConstraintModel
-from ccl_cli.learn.kinematics import ARMS, ArmFeatures
+from ccl_cli.learn.kinematics import ArmFeatures, ArmName
 from ccl_cli.learn.linalg import nullspace_projection
 from ccl_cli.learn.model_selection import TUNE, TUNE_PARAMS
 from ccl_cli.learn.params import SEED, Fields, Options
 
 Features = Callable[[np.ndarray], np.ndarray]
 #: A built-in arm's Jacobian: its name, or {arm, rows} to keep some of its rows.
-_ARM = Options(str, frozenset(ARMS))
+_ARM = Options.of(ArmName)
 FEATURE_PARAMS: dict[str, list] = {
     "features": [_ARM, Fields({"arm": [_ARM], "rows": [list, None]}), callable]}
 #: ‖Φu‖ below this carries no information about Λ.
 MIN_TASK_NORM = 1e-3
 
 
-def make_features(spec: str | dict | Features) -> Features:
+def make_features(spec: ArmName | dict | Features) -> Features:
     """Φ from a callable (X (N, p) → (N, r, q)) or a built-in arm: ``"arm2"``,
     ``"arm7"``, or ``{"arm": "arm7", "rows": [0, 1, 2]}``."""
     if callable(spec):
@@ -72,7 +72,7 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
     def __init__(
         self,
         *,
-        features: str | dict | Features = "arm2",
+        features: ArmName | dict | Features = "arm2",
         basis: BasisSpec = "rbf",
         n_centres: int = 16,
         selection: sel.Rule = sel.DEFAULT_RULE,
