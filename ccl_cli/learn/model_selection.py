@@ -295,20 +295,20 @@ def grid_search(
     n = len(U)
     groups = np.zeros(n, int) if groups is None else np.asarray(groups)
     folds = make_folds(groups, n, n_folds, seed, gap)
-    k = len(folds.pairs)
+    per_candidate = len(folds.pairs)  # fits
     rows: list[dict[str, Any]] = []
     ran: list[tuple[dict[str, Any], np.ndarray]] = []
     used = skipped = 0
     for params in combos:
-        if used and used + k > budget:
+        if used and used + per_candidate > budget:
             skipped += 1
             continue
-        used += k
+        used += per_candidate
         try:
             res = cross_validate(clone(estimator).set_params(**params), X, U, groups, folds=folds,
                                  projections=projections)
         except (InputError, LearningError, np.linalg.LinAlgError):
-            ran.append((params, np.full(k, np.nan)))
+            ran.append((params, np.full(per_candidate, np.nan)))
             continue  # e.g. more centres than training samples in a fold
         ran.append((params, res.errors))
         mean = float(res.mean)
@@ -320,7 +320,7 @@ def grid_search(
     chosen = rows[best]["params"]
     info = {"grid": {k: list(v) for k, v in grid.items()}, "scores": rows, "chosen": chosen,
             "budget": budget, "budget_used": used, "budget_unit": BUDGET_UNIT, "skipped": skipped,
-            "folds": {"kind": folds.kind, "n": k, "reason": folds.reason},
+            "folds": {"kind": folds.kind, "n": per_candidate, "reason": folds.reason},
             "rule": "smallest held-out error"}
     return chosen, info, _cv_results(ran, keys)
 
@@ -415,15 +415,19 @@ class Tuned(Estimator):
         return self.best_estimator_
 
     def predict(self, X: np.ndarray) -> np.ndarray:
+        """The winner's prediction (w̃ or π̃): (N, p) → (N, q)."""
         return self._best().predict(X)
 
     def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+        """The winner's Ñ(X): (N, p) → (N, q, q)."""
         return self._best().projection(X, groups=groups)
 
     def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+        """The winner's Ã(X): (N, p) → (N, s, q)."""
         return self._best().constraint(X, groups=groups)
 
     def score(self, X: np.ndarray, U: np.ndarray, **kw: Any) -> float:
+        """The winner's score (minus its own consistency error; higher is better)."""
         return self._best().score(X, U, **kw)
 
 
