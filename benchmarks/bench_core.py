@@ -147,7 +147,7 @@ def setup(learner: str, n: int, k: int | None, options: dict | None, seed: int =
     else:  # policy learners
         tr, te = policy_problem(n, seed), policy_problem(N_TEST, test_seed)
         P = tr.true_projection() if learner == "pi-coupled" else None
-        fit = lambda: PolicyLearner(method=learner, basis=POLICY_BASIS).fit(tr.X, tr.U, P)  # noqa: E731
+        fit = lambda: PolicyLearner(method=learner, basis=POLICY_BASIS).fit(tr.X, tr.U, projections=P)  # noqa: E731
         inputs = tr.X.nbytes + tr.U.nbytes + (P.nbytes if P is not None else 0)
         if learner == "dpl":
             floor_rows = lambda m, s: m.basis_.transform(tr.X[s])  # noqa: E731

@@ -32,12 +32,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from ccl_cli import simulate as sim  # noqa: E402
 from ccl_cli.learn import model_selection as S  # noqa: E402
+from ccl_cli.learn.consistency import npoe_error  # noqa: E402
 from ccl_cli.learn.constraint import (  # noqa: E402
     KnownFeatureConstraint,
     StateDependentConstraint,
     StateIndependentConstraint,
+    rank,  # noqa: E402
 )
-from ccl_cli.learn.constraint import selection as rank  # noqa: E402
 
 NOISES_MM = (0.2, 0.5, 1.0, 2.0)
 
@@ -50,7 +51,7 @@ def nhat_counts(data, max_k: int | None = None, cv: bool = True) -> dict[str, in
     max_k = max_k or q - 1
     out = {}
     for rule in ("threshold", "eigengap", "ratio") + (("cv",) if cv else ()):
-        out[rule] = StateIndependentConstraint(selection=rule).fit(data.X, U, data.demo).n_constraints_
+        out[rule] = StateIndependentConstraint(selection=rule).fit(data.X, U, groups=data.demo).n_constraints_
     return out
 
 
@@ -66,7 +67,7 @@ def alpha_counts(data, cv: bool, **kw) -> dict[str, int]:
            "ratio": rank.ratio(nmse, q - 1).n_constraints}
     if cv:
         out["cv"] = StateDependentConstraint(selection="cv", **kw).fit(data.X, data.U,
-                                                                         data.demo).n_constraints_
+                                                                         groups=data.demo).n_constraints_
     return out
 
 
@@ -74,8 +75,8 @@ def held_out_npoe(data, make) -> tuple[float, int]:
     """Test NPOE on held-out time blocks (the pipeline's split of a single recording)."""
     hold = S.holdout_split(data.demo, 0.3, seed=0, gap=9)
     tr, te = data.subset(hold.train), data.subset(hold.test)
-    model = make().fit(tr.X, tr.U, tr.demo)
-    return S.npoe_score(model.projection(te.X), te.U), int(model.n_constraints_)
+    model = make().fit(tr.X, tr.U, groups=tr.demo)
+    return npoe_error(model.projection(te.X), te.U), int(model.n_constraints_)
 
 
 def npoe_stats(values: list[float]) -> dict[str, float]:
@@ -123,7 +124,7 @@ def main() -> None:
         rows = []
         for s in seeds[:5]:
             d = sim.two_link(seed=s)
-            rows.append({r: KnownFeatureConstraint(features="arm2", selection=r).fit(d.X, d.U, d.demo)
+            rows.append({r: KnownFeatureConstraint(features="arm2", selection=r).fit(d.X, d.U, groups=d.demo)
                          .n_constraints_ for r in ("threshold", "eigengap", "ratio")})
         emit(rows, "two_link lambda", 0.0, 1)
     if wanted("plane"):

@@ -80,10 +80,10 @@ def accuracy(seeds: range) -> None:
                 lambda seed, p=policy: policy_data(p, seed).split(0.5, seed),
                 {"basis": TUTORIAL_PI, "tune": False},
                 lambda kw, seed, tr, m=method: PolicyLearner(method=m, seed=seed, **kw).fit(
-                    tr.X, tr.U, demo=tr.demo), "pi")
+                    tr.X, tr.U, groups=tr.demo), "pi")
 
     def ncl(kw, seed, tr):
-        return NullSpaceComponent(seed=seed, **kw).fit(tr.X, tr.U, tr.demo)
+        return NullSpaceComponent(seed=seed, **kw).fit(tr.X, tr.U, groups=tr.demo)
 
     compare("toy2d ncl (limit cycle, task b ~ U(-1, 1))", "ncl", seeds,
             lambda seed: ncl_data(seed).split(0.5, seed), {"n_centres": 16, "tune": False}, ncl, "w")
@@ -95,6 +95,7 @@ def accuracy(seeds: range) -> None:
 
 def angles(seeds: range) -> None:
     from ccl_cli.learn import model_selection as S
+    from ccl_cli.learn.consistency import npoe_error
     from ccl_cli.metrics import nppe
 
     def parabola(seed):
@@ -111,7 +112,7 @@ def angles(seeds: range) -> None:
         data = sim.tracker_sphere(noise=1e-3, seed=seed)
         hold = S.holdout_split(data.demo, 0.3, seed=0, gap=9)
         train, test = data.subset(hold.train), data.subset(hold.test)
-        return train, test, lambda m: S.npoe_score(m.projection(test.X), test.U)
+        return train, test, lambda m: npoe_error(m.projection(test.X), test.U)
 
     cases = [("alpha", "toy2d parabola", "test NPPE", parabola, StateDependentConstraint),
              ("alpha", "tracker bowl 1 mm", "test NPOE (held-out blocks)", bowl, StateDependentConstraint),
@@ -125,7 +126,7 @@ def angles(seeds: range) -> None:
             train, _, score = make_data(seed)
             for tag, tune in (("untuned", False), ("tuned", True)):
                 t0 = time.perf_counter()
-                model = make(seed=seed, tune=tune).fit(train.X, train.U, train.demo)
+                model = make(seed=seed, tune=tune).fit(train.X, train.U, groups=train.demo)
                 secs[tag].append(time.perf_counter() - t0)
                 err[tag].append(score(model))
             basis = (model.tuning_ or {}).get("chosen", {}).get("basis", {})
@@ -159,11 +160,7 @@ def fit_times() -> None:
         secs = {}
         for tune in (False, True):
             t0 = time.perf_counter()
-            model = make(tune)
-            if isinstance(model, PolicyLearner):
-                model.fit(data.X, data.U, demo=data.demo)
-            else:
-                model.fit(data.X, data.U, data.demo)
+            model = make(tune).fit(data.X, data.U, groups=data.demo)  # one fit shape for every learner
             secs["tuned" if tune else "untuned"] = round(time.perf_counter() - t0, 3)
         tuning = getattr(model, "tuning_", None) or {}
         print(json.dumps({"bench": "time", "learner": name, "samples": data.n_samples, **secs,

@@ -1,5 +1,9 @@
 """Evaluation metrics (ALGORITHMS.md §6).
 
+The residuals are those the learners score themselves by
+(:mod:`ccl_cli.learn.consistency`); here they are normalised as reported, with ground
+truth where the data hold it.
+
 Each metric is a mean squared error divided by a total variance (sum over dimensions
 of the per-dimension sample variance, ddof = 1) and returns a :class:`Metric` with the
 value, the unnormalised error and the normaliser, so reports can show all three.
@@ -16,6 +20,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ccl_cli.errors import ConfigError
+from ccl_cli.learn.consistency import apply_projection as _apply
+from ccl_cli.learn.consistency import mean_squared, projection_residual, self_projection_residual
 from ccl_cli.learn.linalg import total_variance
 
 CONVENTIONS = ("ccl", "original")
@@ -35,15 +41,8 @@ class Metric:
         return asdict(self)
 
 
-def _apply(P: np.ndarray, V: np.ndarray) -> np.ndarray:
-    """P_n v_n for stacks P (N, q, q) or one matrix (q, q), V (N, q)."""
-    P = np.asarray(P, dtype=float)
-    return V @ P.T if P.ndim == 2 else np.einsum("nij,nj->ni", P, V)
-
-
-
 def _metric(name: str, diff: np.ndarray, denom: float, of: str) -> Metric:
-    err = float(np.mean(np.sum(diff**2, axis=1)))
+    err = mean_squared(diff)
     if not np.isfinite(denom) or denom <= 0:
         return Metric(name, float("nan"), err, float(denom), of)
     return Metric(name, err / denom, err, float(denom), of)
@@ -95,7 +94,7 @@ def npoe(
     """
     _convention(convention)
     Z = U if V_est is None else U - V_est
-    diff = Z - _apply(N_est, Z)
+    diff = projection_residual(N_est, Z)
     if convention == "original":
         if W is not None:
             return _metric("NPOE", diff, total_variance(W), "w")
@@ -111,11 +110,8 @@ def npe(U: np.ndarray, W_est: np.ndarray, convention: str = "ccl") -> Metric:
     ddof = 1 (``convention="ccl"``) or 0 (``"original"``).
     """
     _convention(convention)
-    c = np.sum(W_est**2, axis=1, keepdims=True)
-    a = np.sum(U * W_est, axis=1, keepdims=True)
-    proj = np.where(c > 0, a / np.where(c > 0, c, 1.0), 0.0) * W_est
     ddof = 0 if convention == "original" else 1
-    return _metric("NPE", proj - W_est, total_variance(U, ddof=ddof), "u")
+    return _metric("NPE", self_projection_residual(W_est, U), total_variance(U, ddof=ddof), "u")
 
 
 def nupe(Pi: np.ndarray, Pi_est: np.ndarray, name: str = "NUPE", of: str = "pi") -> Metric:

@@ -3,11 +3,17 @@
 ::
 
     /            attrs: format="ccl-model", schema_version, kind (constraint | nullspace |
-                        policy), method, params (JSON), fitted (JSON: counts, selection, ...),
-                        training (JSON: config, input hashes, versions), created
+                        policy), method, params (JSON), fitted (JSON: n_features_in_,
+                        counts, selection, ...), training (JSON: config, input hashes, versions)
     /arrays/...  the learnt arrays (weights, constraint rows, eigenvalues, ...)
     /basis/      attrs: kind (rbf | linear), sigma2 / n_state; centres (K, p)
     /demos/<id>/ the same layout once per demonstration (per-demonstration models)
+
+What is saved is what each learner declares in ``_fitted_attributes`` (a JSON value, an
+array, one array per constraint row, the basis, or one model per demonstration).
+Schema version 2 records ``n_features_in_`` (the state dimension p); version-1 files
+are still read, p then inferred from the basis (or a linear model's polynomial
+regressors) and left unchecked when nothing implies it (nhat, identity regressors).
 
 Loading goes through :func:`ccl_cli.io.h5safe.open_hdf5` (nothing outside the file is
 ever read, damaged files cannot hang libhdf5) and checks the format, the schema version,
@@ -30,7 +36,6 @@ import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.io import h5safe
-from ccl_cli.io.hdf5 import check_header
 from ccl_cli.learn.basis import basis_from_state
 from ccl_cli.learn.constraint import (
     KnownFeatureConstraint,
@@ -43,7 +48,9 @@ from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
 
 FORMAT = "ccl-model"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: Versions this ccl reads (1: before n_features_in_ was recorded).
+READABLE_VERSIONS = (1, 2)
 
 CLASSES: dict[str, tuple[str, type]] = {
     "nhat": ("constraint", StateIndependentConstraint),
@@ -53,25 +60,6 @@ CLASSES: dict[str, tuple[str, type]] = {
     "ncl": ("nullspace", NullSpaceComponent),
     "policy": ("policy", PolicyLearner),
 }
-#: fitted arrays and scalars per method (name → attribute)
-ARRAYS = {
-    "nhat": ["A_", "eigenvalues_", "residuals_"],
-    "alpha": [],
-    "lambda": [],
-    "linear": ["W_", "Wb_", "singular_values_", "scale_"],
-    "ncl": ["W_"],
-    "policy": ["W_"],
-}
-SCALARS = {
-    "nhat": ["n_constraints_", "n_action_", "selection_"],
-    "alpha": ["n_constraints_", "n_action_", "selection_", "nmse_"],
-    "lambda": ["n_constraints_", "n_action_", "n_task_", "selection_", "nmse_", "n_dropped_"],
-    "linear": ["n_constraints_", "n_action_", "selection_"],
-    "ncl": ["n_action_", "cost_", "n_iter_", "stop_reason_"],
-    "policy": ["n_action_", "n_used_"],
-}
-
-
 def method_of(model: Any) -> str:
     for name, (_, cls) in CLASSES.items():
         if type(model) is cls:
@@ -105,27 +93,38 @@ def _json(value: Any) -> Any:
 
 
 def _write(group, model: Any, method: str) -> None:
+    """``model``'s method, parameters and declared learnt attributes into ``group``."""
+    declared = type(model)._fitted_attributes
     group.attrs["method"] = method
-    group.attrs["params"] = json.dumps(_params(model), default=_json)
-    fitted = {k: getattr(model, k) for k in SCALARS[method] if hasattr(model, k)}
-    group.attrs["fitted"] = json.dumps(fitted, default=_json)
-    arrays = group.create_group("arrays")
-    for name in ARRAYS[method]:
+    template = model.estimator if isinstance(model, PerDemonstration) else model
+    group.attrs["params"] = json.dumps(_params(template), default=_json)
+    group.attrs["fitted"] = json.dumps({k: getattr(model, k) for k, kind in declared.items()
+                                        if kind == "value" and hasattr(model, k)}, default=_json)
+    arrays = group.create_group("arrays") if "models" not in declared.values() else None
+    for name, kind in declared.items():
         value = getattr(model, name, None)
-        if value is not None:
+        if value is None:
+            continue
+        if kind == "array":
             arrays.create_dataset(name, data=np.asarray(value))
-    for i, w in enumerate(getattr(model, "weights_", []) if method in ("alpha", "lambda") else []):
-        arrays.create_dataset(f"weights_{i}", data=w)
-    basis = getattr(model, "basis_", None)
-    if basis is not None:
-        g = group.create_group("basis")
-        state = basis.state()
-        g.attrs["kind"] = state["kind"]
-        if state["kind"] == "rbf":
-            g.attrs["sigma2"] = state["sigma2"]
-            g.create_dataset("centres", data=state["centres"])
-        else:
-            g.attrs["n_state"] = state["n_state"]
+        elif kind == "arrays":
+            for i, w in enumerate(value):
+                arrays.create_dataset(f"{name}{i}", data=w)
+        elif kind == "basis":
+            _write_basis(group.create_group("basis"), value.state())
+        elif kind == "models":
+            demos = group.create_group("demos")
+            for d, sub in value.items():
+                _write(demos.create_group(str(d)), sub, method.split(":")[-1])
+
+
+def _write_basis(g, state: dict[str, Any]) -> None:
+    g.attrs["kind"] = state["kind"]
+    if state["kind"] == "rbf":
+        g.attrs["sigma2"] = state["sigma2"]
+        g.create_dataset("centres", data=state["centres"])
+    else:
+        g.attrs["n_state"] = state["n_state"]
 
 
 def save_model(path: str | Path, model: Any, training: dict[str, Any] | None = None,
@@ -136,24 +135,17 @@ def save_model(path: str | Path, model: Any, training: dict[str, Any] | None = N
     with h5safe.create_hdf5(path, force=force) as f:
         f.attrs["format"] = FORMAT
         f.attrs["schema_version"] = SCHEMA_VERSION
-        base = method.split(":")[-1]
-        f.attrs["kind"] = CLASSES[base][0]
+        f.attrs["kind"] = CLASSES[method.split(":")[-1]][0]
         f.attrs["training"] = json.dumps(training or {}, default=str)
-        if isinstance(model, PerDemonstration):
-            f.attrs["method"] = method
-            f.attrs["fitted"] = json.dumps({"n_constraints_": model.n_constraints_,
-                                            "selection_": model.selection_}, default=_json)
-            f.attrs["params"] = json.dumps(_params(model.estimator), default=_json)
-            demos = f.create_group("demos")
-            for d, sub in model.models_.items():
-                _write(demos.create_group(str(d)), sub, base)
-        else:
-            _write(f, model, method)
+        _write(f, model, method)
     return path
 
 
 #: fitted scalars that predictions depend on: name → (lowest, highest) allowed integer
-_COUNTS = {"n_action_": (1, 100_000), "n_constraints_": (0, 100_000), "n_task_": (1, 100_000)}
+_COUNTS = {"n_action_": (1, 100_000), "n_constraints_": (0, 100_000), "n_task_": (1, 100_000),
+           "n_features_in_": (1, 100_000)}
+#: counts a model may lack: p is inferred when absent (version-1 files) or unknown (nhat fitted without X)
+_OPTIONAL = ("n_features_in_",)
 #: largest magnitude of a saved array: products of two such values stay finite
 MAX_MAGNITUDE = 1e150
 _JSON_TYPES = (str, int, float, bool, list, dict, type(None))
@@ -167,8 +159,11 @@ def _allowed_types(cls: type, name: str, default: Any) -> tuple[type, ...]:
         hint = None
     if hint is None:
         return _JSON_TYPES if default is None else (type(default),)
-    args = typing.get_args(hint) or (hint,)
-    out = tuple(a for a in (typing.get_origin(a) or a for a in args) if a in _JSON_TYPES)
+    args = (hint,) if typing.get_origin(hint) is typing.Literal else typing.get_args(hint) or (hint,)
+    out = tuple(a for arg in args for a in ((type(v) for v in typing.get_args(arg))
+                                            if typing.get_origin(arg) is typing.Literal
+                                            else (typing.get_origin(arg) or arg,))
+                if a in _JSON_TYPES)
     if float in out:
         out += (int,)
     if any(a is np.ndarray for a in args):
@@ -206,53 +201,118 @@ def _fitted(group, where: str) -> dict[str, Any]:
 
 
 def _read(group, method: str, where: str) -> Any:
-    if method not in CLASSES:
+    """The model saved in ``group`` by :func:`_write`, every part checked."""
+    base = method.split(":", 1)[1] if method.startswith("per_demo:") else method
+    if base not in CLASSES:
         raise InputError(f"{where}: unknown model method {method!r}")
-    cls = CLASSES[method][1]
-    params = _read_params(group, cls, where)
+    cls = CLASSES[base][1]
+    model = cls(**_read_params(group, cls, where))
+    try:
+        model._validate_params()
+    except ConfigError as exc:
+        raise InputError(f"{where}: {exc.message}"[:300]) from None
+    if base != method:
+        if CLASSES[base][0] != "constraint":
+            raise InputError(f"{where}: only constraint models can be per-demonstration")
+        model = PerDemonstration(model)
+    declared = type(model)._fitted_attributes
     fitted = _fitted(group, where)
-    model = cls(**params)
     for key, value in fitted.items():
-        if not key.endswith("_") or key not in SCALARS[method]:
+        if declared.get(key) != "value":
             raise InputError(f"{where}: unknown fitted value {key!r} for a {method} model")
         setattr(model, key, value)
-    for key in ("n_action_", *(("n_constraints_",) if method in ("nhat", "alpha", "lambda", "linear")
-                               else ()), *(("n_task_",) if method == "lambda" else ())):
-        if key not in fitted:
+    for key in _COUNTS:
+        if declared.get(key) == "value" and key not in fitted and key not in _OPTIONAL:
             raise InputError(f"{where}: fitted {key} is missing")
-    arrays = h5safe.group_of(group, "arrays", where)
-    for name in ARRAYS[method]:
-        setattr(model, name, h5safe.numeric(arrays, name, where, ndim=(1, 2, 3), limit=MAX_MAGNITUDE)
-                if h5safe.has(arrays, name, where) else None)
-    if method in ("alpha", "lambda"):
-        n = model.n_constraints_
-        missing = [i for i in range(n) if not h5safe.has(arrays, f"weights_{i}", where)]
-        if missing:
-            raise InputError(f"{where}: expected {n} weight arrays, weights_{missing[0]} is missing")
-        model.weights_ = [h5safe.numeric(arrays, f"weights_{i}", where, ndim=(2,), limit=MAX_MAGNITUDE)
-                          for i in range(n)]
-    basis = h5safe.group_of(group, "basis", where, required=False)
-    if basis is not None:
-        bwhere = f"{where}: /basis"
-        kind = h5safe.attr_str(basis.attrs, "kind", bwhere)
-        if kind == "rbf":
-            centres = h5safe.numeric(basis, "centres", where, ndim=(2,), limit=MAX_MAGNITUDE)
-            if centres.shape[0] < 1 or centres.shape[1] < 1:
-                raise InputError(f"{where}: /basis/centres is empty ({centres.shape})")
-            state = {"kind": kind, "centres": centres,
-                     "sigma2": h5safe.attr_float(basis.attrs, "sigma2", bwhere, positive=True)}
-        elif kind == "linear":
-            n_state = h5safe.attr_int(basis.attrs, "n_state", bwhere)
-            if not 1 <= n_state <= 100_000:
-                raise InputError(f"{bwhere}: n_state must be a positive integer, got {n_state}")
-            state = {"kind": kind, "n_state": n_state}
-        else:
-            raise InputError(f"{bwhere}: unknown basis kind {kind!r} (rbf or linear)")
-        model.basis_ = basis_from_state(state)
-    if method == "lambda":
+    arrays = h5safe.group_of(group, "arrays", where) if "models" not in declared.values() else None
+    for name, kind in declared.items():
+        if kind == "array":
+            setattr(model, name, h5safe.numeric(arrays, name, where, ndim=(1, 2, 3), limit=MAX_MAGNITUDE)
+                    if h5safe.has(arrays, name, where) else None)
+        elif kind == "arrays":  # one per constraint row
+            n = model.n_constraints_
+            missing = [i for i in range(n) if not h5safe.has(arrays, f"{name}{i}", where)]
+            if missing:
+                raise InputError(f"{where}: expected {n} weight arrays, {name}{missing[0]} is missing")
+            setattr(model, name, [h5safe.numeric(arrays, f"{name}{i}", where, ndim=(2,), limit=MAX_MAGNITUDE)
+                                  for i in range(n)])
+        elif kind == "basis":
+            _read_basis(model, group, where)
+        elif kind == "models":
+            model.models_ = _read_demos(group, base, where)
+    if base == "lambda":
         _check_features(model, where)
-    _check_shapes(model, method, where)
+    if not isinstance(model, PerDemonstration):
+        _check_shapes(model, base, where)
+    _check_n_features(model, where)
     return model
+
+
+def _read_basis(model: Any, group, where: str) -> None:
+    basis = h5safe.group_of(group, "basis", where, required=False)
+    if basis is None:
+        return
+    bwhere = f"{where}: /basis"
+    kind = h5safe.attr_str(basis.attrs, "kind", bwhere)
+    if kind == "rbf":
+        centres = h5safe.numeric(basis, "centres", where, ndim=(2,), limit=MAX_MAGNITUDE)
+        if centres.shape[0] < 1 or centres.shape[1] < 1:
+            raise InputError(f"{where}: /basis/centres is empty ({centres.shape})")
+        state = {"kind": kind, "centres": centres,
+                 "sigma2": h5safe.attr_float(basis.attrs, "sigma2", bwhere, positive=True)}
+    elif kind == "linear":
+        n_state = h5safe.attr_int(basis.attrs, "n_state", bwhere)
+        if not 1 <= n_state <= 100_000:
+            raise InputError(f"{bwhere}: n_state must be a positive integer, got {n_state}")
+        state = {"kind": kind, "n_state": n_state}
+    else:
+        raise InputError(f"{bwhere}: unknown basis kind {kind!r} (rbf or linear)")
+    model.basis_ = basis_from_state(state)
+
+
+def _read_demos(group, base: str, where: str) -> dict[int, Any]:
+    """The per-demonstration models under /demos (demonstration id → model)."""
+    demos = h5safe.group_of(group, "demos", where)
+    models = {}
+    for k in h5safe.members(demos, where):
+        if not k.lstrip("-").isdigit() or len(k) > 18:
+            raise InputError(f"{where}: /demos/{k} is not a demonstration id")
+        models[int(k)] = _read(h5safe.group_of(demos, k, where), base, f"{where}:/demos/{k}")
+    if not models:
+        raise InputError(f"{where}: /demos holds no models")
+    if len({m.n_action_ for m in models.values()}) > 1:
+        raise InputError(f"{where}: per-demonstration models disagree on the action dimension")
+    return models
+
+
+def _implied_n_features(model: Any) -> int | None:
+    """The state dimension p that what ``model`` holds implies: its basis, a linear model's
+    polynomial regressors (degree ≥ 1), a per-demonstration model's sub-models; else None."""
+    if isinstance(model, PerDemonstration):
+        found = {p for m in model.models_.values() if (p := getattr(m, "n_features_in_", None)) is not None}
+        return found.pop() if len(found) == 1 else None
+    basis = getattr(model, "basis_", None)
+    if basis is not None:
+        return _n_state(basis)
+    if isinstance(model, LinearConstraint) and isinstance(model.degree, int) and model.degree >= 1:
+        width = (model.W_.shape[1] // model.n_action_ if model.regressors == "polynomial" else
+                 model.Wb_.shape[1] if model.task and model.task_regressors == "polynomial" else None)
+        found = [p for p in range(1, 1025) if math.comb(p + model.degree, model.degree) == width]
+        return found[0] if found else None
+    return None
+
+
+def _check_n_features(model: Any, where: str) -> None:
+    """n_features_in_ as saved (version 2), else inferred (version 1); it must agree with
+    what the model holds."""
+    implied = _implied_n_features(model)
+    saved = getattr(model, "n_features_in_", None)
+    if saved is None:
+        if implied is not None:
+            model.n_features_in_ = implied
+    elif implied is not None and saved != implied:
+        raise InputError(f"{where}: n_features_in_ is {saved} but the model's basis or regressors take "
+                         f"{implied} state dimensions")
 
 
 def _check_features(model: Any, where: str) -> None:
@@ -345,7 +405,13 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
     path = Path(path)
     where = str(path)
     with h5safe.open_hdf5(path, "model file") as f:
-        check_header(f.attrs, where, FORMAT, "schema_version", SCHEMA_VERSION, "ccl model")
+        found = h5safe.attr_str(f.attrs, "format", where, None)
+        if found != FORMAT:
+            raise InputError(f"{where}: not a ccl model (format attribute {found!r})")
+        version = h5safe.attr_int(f.attrs, "schema_version", where)
+        if version not in READABLE_VERSIONS:
+            raise InputError(f"{where}: ccl model version {version} is not supported (this ccl reads "
+                             f"versions {', '.join(map(str, READABLE_VERSIONS))})")
         method = h5safe.attr_str(f.attrs, "method", where)
         kind = h5safe.attr_str(f.attrs, "kind", where)
         try:  # informative only
@@ -357,30 +423,5 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
             raise InputError(f"{where}: unknown model method {method!r}")
         if kind != CLASSES[base][0]:
             raise InputError(f"{where}: kind {kind!r} does not match method {method!r}")
-        info = {"kind": kind, "method": method, "training": training}
-        if method.startswith("per_demo:"):
-            if CLASSES[base][0] != "constraint":
-                raise InputError(f"{where}: only constraint models can be per-demonstration")
-            template = CLASSES[base][1](**_read_params(f, CLASSES[base][1], where))
-            model = PerDemonstration(template)
-            demos = h5safe.group_of(f, "demos", where)
-            models = {}
-            for k in h5safe.members(demos, where):
-                if not k.lstrip("-").isdigit() or len(k) > 18:
-                    raise InputError(f"{where}: /demos/{k} is not a demonstration id")
-                models[int(k)] = _read(h5safe.group_of(demos, k, where), base, f"{where}:/demos/{k}")
-            if not models:
-                raise InputError(f"{where}: /demos holds no models")
-            if len({m.n_action_ for m in models.values()}) > 1:
-                raise InputError(f"{where}: per-demonstration models disagree on the action dimension")
-            model.models_ = models
-            fitted = h5safe.attr_json(f.attrs, "fitted", where, kind=dict)
-            count = fitted.get("n_constraints_")
-            if not isinstance(count, int) or isinstance(count, bool) or count < 0:
-                raise InputError(f"{where}: fitted n_constraints_ must be a non-negative integer, "
-                                 f"got {count!r}"[:200])
-            model.n_constraints_ = count
-            model.selection_ = fitted.get("selection_")
-        else:
-            model = _read(f, method, where)
-    return model, info
+        model = _read(f, method, where)
+    return model, {"kind": kind, "method": method, "training": training, "schema_version": version}

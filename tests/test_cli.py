@@ -110,7 +110,7 @@ def test_simulate_learn_evaluate_predict_round_trip(tmp_path):
     est, _ = load_model(model)
     d, _ = read_demonstrations(data)
     with h5py.File(tmp_path / "pred.h5") as f:
-        assert np.array_equal(f["N"][()], est.projection(d.X, d.demo))
+        assert np.array_equal(f["N"][()], est.projection(d.X, groups=d.demo))
     ccl("predict", model, data, "-o", tmp_path / "pred.csv")
     header = (tmp_path / "pred.csv").read_text().splitlines()[0].split(",")
     assert header[:2] == ["x_0", "x_1"] and "N_48" in header
@@ -139,19 +139,19 @@ def test_every_model_kind_reloads_bit_identically(tmp_path, kind):
              "ncl": lambda: NullSpaceComponent(n_centres=9),
              "policy": lambda: PolicyLearner(method="pi-weighted", n_centres=9),
              "per_demo": lambda: PerDemonstration(LinearConstraint(regressors="identity"))}[kind]()
-    model.fit(d.X, d.U, d.demo) if kind == "per_demo" else model.fit(d.X, d.U)
+    model.fit(d.X, d.U, groups=d.demo) if kind == "per_demo" else model.fit(d.X, d.U)
     path = save_model(tmp_path / "m.h5", model)
     code = ("import sys, numpy as np; from ccl_cli.models import load_model; "
             "from ccl_cli.io.hdf5 import read_demonstrations; m, i = load_model(sys.argv[1]); "
             "d, _ = read_demonstrations(sys.argv[2]); "
-            "out = m.predict(d.X) if i['kind'] != 'constraint' else m.projection(d.X, d.demo); "
+            "out = m.predict(d.X) if i['kind'] != 'constraint' else m.projection(d.X, groups=d.demo); "
             "np.save(sys.argv[3], out)")
     from ccl_cli.io.hdf5 import write_demonstrations
 
     write_demonstrations(tmp_path / "d.h5", d)
     subprocess.run([sys.executable, "-c", code, path, tmp_path / "d.h5", tmp_path / "out.npy"], check=True)
     fresh = np.load(tmp_path / "out.npy")
-    here = model.predict(d.X) if kind in ("ncl", "policy") else model.projection(d.X, d.demo)
+    here = model.predict(d.X) if kind in ("ncl", "policy") else model.projection(d.X, groups=d.demo)
     assert np.array_equal(fresh, here)
     again, _ = load_model(path)
     assert type(again) is type(model)

@@ -47,7 +47,7 @@ def test_nhat_threshold_rule_is_the_original_and_fixed_count_is_honoured():
 
 def test_nhat_cross_validated_count():
     data = sim.arm7(rows=(0, 1, 2), seed=3)
-    model = StateIndependentConstraint(selection="cv").fit(data.X, data.U, data.demo)
+    model = StateIndependentConstraint(selection="cv").fit(data.X, data.U, groups=data.demo)
     assert model.n_constraints_ == 3
     assert model.selection_["rule"] == "cv"
 
@@ -150,8 +150,8 @@ def test_linear_closed_form_with_noise_is_close_to_the_likelihood_optimum():
 def test_linear_closed_form_per_demonstration_with_task_term():
     data = sim.varying_constraint(task=True, noise=0.0, seed=4)
     model = PerDemonstration(LinearConstraint(regressors="identity", task=True)).fit(
-        data.X, data.U, data.demo)
-    P = model.projection(data.X, data.demo)
+        data.X, data.U, groups=data.demo)
+    P = model.projection(data.X, groups=data.demo)
     np.testing.assert_allclose(P, data.true_projection(), atol=1e-8)
     first = model.models_[int(data.demo[0])]
     scale = -1.0 / np.linalg.norm(first.W_[0]) if first.W_[0] @ data.truth["A"][0, 0] < 0 else \
@@ -188,7 +188,7 @@ def test_pi_noise_free_is_exact_when_the_policy_is_in_the_basis():
         model = PolicyLearner(method=method, basis="linear").fit(train.X, train.U)
         assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
     model = PolicyLearner(method="pi-coupled", basis="linear").fit(train.X, train.U,
-                                                            train.true_projection())
+                                                            projections=train.true_projection())
     assert nupe(test.truth["pi"], model.predict(test.X)).value < 1e-6
 
 
@@ -197,7 +197,7 @@ def test_pi_variants_under_noise():
     err = {}
     for method in ("pi", "pi-weighted", "pi-coupled", "dpl"):
         model = PolicyLearner(method=method, basis=GRID, tune=False).fit(train.X, train.U,
-                                                                        train.true_projection())
+                                                                        projections=train.true_projection())
         err[method] = nupe(test.truth["pi"], model.predict(test.X)).value
     assert err["pi-weighted"] * 5 < err["pi"]
     assert err["pi-coupled"] < err["pi-weighted"]
@@ -262,9 +262,9 @@ def test_estimator_base_params_clone_and_not_fitted(make):
     with pytest.raises(NotFittedError) as err:
         predict(arm.X)
     assert isinstance(err.value, LearningError) and "fit" in err.value.message
-    model.fit(arm.X, arm.U, arm.demo) if isinstance(model, PerDemonstration) else model.fit(arm.X, arm.U)
+    model.fit(arm.X, arm.U, groups=arm.demo)  # one fit shape for every learner
     assert model.n_features_in_ == 2
-    out = model.projection(arm.X, arm.demo) if hasattr(model, "projection") else model.predict(arm.X)
+    out = model.projection(arm.X, groups=arm.demo) if hasattr(model, "projection") else model.predict(arm.X)
     assert np.isfinite(out).all()
     fresh = clone(model)  # a clone is unfitted even when the original is fitted
     assert not hasattr(fresh, "n_features_in_")
@@ -345,8 +345,9 @@ def test_kron_least_squares_solves_a_separable_problem_like_scipy():
 def test_policy_chunk_size_smaller_than_n_gives_the_same_fit(method):
     train, test = policy_data(0.01)
     P = train.true_projection()
-    whole = PolicyLearner(method=method, basis=GRID, tune=False).fit(train.X, train.U, P)
-    chunked = PolicyLearner(method=method, basis=GRID, chunk_size=97, tune=False).fit(train.X, train.U, P)
+    whole = PolicyLearner(method=method, basis=GRID, tune=False).fit(train.X, train.U, projections=P)
+    chunked = PolicyLearner(method=method, basis=GRID, chunk_size=97, tune=False).fit(
+        train.X, train.U, projections=P)
     np.testing.assert_allclose(chunked.W_, whole.W_, rtol=1e-8, atol=1e-8 * np.abs(whole.W_).max())
     np.testing.assert_allclose(chunked.predict(test.X), whole.predict(test.X), atol=1e-8)
 

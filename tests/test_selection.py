@@ -6,6 +6,7 @@ import pytest
 from ccl_cli import simulate as sim
 from ccl_cli.errors import InputError
 from ccl_cli.learn import model_selection as S
+from ccl_cli.learn.consistency import inconsistency_error, npoe_error
 from ccl_cli.learn.constraint import KnownFeatureConstraint, StateIndependentConstraint, rank
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
@@ -59,8 +60,8 @@ def test_cross_validate_scores_held_out_npoe_by_hand():
     est = StateIndependentConstraint(n_constraints=2)
     res = S.cross_validate(est, data.X, data.U, data.demo, n_folds=5, seed=0)
     folds = S.make_folds(data.demo, data.n_samples, 5, 0)
-    assert res.kind == "demonstrations" and res.scores.shape == (5,)
-    for (train, test), value in zip(folds.pairs, res.scores, strict=True):
+    assert res.kind == "demonstrations" and res.errors.shape == (5,)
+    for (train, test), value in zip(folds.pairs, res.errors, strict=True):
         U = data.U[train]
         vecs = np.linalg.eigh(U.T @ U)[1][:, :2]  # the two smallest directions
         Ut = data.U[test]
@@ -75,10 +76,10 @@ def test_cross_validate_scores_policies_and_ncl_by_their_own_consistency_error()
     bad = S.cross_validate(PolicyLearner(method="pi", basis="linear", tune=False), data.X, data.U, data.demo)
     assert res.mean < 0.5 * bad.mean  # the limit cycle is not linear: a linear basis fits worse
     pi = np.array([[1.0, 0.0]])
-    assert S.inconsistency_score(pi, np.array([[1.0, 0.0]])) == 0.0  # û ûᵀ π = u
+    assert inconsistency_error(pi, np.array([[1.0, 0.0]])) == 0.0  # û ûᵀ π = u
     ncl = sim.toy2d(task=True, sampling="uniform", n_samples=400, seed=0)
     res = S.cross_validate(NullSpaceComponent(n_centres=16, tune=False), ncl.X, ncl.U, ncl.demo, n_folds=3)
-    assert res.scores.shape == (3,) and np.all(res.scores < 0.05)
+    assert res.errors.shape == (3,) and np.all(res.errors < 0.05)
 
 
 def test_ratio_rule_counts_residuals_at_the_noise_level():
@@ -95,7 +96,7 @@ def test_lambda_cross_validated_count_on_the_7dof_arm_scores_joint_space_data():
     """lambda's old CV scored task-space data with joint-space projections (crashed here)."""
     data = sim.arm7(rows=(0, 1), constraint="jacobian", seed=0, n_demos=12, n_steps=20)
     model = KnownFeatureConstraint(features={"arm": "arm7", "rows": [0, 1, 2]}, n_centres=1,
-                                   selection="cv", n_restarts=1).fit(data.X, data.U, data.demo)
+                                   selection="cv", n_restarts=1).fit(data.X, data.U, groups=data.demo)
     assert model.selection_["rule"] == "cv" and model.n_constraints_ == 2
     assert len(model.selection_["values"]) == 2
 
@@ -152,8 +153,8 @@ def test_tracker_simulations_get_one_constraint_and_small_held_out_npoe():
             data = make(noise=1e-3, seed=seed)
             hold = S.holdout_split(data.demo, 0.3, seed=0, gap=9)
             tr, te = data.subset(hold.train), data.subset(hold.test)
-            fitted = model().fit(tr.X, tr.U, tr.demo)
+            fitted = model().fit(tr.X, tr.U, groups=tr.demo)
             assert fitted.n_constraints_ == 1 and fitted.selection_["rule"] == "ratio"
             if model is StateDependentConstraint:  # tuned by default: 9 centres win the CV
                 assert fitted.tuning_["chosen"]["basis"]["n_centres"] == 9
-            assert S.npoe_score(fitted.projection(te.X), te.U) < 0.03, (make.__name__, seed)
+            assert npoe_error(fitted.projection(te.X), te.U) < 0.03, (make.__name__, seed)

@@ -40,7 +40,7 @@ def test_defaults_match_the_hand_tuned_tutorial(tmp_path, policy, method):
     tuned, hand = [], []
     for seed in range(3):
         train, test = tutorial_data(policy, seed).split(0.5, seed)
-        model = PolicyLearner(method=method, seed=seed).fit(train.X, train.U, demo=train.demo)
+        model = PolicyLearner(method=method, seed=seed).fit(train.X, train.U, groups=train.demo)
         tuned.append(nupe(test.truth["pi"], model.predict(test.X)).value)
         info = model.tuning_
         assert info["chosen"]["basis"] in info["grid"]["basis"] and len(info["scores"]) >= 2
@@ -67,7 +67,8 @@ def test_tune_false_is_todays_fixed_behaviour_and_the_report_shows_the_curve(tmp
     assert fixed.tuning_ is None and fixed.basis_.n_features == 25
     again = PolicyLearner(method="pi", n_centres=25, tune=False).fit(data.X, data.U)
     np.testing.assert_array_equal(fixed.W_, again.W_)
-    tuned = PolicyLearner(method="pi", n_centres=25, tune={"budget": 1.0}).fit(data.X, data.U, demo=data.demo)
+    tuned = PolicyLearner(method="pi", n_centres=25, tune={"budget": 1.0}).fit(
+        data.X, data.U, groups=data.demo)
     assert tuned.n_centres == 25  # constructor parameters are never changed by fit
     assert tuned.tuning_["grid"]["basis"][0] == {"kind": "rbf", "n_centres": 25, "centres": "kmeans"}
     assert tuned.tuning_["budget"] == 1.0
@@ -106,8 +107,8 @@ def test_lambda_tuning_on_the_two_link_arm_beats_the_fixed_basis():
     from ccl_cli.metrics import nppe
 
     train, test = sim.two_link(seed=0).split(0.3, 0)
-    tuned = KnownFeatureConstraint(features="arm2").fit(train.X, train.U, train.demo)
-    fixed = KnownFeatureConstraint(features="arm2", tune=False).fit(train.X, train.U, train.demo)
+    tuned = KnownFeatureConstraint(features="arm2").fit(train.X, train.U, groups=train.demo)
+    fixed = KnownFeatureConstraint(features="arm2", tune=False).fit(train.X, train.U, groups=train.demo)
     info = tuned.tuning_
     assert [c["n_centres"] for c in info["grid"]["basis"]] == [16, 25]
     assert info["chosen"]["basis"]["n_centres"] == 25 and tuned.basis_.n_features == 25
@@ -123,7 +124,7 @@ def test_lambda_tuning_on_the_7dof_arm_picks_from_its_grid():
 
     data = sim.arm7(rows=(0, 1), constraint="jacobian", seed=0, n_demos=12, n_steps=20)
     model = KnownFeatureConstraint(features={"arm": "arm7", "rows": [0, 1, 2]}, n_centres=1,
-                                   n_restarts=1).fit(data.X, data.U, data.demo)
+                                   n_restarts=1).fit(data.X, data.U, groups=data.demo)
     info = model.tuning_
     assert [c["n_centres"] for c in info["grid"]["basis"]] == [1, 4]
     assert info["chosen"] in [r["params"] for r in info["scores"]] and len(info["scores"]) == 2
@@ -143,9 +144,9 @@ def test_alpha_grid_the_wide_candidate_wins_back_the_parabola():
     model = StateDependentConstraint(seed=4, tune={"budget": 60})
     grid = model._tune_grid(train.X, train.U)["basis"]
     assert [(c["n_centres"], "sigma2" in c) for c in grid] == [(25, False), (9, False), (25, True)]
-    model.fit(train.X, train.U, train.demo)
+    model.fit(train.X, train.U, groups=train.demo)
     narrow = StateDependentConstraint(seed=4, tune={"grid": {"basis": grid[:2]}}).fit(
-        train.X, train.U, train.demo)
+        train.X, train.U, groups=train.demo)
     assert model.tuning_["chosen"]["basis"] == grid[2] and narrow.tuning_["chosen"]["basis"] == grid[1]
     err = [nppe(test.true_projection(), m.projection(test.X), test.truth["pi"], test.U).value
            for m in (model, narrow)]
@@ -160,8 +161,8 @@ def test_alpha_and_lambda_with_too_few_samples_for_any_candidate_fit_as_given():
     toy = sim.toy2d(constraint="parabola", seed=0, n_demos=8, n_steps=2)
     arm = sim.two_link(seed=0, n_demos=8, n_steps=2)
     assert toy.n_samples == arm.n_samples == 16
-    alpha = StateDependentConstraint(n_centres=12).fit(toy.X, toy.U, toy.demo)
-    lam = KnownFeatureConstraint(features="arm2", n_centres=12).fit(arm.X, arm.U, arm.demo)
+    alpha = StateDependentConstraint(n_centres=12).fit(toy.X, toy.U, groups=toy.demo)
+    lam = KnownFeatureConstraint(features="arm2", n_centres=12).fit(arm.X, arm.U, groups=arm.demo)
     for model in (alpha, lam):
         assert model.tuning_ is None and model.basis_.n_features == 12
         assert np.isfinite(model.projection(toy.X if model is alpha else arm.X)).all()
@@ -176,7 +177,7 @@ def test_ncl_default_grid_beats_the_tutorials_16_centres():
     for seed in range(3):
         data = sim.toy2d(policy="limit_cycle", task=True, sampling="uniform", n_samples=1000, seed=seed)
         train, test = data.split(0.5, seed)
-        model = NullSpaceComponent(seed=seed).fit(train.X, train.U, train.demo)
+        model = NullSpaceComponent(seed=seed).fit(train.X, train.U, groups=train.demo)
         assert [b["n_centres"] for b in model.tuning_["grid"]["basis"]] == [16, 36, 64, 100]
         assert model.tuning_["chosen"]["basis"]["n_centres"] == model.basis_.n_features
         tuned.append(nupe(test.truth["w"], model.predict(test.X)).value)
@@ -198,7 +199,7 @@ def test_ncl_defaults_match_the_hand_tuned_100_centres_on_the_two_link_arm():
     tuned, hand = [], []
     for seed in range(5):
         train, test = sim.two_link(task=True, seed=seed).split(0.3, seed)
-        model = NullSpaceComponent(seed=seed, tune={"budget": 600}).fit(train.X, train.U, train.demo)
+        model = NullSpaceComponent(seed=seed, tune={"budget": 600}).fit(train.X, train.U, groups=train.demo)
         assert model.tuning_["skipped"] == 0 and len(model.tuning_["scores"]) == 4
         tuned.append(nupe(test.truth["w"], model.predict(test.X)).value)
         model = NullSpaceComponent(n_centres=100, seed=seed, tune=False).fit(train.X, train.U)
@@ -224,7 +225,7 @@ def test_large_data_is_tuned_on_a_seeded_subset_and_the_winner_fitted_on_all():
     assert len(np.unique(groups)) == 10 and "contiguous pieces" in note
 
     data = tutorial_data("attractor", 0)
-    model = PolicyLearner(method="pi", tune={"max_rows": 400}).fit(data.X, data.U, demo=data.demo)
+    model = PolicyLearner(method="pi", tune={"max_rows": 400}).fit(data.X, data.U, groups=data.demo)
     assert "of 1000 samples" in model.tuning_["subset"]
     assert model.basis_.n_features == model.tuning_["chosen"]["basis"]["n_centres"]
     full = PolicyLearner(method="pi", tune=False, basis=model.tuning_["chosen"]["basis"]).fit(data.X, data.U)

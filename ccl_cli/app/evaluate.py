@@ -73,7 +73,7 @@ def constraint_metrics(model: Any, d: Demonstrations, Y: np.ndarray, convention:
                        of: str = "u") -> dict[str, dict]:
     """NPOE of the observations ``Y`` (N, q) the model was learnt from (``of`` names them)
     and, with ground truth π and N, NPPE; both under ``convention``."""
-    N_est = model.projection(d.X, d.demo)
+    N_est = model.projection(d.X, groups=d.demo)
     sd = state_dependent(model)
     truth = _has_true_constraint(d)
     Pi = d.truth["pi"] if truth else None
@@ -108,7 +108,7 @@ def policy_metrics(est: np.ndarray, d: Demonstrations, constraint: Any = None, Y
             items.append(M.ncpe(d.true_projection(), d.truth["pi"], est))
     if constraint is not None:
         Y = d.U if Y is None else Y
-        items.append(M.ncpe_observed(constraint.projection(d.X, d.demo), Y, est,
+        items.append(M.ncpe_observed(constraint.projection(d.X, groups=d.demo), Y, est,
                                      task_part(constraint, d.X, d.demo), of))
     return _dict(*items)
 
@@ -171,7 +171,7 @@ def predict(model: Any, kind: str, data: Demonstrations) -> dict[str, np.ndarray
     constraint; w and v = u − w for a null-space component; π for a policy."""
     outputs: dict[str, np.ndarray] = {"x": data.X, "u": data.U, "t": data.t, "demo": data.demo}
     if kind == "constraint":
-        N = model.projection(data.X, data.demo)
+        N = model.projection(data.X, groups=data.demo)
         outputs["N"] = N
         outputs["w"] = np.einsum("nij,nj->ni", N, data.U)
     elif kind == "nullspace":

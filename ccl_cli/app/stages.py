@@ -182,7 +182,7 @@ class Pipeline:
     def _learn_v(self, opts: dict) -> StageResult:
         tr = self.split.train
         model = NullSpaceComponent(**_kwargs(opts, ("basis", "n_centres", "max_iter", "tol", "tune")),
-                                   seed=self.seed).fit(tr.X, tr.U, tr.demo)
+                                   seed=self.seed).fit(tr.X, tr.U, groups=tr.demo)
         result = StageResult("learn-v", "ncl", model, info={"n_iter": model.n_iter_,
                                                             "stop_reason": model.stop_reason_})
         if getattr(model, "tuning_", None):
@@ -199,7 +199,7 @@ class Pipeline:
         model = make_constraint(opts, self.seed)
         target = self._target(on, "train", tr)
         try:
-            model.fit(tr.X, target, tr.demo)
+            model.fit(tr.X, target, groups=tr.demo)
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             raise LearningError(f"learn-a failed: {exc}") from None
         self.constraint = model
@@ -243,7 +243,7 @@ class Pipeline:
             return None
         source = opts.get("projections", "auto")
         if source in ("learnt", "auto") and self.constraint is not None:
-            return self.constraint.projection(d.X, d.demo)
+            return self.constraint.projection(d.X, groups=d.demo)
         if source in ("true", "auto") and (d.has_truth("N") or d.has_truth("A")):
             return d.true_projection()
         raise ConfigError("pi-coupled needs projections: run learn-a first (projections: learnt) or "
@@ -259,7 +259,8 @@ class Pipeline:
                                   f"got {kw['cutoff']!r}")
             kw["cutoff_rule"] = kw.pop("cutoff")
         model = PolicyLearner(method=opts.get("method", "pi"), seed=self.seed, **kw)
-        model.fit(tr.X, self._target(on, "train", tr), self._projections(opts, "train", tr), demo=tr.demo)
+        model.fit(tr.X, self._target(on, "train", tr), groups=tr.demo,
+                  projections=self._projections(opts, "train", tr))
         result = StageResult("learn-pi", model.method, model, info={"n_used": model.n_used_})
         if getattr(model, "tuning_", None):
             result.info["tuning"] = model.tuning_
@@ -268,7 +269,7 @@ class Pipeline:
             if (model.tuning_ or {}).get("chosen"):  # the baseline regresses on the same basis
                 base_kw.update(model.tuning_["chosen"], tune=False)
             result.baseline = PolicyLearner(method="dpl", seed=self.seed, **base_kw).fit(
-                tr.X, self._target(on, "train", tr), demo=tr.demo)
+                tr.X, self._target(on, "train", tr), groups=tr.demo)
         constraint = self.constraint
         targets = {part: self._target(on, part, d) for part, d in self.parts()}
         of = "learnt w" if on == "w" or (on == "auto" and self.w) else "u"

@@ -147,7 +147,7 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
     elif result.name == "learn-a":
         if isinstance(model, PerDemonstration) and not dpart.startswith("train"):
             d, dpart = train, "train" + suffix
-        N = model.projection(d.X, d.demo)
+        N = model.projection(d.X, groups=d.demo)
         v = task_part(model, d.X, d.demo)
         Y = d.U if v is None else d.U - v
         arrows = {"observed": ("observed u" if v is None else "u − learnt ṽ", Y),
@@ -184,7 +184,8 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
         lines = dict(arrows)
         if constraint is not None and not isinstance(constraint, PerDemonstration):
             v = task_part(constraint, d.X, d.demo)
-            pred = np.einsum("nij,nj->ni", constraint.projection(d.X, d.demo), est) + (0 if v is None else v)
+            N = constraint.projection(d.X, groups=d.demo)
+            pred = np.einsum("nij,nj->ni", N, est) + (0 if v is None else v)
             lines["predicted"] = ("predicted u = ṽ + Ñπ̃", pred)
         if planar:
             out.append(View("learn-pi-field.png", "learn-pi: learnt vs true policy", "field",

@@ -19,6 +19,7 @@ _LEARNERS = {
     "PerDemonstration": "ccl_cli.learn.constraint",
     "NullSpaceComponent": "ccl_cli.learn.nullspace",
     "PolicyLearner": "ccl_cli.learn.policy",
+    "Tuned": "ccl_cli.learn.model_selection",
 }
 
 __all__ = sorted(_LEARNERS)

@@ -1,12 +1,18 @@
 """The small base every learner shares (scikit-learn's estimator conventions).
 
-* Constructor parameters are keyword-only, stored unchanged under their own names,
-  and are the whole configuration of a learner: :meth:`Estimator.get_params` reads
-  them from the signature of ``__init__``, :meth:`Estimator.set_params` writes them
+* Constructor parameters are keyword-only, stored unchanged under their own names, and
+  are the whole configuration of a learner: :meth:`Estimator.get_params` reads them from
+  the signature of ``__init__``, :meth:`Estimator.set_params` writes them
   (``basis__n_centres`` reaches into a nested estimator), :func:`clone` builds a new,
-  unfitted learner with the same parameters.
-* ``fit`` returns ``self``; learnt attributes end in ``_``; ``n_features_in_`` is the
-  state dimension p seen in ``fit``.
+  unfitted learner with the same parameters. What each parameter accepts is declared
+  once in ``_parameter_constraints`` (format: :mod:`ccl_cli.learn.params`) and checked at
+  the start of ``fit``.
+* ``fit(X, U, *, groups=None)`` returns ``self`` (``groups``: demonstration id per
+  sample); learnt attributes end in ``_``; ``n_features_in_`` is the state dimension p
+  seen in ``fit`` and every prediction checks it. The learnt attributes a saved model
+  holds are declared once in ``_fitted_attributes`` (read by :mod:`ccl_cli.models`).
+* ``score(X, U, ...)`` is minus the learner's own held-out consistency error (higher is
+  better), so scikit-learn's ``GridSearchCV`` and ``cross_validate`` work unchanged.
 * Asking a learner for a prediction before ``fit`` raises :class:`NotFittedError`.
 
 :class:`NotFittedError` is a :class:`~ccl_cli.errors.LearningError` (exit code 1): a
@@ -21,19 +27,40 @@ from __future__ import annotations
 
 import copy
 import inspect
-from typing import Any
+from types import SimpleNamespace
+from typing import Any, ClassVar
 
 import numpy as np
 
 from ccl_cli.errors import InputError, LearningError
+from ccl_cli.learn.params import validate_params
 
 
 class NotFittedError(LearningError):
     """A learner was asked for a prediction before ``fit``."""
 
 
+def check_xu(X: np.ndarray, U: np.ndarray, min_samples: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """States X (N, p) and actions U (N, q) as finite float arrays with N ≥ ``min_samples``."""
+    X = np.asarray(X, dtype=float)
+    U = np.asarray(U, dtype=float)
+    if X.ndim != 2 or U.ndim != 2 or X.shape[0] != U.shape[0]:
+        raise InputError(f"X and U must be (N, p) and (N, q) with the same N, got {X.shape}, {U.shape}")
+    if X.shape[0] < min_samples:
+        raise InputError(f"need at least {min_samples} samples, got {X.shape[0]}")
+    if not (np.isfinite(X).all() and np.isfinite(U).all()):
+        raise InputError("X or U contains NaN or inf")
+    return X, U
+
+
 class Estimator:
     """Base of every learner: parameters from the constructor signature."""
+
+    #: parameter → the forms it accepts (:mod:`ccl_cli.learn.params`); one entry per parameter.
+    _parameter_constraints: ClassVar[dict[str, list]] = {}
+    #: learnt attribute → how a saved model holds it: "value" (JSON), "array", "arrays" (a
+    #: list of arrays), "basis" (a fitted feature map), "models" (one model per demonstration).
+    _fitted_attributes: ClassVar[dict[str, str]] = {}
 
     @classmethod
     def _param_names(cls) -> list[str]:
@@ -43,6 +70,12 @@ class Estimator:
         params = inspect.signature(init).parameters.values()
         return sorted(p.name for p in params if p.name != "self"
                       and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD))
+
+    def _store_params(self, values: dict[str, Any]) -> None:
+        """Store the constructor's arguments unchanged under their own names (call with
+        ``locals()`` as the constructor's only statement)."""
+        for name in self._param_names():
+            setattr(self, name, values[name])
 
     def get_params(self, deep: bool = True) -> dict[str, Any]:
         """Constructor parameters → values; with ``deep``, also ``name__sub`` entries of
@@ -72,71 +105,58 @@ class Estimator:
             getattr(self, name).set_params(**sub_params)
         return self
 
+    def _validate_params(self) -> None:
+        """Check every constructor parameter against ``_parameter_constraints``
+        (:class:`~ccl_cli.errors.ConfigError` naming the class and the parameter)."""
+        validate_params(type(self).__name__, self._parameter_constraints, self.get_params(deep=False))
+
+    def _prepare_fit(self, X: np.ndarray | None, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The start of every ``fit``: validate the parameters and the data (X (N, p), U
+        (N, q), see :func:`check_xu`) and record ``n_features_in_`` = p. ``X`` None (a
+        learner that does not read states) leaves ``n_features_in_`` unset: any p is then
+        accepted when predicting."""
+        self._validate_params()
+        U = np.asarray(U, dtype=float)
+        X, U = check_xu(np.zeros((U.shape[0] if U.ndim else 0, 0)) if X is None else X, U)
+        self.__dict__.pop("n_features_in_", None)  # a refit forgets the previous p
+        if X.shape[1]:
+            self.n_features_in_ = int(X.shape[1])
+        return X, U
+
+    def _check_states(self, X: np.ndarray) -> np.ndarray:
+        """X (N, p) as floats, with p = ``n_features_in_`` (else one InputError)."""
+        X = np.asarray(X, dtype=float)
+        p = getattr(self, "n_features_in_", None)
+        if X.ndim != 2 or (p is not None and X.shape[1] != p):
+            got = X.shape[1] if X.ndim == 2 else f"an array of shape {X.shape}"
+            want = f"p = {p} state dimensions" if p is not None else "states as an (N, p) array"
+            raise InputError(f"the model expects {want}, got {got}")
+        return X
+
     def _check_fitted(self, *attrs: str) -> None:
         """Raise :class:`NotFittedError` unless every learnt attribute in ``attrs`` exists."""
         if not all(hasattr(self, a) for a in attrs):
             raise NotFittedError(f"this {type(self).__name__} is not fitted yet: call fit(X, U) first")
 
-    # -- hyperparameter tuning (ccl_cli.learn.model_selection.tune) ----------------------------------
-    #: Folds of this learner's default hyperparameter search (None: selection.TUNE_FOLDS).
-    TUNE_FOLDS: int | None = None
-
-    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list[Any]]:
-        """The grid searched when ``tune`` is on: parameter → candidates (the current
-        default first). Learners with hyperparameters override this."""
-        return {}
-
-    def _fit_tuned(self, X: np.ndarray, U: np.ndarray, **fit_kw: Any) -> bool:
-        """When the learner's ``tune`` parameter is on (True, or a dict ``{budget: s,
-        grid: {...}, folds: k, max_rows: m}``), choose its hyperparameters by
-        cross-validation (:func:`ccl_cli.learn.model_selection.tune`) — on a seeded subset of about
-        ``max_rows`` samples (:func:`ccl_cli.learn.model_selection.tuning_subset`) when there are more —
-        fit the winner on all of X, U and take over its learnt attributes; ``tuning_``
-        records the grid, the CV curve, the choice and any subset.
-        The constructor parameters themselves are left unchanged. Returns False (and sets
-        ``tuning_ = None``) when there is nothing to tune: the caller then fits as usual.
-        """
-        from ccl_cli.learn import model_selection as S
-
-        spec = getattr(self, "tune", False)
-        opts = spec if isinstance(spec, dict) else {}
-        grid = (opts.get("grid") or self._tune_grid(np.asarray(X, dtype=float), np.asarray(U, dtype=float))
-                ) if spec else {}
-        self.tuning_ = None
-        if not grid:
-            return False
-        base = clone(self).set_params(tune=False)
-        groups, projections = fit_kw.get("demo"), fit_kw.get("projections")
-        Xs, Us = X, U
-        seed = int(getattr(self, "seed", 0))
-        subset = S.tuning_subset(groups, len(U), seed, opts.get("max_rows"))
-        if subset is not None:  # large N: search on a seeded subset, fit the winner on all
-            rows, groups, subset_note = subset
-            Xs, Us = np.asarray(X)[rows], np.asarray(U)[rows]
-            projections = None if projections is None else np.asarray(projections)[rows]
-        folds = int(opts.get("folds", self.TUNE_FOLDS or S.TUNE_FOLDS))
-        try:
-            S.make_folds(groups, len(Us), folds, 0, S.DEFAULT_GAP)
-        except InputError as exc:  # too little data to cross-validate: say so, fit as given
-            self.tuning_ = {"chosen": None, "reason": f"not tuned: {exc.message}"}
-            return False
-        from ccl_cli.learn import blas
-
-        with blas.threads(blas.stage_threads(len(Us))):  # many small fits: one BLAS thread
-            chosen, info = S.tune(base, Xs, Us, groups, grid,
-                                  budget=float(opts.get("budget", S.TUNE_BUDGET)),
-                                  n_folds=folds, seed=seed, projections=projections)
-        if subset is not None:
-            info["subset"] = subset_note
-        best = base.set_params(**chosen).fit(X, U, **fit_kw)
-        for name, value in vars(best).items():
+    def _adopt(self, fitted: Estimator) -> None:
+        """Take over every learnt attribute (public, ending in ``_``) of ``fitted``."""
+        for name, value in vars(fitted).items():
             if name.endswith("_") and not name.startswith("_"):
                 setattr(self, name, value)
-        self.tuning_ = info
-        return True
 
-    def _set_n_features(self, X: np.ndarray) -> None:
-        self.n_features_in_ = int(np.shape(X)[1])
+    def __sklearn_tags__(self) -> SimpleNamespace:
+        """The description scikit-learn's meta-estimators read (GridSearchCV, clone checks):
+        a 2-D numeric input, a multi-output target, fitting required. Plain attributes —
+        ccl never imports scikit-learn."""
+        return SimpleNamespace(
+            estimator_type=None, transformer_tags=None, classifier_tags=None, regressor_tags=None,
+            array_api_support=False, no_validation=False, non_deterministic=False, requires_fit=True,
+            _skip_test=False,
+            target_tags=SimpleNamespace(required=True, one_d_labels=False, two_d_labels=True,
+                                        positive_only=False, multi_output=True, single_output=False),
+            input_tags=SimpleNamespace(one_d_array=False, two_d_array=True, three_d_array=False,
+                                       sparse=False, categorical=False, string=False, dict=False,
+                                       positive_only=False, allow_nan=False, pairwise=False))
 
     def __repr__(self) -> str:
         defaults = {p.name: p.default for p in inspect.signature(type(self).__init__).parameters.values()}

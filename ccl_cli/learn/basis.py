@@ -12,13 +12,15 @@ included, of ‖c_i − c_j‖)², as in the original library.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.learn.linalg import row_chunks
+from ccl_cli.learn.params import SEED, Fields, Interval, Options
 
 #: Feature blocks of iterative learners are kept in memory up to this many bytes (N K · 8);
 #: above it they are recomputed on every pass, so memory stays bounded in N.
@@ -198,15 +200,32 @@ class LinearBasis:
 
 
 Basis = RBFBasis | LinearBasis
+BasisKind = Literal["rbf", "linear"]
+#: What a learner's ``basis`` parameter takes: a kind, a mapping, a basis object or None (rbf).
+BasisSpec = BasisKind | dict | RBFBasis | LinearBasis | None
+#: Keys of a ``basis`` mapping (a linear basis takes none but ``kind``).
+BASIS_FIELDS: dict[str, list] = {
+    "kind": [Options.of(BasisKind)],
+    "n_centres": [Interval(int, 1, 100_000)],
+    "centres": [Options(str, frozenset({"kmeans", "grid"})), list, np.ndarray],
+    "sigma2": [Interval(float, 1e-300, None)],
+    **SEED,
+}
+#: The feature-map parameters of every learner with a basis.
+BASIS_PARAMS: dict[str, list] = {
+    "basis": [Options.of(BasisKind), Fields(BASIS_FIELDS), RBFBasis, LinearBasis, None],
+    "n_centres": [Interval(int, 1, 100_000)],
+}
 
 
-def make_basis(spec: str | dict | Basis | None, default_centres: int = 16, seed: int = 0) -> Basis:
-    """A basis from a config value: ``"rbf"``, ``"linear"``, a dict
-    ``{kind, n_centres, centres, sigma2}``, or a basis object (used as is)."""
+def make_basis(spec: BasisSpec, default_centres: int = 16, seed: int = 0) -> Basis:
+    """A new, unfitted basis from a parameter value: ``"rbf"``, ``"linear"``, a dict
+    ``{kind, n_centres, centres, sigma2, seed}``, or a basis object (copied: fitting never
+    changes the object given)."""
     if spec is None:
         spec = "rbf"
     if isinstance(spec, RBFBasis | LinearBasis):
-        return spec
+        return copy.deepcopy(spec)
     if isinstance(spec, str):
         spec = {"kind": spec}
     spec = dict(spec)

@@ -3,11 +3,10 @@
 Small problems do not profit from BLAS threads, and on a machine whose cores are shared
 they lose badly: a LAPACK call (e.g. ``eigh`` of a 200 × 200 normal matrix) makes
 hundreds of threaded BLAS calls, each waiting for every thread, so one descheduled
-thread stalls them all (measured on a 2-core VM with a busy neighbour: 200 × 200 ``eigh``
-3 ms single-threaded, up to 210 ms with 2 threads; a 100-centre pi-coupled fit 0.07 s
-against 0.4–1.5 s). A run therefore fits a small training set single-threaded
-(:data:`SMALL_SAMPLES`) and records the choice in run.json, and a hyperparameter search
-(many small cross-validation fits) runs single-threaded.
+thread stalls them all (docs/measurements.md, "BLAS threads"). A run therefore fits a
+small training set single-threaded (:data:`SMALL_SAMPLES`) and records the choice in
+run.json, and a hyperparameter search (many small cross-validation fits) runs
+single-threaded.
 
 The threads are set through threadpoolctl (OpenBLAS, MKL, BLIS, ...); where no BLAS can
 be controlled nothing changes and :func:`threads` yields None.

@@ -28,8 +28,10 @@ DEFAULT_RULE = "ratio"
 RATIO_FACTOR = 2.0
 #: Hyperparameter tuning is on by default (learners' ``tune`` and the config agree).
 TUNE = True
-#: Seconds a learner's hyperparameter search may take (``tune: {budget: s}``).
-TUNE_BUDGET = 5.0
+#: Model fits (candidates × folds) a learner's hyperparameter search may run (``tune:
+#: {budget: n}``): a count, not seconds, so the chosen model never depends on the machine's
+#: load. Every default grid fits within it (the largest, lwpi's, is 25 candidates × 3 folds).
+TUNE_BUDGET = 100
 #: Folds of the hyperparameter search (fewer than for choosing s: it fits many candidates).
 TUNE_FOLDS = 3
 #: Above this many samples the search runs on a seeded subset of about this size (whole

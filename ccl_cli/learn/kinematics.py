@@ -8,6 +8,8 @@
 
 from __future__ import annotations
 
+from typing import Literal, get_args
+
 import numpy as np
 
 
@@ -84,7 +86,9 @@ class SevenDofArm:
         return J
 
 
-ARMS = {"arm2": TwoLinkArm, "arm7": SevenDofArm}
+#: The built-in arms by name.
+ArmName = Literal["arm2", "arm7"]
+ARMS = dict(zip(get_args(ArmName), (TwoLinkArm, SevenDofArm), strict=True))
 
 
 class ArmFeatures:

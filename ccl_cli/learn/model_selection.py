@@ -5,32 +5,28 @@
   the training side of every train/test boundary so that the windows of derived
   velocities (a Savitzky–Golay window of w samples makes u_n depend on x_{n±w/2}) never
   reach across it.
-* :func:`cross_validate` fits a clone of any learner on each training fold and scores
-  its own held-out consistency error on the test fold — never ground truth:
-
-  - constraint models: NPOE (§6) of the held-out actions, ``mean ‖u − Ñ(x)u‖² / Σ var(u)``
-    (per truncation k = 1..s when asked, for choosing the number of constraints);
-  - null-space component (ncl): NPE (§6), ``mean ‖P̃u − w̃‖² / Σ var(u)``;
-  - policies: the normalised inconsistency error (§5) ``mean ‖u − ûûᵀ π̃(x)‖² / Σ var(u)``
-    (pi-weighted: each term weighted by ‖u‖², its own criterion; pi-coupled:
-    ``mean ‖u − Ñ π̃(x)‖² / Σ var(u)`` with the given projections).
-
-* :func:`holdout_split` chooses the reported train/test split of a recording and says
-  why; :func:`tune` searches a small grid of hyperparameters within a time budget.
+* :func:`cross_validate` fits a clone of any learner on each training fold and records
+  its held-out error on the test fold, ``−estimator.score`` — the learner's own
+  consistency error (:mod:`ccl_cli.learn.consistency`), never ground truth.
+* :func:`holdout_split` chooses the reported train/test split of a recording and says why.
+* :class:`Tuned` is the hyperparameter search as an estimator: a grid searched by
+  cross-validation within a budget counted in model fits (candidates × folds), never in
+  seconds, so the same data and settings give the same model on any machine at any
+  load. The learners' ``tune`` parameter delegates to it (:class:`Tunable`).
 """
 
 from __future__ import annotations
 
 import itertools
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError, LearningError
-from ccl_cli.learn.base import clone
+from ccl_cli.learn import blas
+from ccl_cli.learn.base import Estimator, check_xu, clone
 from ccl_cli.learn.defaults import (  # noqa: F401 - the shared defaults, re-exported here
     DEFAULT_GAP,
     DEFAULT_RULE,
@@ -43,6 +39,7 @@ from ccl_cli.learn.defaults import (  # noqa: F401 - the shared defaults, re-exp
     TUNE_FOLDS,
     TUNE_MAX_ROWS,
 )
+from ccl_cli.learn.params import SEED, Fields, Interval
 
 
 # -- splitters ------------------------------------------------------------------------------
@@ -96,74 +93,23 @@ def make_folds(groups: np.ndarray | None, n: int, n_folds: int = N_FOLDS, seed: 
                  f"time blocks, {gap} samples dropped from training at each boundary")
 
 
-# -- scores ---------------------------------------------------------------------------------
-def _var(U: np.ndarray) -> float:
-    v = float(np.var(U, axis=0, ddof=1).sum()) if len(U) > 1 else 0.0
-    return v if v > 0 else float(np.mean(np.sum(U**2, 1))) or 1.0
-
-
-def npoe_score(N: np.ndarray, U: np.ndarray) -> float:
-    """NPOE = mean ‖u − Ñu‖² / Σ var(u): N (n, q, q), U (n, q)."""
-    res = U - np.einsum("nij,nj->ni", N, U)
-    return float(np.mean(np.sum(res**2, 1)) / _var(U))
-
-
-def npe_score(W: np.ndarray, U: np.ndarray) -> float:
-    """NPE = mean ‖P̃u − w̃‖² / Σ var(u), P̃ = w̃w̃ᵀ/‖w̃‖²: W, U (n, q)."""
-    c = np.maximum(np.sum(W**2, 1), 1e-300)
-    proj = W * (np.sum(W * U, 1) / c)[:, None]
-    return float(np.mean(np.sum((proj - W) ** 2, 1)) / _var(U))
-
-
-def inconsistency_score(P: np.ndarray, U: np.ndarray, N: np.ndarray | None = None,
-                        weighted: bool = False) -> float:
-    """mean ‖u − ûûᵀπ̃‖² / Σ var(u) (§5), or with projections N (n, q, q) mean ‖u − Ñπ̃‖²;
-    ``weighted`` (pi-weighted's own criterion): each sample's term weighted by ‖u‖² / mean ‖u‖²."""
-    if N is not None:
-        res = U - np.einsum("nij,nj->ni", N, P)
-        w = np.ones(len(U))
-    else:
-        norm = np.linalg.norm(U, axis=1)
-        keep = norm > 0
-        uh = U[keep] / norm[keep, None]
-        res = U[keep] - uh * np.sum(uh * P[keep], 1)[:, None]
-        w = norm[keep] ** 2 if weighted else np.ones(int(keep.sum()))
-    return float(np.sum(w * np.sum(res**2, 1)) / max(np.sum(w), 1e-300) / _var(U))
-
-
-def score(model: Any, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None,
-          projections: np.ndarray | None = None) -> float:
-    """The learner's own held-out consistency error (see the module docstring)."""
-    if hasattr(model, "projection"):
-        return npoe_score(model.projection(X, demo), U)
-    if hasattr(model, "task_component"):  # null-space component (ncl)
-        return npe_score(model.predict(X), U)
-    method = getattr(model, "method", None)
-    if method == "pi-coupled":
-        return inconsistency_score(model.predict(X), U, projections)
-    return inconsistency_score(model.predict(X), U, weighted=method == "pi-weighted")
-
-
-def truncated_npoe(model: Any, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
-    """Held-out NPOE of the model's first k rows, k = 1..n_constraints_ (nested learners)."""
-    return np.array([npoe_score(model.projection_k(X, k), U) for k in range(1, model.n_constraints_ + 1)])
-
-
 # -- cross-validation -----------------------------------------------------------------------
 @dataclass
 class CVResult:
-    scores: np.ndarray  # (n_folds,) or (n_folds, m)
+    """Held-out errors (lower is better) per fold, and how the folds were made."""
+
+    errors: np.ndarray  # (n_folds,) or (n_folds, m)
     kind: str
     reason: str
 
     @property
     def mean(self) -> np.ndarray | float:
-        return self.scores.mean(0)
+        return self.errors.mean(0)
 
     @property
     def se(self) -> np.ndarray | float:
-        k = self.scores.shape[0]
-        return self.scores.std(0, ddof=1) / np.sqrt(k) if k > 1 else np.zeros_like(self.mean)
+        k = self.errors.shape[0]
+        return self.errors.std(0, ddof=1) / np.sqrt(k) if k > 1 else np.zeros_like(self.mean)
 
 
 def cross_validate(
@@ -179,19 +125,19 @@ def cross_validate(
     scorer: Callable[..., float | np.ndarray] | None = None,
     projections: np.ndarray | None = None,
 ) -> CVResult:
-    """Fit a clone of ``estimator`` on each training fold, score it on the test fold.
+    """Fit a clone of ``estimator`` on each training fold, measure its error on the test fold.
 
     Args:
         estimator: any learner of this package (unfitted; it is cloned per fold).
         X (N, p), U (N, q): states and actions; groups (N,): demonstration ids.
         folds: explicit folds; by default :func:`make_folds` (by demonstration when
             there are enough, else contiguous blocks with ``gap``-sample guards).
-        scorer: ``scorer(model, X_test, U_test, demo_test)`` → float or (m,) array;
-            default :func:`score`.
+        scorer: ``scorer(model, X_test, U_test, groups_test)`` → an error (float or (m,)
+            array); default ``−model.score(X_test, U_test, groups=groups_test)``.
         projections: (N, q, q) Ñ per sample for ``pi-coupled`` (subset per fold).
 
     Returns:
-        :class:`CVResult` with ``scores`` (n_folds,) or (n_folds, m).
+        :class:`CVResult` with ``errors`` (n_folds,) or (n_folds, m).
     """
     X = np.asarray(X, dtype=float)
     U = np.asarray(U, dtype=float)
@@ -201,24 +147,14 @@ def cross_validate(
     out = []
     for train, test in folds.pairs:
         model = clone(estimator)
-        kw = {}
-        if projections is not None:
-            kw["projections"] = projections[train]
-        if _takes_demo(model):
-            kw["demo"] = groups[train]
-        model.fit(X[train], U[train], **kw)
+        extra = {} if projections is None else {"projections": projections[train]}
+        model.fit(X[train], U[train], groups=groups[train], **extra)
         if scorer is not None:
             out.append(scorer(model, X[test], U[test], groups[test]))
         else:
-            out.append(score(model, X[test], U[test], groups[test],
-                             None if projections is None else projections[test]))
+            extra = {} if projections is None else {"projections": projections[test]}
+            out.append(-model.score(X[test], U[test], groups=groups[test], **extra))
     return CVResult(np.asarray(out, dtype=float), folds.kind, folds.reason)
-
-
-def _takes_demo(model: Any) -> bool:
-    import inspect
-
-    return "demo" in inspect.signature(model.fit).parameters
 
 
 # -- the reported train/test split ----------------------------------------------------------
@@ -313,30 +249,44 @@ def tuning_subset(groups: np.ndarray | None, n: int, seed: int = 0,
         "spread over the recording, each a group of the folds")
 
 
-def tune(
+#: ``tune`` of a learner: True (the default search), False, or a mapping adjusting it.
+TUNE_FIELDS: dict[str, list] = {
+    "budget": [Interval(float, 0, None)],  # model fits (candidates × folds)
+    "folds": [Interval(int, 2, 1000)],
+    "max_rows": [Interval(int, 100, None)],
+    "grid": [dict],
+}
+TUNE_PARAMS: dict[str, list] = {"tune": [bool, Fields(TUNE_FIELDS)]}
+#: What ``budget`` and ``budget_used`` count.
+BUDGET_UNIT = "fits (candidates × folds)"
+
+
+def grid_search(
     estimator: Any,
     X: np.ndarray,
     U: np.ndarray,
     groups: np.ndarray | None,
     grid: dict[str, list[Any]],
     *,
-    budget: float = 10.0,
+    budget: float = TUNE_BUDGET,
     n_folds: int = N_FOLDS,
     seed: int = 0,
     gap: int = DEFAULT_GAP,
     projections: np.ndarray | None = None,
-) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Grid search by :func:`cross_validate` within ``budget`` seconds.
+) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """Grid search by :func:`cross_validate` within ``budget`` model fits.
 
-    Candidates are tried in the grid's order (the default and the cheap first); a
-    candidate is skipped (and counted in ``skipped``) when the time spent plus what the
-    previous candidate took would exceed ``budget``; the first two always run (so a
-    two-candidate grid gives the same answer on a slow or busy machine). The
-    candidate with the smallest mean held-out error wins.
+    Candidates run in the grid's order (the default and the cheap first); each costs
+    ``n_folds`` fits. A candidate runs while the fits so far plus its own stay within
+    ``budget`` — the first always runs — and the rest are counted in ``skipped``. The
+    count does not depend on the machine or its load. The candidate with the smallest
+    mean held-out error wins (the first of equals).
 
     Returns:
-        (chosen parameters, info) with info = {"grid", "scores": [{params, mean, se}],
-        "chosen", "budget", "budget_used", "skipped", "folds"}.
+        (chosen parameters, info, cv_results) with info = {"grid", "scores": [{params,
+        mean, se}], "chosen", "budget", "budget_used", "budget_unit", "skipped", "folds",
+        "rule"} and cv_results as scikit-learn's ``GridSearchCV.cv_results_`` (scores =
+        −errors; candidates that failed have NaN).
     """
     if not grid:
         raise ConfigError("tuning needs a non-empty grid")
@@ -345,23 +295,22 @@ def tune(
     n = len(U)
     groups = np.zeros(n, int) if groups is None else np.asarray(groups)
     folds = make_folds(groups, n, n_folds, seed, gap)
-    t0 = time.perf_counter()
+    per_candidate = len(folds.pairs)  # fits
     rows: list[dict[str, Any]] = []
-    skipped = 0
-    last, last_size = 0.0, 1
+    ran: list[tuple[dict[str, Any], np.ndarray]] = []
+    used = skipped = 0
     for params in combos:
-        size = _size(params)
-        if len(rows) >= 2 and time.perf_counter() - t0 + last * max(1.0, size / last_size) ** 2 > budget:
+        if used and used + per_candidate > budget:
             skipped += 1
             continue
-        est = clone(estimator).set_params(**params)
-        t1 = time.perf_counter()
+        used += per_candidate
         try:
-            res = cross_validate(est, X, U, groups, folds=folds, projections=projections)
+            res = cross_validate(clone(estimator).set_params(**params), X, U, groups, folds=folds,
+                                 projections=projections)
         except (InputError, LearningError, np.linalg.LinAlgError):
+            ran.append((params, np.full(per_candidate, np.nan)))
             continue  # e.g. more centres than training samples in a fold
-        finally:
-            last, last_size = time.perf_counter() - t1, size
+        ran.append((params, res.errors))
         mean = float(res.mean)
         rows.append({"params": params, "mean": mean if np.isfinite(mean) else float("inf"),
                      "se": float(res.se)})
@@ -370,16 +319,159 @@ def tune(
     best = min(range(len(rows)), key=lambda i: rows[i]["mean"])
     chosen = rows[best]["params"]
     info = {"grid": {k: list(v) for k, v in grid.items()}, "scores": rows, "chosen": chosen,
-            "budget": budget, "budget_used": round(time.perf_counter() - t0, 3), "skipped": skipped,
-            "folds": {"kind": folds.kind, "n": len(folds.pairs), "reason": folds.reason},
+            "budget": budget, "budget_used": used, "budget_unit": BUDGET_UNIT, "skipped": skipped,
+            "folds": {"kind": folds.kind, "n": per_candidate, "reason": folds.reason},
             "rule": "smallest held-out error"}
-    return chosen, info
+    return chosen, info, _cv_results(ran, keys)
 
 
-def _size(params: dict[str, Any]) -> int:
-    """Number of basis functions of a candidate (its cost grows with it)."""
-    basis = params.get("basis")
-    return int(basis.get("n_centres", 1)) if isinstance(basis, dict) else int(params.get("n_centres", 1))
+def _cv_results(ran: list[tuple[dict[str, Any], np.ndarray]], keys: list[str]) -> dict[str, Any]:
+    """scikit-learn's ``cv_results_`` layout: one entry per candidate that ran."""
+    scores = -np.array([errors for _, errors in ran])  # (candidates, folds)
+    mean = scores.mean(1)
+    ordered = np.where(np.isnan(mean), -np.inf, mean)
+    rank = 1 + np.sum(ordered[None, :] > ordered[:, None], axis=1)  # equal scores share a rank
+    out: dict[str, Any] = {"params": [p for p, _ in ran],
+                           **{f"param_{k}": [p.get(k) for p, _ in ran] for k in keys},
+                           "mean_test_score": mean, "std_test_score": scores.std(1), "rank_test_score": rank}
+    out.update({f"split{i}_test_score": scores[:, i] for i in range(scores.shape[1])})
+    return out
+
+
+class Tuned(Estimator):
+    """``estimator`` with its hyperparameters chosen from ``grid`` by cross-validation.
+
+    Args:
+        estimator: an unfitted learner (cloned, never changed).
+        grid: parameter → candidates, searched in order (the first: the default).
+        folds: folds of the search (None: the estimator's ``TUNE_FOLDS``, else
+            :data:`TUNE_FOLDS`); by demonstration when there are enough, else time blocks.
+        budget: the most model fits the search may run, candidates × folds (None:
+            :data:`TUNE_BUDGET`); the first candidate always runs.
+        max_rows: above this many samples the search runs on a seeded subset
+            (:func:`tuning_subset`; None: :data:`TUNE_MAX_ROWS`); the winner is fitted on all.
+        seed: of the folds and the subset.
+
+    Attributes:
+        best_estimator_ (the winner fitted on all of X, U), best_params_, best_score_
+        (−its mean held-out error), cv_results_ (scikit-learn's layout), tuning_ (what
+        the report shows: grid, scores, chosen, budget, budget_used, budget_unit, skipped,
+        folds, rule, subset; or {chosen: None, reason} when the data are too few to
+        cross-validate, and the estimator is then fitted as given), n_features_in_.
+        Other learnt attributes (``n_constraints_``, ``W_``, ...) are read from the winner.
+    """
+
+    _parameter_constraints: ClassVar[dict[str, list]] = {
+        "estimator": [Estimator], "grid": [dict], "folds": [Interval(int, 2, 1000), None],
+        "budget": [Interval(float, 0, None), None], "max_rows": [Interval(int, 100, None), None], **SEED}
+
+    def __init__(self, estimator: Estimator, grid: dict[str, list[Any]], *, folds: int | None = None,
+                 budget: float | None = None, max_rows: int | None = None, seed: int = 0) -> None:
+        self._store_params(locals())
+
+    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None, **fit_kw: Any) -> Tuned:
+        """Search on X (N, p), U (N, q) with demonstration ids ``groups`` (N,); ``fit_kw``
+        (e.g. ``projections`` (N, q, q) of pi-coupled) go to every fit, subset per fold."""
+        self._validate_params()
+        X, U = check_xu(X, U)
+        n = len(U)
+        folds = int(self.folds or getattr(self.estimator, "TUNE_FOLDS", None) or TUNE_FOLDS)
+        Xs, Us, gs = X, U, groups
+        projections = fit_kw.get("projections")
+        subset = tuning_subset(groups, n, self.seed, self.max_rows)
+        if subset is not None:  # large N: search on a seeded subset, fit the winner on all
+            rows, gs, subset_note = subset
+            Xs, Us = X[rows], U[rows]
+            projections = None if projections is None else np.asarray(projections)[rows]
+        chosen: dict[str, Any] = {}
+        try:
+            make_folds(gs, len(Us), folds, 0, DEFAULT_GAP)
+        except InputError as exc:  # too little data to cross-validate: say so, fit as given
+            self.tuning_: dict[str, Any] = {"chosen": None, "reason": f"not tuned: {exc.message}"}
+            self.cv_results_: dict[str, Any] = {}
+        else:
+            with blas.threads(blas.stage_threads(len(Us))):  # many small fits: one BLAS thread
+                chosen, self.tuning_, self.cv_results_ = grid_search(
+                    self.estimator, Xs, Us, gs, self.grid,
+                    budget=TUNE_BUDGET if self.budget is None else self.budget,
+                    n_folds=folds, seed=self.seed, projections=projections)
+            if subset is not None:
+                self.tuning_["subset"] = subset_note
+        self.best_params_ = chosen
+        self.best_score_ = -min((r["mean"] for r in self.tuning_.get("scores", [])), default=np.nan)
+        self.best_estimator_ = clone(self.estimator).set_params(**chosen).fit(X, U, groups=groups, **fit_kw)
+        if hasattr(self.best_estimator_, "n_features_in_"):
+            self.n_features_in_ = self.best_estimator_.n_features_in_
+        return self
+
+    def __getattr__(self, name: str) -> Any:
+        """Learnt attributes (``..._``) of the winner, e.g. ``n_constraints_``."""
+        if name.endswith("_") and not name.startswith("_") and "best_estimator_" in vars(self):
+            return getattr(vars(self)["best_estimator_"], name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+    def _best(self) -> Any:
+        self._check_fitted("best_estimator_")
+        return self.best_estimator_
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        """The winner's prediction (w̃ or π̃): (N, p) → (N, q)."""
+        return self._best().predict(X)
+
+    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+        """The winner's Ñ(X): (N, p) → (N, q, q)."""
+        return self._best().projection(X, groups=groups)
+
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+        """The winner's Ã(X): (N, p) → (N, s, q)."""
+        return self._best().constraint(X, groups=groups)
+
+    def score(self, X: np.ndarray, U: np.ndarray, **kw: Any) -> float:
+        """The winner's score (minus its own consistency error; higher is better)."""
+        return self._best().score(X, U, **kw)
+
+
+class Tunable:
+    """The ``tune`` parameter of a learner (True by default): when on, ``fit`` delegates
+    to :class:`Tuned` over the learner's default grid (:meth:`_tune_grid`) or the grid
+    given in ``tune: {grid: ...}`` and takes over the winner's learnt attributes;
+    ``tuning_`` records the search. The constructor parameters are left unchanged.
+
+    A learner lists its basis candidates in :meth:`_basis_candidates`; only a default
+    RBF basis is tuned (:func:`rbf_tunable`)."""
+
+    #: Folds of this learner's default search (None: :data:`TUNE_FOLDS`).
+    TUNE_FOLDS: ClassVar[int | None] = None
+
+    def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
+        """(numbers of centres, width factors) of the candidate bases, in order (:func:`basis_grid`)."""
+        return []
+
+    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list[Any]]:
+        """The grid searched when ``tune`` is on: ``{"basis": [candidates]}`` with the
+        configured basis first, or {} (nothing to tune: a basis the user fixed, or too few
+        samples for any candidate)."""
+        if not rbf_tunable(self.basis):
+            return {}
+        grid = [spec for sizes, widths in self._basis_candidates()
+                for spec in basis_grid(X, sizes, widths, self.seed)]
+        return {"basis": grid} if grid else {}
+
+    def _fit_tuned(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None, **fit_kw: Any) -> bool:
+        """Search and adopt the winner when ``tune`` is on; False (``tuning_ = None``) when
+        there is nothing to tune and the caller fits as usual."""
+        spec = self.tune
+        opts = spec if isinstance(spec, dict) else {}
+        grid = (opts.get("grid") or self._tune_grid(X, U)) if spec else {}
+        self.tuning_ = None
+        if not grid:
+            return False
+        search = Tuned(clone(self).set_params(tune=False), grid, folds=opts.get("folds"),
+                       budget=opts.get("budget"), max_rows=opts.get("max_rows"), seed=int(self.seed))
+        search.fit(X, U, groups=groups, **fit_kw)
+        self._adopt(search.best_estimator_)
+        self.tuning_ = search.tuning_
+        return True
 
 
 def rbf_tunable(basis: Any) -> bool:

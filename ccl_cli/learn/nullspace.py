@@ -33,22 +33,8 @@ and at N = 1e5 it had not converged after 1000 (25 s). So the fit runs in four s
 Stages 1 and 2 run on a seeded subsample of :func:`subsample_size` rows when N is larger
 (otherwise on all rows, and stage 3 is their continuation). ``smoothing=0`` minimises
 the original residual itself in stages 2–3 (the original's optimum, slowly: ~180 passes
-on 500 samples); ``polish=False`` stops after stage 1 (then run on all rows).
-
-Measured, before → after (before: stage 1, then the original residual to tol 1e-9 or
-1000 passes). benchmarks/bench_core.py (single-threaded BLAS; toy 2-D fixed constraint +
-task part, 16 RBFs; test NUPE of w on 1e4 held-out samples): N = 1e4 1.1 s → 0.2 s, test
-2.7e-6 → 2.1e-6, original cost 1.00033 → 1.00024; N = 1e5 16–25 s (1000 passes, not
-converged; 839× the one-pass floor) → 0.37 s (13–15×, of which k-means ~6×), test
-9.5e-7 → 1.8e-7, cost 10.446 → 10.018; N = 1e6 96.5 s → 2.0 s, test 5.0e-8; K = 256 at
-N = 1e4 407 s → 2.0 s, test 2.7e-6. The ncl tutorial (ALGORITHMS.md §7, limit cycle +
-task, 500/500, 5 seeds): test NUPE and original cost equal (to 5 digits) or lower on every
-seed (median 1.52e-4 both).
-``configs/toy2d_learn_v.yaml``: train NPE (the normalised original cost) 1.9968e-4 →
-1.9929e-4, test NUPE_w 5.14e-5 → 5.10e-5. Not everywhere: with a parabola constraint +
-limit cycle + task (not a tutorial; ncl fits it poorly, test NUPE ≈ 0.1 with 16–100 RBFs)
-the stages end in another local minimum, 1.5–5 % higher original cost and 2–9 % higher
-test NUPE than the old path at N = 1e4.
+on 500 samples); ``polish=False`` stops after stage 1 (then run on all rows). Times and
+errors before → after the staging: docs/measurements.md ("ncl").
 
 Scale: the Jacobian row of sample n is vec(g_n β_nᵀ) with g_n ∈ R^q the bracket above, so
 each Levenberg–Marquardt iteration is one pass over the data in row blocks that sums
@@ -60,15 +46,17 @@ O(N K q)) and memory O(chunk · Kq + (Kq)²), never N × Kq.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import ClassVar
 
 import numpy as np
 
-from ccl_cli.errors import ConfigError, LearningError
+from ccl_cli.errors import LearningError
 from ccl_cli.learn.base import Estimator
-from ccl_cli.learn.basis import Basis, feature_blocks, make_basis
-from ccl_cli.learn.constraint.base import check_xu
+from ccl_cli.learn.basis import BASIS_PARAMS, BasisSpec, feature_blocks, make_basis
+from ccl_cli.learn.consistency import npe_error
 from ccl_cli.learn.linalg import eigen_lstsq, kron_least_squares, row_chunks
-from ccl_cli.learn.model_selection import TUNE, basis_grid, rbf_tunable
+from ccl_cli.learn.model_selection import TUNE, TUNE_PARAMS, Tunable
+from ccl_cli.learn.params import ITERATION_PARAMS, SEED, Interval
 
 #: ``residual(W, rows, β)`` → (r (c,), ∂r/∂w̃ (c, q)), the callback of kron_least_squares.
 Residual = Callable[[np.ndarray, slice, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -116,7 +104,7 @@ def wall_residual(U: np.ndarray, delta2: float) -> Residual:
     return residual
 
 
-class NullSpaceComponent(Estimator):
+class NullSpaceComponent(Tunable, Estimator):
     """Learns w̃(x) = W β(x) from observations u = v + w (the stages: module docstring).
 
     Args:
@@ -130,11 +118,14 @@ class NullSpaceComponent(Estimator):
             original: 1e-9); stages 1–2 use :data:`STAGE_TOL` and STAGE_TOL/100.
         chunk_size: rows per block of the passes over the data (default 8192).
         polish: run stages 2–4 (default). ``False`` stops after stage 1 (the smooth
-            residual: about half the time, 2–30× the test error in the benchmark).
+            residual; docs/measurements.md).
         smoothing: δ² of stages 2–3 relative to mean ‖w̃‖² (0: the original residual
             throughout, and no stage 4).
-        tune: choose the basis by cross-validation (:func:`ccl_cli.learn.model_selection.tune`; True by
-            default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
+        tune: choose the basis by cross-validation (:class:`ccl_cli.learn.model_selection.Tuned`;
+            True by default, a dict ``{budget, grid, folds, max_rows}`` to adjust, False for
+            the fixed settings). Grid: K ∈ {n_centres, 16, 36, 64, 100} k-means RBF centres
+            (at most N/2; default width rule), scored by held-out NPE over :attr:`TUNE_FOLDS`
+            folds. A basis the user fixed (linear, explicit centres or σ²) is not tuned.
 
     Attributes:
         basis_, W_ (q, K), cost_ (Σ r² of the original residual at W_), objective_ (the
@@ -146,15 +137,19 @@ class NullSpaceComponent(Estimator):
         stage: stage name, rows, delta2, full_passes, cost_passes, accepted, stop).
     """
 
-    #: 5 folds, not 3: on clean data the held-out NPE of K ≥ 36 centres differ by about one
-    #: standard error, and 3 folds picked a too small basis on 2 of 5 seeds of the 2-link
-    #: arm (median test NUPE_w 6.3e-5, hand-tuned 100 centres 5.5e-5; 5 folds: 5.2e-5).
+    #: Folds of the basis search: 5, not 3 (docs/measurements.md, "ncl").
     TUNE_FOLDS = 5
+    _parameter_constraints: ClassVar[dict[str, list]] = {
+        **BASIS_PARAMS, **SEED, **ITERATION_PARAMS, "chunk_size": [Interval(int, 1, None), None],
+        "polish": [bool], "smoothing": [Interval(float, 0, None)], **TUNE_PARAMS}
+    _fitted_attributes: ClassVar[dict[str, str]] = {
+        "n_features_in_": "value", "n_action_": "value", "cost_": "value", "n_iter_": "value",
+        "stop_reason_": "value", "W_": "array", "basis_": "basis"}
 
     def __init__(
         self,
         *,
-        basis: str | dict | Basis | None = "rbf",
+        basis: BasisSpec = "rbf",
         n_centres: int = 16,
         seed: int = 0,
         max_iter: int = 1000,
@@ -164,41 +159,18 @@ class NullSpaceComponent(Estimator):
         smoothing: float = SMOOTHING,
         tune: bool | dict = TUNE,
     ) -> None:
-        self.basis = basis
-        self.n_centres = n_centres
-        self.seed = seed
-        self.max_iter = max_iter
-        self.tol = tol
-        self.chunk_size = chunk_size
-        self.polish = polish
-        self.smoothing = smoothing
-        self.tune = tune
+        self._store_params(locals())
 
-    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
-        """Default grid: the number of k-means RBF centres K ∈ {n_centres, 16, 36, 64, 100}
-        (at most N/2; default width rule), scored by held-out NPE. Measured (5 seeds, test
-        NUPE_w median, untuned K = 16 → tuned): ncl tutorial (ALGORITHMS.md §7, limit cycle
-        + task, 500 training samples) 1.5e-4 → 4.4e-5, 0.02 s → 0.75 s per fit;
-        ``simulate.two_link(task=True)`` (70 % training) 8.9e-4 → 5.2e-5 with 5 folds
-        (:attr:`TUNE_FOLDS`), the hand-tuned 100 centres 5.5e-5; with 3 folds 6.3e-5: on
-        noise-free arm data the held-out NPE of every K ≥ 36 is within about one standard
-        error of the best, and 3 folds picked 36 or 64 on 2 of 5 seeds (up to 196 centres
-        the test NUPE keeps falling). With output noise 0.01 K = 16 is chosen, and is best
-        (median 0.0085 against 0.018 for 100 centres). Width factors
-        (1, 0.5, 0.25) on top tripled the time for the same medians, so the width stays
-        with its rule. A basis the user fixed (linear, explicit centres or σ²) is not tuned."""
-        if not rbf_tunable(self.basis):
-            return {}
-        return {"basis": basis_grid(X, (self.n_centres, 16, 36, 64, 100), (1.0,), self.seed)}
+    def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
+        return [((self.n_centres, 16, 36, 64, 100), (1.0,))]
 
-    def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
+    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None
             ) -> NullSpaceComponent:
-        X, U = check_xu(X, U)
-        self._set_n_features(X)
-        if self._fit_tuned(X, U, demo=demo):
+        """Learn w̃ from states X (N, p) and actions U (N, q); ``groups`` (N,):
+        demonstration ids, for the folds of tuning."""
+        X, U = self._prepare_fit(X, U)
+        if self._fit_tuned(X, U, groups=groups):
             return self
-        if self.smoothing < 0:
-            raise ConfigError(f"smoothing: must be ≥ 0, got {self.smoothing}")
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
         blocks = feature_blocks(self.basis_, X, self.chunk_size)
         K = self.basis_.n_features
@@ -276,7 +248,7 @@ class NullSpaceComponent(Estimator):
     def predict(self, X: np.ndarray) -> np.ndarray:
         """w̃(X) = W β(X): (N, p) → (N, q), in row blocks."""
         self._check_fitted("W_")
-        X = np.asarray(X, dtype=float)
+        X = self._check_states(X)
         out = np.empty((len(X), self.W_.shape[0]))
         for rows in row_chunks(len(X), self.chunk_size):
             out[rows] = self.basis_.transform(X[rows]) @ self.W_.T
@@ -285,3 +257,8 @@ class NullSpaceComponent(Estimator):
     def task_component(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
         """ṽ = u − w̃(x): (N, q)."""
         return np.asarray(U, dtype=float) - self.predict(X)
+
+    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None) -> float:
+        """−NPE of actions U (N, q) at states X (N, p) (§6): −mean ‖P̃u − w̃‖² / Σ var(u),
+        P̃ = w̃w̃ᵀ/‖w̃‖²; higher is better."""
+        return -npe_error(self.predict(X), np.asarray(U, dtype=float))

@@ -23,19 +23,24 @@ feature matrix, no N × K q regressor matrix); predict works in the same blocks.
 
 from __future__ import annotations
 
+from typing import ClassVar, Literal, get_args
+
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn.base import Estimator
-from ccl_cli.learn.basis import Basis, RBFBasis, make_basis
-from ccl_cli.learn.constraint.base import check_xu
+from ccl_cli.learn.basis import BASIS_PARAMS, BasisSpec, RBFBasis, make_basis
+from ccl_cli.learn.consistency import inconsistency_error
 from ccl_cli.learn.linalg import eigen_lstsq, kron_rows, row_chunks
-from ccl_cli.learn.model_selection import TUNE, basis_grid, rbf_tunable
+from ccl_cli.learn.model_selection import TUNE, TUNE_PARAMS, Tunable
+from ccl_cli.learn.params import SEED, Interval, Options
 
-METHODS = ("pi", "pi-weighted", "pi-coupled", "lwpi", "dpl")
+Method = Literal["pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"]
+METHODS = get_args(Method)
+CutoffRule = Literal["relative", "absolute"]
 
 
-class PolicyLearner(Estimator):
+class PolicyLearner(Tunable, Estimator):
     """π̃(x) = Wᵀ β(x) learnt by one of :data:`METHODS`.
 
     Args:
@@ -49,58 +54,51 @@ class PolicyLearner(Estimator):
             "Reproducing the original library").
         min_norm: samples with ‖u‖ below this are dropped (not for ``dpl``/``pi-coupled``).
         chunk_size: rows per block of the normal-equation sums (default 8192).
-        tune: choose the basis by cross-validation (:func:`ccl_cli.learn.model_selection.tune`; True by
-            default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
+        tune: choose the basis by cross-validation (:class:`ccl_cli.learn.model_selection.Tuned`;
+            True by default, a dict ``{budget, grid, folds, max_rows}`` to adjust, False for
+            the fixed settings). Grid: K ∈ {n_centres, 16, 49, 100} × σ² factors {1, ½, ¼}; for
+            lwpi K ∈ {n_centres, 9, 16, 25, 49} × {1, ½, ¼, 0.1, 0.05}.
 
     Attributes:
-        basis_, W_ ((K, q); for lwpi (K, p + 1, q)), n_used_.
+        basis_, W_ ((K, q); for lwpi (K, p + 1, q)), n_used_, n_features_in_, tuning_.
     """
+
+    _parameter_constraints: ClassVar[dict[str, list]] = {
+        "method": [Options.of(Method)], **BASIS_PARAMS, **SEED, "cutoff": [Interval(float, 0, None)],
+        "min_norm": [Interval(float, 0, None)], "chunk_size": [Interval(int, 1, None), None], **TUNE_PARAMS,
+        "cutoff_rule": [Options.of(CutoffRule)]}
+    _fitted_attributes: ClassVar[dict[str, str]] = {
+        "n_features_in_": "value", "n_action_": "value", "n_used_": "value", "W_": "array", "basis_": "basis"}
 
     def __init__(
         self,
         *,
-        method: str = "pi",
-        basis: str | dict | Basis | None = "rbf",
+        method: Method = "pi",
+        basis: BasisSpec = "rbf",
         n_centres: int = 16,
         seed: int = 0,
         cutoff: float = 1e-6,
         min_norm: float = 1e-6,
         chunk_size: int | None = None,
         tune: bool | dict = TUNE,
-        cutoff_rule: str = "relative",
+        cutoff_rule: CutoffRule = "relative",
     ) -> None:
-        self.method = method
-        self.basis = basis
-        self.n_centres = n_centres
-        self.seed = seed
-        self.cutoff = cutoff
-        self.min_norm = min_norm
-        self.chunk_size = chunk_size
-        self.tune = tune
-        self.cutoff_rule = cutoff_rule
+        self._store_params(locals())
 
-    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
-        if not rbf_tunable(self.basis):
-            return {}
+    def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         if self.method == "lwpi":
-            return {"basis": basis_grid(X, (self.n_centres, 9, 16, 25, 49), (1.0, 0.5, 0.25, 0.1, 0.05),
-                                        self.seed)}
-        return {"basis": basis_grid(X, (self.n_centres, 16, 49, 100), (1.0, 0.5, 0.25), self.seed)}
+            return [((self.n_centres, 9, 16, 25, 49), (1.0, 0.5, 0.25, 0.1, 0.05))]
+        return [((self.n_centres, 16, 49, 100), (1.0, 0.5, 0.25))]
 
-    def fit(self, X: np.ndarray, U: np.ndarray, projections: np.ndarray | None = None,
-            demo: np.ndarray | None = None) -> PolicyLearner:
+    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+            projections: np.ndarray | None = None) -> PolicyLearner:
         """Fit on states X (N, p), actions U (N, q); ``pi-coupled`` needs ``projections``
-        Ñ_n (N, q, q) (true, or from a learnt constraint model). ``demo`` (N,) ids are
-        only used to cross-validate by demonstration when tuning."""
-        X, U = check_xu(X, U)
-        self._set_n_features(X)
-        if self._fit_tuned(X, U, projections=projections, demo=demo):
+        Ñ_n (N, q, q) (true, or from a learnt constraint model). ``groups`` (N,):
+        demonstration ids, only for the folds of tuning."""
+        X, U = self._prepare_fit(X, U)
+        if self._fit_tuned(X, U, groups=groups, projections=projections):
             return self
-        if self.cutoff_rule not in ("relative", "absolute"):
-            raise ConfigError(f"unknown cutoff_rule {self.cutoff_rule!r} (use relative or absolute)")
         absolute = self.cutoff_rule == "absolute"
-        if self.method not in METHODS:
-            raise ConfigError(f"unknown policy method {self.method!r} (use {', '.join(METHODS)})")
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
         self.n_action_ = U.shape[1]
         norm = np.linalg.norm(U, axis=1)
@@ -165,7 +163,7 @@ class PolicyLearner(Estimator):
     def predict(self, X: np.ndarray) -> np.ndarray:
         """π̃(X): (N, p) → (N, q)."""
         self._check_fitted("W_")
-        X = np.asarray(X, dtype=float)
+        X = self._check_states(X)
         out = np.empty((len(X), self.n_action_))
         for rows in row_chunks(len(X), self.chunk_size):
             B = self.basis_.transform(X[rows])
@@ -176,3 +174,14 @@ class PolicyLearner(Estimator):
             else:
                 out[rows] = B @ self.W_
         return out
+
+    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+              projections: np.ndarray | None = None) -> float:
+        """Minus the normalised inconsistency error (§5) of π̃ on actions U (N, q) at states
+        X (N, p): −mean ‖u − ûûᵀπ̃(x)‖² / Σ var(u) (pi-weighted: terms weighted by ‖u‖²);
+        pi-coupled with ``projections`` Ñ (N, q, q): −mean ‖u − Ñπ̃(x)‖² / Σ var(u). Higher is better."""
+        P = self.predict(X)
+        U = np.asarray(U, dtype=float)
+        if self.method == "pi-coupled":
+            return -inconsistency_error(P, U, projections)
+        return -inconsistency_error(P, U, weighted=self.method == "pi-weighted")

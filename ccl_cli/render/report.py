@@ -142,7 +142,7 @@ def tuning_markdown(stage: str, tuning: dict[str, Any] | None) -> list[str]:
         return [f"### {stage}: hyperparameters", "", tuning.get("reason", "not tuned"), ""]
     lines = [f"### {stage}: hyperparameters by cross-validation", "",
              f"Chosen: {tuning['chosen']} ({tuning['rule']}; {tuning['folds']['reason']}; "
-             f"{tuning['budget_used']:.2f} s of {tuning['budget']} s"
+             f"{tuning['budget_used']} of a budget of {tuning['budget']} {tuning.get('budget_unit', 'fits')}"
              + (f", {tuning['skipped']} candidates skipped" if tuning.get("skipped") else "") + ")", "",
              *([tuning["subset"][0].upper() + tuning["subset"][1:] + "; the chosen setting was then "
                 "fitted on all of them.", ""] if tuning.get("subset") else []),

@@ -7,50 +7,58 @@ a time, each orthogonal to the earlier ones, by minimising Σ_n (a(θ(x_n))ᵀ u
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from ccl_cli.errors import ConfigError
-from ccl_cli.learn.basis import Basis, make_basis
+from ccl_cli.learn.basis import BASIS_PARAMS, BasisSpec, make_basis
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.angular import MAX_ITER, chunked_features, fit_sequence, rows_from_weights
-from ccl_cli.learn.constraint.base import ConstraintModel, check_xu
-from ccl_cli.learn.model_selection import TUNE, basis_grid, rbf_tunable
+from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.model_selection import TUNE, TUNE_PARAMS, Tunable
+from ccl_cli.learn.params import ITERATION_PARAMS, SEED, Interval
+
+#: The parameters of the angle fits (alpha and lambda).
+ANGLE_FIT_PARAMS: dict[str, list] = {"n_restarts": [Interval(int, 1, 10_000)], **ITERATION_PARAMS}
 
 
-class AngularConstraintMixin:
+class AngularConstraintMixin(Tunable):
     """Shared fitting of the angle maps and the choice of s for alpha and lambda."""
 
-    def _learn_rows(self, B: np.ndarray, V: np.ndarray, Xs: np.ndarray, demo: np.ndarray) -> None:
-        """Fit the rows on features B (N, K), observations V (N, d), states Xs (N, p);
-        sets weights_ etc. (``self._X``, ``self._U``: the data given to ``fit``, for the
-        cross-validated choice of s).
-        """
+    _fitted_attributes: ClassVar[dict[str, str]] = {
+        "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
+        "nmse_": "value", "weights_": "arrays", "basis_": "basis"}
+
+    def _learn_rows(self, B: np.ndarray, V: np.ndarray, Xs: np.ndarray, X: np.ndarray, U: np.ndarray,
+                    groups: np.ndarray | None) -> None:
+        """Fit the rows on features B (n, K), observations V (n, d) at states Xs (n, p);
+        sets weights_, nmse_, n_constraints_, selection_. X (N, p), U (N, q), groups (N,):
+        the data given to ``fit``, for the cross-validated choice of s."""
         d = V.shape[1]
         if d < 2:
             raise ConfigError("learning a constraint needs at least 2 action dimensions")
         max_k = min(self.max_constraints or d - 1, d - 1)
-        rule = sel.check_rule(self.selection, self.n_constraints)
+        rule = sel.rule_of(self)
         if rule == "fixed" and self.n_constraints > max_k:
             raise ConfigError(f"n_constraints must be between 1 and {max_k}")
         limit = self.n_constraints if rule == "fixed" else max_k
         fits = fit_sequence(B, V, Xs, limit, self.n_restarts, self.seed, self.max_iter, self.tol,
                             stop_original=(rule == "threshold"))
         nmse = [f.nmse for f in fits]
-        if rule == "fixed":
-            chosen = sel.fixed(self.n_constraints, max_k)
-        elif rule == "threshold":
+
+        def threshold() -> sel.Selection:
             k = len(fits) - 1 if (len(fits) > 1 and nmse[-1] > min(nmse[:-1]) and nmse[-1] > 1e-3) \
                 else len(fits)
             reason = (f"constraint {k + 1} raised nmse to {nmse[k]:.3g} (> best and > 1e-3)"
                       if k < len(fits) else f"stopped at the maximum {k}")
-            chosen = sel.Selection("threshold", k, nmse, reason)
-        elif rule == "eigengap":
-            chosen = sel.gap(np.append(nmse, 1.0), self.gap_floor)
-            chosen.values = nmse
-        elif rule == "ratio":
-            chosen = sel.ratio(np.asarray(nmse), max_k, self.gap_floor, criterion="nmse of row k")
-        else:
-            chosen = sel.cross_validated(self, self._X, self._U, self._demo, max_k, self.cv_folds, self.seed)
+            return sel.Selection("threshold", k, nmse, reason)
+
+        chosen = sel.choose(self, ratio_values=np.asarray(nmse), gap_values=np.append(nmse, 1.0),
+                            max_k=max_k, fixed_max=max_k, criterion="nmse of row k", threshold=threshold,
+                            X=X, U=U, groups=groups)
+        if chosen.rule == "eigengap":
+            chosen.values = nmse  # the appended 1.0 only closes the last gap
         self.n_constraints_ = chosen.n_constraints
         self.weights_ = [f.W for f in fits[: self.n_constraints_]]
         self.nmse_ = nmse
@@ -62,7 +70,9 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
 
     Args:
         basis: feature map of θ(x) (``"rbf"``, ``"linear"``, a dict or a basis object).
-        n_centres: RBF centres when ``basis`` is a name.
+        n_centres: RBF centres when ``basis`` is a name. 25 here, 16 elsewhere: alpha's
+            angle maps need the finer basis on the parabola tutorial (its regression
+            guard, docs/measurements.md), and its tuning grid starts from it.
         selection: ``ratio`` (the noise-aware default, on the per-row nmse sequence),
             ``threshold`` (the original stopping rule), ``eigengap``, ``cv``; or fix
             ``n_constraints`` (see :mod:`ccl_cli.learn.constraint.rank`).
@@ -70,19 +80,25 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
         n_restarts: LM starts per row (the first the best constant direction).
         max_iter: LM passes per row at most (:data:`~ccl_cli.learn.constraint.angular.MAX_ITER`).
         seed, tol, gap_floor, cv_folds.
-        tune: choose the basis by cross-validation (:func:`ccl_cli.learn.model_selection.tune`; True by
-            default, a dict ``{budget, grid, folds}`` to adjust, False for the fixed settings).
+        tune: choose the basis by cross-validation (:class:`ccl_cli.learn.model_selection.Tuned`;
+            True by default, a dict ``{budget, grid, folds, max_rows}`` to adjust, False for
+            the fixed settings). Grid: the configured K centres, 9 centres, then K centres
+            twice as wide (σ² × 2), k-means-placed, in that order.
 
     Attributes:
-        basis_, weights_ (list of (q−k, K) arrays), n_constraints_, nmse_, selection_.
+        basis_, weights_ (list of (q−k, K) arrays), n_constraints_, nmse_, selection_,
+        n_features_in_, tuning_.
     """
+
+    _parameter_constraints: ClassVar[dict[str, list]] = {
+        **BASIS_PARAMS, **sel.SELECTION_PARAMS, **ANGLE_FIT_PARAMS, **TUNE_PARAMS, **SEED}
 
     def __init__(
         self,
         *,
-        basis: str | dict | Basis | None = "rbf",
+        basis: BasisSpec = "rbf",
         n_centres: int = 25,
-        selection: str = sel.DEFAULT_RULE,
+        selection: sel.Rule = sel.DEFAULT_RULE,
         n_constraints: int | None = None,
         max_constraints: int | None = None,
         n_restarts: int = 3,
@@ -93,67 +109,39 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
         cv_folds: int = 5,
         tune: bool | dict = TUNE,
     ) -> None:
-        self.basis = basis
-        self.n_centres = n_centres
-        self.selection = selection
-        self.n_constraints = n_constraints
-        self.max_constraints = max_constraints
-        self.n_restarts = n_restarts
-        self.seed = seed
-        self.max_iter = max_iter
-        self.tol = tol
-        self.gap_floor = gap_floor
-        self.cv_folds = cv_folds
-        self.tune = tune
+        self._store_params(locals())
 
-    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
-        """The configured K centres, 9 centres, then K centres twice as wide (σ² × 2), all
-        k-means-placed, in that order (the budget of :func:`ccl_cli.learn.model_selection.tune` may skip
-        the last, the slowest: wide bases need many LM passes).
+    def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
+        return [((self.n_centres, 9), (1.0,)), ((self.n_centres,), (2.0,))]
 
-        Measured (issue 9; median test error over seeds 0–4, untuned K = 25 → tuned;
-        ``python benchmarks/bench_tuning.py --only angles``): parabola toy (test NPPE)
-        0.039 → 0.029 (25 wide chosen in 3/5 seeds, 25 and 9 in one each); tracker bowl at
-        1 mm (NPOE on held-out blocks) 0.018 → 0.011 (9 centres in 5/5 seeds); fit 0.02 →
-        0.25 s and 0.2 → 1.7 s (busy 2-core VM). On the parabola held-out NPOE is a noisy guide
-        (the fits have local optima and NPOE cannot see the constraint where u ≈ 0): {25, 9}
-        alone chose 9 in 2/5 seeds and raised the median to 0.14; the wide 25 wins those
-        seeds back. Wider grids (16 or 36 centres, σ² × ½) were worse or no better on one of
-        the two problems; the LM cut-off (1e-16 … 1e-6) only made the parabola worse (median
-        0.039 → 0.07–0.24), so it is not tuned."""
-        if not rbf_tunable(self.basis):
-            return {}
-        grid = [*basis_grid(X, (self.n_centres, 9), (1.0,), self.seed),
-                *basis_grid(X, (self.n_centres,), (2.0,), self.seed)]
-        return {"basis": grid} if grid else {}  # too few samples for any candidate: fit as given
-
-    def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None
+    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None
             ) -> StateDependentConstraint:
-        X, U = check_xu(X, U)
-        self._set_n_features(X)
-        if self._fit_tuned(X, U, demo=demo):
+        """Learn Ã(x) from states X (N, p) and actions U (N, q); ``groups`` (N,):
+        demonstration ids, for the folds of tuning and of the ``cv`` rule."""
+        X, U = self._prepare_fit(X, U)
+        if self._fit_tuned(X, U, groups=groups):
             return self
         self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
         self.n_action_ = U.shape[1]
-        B = chunked_features(self.basis_, X)
-        demo = np.zeros(len(X), int) if demo is None else np.asarray(demo)
-        self._X, self._U, self._demo = X, U, demo
-        self._learn_rows(B, U, X, demo)
-        del self._X, self._U, self._demo
+        self._learn_rows(chunked_features(self.basis_, X), U, X, X, U, groups)
         return self
 
-    def projection_k(self, X: np.ndarray, k: int) -> np.ndarray:
-        """Ñ(X) of the first ``k`` learnt rows (the rows are nested): (N, p) → (N, q, q)."""
+    def projection_k(self, X: np.ndarray, k: int | None) -> np.ndarray:
+        """Ñ(X) = I − Ã(x)ᵀÃ(x) of the first ``k`` learnt rows (the rows are nested and
+        orthonormal): (N, p) → (N, q, q)."""
+        rows = self._rows(X, k)
+        return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", rows, rows)
+
+    def _rows(self, X: np.ndarray, k: int | None = None) -> np.ndarray:
+        """The first ``k`` learnt rows (all when None) at X (N, p): (N, k, q)."""
         self._check_fitted("weights_")
-        rows = rows_from_weights(self.basis_.transform(np.asarray(X, dtype=float)), self.weights_[:k],
+        return rows_from_weights(self.basis_.transform(self._check_states(X)), self.weights_[:k],
                                  self.n_action_)
-        return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", rows, rows)
 
-    def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
-        self._check_fitted("weights_")
-        return rows_from_weights(self.basis_.transform(X), self.weights_, self.n_action_)
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+        """Ã(X): (N, p) → (N, s, q), orthonormal rows."""
+        return self._rows(X)
 
-    def projection(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
-        """Ñ(x) = I − Ã(x)ᵀÃ(x) (rows orthonormal): (N, p) → (N, q, q)."""
-        rows = self.constraint(X)
-        return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", rows, rows)
+    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+        """Ñ(x) = I − Ã(x)ᵀÃ(x): (N, p) → (N, q, q)."""
+        return self.projection_k(X, None)

@@ -33,12 +33,8 @@ from ccl_cli.learn.linalg import kron_least_squares, row_chunks, total_variance
 if TYPE_CHECKING:
     from ccl_cli.learn.basis import Basis
 
-#: Default bound on the LM passes of one row (alpha's and lambda's ``max_iter``). Measured
-#: (issue 9/10): every fit with default-width bases on the parabola toy, the two-link arm and
-#: the tracker bowl (5 + 5 + 20 seeds) converges well within it (results identical to a
-#: bound of 1000); bases twice as wide crawl along near-collinear RBF directions up to
-#: 1000 passes (a 1.5 s CV candidate on configs/trakstar_bowl.yaml) for no better test error
-#: (parabola NPPE median 0.029 either way).
+#: Default bound on the LM passes of one row (alpha's and lambda's ``max_iter``; the
+#: evidence: docs/measurements.md, "The angle fits").
 MAX_ITER = 200
 #: LM iterations every start gets before only the best one is continued.
 SCREEN_PASSES = 8
@@ -46,9 +42,7 @@ SCREEN_PASSES = 8
 #: size and only the winner is refined on all the data (every tutorial problem is smaller).
 SEARCH_ROWS = 4096
 #: LM passes over all the data that refine the winner of the subsample search (the first
-#: only evaluates the start). Measured on the parabola at N = 1e5: after 4 passes the cost is
-#: within 0.13 % of running to ``tol`` (~24 passes, a slow crawl along near-collinear RBF
-#: directions) and the test NPPE agrees to 2 digits (0.0117 either way).
+#: only evaluates the start; docs/measurements.md, "The angle fits").
 REFINE_PASSES = 4
 #: Eigenvalue cut-off of the LM steps: the angle fits keep every direction (as before).
 ANGLE_CUTOFF = 1e-16

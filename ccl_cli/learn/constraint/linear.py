@@ -19,17 +19,21 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from itertools import combinations_with_replacement
+from typing import ClassVar, Literal, get_args
 
 import numpy as np
 
-from ccl_cli.errors import ConfigError
-from ccl_cli.learn.basis import Basis, make_basis
+from ccl_cli.learn.basis import BASIS_PARAMS, BasisSpec, make_basis
 from ccl_cli.learn.constraint import rank as sel
-from ccl_cli.learn.constraint.base import ConstraintModel, check_xu
-from ccl_cli.learn.linalg import row_chunks
-from ccl_cli.learn.model_selection import TUNE, basis_grid, rbf_tunable
+from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.linalg import nullspace_projection, row_chunks
+from ccl_cli.learn.model_selection import TUNE, TUNE_PARAMS, Tunable
+from ccl_cli.learn.params import SEED, Interval, Options
 
-REGRESSORS = ("identity", "rbf", "polynomial")
+Regressors = Literal["identity", "rbf", "polynomial"]
+TaskRegressors = Literal["constant", "polynomial", "rbf"]
+Whiten = Literal["rms", "errors", "none"]
+REGRESSORS = get_args(Regressors)
 #: Regressor rows of all samples are cached between the reweighting passes up to this size.
 H_CACHE_BYTES = 256 * 2**20
 
@@ -44,7 +48,7 @@ def polynomial_features(X: np.ndarray, degree: int) -> np.ndarray:
     return np.stack(cols, 1)
 
 
-class LinearConstraint(ConstraintModel):
+class LinearConstraint(Tunable, ConstraintModel):
     """A(x) = W Φ_A(x) estimated in closed form.
 
     Args:
@@ -64,25 +68,35 @@ class LinearConstraint(ConstraintModel):
             choice of s; the default (``ratio``, :mod:`ccl_cli.learn.constraint.rank`) reads
             the squared singular values.
         tune: with ``regressors="rbf"``, choose the basis by cross-validation
-            (:func:`ccl_cli.learn.model_selection.tune`; True by default, False for fixed settings).
+            (:class:`ccl_cli.learn.model_selection.Tuned`; True by default, False for fixed
+            settings); grid: K ∈ {n_centres, 16, 9, 25, 36} × σ² factors {1, ½}.
 
     Attributes:
         W_ (s, m), Wb_ (s, m_b) or None, singular_values_ (ascending), n_constraints_,
         selection_, scale_ (m + m_b,) (ones unless whiten='rms').
     """
 
+    _parameter_constraints: ClassVar[dict[str, list]] = {
+        "regressors": [Options.of(Regressors), callable], "degree": [Interval(int, 0, 10)],
+        **BASIS_PARAMS, "task": [bool], "task_regressors": [Options.of(TaskRegressors)],
+        "whiten": [Options.of(Whiten)], "reweight": [Interval(int, 0, 1000)],
+        **sel.SELECTION_PARAMS, **sel.THRESHOLD_PARAMS, **TUNE_PARAMS, **SEED}
+    _fitted_attributes: ClassVar[dict[str, str]] = {
+        "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
+        "W_": "array", "Wb_": "array", "singular_values_": "array", "scale_": "array", "basis_": "basis"}
+
     def __init__(
         self,
         *,
-        regressors: str | Callable[[np.ndarray], np.ndarray] = "polynomial",
+        regressors: Regressors | Callable[[np.ndarray], np.ndarray] = "polynomial",
         degree: int = 1,
-        basis: str | dict | Basis | None = "rbf",
+        basis: BasisSpec = "rbf",
         n_centres: int = 16,
         task: bool = False,
-        task_regressors: str = "constant",
-        whiten: str = "rms",
+        task_regressors: TaskRegressors = "constant",
+        whiten: Whiten = "rms",
         reweight: int = 3,
-        selection: str = sel.DEFAULT_RULE,
+        selection: sel.Rule = sel.DEFAULT_RULE,
         n_constraints: int | None = None,
         threshold: float = 0.1,
         gap_floor: float = 1e-9,
@@ -91,41 +105,24 @@ class LinearConstraint(ConstraintModel):
         seed: int = 0,
         tune: bool | dict = TUNE,
     ) -> None:
-        self.regressors = regressors
-        self.degree = degree
-        self.basis = basis
-        self.n_centres = n_centres
-        self.task = task
-        self.task_regressors = task_regressors
-        self.whiten = whiten
-        self.reweight = reweight
-        self.selection = selection
-        self.n_constraints = n_constraints
-        self.threshold = threshold
-        self.gap_floor = gap_floor
-        self.max_constraints = max_constraints
-        self.cv_folds = cv_folds
-        self.seed = seed
-        self.tune = tune
+        self._store_params(locals())
 
-    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list]:
-        if self.regressors != "rbf" or not rbf_tunable(self.basis):
-            return {}
-        return {"basis": basis_grid(X, (self.n_centres, 16, 9, 25, 36), (1.0, 0.5), self.seed)}
+    def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
+        return [((self.n_centres, 16, 9, 25, 36), (1.0, 0.5))] if self.regressors == "rbf" else []
 
     # -- regressors -------------------------------------------------------------------
+    def _family(self, kind: str, X: np.ndarray) -> np.ndarray:
+        """f(x) (N, M) of a regressor family: identity / constant → 1, polynomial →
+        monomials up to ``degree``, rbf → β(x)."""
+        if kind in ("identity", "constant"):
+            return np.ones((X.shape[0], 1))
+        if kind == "polynomial":
+            return polynomial_features(X, self.degree)
+        return self.basis_.transform(X)
+
     def _features(self, X: np.ndarray) -> np.ndarray | None:
         """f(x) (N, M) such that Φ_A(x) = f(x) ⊗ I_q; None for matrix regressors."""
-        r = self.regressors
-        if callable(r):
-            return None
-        if r == "identity":
-            return np.ones((X.shape[0], 1))
-        if r == "polynomial":
-            return polynomial_features(X, self.degree)
-        if r == "rbf":
-            return self.basis_.transform(X)
-        raise ConfigError(f"unknown regressors {r!r} (use {', '.join(REGRESSORS)} or a callable)")
+        return None if callable(self.regressors) else self._family(self.regressors, X)
 
     def _phi(self, X: np.ndarray) -> np.ndarray:
         """Φ_A(X): (N, m, q)."""
@@ -136,14 +133,8 @@ class LinearConstraint(ConstraintModel):
         return np.einsum("nk,ij->nkij", f, np.eye(q)).reshape(len(X), -1, q)
 
     def _task_features(self, X: np.ndarray) -> np.ndarray:
-        kind = self.task_regressors
-        if kind == "constant":
-            return np.ones((X.shape[0], 1))
-        if kind == "polynomial":
-            return polynomial_features(X, self.degree)
-        if kind == "rbf":
-            return self.basis_.transform(X)
-        raise ConfigError(f"unknown task_regressors {kind!r} (use constant, polynomial or rbf)")
+        """φ_b(x) (N, m_b) of the task term."""
+        return self._family(self.task_regressors, X)
 
     def _stack(self, X: np.ndarray, U: np.ndarray) -> np.ndarray:
         """Rows h_n = [Φ_A(x_n) u_n ; −φ_b(x_n)]: (N, m + m_b)."""
@@ -172,8 +163,6 @@ class LinearConstraint(ConstraintModel):
         per reweighting step (plus one for the RMS scale): h, Φ_A are never formed for
         all N at once.
         """
-        if self.whiten not in ("rms", "errors", "none"):
-            raise ConfigError(f"unknown whiten {self.whiten!r} (use errors, rms or none)")
         n = len(X)
         chunks = row_chunks(n)
         first = self._stack(X[:1], U[:1])
@@ -229,10 +218,11 @@ class LinearConstraint(ConstraintModel):
             W = (vecs[:, :k] / scale[:, None]).T[:, :m]
         return np.maximum(vals, 0.0), vecs, scale, msq
 
-    def fit(self, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None = None) -> LinearConstraint:
-        X, U = check_xu(X, U)
-        self._set_n_features(X)
-        if self._fit_tuned(X, U, demo=demo):
+    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None) -> LinearConstraint:
+        """Estimate W (and W_b) from states X (N, p) and actions U (N, q); ``groups`` (N,):
+        demonstration ids, for the folds of tuning and of the ``cv`` rule."""
+        X, U = self._prepare_fit(X, U)
+        if self._fit_tuned(X, U, groups=groups):
             return self
         self.n_action_ = U.shape[1]
         if self.regressors == "rbf" or (self.task and self.task_regressors == "rbf"):
@@ -241,22 +231,18 @@ class LinearConstraint(ConstraintModel):
         d = vecs.shape[0]
         max_k = min(self.max_constraints or self.n_action_ - 1, d - 1)
         max_k = max(1, max_k)
-        rule = sel.check_rule(self.selection, self.n_constraints)
-        if rule == "fixed":
-            chosen = sel.fixed(self.n_constraints, d)
-        elif rule == "threshold":
+
+        def threshold() -> sel.Selection:
             nmse = (vals / len(X)) / max(msq, 1e-300)
             k = 1
             while k < max_k and nmse[k] < self.threshold:
                 k += 1
-            chosen = sel.Selection("threshold", k, list(nmse[:max_k]), f"nmse below {self.threshold}")
-        elif rule == "eigengap":
-            chosen = sel.gap(vals[: max_k + 1], self.gap_floor)
-        elif rule == "ratio":
-            chosen = sel.ratio(vals[: max_k + 1] / len(X), max_k, self.gap_floor,
-                               criterion="squared singular value k of the scaled regressors / N")
-        else:
-            chosen = sel.cross_validated(self, X, U, demo, max_k, self.cv_folds, self.seed)
+            return sel.Selection("threshold", k, list(nmse[:max_k]), f"nmse below {self.threshold}")
+
+        chosen = sel.choose(self, ratio_values=vals[: max_k + 1] / len(X), gap_values=vals[: max_k + 1],
+                            max_k=max_k, fixed_max=d,
+                            criterion="squared singular value k of the scaled regressors / N",
+                            threshold=threshold, X=X, U=U, groups=groups)
         self.n_constraints_ = chosen.n_constraints
         self.selection_ = chosen.as_dict()
         if self.reweight and self.n_constraints_ > 1:
@@ -270,21 +256,22 @@ class LinearConstraint(ConstraintModel):
         return self
 
     def projection_k(self, X: np.ndarray, k: int) -> np.ndarray:
-        """Ñ(X) of the first ``k`` rows of W_ (nested up to the reweighting): (N, q, q)."""
-        from ccl_cli.learn.linalg import nullspace_projection
+        """Ñ(X) = I − Ã⁺Ã of the first ``k`` rows of W_ (nested up to the reweighting): (N, q, q)."""
+        return nullspace_projection(self._constraint(X, k))
 
+    def _constraint(self, X: np.ndarray, k: int | None = None) -> np.ndarray:
+        """W[:k] Φ_A(X): (N, p) → (N, k, q) (all s rows when None)."""
         self._check_fitted("W_")
-        X = np.asarray(X, dtype=float)
-        return nullspace_projection(np.einsum("km,nmq->nkq", self.W_[:k], self._phi(X)))
+        return np.einsum("km,nmq->nkq", self.W_[:k], self._phi(self._check_states(X)))
 
-    def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
         """Ã(X) = W Φ_A(X): (N, s, q) (rows not normalised)."""
-        self._check_fitted("W_")
-        return np.einsum("km,nmq->nkq", self.W_, self._phi(np.asarray(X, dtype=float)))
+        return self._constraint(X)
 
     def task_term(self, X: np.ndarray) -> np.ndarray:
         """b̃(X) = W_b φ_b(X): (N, s); zeros without a task term."""
-        X = np.asarray(X, dtype=float)
+        self._check_fitted("W_")
+        X = self._check_states(X)
         if self.Wb_ is None:
             return np.zeros((len(X), self.n_constraints_))
         return self._task_features(X) @ self.Wb_.T

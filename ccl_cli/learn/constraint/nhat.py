@@ -7,12 +7,17 @@ eigenvalues and the residual is their sum: one pass over the data, O(N q² + q³
 
 from __future__ import annotations
 
+from typing import ClassVar, Literal
+
 import numpy as np
 
 from ccl_cli.errors import ConfigError
 from ccl_cli.learn.angles import unit_vector
 from ccl_cli.learn.constraint import rank as sel
-from ccl_cli.learn.constraint.base import ConstraintModel, check_xu
+from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.params import SEED, Options
+
+Method = Literal["closed_form", "search"]
 
 #: Grid of the original search: 20 angles per axis in [0, π − π/20].
 SEARCH_STEPS = 20
@@ -57,11 +62,17 @@ class StateIndependentConstraint(ConstraintModel):
         n_constraints_, selection_.
     """
 
+    _parameter_constraints: ClassVar[dict[str, list]] = {
+        "method": [Options.of(Method)], **sel.SELECTION_PARAMS, **sel.THRESHOLD_PARAMS, **SEED}
+    _fitted_attributes: ClassVar[dict[str, str]] = {
+        "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
+        "A_": "array", "eigenvalues_": "array", "residuals_": "array"}
+
     def __init__(
         self,
         *,
-        method: str = "closed_form",
-        selection: str = sel.DEFAULT_RULE,
+        method: Method = "closed_form",
+        selection: sel.Rule = sel.DEFAULT_RULE,
         n_constraints: int | None = None,
         threshold: float = 0.1,
         gap_floor: float = 1e-9,
@@ -69,14 +80,7 @@ class StateIndependentConstraint(ConstraintModel):
         cv_folds: int = 5,
         seed: int = 0,
     ) -> None:
-        self.method = method
-        self.selection = selection
-        self.n_constraints = n_constraints
-        self.threshold = threshold
-        self.gap_floor = gap_floor
-        self.max_constraints = max_constraints
-        self.cv_folds = cv_folds
-        self.seed = seed
+        self._store_params(locals())
 
     def _candidate_rows(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """All q−1 candidate rows in order of use, and their residuals λ_k = a_kᵀ C a_k."""
@@ -84,34 +88,26 @@ class StateIndependentConstraint(ConstraintModel):
         if self.method == "closed_form":
             lams, vecs = np.linalg.eigh(C)
             return vecs.T, np.maximum(lams, 0.0)
-        if self.method == "search":
-            return _search_rows(C)
-        raise ConfigError(f"unknown nhat method {self.method!r} (use closed_form or search)")
+        return _search_rows(C)
 
-    def fit(self, X: np.ndarray | None, U: np.ndarray, demo: np.ndarray | None = None
+    def fit(self, X: np.ndarray | None, U: np.ndarray, *, groups: np.ndarray | None = None
             ) -> StateIndependentConstraint:
-        """Learn Ã from actions U (N, q); X is not used (kept for a uniform API)."""
-        U = np.asarray(U, dtype=float)
-        X, U = check_xu(np.zeros((U.shape[0], 0)) if X is None else X, U)
-        self._set_n_features(X)
+        """Learn Ã from actions U (N, q); X (N, p) is only used for ``n_features_in_`` (it
+        may be None: any p is then accepted); ``groups`` (N,) for the ``cv`` rule's folds."""
+        X, U = self._prepare_fit(X, U)
         n, q = U.shape
         max_k = self.max_constraints or q - 1
         max_k = max(1, min(max_k, q - 1 if q > 1 else 1))
-        rule = sel.check_rule(self.selection, self.n_constraints)
         rows, lams = self._candidate_rows(U)
         self.eigenvalues_ = np.linalg.eigvalsh(U.T @ U)
-        if rule == "fixed":
-            chosen = sel.fixed(self.n_constraints, q)
-        elif rule == "threshold":
+
+        def threshold() -> sel.Selection:
             cov = np.cov(U, rowvar=False, ddof=1).reshape(q, q)
-            chosen = _threshold_count(lams, rows, cov, n, self.threshold, max_k)
-        elif rule == "eigengap":
-            chosen = sel.gap(lams[: max_k + 1], self.gap_floor)
-        elif rule == "ratio":
-            chosen = sel.ratio(lams[: max_k + 1] / n, max_k, self.gap_floor,
-                               criterion="eigenvalue k of Σ u uᵀ / N")
-        else:
-            chosen = sel.cross_validated(self, X, U, demo, max_k, self.cv_folds, self.seed)
+            return _threshold_count(lams, rows, cov, n, self.threshold, max_k)
+
+        chosen = sel.choose(self, ratio_values=lams[: max_k + 1] / n, gap_values=lams[: max_k + 1],
+                            max_k=max_k, fixed_max=q, criterion="eigenvalue k of Σ u uᵀ / N",
+                            threshold=threshold, X=X, U=U, groups=groups)
         self.n_constraints_ = chosen.n_constraints
         self.A_ = rows[: self.n_constraints_].copy()
         self.residuals_ = lams
@@ -120,22 +116,24 @@ class StateIndependentConstraint(ConstraintModel):
         return self
 
     def projection_k(self, X: np.ndarray, k: int) -> np.ndarray:
-        """Ñ of the first ``k`` rows (the rows are nested), broadcast to (N, q, q)."""
+        """Ñ = I − ÃᵀÃ of the first ``k`` rows (the rows are nested and orthonormal),
+        broadcast to (N, q, q) for X (N, p)."""
         self._check_fitted("A_")
+        X = self._check_states(X)
         A = self.A_[:k]
         N = np.eye(self.n_action_) - A.T @ A
-        return np.broadcast_to(N, (np.shape(X)[0], *N.shape)).copy()
+        return np.broadcast_to(N, (X.shape[0], *N.shape)).copy()
 
-    def constraint(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+        """Ã broadcast to (N, s, q) for X (N, p)."""
         self._check_fitted("A_")
-        n = np.shape(X)[0]
-        return np.broadcast_to(self.A_, (n, *self.A_.shape))
+        X = self._check_states(X)
+        return np.broadcast_to(self.A_, (X.shape[0], *self.A_.shape))
 
-    def projection(self, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray:
-        """Ñ = I − ÃᵀÃ (rows are orthonormal), broadcast to (N, q, q)."""
+    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+        """Ñ = I − ÃᵀÃ, broadcast to (N, q, q)."""
         self._check_fitted("A_")
-        N = np.eye(self.n_action_) - self.A_.T @ self.A_
-        return np.broadcast_to(N, (np.shape(X)[0], *N.shape)).copy()
+        return self.projection_k(X, len(self.A_))
 
 
 def _search_rows(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

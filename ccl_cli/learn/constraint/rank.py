@@ -30,15 +30,34 @@ Chosen on evidence (``benchmarks/bench_rank.py``): see README "Number of constra
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, Literal, get_args
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError
-from ccl_cli.learn.model_selection import DEFAULT_RULE, RATIO_FACTOR
+from ccl_cli.learn import model_selection
+from ccl_cli.learn.base import clone
+from ccl_cli.learn.consistency import npoe_error
+from ccl_cli.learn.defaults import DEFAULT_RULE, RATIO_FACTOR
+from ccl_cli.learn.params import Interval, Options
 
-RULES = ("ratio", "threshold", "eigengap", "cv", "fixed")
-__all__ = ["DEFAULT_RULE", "RATIO_FACTOR", "RULES", "Selection"]
+#: The rules a learner's ``selection`` may name; "fixed" is recorded when ``n_constraints`` is given.
+Rule = Literal["ratio", "threshold", "eigengap", "cv"]
+RULES = (*get_args(Rule), "fixed")
+__all__ = ["DEFAULT_RULE", "RATIO_FACTOR", "RULES", "SELECTION_PARAMS", "Rule", "Selection"]
+
+#: The parameters of the choice of s shared by every constraint learner.
+SELECTION_PARAMS: dict[str, list] = {
+    "selection": [Options.of(Rule)],
+    "n_constraints": [Interval(int, 0, 100_000), None],
+    "max_constraints": [Interval(int, 1, 100_000), None],
+    "gap_floor": [Interval(float, 0, None)],
+    "cv_folds": [Interval(int, 2, 1000)],
+}
+#: The ``threshold`` rule's level (nhat and linear).
+THRESHOLD_PARAMS: dict[str, list] = {"threshold": [Interval(float, 0, None)]}
 
 
 @dataclass
@@ -55,14 +74,27 @@ class Selection:
                 "reason": self.reason}
 
 
-def check_rule(rule: str, n_constraints: int | None) -> str:
-    if n_constraints is not None:
-        return "fixed"
-    if rule not in RULES:
-        raise ConfigError(f"unknown constraint-count rule {rule!r} (use {', '.join(RULES)})")
+def rule_of(model: Any) -> str:
+    """The rule a learner applies: "fixed" when its ``n_constraints`` is given, else its ``selection``."""
+    return "fixed" if model.n_constraints is not None else model.selection
+
+
+def choose(model: Any, *, ratio_values: np.ndarray, gap_values: np.ndarray, max_k: int, fixed_max: int,
+           criterion: str, threshold: Callable[[], Selection], X: np.ndarray, U: np.ndarray,
+           groups: np.ndarray | None) -> Selection:
+    """s by the learner's rule (:func:`rule_of`): ``fixed`` (1..fixed_max), ``threshold``
+    (the learner's own, ``threshold()``), ``eigengap`` on ``gap_values``, ``ratio`` on
+    ``ratio_values`` (``criterion`` names them), ``cv`` by :func:`cross_validated` on X, U."""
+    rule = rule_of(model)
     if rule == "fixed":
-        raise ConfigError("selection 'fixed' needs n_constraints")
-    return rule
+        return fixed(model.n_constraints, fixed_max)
+    if rule == "threshold":
+        return threshold()
+    if rule == "eigengap":
+        return gap(gap_values, model.gap_floor)
+    if rule == "ratio":
+        return ratio(ratio_values, max_k, model.gap_floor, criterion=criterion)
+    return cross_validated(model, X, U, groups, max_k, model.cv_folds, model.seed)
 
 
 def fixed(n: int, max_k: int) -> Selection:
@@ -132,20 +164,21 @@ def cv_rule(increments: np.ndarray, max_k: int, factor: float = RATIO_FACTOR) ->
     return sel
 
 
-def cross_validated(model, X: np.ndarray, U: np.ndarray, demo: np.ndarray | None, max_k: int,
+def truncated_npoe(model: Any, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None = None) -> np.ndarray:
+    """Held-out NPOE of the model's first k rows, k = 1..n_constraints_ (nested learners): (m,)."""
+    return np.array([npoe_error(model.projection_k(X, k), U) for k in range(1, model.n_constraints_ + 1)])
+
+
+def cross_validated(model: Any, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None, max_k: int,
                     n_folds: int = 5, seed: int = 0, factor: float = RATIO_FACTOR) -> Selection:
     """The ``cv`` rule for any nested constraint learner (one with ``projection_k``): a
     clone with ``max_k`` rows is fitted per training fold by
     :func:`ccl_cli.learn.model_selection.cross_validate` and the held-out NPOE of its first k rows,
     k = 1..max_k, is read on the test fold (the data the learner was given: joint-space
     actions for lambda, not the task-space ones it fits its selection on)."""
-    from ccl_cli.learn import model_selection as S
-    from ccl_cli.learn.base import clone
-
     est = clone(model).set_params(n_constraints=max_k)
-    res = S.cross_validate(est, X, U, demo, n_folds=n_folds, seed=seed,
-                           scorer=lambda m, Xt, Ut, dt: S.truncated_npoe(m, Xt, Ut, dt))
-    npoe = res.scores
+    res = model_selection.cross_validate(est, X, U, groups, n_folds=n_folds, seed=seed, scorer=truncated_npoe)
+    npoe = res.errors
     inc = np.diff(np.concatenate([np.zeros((npoe.shape[0], 1)), npoe], 1), axis=1)
     chosen = cv_rule(inc, max_k, factor)
     chosen.reason += f"; {res.reason}"

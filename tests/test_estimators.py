@@ -1,0 +1,229 @@
+"""The estimator contract every learner keeps (issue 16): scikit-learn's meta-estimators
+work on them, parameters are validated from one declaration, the state dimension is
+checked and saved, fitting changes nothing it is given, and tuning does not depend on
+the clock. Seeds are fixed."""
+
+import inspect
+import json
+import time
+import typing
+
+import h5py
+import numpy as np
+import pytest
+from sklearn.base import clone as sk_clone
+from sklearn.model_selection import GridSearchCV, KFold
+
+from ccl_cli import simulate as sim
+from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.learn.basis import RBFBasis
+from ccl_cli.learn.constraint import (
+    KnownFeatureConstraint,
+    LinearConstraint,
+    PerDemonstration,
+    StateDependentConstraint,
+    StateIndependentConstraint,
+)
+from ccl_cli.learn.model_selection import Tuned
+from ccl_cli.learn.nullspace import NullSpaceComponent
+from ccl_cli.learn.params import Options
+from ccl_cli.learn.policy import METHODS, PolicyLearner
+from ccl_cli.models import load_model, save_model
+
+TOY = sim.toy2d(constraint="parabola", seed=0, n_demos=12)
+ARM = sim.two_link(seed=0, n_demos=12, n_steps=20)
+NCL = sim.toy2d(task=True, sampling="uniform", n_samples=300, seed=0)
+
+#: (name, unfitted learner, grid, data) for every learner, each policy method and Tuned
+CASES = [
+    ("nhat", lambda: StateIndependentConstraint(), {"selection": ["ratio", "eigengap"]}, TOY),
+    ("alpha", lambda: StateDependentConstraint(n_centres=4, n_restarts=1, tune=False),
+     {"n_centres": [4, 9]}, TOY),
+    ("lambda", lambda: KnownFeatureConstraint(features="arm2", n_centres=4, n_restarts=1, tune=False),
+     {"n_centres": [4, 9]}, ARM),
+    ("linear", lambda: LinearConstraint(), {"degree": [1, 2]}, TOY),
+    ("per_demo", lambda: PerDemonstration(LinearConstraint(regressors="identity")),
+     {"estimator__whiten": ["rms", "none"]}, TOY),
+    ("ncl", lambda: NullSpaceComponent(n_centres=4, tune=False), {"n_centres": [4, 9]}, NCL),
+    *[(m, lambda m=m: PolicyLearner(method=m, n_centres=9, tune=False), {"n_centres": [4, 9]}, TOY)
+      for m in METHODS],
+    ("tuned", lambda: Tuned(PolicyLearner(n_centres=4, tune=False), {"n_centres": [4, 9]}),
+     {"folds": [3, 4]}, TOY),
+]
+IDS = [c[0] for c in CASES]
+
+
+@pytest.mark.parametrize("name,make,grid,data", CASES, ids=IDS)
+def test_scikit_learn_clones_and_grid_searches_every_learner(name, make, grid, data):
+    est = make()
+    twin = sk_clone(est)  # scikit-learn's own checks: parameters stored unchanged
+    assert type(twin) is type(est) and twin.get_params(deep=False).keys() == est.get_params(deep=False).keys()
+    kw = {"projections": data.true_projection()} if name == "pi-coupled" else {}
+    search = GridSearchCV(est, grid, cv=3, error_score="raise").fit(data.X, data.U, **kw)
+    assert search.best_params_ in [dict(zip(grid, v, strict=True)) for v in zip(*grid.values(), strict=True)]
+    scores = search.cv_results_["mean_test_score"]
+    assert scores.shape == (2,) and np.all(np.isfinite(scores)) and np.all(scores <= 0)
+    refit = search.best_estimator_
+    assert refit.n_features_in_ == data.n_state
+    assert refit.score(data.X, data.U) == pytest.approx(search.score(data.X, data.U))
+
+
+def test_grid_search_score_is_minus_the_held_out_npoe_by_hand():
+    """GridSearchCV's fold scores of nhat are −NPOE of the two smallest directions of the
+    training actions, computed here with numpy on scikit-learn's own folds."""
+    data = sim.arm7(rows=(0, 1), seed=2, n_demos=10)
+    search = GridSearchCV(StateIndependentConstraint(n_constraints=2), {"threshold": [0.1]}, cv=3).fit(
+        data.X, data.U)
+    for i, (train, test) in enumerate(KFold(3).split(data.X)):
+        vecs = np.linalg.eigh(data.U[train].T @ data.U[train])[1][:, :2]
+        Ut = data.U[test]
+        npoe = np.mean(np.sum((Ut @ vecs @ vecs.T) ** 2, 1)) / np.var(Ut, axis=0, ddof=1).sum()
+        assert search.cv_results_[f"split{i}_test_score"][0] == pytest.approx(-npoe, rel=1e-9)
+
+
+# -- the declaration of parameters -----------------------------------------------------------
+CLASSES = [StateIndependentConstraint, StateDependentConstraint, KnownFeatureConstraint, LinearConstraint,
+           PerDemonstration, NullSpaceComponent, PolicyLearner, Tuned]
+
+
+@pytest.mark.parametrize("cls", CLASSES, ids=lambda c: c.__name__)
+def test_every_parameter_is_declared_and_literal_choices_agree(cls):
+    names = [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
+    assert sorted(cls._parameter_constraints) == sorted(names)
+    hints = typing.get_type_hints(cls.__init__)
+    for name in names:
+        hint = hints[name]
+        parts = (hint,) if typing.get_origin(hint) is typing.Literal else typing.get_args(hint)
+        literals = [a for a in parts if typing.get_origin(a) is typing.Literal]
+        options = [f for f in cls._parameter_constraints[name] if isinstance(f, Options)]
+        assert [set(typing.get_args(a)) for a in literals] == [set(o.values) for o in options], name
+
+
+@pytest.mark.parametrize("make,message", [
+    (lambda: StateDependentConstraint(n_centres=0),
+     "StateDependentConstraint: parameter n_centres must be ≥ 1, got 0"),
+    (lambda: StateIndependentConstraint(selection="ratoi"),
+     "StateIndependentConstraint: parameter selection must be one of cv, eigengap, ratio, threshold, "
+     "got 'ratoi' (did you mean 'ratio'?)"),
+    (lambda: PolicyLearner(tune={"bugdet": 5}),
+     "PolicyLearner: parameter tune has an unknown key 'bugdet' (did you mean 'budget'?)"),
+    (lambda: PolicyLearner(basis={"kind": "rbf", "sigma2": -1.0}),
+     "PolicyLearner: parameter basis.sigma2 must be ≥ 1e-300, got -1.0"),
+    (lambda: LinearConstraint(degree=11), "LinearConstraint: parameter degree must be ≤ 10, got 11"),
+    (lambda: NullSpaceComponent(max_iter=True),
+     "NullSpaceComponent: parameter max_iter must be an integer ≥ 1 and ≤ 1e+07, got True"),
+])
+def test_bad_parameters_are_one_config_error_from_fit(make, message):
+    model = make()  # the constructor stores, fit validates
+    with pytest.raises(ConfigError) as err:
+        model.fit(TOY.X, TOY.U)
+    assert err.value.message == message
+
+
+# -- the state dimension -----------------------------------------------------------------------
+@pytest.mark.parametrize("name,make,grid,data", CASES, ids=IDS)
+def test_a_wrong_state_dimension_is_one_input_error(name, make, grid, data):
+    kw = {"projections": data.true_projection()} if name == "pi-coupled" else {}
+    model = make().fit(data.X, data.U, groups=data.demo, **kw)
+    wrong = np.hstack([data.X, data.X[:, :1]])
+    calls = [lambda: model.score(wrong, data.U, groups=data.demo)]
+    calls.append((lambda: model.projection(wrong, groups=data.demo)) if hasattr(model, "projection") and
+                 name != "tuned" else (lambda: model.predict(wrong)))
+    for call in calls:
+        with pytest.raises(InputError) as err:
+            call()
+        p = data.n_state
+        assert err.value.message == f"the model expects p = {p} state dimensions, got {p + 1}"
+
+
+def test_a_saved_model_records_p_and_a_version_1_file_still_loads(tmp_path):
+    model = StateDependentConstraint(n_centres=9, n_restarts=1, tune=False).fit(TOY.X, TOY.U)
+    path = save_model(tmp_path / "m.h5", model)
+    with h5py.File(path) as f:
+        assert f.attrs["schema_version"] == 2 and json.loads(f.attrs["fitted"])["n_features_in_"] == 2
+    loaded, info = load_model(path)
+    assert info["schema_version"] == 2 and loaded.n_features_in_ == 2
+    np.testing.assert_array_equal(loaded.projection(TOY.X), model.projection(TOY.X))
+
+    def as_version_1(src, dst):  # what version 1 wrote: no n_features_in_
+        dst.write_bytes(src.read_bytes())
+        with h5py.File(dst, "a") as f:
+            f.attrs["schema_version"] = 1
+            fitted = json.loads(f.attrs["fitted"])
+            del fitted["n_features_in_"]
+            f.attrs["fitted"] = json.dumps(fitted)
+        return dst
+
+    old, info = load_model(as_version_1(path, tmp_path / "v1.h5"))
+    assert info["schema_version"] == 1 and old.n_features_in_ == 2  # inferred from the basis
+    np.testing.assert_array_equal(old.projection(TOY.X), model.projection(TOY.X))
+    nhat = save_model(tmp_path / "nhat.h5", StateIndependentConstraint().fit(TOY.X, TOY.U))
+    old_nhat, _ = load_model(as_version_1(nhat, tmp_path / "nhat1.h5"))
+    assert not hasattr(old_nhat, "n_features_in_")  # nothing implies p: any state dimension is taken
+    assert old_nhat.projection(np.zeros((4, 5))).shape == (4, 2, 2)
+    with h5py.File(path, "a") as f:  # a saved p that disagrees with the basis is refused
+        f.attrs["fitted"] = json.dumps({**json.loads(f.attrs["fitted"]), "n_features_in_": 3})
+    with pytest.raises(InputError, match="n_features_in_ is 3 but the model's basis or regressors take 2"):
+        load_model(path)
+
+
+# -- fit changes nothing it is given -------------------------------------------------------------
+def test_fit_never_changes_the_objects_it_is_given():
+    basis = RBFBasis(n_centres=9, seed=1)
+    tune = {"budget": 50, "max_rows": 1000}
+    X, U = TOY.X.copy(), TOY.U.copy()
+    model = LinearConstraint(regressors="rbf", basis=basis, tune=tune).fit(X, U, groups=TOY.demo)
+    assert not hasattr(basis, "centres_") and model.basis_ is not basis  # a fitted copy
+    assert model.basis is basis and tune == {"budget": 50, "max_rows": 1000}
+    np.testing.assert_array_equal(X, TOY.X)
+    np.testing.assert_array_equal(U, TOY.U)
+    again = LinearConstraint(regressors="rbf", basis=basis, tune=False).fit(X, U)
+    np.testing.assert_array_equal(again.basis_.centres_, model.basis_.centres_)
+
+
+def test_policy_projections_are_keyword_only():
+    P = TOY.true_projection()
+    with pytest.raises(TypeError):
+        PolicyLearner(method="pi-coupled", tune=False).fit(TOY.X, TOY.U, P)  # noqa - positional on purpose
+    with pytest.raises(TypeError):
+        PolicyLearner(tune=False).fit(TOY.X, TOY.U, TOY.demo)
+
+
+# -- tuning: a meta-estimator, deterministic ------------------------------------------------------
+def test_tuned_is_the_learners_own_search_with_cv_results():
+    learner = PolicyLearner(method="pi", n_centres=9).fit(TOY.X, TOY.U, groups=TOY.demo)
+    grid = learner._tune_grid(TOY.X, TOY.U)
+    search = Tuned(PolicyLearner(method="pi", n_centres=9, tune=False), grid)
+    search.fit(TOY.X, TOY.U, groups=TOY.demo)
+    assert search.tuning_ == learner.tuning_ and search.best_params_ == learner.tuning_["chosen"]
+    np.testing.assert_array_equal(search.W_, learner.W_)  # learnt attributes of the winner
+    np.testing.assert_array_equal(search.predict(TOY.X), learner.predict(TOY.X))
+    results = search.cv_results_
+    n = len(results["params"])
+    assert n == len(learner.tuning_["scores"]) and results["rank_test_score"].min() == 1
+    best = int(np.argmin(results["rank_test_score"]))
+    assert results["params"][best] == search.best_params_
+    best_error = min(r["mean"] for r in learner.tuning_["scores"])
+    assert -results["mean_test_score"][best] == pytest.approx(best_error)
+    assert learner.tuning_["budget_used"] == 3 * n and learner.tuning_["budget_unit"].startswith("fits")
+
+
+def test_the_budget_counts_fits_and_binds_the_same_way_on_any_clock(monkeypatch):
+    """A clock racing ahead (each reading 1000 s after the last) gives the identical model:
+    nothing in the search reads the time. A budget of 7 fits runs 2 candidates of 3 folds."""
+    def fits():
+        small = PolicyLearner(method="pi", n_centres=9, tune={"budget": 7}).fit(TOY.X, TOY.U, groups=TOY.demo)
+        alpha = StateDependentConstraint(n_restarts=1).fit(TOY.X, TOY.U, groups=TOY.demo)
+        return small, alpha
+
+    calm = fits()
+    clock = iter(range(0, 10**9, 1000))
+    for name in ("perf_counter", "monotonic", "time", "process_time"):
+        monkeypatch.setattr(time, name, lambda: float(next(clock)))
+    rushed = fits()
+    assert calm[0].tuning_ == rushed[0].tuning_ and calm[1].tuning_ == rushed[1].tuning_
+    assert calm[0].tuning_["budget_used"] == 6 and len(calm[0].tuning_["scores"]) == 2
+    assert calm[0].tuning_["skipped"] == len(calm[0]._tune_grid(TOY.X, TOY.U)["basis"]) - 2
+    np.testing.assert_array_equal(calm[0].W_, rushed[0].W_)
+    for a, b in zip(calm[1].weights_, rushed[1].weights_, strict=True):
+        np.testing.assert_array_equal(a, b)
