@@ -9,7 +9,7 @@
     /basis/      attrs: kind (rbf | linear), sigma2 / n_state; centres (K, p)
     /demos/<id>/ the same layout once per demonstration (per-demonstration models)
 
-Loading goes through :func:`ccl_cli.io.h5safe.open_hdf5` (nothing outside the file is
+Loading goes through :func:`ccl_cli.io.open_hdf5` (nothing outside the file is
 ever read, damaged files cannot hang libhdf5) and checks the format, the schema version,
 the method, the type of every attribute and parameter, and every array's type, shape
 and finiteness; then it rebuilds the estimator so predictions are bit-identical to the
@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from ccl_cli import io as h5safe
 from ccl_cli.errors import ConfigError, InputError
-from ccl_cli.io import h5safe
-from ccl_cli.io.hdf5 import check_header
+from ccl_cli.io import check_header
 from ccl_cli.learn.basis import basis_from_state
 from ccl_cli.learn.constraint import (
     KnownFeatureConstraint,

@@ -8,8 +8,8 @@ from writers import EPOCH_NS, JOINTS, WRITERS, joint_recording, write_csv, write
 
 from ccl_cli import simulate as sim
 from ccl_cli.errors import InputError
-from ccl_cli.io import detect_format, inspect_path, load_demonstrations
-from ccl_cli.io.hdf5 import read_demonstrations, write_demonstrations
+from ccl_cli.io import detect_format, load_demonstrations, read_demonstrations, write_demonstrations
+from ccl_cli.io import inspect_recording as inspect_path
 
 JOINT_CFG = {"state": {"topic": "/joint_states", "field": "position", "joints": JOINTS},
              "action": {"topic": "/joint_states", "field": "velocity", "joints": JOINTS}}
@@ -392,3 +392,41 @@ def test_headerless_whitespace_table_one_sample_per_row(tmp_path):
     np.testing.assert_allclose(data.X, [[1.5, 2], [2.5, 4], [3.5, 6]])
     np.testing.assert_allclose(data.U, [[10, 20]] * 3, atol=1e-9)
     assert data.state_names == ["m[1]", "m[2]"]
+
+
+# -- the data options ---------------------------------------------------------------------------
+def test_data_options_accept_every_key_and_type_the_config_allowed():
+    from ccl_cli.io.options import DataOptions
+
+    stream = {"topic": "/t", "field": "a.b", "joints": ["j1"], "columns": ["x", 1], "stamp": "log",
+              "dataset": "obs/q", "variable": "s.X", "file": "U.txt", "samples": "columns"}
+    given = {"files": ["a.csv", "b.csv"], "format": "csv", "typestore": "ros2_foxy", "state": stream,
+             "action": {**stream, "derive": "state", "window": 9, "order": 3},
+             "time": {"column": "%time", "unit": "ms", "rate": 50, "delimiter": ";", "dataset": "t",
+                      "variable": "t", "file": "t.txt"},
+             "demos": {"split_on_gap": 0.5, "ranges": [[0, 1.5], [2, 3]], "window": 4, "per_file": True,
+                       "group": "data/demo_*", "dataset": "demo", "variable": "demo"},
+             "nonfinite": "fail", "min_samples": 3}
+    options = DataOptions.from_mapping({**given, "test": {"fraction": 0.3}})  # test: the app's key
+    assert options.model_dump(exclude_unset=True) == given
+    assert isinstance(options.time.rate, int) and isinstance(options.demos.split_on_gap, float)
+    other = DataOptions.from_mapping({"files": "one.csv", "time": {"column": 0},
+                                      "action": {"derive": "state"}})
+    assert other.time.column == 0 and other.derives_action and other.action.order == 2
+
+
+@pytest.mark.parametrize(("mapping", "message"), [
+    ({"stat": {}}, "unknown data option 'stat' (did you mean 'state'?)"),
+    ({"time": {"rate": "20"}}, "data.time.rate must be a rate in Hz between 1e-09 and 1e+12, got '20'"),
+    ({"action": {"derive": "state", "window": 0}}, "data.action.window must be an integer between 1 and"),
+    ({"state": {"columns": [True]}}, "data.state.columns[0] must be an integer or a string, got True"),
+    ({"demos": {"split_on_gap": float("nan")}}, "data.demos.split_on_gap must be positive seconds, got nan"),
+    ({"nonfinite": "keep"}, "data.nonfinite must be 'drop' or 'fail', got 'keep'"),
+    ({"demos": {"window": 2, "windows": 4}}, "data.demos: unknown option 'windows' (did you mean 'window'?)"),
+])
+def test_bad_data_options_are_one_line_naming_the_option(mapping, message):
+    from ccl_cli.io.options import DataOptions
+
+    with pytest.raises(InputError) as info:
+        DataOptions.from_mapping(mapping)
+    assert info.value.message.startswith(message) and "\n" not in info.value.message

@@ -236,7 +236,7 @@ def make_executor(workers: int | None, scheduler: str | None) -> tuple[Executor,
 
 #: modules the fork server imports once, so that every worker starts with them
 PRELOAD = ["ccl_cli.lifeline", "ccl_cli.app.run", "ccl_cli.app.stages", "ccl_cli.models", "ccl_cli.io",
-           "ccl_cli.io.hdf5", "ccl_cli.render.report", "ccl_cli.learn.blas"]
+           "ccl_cli.io.canonical", "ccl_cli.render.report", "ccl_cli.learn.blas"]
 
 
 def local_context(n: int):
