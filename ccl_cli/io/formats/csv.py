@@ -12,6 +12,10 @@ orientation) are kept distinct: the second ``x`` is addressable as ``x.1``, the 
 as ``x.2``, or any column by its 0-based index. The time column is parsed exactly:
 integer nanoseconds stay int64; decimal seconds are split at the point, never passed
 through float64.
+
+A table of numbers only (no quotes, no empty cell) is parsed by NumPy's text reader in
+one pass (:class:`_Matrix`); anything else by the csv module, cell by cell (:class:`_Cells`),
+which also explains every problem.
 """
 
 from __future__ import annotations
@@ -39,6 +43,9 @@ TIME_NAMES = ("rosbagTimestamp", "%time", "__time", "time", "timestamp", "t", "h
 _TIME_KEYS = {n.lower() for n in TIME_NAMES}
 _INT = re.compile(r"^[+-]?\d+$")
 _DEC = re.compile(r"^([+-]?)(\d*)\.(\d*)$")
+#: a whole time column of integers, or of integers and decimals (one value per line)
+_INTS = re.compile(r"(?:[+-]?\d+\n)*")
+_DECIMALS = re.compile(r"(?:[+-]?(?:\d*\.\d*|\d+)\n)*")
 _I64 = 2**63 - 1
 
 
@@ -59,7 +66,39 @@ def parse_time_ns(column: Sequence[str], unit: str | None, where: str) -> np.nda
     """Exact int64 nanoseconds from strings (n,) → (n,). ``unit`` None: integers ≥ 1e15 are
     ns, everything else seconds. Values that are not finite or do not fit int64 ns are an
     :class:`InputError` naming the row."""
-    return _time_ns_per_value(column, unit, where)
+    fast = _time_ns_vectorised(column, unit)
+    return fast if fast is not None else _time_ns_per_value(column, unit, where)
+
+
+def _time_ns_vectorised(column: Sequence[str], unit: str | None) -> np.ndarray | None:
+    """The common cases at array speed: all integers, or integers and plain decimals
+    (``[+-]digits.digits``). None when a value is anything else or out of range (then
+    :func:`_time_ns_per_value` parses it, and names the row at fault)."""
+    text = "\n".join(column) + "\n"
+    values = np.array(column, dtype=str)
+    try:
+        if _INTS.fullmatch(text):
+            ints = values.astype(np.int64)
+            big = max(abs(int(ints.min())), abs(int(ints.max())))
+            unit = unit or ("ns" if big >= 10**15 else "s")
+            if big * UNIT_NS[unit] > _I64:
+                return None
+            return ints * UNIT_NS[unit]
+        if not _DECIMALS.fullmatch(text):
+            return None
+        scale = UNIT_NS[unit or "s"]
+        digits = len(str(scale)) - 1
+        negative = np.char.startswith(values, "-")
+        whole, _, frac = np.char.partition(np.char.lstrip(values, "+-"), ".").T
+        whole = np.where(whole == "", "0", whole).astype(np.int64)
+        if int(whole.max(initial=0)) >= _I64 // scale:
+            return None
+        ns = whole * scale
+        if digits:
+            ns += np.char.ljust(frac, digits, "0").astype(f"U{digits}").astype(np.int64)
+        return np.where(negative, -ns, ns)
+    except (ValueError, OverflowError):
+        return None
 
 
 def _ns(value: int, v: str, i: int, where: str) -> int:
@@ -101,7 +140,35 @@ def _time_ns_per_value(column: Sequence[str], unit: str | None, where: str) -> n
     return out
 
 
-# -- the body of a table ------------------------------------------------------------------------
+# -- the body of a table: numbers in one pass, or cells ------------------------------------------
+class _Matrix:
+    """A table of numbers only: every cell parsed by ``np.loadtxt`` at once; the text of a
+    column is split out of the lines only when asked (exact time stamps)."""
+
+    def __init__(self, values: np.ndarray, lines: list[str], delimiter: str | None, transposed: bool) -> None:
+        self.values = values.T if transposed else values  # (rows, columns), one sample per row
+        self.lines = lines
+        self.delimiter = delimiter
+        self.transposed = transposed
+
+    @property
+    def n_rows(self) -> int:
+        return self.values.shape[0]
+
+    def text(self, k: int) -> list[str]:
+        if self.transposed:  # column k of the table is line k of the file
+            return self.lines[k].split(self.delimiter)
+        if self.delimiter is None:
+            return [ln.split(None, k + 1)[k] for ln in self.lines]
+        return [ln.split(self.delimiter, k + 1)[k] for ln in self.lines]
+
+    def numbers(self, k: int, name: str, where: str) -> np.ndarray:
+        return self.values[:, k]
+
+    def is_numeric(self, k: int) -> bool:
+        return True
+
+
 class _Cells:
     """A table as rows of cells (strings), as the csv module reads it."""
 
@@ -141,7 +208,8 @@ class CsvTable:
         self.time = time
         self.samples = samples or "rows"
         self.headerless = False
-        self._loaded: tuple[list[str], _Cells] | None = None
+        self._loaded: tuple[list[str], _Matrix | _Cells] | None = None
+        self._time: tuple[np.ndarray, str] | None = None
 
     # -- parsing ---------------------------------------------------------------------------
     def _read_text(self) -> str:
@@ -153,13 +221,47 @@ class CsvTable:
         except OSError as exc:
             raise InputError(f"{self.path}: {exc.strerror}") from None
 
-    def load(self) -> tuple[list[str], _Cells]:
+    def load(self) -> tuple[list[str], _Matrix | _Cells]:
         """(column names, body), parsed once."""
         if self._loaded is None:
             text = self._read_text()
             delim = self.time.delimiter or _sniff_delimiter(text[:65536])
-            self._loaded = self._cells(text, delim)
+            self._loaded = self._numbers(text, delim) or self._cells(text, delim)
         return self._loaded
+
+    def _numbers(self, text: str, delim: str) -> tuple[list[str], _Matrix] | None:
+        """The whole table through ``np.loadtxt``; None unless it is numbers only (then the
+        cell-by-cell reader gives the same table, or says what is wrong)."""
+        if "\r" in text:
+            text = text.replace("\r\n", "\n")
+        if '"' in text or "\r" in text:
+            return None
+        sep = None if delim in (" ", "whitespace") else delim
+        lines = text.split("\n")
+        if sep is not None and max(map(len, lines)) > csv.field_size_limit():
+            return None  # a line that may hold a field the csv module refuses
+        # blank lines (only separators and white space) are skipped; a line of other white
+        # space kept here makes np.loadtxt fail, and the cell-by-cell reader decide
+        blank = " \t" + (sep or "")
+        lines = [ln for ln in lines if ln.strip(blank)]
+        header = (lines[0].split(sep) if sep is not None else lines[0].split()) if lines else []
+        headerless = all(_is_number(c) for c in header)
+        if self.samples == "columns" and not headerless:
+            return None
+        body = lines if headerless else lines[1:]
+        if not body:
+            return None
+        try:
+            values = np.loadtxt(body, delimiter=sep, comments=None, dtype=float, ndmin=2)
+        except ValueError:
+            return None
+        if values.shape != (len(body), len(header)):
+            return None
+        self.headerless = headerless
+        transposed = self.samples == "columns"
+        n_names = values.shape[0] if transposed else len(header)
+        names = [str(j) for j in range(n_names)] if headerless else unique_names(header)
+        return names, _Matrix(values, body, sep, transposed)
 
     def _cells(self, text: str, delim: str) -> tuple[list[str], _Cells]:
         f = io.StringIO(text, newline="")
@@ -215,6 +317,11 @@ class CsvTable:
 
     def time_ns(self) -> tuple[np.ndarray, str]:
         """Stamps (n,) int64 ns and where they came from (a column name, or the rate)."""
+        if self._time is None:
+            self._time = self._read_time()
+        return self._time
+
+    def _read_time(self) -> tuple[np.ndarray, str]:
         names, body = self.load()
         where = str(self.path)
         if self.time.column is not None:
@@ -260,7 +367,7 @@ class CsvTable:
                       {"columns": [names[k] for k in idx], "time_column": tcol, "sample_axis": self.samples})
 
 
-def find_time_column(names: list[str], body: _Cells) -> int | None:
+def find_time_column(names: list[str], body: _Matrix | _Cells) -> int | None:
     """Index of the first :data:`TIME_NAMES` column (case-insensitive, in that order) whose
     every value is a number; None when there is none."""
     lower = [n.lower() for n in names]
