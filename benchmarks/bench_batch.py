@@ -71,7 +71,7 @@ def timings(out: Path, results) -> list[dict[str, float]]:
 
 def recordings(root: Path, n: int, demos: int, tag: str) -> list[str]:
     from ccl_cli import simulate as sim
-    from ccl_cli.io.hdf5 import write_demonstrations
+    from ccl_cli.io import write_demonstrations
 
     root.mkdir(parents=True, exist_ok=True)
     for i in range(n):

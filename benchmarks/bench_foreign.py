@@ -1,11 +1,13 @@
-"""Array-format reader throughput. One JSON object per line:
+"""Array- and table-format reader throughput. One JSON object per line:
 {"format", "demos", "samples", "write_seconds", "read_seconds", "samples_per_second", "per_demo_ms"}.
 
 A 7-D state/action recording of ``--demos`` demonstrations × ``--steps`` samples is written
 by the third-party writers (h5py robomimic-like groups, scipy.io.savemat v5 cells, h5py in
-MATLAB's v7.3 layout as matrices + demo index) and read back with ``load_demonstrations``
-(best of ``--repeat``). The per-demonstration cost (group walk, safety check of every link,
-one dataset read per variable) is what grows with the number of groups.
+MATLAB's v7.3 layout as matrices + demo index, the csv module: one table with a time column
+in integer nanoseconds or in decimal seconds, demonstrations split on 1-s pauses) and read
+back with ``load_demonstrations`` (best of ``--repeat``). The per-demonstration cost (group
+walk, safety check of every link, one dataset read per variable) is what grows with the
+number of groups; a table's cost is its body (parsing text, exact time stamps).
 
 Run:  python benchmarks/bench_foreign.py [--demos 1000] [--steps 200] [--repeat 3]
 """
@@ -49,6 +51,18 @@ def main() -> int:
             out[0, d] = cells[d][key].T
         return out
 
+    def write_csv(path, decimal):
+        import csv
+
+        t_ns = 1_700_000_000_000_000_000 + np.round((t + demo * (n / 100.0 + 1.0)) * 1e9).astype(np.int64)
+        stamps = [f"{s // 10**9}.{s % 10**9:09d}" for s in t_ns.tolist()] if decimal else t_ns.tolist()
+        with open(path, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["time", *(f"x{j}" for j in range(7)), *(f"u{j}" for j in range(7))])
+            w.writerows([s, *row] for s, row in zip(stamps, np.hstack([X, U]).tolist(), strict=True))
+
+    csv_cfg = {"state": {"columns": [f"x{j}" for j in range(7)]},
+               "action": {"columns": [f"u{j}" for j in range(7)]}, "demos": {"split_on_gap": 0.5}}
     mat_cfg = {"format": "mat", "state": {"variable": "X", "samples": "columns"},
                "action": {"variable": "U", "samples": "columns"}, "time": {"rate": 100}}
     cases = {
@@ -56,10 +70,12 @@ def main() -> int:
         "mat-v5-cells": (lambda p: scipy.io.savemat(p, {"X": obj("x"), "U": obj("u")}), mat_cfg),
         "mat-v7.3-index": (lambda p: write_mat73(p, {"X": X.T, "U": U.T, "demo": demo[None, :] + 1.0}),
                            {**mat_cfg, "demos": {"variable": "demo"}}),
+        "csv-ns": (lambda p: write_csv(p, decimal=False), {**csv_cfg, "time": {"unit": "ns"}}),
+        "csv-decimal-s": (lambda p: write_csv(p, decimal=True), csv_cfg),
     }
     with tempfile.TemporaryDirectory() as tmp:
         for name, (write, cfg) in cases.items():
-            path = Path(tmp) / f"{name}.{'mat' if 'mat' in name else 'h5'}"
+            path = Path(tmp) / f"{name}.{name.split('-')[0].replace('hdf5', 'h5')}"
             t0 = time.perf_counter()
             write(path)
             wrote = time.perf_counter() - t0

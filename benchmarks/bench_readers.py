@@ -33,8 +33,8 @@ from pathlib import Path
 sys.path.insert(0, {tests!r})
 mode, container, path = sys.argv[1], sys.argv[2], Path(sys.argv[3])
 from writers import JOINTS
-from ccl_cli.io import load_demonstrations, open_reader
-from ccl_cli.io.streams import StreamSpec, read_topics, finish_topics
+from ccl_cli.io import StreamOptions, load_demonstrations
+from ccl_cli.io.messages import read_topics, finish_topics
 import rosbags.highlevel, mcap.reader, mcap_ros2.decoder, mcap_ros1.decoder
 cfg = {{"files": [str(path)],
        "state": {{"topic": "/joint_states", "field": "position", "joints": JOINTS}},
@@ -51,7 +51,7 @@ elif mode == "e2e":
     d = load_demonstrations(cfg)
     out = {{"seconds": time.perf_counter() - t0, "n": d.n_samples}}
 else:  # interleaved: library decode of a chunk, then ccl's collection of the same chunk
-    specs = [StreamSpec.from_config(cfg["state"]), StreamSpec.from_config(cfg["action"])]
+    specs = [StreamOptions.model_validate(cfg["state"]), StreamOptions.model_validate(cfg["action"])]
     collectors, slots = read_topics(specs, {{"/joint_states": "sensor_msgs/msg/JointState"}}, str(path))
     col = collectors["/joint_states"]
     lib = ours = 0.0

@@ -14,7 +14,7 @@ import numpy as np
 from ccl_cli import diagnostics as D
 from ccl_cli import simulate as sim
 from ccl_cli.dataset import Demonstrations
-from ccl_cli.io.assemble import local_polynomial_derivative
+from ccl_cli.io.derivative import local_polynomial_derivative
 
 
 def tracker_at_rest(noise: float, rate: float = 50.0, duration: float = 60.0,

@@ -61,7 +61,7 @@ def build_fixtures(root: Path) -> list[dict[str, Any]]:
 
     from ccl_cli import simulate as sim
     from ccl_cli.cli import main
-    from ccl_cli.io.hdf5 import write_demonstrations
+    from ccl_cli.io import write_demonstrations
 
     root.mkdir(parents=True, exist_ok=True)
     rec = writers.joint_recording(n=60, gap_after=30)

@@ -392,7 +392,7 @@ def simulate(
     import inspect as pyinspect
 
     from ccl_cli import simulate as S
-    from ccl_cli.io.hdf5 import write_demonstrations
+    from ccl_cli.io import write_demonstrations
 
     _logging(quiet)
     if problem not in S.PROBLEMS:
@@ -430,7 +430,7 @@ def inspect_cmd(
 ) -> None:
     """Topics (type, count, rate over the active time, fields, joint names), CSV columns, time span
     and the demonstrations a gap split finds (default gap: 5 × the median sampling interval)."""
-    from ccl_cli.io.describe import inspect_recording
+    from ccl_cli.io import inspect_recording
 
     _logging(quiet)
     cfg = _config(config, {})
@@ -452,7 +452,7 @@ def convert(
 ) -> None:
     """Convert recordings (CSV, bags, MCAP) into the canonical ccl-demonstrations HDF5."""
     from ccl_cli.app.run import read_data
-    from ccl_cli.io.hdf5 import write_demonstrations
+    from ccl_cli.io import write_demonstrations
 
     _logging(quiet)
     cfg = _config(config, {})

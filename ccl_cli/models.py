@@ -15,7 +15,7 @@ Schema version 2 records ``n_features_in_`` (the state dimension p); version-1 f
 are still read, p then inferred from the basis (or a linear model's polynomial
 regressors) and left unchecked when nothing implies it (nhat, identity regressors).
 
-Loading goes through :func:`ccl_cli.io.h5safe.open_hdf5` (nothing outside the file is
+Loading goes through :func:`ccl_cli.io.open_hdf5` (nothing outside the file is
 ever read, damaged files cannot hang libhdf5) and checks the format, the schema version,
 the method, the type of every attribute and parameter, and every array's type, shape
 and finiteness; then it rebuilds the estimator so predictions are bit-identical to the
@@ -35,7 +35,9 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
-from ccl_cli.io import h5safe
+from ccl_cli.io.h5 import access as h5
+from ccl_cli.io.h5.probe import open_hdf5
+from ccl_cli.io.h5.seal import create_hdf5
 from ccl_cli.learn.basis import basis_from_state
 from ccl_cli.learn.constraint import (
     KnownFeatureConstraint,
@@ -132,7 +134,7 @@ def save_model(path: str | Path, model: Any, training: dict[str, Any] | None = N
     """Write ``model`` to ``path`` atomically."""
     method = method_of(model)
     path = Path(path)
-    with h5safe.create_hdf5(path, force=force) as f:
+    with create_hdf5(path, force=force) as f:
         f.attrs["format"] = FORMAT
         f.attrs["schema_version"] = SCHEMA_VERSION
         f.attrs["kind"] = CLASSES[method.split(":")[-1]][0]
@@ -174,7 +176,7 @@ def _allowed_types(cls: type, name: str, default: Any) -> tuple[type, ...]:
 def _read_params(group, cls: type, where: str) -> dict[str, Any]:
     """The constructor parameters saved with a model, each checked against the
     constructor's signature (name and type)."""
-    params = h5safe.attr_json(group.attrs, "params", where, kind=dict)
+    params = h5.attr_json(group.attrs, "params", where, kind=dict)
     sig = inspect.signature(cls.__init__).parameters
     for key, value in params.items():
         if key not in sig or key == "self":
@@ -190,7 +192,7 @@ def _read_params(group, cls: type, where: str) -> dict[str, Any]:
 
 
 def _fitted(group, where: str) -> dict[str, Any]:
-    fitted = h5safe.attr_json(group.attrs, "fitted", where, kind=dict)
+    fitted = h5.attr_json(group.attrs, "fitted", where, kind=dict)
     for key, (lo, hi) in _COUNTS.items():
         if key in fitted:
             value = fitted[key]
@@ -224,17 +226,17 @@ def _read(group, method: str, where: str) -> Any:
     for key in _COUNTS:
         if declared.get(key) == "value" and key not in fitted and key not in _OPTIONAL:
             raise InputError(f"{where}: fitted {key} is missing")
-    arrays = h5safe.group_of(group, "arrays", where) if "models" not in declared.values() else None
+    arrays = h5.group_of(group, "arrays", where) if "models" not in declared.values() else None
     for name, kind in declared.items():
         if kind == "array":
-            setattr(model, name, h5safe.numeric(arrays, name, where, ndim=(1, 2, 3), limit=MAX_MAGNITUDE)
-                    if h5safe.has(arrays, name, where) else None)
+            setattr(model, name, h5.numeric(arrays, name, where, ndim=(1, 2, 3), limit=MAX_MAGNITUDE)
+                    if h5.has(arrays, name, where) else None)
         elif kind == "arrays":  # one per constraint row
             n = model.n_constraints_
-            missing = [i for i in range(n) if not h5safe.has(arrays, f"{name}{i}", where)]
+            missing = [i for i in range(n) if not h5.has(arrays, f"{name}{i}", where)]
             if missing:
                 raise InputError(f"{where}: expected {n} weight arrays, {name}{missing[0]} is missing")
-            setattr(model, name, [h5safe.numeric(arrays, f"{name}{i}", where, ndim=(2,), limit=MAX_MAGNITUDE)
+            setattr(model, name, [h5.numeric(arrays, f"{name}{i}", where, ndim=(2,), limit=MAX_MAGNITUDE)
                                   for i in range(n)])
         elif kind == "basis":
             _read_basis(model, group, where)
@@ -249,19 +251,19 @@ def _read(group, method: str, where: str) -> Any:
 
 
 def _read_basis(model: Any, group, where: str) -> None:
-    basis = h5safe.group_of(group, "basis", where, required=False)
+    basis = h5.group_of(group, "basis", where, required=False)
     if basis is None:
         return
     bwhere = f"{where}: /basis"
-    kind = h5safe.attr_str(basis.attrs, "kind", bwhere)
+    kind = h5.attr_str(basis.attrs, "kind", bwhere)
     if kind == "rbf":
-        centres = h5safe.numeric(basis, "centres", where, ndim=(2,), limit=MAX_MAGNITUDE)
+        centres = h5.numeric(basis, "centres", where, ndim=(2,), limit=MAX_MAGNITUDE)
         if centres.shape[0] < 1 or centres.shape[1] < 1:
             raise InputError(f"{where}: /basis/centres is empty ({centres.shape})")
         state = {"kind": kind, "centres": centres,
-                 "sigma2": h5safe.attr_float(basis.attrs, "sigma2", bwhere, positive=True)}
+                 "sigma2": h5.attr_float(basis.attrs, "sigma2", bwhere, positive=True)}
     elif kind == "linear":
-        n_state = h5safe.attr_int(basis.attrs, "n_state", bwhere)
+        n_state = h5.attr_int(basis.attrs, "n_state", bwhere)
         if not 1 <= n_state <= 100_000:
             raise InputError(f"{bwhere}: n_state must be a positive integer, got {n_state}")
         state = {"kind": kind, "n_state": n_state}
@@ -272,12 +274,12 @@ def _read_basis(model: Any, group, where: str) -> None:
 
 def _read_demos(group, base: str, where: str) -> dict[int, Any]:
     """The per-demonstration models under /demos (demonstration id → model)."""
-    demos = h5safe.group_of(group, "demos", where)
+    demos = h5.group_of(group, "demos", where)
     models = {}
-    for k in h5safe.members(demos, where):
+    for k in h5.members(demos, where):
         if not k.lstrip("-").isdigit() or len(k) > 18:
             raise InputError(f"{where}: /demos/{k} is not a demonstration id")
-        models[int(k)] = _read(h5safe.group_of(demos, k, where), base, f"{where}:/demos/{k}")
+        models[int(k)] = _read(h5.group_of(demos, k, where), base, f"{where}:/demos/{k}")
     if not models:
         raise InputError(f"{where}: /demos holds no models")
     if len({m.n_action_ for m in models.values()}) > 1:
@@ -404,18 +406,18 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
     """(estimator, info) from a model file; foreign, damaged or unsafe files are refused."""
     path = Path(path)
     where = str(path)
-    with h5safe.open_hdf5(path, "model file") as f:
-        found = h5safe.attr_str(f.attrs, "format", where, None)
+    with open_hdf5(path, "model file") as f:
+        found = h5.attr_str(f.attrs, "format", where, None)
         if found != FORMAT:
             raise InputError(f"{where}: not a ccl model (format attribute {found!r})")
-        version = h5safe.attr_int(f.attrs, "schema_version", where)
+        version = h5.attr_int(f.attrs, "schema_version", where)
         if version not in READABLE_VERSIONS:
             raise InputError(f"{where}: ccl model version {version} is not supported (this ccl reads "
                              f"versions {', '.join(map(str, READABLE_VERSIONS))})")
-        method = h5safe.attr_str(f.attrs, "method", where)
-        kind = h5safe.attr_str(f.attrs, "kind", where)
+        method = h5.attr_str(f.attrs, "method", where)
+        kind = h5.attr_str(f.attrs, "kind", where)
         try:  # informative only
-            training = h5safe.attr_json(f.attrs, "training", where, {}, dict)
+            training = h5.attr_json(f.attrs, "training", where, {}, dict)
         except InputError:
             training = {}
         base = method.split(":", 1)[1] if method.startswith("per_demo:") else method

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ccl_cli import simulate as sim
-from ccl_cli.io.hdf5 import write_demonstrations
+from ccl_cli.io import write_demonstrations
 from ccl_cli.learn.kinematics import SevenDofArm
 from ccl_cli.learn.linalg import nullspace_projection
 

@@ -14,7 +14,7 @@ import pytest
 
 from ccl_cli import simulate as sim
 from ccl_cli.cli import main
-from ccl_cli.io.hdf5 import write_demonstrations
+from ccl_cli.io import write_demonstrations
 
 CCL = shutil.which("ccl") or str(Path(sys.executable).parent / "ccl")
 CONFIG = """

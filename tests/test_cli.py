@@ -104,7 +104,7 @@ def test_simulate_learn_evaluate_predict_round_trip(tmp_path):
     assert ev["kind"] == "constraint" and ev["metrics"]["NPPE"] < 1e-4
     ccl("predict", model, data, "-o", tmp_path / "pred.h5")
     # bit-identical predictions: a new process vs this one
-    from ccl_cli.io.hdf5 import read_demonstrations
+    from ccl_cli.io import read_demonstrations
     from ccl_cli.models import load_model
 
     est, _ = load_model(model)
@@ -142,11 +142,11 @@ def test_every_model_kind_reloads_bit_identically(tmp_path, kind):
     model.fit(d.X, d.U, groups=d.demo) if kind == "per_demo" else model.fit(d.X, d.U)
     path = save_model(tmp_path / "m.h5", model)
     code = ("import sys, numpy as np; from ccl_cli.models import load_model; "
-            "from ccl_cli.io.hdf5 import read_demonstrations; m, i = load_model(sys.argv[1]); "
+            "from ccl_cli.io import read_demonstrations; m, i = load_model(sys.argv[1]); "
             "d, _ = read_demonstrations(sys.argv[2]); "
             "out = m.predict(d.X) if i['kind'] != 'constraint' else m.projection(d.X, groups=d.demo); "
             "np.save(sys.argv[3], out)")
-    from ccl_cli.io.hdf5 import write_demonstrations
+    from ccl_cli.io import write_demonstrations
 
     write_demonstrations(tmp_path / "d.h5", d)
     subprocess.run([sys.executable, "-c", code, path, tmp_path / "d.h5", tmp_path / "out.npy"], check=True)

@@ -12,7 +12,7 @@ from ccl_cli import simulate as sim
 from ccl_cli.cli import main
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.io import load_demonstrations
-from ccl_cli.io.assemble import local_polynomial_derivative
+from ccl_cli.io.derivative import local_polynomial_derivative
 from ccl_cli.learn.constraint import StateIndependentConstraint
 
 

@@ -17,7 +17,8 @@ import yaml
 
 from ccl_cli.cli import main
 from ccl_cli.errors import InputError
-from ccl_cli.io import detect_format, inspect_path, load_demonstrations
+from ccl_cli.io import detect_format, load_demonstrations
+from ccl_cli.io import inspect_recording as inspect_path
 from ccl_cli.simulate import arm7
 
 

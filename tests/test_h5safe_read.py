@@ -1,4 +1,4 @@
-"""ccl_cli.io.h5safe typed reads through libhdf5 (files written by h5py), and the per-process
+"""ccl_cli.io.h5.access typed reads through libhdf5 (files written by h5py), and the per-process
 memory of a passed tree check following every rewrite of the file."""
 
 import os
@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from ccl_cli.errors import InputError
-from ccl_cli.io import h5safe
+from ccl_cli.io.h5 import access as h5safe
+from ccl_cli.io.h5.probe import open_hdf5
 
 
 @pytest.fixture
@@ -79,10 +80,10 @@ def test_dataset_returns_the_high_level_dataset(sample):
 
 
 def test_a_passed_tree_check_is_not_trusted_after_the_file_changes(sample, tmp_path):
-    h5safe.open_hdf5(sample).close()  # passes, and is remembered
+    open_hdf5(sample).close()  # passes, and is remembered
     (tmp_path / "other.h5").write_bytes(b"")
     with h5py.File(sample, "a") as f:  # the same path, rewritten in place: a new mtime/size
         f["g/escape"] = h5py.ExternalLink(str(tmp_path / "other.h5"), "/x")
     os.utime(sample, ns=(os.stat(sample).st_atime_ns, os.stat(sample).st_mtime_ns + 1_000_000))
     with pytest.raises(InputError, match="external link"):
-        h5safe.open_hdf5(sample)
+        open_hdf5(sample)

@@ -16,8 +16,8 @@ from tests_paths import cpu_seconds
 
 from ccl_cli import simulate as sim
 from ccl_cli.cli import main
-from ccl_cli.io import h5safe
-from ccl_cli.io.hdf5 import read_demonstrations, write_demonstrations
+from ccl_cli.io import read_demonstrations, write_demonstrations
+from ccl_cli.io.h5 import probe as h5safe
 from ccl_cli.models import load_model
 
 
@@ -365,7 +365,7 @@ def test_reader_boundaries(capsys, tmp_path, csv_rec, case, match):
     csv_rec.write_text("\n".join(lines) + "\n")
     (tmp_path / "c.yaml").write_text(cfg)
     if case == "order_0":  # the config check comes first; the reader refuses it on its own too
-        from ccl_cli.io.assemble import local_polynomial_derivative
+        from ccl_cli.io.derivative import local_polynomial_derivative
 
         with pytest.raises(h5safe.InputError, match=match):
             local_polynomial_derivative(np.arange(5.0), np.ones((5, 1)), np.zeros(5, int), 3, 0)

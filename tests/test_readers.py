@@ -4,12 +4,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from writers import EPOCH_NS, JOINTS, WRITERS, joint_recording, write_csv, write_ros1_bag, write_ros2_bag
 
 from ccl_cli import simulate as sim
 from ccl_cli.errors import InputError
-from ccl_cli.io import detect_format, inspect_path, load_demonstrations
-from ccl_cli.io.hdf5 import read_demonstrations, write_demonstrations
+from ccl_cli.io import detect_format, load_demonstrations, read_demonstrations, write_demonstrations
+from ccl_cli.io import inspect_recording as inspect_path
 
 JOINT_CFG = {"state": {"topic": "/joint_states", "field": "position", "joints": JOINTS},
              "action": {"topic": "/joint_states", "field": "velocity", "joints": JOINTS}}
@@ -392,3 +394,96 @@ def test_headerless_whitespace_table_one_sample_per_row(tmp_path):
     np.testing.assert_allclose(data.X, [[1.5, 2], [2.5, 4], [3.5, 6]])
     np.testing.assert_allclose(data.U, [[10, 20]] * 3, atol=1e-9)
     assert data.state_names == ["m[1]", "m[2]"]
+
+
+# -- CSV bodies: one pass for numbers, cell by cell otherwise; exact time stamps --------------
+def test_csv_numbers_only_and_quoted_cells_read_the_same(tmp_path):
+    import csv
+
+    from ccl_cli.io.formats.csv import CsvTable, _Cells, _Matrix
+    from ccl_cli.io.options import TimeOptions
+
+    rec = joint_recording(n=50)
+    plain = write_csv(tmp_path / "plain.csv", rec)
+    quoted = tmp_path / "quoted.csv"
+    with open(plain, newline="") as src, open(quoted, "w", newline="") as dst:
+        csv.writer(dst, quoting=csv.QUOTE_ALL).writerows(csv.reader(src))
+    assert isinstance(CsvTable(plain, TimeOptions()).load()[1], _Matrix)  # np.loadtxt, one pass
+    assert isinstance(CsvTable(quoted, TimeOptions()).load()[1], _Cells)  # the csv module
+    cfg = {"state": {"columns": ["x", "y", "z"]}, "action": {"columns": ["x.1", "y.1", "z.1", "w"]}}
+    for path in (plain, quoted):
+        data = load_demonstrations({**cfg, "files": [str(path)]})
+        np.testing.assert_array_equal(data.X, rec.position[:, :3])
+        np.testing.assert_array_equal(data.U, rec.position[:, 3:7])
+        assert data.metadata["time_origin_ns"] == rec.t_ns[0]
+        np.testing.assert_array_equal(data.t, (rec.t_ns - rec.t_ns[0]) / 1e9)
+
+
+def test_csv_time_text_is_parsed_exactly(tmp_path):
+    from ccl_cli.io.formats.csv import parse_time_ns
+
+    rng = np.random.default_rng(7)
+    ns = [int(v) for v in rng.integers(-(2**62), 2**62, 400)]
+    seconds = [f"{'-' if v < 0 else ''}{abs(v) // 10**9}.{abs(v) % 10**9:09d}".rstrip("0") for v in ns]
+    assert parse_time_ns(seconds, None, "w").tolist() == ns  # beyond float64's 2**53
+    assert parse_time_ns([str(v) for v in ns], None, "w").tolist() == ns  # integers ≥ 1e15: ns
+    ms = [f"{v // 10**6}.{v % 10**6:06d}" for v in (abs(v) for v in ns[:50])]
+    assert parse_time_ns(ms, "ms", "w").tolist() == [abs(v) for v in ns[:50]]
+    mixed = parse_time_ns(["1.5e3", "2", "2.25"], None, "w")  # an exponent: parsed value by value
+    assert mixed.tolist() == [1_500 * 10**9, 2 * 10**9, 2_250_000_000]
+    with pytest.raises(InputError, match="time value '9223372037.0' in row 4 is out of range"):  # header: 1
+        parse_time_ns(["0", "1.5", "9223372037.0"], None, "w")
+
+
+@settings(max_examples=300, deadline=None)
+@given(column=st.lists(st.from_regex(r"[+-]?[0-9]{0,21}(\.[0-9]{0,12})?", fullmatch=True), min_size=1,
+                       max_size=6),
+       unit=st.sampled_from([None, "s", "ms", "us", "ns"]))
+def test_vectorised_time_parse_agrees_with_the_per_value_parse(column, unit):
+    from ccl_cli.io.formats.csv import _time_ns_per_value, _time_ns_vectorised
+
+    fast = _time_ns_vectorised(column, unit)
+    try:
+        slow = _time_ns_per_value(column, unit, "w").tolist()
+    except InputError:
+        assert fast is None  # out of range or not a number: the per-value parse names the row
+    else:
+        assert fast is None or fast.tolist() == slow
+
+
+# -- the data options ---------------------------------------------------------------------------
+def test_data_options_accept_every_key_and_type_the_config_allowed():
+    from ccl_cli.io.options import DataOptions
+
+    stream = {"topic": "/t", "field": "a.b", "joints": ["j1"], "columns": ["x", 1], "stamp": "log",
+              "dataset": "obs/q", "variable": "s.X", "file": "U.txt", "samples": "columns"}
+    given = {"files": ["a.csv", "b.csv"], "format": "csv", "typestore": "ros2_foxy", "state": stream,
+             "action": {**stream, "derive": "state", "window": 9, "order": 3},
+             "time": {"column": "%time", "unit": "ms", "rate": 50, "delimiter": ";", "dataset": "t",
+                      "variable": "t", "file": "t.txt"},
+             "demos": {"split_on_gap": 0.5, "ranges": [[0, 1.5], [2, 3]], "window": 4, "per_file": True,
+                       "group": "data/demo_*", "dataset": "demo", "variable": "demo"},
+             "nonfinite": "fail", "min_samples": 3}
+    options = DataOptions.from_mapping({**given, "test": {"fraction": 0.3}})  # test: the app's key
+    assert options.model_dump(exclude_unset=True) == given
+    assert isinstance(options.time.rate, int) and isinstance(options.demos.split_on_gap, float)
+    other = DataOptions.from_mapping({"files": "one.csv", "time": {"column": 0},
+                                      "action": {"derive": "state"}})
+    assert other.time.column == 0 and other.derives_action and other.action.order == 2
+
+
+@pytest.mark.parametrize(("mapping", "message"), [
+    ({"stat": {}}, "unknown data option 'stat' (did you mean 'state'?)"),
+    ({"time": {"rate": "20"}}, "data.time.rate must be a rate in Hz between 1e-09 and 1e+12, got '20'"),
+    ({"action": {"derive": "state", "window": 0}}, "data.action.window must be an integer between 1 and"),
+    ({"state": {"columns": [True]}}, "data.state.columns[0] must be an integer or a string, got True"),
+    ({"demos": {"split_on_gap": float("nan")}}, "data.demos.split_on_gap must be positive seconds, got nan"),
+    ({"nonfinite": "keep"}, "data.nonfinite must be 'drop' or 'fail', got 'keep'"),
+    ({"demos": {"window": 2, "windows": 4}}, "data.demos: unknown option 'windows' (did you mean 'window'?)"),
+])
+def test_bad_data_options_are_one_line_naming_the_option(mapping, message):
+    from ccl_cli.io.options import DataOptions
+
+    with pytest.raises(InputError) as info:
+        DataOptions.from_mapping(mapping)
+    assert info.value.message.startswith(message) and "\n" not in info.value.message

@@ -14,7 +14,7 @@ import yaml
 
 from ccl_cli.app.stages import split_data
 from ccl_cli.cli import main
-from ccl_cli.io.hdf5 import read_demonstrations
+from ccl_cli.io import read_demonstrations
 from ccl_cli.models import load_model
 from ccl_cli.render.report import STOPS
 
@@ -182,7 +182,7 @@ def test_evaluate_command_matches_the_stage_numbers(tmp_path, capsys):
            "stages": ["learn-a"]}
     metrics, out = run(tmp_path, "arm", cfg)
     d = parts("arm7.h5", cfg)["test"]
-    from ccl_cli.io.hdf5 import write_demonstrations
+    from ccl_cli.io import write_demonstrations
 
     write_demonstrations(tmp_path / "test.h5", d)
     capsys.readouterr()
@@ -193,7 +193,7 @@ def test_evaluate_command_matches_the_stage_numbers(tmp_path, capsys):
 
 
 def test_plot_helpers_subsample_and_angles():
-    from ccl_cli.io.describe import activity
+    from ccl_cli.io.summary import activity
     from ccl_cli.metrics import subspace_angle
     from ccl_cli.render.figures import grid_subsample
 

@@ -12,9 +12,9 @@ from ccl_cli.app.run import read_data
 from ccl_cli.cli import main
 from ccl_cli.config import Config
 from ccl_cli.errors import InputError
-from ccl_cli.io import load_demonstrations
-from ccl_cli.io.assemble import local_polynomial_derivative, segment_ids
-from ccl_cli.io.hdf5 import write_demonstrations
+from ccl_cli.io import load_demonstrations, write_demonstrations
+from ccl_cli.io.derivative import local_polynomial_derivative
+from ccl_cli.io.segment import segment_ids
 
 EPOCH_NS = 1_700_000_000_000_000_000
 

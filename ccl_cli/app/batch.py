@@ -260,7 +260,7 @@ def _check_reachable(address: str) -> None:
 #: modules the fork server imports once, so that every worker starts with them (the command
 #: line adds the module of its writer)
 PRELOAD = ["ccl_cli.lifeline", "ccl_cli.app.run", "ccl_cli.app.stages", "ccl_cli.models", "ccl_cli.io",
-           "ccl_cli.io.hdf5", "ccl_cli.learn.blas"]
+           "ccl_cli.io.canonical", "ccl_cli.learn.blas"]
 
 
 def local_context(n: int, preload: tuple[str, ...] = ()):

@@ -18,30 +18,14 @@ from ccl_cli.app import provenance
 from ccl_cli.app.views import View
 from ccl_cli.config import Config, stage_list
 from ccl_cli.dataset import Demonstrations
-from ccl_cli.errors import ConfigError
 from ccl_cli.learn import blas
 
 
 def read_data(cfg: Config, files: list[Path] | list[str] | None):
     """The dataset and its train/test masks (canonical HDF5 may carry them)."""
-    from ccl_cli.io import expand_files, file_hash, is_canonical_input, load_demonstrations
-    from ccl_cli.io.assemble import resegment
-    from ccl_cli.io.hdf5 import read_demonstrations
+    from ccl_cli.io import read_dataset
 
-    data_cfg = dict(cfg.get("data") or {})
-    entries = [str(f) for f in files] if files else data_cfg.get("files")
-    if not entries:
-        raise ConfigError("no input data: give files on the command line or data.files in the config")
-    paths = expand_files(entries, None if files else cfg.base)
-    if len(paths) == 1 and is_canonical_input(paths[0], data_cfg):
-        data, info = read_demonstrations(paths[0])
-        data, masks = resegment(data, data_cfg.get("demos"), str(paths[0]), info["masks"])
-        data.metadata = {"files": [{"path": str(paths[0]), "sha256": file_hash(paths[0]), "format": "hdf5"}],
-                         "time_origin_ns": info["time_origin_ns"], "provenance": info["provenance"]}
-        return data, masks
-    data_cfg.pop("test", None)
-    data_cfg.pop("files", None)
-    return load_demonstrations(data_cfg, files=[str(p) for p in paths]), None
+    return read_dataset(cfg.get("data"), files, cfg.base)
 
 
 @dataclass

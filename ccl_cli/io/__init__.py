@@ -1,36 +1,47 @@
-"""Readers of demonstration recordings, one per format behind one interface.
+"""Reading demonstration recordings, and writing ccl's own files: the public facade.
 
-:mod:`ccl_cli.io.registry` holds the :class:`~ccl_cli.io.registry.Reader` protocol and
-the formats (canonical or config-described HDF5, MATLAB .mat v5/v7.3, CSV and text
-matrices, ROS 1 bag, ROS 2 bag directory, standalone MCAP). ``detect_format`` looks at
-the content, not only the suffix; ``load_demonstrations`` turns the ``data`` section of a
-config into one :class:`~ccl_cli.dataset.Demonstrations`. This package only re-exports.
+* :func:`read_dataset` — the ``data`` options (:class:`DataOptions`) and the files → one
+  :class:`~ccl_cli.dataset.Demonstrations` and the train/test masks a canonical file
+  carries; :func:`load_demonstrations` the dataset alone. Every format is one entry of the
+  registry (:mod:`ccl_cli.io.registry`): canonical or config-described HDF5, MATLAB .mat
+  v5/v7.3, CSV and text matrices, ROS 1 bags, ROS 2 bag directories, standalone MCAP,
+  detected from the content.
+* :func:`inspect_recording` — what a recording holds (``ccl inspect``).
+* the canonical ``ccl-demonstrations`` HDF5 file (:func:`write_demonstrations`,
+  :func:`read_demonstrations`), HDF5 opened as data only (:func:`open_hdf5`, the typed
+  accessors, :func:`create_hdf5`), atomic outputs, input digests, safe YAML.
+
+Names are imported on first use, so ``import ccl_cli.io`` costs nothing until then.
 """
 
 from __future__ import annotations
 
-from ccl_cli.io.files import expand_files, file_hash
-from ccl_cli.io.h5layout import is_canonical_input
-from ccl_cli.io.load import DATA_KEYS, inspect_path, load_demonstrations, load_file
-from ccl_cli.io.registry import (
-    BAG1_MAGIC,
-    HDF5_MAGIC,
-    MCAP_MAGIC,
-    REGISTRY,
-    Format,
-    Reader,
-    detect_format,
-    format_names,
-    open_recording,
-    register,
-)
-from ccl_cli.io.streamfile import StreamFile, StreamSource, open_reader
+import importlib
+from typing import Any
 
-FORMATS = format_names()
+_WHERE = {
+    "ccl_cli.io.atomic": ("atomic_dir", "atomic_path", "check_replaceable", "clean_stale"),
+    "ccl_cli.io.canonical": ("check_header", "read_demonstrations", "write_demonstrations"),
+    "ccl_cli.io.files": ("expand_files", "file_hash"),
+    "ccl_cli.io.h5.access": ("attr_float", "attr_int", "attr_json", "attr_str", "attr_strings", "group_of",
+                             "has", "members", "numeric", "strings"),
+    "ccl_cli.io.h5.probe": ("open_hdf5",),
+    "ccl_cli.io.h5.seal": ("create_hdf5",),
+    "ccl_cli.io.load": ("inspect_recording", "load_demonstrations", "read_dataset"),
+    "ccl_cli.io.options": ("ActionOptions", "DataOptions", "DemoOptions", "StreamOptions", "TimeOptions"),
+    "ccl_cli.io.reader": ("Recording",),
+    "ccl_cli.io.registry": ("FORMATS", "Reader", "detect_format", "open_reader"),
+    "ccl_cli.io.yamlsafe": ("read_yaml",),
+}
+_MODULE_OF = {name: module for module, names in _WHERE.items() for name in names}
 
-__all__ = [
-    "BAG1_MAGIC", "DATA_KEYS", "FORMATS", "HDF5_MAGIC", "MCAP_MAGIC", "REGISTRY", "Format", "Reader",
-    "StreamFile", "StreamSource", "detect_format", "expand_files", "file_hash", "format_names",
-    "is_canonical_input", "inspect_path", "load_demonstrations", "load_file",
-    "open_reader", "open_recording", "register",
-]
+__all__ = sorted(_MODULE_OF)
+
+
+def __getattr__(name: str) -> Any:
+    module = _MODULE_OF.get(name)
+    if module is None:
+        raise AttributeError(f"module 'ccl_cli.io' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value

@@ -4,7 +4,7 @@ Array formats give, per demonstration, a state matrix, optionally an action matr
 a time vector. What is common to them lives here: orientation (``samples: rows`` — one
 sample per row, as NumPy/HDF5 writers store it — or ``columns``, as MATLAB code and the
 original C library do), a demo-index vector split into demonstrations, time from a rate,
-non-finite samples, and actions derived from the state (see :mod:`ccl_cli.io.assemble`).
+non-finite samples, and actions derived from the state (see :mod:`ccl_cli.io.derivative`).
 """
 
 from __future__ import annotations
@@ -16,10 +16,9 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
-from ccl_cli.io.assemble import derive_actions
+from ccl_cli.io.derivative import derive_actions
+from ccl_cli.io.options import UNIT_NS, DataOptions, TimeOptions
 
-SAMPLES = ("rows", "columns")
-TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 NAME_ATTRS = ("names", "column_names", "joint_names", "labels", "fields")
 
 
@@ -44,7 +43,7 @@ class Part:
     meta: dict[str, Any] = field(default_factory=dict)
 
 
-def numeric(values: Any, where: str, keep_int: bool = False) -> np.ndarray:
+def as_numeric(values: Any, where: str, keep_int: bool = False) -> np.ndarray:
     """``values`` as a float64 array (int64 if ``keep_int`` and integer), or a one-line
     error saying what it is instead."""
     arr = np.asarray(values)
@@ -83,8 +82,6 @@ def orient(variables: dict[str, Variable], default: str | None, where: str) -> d
     """
     sides = {}
     for key, var in variables.items():
-        if var.samples is not None and var.samples not in SAMPLES:
-            raise InputError(f"{var.where}: samples must be rows or columns, got {var.samples!r}")
         if var.values.ndim == 0 or var.values.size == 0:
             raise InputError(f"{var.where}: empty or scalar; expected a matrix of samples")
         sides[key] = _side(var, default)
@@ -153,7 +150,7 @@ def split_by_index(arrays: dict[str, np.ndarray], demo: np.ndarray, where: str
     return [(f"demo {int(ids[c[0]])}", {k: v[c] for k, v in arrays.items()}) for c in chunks]
 
 
-def chunk_times(chunks: list[tuple[str, dict[str, np.ndarray]]], time_cfg: dict[str, Any], where: str
+def chunk_times(chunks: list[tuple[str, dict[str, np.ndarray]]], time: TimeOptions, where: str
                 ) -> tuple[list[np.ndarray], int, str]:
     """Seconds per demonstration, the time origin in ns, and what was used.
 
@@ -162,26 +159,21 @@ def chunk_times(chunks: list[tuple[str, dict[str, np.ndarray]]], time_cfg: dict[
     made relative to the file's first stamp in integer arithmetic (exact at epoch scale);
     that stamp is the origin.
     """
-    unit = time_cfg.get("unit")
-    if unit is not None and unit not in TIME_UNITS:
-        raise InputError(f"data.time.unit must be one of {', '.join(TIME_UNITS)}, got {unit!r}")
+    unit, rate = time.unit, time.rate
     if "time" not in chunks[0][1]:
-        rate = time_cfg.get("rate")
         if rate is None:
             raise InputError(f"{where}: no time given; set data.time.rate (Hz) or the time dataset/variable")
-        if not rate > 0:
-            raise InputError(f"data.time.rate must be positive, got {rate}")
         return [np.arange(a["state"].shape[0]) / float(rate) for _, a in chunks], 0, f"rate {rate} Hz"
     raws = [a["time"][:, 0] for _, a in chunks]
     if np.issubdtype(raws[0].dtype, np.integer):
         origin = int(raws[0][0])
         if unit is None:
             unit = "ns" if max(int(np.abs(r).max()) for r in raws) >= 10**15 else "s"
-        scale = TIME_UNITS[unit]
+        scale = UNIT_NS[unit] / 1e9
         return ([(r.astype(np.int64) - origin).astype(float) * scale for r in raws],
-                origin * round(scale * 1e9), f"integer stamps in {unit}")
+                origin * UNIT_NS[unit], f"integer stamps in {unit}")
     unit = unit or "s"
-    return [r.astype(float) * TIME_UNITS[unit] for r in raws], 0, f"stamps in {unit}"
+    return [r.astype(float) * (UNIT_NS[unit] / 1e9) for r in raws], 0, f"stamps in {unit}"
 
 
 def names_for(label: str, d: int, given: list[str] | None) -> list[str]:
@@ -219,37 +211,35 @@ def pick_columns(parts: list[Part], attr: str, names: list[str], columns: list[A
     return kept
 
 
-def named_parts(chunks: list[tuple[str, dict[str, np.ndarray]]], data_cfg: dict[str, Any], where: str,
+def named_parts(chunks: list[tuple[str, dict[str, np.ndarray]]], options: DataOptions, where: str,
                 labels: dict[str, str], given: dict[str, list[str] | None], derive: bool
                 ) -> tuple[list[Part], list[str], list[str] | None, int, str]:
     """(label, arrays) chunks → one :class:`Part` per demonstration with its seconds
     (:func:`chunk_times`), and the state and action column names: ``given[key]`` when it
-    fits, else ``labels[key]`` numbered (:func:`names_for`), then the config's ``columns``
+    fits, else ``labels[key]`` numbered (:func:`names_for`), then the options' ``columns``
     (:func:`pick_columns`). Returns (parts, state names, action names — None when derived —,
     time origin ns, what the time was read from)."""
-    times, origin, time_used = chunk_times(chunks, data_cfg.get("time") or {}, where)
+    times, origin, time_used = chunk_times(chunks, options.time, where)
     parts = [Part(a["state"], a.get("action"), t, label) for (label, a), t in zip(chunks, times, strict=True)]
 
     def names(key: str, attr: str) -> list[str]:
         default = names_for(labels[key], getattr(parts[0], attr).shape[1], given.get(key))
-        return pick_columns(parts, attr, default, (data_cfg.get(key) or {}).get("columns"), where)
+        return pick_columns(parts, attr, default, getattr(options, key).columns, where)
 
     return parts, names("state", "X"), None if derive else names("action", "U"), origin, time_used
 
 
-def assemble(parts: list[Part], data_cfg: dict[str, Any], where: str, state_names: list[str],
+def assemble(parts: list[Part], options: DataOptions, where: str, state_names: list[str],
              action_names: list[str] | None, meta: dict[str, Any]) -> Demonstrations:
     """Per-demonstration arrays → one :class:`Demonstrations` (demo ids in part order).
 
-    Non-finite samples are dropped (``data.nonfinite: drop``) or refused (``fail``);
+    Non-finite samples are dropped (``nonfinite: drop``) or refused (``fail``);
     time must increase strictly within each demonstration; with ``action: {derive:
     state}`` U is the local-polynomial derivative of X on the real timestamps.
     """
     if not parts:
         raise InputError(f"{where}: no demonstrations found")
-    policy = data_cfg.get("nonfinite", "drop")
-    if policy not in ("drop", "fail"):
-        raise InputError(f"data.nonfinite must be drop or fail, got {policy!r}")
+    policy = options.nonfinite
     p = parts[0].X.shape[1]
     q = parts[0].U.shape[1] if parts[0].U is not None else None
     Xs, Us, Ts, demo, dropped = [], [], [], [], 0
@@ -281,9 +271,8 @@ def assemble(parts: list[Part], data_cfg: dict[str, Any], where: str, state_name
         Ts.append(t)
         demo.append(np.full(int(ok.sum()), k))
     X, t, ids = np.concatenate(Xs), np.concatenate(Ts), np.concatenate(demo)
-    action_cfg = data_cfg.get("action") or {}
     if q is None:
-        U, meta["action"] = derive_actions(t, X, ids, action_cfg)
+        U, meta["action"] = derive_actions(t, X, ids, options.action)
         action_names = [f"d{n}/dt" for n in state_names]
     else:
         U = np.concatenate(Us)
@@ -292,16 +281,3 @@ def assemble(parts: list[Part], data_cfg: dict[str, Any], where: str, state_name
     meta["demos"] = [part.label for part in parts]
     return Demonstrations(X=X, U=U, demo=ids, t=t, state_names=state_names, action_names=action_names,
                           metadata=meta)
-
-
-def wants_derived(data_cfg: dict[str, Any], where: str) -> bool:
-    """True when ``action`` is absent or ``{derive: state}``."""
-    action = data_cfg.get("action")
-    if action is None:
-        return True
-    derive = action.get("derive")
-    if derive is None:
-        return False
-    if derive != "state":
-        raise InputError(f"data.action.derive must be 'state', got {derive!r}")
-    return True

@@ -1,60 +1,84 @@
-"""The ``data`` section of a config → one :class:`~ccl_cli.dataset.Demonstrations`."""
+"""The ``data`` options and the input files → one dataset; what a recording holds.
+
+:func:`read_dataset` is what every command reads its data with: each file gives one or
+more demonstrations (ids renumbered across files); a single canonical file also gives
+its stored train/test masks. :func:`inspect_recording` is ``ccl inspect``.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from ccl_cli.dataset import Demonstrations
-from ccl_cli.errors import InputError
+from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.io.files import expand_files, file_hash
-from ccl_cli.io.registry import detect_format, open_recording
+from ccl_cli.io.options import DataOptions
+from ccl_cli.io.reader import Recording
+from ccl_cli.io.registry import format_of, open_reader
 
-DATA_KEYS = {"files", "format", "typestore", "state", "action", "time", "demos", "nonfinite",
-             "test", "min_samples"}
-
-
-def load_file(path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations, int]:
-    """One recording → (Demonstrations, time origin ns)."""
-    return open_recording(path, data_cfg).load()
+Options = DataOptions | Mapping[str, Any] | None
 
 
-def load_demonstrations(data_cfg: dict[str, Any], base: Path | None = None,
-                        files: list[str] | None = None) -> Demonstrations:
-    """The ``data`` section of a config (and optional file list overriding it) → one dataset.
+def read_dataset(options: Options, files: Sequence[str | Path] | None = None, base: Path | None = None
+                 ) -> tuple[Demonstrations, dict[str, list[int]] | None]:
+    """The dataset of ``files`` (else ``options.files``, relative to ``base``) and the
+    train/test masks (lists of demo ids) a single canonical file stores, re-cut by the
+    ``demos`` options; None otherwise.
 
-    Each file gives one or more demonstrations; ids are renumbered across files.
-    ``metadata`` records the files, their sha256 and what was read.
+    ``metadata`` records per file its path, sha256 and what was read, the time origin
+    (int64 ns) of the first file and, for a single file that stores one, its provenance.
+    A mapping is validated into :class:`DataOptions` (a ``test`` key is ignored).
     """
-    unknown = set(data_cfg) - DATA_KEYS
-    if unknown:
-        raise InputError(f"unknown data option(s): {', '.join(sorted(unknown))}")
-    paths = expand_files(files if files else data_cfg.get("files") or [], base)
-    parts, origins = [], []
+    options = DataOptions.from_mapping(options)
+    entries = [str(f) for f in files] if files else options.files
+    if not entries:
+        raise ConfigError("no input data: give files on the command line or data.files in the config")
+    paths = expand_files(entries, None if files else base)
+    recordings: list[Recording] = []
     for path in paths:
-        part, origin = load_file(path, data_cfg)
-        parts.append(part)
-        origins.append(origin)
+        with open_reader(path, options) as reader:
+            recordings.append(reader.read())
+    parts = [r.data for r in recordings]
     data = parts[0] if len(parts) == 1 else Demonstrations.concatenate(parts)
-    data.metadata = {"files": [{"path": str(p), "sha256": file_hash(p), **{k: v for k, v in
-                                part.metadata.items() if k != "source"}}
+    data.metadata = {"files": [{"path": str(p), "sha256": file_hash(p),
+                                **{k: v for k, v in part.metadata.items() if k != "source"}}
                                for p, part in zip(paths, parts, strict=True)],
-                     "time_origin_ns": origins[0]}
-    min_samples = int(data_cfg.get("min_samples", 2))
-    if data.n_samples < min_samples:
-        raise InputError(f"only {data.n_samples} samples were read; at least {min_samples} are needed")
-    return data
+                     "time_origin_ns": recordings[0].time_origin_ns}
+    single = recordings[0] if len(recordings) == 1 else None
+    if single is not None and single.provenance is not None:
+        data.metadata["provenance"] = single.provenance
+    if data.n_samples < options.min_samples:
+        raise InputError(f"only {data.n_samples} samples were read; at least {options.min_samples} "
+                         "are needed")
+    return data, single.masks if single is not None else None
 
 
-def inspect_path(path: str | Path, config: dict[str, Any] | None = None,
-                 gap: float | None = None) -> dict[str, Any]:
-    """Summary of a recording: format, topics/columns with types, counts and rates,
-    time span, and the demonstrations a gap split would find (as ``ros2 bag info``)."""
+def load_demonstrations(options: Options, base: Path | None = None,
+                        files: Sequence[str | Path] | None = None) -> Demonstrations:
+    """:func:`read_dataset` without the masks."""
+    return read_dataset(options, files, base)[0]
+
+
+def inspect_recording(path: str | Path, options: Options = None, gap: float | None = None) -> dict[str, Any]:
+    """What a recording holds, for ``ccl inspect``: ``path``, ``format``, ``size_bytes`` and
+    the reader's listing (topics with type, count, rate over the active time, fields and
+    joint names; or columns, rows and time column; or the HDF5/.mat tree with what the
+    options read from it). For streams, ``demos`` (with ``demos_from``, ``gap_s``,
+    ``gap_rule``) counts the pieces a split on pauses longer than ``gap`` finds: ``gap``,
+    else ``demos.split_on_gap`` of the options, else 5 × the median sampling interval."""
     path = Path(path)
-    config = config or {}
-    fmt = detect_format(path) if (config.get("format") or "auto") == "auto" else config["format"]
+    options = DataOptions.from_mapping(options)
+    rule = "--gap"
+    if gap is None:
+        gap, rule = options.demos.split_on_gap, "data.demos.split_on_gap of the config"
+    fmt = format_of(path, options)
     out: dict[str, Any] = {"path": str(path), "format": fmt,
                            "size_bytes": sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
                            if path.is_dir() else path.stat().st_size}
-    out.update(open_recording(path, {**config, "format": fmt}).inspect(gap))
+    with open_reader(path, options.model_copy(update={"format": fmt})) as reader:
+        out.update(reader.inspect(gap))
+    if "gap_s" in out and "gap_rule" not in out:
+        out["gap_rule"] = rule
     return out

@@ -1,82 +1,63 @@
-"""One reader interface and the registry of formats.
+"""The registry of formats: one entry per format, detection from the content, one opener.
 
-Every format is a :class:`Format` entry: a name, a content sniffer and a factory that
-opens a path with the ``data`` section of a config and returns a :class:`Reader`.
-A reader turns one recording into :class:`~ccl_cli.dataset.Demonstrations` (``load``)
-and summarises it for ``ccl inspect`` (``inspect``). Factories import their
-third-party libraries lazily, so importing :mod:`ccl_cli.io` stays cheap.
-
-Detection looks at the content (magic bytes, bag directories), not only the suffix;
-entries are tried in registration order, most specific first.
+Every format is a :class:`Format` entry: a name, a summary, a content test
+(:mod:`ccl_cli.io.sniff`) and the module and class of its :class:`~ccl_cli.io.reader.Reader`,
+imported on first use so that importing :mod:`ccl_cli.io` stays cheap. Detection looks at
+the content (magic bytes, bag directories), not only the suffix; entries are tried in
+order, most specific first.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import importlib
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
-from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
-
-HEAD_BYTES = 128
-
-
-class Reader(Protocol):
-    """One recording opened with a ``data`` config section."""
-
-    path: Path
-
-    def load(self) -> tuple[Demonstrations, int]:
-        """The demonstrations of the recording and its time origin (int64 ns)."""
-        ...
-
-    def inspect(self, gap: float | None = None) -> dict[str, Any]:
-        """What the recording holds (streams, columns, tree, counts, rates), as a JSON-able
-        dict; ``gap`` asks for the demonstrations a split on time gaps would find."""
-        ...
+from ccl_cli.io.options import DataOptions
+from ccl_cli.io.reader import Reader
+from ccl_cli.io.sniff import is_bag, is_hdf5, is_mat, is_mcap, is_text, read_head
 
 
 @dataclass(frozen=True)
 class Format:
-    """A registry entry. ``sniff(path, head)`` says whether ``path`` (first bytes
-    ``head``; empty for directories) is in this format; ``open(path, data_cfg)``
-    returns its reader."""
+    """A registry entry: ``sniff(path, head)`` says whether ``path`` (first bytes ``head``;
+    empty for a directory) is in this format; ``reader`` is ``"module:Class"``."""
 
     name: str
     summary: str
     sniff: Callable[[Path, bytes], bool]
-    open: Callable[[Path, dict[str, Any]], Reader]
+    reader: str
+
+    def reader_class(self) -> type[Reader]:
+        module, _, name = self.reader.partition(":")
+        return getattr(importlib.import_module(module), name)
 
 
-REGISTRY: dict[str, Format] = {}
-
-
-def register(fmt: Format) -> Format:
-    """Add ``fmt`` (after the entries already registered; a name is registered once)."""
-    if fmt.name in REGISTRY:
-        raise ValueError(f"format {fmt.name!r} is already registered")
-    REGISTRY[fmt.name] = fmt
-    return fmt
-
-
-def format_names() -> tuple[str, ...]:
-    return tuple(REGISTRY)
+REGISTRY: dict[str, Format] = {fmt.name: fmt for fmt in (
+    Format("bag", "ROS 1 .bag file or ROS 2 bag directory (sqlite3/mcap), via rosbags",
+           is_bag, "ccl_cli.io.formats.bag:BagReader"),
+    Format("mcap", "standalone MCAP (ROS 2 CDR, ROS 1, JSON)", is_mcap, "ccl_cli.io.formats.mcap:McapReader"),
+    Format("mat", "MATLAB .mat, v5/v7 (scipy) and v7.3 (HDF5), by variable names",
+           is_mat, "ccl_cli.io.formats.mat:MatReader"),
+    Format("hdf5", "HDF5: the canonical ccl-demonstrations layout, or any layout via the config",
+           is_hdf5, "ccl_cli.io.formats.hdf5:Hdf5Reader"),
+    Format("csv", "CSV / text table (header or not, one sample per row or per column)",
+           is_text, "ccl_cli.io.formats.csv:CsvReader"),
+)}
+FORMATS: tuple[str, ...] = tuple(REGISTRY)
 
 
 def detect_format(path: str | Path) -> str:
-    """The name of the first registered format whose sniffer accepts ``path``."""
+    """The name of the first format whose content test accepts ``path``."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: no such file or directory")
     head = b""
     if not path.is_dir():
-        try:
-            with open(path, "rb") as f:
-                head = f.read(HEAD_BYTES)
-        except OSError as exc:
-            raise InputError(f"{path}: {exc.strerror}") from None
+        head = read_head(path)
         if not head:
             raise InputError(f"{path}: empty file")
     for fmt in REGISTRY.values():
@@ -87,83 +68,13 @@ def detect_format(path: str | Path) -> str:
     raise InputError(f"{path}: unknown format (not {', '.join(REGISTRY)})")
 
 
-def resolve_format(path: Path, data_cfg: dict[str, Any] | None) -> str:
-    """``data.format`` when given (checked against the registry), else the detected one."""
-    fmt = (data_cfg or {}).get("format") or "auto"
-    if fmt == "auto":
-        return detect_format(path)
-    if fmt not in REGISTRY:
-        raise InputError(f"data.format must be auto or one of {', '.join(REGISTRY)}, got {fmt!r}")
-    return fmt
+def format_of(path: str | Path, options: DataOptions) -> str:
+    """``options.format`` when given, else the detected one."""
+    return detect_format(path) if options.format == "auto" else options.format
 
 
-def open_recording(path: str | Path, data_cfg: dict[str, Any] | None = None) -> Reader:
-    """The :class:`Reader` of ``path`` for the ``data`` section ``data_cfg``."""
-    path = Path(path)
-    data_cfg = data_cfg or {}
-    fmt = resolve_format(path, data_cfg)
-    return REGISTRY[fmt].open(path, data_cfg)
-
-
-# -- the formats ---------------------------------------------------------------------------
-HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
-MCAP_MAGIC = b"\x89MCAP"
-BAG1_MAGIC = b"#ROSBAG V2.0"
-
-
-def _sniff_bag(path: Path, head: bytes) -> bool:
-    if path.is_dir():
-        return (path / "metadata.yaml").exists()
-    if path.name == "metadata.yaml" or head.startswith(BAG1_MAGIC):
-        return True
-    beside = (path.parent / "metadata.yaml").exists()
-    return beside and (head.startswith(MCAP_MAGIC) or head.startswith(b"SQLite format 3"))
-
-
-def _sniff_hdf5(path: Path, head: bytes) -> bool:
-    if head.startswith(HDF5_MAGIC):
-        return True
-    if b"\x00" in head and not path.is_dir():
-        import h5py
-
-        return bool(h5py.is_hdf5(str(path)))  # HDF5 behind a user block
-    return False
-
-
-def _open_stream(fmt: str) -> Callable[[Path, dict[str, Any]], Reader]:
-    def open_(path: Path, data_cfg: dict[str, Any]) -> Reader:
-        from ccl_cli.io.streamfile import StreamFile
-
-        return StreamFile(path, fmt, data_cfg)
-
-    return open_
-
-
-def _open_hdf5(path: Path, data_cfg: dict[str, Any]) -> Reader:
-    from ccl_cli.io.h5layout import Hdf5File
-
-    return Hdf5File(path, data_cfg)
-
-
-def _open_mat(path: Path, data_cfg: dict[str, Any]) -> Reader:
-    from ccl_cli.io.matfile import MatFile
-
-    return MatFile(path, data_cfg)
-
-
-def _sniff_mat(path: Path, head: bytes) -> bool:
-    from ccl_cli.io.matfile import sniff
-
-    return not path.is_dir() and sniff(path, head)
-
-
-register(Format("bag", "ROS 1 .bag file or ROS 2 bag directory (sqlite3/mcap), via rosbags",
-                _sniff_bag, _open_stream("bag")))
-register(Format("mcap", "standalone MCAP (ROS 2 CDR, ROS 1, JSON)",
-                lambda path, head: head.startswith(MCAP_MAGIC), _open_stream("mcap")))
-register(Format("mat", "MATLAB .mat, v5/v7 (scipy) and v7.3 (HDF5), by variable names",
-                _sniff_mat, _open_mat))
-register(Format("hdf5", "HDF5: the canonical ccl-demonstrations layout, or any layout via the config",
-                _sniff_hdf5, _open_hdf5))
-register(Format("csv", "CSV / text table (header or not, one sample per row or per column)",
-                lambda path, head: not path.is_dir() and b"\x00" not in head, _open_stream("csv")))
+def open_reader(path: str | Path, options: DataOptions | Mapping[str, Any] | None = None) -> Reader:
+    """The :class:`~ccl_cli.io.reader.Reader` of ``path`` for the ``data`` options (a
+    mapping is validated into :class:`~ccl_cli.io.options.DataOptions`)."""
+    options = DataOptions.from_mapping(options)
+    return REGISTRY[format_of(path, options)].reader_class()(path, options)

@@ -11,7 +11,7 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError
-from ccl_cli.io.assemble import local_polynomial_derivative, window_for_rate
+from ccl_cli.io.derivative import local_polynomial_derivative, window_for_rate
 from ccl_cli.learn import defaults
 from ccl_cli.learn.kinematics import SevenDofArm
 from ccl_cli.learn.linalg import nullspace_projection, unit_rows

@@ -6,11 +6,19 @@ typestore (``typestore: ros2_humble`` by default; any name of ``rosbags.typesys.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ccl_cli.errors import InputError
-from ccl_cli.io.streams import Stream, StreamSpec, finish_topics, library_call, library_iter, read_topics
+from ccl_cli.io.library_errors import library_call, library_iter
+from ccl_cli.io.messages import TopicReader, finish_topics, read_topics
+from ccl_cli.io.options import StreamOptions
+from ccl_cli.io.sniff import BAG2_METADATA
+from ccl_cli.io.streams import Stream
+from ccl_cli.io.yamlsafe import read_yaml
 
 
 def _typestore(name: str | None):
@@ -28,8 +36,8 @@ def bag_root(path: Path) -> Path:
     """The path rosbags opens: the .bag file, or the ROS 2 bag directory."""
     if path.is_dir():
         return path
-    if path.name == "metadata.yaml" or path.suffix in (".db3", ".mcap") and \
-            (path.parent / "metadata.yaml").exists():
+    if path.name == BAG2_METADATA or path.suffix in (".db3", ".mcap") and \
+            (path.parent / BAG2_METADATA).exists():
         return path.parent
     return path
 
@@ -43,26 +51,21 @@ def _count(value, where: str) -> int:
     return int(value)
 
 
-class BagReader:
-    """One ROS 1 bag or ROS 2 bag directory."""
+class BagReader(TopicReader):
+    """One ROS 1 bag or ROS 2 bag directory (the typestore: ``typestore`` of the options)."""
 
-    def __init__(self, path: Path, typestore: str | None = None) -> None:
-        self.path = Path(path)
-        self.typestore = typestore
+    format = "bag"
 
     def _open(self):
         from rosbags.highlevel import AnyReader
 
         where = str(self.path)
-        typestore = _typestore(self.typestore)
+        typestore = _typestore(self.options.typestore)
         root = bag_root(self.path)
-        if root.is_dir() and (root / "metadata.yaml").is_file():
+        if root.is_dir() and (root / BAG2_METADATA).is_file():
             # bounded first (size, depth, aliases): rosbags' YAML parser is not
-            from ccl_cli.config import read_yaml
-
-            read_yaml(root / "metadata.yaml", "ROS 2 bag metadata", error=InputError)
-        reader = library_call(where, "read bag", AnyReader, [bag_root(self.path)],
-                              default_typestore=typestore)
+            read_yaml(root / BAG2_METADATA, "ROS 2 bag metadata", error=InputError)
+        reader = library_call(where, "read bag", AnyReader, [root], default_typestore=typestore)
         library_call(where, "read bag", reader.open)
         for conn in reader.connections:  # metadata.yaml is the bag's own text: names typed here
             if not isinstance(conn.topic, str) or not isinstance(conn.msgtype, str):
@@ -72,7 +75,7 @@ class BagReader:
                                  "damaged bag metadata?")
         return reader
 
-    def inspect(self) -> dict[str, Any]:
+    def listing(self) -> dict[str, Any]:
         reader = self._open()
         try:
             where = str(self.path)
@@ -85,22 +88,19 @@ class BagReader:
         finally:
             library_call(str(self.path), "close bag", reader.close)
 
-    def read(self, spec: StreamSpec) -> Stream:
-        return self.read_many([spec])[0]
-
-    def read_many(self, specs: list[StreamSpec]) -> list[Stream]:
+    def streams(self, selections: Sequence[StreamOptions]) -> list[Stream]:
         """Several streams in one pass over the bag (each message deserialised once)."""
         where = str(self.path)
         reader = self._open()
         try:
             msgtypes = {}
-            for spec in specs:
-                found = [c for c in reader.connections if c.topic == spec.topic]
+            for selection in selections:
+                found = [c for c in reader.connections if c.topic == selection.topic]
                 if not found:
                     have = ", ".join(sorted(map(str, reader.topics))) or "none"
-                    raise InputError(f"{where}: topic {spec.topic!r} not found (topics: {have})")
-                msgtypes[spec.topic] = str(found[0].msgtype)
-            collectors, slots = read_topics(specs, msgtypes, where)
+                    raise InputError(f"{where}: topic {selection.topic!r} not found (topics: {have})")
+                msgtypes[selection.topic] = str(found[0].msgtype)
+            collectors, slots = read_topics(selections, msgtypes, where)
             conns = [c for c in reader.connections if c.topic in collectors]
             what = f"decode {', '.join(collectors)}"
             for conn, log_ns, raw in library_iter(where, what, reader.messages(connections=conns)):
@@ -109,3 +109,18 @@ class BagReader:
             return finish_topics(collectors, slots)
         finally:
             library_call(str(self.path), "close bag", reader.close)
+
+    def first_messages(self) -> dict[str, tuple[np.ndarray, Any]]:
+        """Log times (ns) of every message and the first message (decoded) of each topic."""
+        bag = self._open()
+        try:
+            times: dict[str, list[int]] = {}
+            first: dict[str, Any] = {}
+            where, what = str(self.path), "decode the bag's messages"
+            for conn, log_ns, raw in library_iter(where, what, bag.messages()):
+                times.setdefault(conn.topic, []).append(log_ns)
+                if conn.topic not in first:
+                    first[conn.topic] = library_call(where, what, bag.deserialize, raw, conn.msgtype)
+            return {k: (np.asarray(v, dtype=np.int64), first.get(k)) for k, v in times.items()}
+        finally:
+            bag.close()

@@ -28,29 +28,20 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
-from ccl_cli.io.arrays import (
-    Variable,
-    assemble,
-    named_parts,
-    numeric,
-    orient,
-    split_by_index,
-    wants_derived,
-)
+from ccl_cli.io.arrays import Variable, as_numeric, assemble, named_parts, orient, split_by_index
+from ccl_cli.io.h5.listing import list_hdf5, truncate
+from ccl_cli.io.h5.probe import open_hdf5
+from ccl_cli.io.options import DataOptions
+from ccl_cli.io.reader import ReaderBase, Recording
+from ccl_cli.io.sniff import MAT5_MAGIC, MAT73_MAGIC, read_head
+from ccl_cli.io.summary import summary
 
-V5_MAGIC = b"MATLAB 5.0 MAT-file"
-V73_MAGIC = b"MATLAB 7.3 MAT-file"
 NUMERIC_CLASSES = {"double", "single", "int8", "uint8", "int16", "uint16", "int32", "uint32",
                    "int64", "uint64", "logical"}
 CONTAINERS = {"cell", "struct"}
 
 Value = np.ndarray | list  # a numeric (or char) array, or one value per cell / struct element
-
-
-def sniff(path: Path, head: bytes) -> bool:
-    return head.startswith(V5_MAGIC) or head.startswith(V73_MAGIC)
 
 
 def _refuse(where: str, cls: str) -> InputError:
@@ -72,7 +63,8 @@ class _V5:
     def variables(self) -> list[tuple[str, tuple[int, ...], str]]:
         return [(name, shape, cls) for name, (shape, cls) in self.whos.items()]
 
-    def _load(self, name: str) -> Any:
+    def load(self, name: str) -> Any:
+        """Variable ``name`` as scipy reads it (structs as record arrays, cells as object arrays)."""
         from scipy.io import loadmat
 
         try:
@@ -91,7 +83,7 @@ class _V5:
         cls = self.whos[name][1]
         if cls not in NUMERIC_CLASSES | CONTAINERS | {"char", "sparse"}:
             raise _refuse(where, cls)
-        return self._walk(self._load(name), fields, name, where)
+        return self._walk(self.load(name), fields, name, where)
 
     def _walk(self, value: Any, fields: list[str], at: str, where: str) -> Value:
         from scipy.io.matlab import MatlabFunction, MatlabObject, MatlabOpaque
@@ -130,8 +122,6 @@ def _cls(obj) -> str:
 
 class _V73:
     def __init__(self, path: Path) -> None:
-        from ccl_cli.io.h5safe import open_hdf5
-
         self.path = path
         self.f = open_hdf5(path, "MATLAB v7.3 file")
 
@@ -206,48 +196,40 @@ def _matlab_shape(obj) -> tuple[int, ...]:
     return tuple(reversed(obj.shape))
 
 
-def read_header(path: Path) -> bytes:
-    """The first 128 bytes of ``path`` (a .mat file's text header)."""
-    try:
-        with open(path, "rb") as f:
-            return f.read(128)
-    except OSError as exc:
-        raise InputError(f"{path}: {exc.strerror}") from None
-
-
 def open_source(path: Path) -> _V5 | _V73:
-    if read_header(path).startswith(V73_MAGIC):
+    if read_head(path).startswith(MAT73_MAGIC):
         return _V73(path)
     return _V5(path)
 
 
 # -- the reader ---------------------------------------------------------------------------
 def _variable(value: Value, where: str, samples: str | None, keep_int: bool = False) -> Variable:
-    return Variable(numeric(value, where, keep_int), where, samples)
+    return Variable(as_numeric(value, where, keep_int), where, samples)
 
 
-def read_mat(src: _V5 | _V73, path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations, int]:
-    """A .mat file → (Demonstrations, time origin ns); see the module docstring for the keys."""
+def read_mat(src: _V5 | _V73, path: Path, options: DataOptions) -> Recording:
+    """A .mat file → its demonstrations; see the module docstring for the options."""
     where = str(path)
-    state = data_cfg.get("state") or {}
-    if state.get("variable") is None:
+    state = options.state
+    if state is None or state.variable is None:
         have = ", ".join(f"{n} ({'×'.join(map(str, s))} {c})" for n, s, c in src.variables()[:8])
         raise InputError(f"{where}: data.state.variable is required for a .mat file "
                          f"(variables: {have or 'none'})")
-    derive = wants_derived(data_cfg, where)
-    action = data_cfg.get("action") or {}
-    if not derive and action.get("variable") is None:
+    derive = options.derives_action
+    if not derive and options.action.variable is None:
         raise InputError(f"{where}: data.action needs variable: NAME (or derive: state)")
-    tcfg = data_cfg.get("time") or {}
-    demos = data_cfg.get("demos") or {}
-    unknown = set(demos) - {"variable"}
+    demos = options.demos
+    unknown = demos.given() - {"variable"}
     if unknown:
         raise InputError(f"unknown demos option(s) for a .mat file: {', '.join(sorted(unknown))} "
                          "(use variable, or cell arrays)")
-    specs = {"state": state} | ({} if derive else {"action": action})
-    if tcfg.get("variable") is not None:
-        specs["time"] = {"variable": tcfg["variable"]}
-    values = {key: src.get(spec["variable"]) for key, spec in specs.items()}
+    # the variable and the samples side of each array read
+    specs = {"state": (state.variable, state.samples)}
+    if not derive:
+        specs["action"] = (options.action.variable, options.action.samples)
+    if options.time.variable is not None:
+        specs["time"] = (options.time.variable, None)
+    values = {key: src.get(name) for key, (name, _) in specs.items()}
     cells = {key: isinstance(v, list) for key, v in values.items()}
     chunks: list[tuple[str, dict[str, np.ndarray]]] = []
     if cells["state"]:
@@ -255,68 +237,124 @@ def read_mat(src: _V5 | _V73, path: Path, data_cfg: dict[str, Any]) -> tuple[Dem
         for key, v in values.items():
             if not isinstance(v, list) or len(v) != n_demo:
                 got = f"{len(v)} cells" if isinstance(v, list) else "a matrix"
-                raise InputError(f"{where}: {specs[key]['variable']} is {got} but "
-                                 f"{state['variable']} has {n_demo} cells; give each variable one "
+                raise InputError(f"{where}: {specs[key][0]} is {got} but "
+                                 f"{state.variable} has {n_demo} cells; give each variable one "
                                  "cell per demonstration")
-        if demos.get("variable") is not None:
-            raise InputError(f"{where}: demos.variable applies to matrices; {state['variable']} is a "
+        if demos.variable is not None:
+            raise InputError(f"{where}: demos.variable applies to matrices; {state.variable} is a "
                              "cell array (one demonstration per cell already)")
         for k in range(n_demo):
-            label = f"{state['variable']}{{{k + 1}}}"
-            arrays = {key: _variable(v[k], f"{where}: {specs[key]['variable']}{{{k + 1}}}",
-                                     specs[key].get("samples"), key == "time") for key, v in values.items()}
+            label = f"{state.variable}{{{k + 1}}}"
+            arrays = {key: _variable(v[k], f"{where}: {specs[key][0]}{{{k + 1}}}",
+                                     specs[key][1], key == "time") for key, v in values.items()}
             chunks.append((label, orient(arrays, None, f"{where}: {label}")))
     else:
         for key, v in values.items():
             if isinstance(v, list):
-                raise InputError(f"{where}: {specs[key]['variable']} is a cell array but "
-                                 f"{state['variable']} is a matrix")
-        arrays = {key: _variable(v, f"{where}: {specs[key]['variable']}", specs[key].get("samples"),
+                raise InputError(f"{where}: {specs[key][0]} is a cell array but "
+                                 f"{state.variable} is a matrix")
+        arrays = {key: _variable(v, f"{where}: {specs[key][0]}", specs[key][1],
                                  key == "time") for key, v in values.items()}
-        if demos.get("variable") is not None:
-            index = src.get(demos["variable"])
+        if demos.variable is not None:
+            index = src.get(demos.variable)
             if isinstance(index, list):
-                raise InputError(f"{where}: {demos['variable']} is a cell array; a demo index is a vector")
-            arrays["demo"] = _variable(index, f"{where}: {demos['variable']}", None)
+                raise InputError(f"{where}: {demos.variable} is a cell array; a demo index is a vector")
+            arrays["demo"] = _variable(index, f"{where}: {demos.variable}", None)
             if not (arrays["demo"].values.ndim == 1 or 1 in arrays["demo"].values.shape):
                 raise InputError(f"{arrays['demo'].where}: a demo index must be a vector, "
                                  f"got {'×'.join(map(str, arrays['demo'].values.shape))}")
             oriented = orient(arrays, None, where)
             index_col = oriented.pop("demo")[:, 0]
             chunks = [(f"demo {label.split()[-1]}", a)
-                      for label, a in split_by_index(oriented, index_col, f"{where}: {demos['variable']}")]
+                      for label, a in split_by_index(oriented, index_col, f"{where}: {demos.variable}")]
         else:
-            chunks = [(state["variable"], orient(arrays, None, where))]
+            chunks = [(state.variable, orient(arrays, None, where))]
     parts, state_names, action_names, origin, time_used = named_parts(
-        chunks, data_cfg, where, {k: s["variable"] for k, s in specs.items()}, {}, derive)
+        chunks, options, where, {k: name for k, (name, _) in specs.items()}, {}, derive)
+    time = options.time.variable
     meta = {"source": where, "format": "mat",
             "mat_version": "7.3" if isinstance(src, _V73) else "5",
-            "variables": {k: s["variable"] for k, s in specs.items()},
-            "time": f"{tcfg['variable']}: {time_used}" if tcfg.get("variable") else time_used}
-    return assemble(parts, data_cfg, where, state_names, action_names, meta), origin
+            "variables": {k: name for k, (name, _) in specs.items()},
+            "time": f"{time}: {time_used}" if time else time_used}
+    return Recording(assemble(parts, options, where, state_names, action_names, meta), origin)
 
 
-class MatFile:
-    """A MATLAB .mat recording read through the ``data`` config section."""
+class MatReader(ReaderBase):
+    """A MATLAB .mat recording (v7.3: the HDF5 file stays open between open and close)."""
 
-    def __init__(self, path: Path, data_cfg: dict[str, Any]) -> None:
-        self.path = Path(path)
-        self.data_cfg = data_cfg
+    format = "mat"
 
-    def load(self) -> tuple[Demonstrations, int]:
-        src = open_source(self.path)
-        try:
-            return read_mat(src, self.path, self.data_cfg)
-        finally:
-            if isinstance(src, _V73):
-                src.close()
+    def __init__(self, path: str | Path, options: DataOptions) -> None:
+        super().__init__(path, options)
+        self._source: _V5 | _V73 | None = None
+
+    def open(self) -> None:
+        if self._source is None:
+            self._source = open_source(self.path)
+
+    def close(self) -> None:
+        if isinstance(self._source, _V73):
+            self._source.close()
+        self._source = None
+
+    def read(self) -> Recording:
+        with self:
+            return read_mat(self._source, self.path, self.options)
 
     def inspect(self, gap: float | None = None) -> dict[str, Any]:
-        from ccl_cli.io.h5layout import summary
-        from ccl_cli.io.tree import describe_tree
-
-        out: dict[str, Any] = {"tree": describe_tree(self.path)}
-        if (self.data_cfg.get("state") or {}).get("variable") is not None:
-            data, _ = self.load()
-            out.update(summary(data))
+        """The variables (v7.3: the HDF5 tree in MATLAB's orientation) and, with a state
+        variable in the options, what would be read."""
+        head = read_head(self.path)
+        out: dict[str, Any] = {"tree": list_v5(self.path) if head.startswith(MAT5_MAGIC) else
+                               list_hdf5(self.path, matlab=head.startswith(MAT73_MAGIC))}
+        if self.options.state is not None and self.options.state.variable is not None:
+            out.update(summary(self.read().data))
         return out
+
+
+def list_v5(path: Path) -> list[dict[str, Any]]:
+    """Entries ``{path, kind, shape, class}`` of a v5 file: its variables, and the fields
+    and cells of its structs and cell arrays (first levels only)."""
+    src = _V5(path)
+    out: list[dict[str, Any]] = []
+    for name, shape, cls in src.variables():
+        out.append({"path": name, "kind": "variable", "shape": list(shape), "class": cls})
+        if cls in CONTAINERS:
+            out += _v5_children(src.load(name), name)
+    return truncate(out)
+
+
+def _v5_children(value: Any, at: str, depth: int = 0) -> list[dict[str, Any]]:
+    """Fields of structs and elements of cells (first levels only)."""
+    arr = np.asarray(value)
+    out: list[dict[str, Any]] = []
+    if depth > 3:
+        return out
+    if arr.dtype.names and arr.size == 1:
+        rec = arr.ravel()[0]
+        for field in arr.dtype.names:
+            child = np.asarray(rec[field])
+            out.append({"path": f"{at}.{field}", "kind": "field", "shape": list(child.shape),
+                        "class": _v5_class(child)})
+            out += _v5_children(child, f"{at}.{field}", depth + 1)
+    elif arr.dtype == object and not arr.dtype.names:
+        for k, cell in enumerate(arr.ravel(order="F")[:20]):
+            child = np.asarray(cell)
+            out.append({"path": f"{at}{{{k + 1}}}", "kind": "cell", "shape": list(child.shape),
+                        "class": _v5_class(child)})
+    return out
+
+
+def _v5_class(arr: np.ndarray) -> str:
+    from scipy.io.matlab import MatlabFunction, MatlabObject, MatlabOpaque
+
+    if isinstance(arr, MatlabObject | MatlabFunction | MatlabOpaque):
+        return "object"
+    if arr.dtype.names:
+        return "struct"
+    if arr.dtype == object:
+        return "cell"
+    if arr.dtype.kind in "SU":
+        return "char"
+    return {"f": "double" if arr.dtype.itemsize == 8 else "single", "b": "logical"}.get(
+        arr.dtype.kind, str(arr.dtype))

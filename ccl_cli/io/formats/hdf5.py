@@ -1,5 +1,5 @@
-"""HDF5 recordings: the canonical ``ccl-demonstrations`` layout, or any layout the config
-describes.
+"""HDF5 recordings: the canonical ``ccl-demonstrations`` layout (:mod:`ccl_cli.io.canonical`),
+or any layout the options describe.
 
 A foreign layout is read through dataset paths in the ``data`` section::
 
@@ -14,7 +14,7 @@ row unless ``samples: columns``; ``columns: [...]`` picks columns (by index, or 
 when the dataset carries a ``names``/``column_names``/``joint_names`` attribute, which
 also names the state and action dimensions).
 
-Files are opened through :func:`ccl_cli.io.h5safe.open_hdf5`: external links, external
+Files are opened through :func:`ccl_cli.io.h5.probe.open_hdf5`: external links, external
 storage and virtual datasets are refused before anything is read, and a file ccl did not
 write is parsed in a time-limited child process first.
 """
@@ -28,36 +28,23 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
-from ccl_cli.io import h5safe
-from ccl_cli.io.arrays import (
-    NAME_ATTRS,
-    Variable,
-    assemble,
-    named_parts,
-    numeric,
-    orient,
-    split_by_index,
-    wants_derived,
-)
-
-LAYOUT_KEYS = (("state", "dataset"), ("action", "dataset"), ("time", "dataset"), ("demos", "group"),
-               ("demos", "dataset"))
+from ccl_cli.io.arrays import NAME_ATTRS, Variable, as_numeric, assemble, named_parts, orient, split_by_index
+from ccl_cli.io.canonical import FORMAT, is_canonical, read_demonstrations
+from ccl_cli.io.h5.listing import list_hdf5
+from ccl_cli.io.h5.probe import open_hdf5
+from ccl_cli.io.options import DataOptions, StreamOptions
+from ccl_cli.io.reader import ReaderBase, Recording
+from ccl_cli.io.segment import resegment
+from ccl_cli.io.sniff import MAT73_MAGIC, read_head
+from ccl_cli.io.summary import summary
 
 
-def uses_layout(data_cfg: dict[str, Any]) -> bool:
-    """True when the config names datasets (a foreign layout)."""
-    return any(isinstance(data_cfg.get(s), dict) and data_cfg[s].get(k) is not None for s, k in LAYOUT_KEYS)
-
-
-def is_canonical_input(path: Path, data_cfg: dict[str, Any] | None) -> bool:
-    """True when ``path`` is read as a canonical file (HDF5, canonical, no layout keys)."""
-    from ccl_cli.io.hdf5 import is_canonical
-    from ccl_cli.io.registry import resolve_format
-
-    return resolve_format(Path(path), data_cfg) == "hdf5" and not uses_layout(data_cfg or {}) \
-        and is_canonical(Path(path))
+def uses_layout(options: DataOptions) -> bool:
+    """True when the options name datasets (a foreign layout)."""
+    demos = options.demos
+    named = [s.dataset for s in (options.state, options.action) if s is not None]
+    return any(v is not None for v in (*named, options.time.dataset, demos.group, demos.dataset))
 
 
 def natural_key(text: str) -> list[Any]:
@@ -96,10 +83,10 @@ def _contents(group, limit: int = 6) -> str:
     return (", ".join(found[:limit]) or "no datasets") + more
 
 
-def _dataset(group, rel: str, where: str, spec: dict[str, Any], keep_int: bool = False,
+def _dataset(group, rel: str, where: str, samples: str | None = None, keep_int: bool = False,
              names: bool = True) -> Variable:
     """One dataset under ``group`` as a checked :class:`Variable` (read through h5py's
-    low-level API: the high-level object layer costs more than the read for small datasets)."""
+    low-level API, see docs/readers.md), its names from a ``names``-like attribute."""
     import h5py
 
     rel = rel.strip("/")
@@ -126,88 +113,86 @@ def _dataset(group, rel: str, where: str, spec: dict[str, Any], keep_int: bool =
         if key in attrs:
             found = [v.decode() if isinstance(v, bytes) else str(v) for v in np.ravel(attrs[key])]
             break
-    return Variable(numeric(raw, here, keep_int), here, spec.get("samples"), found)
+    return Variable(as_numeric(raw, here, keep_int), here, samples, found)
 
 
-def _part(group, data_cfg: dict[str, Any], where: str, label: str, derive: bool, names: bool = True
+def _variable(group, selection: StreamOptions, where: str, names: bool) -> Variable:
+    return _dataset(group, selection.dataset, where, selection.samples, names=names)
+
+
+def _part(group, options: DataOptions, where: str, label: str, names: bool = True
           ) -> tuple[dict[str, np.ndarray], dict[str, Variable]]:
     """The oriented arrays of one group (names attributes read when ``names``)."""
-    vars_: dict[str, Variable] = {"state": _dataset(group, data_cfg["state"]["dataset"], where,
-                                                    data_cfg["state"], names=names)}
-    if not derive:
-        action = data_cfg["action"]
-        if action.get("dataset") is None:
+    vars_: dict[str, Variable] = {"state": _variable(group, options.state, where, names)}
+    if not options.derives_action:
+        if options.action.dataset is None:
             raise InputError(f"{where}: data.action needs dataset: PATH (or derive: state)")
-        vars_["action"] = _dataset(group, action["dataset"], where, action, names=names)
-    tcfg = data_cfg.get("time") or {}
-    if tcfg.get("dataset") is not None:
-        vars_["time"] = _dataset(group, tcfg["dataset"], where, {}, keep_int=True)
+        vars_["action"] = _variable(group, options.action, where, names)
+    if options.time.dataset is not None:
+        vars_["time"] = _dataset(group, options.time.dataset, where, keep_int=True)
     return orient(vars_, "rows", f"{where}: {label}"), vars_
 
 
-def read_layout(f, path: Path, data_cfg: dict[str, Any]) -> tuple[Demonstrations, int]:
-    """A foreign layout → (Demonstrations, time origin ns); see the module docstring for the keys."""
+def read_layout(f, path: Path, options: DataOptions) -> Recording:
+    """A foreign layout → its demonstrations; see the module docstring for the options."""
     where = str(path)
-    state = data_cfg.get("state") or {}
-    if state.get("dataset") is None:
+    state = options.state
+    if state is None or state.dataset is None:
         raise InputError(f"{where}: data.state.dataset is required to read this HDF5 layout "
                          f"(the file has: {_contents(f)})")
-    derive = wants_derived(data_cfg, where)
-    demos = data_cfg.get("demos") or {}
-    unknown = set(demos) - {"group", "dataset"}
+    derive = options.derives_action
+    demos = options.demos
+    unknown = demos.given() - {"group", "dataset"}
     if unknown:
         raise InputError(f"unknown demos option(s) for an HDF5 layout: {', '.join(sorted(unknown))} "
                          "(use group or dataset)")
-    if demos.get("group") is not None and demos.get("dataset") is not None:
+    if demos.group is not None and demos.dataset is not None:
         raise InputError("data.demos: give group (one demonstration per group) or dataset (a demo id "
                          "per sample), not both")
-    tcfg = data_cfg.get("time") or {}
     chunks: list[tuple[str, dict[str, np.ndarray]]] = []
     variables: dict[str, Variable] = {}
-    if demos.get("group") is not None:
-        groups = match_groups(f, demos["group"])
+    if demos.group is not None:
+        groups = match_groups(f, demos.group)
         if not groups:
-            raise InputError(f"{where}: no group matches demos.group {demos['group']!r} "
+            raise InputError(f"{where}: no group matches demos.group {demos.group!r} "
                              f"(the file has: {_contents(f)})")
         for k, name in enumerate(groups):
-            arrays, found = _part(f[name], data_cfg, where, name, derive, names=k == 0)
+            arrays, found = _part(f[name], options, where, name, names=k == 0)
             variables = variables or found  # names from the first group's attributes
             chunks.append((name, arrays))
     else:
-        arrays, variables = _part(f, data_cfg, where, "file", derive)
-        if demos.get("dataset") is not None:
-            index = _dataset(f, demos["dataset"], where, {})
+        arrays, variables = _part(f, options, where, "file")
+        if demos.dataset is not None:
+            index = _dataset(f, demos.dataset, where)
             n = arrays["state"].shape[0]
             if index.values.size != n:
                 raise InputError(f"{index.where}: {index.values.size} demo ids for {n} samples")
             chunks = split_by_index(arrays, index.values, index.where)
         else:
             chunks = [("file", arrays)]
-    keys = ("state",) if derive else ("state", "action")
+    selections = {"state": state} if derive else {"state": state, "action": options.action}
     parts, state_names, action_names, origin, time_used = named_parts(
-        chunks, data_cfg, where, {k: data_cfg[k]["dataset"].strip("/").split("/")[-1] for k in keys},
-        {k: variables[k].names for k in keys}, derive)
+        chunks, options, where, {k: s.dataset.strip("/").split("/")[-1] for k, s in selections.items()},
+        {k: variables[k].names for k in selections}, derive)
+    time = options.time.dataset
     meta = {"source": where, "format": "hdf5", "layout": {
-        "state": state["dataset"], "action": "derived" if derive else data_cfg["action"]["dataset"],
-        "time": f"{tcfg['dataset']}: {time_used}" if tcfg.get("dataset") else time_used,
-        "demos": demos.get("group") or demos.get("dataset") or "whole file"}}
-    return assemble(parts, data_cfg, where, state_names, action_names, meta), origin
+        "state": state.dataset, "action": "derived" if derive else options.action.dataset,
+        "time": f"{time}: {time_used}" if time else time_used,
+        "demos": demos.group or demos.dataset or "whole file"}}
+    return Recording(assemble(parts, options, where, state_names, action_names, meta), origin)
 
 
-class Hdf5File:
-    """An HDF5 recording read through the ``data`` config section."""
+class Hdf5Reader(ReaderBase):
+    """An HDF5 recording: a foreign layout when the options name datasets, else the
+    canonical ``ccl-demonstrations`` layout (with its train/test masks, re-cut by
+    ``demos`` options)."""
 
-    def __init__(self, path: Path, data_cfg: dict[str, Any]) -> None:
-        self.path = Path(path)
-        self.data_cfg = data_cfg
+    format = "hdf5"
 
-    def load(self) -> tuple[Demonstrations, int]:
-        from ccl_cli.io.assemble import resegment
-        from ccl_cli.io.hdf5 import FORMAT, read_demonstrations
-
-        with h5safe.open_hdf5(self.path, "HDF5 recording") as f:
-            if uses_layout(self.data_cfg):
-                return read_layout(f, self.path, self.data_cfg)
+    def read(self) -> Recording:
+        with open_hdf5(self.path, "HDF5 recording") as f:
+            if uses_layout(self.options):
+                return read_layout(f, self.path, self.options)
             found = f.attrs.get("format")
             found = found.decode() if isinstance(found, bytes) else found
             if found != FORMAT:
@@ -216,30 +201,25 @@ class Hdf5File:
                     "data.state.dataset (and action.dataset or action.derive, time.dataset or "
                     f"time.rate, demos.group or demos.dataset); the file has: {_contents(f)}")
         data, info = read_demonstrations(self.path)
-        data, _ = resegment(data, self.data_cfg.get("demos"), str(self.path))
-        return data, info["time_origin_ns"]
+        data.metadata["format"] = "hdf5"
+        data, masks = resegment(data, self.options.demos, str(self.path), info["masks"])
+        return Recording(data, info["time_origin_ns"], masks, info["provenance"])
 
     def inspect(self, gap: float | None = None) -> dict[str, Any]:
-        from ccl_cli.io.hdf5 import is_canonical, read_demonstrations
-        from ccl_cli.io.tree import describe_tree
-
+        """The tree of a foreign file; what the options read from it, or what a canonical
+        file holds (counts, names, ground truth, masks)."""
         out: dict[str, Any] = {}
-        if uses_layout(self.data_cfg) or not is_canonical(self.path):
-            out["tree"] = describe_tree(self.path)  # a canonical file is summarised, not listed
-        if uses_layout(self.data_cfg):
-            data, _ = self.load()
+        layout = uses_layout(self.options)
+        canonical = not layout and is_canonical(self.path)
+        if not canonical:
+            matlab = read_head(self.path).startswith(MAT73_MAGIC)  # format: hdf5 given for a v7.3 .mat
+            out["tree"] = list_hdf5(self.path, matlab)  # a canonical file is summarised, not listed
+        if layout:
+            data = self.read().data
             out.update(summary(data))
             out["time"] = data.metadata["layout"]["time"]
-        elif is_canonical(self.path):
+        elif canonical:
             data, info = read_demonstrations(self.path)
             out.update(summary(data))
             out.update({"truth": sorted(data.truth), "masks": {k: len(v) for k, v in info["masks"].items()}})
         return out
-
-
-def summary(data: Demonstrations) -> dict[str, Any]:
-    """Counts and names of what a reader produced (for ``ccl inspect``)."""
-    counts = np.bincount(np.unique(data.demo, return_inverse=True)[1])
-    return {"samples": data.n_samples, "demos": int(data.n_demos), "state_names": data.state_names,
-            "action_names": data.action_names, "samples_per_demo": counts.tolist(),
-            "duration_s": float(sum(np.ptp(data.t[data.demo == d]) for d in data.demo_ids))}

@@ -14,9 +14,10 @@
 
 Groups are ordered by their ``index`` attribute, never by name. Datasets of more than
 ``CHUNK_ROWS`` rows are chunked and gzip-compressed. Writing is atomic, and the file
-carries its content hash in the HDF5 user block (:mod:`ccl_cli.io.h5safe`). Reading goes
-through :func:`~ccl_cli.io.h5safe.open_hdf5` (no links or storage outside the file, no
-libhdf5 hang) and checks every attribute and dataset for type, shape and finiteness.
+carries its content hash in the HDF5 user block (:mod:`ccl_cli.io.h5.seal`). Reading goes
+through :func:`~ccl_cli.io.h5.probe.open_hdf5` (no links or storage outside the file, no
+libhdf5 hang) and checks every attribute and dataset for type, shape and finiteness
+(:mod:`ccl_cli.io.h5.access`).
 """
 
 from __future__ import annotations
@@ -29,7 +30,19 @@ import numpy as np
 
 from ccl_cli.dataset import TRUTH_KEYS, Demonstrations
 from ccl_cli.errors import InputError
-from ccl_cli.io import h5safe
+from ccl_cli.io.h5.access import (
+    attr_int,
+    attr_json,
+    attr_str,
+    attr_strings,
+    group_of,
+    has,
+    members,
+    numeric,
+    strings,
+)
+from ccl_cli.io.h5.probe import open_hdf5
+from ccl_cli.io.h5.seal import create_hdf5
 
 FORMAT = "ccl-demonstrations"
 FORMAT_VERSION = 1
@@ -59,7 +72,7 @@ def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns:
     import h5py
 
     path = Path(path)
-    with h5safe.create_hdf5(path, force=force) as f:
+    with create_hdf5(path, force=force) as f:
         f.attrs["format"] = FORMAT
         f.attrs["format_version"] = FORMAT_VERSION
         str_dt = h5py.string_dtype()
@@ -103,25 +116,25 @@ def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns:
 def check_header(attrs, where: str, fmt: str, version_key: str, version: int, what: str) -> None:
     """Refuse a file whose ``format`` attribute is not ``fmt`` or whose ``version_key``
     attribute is not the integer ``version`` (one message naming the file and what was found)."""
-    found = h5safe.attr_str(attrs, "format", where, None)
+    found = attr_str(attrs, "format", where, None)
     if found != fmt:
         raise InputError(f"{where}: not a {what} (format attribute {found!r})")
-    got = h5safe.attr_int(attrs, version_key, where)
+    got = attr_int(attrs, version_key, where)
     if got != version:
         raise InputError(f"{where}: {what} version {got} is not supported (this ccl reads version {version})")
 
 
 def is_canonical(path: Path) -> bool:
     """True for a ccl-demonstrations file (damaged or unsafe HDF5 raises InputError)."""
-    with h5safe.open_hdf5(path, "file") as f:
-        return h5safe.attr_str(f.attrs, "format", str(path), "") == FORMAT
+    with open_hdf5(path, "file") as f:
+        return attr_str(f.attrs, "format", str(path), "") == FORMAT
 
 
 def _demo_arrays(g, where: str, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     label = f"{where}: /demos/{name}"
-    t = h5safe.numeric(g, "t", where, ndim=(1,))
-    x = h5safe.numeric(g, "x", where, ndim=(1, 2), finite=False)
-    u = h5safe.numeric(g, "u", where, ndim=(1, 2), finite=False)
+    t = numeric(g, "t", where, ndim=(1,))
+    x = numeric(g, "x", where, ndim=(1, 2), finite=False)
+    u = numeric(g, "u", where, ndim=(1, 2), finite=False)
     x = x.reshape(-1, 1) if x.ndim == 1 else x
     u = u.reshape(-1, 1) if u.ndim == 1 else u
     n = t.shape[0]
@@ -135,14 +148,14 @@ def _demo_arrays(g, where: str, name: str) -> tuple[np.ndarray, np.ndarray, np.n
 
 
 def _truth(g, where: str, name: str, n: int, q: int) -> dict[str, np.ndarray]:
-    tg = h5safe.group_of(g, "truth", f"{where}: /demos/{name}", required=False)
+    tg = group_of(g, "truth", f"{where}: /demos/{name}", required=False)
     if tg is None:
         return {}
     out = {}
-    for key in h5safe.members(tg, where):
+    for key in members(tg, where):
         if key not in TRUTH_KEYS:
             continue
-        v = h5safe.numeric(tg, key, where, ndim=(1, 2, 3), finite=False)
+        v = numeric(tg, key, where, ndim=(1, 2, 3), finite=False)
         per_sample = v.ndim >= 1 and v.shape[0] == n
         ok = {"pi": v.shape == (n, q), "w": v.shape == (n, q), "v": v.shape == (n, q),
               "b": v.ndim == 2 and per_sample,
@@ -164,16 +177,16 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
     """
     path = Path(path)
     where = str(path)
-    with h5safe.open_hdf5(path, f"{FORMAT} file") as f:
+    with open_hdf5(path, f"{FORMAT} file") as f:
         check_header(f.attrs, where, FORMAT, "format_version", FORMAT_VERSION, f"{FORMAT} file")
-        demos = h5safe.group_of(f, "demos", where, required=False)
-        names = h5safe.members(demos, where) if demos is not None else []
+        demos = group_of(f, "demos", where, required=False)
+        names = members(demos, where) if demos is not None else []
         if not names:
             raise InputError(f"{where}: no demonstrations under /demos")
         groups = []
         for name in names:
-            g = h5safe.group_of(demos, name, f"{where}: /demos")
-            groups.append((h5safe.attr_int(g.attrs, "index", f"{where}: /demos/{name}"), name, g))
+            g = group_of(demos, name, f"{where}: /demos")
+            groups.append((attr_int(g.attrs, "index", f"{where}: /demos/{name}"), name, g))
         groups.sort(key=lambda item: item[0])
         X, U, T, demo, truth_parts = [], [], [], [], {}
         p = q = None
@@ -210,11 +223,11 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
                                              for n, v in parts])
         names = [name for _, name, _ in groups]
         masks = {}
-        mask = h5safe.group_of(f, "mask", where, required=False)
+        mask = group_of(f, "mask", where, required=False)
         if mask is not None:
             for key in ("train", "test"):
-                if h5safe.has(mask, key, where):
-                    wanted = h5safe.strings(mask, key, where)
+                if has(mask, key, where):
+                    wanted = strings(mask, key, where)
                     unknown = [w for w in wanted if w not in names]
                     if unknown:
                         raise InputError(f"{where}: /mask/{key} names unknown groups {unknown[:3]}")
@@ -222,16 +235,16 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
         data = Demonstrations(
             X=np.concatenate(X), U=np.concatenate(U), demo=np.concatenate(demo), t=np.concatenate(T),
             truth=truth,
-            state_names=h5safe.attr_strings(f.attrs, "state_names", where, p),
-            action_names=h5safe.attr_strings(f.attrs, "action_names", where, q),
-            state_units=h5safe.attr_strings(f.attrs, "state_units", where, p),
-            action_units=h5safe.attr_strings(f.attrs, "action_units", where, q),
+            state_names=attr_strings(f.attrs, "state_names", where, p),
+            action_names=attr_strings(f.attrs, "action_names", where, q),
+            state_units=attr_strings(f.attrs, "state_units", where, p),
+            action_units=attr_strings(f.attrs, "action_units", where, q),
             metadata={"source": where},
         )
         try:  # provenance is informative only: a damaged one is dropped, not fatal
-            provenance = h5safe.attr_json(f.attrs, "provenance", where, {}, dict)
+            provenance = attr_json(f.attrs, "provenance", where, {}, dict)
         except InputError:
             provenance = {}
-        info = {"time_origin_ns": h5safe.attr_int(f.attrs, "time_origin_ns", where, 0), "masks": masks,
+        info = {"time_origin_ns": attr_int(f.attrs, "time_origin_ns", where, 0), "masks": masks,
                 "provenance": provenance, "groups": names}
         return data, info
