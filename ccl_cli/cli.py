@@ -14,14 +14,16 @@ import sys
 import time
 from enum import Enum
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, get_args
 
 import typer
 from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer vendors its click
 from typer.core import TyperCommand, TyperGroup
 
-from ccl_cli.config import CHOICES, DEFAULTS
+from ccl_cli import spec as S
 from ccl_cli.errors import CCLError, ConfigError, InputError
+from ccl_cli.learn import defaults as D
+from ccl_cli.learn import params as P
 
 log = logging.getLogger("ccl")
 
@@ -79,41 +81,38 @@ ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite existing outp
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="Only warnings and errors on stderr.")]
 SeedOpt = Annotated[int | None, typer.Option("--seed", help="Seed of every random choice.",
-                                             show_default=f"config, else {DEFAULTS['seed']}")]
+                                             show_default="config, else 0")]
 TestOpt = Annotated[float | None, typer.Option(
     "--test-fraction", help="Fraction of demonstrations held out (0: none).",
-    show_default=f"config, else {DEFAULTS['data']['test']['fraction']}")]
+    show_default=f"config, else {S.TestSplit().fraction}")]
 
 
-def _choices(name: str, section: str, key: str) -> type[Enum]:
-    """An Enum of the config's allowed values of ``section.key`` (shown as choices in --help)."""
-    return Enum(name, [(v.replace("-", "_"), v) for v in CHOICES[(section, key)]], type=str)
+def _choices(name: str, literal: Any) -> type[Enum]:
+    """An Enum of the values of a ``Literal`` (shown as choices in --help)."""
+    return Enum(name, [(v.replace("-", "_"), v) for v in get_args(literal)], type=str)
 
 
-def _default(section: str, key: str, otherwise: str = "the method's default") -> str:
-    """The config default of ``section.key`` as --help shows it (flags only override the config)."""
-    value = (DEFAULTS.get(section) or {}).get(key)
-    return "config, else the method's default" if value is None and otherwise is None else \
-        f"config, else {value if value is not None else otherwise}"
+def _default(value: Any) -> str:
+    """A default as --help shows it (flags only override the config)."""
+    return f"config, else {value}"
 
 
 def _value(v: Any) -> Any:
     return v.value if isinstance(v, Enum) else v
 
 
-Convention = _choices("Convention", "metrics", "convention")
-LearnAMethod = _choices("LearnAMethod", "learn-a", "method")
-Selection = _choices("Selection", "learn-a", "selection")
-PiMethod = _choices("PiMethod", "learn-pi", "method")
-Projections = _choices("Projections", "learn-pi", "projections")
-BasisKind = Enum("BasisKind", [("rbf", "rbf"), ("linear", "linear")], type=str)
-Features = Enum("Features", [("arm2", "arm2"), ("arm7", "arm7")], type=str)
-Regressors = Enum("Regressors", [("identity", "identity"), ("rbf", "rbf"), ("polynomial", "polynomial")],
-                  type=str)
+Convention = _choices("Convention", S.Convention)
+LearnAMethod = _choices("LearnAMethod", S.ConstraintMethod)
+Selection = _choices("Selection", P.SelectionRule)
+PiMethod = _choices("PiMethod", P.PolicyMethod)
+Projections = _choices("Projections", S.Projections)
+BasisKind = _choices("BasisKind", P.BasisKind)
+Features = _choices("Features", P.ArmName)
+Regressors = _choices("Regressors", P.Regressors)
 
 ConvOpt = Annotated[Convention | None, typer.Option("--convention",
                                                     help="Metric normalisers (docs/metrics.md).",
-                                                    show_default=_default("metrics", "convention"))]
+                                                    show_default=_default(S.Metrics().convention))]
 CentresOpt = Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres (also sets "
                                                 "basis.n_centres of a basis mapping; no basis search).",
                                                 show_default="config, else the stage's default")]
@@ -154,7 +153,7 @@ def _common(seed, test_fraction, convention) -> dict[str, Any]:
 def _config(path: Path | None, overrides: dict[str, Any]):
     from ccl_cli import config as C
 
-    return C.merge(C.load(path), overrides)
+    return C.load(path, overrides)
 
 
 def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
@@ -177,15 +176,14 @@ def _wrote(command: str, out: Path, data, as_json: bool) -> None:
         typer.echo(f"wrote {out}: {data.n_samples} samples in {data.n_demos} demonstrations", err=True)
 
 
-def _learn(command: str, stages: list[tuple[str, dict]] | None, cfg, files, out: Path | None,
+def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
            force: bool, as_json: bool, quiet: bool) -> None:
     from ccl_cli.app.run import default_outdir, execute
-    from ccl_cli.config import stage_list
     from ccl_cli.render.outputs import check_output, write_run
 
     outdir = out or default_outdir(command, cfg)
     check_output(outdir, force)  # before any work: a folder ccl did not write is never replaced
-    stages = stages if stages is not None else stage_list(cfg)
+    stages = cfg.stages() if stages is None else [(name, cfg.spec.section(name)) for name in stages]
     bar = _bar("stages", len(stages), quiet)
     try:
         result = execute(command, cfg, files, stages, progress=bar.advance if bar else None)
@@ -229,9 +227,9 @@ def learn_a(
     data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None,
     method: Annotated[LearnAMethod | None, typer.Option(
         help="nhat (constant A, closed form), alpha (state-dependent), lambda (known Φ), linear "
-             "(closed form, docs/methods.md).", show_default=_default("learn-a", "method"))] = None,
+             "(closed form, docs/methods.md).", show_default=_default(S.DEFAULT_CONSTRAINT_METHOD))] = None,
     selection: Annotated[Selection | None, typer.Option(
-        help="How the number of constraints s is chosen.", show_default=_default("learn-a", "selection"))]
+        help="How the number of constraints s is chosen.", show_default=_default(D.DEFAULT_RULE))]
     = None,
     n_constraints: Annotated[int | None, typer.Option(help="Fix the number of constraints s.",
                                                       show_default="chosen by --selection")] = None,
@@ -255,7 +253,7 @@ def learn_a(
         "features": _value(features), "regressors": _value(regressors), "degree": degree,
         "per_demo": per_demo, "n_centres": n_centres, "basis": _value(basis)}}
     cfg = _config(config, over)
-    _learn("learn-a", [("learn-a", {})], cfg, data, out, force, json_out, quiet)
+    _learn("learn-a", ["learn-a"], cfg, data, out, force, json_out, quiet)
 
 
 @app.command("learn-v")
@@ -269,17 +267,17 @@ def learn_v(
     _logging(quiet)
     cfg = _config(config, _common(seed, test_fraction, convention) | {
         "learn-v": {"n_centres": n_centres, "basis": _value(basis)}})
-    _learn("learn-v", [("learn-v", {})], cfg, data, out, force, json_out, quiet)
+    _learn("learn-v", ["learn-v"], cfg, data, out, force, json_out, quiet)
 
 
 @app.command("learn-pi")
 def learn_pi(
     data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None,
     method: Annotated[PiMethod | None, typer.Option(help="Policy learner (docs/methods.md).",
-                                                    show_default=_default("learn-pi", "method"))] = None,
+                                                    show_default=_default(D.POLICY_METHOD))] = None,
     projections: Annotated[Projections | None, typer.Option(
         help="pi-coupled: projections from the ground truth (true) or a learn-a stage (learnt).",
-        show_default=_default("learn-pi", "projections"))] = None,
+        show_default=_default("auto"))] = None,
     n_centres: CentresOpt = None, basis: BasisOpt = None,
     seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
@@ -289,7 +287,7 @@ def learn_pi(
     cfg = _config(config, _common(seed, test_fraction, convention) | {
         "learn-pi": {"method": _value(method), "projections": _value(projections), "n_centres": n_centres,
                      "basis": _value(basis)}})
-    _learn("learn-pi", [("learn-pi", {})], cfg, data, out, force, json_out, quiet)
+    _learn("learn-pi", ["learn-pi"], cfg, data, out, force, json_out, quiet)
 
 
 @app.command("run")
@@ -323,7 +321,7 @@ def evaluate(
     if out is not None:
         check_output(out, force)
     dataset, _ = read_data(cfg, data)
-    summary = evaluate_saved(model, dataset, cfg["metrics"]["convention"])
+    summary = evaluate_saved(model, dataset, cfg.spec.metrics.convention)
     if out is not None:
         write_evaluation(summary, out, force)
     summary = {k: v for k, v in summary.items() if k not in ("entry", "inputs", "samples", "demos")}
@@ -434,7 +432,7 @@ def inspect_cmd(
 
     _logging(quiet)
     cfg = _config(config, {})
-    info = inspect_recording(data, cfg.get("data"), gap)
+    info = inspect_recording(data, cfg.spec.data, gap)
     if json_out:
         _emit(info, True)
         return
@@ -459,7 +457,7 @@ def convert(
     dataset, _ = read_data(cfg, data)
     write_demonstrations(out, dataset, time_origin_ns=int(dataset.metadata.get("time_origin_ns", 0)),
                          provenance={"converted_from": dataset.metadata.get("files"),
-                                     "data_config": cfg.get("data")}, force=force)
+                                     "data_config": cfg.raw.get("data")}, force=force)
     _wrote("convert", out, dataset, json_out)
 
 
@@ -488,7 +486,6 @@ def batch(
     if scheduler is None:
         start_workers(workers, (write_run.__module__,))  # the workers' imports overlap the planning
     jobs, manifest_out = plan(manifest, files, str(config) if config else None)
-    _check_plan(jobs)
     outdir = out or manifest_out or Path("runs") / "batch"
     from ccl_cli.render.figures import preload_in_background
 
@@ -510,20 +507,6 @@ def batch(
         for f in summary["failures"]:
             typer.echo(f"  failed {f['job']}: {f['error']}", err=True)
     return 1 if summary["failed"] else 0
-
-
-def _check_plan(jobs) -> None:
-    """Every job of a batch can run: its config names stages (raises ConfigError, exit 2,
-    before any job starts)."""
-    from ccl_cli.config import Config, stage_list
-
-    for job in jobs:
-        cfg = Config(job.config)
-        cfg.source, cfg.lines = job.config_path or "the batch config", {}
-        try:
-            stage_list(cfg)
-        except ConfigError as exc:
-            raise ConfigError(f"job {job.job_id} ({job.files[0]}): {exc.message}") from None
 
 
 for _info in app.registered_commands:  # every command: one-line usage errors

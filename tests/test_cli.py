@@ -326,19 +326,22 @@ def test_version_and_help_show_defaults_and_choices(capsys):
 
     code, out, _ = run_main(capsys, "--version")
     assert code == 0 and out.strip() == f"ccl {__version__}"
-    from ccl_cli.config import CHOICES, DEFAULTS
+    from typing import get_args
+
+    from ccl_cli.learn.constraint import StateIndependentConstraint
+    from ccl_cli.learn.params import SelectionRule
 
     proc = ccl("learn-a", "--help")
     text = " ".join(proc.stdout.split())
-    rules = CHOICES[("learn-a", "selection")]
-    assert "<nhat|alpha|lambda|linear>" in text and f"<{'|'.join(rules)}>" in text
-    assert f"[default: (config, else {DEFAULTS['learn-a']['selection']})]" in text
+    assert "<nhat|alpha|lambda|linear>" in text and f"<{'|'.join(get_args(SelectionRule))}>" in text
+    assert f"[default: (config, else {StateIndependentConstraint().selection})]" in text
     assert "<ccl|original>" in text
     assert "[default: (config, else pi)]" in " ".join(ccl("learn-pi", "--help").stdout.split())
 
 
 def test_flag_overrides_a_basis_mapping_at_any_depth(capsys, tmp_path):
     from ccl_cli import config as C
+    from ccl_cli.learn.nullspace import NullSpaceComponent
     from ccl_cli.models import load_model
 
     cfg_path = tmp_path / "v.yaml"
@@ -349,10 +352,14 @@ def test_flag_overrides_a_basis_mapping_at_any_depth(capsys, tmp_path):
     assert code == 0, err
     assert load_model(tmp_path / "o" / "model.h5")[0].basis_.centres_.shape == (25, 2)
     # over a stages item's own options too, and --basis keeps the mapping's other keys
-    cfg = C.merge(C.load(cfg_path), {"learn-v": {"n_centres": 25, "basis": "rbf"}})
-    opts = C.stage_options(cfg, "learn-v", {"basis": {"kind": "rbf", "n_centres": 9, "centres": "grid"}})
-    assert opts["basis"] == {"kind": "rbf", "n_centres": 25, "centres": "grid"} and opts["n_centres"] == 25
-    assert opts["tune"] is False  # the basis given on the command line is used, not searched over
+    staged = tmp_path / "s.yaml"
+    staged.write_text(cfg_path.read_text() + "stages:\n  - learn-v: {basis: {kind: rbf, n_centres: 9, "
+                      "centres: grid}}\n")
+    [(_, opts)] = C.load(staged, {"learn-v": {"n_centres": 25, "basis": "rbf"}}).stages()
+    params = opts.estimator_params(NullSpaceComponent)
+    assert params["basis"] == {"kind": "rbf", "n_centres": 25, "centres": "grid"}
+    assert params["n_centres"] == 25
+    assert params["tune"] is False  # the basis given on the command line is used, not searched over
 
 
 def test_flag_errors_are_one_line_and_name_the_flag(capsys, tmp_path):
@@ -368,7 +375,7 @@ def test_flag_errors_are_one_line_and_name_the_flag(capsys, tmp_path):
         assert "Usage:" not in err and "Value error" not in err
 
     with pytest.raises(ConfigError) as info:
-        C.merge(C.load(CONFIGS / "arm7.yaml"), {"learn-a": {"selection": "often"}})
+        C.load(CONFIGS / "arm7.yaml", {"learn-a": {"selection": "often"}})
     assert info.value.message.startswith("--selection: learn-a.selection must be one of")
     assert "<flags>" not in info.value.message and "\n" not in info.value.message
 

@@ -301,12 +301,14 @@ def test_hostile_yaml_configs(capsys, tmp_path, case):
 
 
 @pytest.mark.parametrize("text,match", [
-    ("learn-a: {n_centres: 0}", "learn-a.n_centres must be between 1 and 100000, got 0"),
-    ("learn-pi: {basis: {kind: rbf, n_centres: -3}}", "n_centres must be between 1"),
-    ("data: {action: {derive: state, order: 0}}", "data.action.order must be between 1 and 20"),
-    ("seed: -1", "seed must be between 0"),
-    ("learn-a: {tol: .nan}", "must be a finite number"),
-    ("stages: [{learn-v: {max_iter: 0}}]", "max_iter must be between 1"),
+    ("learn-a: {method: alpha, n_centres: 0}",
+     "learn-a.n_centres must be an integer between 1 and 100000, got 0"),
+    ("learn-pi: {basis: {kind: rbf, n_centres: -3}}",
+     "learn-pi.basis.n_centres must be an integer between 1"),
+    ("data: {action: {derive: state, order: 0}}", "data.action.order must be an integer between 1 and 20"),
+    ("seed: -1", "seed must be an integer between 0"),
+    ("learn-a: {tol: .nan}", "learn-a.tol must be a finite number"),
+    ("stages: [{learn-v: {max_iter: 0}}]", "learn-v.max_iter must be an integer between 1"),
 ])
 def test_config_numbers_in_range(capsys, tmp_path, text, match):
     path = tmp_path / "c.yaml"
@@ -369,7 +371,7 @@ def test_reader_boundaries(capsys, tmp_path, csv_rec, case, match):
 
         with pytest.raises(h5safe.InputError, match=match):
             local_polynomial_derivative(np.arange(5.0), np.ones((5, 1)), np.zeros(5, int), 3, 0)
-        match = "order must be between 1 and 20"
+        match = "order must be an integer between 1 and 20"
     code, _, err = run_main(capsys, "convert", csv_rec, "-c", tmp_path / "c.yaml", "-o", tmp_path / "o.h5")
     assert code == 2 and match in one_line_error(err)
     assert not (tmp_path / "o.h5").exists()

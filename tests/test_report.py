@@ -14,6 +14,7 @@ import yaml
 
 from ccl_cli.app.stages import split_data
 from ccl_cli.cli import main
+from ccl_cli.config import from_mapping
 from ccl_cli.io import read_demonstrations
 from ccl_cli.models import load_model
 from ccl_cli.render.report import STOPS
@@ -45,7 +46,7 @@ def run(tmp_path, name, cfg: dict) -> tuple[dict, Path]:
 
 def parts(sample: str, cfg: dict):
     data, info = read_demonstrations(SAMPLES / sample)
-    split = split_data(data, cfg, info["masks"])
+    split = split_data(data, from_mapping(cfg).spec, info["masks"])
     return {"train": split.train, "test": split.test}
 
 

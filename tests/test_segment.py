@@ -10,7 +10,7 @@ import pytest
 from ccl_cli import simulate as sim
 from ccl_cli.app.run import read_data
 from ccl_cli.cli import main
-from ccl_cli.config import Config
+from ccl_cli.config import from_mapping
 from ccl_cli.errors import InputError
 from ccl_cli.io import load_demonstrations, write_demonstrations
 from ccl_cli.io.derivative import local_polynomial_derivative
@@ -81,7 +81,7 @@ def test_hdf5_recordings_are_cut_too_and_masks_follow_their_recording(tmp_path):
     data = load_demonstrations({"files": [str(path)], "demos": {"window": 5.0}})
     assert data.n_demos == 12 and data.n_samples == rec.n_samples
     np.testing.assert_array_equal(data.truth_per_sample("A"), rec.truth_per_sample("A"))
-    cfg = Config({"data": {"files": [str(path)], "demos": {"window": 5.0}}})
+    cfg = from_mapping({"data": {"files": [str(path)], "demos": {"window": 5.0}}})
     cut, masks = read_data(cfg, None)
     assert cut.n_demos == 12
     assert masks == {"train": [0, 1, 2, 3, 8, 9, 10, 11], "test": [4, 5, 6, 7]}
@@ -145,6 +145,6 @@ def test_default_derivative_window_spans_the_same_time_at_any_rate(tmp_path, rat
         err_fixed = np.sqrt(np.mean((fixed.U - true_u) ** 2))
         assert err_default < err_fixed / 5
     from ccl_cli.app.stages import guard_gap
-    assert guard_gap(Config({"data": cfg}), data) == max(window, 10)
+    assert guard_gap(from_mapping({"data": cfg}).spec, data) == max(window, 10)
     from ccl_cli.app.provenance import derived_actions  # the report.md / run.json line
     assert f"window {window} samples: default: ±0.08 s at the median rate" in derived_actions(data.metadata)

@@ -105,7 +105,10 @@ def test_default_rule_is_one_for_library_and_cli():
     from ccl_cli import config as C
     from ccl_cli.learn.constraint import LinearConstraint, StateDependentConstraint
 
-    assert C.DEFAULTS["learn-a"]["selection"] == rank.DEFAULT_RULE
+    for method in ("nhat", "alpha", "lambda", "linear"):  # the config leaves it to the estimator
+        options = C.from_mapping({"learn-a": {"method": method}}).spec.section("learn-a")
+        assert options.selection is None
+        assert "selection" not in options.estimator_params(StateDependentConstraint)
     for cls in (StateIndependentConstraint, StateDependentConstraint, KnownFeatureConstraint,
                 LinearConstraint):
         assert cls().selection == rank.DEFAULT_RULE

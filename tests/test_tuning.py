@@ -28,15 +28,16 @@ def tutorial_data(policy, seed):
 
 def defaults_only(path, method):
     path.write_text(f"data: {{files: [data.h5]}}\nlearn-pi: {{method: {method}}}\n")
-    return C.merge(C.load(path), {})
+    return C.load(path)
 
 
 @pytest.mark.parametrize("policy,method", [("attractor", "pi"), ("limit_cycle", "pi-weighted"),
                                            ("limit_cycle", "lwpi")])
 def test_defaults_match_the_hand_tuned_tutorial(tmp_path, policy, method):
     cfg = defaults_only(tmp_path / "c.yaml", method)
-    assert cfg["learn-pi"]["tune"] is True  # tuning is the CLI default ...
-    assert PolicyLearner().tune is True  # ... and the library's
+    options = cfg.spec.section("learn-pi")  # the CLI leaves tune to the estimator, whose default ...
+    assert options.tune is None and "tune" not in options.estimator_params(PolicyLearner)
+    assert PolicyLearner().tune is True  # ... is to tune
     tuned, hand = [], []
     for seed in range(3):
         train, test = tutorial_data(policy, seed).split(0.5, seed)
@@ -55,7 +56,7 @@ def test_the_pipeline_tunes_with_defaults_only(tmp_path):
     data = tutorial_data("limit_cycle", 0)
     train, test = data.split(0.5, 0)
     masks = {"train": list(train.demo_ids), "test": list(test.demo_ids)}
-    result = Pipeline(cfg, data, masks).run([("learn-pi", {})])[0]
+    result = Pipeline(cfg.spec, data, masks).run(cfg.stages(["learn-pi"]))[0]
     assert result.info["tuning"]["chosen"] == result.model.tuning_["chosen"]
     hand = PolicyLearner(method="pi", basis=TUTORIAL, tune=False).fit(train.X, train.U)
     assert result.metrics["test"]["NUPE"]["value"] <= nupe(test.truth["pi"], hand.predict(test.X)).value

@@ -66,13 +66,13 @@ class JobResult:
 
 # -- planning ------------------------------------------------------------------------------
 def _resolve_config(path: str | None, overrides: list[dict], base: Path) -> C.Config:
+    """The config file of a rule (relative to the manifest) with the overrides merged in,
+    validated (errors name the file and line of a key of the file)."""
     cfg = C.load(base / path if path and not Path(path).is_absolute() else path)
-    merged = dict(cfg)
+    merged = cfg.raw
     for over in overrides:
         merged = C.deep_merge(merged, over or {})
-    out = C.Config(merged)
-    out.source, out.lines, out.base = cfg.source, cfg.lines, cfg.base
-    return C.merge(out, {})
+    return C.from_mapping(merged, source=cfg.source, base=cfg.base, lines=cfg.lines)
 
 
 def job_key(files: list[str], cfg: dict[str, Any]) -> str:
@@ -100,11 +100,11 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
     Returns (jobs, the manifest's ``out`` if it names one). Manifest or config problems
     raise :class:`ConfigError` (exit 2) before anything runs.
     """
-    from ccl_cli.io import expand_files
+    from ccl_cli.io import expand_files, read_yaml
 
     if manifest is not None:
         mpath = Path(manifest)
-        spec, _ = C.read_yaml(mpath, "manifest")
+        spec, _ = read_yaml(mpath, "manifest")
         spec = {} if spec is None else spec
         if not isinstance(spec, dict) or not isinstance(spec.get("jobs"), list):
             raise ConfigError(f"{mpath}: a manifest needs a jobs: list of rules")
@@ -144,7 +144,11 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
                 cfg = _resolve_config(rule.get("config"), [rule.get("overrides") or {}, *extra], base)
             except CCLError as exc:
                 raise ConfigError(f"{where}jobs[{i}]: {exc.message}") from None
-            job = Job(_job_id(group), group, str(rule.get("config")), dict(cfg))
+            try:
+                cfg.stages()
+            except ConfigError as exc:
+                raise ConfigError(f"{where}jobs[{i}] ({group[0]}): {exc.message}") from None
+            job = Job(_job_id(group), group, str(rule.get("config")), cfg.raw)
             if job.job_id in seen:
                 raise ConfigError(f"{group[0]} is matched by more than one rule")
             seen.add(job.job_id)
@@ -200,8 +204,7 @@ def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
                     return JobResult(job.job_id, job.files, "skipped", 0.0, stages=summarise(stages))
             except (json.JSONDecodeError, OSError):
                 pass
-        cfg = C.Config(job.config)
-        cfg.source, cfg.lines, cfg.base = job.config_path or "<batch>", {}, None
+        cfg = C.from_mapping(job.config, source=job.config_path or "<batch>")
         from ccl_cli.app.run import execute
 
         summary = write(execute("run", cfg, job.files), outdir, force=True, plot_workers=1,

@@ -66,7 +66,7 @@ def run_record(command: str, cfg: Any, data: Demonstrations, pipeline: Any, blas
     """run.json: command, argv, config, inputs' sha256, versions, timings, data, validation,
     warnings and the BLAS threads used."""
     return {
-        "command": command, "argv": sys.argv, "config": dict(cfg), "config_source": cfg.source,
+        "command": command, "argv": sys.argv, "config": cfg.raw, "config_source": cfg.source,
         "inputs": input_hashes(data), "versions": versions(), "timings": timings,
         "data": data_summary(pipeline), "validation": pipeline.split_info, "warnings": pipeline.warnings,
         "blas": {"threads": blas_threads, "rule": f"1 below {blas.SMALL_SAMPLES} samples, else the "
@@ -76,4 +76,4 @@ def run_record(command: str, cfg: Any, data: Demonstrations, pipeline: Any, blas
 
 def training_record(stage: str, cfg: Any, data: Demonstrations) -> dict[str, Any]:
     """What a saved model records of its training: stage, config, input hashes, versions."""
-    return {"stage": stage, "config": dict(cfg), "inputs": input_hashes(data), "versions": versions()}
+    return {"stage": stage, "config": cfg.raw, "inputs": input_hashes(data), "versions": versions()}

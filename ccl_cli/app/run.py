@@ -16,16 +16,17 @@ from typing import Any
 
 from ccl_cli.app import provenance
 from ccl_cli.app.views import View
-from ccl_cli.config import Config, stage_list
+from ccl_cli.config import Config
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.learn import blas
 
 
 def read_data(cfg: Config, files: list[Path] | list[str] | None):
-    """The dataset and its train/test masks (canonical HDF5 may carry them)."""
+    """The dataset and its train/test masks (canonical HDF5 may carry them): ``files``, else
+    the config's ``data.files`` (relative to the config's folder)."""
     from ccl_cli.io import read_dataset
 
-    return read_dataset(cfg.get("data"), files, cfg.base)
+    return read_dataset(cfg.spec.data, files, cfg.base)
 
 
 @dataclass
@@ -48,10 +49,11 @@ class RunResult:
         return self.pipeline.results
 
 
-def execute(command: str, cfg: Config, files, stages: list[tuple[str, dict]] | None = None,
+def execute(command: str, cfg: Config, files, stages: list[tuple[str, Any]] | None = None,
             progress: Callable[[], None] | None = None, views: bool | None = None) -> RunResult:
-    """Read the data, run the stages (each calls ``progress`` when done) and collect the
-    results; with ``views`` (default: the config's ``output.plots``) also the figures' data."""
+    """Read the data, run the ``stages`` ((name, options) pairs; default: the config's
+    ``stages``; each calls ``progress`` when done) and collect the results; with ``views``
+    (default: the config's ``output.plots``) also the figures' data."""
     from ccl_cli.app.stages import Pipeline
 
     t0 = time.perf_counter()
@@ -61,11 +63,10 @@ def execute(command: str, cfg: Config, files, stages: list[tuple[str, dict]] | N
     # small problems run single-threaded BLAS (ccl_cli.learn.blas: threads cost more than they
     # give there, and stall on shared cores); the choice goes into run.json
     with blas.threads(blas.stage_threads(data.n_samples)) as blas_threads:
-        stages = stages if stages is not None else stage_list(cfg)
-        pipeline = Pipeline(cfg, data, masks)
+        stages = stages if stages is not None else cfg.stages()
+        pipeline = Pipeline(cfg.spec, data, masks)
         pipeline.run(stages, progress=progress)
-        shown = pipeline.views() if (views if views is not None else
-                                     (cfg.get("output") or {}).get("plots", True)) else []
+        shown = pipeline.views() if (views if views is not None else cfg.spec.output.plots) else []
     metrics = stage_metrics(pipeline.results)
     seconds = time.perf_counter() - t0
     summary = {"status": "ok", "command": command, "seconds": seconds, "validation": pipeline.split_info,

@@ -18,19 +18,13 @@ import numpy as np
 from ccl_cli import diagnostics
 from ccl_cli.app import evaluate as E
 from ccl_cli.app.views import View, describe_constraint, stage_views
-from ccl_cli.config import Config, stage_options
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn import model_selection as S
-from ccl_cli.learn.constraint import (
-    KnownFeatureConstraint,
-    LinearConstraint,
-    PerDemonstration,
-    StateDependentConstraint,
-    StateIndependentConstraint,
-)
+from ccl_cli.learn.constraint import PerDemonstration
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
+from ccl_cli.spec import constraint_class
 
 log = logging.getLogger("ccl")
 
@@ -59,92 +53,72 @@ class Split:
     info: dict[str, Any] = field(default_factory=dict)
 
 
-def guard_gap(cfg: Config, data: Demonstrations | None = None) -> int:
+def guard_gap(spec: Any, data: Demonstrations | None = None) -> int:
     """Samples dropped at each train/test boundary of a time-block split: ``data.test.gap``,
     else the derivative window the reader used for derived actions (configured, or chosen
-    from the rate and recorded in the data's metadata), else :data:`selection.DEFAULT_GAP`."""
-    data_cfg = cfg.get("data") or {}
-    tcfg = data_cfg.get("test") or {}
-    if tcfg.get("gap") is not None:
-        return int(tcfg["gap"])
-    action = data_cfg.get("action") or {}
+    from the rate and recorded in the data's metadata), else :data:`model_selection.DEFAULT_GAP`."""
+    if spec.data.test.gap is not None:
+        return int(spec.data.test.gap)
     if data is not None:
         from ccl_cli.diagnostics import derivation
 
         derived, window, _ = derivation(data)
         if derived:
             return max(window, S.DEFAULT_GAP)
-    if action.get("derive") and action.get("window"):
-        return max(int(action["window"]), 1)
+    action = spec.data.action
+    if action is not None and action.derive and action.window:
+        return max(int(action.window), 1)
     return S.DEFAULT_GAP
 
 
-def split_data(data: Demonstrations, cfg: Config, masks: dict[str, list[int]] | None = None) -> Split:
+def split_data(data: Demonstrations, spec: Any, masks: dict[str, list[int]] | None = None) -> Split:
     """The reported train/test split, never silent: ``Split.info`` says which and why.
 
     Stored masks (canonical HDF5) win unless ``data.test.use_masks: false``; otherwise
-    by demonstration when there are at least ``data.test.min_demos`` (default
-    :data:`selection.MIN_DEMOS`), else held-out contiguous time blocks with guard gaps
-    (:func:`selection.holdout_split`).
+    by demonstration when there are at least ``data.test.min_demos``, else held-out
+    contiguous time blocks with guard gaps (:func:`model_selection.holdout_split`).
     """
-    tcfg = (cfg.get("data") or {}).get("test") or {}
-    if masks and tcfg.get("use_masks", True) and "train" in masks:
+    test = spec.data.test
+    if masks and test.use_masks and "train" in masks:
         train = data.select_demos(masks["train"])
-        test = data.select_demos(masks["test"]) if masks.get("test") else None
-        test = test if test is not None and test.n_samples else None
+        held = data.select_demos(masks["test"]) if masks.get("test") else None
+        held = held if held is not None and held.n_samples else None
         info = {"kind": "masks", "reason": "train/test masks stored in the data file",
-                "n_train_demos": train.n_demos, "n_test_demos": test.n_demos if test else 0,
-                "n_train_samples": train.n_samples, "n_test_samples": test.n_samples if test else 0}
-        return Split(train, test, info)
-    fraction = float(tcfg.get("fraction", 0.3))
-    if fraction <= 0:
+                "n_train_demos": train.n_demos, "n_test_demos": held.n_demos if held else 0,
+                "n_train_samples": train.n_samples, "n_test_samples": held.n_samples if held else 0}
+        return Split(train, held, info)
+    if test.fraction <= 0:
         return Split(data, None, {"kind": "none", "reason": "data.test.fraction is 0: no held-out test "
                                   "set, every metric is on training data",
                                   "n_train_samples": data.n_samples, "n_test_samples": 0})
-    hold = S.holdout_split(data.demo, fraction, int(tcfg.get("seed", 0)), guard_gap(cfg, data),
-                           int(tcfg.get("min_demos", S.MIN_DEMOS)), int(tcfg.get("blocks", S.N_BLOCKS)))
-    train, test = data.subset(hold.train), data.subset(hold.test)
-    return Split(train, test if test.n_samples else None, hold.info)
+    hold = S.holdout_split(data.demo, float(test.fraction), test.seed, guard_gap(spec, data), test.min_demos,
+                           test.blocks)
+    train, held = data.subset(hold.train), data.subset(hold.test)
+    return Split(train, held if held.n_samples else None, hold.info)
 
 
-def _kwargs(options: dict, allowed: tuple[str, ...]) -> dict:
-    return {k: v for k, v in options.items() if k in allowed and v is not None}
-
-
-def make_constraint(options: dict, seed: int):
-    method = options.get("method", "nhat")
-    common = ("selection", "n_constraints", "gap_floor", "max_constraints", "cv_folds")
-    if method == "nhat":
-        kw = _kwargs(options, (*common, "threshold"))
-        model = StateIndependentConstraint(method=options.get("variant", "closed_form"), seed=seed, **kw)
-    elif method in ("alpha", "lambda"):
-        kw = _kwargs(options, (*common, "basis", "n_centres", "n_restarts", "max_iter", "tol", "tune"))
-        if method == "alpha":
-            model = StateDependentConstraint(seed=seed, **kw)
-        else:
-            if "features" not in options:
-                raise ConfigError("learn-a method lambda needs features (e.g. features: arm2, or "
-                                  "{arm: arm7, rows: [0, 1, 2]})")
-            model = KnownFeatureConstraint(features=options["features"], seed=seed, **kw)
-    elif method == "linear":
-        kw = _kwargs(options, (*common, "threshold", "basis", "n_centres", "regressors", "degree", "task",
-                               "task_regressors", "whiten", "reweight", "tune"))
-        model = LinearConstraint(seed=seed, **kw)
-    else:
-        raise ConfigError(f"unknown learn-a method {method!r}")
-    return PerDemonstration(model) if options.get("per_demo") else model
+def make_constraint(options: Any, seed: int):
+    """The constraint estimator of a learn-a section (its ``method``, its parameters, one per
+    demonstration with ``per_demo``)."""
+    cls = constraint_class(options.method)
+    params = options.estimator_params(cls)
+    if options.method == "lambda" and "features" not in params:
+        raise ConfigError("learn-a method lambda needs features (e.g. features: arm2, or "
+                          "{arm: arm7, rows: [0, 1, 2]})")
+    model = cls(seed=seed, **params)
+    return PerDemonstration(model) if options.per_demo else model
 
 
 class Pipeline:
     """Holds the data split and what earlier stages learnt."""
 
-    def __init__(self, cfg: Config, data: Demonstrations, masks: dict | None = None) -> None:
-        self.cfg = cfg
+    def __init__(self, spec: Any, data: Demonstrations, masks: dict | None = None) -> None:
+        self.spec = spec
         self.data = data
-        self.split = split_data(data, cfg, masks)
+        self.split = split_data(data, spec, masks)
         self.split_info = self.split.info
-        self.seed = int(cfg.get("seed", 0))
-        self.convention = (cfg.get("metrics") or {}).get("convention", "ccl")
+        self.seed = spec.seed
+        self.convention = spec.metrics.convention
         self.results: list[StageResult] = []
         self.w: dict[str, np.ndarray] = {}
         self.constraint: Any = None
@@ -166,12 +140,13 @@ class Pipeline:
         return data.U
 
     # -- stages -------------------------------------------------------------------------
-    def run(self, names: list[tuple[str, dict]], progress=None) -> list[StageResult]:
-        for name, extra in names:
+    def run(self, stages: list[tuple[str, Any]], progress=None) -> list[StageResult]:
+        """Run ``stages`` — (name, options: the stage's section of the run spec) pairs — in
+        order; ``progress()`` after each."""
+        for name, opts in stages:
             t0 = time.perf_counter()
-            opts = stage_options(self.cfg, name, extra)
-            log.info("stage %s (%s)", name, opts.get("method") or
-                     f"convention {opts.get('convention', self.convention)}")
+            log.info("stage %s (%s)", name, getattr(opts, "method", None) or
+                     f"convention {getattr(opts, 'convention', None) or self.convention}")
             result = getattr(self, "_" + name.replace("-", "_"))(opts)
             result.seconds = time.perf_counter() - t0
             self.results.append(result)
@@ -179,9 +154,9 @@ class Pipeline:
                 progress()
         return self.results
 
-    def _learn_v(self, opts: dict) -> StageResult:
+    def _learn_v(self, opts: Any) -> StageResult:
         tr = self.split.train
-        model = NullSpaceComponent(**_kwargs(opts, ("basis", "n_centres", "max_iter", "tol", "tune")),
+        model = NullSpaceComponent(**opts.estimator_params(NullSpaceComponent),
                                    seed=self.seed).fit(tr.X, tr.U, groups=tr.demo)
         result = StageResult("learn-v", "ncl", model, info={"n_iter": model.n_iter_,
                                                             "stop_reason": model.stop_reason_})
@@ -193,9 +168,9 @@ class Pipeline:
         self._score_parts(result)
         return result
 
-    def _learn_a(self, opts: dict) -> StageResult:
+    def _learn_a(self, opts: Any) -> StageResult:
         tr = self.split.train
-        on = opts.get("on", "auto")
+        on = opts.on
         model = make_constraint(opts, self.seed)
         target = self._target(on, "train", tr)
         try:
@@ -204,7 +179,7 @@ class Pipeline:
             raise LearningError(f"learn-a failed: {exc}") from None
         self.constraint = model
         self.warnings += diagnostics.emit(diagnostics.low_rank_actions(tr, target, int(model.n_constraints_)))
-        method = opts.get("method", "nhat") + (" per demonstration" if opts.get("per_demo") else "")
+        method = opts.method + (" per demonstration" if opts.per_demo else "")
         on_w = on == "w" or (on == "auto" and bool(self.w))
         result = StageResult("learn-a", method, model,
                              info={"n_constraints": int(model.n_constraints_),
@@ -238,10 +213,10 @@ class Pipeline:
             into.setdefault(part, {}).update({prefix + k: {**m, "name": prefix + k}
                                               for k, m in scored.items()})
 
-    def _projections(self, opts: dict, part: str, d: Demonstrations) -> np.ndarray | None:
-        if opts.get("method") != "pi-coupled":
+    def _projections(self, method: str, opts: Any, d: Demonstrations) -> np.ndarray | None:
+        if method != "pi-coupled":
             return None
-        source = opts.get("projections", "auto")
+        source = opts.projections
         if source in ("learnt", "auto") and self.constraint is not None:
             return self.constraint.projection(d.X, groups=d.demo)
         if source in ("true", "auto") and (d.has_truth("N") or d.has_truth("A")):
@@ -249,23 +224,20 @@ class Pipeline:
         raise ConfigError("pi-coupled needs projections: run learn-a first (projections: learnt) or "
                           "use data with ground-truth constraints (projections: true)")
 
-    def _learn_pi(self, opts: dict) -> StageResult:
+    def _learn_pi(self, opts: Any) -> StageResult:
         tr = self.split.train
-        on = opts.get("on", "auto")
-        kw = _kwargs(opts, ("basis", "n_centres", "cutoff", "cutoff_rule", "min_norm", "tune"))
+        on = opts.on
+        kw = opts.estimator_params(PolicyLearner)
         if isinstance(kw.get("cutoff"), str):  # cutoff: absolute | relative (the rule, at 1e-6)
-            if kw["cutoff"] not in ("absolute", "relative"):
-                raise ConfigError("learn-pi.cutoff must be a number, absolute or relative, "
-                                  f"got {kw['cutoff']!r}")
             kw["cutoff_rule"] = kw.pop("cutoff")
-        model = PolicyLearner(method=opts.get("method", "pi"), seed=self.seed, **kw)
+        model = PolicyLearner(seed=self.seed, **kw)
         model.fit(tr.X, self._target(on, "train", tr), groups=tr.demo,
-                  projections=self._projections(opts, "train", tr))
+                  projections=self._projections(model.method, opts, tr))
         result = StageResult("learn-pi", model.method, model, info={"n_used": model.n_used_})
         if getattr(model, "tuning_", None):
             result.info["tuning"] = model.tuning_
-        if opts.get("baseline", True) and model.method != "dpl":
-            base_kw = dict(kw)
+        if opts.baseline and model.method != "dpl":
+            base_kw = {k: v for k, v in kw.items() if k != "method"}
             if (model.tuning_ or {}).get("chosen"):  # the baseline regresses on the same basis
                 base_kw.update(model.tuning_["chosen"], tune=False)
             result.baseline = PolicyLearner(method="dpl", seed=self.seed, **base_kw).fit(
@@ -297,10 +269,10 @@ class Pipeline:
             r.views = stage_views(r, shown, part, self.split.train, blocks, self.constraint)
         return [v for r in self.results for v in r.views]
 
-    def _evaluate(self, opts: dict) -> StageResult:
+    def _evaluate(self, opts: Any) -> StageResult:
         """Every learnt model of the earlier stages on train and test, under this stage's
         ``convention`` (e.g. ``original`` for the original library's normalisers)."""
-        convention = opts.get("convention", self.convention)
+        convention = opts.convention or self.convention
         result = StageResult("evaluate", f"every learnt model under the {convention} convention", None,
                              info={"convention": convention})
         for r in self.results:

@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Iterable
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.learn.linalg import row_chunks
-from ccl_cli.learn.params import SEED, Fields, Interval, Options
+from ccl_cli.learn.params import SEED, BasisKind, Fields, Interval, Options
 
 #: Feature blocks of iterative learners are kept in memory up to this many bytes (N K · 8);
 #: above it they are recomputed on every pass, so memory stays bounded in N.
@@ -200,7 +200,6 @@ class LinearBasis:
 
 
 Basis = RBFBasis | LinearBasis
-BasisKind = Literal["rbf", "linear"]
 #: What a learner's ``basis`` parameter takes: a kind, a mapping, a basis object or None (rbf).
 BasisSpec = BasisKind | dict | RBFBasis | LinearBasis | None
 #: Keys of a ``basis`` mapping (a linear basis takes none but ``kind``).

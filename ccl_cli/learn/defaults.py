@@ -37,3 +37,5 @@ TUNE_FOLDS = 3
 #: Above this many samples the search runs on a seeded subset of about this size (whole
 #: demonstrations, or spread pieces of one recording); the winner is then fitted on all.
 TUNE_MAX_ROWS = 20_000
+#: The policy learner of learn-pi (ALGORITHMS.md §5: the inconsistency error).
+POLICY_METHOD = "pi"

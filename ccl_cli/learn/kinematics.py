@@ -8,9 +8,11 @@
 
 from __future__ import annotations
 
-from typing import Literal, get_args
+from typing import get_args
 
 import numpy as np
+
+from ccl_cli.learn.params import ArmName
 
 
 class TwoLinkArm:
@@ -87,7 +89,6 @@ class SevenDofArm:
 
 
 #: The built-in arms by name.
-ArmName = Literal["arm2", "arm7"]
 ARMS = dict(zip(get_args(ArmName), (TwoLinkArm, SevenDofArm), strict=True))
 
 

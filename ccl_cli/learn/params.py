@@ -36,9 +36,21 @@ import numbers
 import typing
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 from ccl_cli.errors import ConfigError
+
+# -- the fixed choices of learner parameters: named here, without NumPy, so the command line
+# -- lists them in --help; the learners annotate their parameters with them
+SelectionRule = Literal["ratio", "threshold", "eigengap", "cv"]
+PolicyMethod = Literal["pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"]
+CutoffRule = Literal["relative", "absolute"]
+BasisKind = Literal["rbf", "linear"]
+ArmName = Literal["arm2", "arm7"]
+Regressors = Literal["identity", "rbf", "polynomial"]
+TaskRegressors = Literal["constant", "polynomial", "rbf"]
+Whiten = Literal["rms", "errors", "none"]
+NhatMethod = Literal["closed_form", "search"]
 
 #: Largest seed: NumPy's generators take any non-negative integer below 2^63 here.
 MAX_SEED = 2**63 - 1

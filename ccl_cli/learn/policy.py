@@ -23,7 +23,7 @@ feature matrix, no N × K q regressor matrix); predict works in the same blocks.
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal, get_args
+from typing import ClassVar, get_args
 
 import numpy as np
 
@@ -31,13 +31,13 @@ from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn.base import Estimator
 from ccl_cli.learn.basis import BASIS_PARAMS, BasisSpec, RBFBasis, make_basis
 from ccl_cli.learn.consistency import inconsistency_error
+from ccl_cli.learn.defaults import POLICY_METHOD
 from ccl_cli.learn.linalg import eigen_lstsq, kron_rows, row_chunks
 from ccl_cli.learn.model_selection import TUNE, TUNE_PARAMS, Tunable
-from ccl_cli.learn.params import SEED, Interval, Options
+from ccl_cli.learn.params import SEED, CutoffRule, Interval, Options
+from ccl_cli.learn.params import PolicyMethod as Method
 
-Method = Literal["pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"]
 METHODS = get_args(Method)
-CutoffRule = Literal["relative", "absolute"]
 
 
 class PolicyLearner(Tunable, Estimator):
@@ -73,7 +73,7 @@ class PolicyLearner(Tunable, Estimator):
     def __init__(
         self,
         *,
-        method: Method = "pi",
+        method: Method = POLICY_METHOD,
         basis: BasisSpec = "rbf",
         n_centres: int = 16,
         seed: int = 0,

@@ -63,7 +63,7 @@ def write_run(result: RunResult, outdir: Path, force: bool = False, plot_workers
         plots = draw_views(tmp, result.views, plot_seconds, plot_workers) if result.views else []
         write_json(tmp / "metrics.json", result.metrics)
         (tmp / "report.md").write_text(markdown(f"ccl {result.command}", result, plots))
-        (tmp / "config.yaml").write_text(yaml.safe_dump(dict(result.cfg), sort_keys=False))
+        (tmp / "config.yaml").write_text(yaml.safe_dump(result.cfg.raw, sort_keys=False))
         write_json(tmp / "run.json", {**result.record, "plot_seconds": plot_seconds})
         for name, value in (extra_files or {}).items():
             write_json(tmp / name, value)

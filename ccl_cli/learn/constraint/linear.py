@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from itertools import combinations_with_replacement
-from typing import ClassVar, Literal, get_args
+from typing import ClassVar, get_args
 
 import numpy as np
 
@@ -28,11 +28,8 @@ from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.linalg import nullspace_projection, row_chunks
 from ccl_cli.learn.model_selection import TUNE, TUNE_PARAMS, Tunable
-from ccl_cli.learn.params import SEED, Interval, Options
+from ccl_cli.learn.params import SEED, Interval, Options, Regressors, TaskRegressors, Whiten
 
-Regressors = Literal["identity", "rbf", "polynomial"]
-TaskRegressors = Literal["constant", "polynomial", "rbf"]
-Whiten = Literal["rms", "errors", "none"]
 REGRESSORS = get_args(Regressors)
 #: Regressor rows of all samples are cached between the reweighting passes up to this size.
 H_CACHE_BYTES = 256 * 2**20

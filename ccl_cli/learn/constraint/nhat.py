@@ -7,7 +7,7 @@ eigenvalues and the residual is their sum: one pass over the data, O(N q² + q³
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import ClassVar
 
 import numpy as np
 
@@ -16,8 +16,7 @@ from ccl_cli.learn.angles import unit_vector
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.params import SEED, Options
-
-Method = Literal["closed_form", "search"]
+from ccl_cli.learn.params import NhatMethod as Method
 
 #: Grid of the original search: 20 angles per axis in [0, π − π/20].
 SEARCH_STEPS = 20

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal, get_args
+from typing import Any, get_args
 
 import numpy as np
 
@@ -42,9 +42,9 @@ from ccl_cli.learn.base import clone
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.defaults import DEFAULT_RULE, RATIO_FACTOR
 from ccl_cli.learn.params import Interval, Options
+from ccl_cli.learn.params import SelectionRule as Rule
 
 #: The rules a learner's ``selection`` may name; "fixed" is recorded when ``n_constraints`` is given.
-Rule = Literal["ratio", "threshold", "eigengap", "cv"]
 RULES = (*get_args(Rule), "fixed")
 __all__ = ["DEFAULT_RULE", "RATIO_FACTOR", "RULES", "SELECTION_PARAMS", "Rule", "Selection"]
 

@@ -1,0 +1,292 @@
+"""The typed run spec: every option of a ccl run, validated once at the boundary.
+
+:class:`RunSpec` is the whole configuration of a run — ``seed``, ``data`` (what to read:
+:class:`ccl_cli.io.options.DataOptions`, plus the held-out ``test`` split), one section per
+stage (``learn-v``, ``learn-a``, ``learn-pi``, ``evaluate``), ``metrics``, ``output`` and the
+``stages`` to run. It is the one place the schema lives, assembled from the parts that own
+their options:
+
+* a stage section holds the constructor parameters of its estimators, read from each
+  estimator's signature and its ``_parameter_constraints`` declaration
+  (:mod:`ccl_cli.learn.params`): names, choices, ranges. A parameter the user did not set
+  stays ``None`` and the estimator's own default applies, so the library and the command
+  line share one set of defaults;
+* the app-level options of a stage (``learn-a.method``: which estimator; ``on``: which
+  observations; ``per_demo``; ``learn-pi.projections``, ``baseline``) are declared here;
+* the reading options are the readers' own (:mod:`ccl_cli.io.options`).
+
+:mod:`ccl_cli.config` reads YAML, merges command-line flags and turns validation errors into
+``file:line: message``; nothing below the app layer reads a config mapping.
+"""
+
+from __future__ import annotations
+
+import inspect
+import typing
+from collections.abc import Iterable
+from functools import cache
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, create_model
+
+from ccl_cli.io.options import DataOptions
+from ccl_cli.learn import defaults
+from ccl_cli.learn.params import MAX_SEED, Fields, Interval, Options
+
+STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
+Convention = Literal["ccl", "original"]
+#: learn-a's ``method``: which constraint estimator (:data:`CONSTRAINT_METHODS`)
+ConstraintMethod = Literal["nhat", "alpha", "lambda", "linear"]
+DEFAULT_CONSTRAINT_METHOD = "nhat"
+#: learn-pi's ``projections`` (pi-coupled): from the ground truth, a learn-a stage, or either
+Projections = Literal["auto", "learnt", "true"]
+#: which observations a stage learns from: u, the learnt w̃ of a learn-v stage, or w̃ when there is one
+On = Literal["auto", "u", "w"]
+
+
+class Section(BaseModel):
+    """Common ground of the spec's models: frozen, strict (no string becomes a number), no
+    unknown keys, finite numbers; YAML's dashed keys (``learn-a``) are the aliases."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False,
+                              populate_by_name=True)
+
+    def given(self) -> dict[str, Any]:
+        """The options set in the config (or by flags), by name, as validated."""
+        return {name: getattr(self, name) for name in self.model_fields_set}
+
+
+# -- estimator parameters → pydantic fields ---------------------------------------------------
+def _bound(value: float) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def phrase(form: Any) -> str | None:
+    """What one declared form accepts, in words (None: not expressible in a config)."""
+    if form is None:
+        return None
+    if isinstance(form, Interval):
+        noun = "an integer" if form.type is int else "a number"
+        low_in, high_in = form.closed in ("both", "left"), form.closed in ("both", "right")
+        if form.low is not None and form.high is not None and low_in and high_in:
+            return f"{noun} between {_bound(form.low)} and {_bound(form.high)}"
+        parts = ([f"{'≥' if low_in else '>'} {_bound(form.low)}"] if form.low is not None else []) + (
+            [f"{'≤' if high_in else '<'} {_bound(form.high)}"] if form.high is not None else [])
+        return " ".join([noun, " and ".join(parts)]).strip()
+    if isinstance(form, Options):
+        return "one of " + ", ".join(sorted(map(str, form.values)))
+    if isinstance(form, Fields):
+        return "a mapping of " + ", ".join(form.fields)
+    return {bool: "true or false", str: "a string", dict: "a mapping", list: "a list", int: "an integer",
+            float: "a number"}.get(form)
+
+
+def _type_of(form: Any, name: str) -> Any:
+    """The pydantic annotation of one declared form; None for forms a YAML config cannot
+    hold (callables, Python objects such as a fitted basis)."""
+    if form is None:
+        return type(None)
+    if isinstance(form, Interval):
+        bounds: dict[str, float] = {}
+        if form.low is not None:
+            bounds["ge" if form.closed in ("both", "left") else "gt"] = form.low
+        if form.high is not None:
+            bounds["le" if form.closed in ("both", "right") else "lt"] = form.high
+        return Annotated[form.type, Field(**bounds)]
+    if isinstance(form, Options):
+        return Literal[tuple(sorted(form.values))]
+    if isinstance(form, Fields):
+        return _fields_model(name, tuple((k, tuple(v)) for k, v in form.fields.items()))
+    if form in (bool, str):
+        return form
+    if form is dict:
+        return dict[str, Any]
+    if form is list:
+        return list[Any]
+    return None
+
+
+@cache
+def _fields_model(name: str, fields: tuple[tuple[str, tuple[Any, ...]], ...]) -> type[Section]:
+    """A section model for a mapping-valued parameter (e.g. ``basis: {kind, n_centres, ...}``)."""
+    return create_model(f"{name.title().replace('_', '')}Options", __base__=Section,
+                        **{key: _field(forms, key) for key, forms in fields})
+
+
+def _field(forms: Iterable[Any], name: str) -> tuple[Any, Any]:
+    """(annotation, Field) of a parameter declared by ``forms``; default None (unset)."""
+    forms = list(forms)
+    types = [t for t in (_type_of(f, name) for f in forms) if t is not None]
+    types = [t for t in dict.fromkeys(types) if t is not type(None)]
+    words = [p for p in (phrase(f) for f in forms) if p]
+    annotation = typing.Union[tuple(types)] if len(types) > 1 else types[0]  # noqa: UP007 - a runtime tuple
+    return annotation | None, Field(None, description=" or ".join(dict.fromkeys(words)) or None)
+
+
+def _parameters(classes: Iterable[type], rename: dict[tuple[type, str], str] | None = None,
+                skip: tuple[str, ...] = ("seed",)) -> dict[str, tuple[Any, Any]]:
+    """The constructor parameters of ``classes`` as section fields (a parameter several
+    classes share is declared once); ``rename`` maps (class, parameter) to its config key."""
+    out: dict[str, tuple[Any, Any]] = {}
+    for cls in classes:
+        for name in inspect.signature(cls.__init__).parameters:
+            if name in ("self", *skip):
+                continue
+            key = (rename or {}).get((cls, name), name)
+            out.setdefault(key, _field(cls._parameter_constraints[name], key))
+    return out
+
+
+# -- stage sections -----------------------------------------------------------------------------
+def _stage_classes() -> dict[str, tuple[type, ...]]:
+    from ccl_cli.learn.constraint import (
+        KnownFeatureConstraint,
+        LinearConstraint,
+        StateDependentConstraint,
+        StateIndependentConstraint,
+    )
+    from ccl_cli.learn.nullspace import NullSpaceComponent
+    from ccl_cli.learn.policy import PolicyLearner
+
+    return {"learn-v": (NullSpaceComponent,), "learn-pi": (PolicyLearner,),
+            "learn-a": (StateIndependentConstraint, StateDependentConstraint, KnownFeatureConstraint,
+                        LinearConstraint)}
+
+
+#: learn-a ``method`` → the estimator class's name (the class itself: :func:`constraint_class`)
+CONSTRAINT_METHODS = {"nhat": "StateIndependentConstraint", "alpha": "StateDependentConstraint",
+                      "lambda": "KnownFeatureConstraint", "linear": "LinearConstraint"}
+#: config keys that are not the estimator's own names: (method, config key) → parameter
+RENAMED = {("nhat", "variant"): "method"}
+
+
+def constraint_class(method: str) -> type:
+    """The estimator of a learn-a ``method``."""
+    return next(c for c in _stage_classes()["learn-a"] if c.__name__ == CONSTRAINT_METHODS[method])
+
+
+class StageSection(Section):
+    """A stage's options: its estimators' parameters (None: the estimator's default) and
+    the app-level options of the stage."""
+
+    def estimator_params(self, cls: type) -> dict[str, Any]:
+        """The parameters of ``cls`` that are set, by the estimator's own names."""
+        names = set(inspect.signature(cls.__init__).parameters)
+        out = {}
+        for key, value in self.given().items():
+            name = RENAMED.get((getattr(self, "method", None), key), key)
+            if name in names and value is not None and key not in self.APP_KEYS:
+                out[name] = _plain(value)
+        return out
+
+    APP_KEYS: typing.ClassVar[tuple[str, ...]] = ()
+
+
+def _plain(value: Any) -> Any:
+    """Section models inside a parameter (a basis or tune mapping) back to plain dicts."""
+    if isinstance(value, BaseModel):
+        return {k: _plain(v) for k, v in value.model_dump(exclude_none=True).items()}
+    return value
+
+
+@cache
+def stage_models() -> dict[str, type[StageSection]]:
+    """The section model of each stage (built once, from the estimators)."""
+    classes = _stage_classes()
+    on = (On, Field("auto"))
+    nhat = next(c for c in classes["learn-a"] if c.__name__ == "StateIndependentConstraint")
+    learn_a = _parameters(classes["learn-a"], rename={(nhat, "method"): "variant"})
+    learn_a.update(method=(ConstraintMethod, Field(DEFAULT_CONSTRAINT_METHOD)), on=on,
+                   per_demo=(bool, Field(False)))
+    learn_pi = _parameters(classes["learn-pi"])
+    cutoff_type, cutoff = learn_pi["cutoff"]
+    learn_pi.update(
+        cutoff=(cutoff_type | Literal["absolute", "relative"],
+                Field(None, description=f"{cutoff.description}, or absolute or relative (the cut-off rule)")),
+        on=on, projections=(Projections, Field("auto")), baseline=(bool, Field(True)))
+    models = {
+        "learn-v": create_model("LearnV", __base__=StageSection, **_parameters(classes["learn-v"])),
+        "learn-a": create_model("LearnA", __base__=StageSection, **learn_a),
+        "learn-pi": create_model("LearnPi", __base__=StageSection, **learn_pi),
+        "evaluate": create_model("Evaluate", __base__=StageSection,
+                                 convention=(Convention | None, Field(None))),
+    }
+    models["learn-a"].APP_KEYS = ("method", "on", "per_demo")
+    models["learn-pi"].APP_KEYS = ("on", "projections", "baseline")
+    return models
+
+
+# -- the run ------------------------------------------------------------------------------------
+class TestSplit(Section):
+    """The held-out test set: ``fraction`` of the demonstrations (or time blocks), seeded; the
+    file's stored masks when ``use_masks``; by demonstration from ``min_demos`` of them, else
+    ``blocks`` contiguous time blocks with ``gap`` samples dropped at each boundary (default:
+    the derivative window)."""
+
+    fraction: Annotated[float, Field(ge=0, le=1, description="a number between 0 and 1")] = 0.3
+    seed: Annotated[int, Field(ge=0, le=MAX_SEED)] = 0
+    use_masks: bool = True
+    gap: Annotated[int, Field(ge=0, le=1_000_000)] | None = None
+    min_demos: Annotated[int, Field(ge=2, le=1_000_000)] = defaults.MIN_DEMOS
+    blocks: Annotated[int, Field(ge=2, le=1_000_000)] = defaults.N_BLOCKS
+
+
+class Data(DataOptions):
+    """The ``data`` section: the readers' options (:class:`~ccl_cli.io.options.DataOptions`)
+    and the held-out ``test`` split."""
+
+    test: TestSplit = TestSplit()
+
+    def reading(self) -> DataOptions:
+        """The readers' part of the section."""
+        return DataOptions.model_validate(self.model_dump(exclude={"test"}, exclude_unset=True))
+
+
+class Metrics(Section):
+    convention: Convention = "ccl"
+
+
+class Output(Section):
+    plots: bool = True
+
+
+class StageItem(Section):
+    """One entry of ``stages``: a stage name and the options overriding its section."""
+
+    name: Literal[STAGES]
+    options: dict[str, Any] = {}
+
+
+def run_spec_model() -> type[BaseModel]:
+    """The :class:`RunSpec` model (its stage sections are built from the estimators)."""
+    return _run_spec_model()
+
+
+@cache
+def _run_spec_model() -> type[BaseModel]:
+    m = stage_models()
+    stages: dict[str, Any] = {
+        key.replace("-", "_"): (m[key], Field(default_factory=m[key], alias=key)) for key in STAGES}
+    return create_model(
+        "RunSpec", __base__=RunSpecBase,
+        seed=(Annotated[int, Field(ge=0, le=MAX_SEED, description=f"an integer between 0 and {MAX_SEED}")],
+              0),
+        data=(Data, Field(default_factory=Data)), **stages,
+        metrics=(Metrics, Field(default_factory=Metrics)), output=(Output, Field(default_factory=Output)),
+        stages=(list[str | dict[str, Any]] | None, Field(None, description="a list of stage names or "
+                                                          "one-key mappings")))
+
+
+class RunSpecBase(Section):
+    """Methods of the run spec (its fields: :func:`run_spec_model`)."""
+
+    def section(self, name: str) -> StageSection:
+        return getattr(self, name.replace("-", "_"))
+
+    def stage(self, name: str, options: dict[str, Any] | None = None) -> StageSection:
+        """Stage ``name``'s options: its section with a ``stages`` item's ``options`` on top."""
+        section = self.section(name)
+        if not options:
+            return section
+        merged = {**section.model_dump(exclude_unset=True, by_alias=True), **options}
+        return type(section).model_validate(merged)
