@@ -49,7 +49,7 @@ class Section(BaseModel):
     unknown keys, finite numbers; YAML's dashed keys (``learn-a``) are the aliases."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False,
-                              populate_by_name=True)
+                              populate_by_name=True, defer_build=True)
 
     def given(self) -> dict[str, Any]:
         """The options set in the config (or by flags), by name, as validated."""

@@ -38,7 +38,7 @@ Number = int | float
 class Options(BaseModel):
     """Common ground of the option models: frozen, strict, no unknown keys, finite numbers."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False, defer_build=True)
 
     def given(self) -> set[str]:
         """Names of the options that hold a value (not None)."""
