@@ -136,14 +136,10 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
         arrows = {"observed": ("observed u", d.U), "learnt": ("learnt w̃", w)}
         if d.has_truth("w"):
             arrows["true"] = ("true w", d.truth["w"])
-        if planar:
-            out.append(View("learn-v-field.png", "learn-v: learnt vs true null-space component", "field",
-                            {"title": f"{title}: null-space component w", "d": d, "part": dpart,
-                             "arrows": arrows, "field": field_on_grid(d, model.predict),
-                             "field_label": "learnt w̃(x) on a grid"}))
-        out.append(View("learn-v-time.png", "learn-v: learnt w̃ against the observations over time",
-                        "time", {"title": f"{title}: null-space component w", "part": dpart, "d": d,
-                                 "lines": arrows}))
+        out += _field_and_time("learn-v", f"{title}: null-space component w", d, dpart, arrows, arrows,
+                               model.predict if planar else None, "learnt w̃(x) on a grid",
+                               ("learnt vs true null-space component",
+                                "learnt w̃ against the observations over time"))
     elif result.name == "learn-a":
         if isinstance(model, PerDemonstration) and not dpart.startswith("train"):
             d, dpart = train, "train" + suffix
@@ -187,12 +183,21 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
             N = constraint.projection(d.X, groups=d.demo)
             pred = np.einsum("nij,nj->ni", N, est) + (0 if v is None else v)
             lines["predicted"] = ("predicted u = ṽ + Ñπ̃", pred)
-        if planar:
-            out.append(View("learn-pi-field.png", "learn-pi: learnt vs true policy", "field",
-                            {"title": f"{title}: null-space policy π", "d": d, "part": dpart,
-                             "arrows": arrows, "field": field_on_grid(d, model.predict),
-                             "field_label": "learnt π̃(x) on a grid"}))
-        out.append(View("learn-pi-time.png", "learn-pi: learnt policy (and the predicted u) over time",
-                        "time", {"title": f"{title}: null-space policy π", "part": dpart, "d": d,
-                                 "lines": lines}))
+        out += _field_and_time("learn-pi", f"{title}: null-space policy π", d, dpart, arrows, lines,
+                               model.predict if planar else None, "learnt π̃(x) on a grid",
+                               ("learnt vs true policy", "learnt policy (and the predicted u) over time"))
+    return out
+
+
+def _field_and_time(stage: str, title: str, d: Demonstrations, part: str, arrows: dict, lines: dict,
+                    predict: Any, field_label: str, captions: tuple[str, str]) -> list[View]:
+    """A predicting model's figures: its field on a grid (2-D only: ``predict`` given) and its
+    series over time."""
+    out = []
+    if predict is not None:
+        out.append(View(f"{stage}-field.png", f"{stage}: {captions[0]}", "field",
+                        {"title": title, "d": d, "part": part, "arrows": arrows,
+                         "field": field_on_grid(d, predict), "field_label": field_label}))
+    out.append(View(f"{stage}-time.png", f"{stage}: {captions[1]}", "time",
+                    {"title": title, "part": part, "d": d, "lines": lines}))
     return out
