@@ -47,6 +47,7 @@ from ccl_cli.learn.constraint import (
     StateIndependentConstraint,
 )
 from ccl_cli.learn.nullspace import NullSpaceComponent
+from ccl_cli.learn.params import parameter_hints
 from ccl_cli.learn.policy import PolicyLearner
 
 FORMAT = "ccl-model"
@@ -155,10 +156,7 @@ _JSON_TYPES = (str, int, float, bool, list, dict, type(None))
 
 def _allowed_types(cls: type, name: str, default: Any) -> tuple[type, ...]:
     """The JSON types a constructor parameter may take, from its annotation (or default)."""
-    try:
-        hint = typing.get_type_hints(cls.__init__).get(name)
-    except (NameError, TypeError):
-        hint = None
+    hint = parameter_hints(cls).get(name)
     if hint is None:
         return _JSON_TYPES if default is None else (type(default),)
     args = (hint,) if typing.get_origin(hint) is typing.Literal else typing.get_args(hint) or (hint,)

@@ -26,7 +26,7 @@ from ccl_cli.learn.constraint import (
 )
 from ccl_cli.learn.model_selection import Tuned
 from ccl_cli.learn.nullspace import NullSpaceComponent
-from ccl_cli.learn.params import Options
+from ccl_cli.learn.params import Options, parameter_hints
 from ccl_cli.learn.policy import METHODS, PolicyLearner
 from ccl_cli.models import load_model, save_model
 
@@ -90,7 +90,7 @@ CLASSES = [StateIndependentConstraint, StateDependentConstraint, KnownFeatureCon
 def test_every_parameter_is_declared_and_literal_choices_agree(cls):
     names = [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
     assert sorted(cls._parameter_constraints) == sorted(names)
-    hints = typing.get_type_hints(cls.__init__)
+    hints = parameter_hints(cls)
     for name in names:
         hint = hints[name]
         parts = (hint,) if typing.get_origin(hint) is typing.Literal else typing.get_args(hint)

@@ -62,6 +62,15 @@ class Estimator:
     #: list of arrays), "basis" (a fitted feature map), "models" (one model per demonstration).
     _fitted_attributes: ClassVar[dict[str, str]] = {}
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Merge the ``_parameter_constraints`` of every base (parameter groups) into the
+        class's own declaration."""
+        super().__init_subclass__(**kwargs)
+        merged: dict[str, list] = {}
+        for base in reversed(cls.__mro__):
+            merged.update(vars(base).get("_parameter_constraints", {}))
+        cls._parameter_constraints = merged
+
     @classmethod
     def _param_names(cls) -> list[str]:
         init = cls.__init__

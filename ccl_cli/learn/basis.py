@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.learn.linalg import row_chunks
-from ccl_cli.learn.params import SEED, BasisKind, Fields, Interval, Options
+from ccl_cli.learn.params import SEED, BasisKind, Fields, Interval, Options, parameters
 
 #: Feature blocks of iterative learners are kept in memory up to this many bytes (N K · 8);
 #: above it they are recomputed on every pass, so memory stays bounded in N.
@@ -215,6 +215,16 @@ BASIS_PARAMS: dict[str, list] = {
     "basis": [Options.of(BasisKind), Fields(BASIS_FIELDS), RBFBasis, LinearBasis, None],
     "n_centres": [Interval(int, 1, 100_000)],
 }
+
+
+@parameters
+class BasisParams:
+    """``basis``: the feature map (``"rbf"``, ``"linear"``, a mapping ``{kind, n_centres,
+    centres, sigma2, seed}`` or a basis object); ``n_centres``: RBF centres when it is a name."""
+
+    _parameter_constraints: ClassVar[dict[str, list]] = BASIS_PARAMS
+    basis: BasisSpec = "rbf"
+    n_centres: int = 16
 
 
 def make_basis(spec: BasisSpec, default_centres: int = 16, seed: int = 0) -> Basis:

@@ -39,7 +39,7 @@ from ccl_cli.learn.defaults import (  # noqa: F401 - the shared defaults, re-exp
     TUNE_FOLDS,
     TUNE_MAX_ROWS,
 )
-from ccl_cli.learn.params import SEED, Fields, Interval
+from ccl_cli.learn.params import SEED, Fields, Interval, parameters
 
 
 # -- splitters ------------------------------------------------------------------------------
@@ -431,6 +431,7 @@ class Tuned(Estimator):
         return self._best().score(X, U, **kw)
 
 
+@parameters
 class Tunable:
     """The ``tune`` parameter of a learner (True by default): when on, ``fit`` delegates
     to :class:`Tuned` over the learner's default grid (:meth:`_tune_grid`) or the grid
@@ -442,6 +443,8 @@ class Tunable:
 
     #: Folds of this learner's default search (None: :data:`TUNE_FOLDS`).
     TUNE_FOLDS: ClassVar[int | None] = None
+    _parameter_constraints: ClassVar[dict[str, list]] = TUNE_PARAMS
+    tune: bool | dict = TUNE
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         """(numbers of centres, width factors) of the candidate bases, in order (:func:`basis_grid`)."""

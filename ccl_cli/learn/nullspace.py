@@ -52,11 +52,11 @@ import numpy as np
 
 from ccl_cli.errors import LearningError
 from ccl_cli.learn.base import Estimator
-from ccl_cli.learn.basis import BASIS_PARAMS, BasisSpec, feature_blocks, make_basis
+from ccl_cli.learn.basis import BasisParams, feature_blocks, make_basis
 from ccl_cli.learn.consistency import npe_error
 from ccl_cli.learn.linalg import eigen_lstsq, kron_least_squares, row_chunks
-from ccl_cli.learn.model_selection import TUNE, TUNE_PARAMS, Tunable
-from ccl_cli.learn.params import ITERATION_PARAMS, SEED, Interval
+from ccl_cli.learn.model_selection import Tunable
+from ccl_cli.learn.params import ITERATION_PARAMS, Interval, SeedParams, parameters
 
 #: ``residual(W, rows, β)`` → (r (c,), ∂r/∂w̃ (c, q)), the callback of kron_least_squares.
 Residual = Callable[[np.ndarray, slice, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -104,7 +104,8 @@ def wall_residual(U: np.ndarray, delta2: float) -> Residual:
     return residual
 
 
-class NullSpaceComponent(Tunable, Estimator):
+@parameters
+class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
     """Learns w̃(x) = W β(x) from observations u = v + w (the stages: module docstring).
 
     Args:
@@ -140,26 +141,16 @@ class NullSpaceComponent(Tunable, Estimator):
     #: Folds of the basis search: 5, not 3 (docs/measurements.md, "ncl").
     TUNE_FOLDS = 5
     _parameter_constraints: ClassVar[dict[str, list]] = {
-        **BASIS_PARAMS, **SEED, **ITERATION_PARAMS, "chunk_size": [Interval(int, 1, None), None],
-        "polish": [bool], "smoothing": [Interval(float, 0, None)], **TUNE_PARAMS}
+        **ITERATION_PARAMS, "chunk_size": [Interval(int, 1, None), None],
+        "polish": [bool], "smoothing": [Interval(float, 0, None)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_action_": "value", "cost_": "value", "n_iter_": "value",
         "stop_reason_": "value", "W_": "array", "basis_": "basis"}
-
-    def __init__(
-        self,
-        *,
-        basis: BasisSpec = "rbf",
-        n_centres: int = 16,
-        seed: int = 0,
-        max_iter: int = 1000,
-        tol: float = 1e-9,
-        chunk_size: int | None = None,
-        polish: bool = True,
-        smoothing: float = SMOOTHING,
-        tune: bool | dict = TUNE,
-    ) -> None:
-        self._store_params(locals())
+    max_iter: int = 1000
+    tol: float = 1e-9
+    chunk_size: int | None = None
+    polish: bool = True
+    smoothing: float = SMOOTHING
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         return [((self.n_centres, 16, 36, 64, 100), (1.0,))]

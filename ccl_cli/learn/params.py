@@ -36,7 +36,7 @@ import numbers
 import typing
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from ccl_cli.errors import ConfigError
 
@@ -196,3 +196,36 @@ def validate_params(owner: str, constraints: Mapping[str, list], params: Mapping
 SEED = {"seed": [Interval(int, 0, MAX_SEED)]}
 #: The bounds of an iterative fit: passes at most and the relative tolerance that stops it.
 ITERATION_PARAMS = {"max_iter": [Interval(int, 1, 10_000_000)], "tol": [Interval(float, 0, None)]}
+
+
+# -- parameter groups --------------------------------------------------------------------------
+def parameters(cls: type) -> type:
+    """Make the annotated class attributes of ``cls`` its keyword-only constructor
+    parameters, stored unchanged (a dataclass without generated ``__eq__``/``__repr__``).
+
+    A learner declares only its own parameters and inherits those of the groups it derives
+    from (:class:`SeedParams`, ``BasisParams``, ``SelectionParams``, ...); a group declares
+    its ``_parameter_constraints`` beside its fields, and
+    :class:`~ccl_cli.learn.base.Estimator` merges the declarations of every base."""
+    return dataclass(kw_only=True, eq=False, repr=False)(cls)
+
+
+@parameters
+class SeedParams:
+    """``seed``: every random choice of the learner (k-means, restarts, folds, subsets)."""
+
+    _parameter_constraints: ClassVar[dict[str, list]] = SEED
+    seed: int = 0
+
+
+def parameter_hints(cls: type) -> dict[str, Any]:
+    """The resolved annotation of each constructor parameter of ``cls``: a parameter group's
+    annotation is resolved in the module that declares the group (the dataclass-made
+    ``__init__`` of a learner carries its annotations unresolved)."""
+    import inspect
+
+    try:
+        hints = typing.get_type_hints(cls.__init__)
+    except NameError:
+        hints = typing.get_type_hints(cls)
+    return {name: hints.get(name) for name in inspect.signature(cls.__init__).parameters if name != "self"}

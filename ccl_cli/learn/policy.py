@@ -29,18 +29,19 @@ import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn.base import Estimator
-from ccl_cli.learn.basis import BASIS_PARAMS, BasisSpec, RBFBasis, make_basis
+from ccl_cli.learn.basis import BasisParams, RBFBasis, make_basis
 from ccl_cli.learn.consistency import inconsistency_error
 from ccl_cli.learn.defaults import POLICY_METHOD
 from ccl_cli.learn.linalg import eigen_lstsq, kron_rows, row_chunks
-from ccl_cli.learn.model_selection import TUNE, TUNE_PARAMS, Tunable
-from ccl_cli.learn.params import SEED, CutoffRule, Interval, Options
+from ccl_cli.learn.model_selection import Tunable
+from ccl_cli.learn.params import CutoffRule, Interval, Options, SeedParams, parameters
 from ccl_cli.learn.params import PolicyMethod as Method
 
 METHODS = get_args(Method)
 
 
-class PolicyLearner(Tunable, Estimator):
+@parameters
+class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
     """π̃(x) = Wᵀ β(x) learnt by one of :data:`METHODS`.
 
     Args:
@@ -64,26 +65,16 @@ class PolicyLearner(Tunable, Estimator):
     """
 
     _parameter_constraints: ClassVar[dict[str, list]] = {
-        "method": [Options.of(Method)], **BASIS_PARAMS, **SEED, "cutoff": [Interval(float, 0, None)],
-        "min_norm": [Interval(float, 0, None)], "chunk_size": [Interval(int, 1, None), None], **TUNE_PARAMS,
+        "method": [Options.of(Method)], "cutoff": [Interval(float, 0, None)],
+        "min_norm": [Interval(float, 0, None)], "chunk_size": [Interval(int, 1, None), None],
         "cutoff_rule": [Options.of(CutoffRule)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_action_": "value", "n_used_": "value", "W_": "array", "basis_": "basis"}
-
-    def __init__(
-        self,
-        *,
-        method: Method = POLICY_METHOD,
-        basis: BasisSpec = "rbf",
-        n_centres: int = 16,
-        seed: int = 0,
-        cutoff: float = 1e-6,
-        min_norm: float = 1e-6,
-        chunk_size: int | None = None,
-        tune: bool | dict = TUNE,
-        cutoff_rule: CutoffRule = "relative",
-    ) -> None:
-        self._store_params(locals())
+    method: Method = POLICY_METHOD
+    cutoff: float = 1e-6
+    min_norm: float = 1e-6
+    chunk_size: int | None = None
+    cutoff_rule: CutoffRule = "relative"
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         if self.method == "lwpi":

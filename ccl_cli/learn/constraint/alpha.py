@@ -12,23 +12,30 @@ from typing import ClassVar
 import numpy as np
 
 from ccl_cli.errors import ConfigError
-from ccl_cli.learn.basis import BASIS_PARAMS, BasisSpec, make_basis
+from ccl_cli.learn.basis import BasisParams, make_basis
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.angular import MAX_ITER, chunked_features, fit_sequence, rows_from_weights
 from ccl_cli.learn.constraint.base import ConstraintModel
-from ccl_cli.learn.model_selection import TUNE, TUNE_PARAMS, Tunable
-from ccl_cli.learn.params import ITERATION_PARAMS, SEED, Interval
+from ccl_cli.learn.model_selection import Tunable
+from ccl_cli.learn.params import ITERATION_PARAMS, Interval, SeedParams, parameters
 
 #: The parameters of the angle fits (alpha and lambda).
 ANGLE_FIT_PARAMS: dict[str, list] = {"n_restarts": [Interval(int, 1, 10_000)], **ITERATION_PARAMS}
 
 
-class AngularConstraintMixin(Tunable):
-    """Shared fitting of the angle maps and the choice of s for alpha and lambda."""
+@parameters
+class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedParams):
+    """Shared fitting of the angle maps and the choice of s for alpha and lambda; its
+    parameters: ``n_restarts`` LM starts per row, at most ``max_iter`` passes per row, the
+    relative tolerance ``tol`` (and the basis, selection, seed and tune groups)."""
 
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
         "nmse_": "value", "weights_": "arrays", "basis_": "basis"}
+    _parameter_constraints: ClassVar[dict[str, list]] = ANGLE_FIT_PARAMS
+    n_restarts: int = 3
+    max_iter: int = MAX_ITER
+    tol: float = 1e-9
 
     def _learn_rows(self, B: np.ndarray, V: np.ndarray, Xs: np.ndarray, X: np.ndarray, U: np.ndarray,
                     groups: np.ndarray | None) -> None:
@@ -65,6 +72,7 @@ class AngularConstraintMixin(Tunable):
         self.selection_ = chosen.as_dict()
 
 
+@parameters
 class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
     """Ã(x) with unit rows a(W_k β(x)), learnt without prior knowledge.
 
@@ -90,26 +98,7 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
         n_features_in_, tuning_.
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        **BASIS_PARAMS, **sel.SELECTION_PARAMS, **ANGLE_FIT_PARAMS, **TUNE_PARAMS, **SEED}
-
-    def __init__(
-        self,
-        *,
-        basis: BasisSpec = "rbf",
-        n_centres: int = 25,
-        selection: sel.Rule = sel.DEFAULT_RULE,
-        n_constraints: int | None = None,
-        max_constraints: int | None = None,
-        n_restarts: int = 3,
-        seed: int = 0,
-        max_iter: int = MAX_ITER,
-        tol: float = 1e-9,
-        gap_floor: float = 1e-9,
-        cv_folds: int = 5,
-        tune: bool | dict = TUNE,
-    ) -> None:
-        self._store_params(locals())
+    n_centres: int = 25
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         return [((self.n_centres, 9), (1.0,)), ((self.n_centres,), (2.0,))]

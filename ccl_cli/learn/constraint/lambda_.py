@@ -15,15 +15,13 @@ from typing import ClassVar
 import numpy as np
 
 from ccl_cli.errors import ConfigError, LearningError
-from ccl_cli.learn.basis import BASIS_PARAMS, BasisSpec, make_basis
-from ccl_cli.learn.constraint import rank as sel
-from ccl_cli.learn.constraint.alpha import ANGLE_FIT_PARAMS, AngularConstraintMixin
-from ccl_cli.learn.constraint.angular import MAX_ITER, chunked_features, rows_from_weights
+from ccl_cli.learn.basis import make_basis
+from ccl_cli.learn.constraint.alpha import AngularConstraintMixin
+from ccl_cli.learn.constraint.angular import chunked_features, rows_from_weights
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.kinematics import ArmFeatures, ArmName
 from ccl_cli.learn.linalg import nullspace_projection
-from ccl_cli.learn.model_selection import TUNE, TUNE_PARAMS
-from ccl_cli.learn.params import SEED, Fields, Options
+from ccl_cli.learn.params import Fields, Options, parameters
 
 Features = Callable[[np.ndarray], np.ndarray]
 #: A built-in arm's Jacobian: its name, or {arm, rows} to keep some of its rows.
@@ -49,6 +47,7 @@ def make_features(spec: ArmName | dict | Features) -> Features:
     raise ConfigError(f"features must be a callable or a built-in arm (arm2, arm7), got {spec!r}")
 
 
+@parameters
 class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
     """Ã(x) = Λ̃(x) Φ(x) with Λ̃ rows a(W_k β(x)) in R^r.
 
@@ -64,29 +63,10 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
         n_features_in_, tuning_.
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        **FEATURE_PARAMS, **BASIS_PARAMS, **sel.SELECTION_PARAMS, **ANGLE_FIT_PARAMS, **TUNE_PARAMS, **SEED}
+    _parameter_constraints: ClassVar[dict[str, list]] = FEATURE_PARAMS
     _fitted_attributes: ClassVar[dict[str, str]] = {
         **AngularConstraintMixin._fitted_attributes, "n_task_": "value", "n_dropped_": "value"}
-
-    def __init__(
-        self,
-        *,
-        features: ArmName | dict | Features = "arm2",
-        basis: BasisSpec = "rbf",
-        n_centres: int = 16,
-        selection: sel.Rule = sel.DEFAULT_RULE,
-        n_constraints: int | None = None,
-        max_constraints: int | None = None,
-        n_restarts: int = 3,
-        seed: int = 0,
-        max_iter: int = MAX_ITER,
-        tol: float = 1e-9,
-        gap_floor: float = 1e-9,
-        cv_folds: int = 5,
-        tune: bool | dict = TUNE,
-    ) -> None:
-        self._store_params(locals())
+    features: ArmName | dict | Features = "arm2"
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         k = int(self.n_centres)

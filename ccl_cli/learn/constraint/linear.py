@@ -23,12 +23,12 @@ from typing import ClassVar, get_args
 
 import numpy as np
 
-from ccl_cli.learn.basis import BASIS_PARAMS, BasisSpec, make_basis
+from ccl_cli.learn.basis import BasisParams, make_basis
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.linalg import nullspace_projection, row_chunks
-from ccl_cli.learn.model_selection import TUNE, TUNE_PARAMS, Tunable
-from ccl_cli.learn.params import SEED, Interval, Options, Regressors, TaskRegressors, Whiten
+from ccl_cli.learn.model_selection import Tunable
+from ccl_cli.learn.params import Interval, Options, Regressors, SeedParams, TaskRegressors, Whiten, parameters
 
 REGRESSORS = get_args(Regressors)
 #: Regressor rows of all samples are cached between the reweighting passes up to this size.
@@ -45,7 +45,9 @@ def polynomial_features(X: np.ndarray, degree: int) -> np.ndarray:
     return np.stack(cols, 1)
 
 
-class LinearConstraint(Tunable, ConstraintModel):
+@parameters
+class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParams, sel.ThresholdParams,
+                       SeedParams):
     """A(x) = W Φ_A(x) estimated in closed form.
 
     Args:
@@ -75,34 +77,17 @@ class LinearConstraint(Tunable, ConstraintModel):
 
     _parameter_constraints: ClassVar[dict[str, list]] = {
         "regressors": [Options.of(Regressors), callable], "degree": [Interval(int, 0, 10)],
-        **BASIS_PARAMS, "task": [bool], "task_regressors": [Options.of(TaskRegressors)],
-        "whiten": [Options.of(Whiten)], "reweight": [Interval(int, 0, 1000)],
-        **sel.SELECTION_PARAMS, **sel.THRESHOLD_PARAMS, **TUNE_PARAMS, **SEED}
+        "task": [bool], "task_regressors": [Options.of(TaskRegressors)],
+        "whiten": [Options.of(Whiten)], "reweight": [Interval(int, 0, 1000)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
         "W_": "array", "Wb_": "array", "singular_values_": "array", "scale_": "array", "basis_": "basis"}
-
-    def __init__(
-        self,
-        *,
-        regressors: Regressors | Callable[[np.ndarray], np.ndarray] = "polynomial",
-        degree: int = 1,
-        basis: BasisSpec = "rbf",
-        n_centres: int = 16,
-        task: bool = False,
-        task_regressors: TaskRegressors = "constant",
-        whiten: Whiten = "rms",
-        reweight: int = 3,
-        selection: sel.Rule = sel.DEFAULT_RULE,
-        n_constraints: int | None = None,
-        threshold: float = 0.1,
-        gap_floor: float = 1e-9,
-        max_constraints: int | None = None,
-        cv_folds: int = 5,
-        seed: int = 0,
-        tune: bool | dict = TUNE,
-    ) -> None:
-        self._store_params(locals())
+    regressors: Regressors | Callable[[np.ndarray], np.ndarray] = "polynomial"
+    degree: int = 1
+    task: bool = False
+    task_regressors: TaskRegressors = "constant"
+    whiten: Whiten = "rms"
+    reweight: int = 3
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         return [((self.n_centres, 16, 9, 25, 36), (1.0, 0.5))] if self.regressors == "rbf" else []

@@ -15,8 +15,8 @@ from ccl_cli.errors import ConfigError
 from ccl_cli.learn.angles import unit_vector
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.base import ConstraintModel
-from ccl_cli.learn.params import SEED, Options
 from ccl_cli.learn.params import NhatMethod as Method
+from ccl_cli.learn.params import Options, SeedParams, parameters
 
 #: Grid of the original search: 20 angles per axis in [0, π − π/20].
 SEARCH_STEPS = 20
@@ -41,7 +41,8 @@ def _threshold_count(lams: np.ndarray, rows: np.ndarray, cov: np.ndarray, n: int
                          if k < max_k else f"all {k} candidates below {threshold}")
 
 
-class StateIndependentConstraint(ConstraintModel):
+@parameters
+class StateIndependentConstraint(ConstraintModel, sel.SelectionParams, sel.ThresholdParams, SeedParams):
     """Constant constraint matrix Ã (s × q) with orthonormal rows.
 
     Args:
@@ -61,25 +62,11 @@ class StateIndependentConstraint(ConstraintModel):
         n_constraints_, selection_.
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        "method": [Options.of(Method)], **sel.SELECTION_PARAMS, **sel.THRESHOLD_PARAMS, **SEED}
+    _parameter_constraints: ClassVar[dict[str, list]] = {"method": [Options.of(Method)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
         "A_": "array", "eigenvalues_": "array", "residuals_": "array"}
-
-    def __init__(
-        self,
-        *,
-        method: Method = "closed_form",
-        selection: sel.Rule = sel.DEFAULT_RULE,
-        n_constraints: int | None = None,
-        threshold: float = 0.1,
-        gap_floor: float = 1e-9,
-        max_constraints: int | None = None,
-        cv_folds: int = 5,
-        seed: int = 0,
-    ) -> None:
-        self._store_params(locals())
+    method: Method = "closed_form"
 
     def _candidate_rows(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """All q−1 candidate rows in order of use, and their residuals λ_k = a_kᵀ C a_k."""

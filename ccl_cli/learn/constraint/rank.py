@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, get_args
+from typing import Any, ClassVar, get_args
 
 import numpy as np
 
@@ -41,7 +41,7 @@ from ccl_cli.learn import model_selection
 from ccl_cli.learn.base import clone
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.defaults import DEFAULT_RULE, RATIO_FACTOR
-from ccl_cli.learn.params import Interval, Options
+from ccl_cli.learn.params import Interval, Options, parameters
 from ccl_cli.learn.params import SelectionRule as Rule
 
 #: The rules a learner's ``selection`` may name; "fixed" is recorded when ``n_constraints`` is given.
@@ -58,6 +58,29 @@ SELECTION_PARAMS: dict[str, list] = {
 }
 #: The ``threshold`` rule's level (nhat and linear).
 THRESHOLD_PARAMS: dict[str, list] = {"threshold": [Interval(float, 0, None)]}
+
+
+@parameters
+class SelectionParams:
+    """How the number of constraints s is chosen: ``selection`` (``ratio``, the noise-aware
+    default; ``threshold``, the original; ``eigengap``; ``cv``), or fixed by ``n_constraints``;
+    at most ``max_constraints`` rows (default q − 1); ``gap_floor``: the relative floor of the
+    residuals; ``cv_folds``: folds of the ``cv`` rule."""
+
+    _parameter_constraints: ClassVar[dict[str, list]] = SELECTION_PARAMS
+    selection: Rule = DEFAULT_RULE
+    n_constraints: int | None = None
+    max_constraints: int | None = None
+    gap_floor: float = 1e-9
+    cv_folds: int = 5
+
+
+@parameters
+class ThresholdParams:
+    """``threshold``: the level of the ``threshold`` rule (original: 0.1)."""
+
+    _parameter_constraints: ClassVar[dict[str, list]] = THRESHOLD_PARAMS
+    threshold: float = 0.1
 
 
 @dataclass
