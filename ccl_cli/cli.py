@@ -222,9 +222,48 @@ def _bar(label: str, total: int, quiet: bool):
 
 
 # -- learning commands --------------------------------------------------------------------
+#: The options every learning command takes besides its stage's own: (name, annotation, default).
+_LEADING = (("data", "DataArg", None), ("config", "ConfigOpt", None), ("out", "OutOpt", None))
+_TRAILING = (("seed", "SeedOpt", None), ("test_fraction", "TestOpt", None), ("convention", "ConvOpt", None),
+             ("force", "ForceOpt", False), ("json_out", "JsonOpt", False), ("quiet", "QuietOpt", False))
+
+
+def _learning_command(stage: str):
+    """A command learning one stage: the decorated function takes the stage's own options
+    and returns them as config keys (values None: not given); this adds the options every
+    learning command shares (recordings, config, output, seed, test fraction, convention,
+    force, --json, -q) and runs the stage."""
+    import functools
+    import inspect as pyinspect
+
+    def wrap(fn):
+        import typing
+
+        hints = typing.get_type_hints(fn, include_extras=True)  # typer reads the Annotated options
+        own = [p.replace(annotation=hints[p.name]) for p in pyinspect.signature(fn).parameters.values()]
+        kind = pyinspect.Parameter.POSITIONAL_OR_KEYWORD
+        shared = [pyinspect.Parameter(n, kind, default=d, annotation=globals()[a])
+                  for n, a, d in _LEADING + _TRAILING]
+        params = shared[:len(_LEADING)] + own + shared[len(_LEADING):]
+
+        @functools.wraps(fn)
+        def command(**kw: Any) -> None:
+            common = {name: kw.pop(name) for name, _, _ in _LEADING + _TRAILING}
+            _logging(common["quiet"])
+            flags = _common(common["seed"], common["test_fraction"], common["convention"]) | {stage: fn(**kw)}
+            _learn(stage, [stage], _config(common["config"], flags), common["data"], common["out"],
+                   common["force"], common["json_out"], common["quiet"])
+
+        command.__signature__ = pyinspect.Signature(params, return_annotation=None)
+        command.__annotations__ = {p.name: p.annotation for p in params}
+        return command
+
+    return wrap
+
+
 @app.command("learn-a")
+@_learning_command("learn-a")
 def learn_a(
-    data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None,
     method: Annotated[LearnAMethod | None, typer.Option(
         help="nhat (constant A, closed form), alpha (state-dependent), lambda (known Φ), linear "
              "(closed form, docs/methods.md).", show_default=_default(S.DEFAULT_CONSTRAINT_METHOD))] = None,
@@ -243,51 +282,33 @@ def learn_a(
                                                   "demonstration.", show_default="config, else pooled")]
     = None,
     n_centres: CentresOpt = None, basis: BasisOpt = None,
-    seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
-    force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
-) -> None:
+) -> dict[str, Any]:
     """Learn the constraint A(x) (and its projection N = I − A⁺A) from observed actions."""
-    _logging(quiet)
-    over = _common(seed, test_fraction, convention) | {"learn-a": {
-        "method": _value(method), "selection": _value(selection), "n_constraints": n_constraints,
-        "features": _value(features), "regressors": _value(regressors), "degree": degree,
-        "per_demo": per_demo, "n_centres": n_centres, "basis": _value(basis)}}
-    cfg = _config(config, over)
-    _learn("learn-a", ["learn-a"], cfg, data, out, force, json_out, quiet)
+    return {"method": _value(method), "selection": _value(selection), "n_constraints": n_constraints,
+            "features": _value(features), "regressors": _value(regressors), "degree": degree,
+            "per_demo": per_demo, "n_centres": n_centres, "basis": _value(basis)}
 
 
 @app.command("learn-v")
-def learn_v(
-    data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None,
-    n_centres: CentresOpt = None, basis: BasisOpt = None,
-    seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
-    force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
-) -> None:
+@_learning_command("learn-v")
+def learn_v(n_centres: CentresOpt = None, basis: BasisOpt = None) -> dict[str, Any]:
     """Learn the null-space component w(x) of u = v + w (and so the task part v = u − w)."""
-    _logging(quiet)
-    cfg = _config(config, _common(seed, test_fraction, convention) | {
-        "learn-v": {"n_centres": n_centres, "basis": _value(basis)}})
-    _learn("learn-v", ["learn-v"], cfg, data, out, force, json_out, quiet)
+    return {"n_centres": n_centres, "basis": _value(basis)}
 
 
 @app.command("learn-pi")
+@_learning_command("learn-pi")
 def learn_pi(
-    data: DataArg = None, config: ConfigOpt = None, out: OutOpt = None,
     method: Annotated[PiMethod | None, typer.Option(help="Policy learner (docs/methods.md).",
                                                     show_default=_default(D.POLICY_METHOD))] = None,
     projections: Annotated[Projections | None, typer.Option(
         help="pi-coupled: projections from the ground truth (true) or a learn-a stage (learnt).",
         show_default=_default("auto"))] = None,
     n_centres: CentresOpt = None, basis: BasisOpt = None,
-    seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
-    force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
-) -> None:
+) -> dict[str, Any]:
     """Learn the unconstrained null-space policy π(x) from demonstrations under varying constraints."""
-    _logging(quiet)
-    cfg = _config(config, _common(seed, test_fraction, convention) | {
-        "learn-pi": {"method": _value(method), "projections": _value(projections), "n_centres": n_centres,
-                     "basis": _value(basis)}})
-    _learn("learn-pi", ["learn-pi"], cfg, data, out, force, json_out, quiet)
+    return {"method": _value(method), "projections": _value(projections), "n_centres": n_centres,
+            "basis": _value(basis)}
 
 
 @app.command("run")

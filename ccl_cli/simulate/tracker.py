@@ -7,6 +7,9 @@ recording with nothing to learn (for the data diagnostics).
 
 from __future__ import annotations
 
+from functools import partial
+from typing import Literal
+
 import numpy as np
 
 from ccl_cli.dataset import Demonstrations
@@ -189,12 +192,14 @@ def _tracker(surface: str, *, duration: float, rate: float, noise: float, n_reco
                           action_units=["m/s"] * 3, metadata=meta)
 
 
-def tracker_plane(
+def tracker(
+    surface: Literal["plane", "sphere"] = "plane",
     duration: float = 90.0,
     rate: float = 50.0,
     noise: float = 1e-3,
     n_recordings: int = 1,
     tilt_deg: float = 30.0,
+    radius: float = 0.25,
     extent: float = 0.08,
     speed: tuple[float, float] = (0.03, 0.12),
     pause: tuple[float, float] = (0.5, 3.0),
@@ -208,7 +213,9 @@ def tracker_plane(
     seed: int = 0,
 ) -> Demonstrations:
     """A finger with a Trakstar-style sensor tracing circles and figure-eights on a tilted
-    table: one state-independent constraint, the plane's unit normal n (A = nᵀ, (1, 3)).
+    ``surface``. ``plane`` (:func:`tracker_plane`): a table, one state-independent constraint,
+    the plane's unit normal n (A = nᵀ, (1, 3)); ``sphere`` (:func:`tracker_sphere`): a bowl,
+    see the end.
 
     Simulated (units: metres, seconds): ``n_recordings`` continuous recordings (one
     demonstration each, the way a tracker export arrives) of ``duration`` s sampled at
@@ -234,33 +241,8 @@ def tracker_plane(
 
     Truth: π (N, 3) the tangential velocity the user intends (the noise-free derivative of
     the path, so π = w = Nπ), v = 0, b = 0, A = nᵀ (1, 3) and N = I − nnᵀ (3, 3).
-    """
-    return _tracker("plane", duration=duration, rate=rate, noise=noise, n_recordings=n_recordings,
-                    tilt_deg=tilt_deg, radius=0.0, extent=extent, speed=speed, pause=pause, aspect=aspect,
-                    spread=spread, wobble=wobble, window=window, order=order, jitter=jitter, drift=drift,
-                    seed=seed)
 
-
-def tracker_sphere(
-    duration: float = 90.0,
-    rate: float = 50.0,
-    noise: float = 1e-3,
-    n_recordings: int = 1,
-    radius: float = 0.25,
-    tilt_deg: float = 15.0,
-    extent: float = 0.08,
-    speed: tuple[float, float] = (0.03, 0.12),
-    pause: tuple[float, float] = (0.5, 3.0),
-    aspect: tuple[float, float] = (0.5, 1.0),
-    spread: float = 1.0,
-    wobble: float = 0.0,
-    window: int | None = None,
-    order: int = 2,
-    jitter: float = 0.0,
-    drift: float = 0.0,
-    seed: int = 0,
-) -> Demonstrations:
-    """The same finger strokes as :func:`tracker_plane`, traced inside a bowl: the inner
+    ``sphere``: the same strokes traced inside a bowl, the inner
     surface of a sphere of ``radius`` m (one state-dependent constraint, the surface normal at
     x: A(x) = d(x)ᵀ with d the unit vector from the sphere's centre to the finger).
 
@@ -270,10 +252,16 @@ def tracker_sphere(
     by ``tilt_deg``. Observation model, units and truth as in :func:`tracker_plane`, except
     that A (N, 1, 3) and N (N, 3, 3) are per sample, at the noise-free position.
     """
-    return _tracker("sphere", duration=duration, rate=rate, noise=noise, n_recordings=n_recordings,
-                    tilt_deg=tilt_deg, radius=radius, extent=extent, speed=speed, pause=pause,
-                    aspect=aspect, spread=spread, wobble=wobble, window=window, order=order, jitter=jitter,
-                    drift=drift, seed=seed)
+    return _tracker(surface, duration=duration, rate=rate, noise=noise, n_recordings=n_recordings,
+                    tilt_deg=tilt_deg, radius=0.0 if surface == "plane" else radius, extent=extent,
+                    speed=speed, pause=pause, aspect=aspect, spread=spread, wobble=wobble, window=window,
+                    order=order, jitter=jitter, drift=drift, seed=seed)
+
+
+#: A finger on a tilted table (:func:`tracker` with ``surface="plane"``).
+tracker_plane = partial(tracker, "plane")
+#: A finger in a bowl of radius 0.25 m tilted by 15° (:func:`tracker` with ``surface="sphere"``).
+tracker_sphere = partial(tracker, "sphere", tilt_deg=15.0)
 
 
 def arm_at_rest(
