@@ -29,8 +29,8 @@ _WHERE = {
     "ccl_cli.io.h5.seal": ("create_hdf5",),
     "ccl_cli.io.load": ("inspect_recording", "load_demonstrations", "read_dataset"),
     "ccl_cli.io.options": ("ActionOptions", "DataOptions", "DemoOptions", "StreamOptions", "TimeOptions"),
-    "ccl_cli.io.reader": ("Recording",),
-    "ccl_cli.io.registry": ("FORMATS", "Reader", "detect_format", "open_reader"),
+    "ccl_cli.io.reader": ("Reader", "Recording"),
+    "ccl_cli.io.registry": ("FORMATS", "detect_format", "open_reader"),
     "ccl_cli.io.yamlsafe": ("read_yaml",),
 }
 _MODULE_OF = {name: module for module, names in _WHERE.items() for name in names}

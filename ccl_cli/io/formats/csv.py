@@ -47,6 +47,8 @@ _DEC = re.compile(r"^([+-]?)(\d*)\.(\d*)$")
 _INTS = re.compile(r"(?:[+-]?\d+\n)*")
 _DECIMALS = re.compile(r"(?:[+-]?(?:\d*\.\d*|\d+)\n)*")
 _I64 = 2**63 - 1
+#: line boundaries of str.splitlines that are not line ends to the csv module
+_OTHER_LINE_BREAKS = "\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"
 
 
 def unique_names(header: list[str]) -> list[str]:
@@ -232,12 +234,10 @@ class CsvTable:
     def _numbers(self, text: str, delim: str) -> tuple[list[str], _Matrix] | None:
         """The whole table through ``np.loadtxt``; None unless it is numbers only (then the
         cell-by-cell reader gives the same table, or says what is wrong)."""
-        if "\r" in text:
-            text = text.replace("\r\n", "\n")
-        if '"' in text or "\r" in text:
-            return None
+        if '"' in text or any(c in text for c in _OTHER_LINE_BREAKS):
+            return None  # quoting, or characters str.splitlines breaks at and the csv module not
         sep = None if delim in (" ", "whitespace") else delim
-        lines = text.split("\n")
+        lines = text.splitlines()  # at \n, \r\n and \r, as the csv module
         if sep is not None and max(map(len, lines)) > csv.field_size_limit():
             return None  # a line that may hold a field the csv module refuses
         # blank lines (only separators and white space) are skipped; a line of other white
@@ -245,6 +245,8 @@ class CsvTable:
         blank = " \t" + (sep or "")
         lines = [ln for ln in lines if ln.strip(blank)]
         header = (lines[0].split(sep) if sep is not None else lines[0].split()) if lines else []
+        if not any(c.strip() for c in header):
+            return None
         headerless = all(_is_number(c) for c in header)
         if self.samples == "columns" and not headerless:
             return None
