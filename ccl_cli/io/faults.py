@@ -39,9 +39,11 @@ SPIKE_Z = 8.0
 #: are gaps (or clock steps).
 GAP_PERIODS = 1.5
 GAP_JITTER = 6.0
-#: A gap is a clock step when the motion across it would have moved the position by more
-#: than MOTION_Z × the position noise had the time really passed, and it did not.
-MOTION_Z = 10.0
+#: A gap is a clock step when the positions moved across it as in one period while the
+#: velocity on either side (from VELOCITY_SPAN intervals each side) exceeds MOTION_Z times its
+#: noise and, had the gap's time passed, would have moved them by MOTION_Z × their noise more.
+MOTION_Z = 5.0
+VELOCITY_SPAN = 8
 #: Force bias: reported when the median of a channel at rest differs from zero by more than
 #: BIAS_Z standard errors and by more than half the channel's noise.
 BIAS_Z = 5.0
@@ -273,16 +275,20 @@ def _clock_steps(t: np.ndarray, X: np.ndarray, demo: np.ndarray, at: np.ndarray,
     if not len(k):
         return step, missing
     lo, hi = _demo_bounds(demo)
-    a, b = np.maximum(k - 4, lo[k]), np.minimum(k + 3, hi[k] - 1)  # three intervals each side
+    a, b = np.maximum(k - 1 - VELOCITY_SPAN, lo[k]), np.minimum(k + VELOCITY_SPAN, hi[k] - 1)
     with np.errstate(divide="ignore", invalid="ignore"):
         v_left = (X[k - 1] - X[a]) / (t[k - 1] - t[a])[:, None]
         v_right = (X[b] - X[k]) / (t[b] - t[k])[:, None]
     v = 0.5 * (np.nan_to_num(v_left) + np.nan_to_num(v_right))
-    speed2 = (v**2).sum(1)
-    elapsed = np.einsum("md,md->m", X[k] - X[k - 1], v) / np.maximum(speed2, 1e-300)
-    sigma = float(np.sqrt(white_noise_var(X, demo).sum()))
+    speed = np.sqrt((v**2).sum(1))
+    elapsed = np.einsum("md,md->m", X[k] - X[k - 1], v) / np.maximum(speed**2, 1e-300)
+    sigma = max(float(np.sqrt(white_noise_var(X, demo).sum())), 1e-12)  # position noise, all axes
     dt = t[k] - t[k - 1]
-    moving = np.sqrt(speed2) * (dt - period) > MOTION_Z * max(sigma, 1e-12)
+    span = np.maximum(np.minimum(k - 1 - a, b - k), 1)
+    # the velocity is real (its noise: σ / (span · P)) and the two hypotheses, one period or dt,
+    # put the sample apart by more than the noise of the displacement (√2 σ)
+    moving = ((speed > MOTION_Z * sigma / (span * period))
+              & (speed * (dt - period) > MOTION_Z * np.sqrt(2) * sigma))
     step[k] = moving & (np.abs(elapsed - period) < np.abs(elapsed - dt))
     missing[k] = np.where(moving, np.maximum(np.round(elapsed / period), 1.0), np.round(dt / period)) - 1
     return step, missing
@@ -340,6 +346,15 @@ class Cleaned:
         return [f.as_dict(t) for f in self.findings]
 
 
+def run_edges(mask: np.ndarray, reach: int) -> np.ndarray:
+    """The samples within ``reach`` of a start or end of a run of True in ``mask`` (N,)."""
+    change = np.flatnonzero(np.diff(mask.astype(np.int8)) != 0) + 1
+    near = np.zeros(len(mask), dtype=bool)
+    for offset in range(-reach, reach):  # a loop over offsets, not samples
+        near[np.clip(change + offset, 0, len(mask) - 1)] = True
+    return near
+
+
 def _widen(mask: np.ndarray, where: np.ndarray, n: int) -> np.ndarray:
     """A mask over ``n`` samples that is ``mask`` at the indices ``where``."""
     out = np.zeros(n, dtype=bool)
@@ -370,6 +385,9 @@ def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str =
         if flips == "drop":
             idx, t, X, demo = idx[~flip.mask], t[~flip.mask], X[~flip.mask], demo[~flip.mask]
     spike = spikes(X, t, demo)
+    if flip and flips == "keep":  # the jumps of flips left in place are no spikes
+        edges = run_edges(flip.mask, 3)
+        spike = Finding(spike.kind, spike.mask & ~edges, spike.action, spike.detail)
     if spike:
         spike.action = "dropped" if drop_spikes else "reported"
         findings.append(Finding(spike.kind, _widen(spike.mask, idx, n), spike.action, spike.detail))

@@ -34,7 +34,7 @@ NULL_GAIN = 0.5
 #: Smallest singular value (m/rad) of J_p allowed along a simulated path.
 MIN_SINGULAR = 0.05
 #: Rate (Hz) of the RK4 integration of the joint motion (the log is interpolated from it).
-INTEGRATION_RATE = 200.0
+INTEGRATION_RATE = 100.0
 
 
 @dataclass
@@ -122,7 +122,7 @@ class _Paths:
 def _joint_rates(arm: SevenDofArm, q: np.ndarray, xdot: np.ndarray, target: np.ndarray) -> np.ndarray:
     """q̇ = J_p⁺ ẋ_d + (I − J_p⁺J_p) k (q* − q) for postures q (N, 7), desired ẋ_d (N, 3)."""
     J = arm.jacobian(q)[:, :3, :]
-    Jp = np.linalg.pinv(J)
+    Jp = J.transpose(0, 2, 1) @ np.linalg.inv(J @ J.transpose(0, 2, 1))  # J⁺ of a full-rank (3, 7) J
     null = np.eye(7) - Jp @ J
     return np.einsum("nij,nj->ni", Jp, xdot) + NULL_GAIN * np.einsum("nij,nj->ni", null, target - q)
 
