@@ -277,14 +277,26 @@ def rank_cases(quick: bool) -> list[tuple[str, int | None, Callable, Callable, b
     return cases
 
 
+def _evidence_points(truth: int, ev: nr.RowEvidence) -> list[tuple[str, float, float]]:
+    """(class, r, share) of the rows the rule must judge: the true constraint rows and the
+    first free row; rows after the first with r relative to max(r_1, 1), as the rule reads them."""
+    r, f = ev.ratio, ev.share
+    first = max(float(r[0]), 1.0)
+    out = [("constraint row 1" if j == 0 else "constraint row k≥2", float(r[j] if j == 0 else r[j] / first),
+            float(f[j])) for j in range(truth)]
+    if truth < len(r):
+        out.append(("free row 1" if truth == 0 else "free row k≥2",
+                    float(r[truth] if truth == 0 else r[truth] / first), float(f[truth])))
+    return out
+
+
 def rank_section(seeds: range, quick: bool, only: list[str]) -> None:
-    quiet: list[tuple[float, float]] = []  # (energy/noise, share) of true constraint rows
-    free: list[tuple[float, float]] = []  # of the first free row
+    points: list[tuple[str, float, float]] = []
     for case, truth, make, learner, per_demo in rank_cases(quick):
         if only and not any(case.startswith(o) for o in only):
             continue
         chosen: dict[str, list[int]] = defaultdict(list)
-        case_quiet, case_free = [], []
+        case_points: list[tuple[str, float, float]] = []
         t0 = time.perf_counter()
         for seed in seeds:
             d = make(seed)
@@ -294,9 +306,7 @@ def rank_section(seeds: range, quick: bool, only: list[str]) -> None:
                 for r in RULES:
                     chosen[r].append(int(ks[r]))
                 if truth is not None:
-                    case_quiet += [(float(ev.ratio[j]), float(ev.share[j])) for j in range(truth)]
-                    if truth < len(ev.ratio):
-                        case_free.append((float(ev.ratio[truth]), float(ev.share[truth])))
+                    case_points += _evidence_points(truth, ev)
                 emit({"section": "rank", "case": case, "seed": seed, "true_k": truth, "chosen": ks,
                       "energy_over_noise": ev.ratio.round(3).tolist(), "share": ev.share.tolist(),
                       "snr": ev.snr})
@@ -309,27 +319,33 @@ def rank_section(seeds: range, quick: bool, only: list[str]) -> None:
                           for r in RULES)
         TABLES["rank: runs with the true k (" + ", ".join(RULES) + ")"].append(
             f"{case:40s} k={truth!s:4s} {cells}")
-        TABLES["rank: evidence per case (constraint rows: max; first free row: min)"].append(
-            f"{case:40s} constraint e/σ² {_ext(case_quiet, 0, max)} share {_ext(case_quiet, 1, max)}"
-            f" | free e/σ² {_ext(case_free, 0, min)} share {_ext(case_free, 1, min)}")
+        TABLES["rank: evidence per case (r = e/σ², further rows r/max(r_1, 1); f = share)"].append(
+            f"{case:40s} " + "; ".join(_summary(case_points, cls) for cls in (
+                "constraint row 1", "constraint row k≥2", "free row 1", "free row k≥2")
+                if any(p[0] == cls for p in case_points)))
         if "raw" not in case and "windows" not in case:  # faulty data; windows that explore one direction
-            quiet += case_quiet
-            free += case_free
-    if quiet and free:
-        q, f = np.asarray(quiet), np.asarray(free)
-        loud = q[:, 0] > nr.MARGIN
-        tab = TABLES["rank: evidence for MARGIN and SHARE (all cases but raw faults and windows)"]
-        tab.append(f"constraint rows: e/σ² median {np.median(q[:, 0]):.3g}; of the {loud.sum()} above "
-                   f"MARGIN = {nr.MARGIN:g} the largest share is {_ext(q[loud], 1, max)} "
-                   f"(SHARE = {nr.SHARE:g})")
-        tab.append(f"first free rows: e/σ² min {f[:, 0].min():.3g}; share min {f[:, 1].min():.3g}")
-        emit({"section": "rank", "evidence": True, "margin": nr.MARGIN, "share": nr.SHARE,
-              "constraint_loud_share_max": float(q[loud, 1].max()) if loud.any() else None,
-              "free_ratio_min": float(f[:, 0].min()), "free_share_min": float(f[:, 1].min())})
+            points += case_points
+    if points:
+        tab = TABLES["rank: evidence for MARGIN, RATIO, SHARE (all cases but raw faults and windows)"]
+        for cls in ("constraint row 1", "constraint row k≥2", "free row 1", "free row k≥2"):
+            tab.append(f"{cls:20s} {_summary(points, cls)}")
+        tab.append(f"(MARGIN = {nr.MARGIN:g}, RATIO = {nr.RATIO:g}, SHARE = {nr.SHARE:g}; a constraint row "
+                   "needs r ≤ MARGIN (row 1) or ≤ RATIO (further rows), or f ≤ SHARE)")
 
 
-def _ext(values: list | np.ndarray, col: int, fn) -> str:
-    return f"{fn(v[col] for v in values):9.3g}" if len(values) else "        –"
+def _summary(points: list[tuple[str, float, float]], cls: str) -> str:
+    """Constraint rows: the largest r among those the share does not catch (f > SHARE) and the
+    largest f among those r does not catch; free rows: the smallest r and f."""
+    p = np.array([(r, f) for c, r, f in points if c == cls])
+    if not len(p):
+        return f"{cls}: –"
+    if cls.startswith("constraint"):
+        limit = nr.MARGIN if cls.endswith("1") else nr.RATIO
+        by_r, by_f = p[p[:, 1] > nr.SHARE, 0], p[p[:, 0] > limit, 1]
+        return (f"{cls}: max r {p[:, 0].max():.3g} (where f > SHARE: "
+                f"{by_r.max() if len(by_r) else float('nan'):.3g}), max f where r > limit "
+                f"{by_f.max() if len(by_f) else float('nan'):.3g}, n={len(p)}")
+    return f"{cls}: min r {p[:, 0].min():.3g}, min f {p[:, 1].min():.3g}, n={len(p)}"
 
 
 # -- pipeline --------------------------------------------------------------------------------

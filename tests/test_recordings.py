@@ -67,7 +67,7 @@ def test_tilting_board():
         assert 0 <= lo < 10 and 10 < hi <= 28
         assert len(data.metadata["windows"]) == 10
         # the board turns slowly (steps: in 0.5 s): the motion along its normal is a small part
-        assert _rms(data.truth["b"]) < (0.02 if mode == "smooth" else 0.15) * _rms(data.truth["w"])
+        assert _rms(data.truth["b"]) < (0.05 if mode == "smooth" else 0.15) * _rms(data.truth["w"])
 
 
 def _phase(data) -> np.ndarray:

@@ -70,6 +70,15 @@ def fault(kind: str, ranges: list[tuple[int, int]], t: np.ndarray, **extra: Any)
             "times": [[float(t[a]), float(t[b - 1])] for a, b in ranges], **extra}
 
 
+def position_recording(X: np.ndarray, U: np.ndarray, demo: np.ndarray, t: np.ndarray,
+                       truth: dict[str, np.ndarray], metadata: dict[str, Any]) -> Demonstrations:
+    """Demonstrations of positions X (N, d) in m (axes x, y[, z]) and their velocities U (N, d)."""
+    axes = ["x", "y", "z"][: X.shape[1]]
+    return Demonstrations(X=X, U=U, demo=demo, t=t, truth=truth, state_names=axes,
+                          action_names=[f"d{a}/dt" for a in axes], state_units=["m"] * len(axes),
+                          action_units=["m/s"] * len(axes), metadata=metadata)
+
+
 def _free_truth(V: np.ndarray) -> dict[str, np.ndarray]:
     """Ground truth of unconstrained motion with true velocity V (N, q): N = I, π = w = V, v = 0."""
     return {"N": np.eye(V.shape[1]), "pi": V, "w": V.copy(), "v": np.zeros_like(V)}
@@ -200,9 +209,7 @@ def tracker_flips(
     faults += [fault(names[k], r, t) for k, r in stamp_ranges.items()]
     meta = {**clean.metadata, "simulated": "tracker_flips", "surface": surface, "derivative": deriv,
             "offset_m": [float(v) for v in offset], "faults": faults}
-    return Demonstrations(X=X, U=U, demo=demo, t=t, truth=data.truth, state_names=clean.state_names,
-                          action_names=clean.action_names, state_units=clean.state_units,
-                          action_units=clean.action_units, metadata=meta)
+    return position_recording(X, U, demo, t, data.truth, meta)
 
 
 # -- a surface that tilts -------------------------------------------------------------------
@@ -297,9 +304,7 @@ def tracker_tilt(
             "derivative": deriv, "window_s": window_s, "windows": windows,
             "angles_deg": angles.round(3).tolist(),
             "angle_range_deg": [float(upper.min()), float(upper.max())], "faults": []}
-    return Demonstrations(X=X, U=U, demo=demo, t=t, truth=truth, state_names=["x", "y", "z"],
-                          action_names=["dx/dt", "dy/dt", "dz/dt"], state_units=["m"] * 3,
-                          action_units=["m/s"] * 3, metadata=meta)
+    return position_recording(X, U, demo, t, truth, meta)
 
 
 # -- motion with no constraint ------------------------------------------------------------------
@@ -374,9 +379,7 @@ def free_reach(
     U, deriv = derive(t, X, demo, rate)
     meta = {"simulated": "free_reach", "rate_hz": rate, "noise_m": noise, "derivative": deriv,
             "n_constraints": 0, "faults": []}
-    return Demonstrations(X=X, U=U, demo=demo, t=t, truth=_free_truth(xdot), state_names=["x", "y", "z"],
-                          action_names=["dx/dt", "dy/dt", "dz/dt"], state_units=["m"] * 3,
-                          action_units=["m/s"] * 3, metadata=meta)
+    return position_recording(X, U, demo, t, _free_truth(xdot), meta)
 
 
 def flow2d(
@@ -423,6 +426,4 @@ def flow2d(
     U, deriv = derive(t, X, demo, rate)
     meta = {"simulated": "flow2d", "rate_hz": rate, "noise_m": noise, "derivative": deriv,
             "n_constraints": 0, "faults": []}
-    return Demonstrations(X=X, U=U, demo=demo, t=t, truth=_free_truth(xdot), state_names=["x", "y"],
-                          action_names=["dx/dt", "dy/dt"], state_units=["m"] * 2, action_units=["m/s"] * 2,
-                          metadata=meta)
+    return position_recording(X, U, demo, t, _free_truth(xdot), meta)

@@ -11,10 +11,13 @@ directions â = a/‖a‖:
            σ²_x(â_k) Σc² (c the derivative's slope filter), for recorded actions σ²_u(â_k)
     f_k  = e_k / mean_n ‖u_n‖²                     its share of all the motion
 
-Row k is a constraint when e_k ≤ MARGIN σ²_k (motion at the noise level) or f_k ≤ SHARE (a
-contact gives a little — a tool pressing into a table moves along its normal slightly, above
-a good sensor's noise — while a free direction carries a fair share of the motion). s is the
-number of leading rows that are constraints, 0 … m: "no constraint" is a legal answer.
+Row 1 is a constraint when r_1 = e_1/σ²_1 ≤ MARGIN (motion at the noise level) or
+f_1 ≤ SHARE (a contact gives a little — a tool pressing into a table moves along its normal
+slightly, above a good sensor's noise — while a free direction carries a fair share of the
+motion). A further row k is one when f_k ≤ SHARE or r_k ≤ min(MARGIN, RATIO · max(r_1, 1)):
+as quiet as the first, so that a free direction that barely rises above heavy noise is not
+taken for a second constraint. s is the number of leading rows that are constraints,
+0 … m: "no constraint" is a legal answer.
 
 Second differences measure noise only on trajectories sampled in time: when the actions'
 total variance is below MIN_SNR × their estimated noise (samples not in time order, or no
@@ -32,10 +35,12 @@ from ccl_cli.learn.linalg import unit_rows
 from ccl_cli.learn.noise import derived_noise_var, white_noise_var
 
 #: A row whose energy is at most MARGIN × its noise variance is at the noise level.
-MARGIN = 5.0
+MARGIN = 10.0
 #: A row carrying at most this share of the mean squared action is a constraint however far
 #: above the noise it is.
 SHARE = 1e-2
+#: A row after the first may move at most RATIO × as much (over its noise) as the first.
+RATIO = 2.0
 #: Below this ratio of the actions' total variance to their noise the rule cannot judge.
 MIN_SNR = 3.0
 RULE = "noise"
@@ -99,28 +104,29 @@ def row_evidence(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarra
 
 
 def noise_rank(evidence: RowEvidence, max_k: int, margin: float = MARGIN, share: float = SHARE,
-               min_snr: float = MIN_SNR) -> Selection | None:
-    """s = the number of leading rows k ≤ ``max_k`` with e_k ≤ ``margin`` σ²_k or
-    f_k ≤ ``share`` (0 … max_k); None when evidence.snr < ``min_snr`` (no judgement).
-    ``values`` of the Selection: e_k/σ²_k."""
+               ratio: float = RATIO, min_snr: float = MIN_SNR) -> Selection | None:
+    """s = the number of leading rows k ≤ ``max_k`` that are constraints by the rule of the
+    module docstring (0 … max_k); None when evidence.snr < ``min_snr`` (no judgement).
+    ``values`` of the Selection: r_k = e_k/σ²_k."""
     if not evidence.snr >= min_snr:
         return None
-    ratio = evidence.ratio
-    quiet = (ratio <= margin) | (evidence.share <= share)
+    r = evidence.ratio
+    limit = np.full(len(r), float(margin))
+    limit[1:] = min(margin, ratio * max(float(r[0]) if len(r) else 1.0, 1.0))
+    quiet = (r <= limit) | (evidence.share <= share)
     m = min(int(max_k), len(quiet))
     k = int(np.argmin(np.r_[quiet[:m], False]))  # the first row that moves
     if k < m:
-        why = (f"row {k + 1} moves {ratio[k]:.3g}× its noise variance (> {margin:g}) and carries "
+        why = (f"row {k + 1} moves {r[k]:.3g}× its noise variance (> {limit[k]:.3g}) and carries "
                f"{evidence.share[k]:.2g} of the motion (> {share:g})")
     else:
         why = f"all {k} candidate rows are quiet (at most {m} allowed)"
     if k == 0:
         why = "no constraint: " + why
-    return Selection(RULE, k, [float(v) for v in ratio], why, "energy / noise variance of row k")
+    return Selection(RULE, k, [float(v) for v in r], why, "energy / noise variance of row k")
 
 
 def choose(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarray, max_k: int,
-           X: np.ndarray | None = None, derivative: dict | None = None, margin: float = MARGIN,
-           share: float = SHARE) -> Selection | None:
-    """:func:`row_evidence` then :func:`noise_rank`."""
-    return noise_rank(row_evidence(U, rows, demo, t, X, derivative), max_k, margin, share)
+           X: np.ndarray | None = None, derivative: dict | None = None) -> Selection | None:
+    """:func:`row_evidence` then :func:`noise_rank` with the default thresholds."""
+    return noise_rank(row_evidence(U, rows, demo, t, X, derivative), max_k)
