@@ -351,7 +351,7 @@ def _summary(points: list[tuple[str, float, float]], cls: str) -> str:
 # -- pipeline --------------------------------------------------------------------------------
 def _run(argv: list[str]) -> tuple[int, dict]:
     buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(io.StringIO()):  # warnings: in the JSON
         code = ccl(argv)
     try:
         return code, json.loads(buf.getvalue())

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from ccl_cli import simulate as sim
+from ccl_cli.errors import ConfigError
 from ccl_cli.io import faults
 from ccl_cli.learn.constraint import StateIndependentConstraint
 from ccl_cli.simulate.recordings import TRACKER_ORIGIN, derive
@@ -82,6 +83,9 @@ def test_flips_dropped_instead_of_mirrored():
     assert cleaned.findings[0].action == "dropped"
     kept = faults.clean_positions(data.t, data.X, data.demo, flips="keep")
     assert np.array_equal(kept.X, data.X) and kept.findings[0].action == "reported"
+    assert [f.kind for f in kept.findings] == ["hemisphere_flip"]  # its jumps are not spikes
+    with pytest.raises(ConfigError, match="flips"):
+        faults.clean_positions(data.t, data.X, data.demo, flips="fix")
 
 
 def test_a_recording_that_starts_mirrored():

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from ccl_cli.errors import ConfigError
 from ccl_cli.learn.noise import MAD_NORMAL, robust_std, second_differences, white_noise_var
 
 #: A flip boundary: the jump ‖x_n − x̂_n‖ (x̂_n = 2x_{n−1} − x_{n−2}) exceeds FLIP_RATIO × (the
@@ -35,6 +36,8 @@ FLIP_RATIO = 20.0
 #: among its neighbours' and has their opposite sign (thresholds of this module: measured by
 #: ``benchmarks/bench_recordings.py --only faults``).
 SPIKE_Z = 8.0
+#: The five samples of a spike test span at most this many median periods.
+SPIKE_SPAN = 6.0
 #: Stamp intervals beyond GAP_PERIODS periods + GAP_JITTER robust spreads of the intervals
 #: are gaps (or clock steps).
 GAP_PERIODS = 1.5
@@ -49,6 +52,8 @@ VELOCITY_SPAN = 8
 BIAS_Z = 5.0
 #: Seconds at the start and end of each demonstration taken as free of contact.
 FREE_EDGE_S = 0.5
+#: What :func:`clean_positions` does with hemisphere flips, and the action it reports.
+FLIP_ACTIONS = {"mirror": "mirrored", "drop": "dropped", "keep": "reported"}
 
 
 def runs(mask: np.ndarray) -> np.ndarray:
@@ -149,12 +154,15 @@ def unflip(X: np.ndarray, flips: Finding) -> np.ndarray:
 # -- spikes --------------------------------------------------------------------------------
 def _cubic_residual(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """r_n = y_n − ŷ_n (M, d), ŷ_n the cubic through samples n ± 1, n ± 2 at their stamps
-    (Lagrange weights), for the n whose four neighbours share its demonstration; and those n."""
+    (Lagrange weights), for the n whose four neighbours share its demonstration and lie within
+    SPIKE_SPAN periods of each other (not across a gap); and those n."""
     n = len(Y)
     if n < 5:
         return np.zeros((0, Y.shape[1])), np.zeros(0, dtype=int)
     idx = np.arange(2, n - 2)
     idx = idx[(demo[idx - 2] == demo[idx]) & (demo[idx + 2] == demo[idx])]
+    period, _ = _period(np.diff(t))
+    idx = idx[t[idx + 2] - t[idx - 2] <= SPIKE_SPAN * period]  # not across a gap
     nb = idx[:, None] + np.array([-2, -1, 1, 2])  # (M, 4) neighbours
     tn = t[nb] - t[idx][:, None]
     diff = tn[:, :, None] - tn[:, None, :]  # (M, 4, 4) t_j − t_m
@@ -355,6 +363,10 @@ def run_edges(mask: np.ndarray, reach: int) -> np.ndarray:
     return near
 
 
+def _take(mask: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    return tuple(a[mask] for a in arrays)
+
+
 def _widen(mask: np.ndarray, where: np.ndarray, n: int) -> np.ndarray:
     """A mask over ``n`` samples that is ``mask`` at the indices ``where``."""
     out = np.zeros(n, dtype=bool)
@@ -368,6 +380,8 @@ def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str =
     back, ``drop`` them, or ``keep`` them as they are), then spikes (dropped unless
     ``drop_spikes`` is False) on t (N,), X (N, d), demo (N,). Findings that were kept are
     reported with action ``reported``."""
+    if flips not in FLIP_ACTIONS:
+        raise ConfigError(f"flips must be one of {', '.join(FLIP_ACTIONS)}, got {flips!r}")
     t, X, demo = np.asarray(t, float), np.asarray(X, float), np.asarray(demo)
     n = len(t)
     idx = np.arange(n)
@@ -375,15 +389,15 @@ def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str =
     if stamps:
         found, t_new, keep = stamp_faults(t, X, demo)
         findings += found
-        idx, t, X, demo = idx[keep], t_new[keep], X[keep], demo[keep]
+        idx, t, X, demo = _take(keep, idx, t_new, X, demo)
     flip = hemisphere_flips(X, demo)
     if flip:
         if flips == "mirror":
             X = unflip(X, flip)
-        flip.action = {"mirror": "mirrored", "drop": "dropped"}.get(flips, "reported")
+        flip.action = FLIP_ACTIONS[flips]
         findings.append(Finding(flip.kind, _widen(flip.mask, idx, n), flip.action, flip.detail))
         if flips == "drop":
-            idx, t, X, demo = idx[~flip.mask], t[~flip.mask], X[~flip.mask], demo[~flip.mask]
+            idx, t, X, demo = _take(~flip.mask, idx, t, X, demo)
     spike = spikes(X, t, demo)
     if flip and flips == "keep":  # the jumps of flips left in place are no spikes
         edges = run_edges(flip.mask, 3)
@@ -392,5 +406,5 @@ def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str =
         spike.action = "dropped" if drop_spikes else "reported"
         findings.append(Finding(spike.kind, _widen(spike.mask, idx, n), spike.action, spike.detail))
         if drop_spikes:
-            idx, t, X, demo = idx[~spike.mask], t[~spike.mask], X[~spike.mask], demo[~spike.mask]
+            idx, t, X, demo = _take(~spike.mask, idx, t, X, demo)
     return Cleaned(t=t, X=X, demo=demo, keep=_widen(np.ones(len(idx), bool), idx, n), findings=findings)

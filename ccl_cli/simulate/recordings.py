@@ -38,8 +38,10 @@ from ccl_cli.simulate.tracker import (
     tracker_sphere,
 )
 
-#: Stamp faults :func:`tracker_flips` can inject (see its docstring).
-STAMP_FAULTS = ("repeat", "duplicate", "skip", "step", "back")
+#: Stamp faults :func:`tracker_flips` can inject (see its docstring) and the kind each is
+#: listed as in ``metadata["faults"]`` (the kinds :mod:`ccl_cli.io.faults` reports).
+STAMP_FAULTS = {"repeat": "bad_stamp", "duplicate": "duplicate_sample", "skip": "gap", "step": "clock_step",
+                "back": "backward_stamp"}
 #: Where the tracker simulations put the surface in the transmitter's frame (m).
 TRACKER_ORIGIN = np.array([0.30, -0.05, 0.12])
 
@@ -138,7 +140,8 @@ def tracker_flips(
     * ``stamp_faults``, each entry one fault: ``repeat`` (a sample carries the stamp of the one
       before it), ``duplicate`` (a sample recorded twice: same stamp and position), ``skip``
       (a sample lost: one period missing), ``step`` (the clock steps forward 0.2–1 s while the
-      motion goes on), ``back`` (the clock steps back 2–5 periods: stamps not monotonic).
+      motion goes on), ``back`` (the clock steps back 2–5 periods: stamps not monotonic);
+      listed in the metadata under the kinds of :data:`STAMP_FAULTS`.
 
     ``offset`` (m) moves the transmitter: positions are reported relative to it
     (−``TRACKER_ORIGIN`` puts the drawing around the transmitter, where a flip moves a sample
@@ -204,9 +207,7 @@ def tracker_flips(
         faults.append(fault("hemisphere_flip", flips, t, peak_speed=[float(v) for v in near]))
     if spikes:
         faults.append(fault("spike", spikes, t))
-    names = {"repeat": "bad_stamp", "duplicate": "duplicate_sample", "skip": "gap",
-             "step": "clock_step", "back": "backward_stamp"}
-    faults += [fault(names[k], r, t) for k, r in stamp_ranges.items()]
+    faults += [fault(STAMP_FAULTS[k], r, t) for k, r in stamp_ranges.items()]
     meta = {**clean.metadata, "simulated": "tracker_flips", "surface": surface, "derivative": deriv,
             "offset_m": [float(v) for v in offset], "faults": faults}
     return position_recording(X, U, demo, t, data.truth, meta)
