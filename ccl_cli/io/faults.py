@@ -43,10 +43,10 @@ SPIKE_SPAN = 6.0
 GAP_PERIODS = 1.5
 GAP_JITTER = 6.0
 #: A gap is a clock step when the positions moved across it as in one period while the
-#: velocity on either side (from VELOCITY_SPAN intervals each side) exceeds MOTION_Z times its
+#: velocity on either side (over VELOCITY_SPAN_S seconds each side) exceeds MOTION_Z times its
 #: noise and, had the gap's time passed, would have moved them by MOTION_Z × their noise more.
 MOTION_Z = 5.0
-VELOCITY_SPAN = 8
+VELOCITY_SPAN_S = 0.16
 #: Force bias: reported when the median of a channel at rest differs from zero by more than
 #: BIAS_Z standard errors and by more than half the channel's noise.
 BIAS_Z = 5.0
@@ -270,6 +270,19 @@ def stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
     return [f for f in findings if f], t_new, keep
 
 
+def _slope(t: np.ndarray, X: np.ndarray, idx: np.ndarray, valid: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares velocity of X over the samples idx (M, m) where valid (M, m): (M, d), and
+    S = Σ(t − t̄)² (M,), so that white position noise σ gives the velocity noise σ/√S."""
+    w = valid.astype(float)
+    count = np.maximum(w.sum(1, keepdims=True), 1.0)
+    tc = t[idx] - (w * t[idx]).sum(1, keepdims=True) / count
+    Xc = X[idx] - np.einsum("mj,mjd->md", w, X[idx])[:, None, :] / count[..., None]
+    S = (w * tc**2).sum(1)
+    v = np.einsum("mj,mjd->md", w * tc, Xc) / np.maximum(S, 1e-300)[:, None]
+    return v, S
+
+
 def _clock_steps(t: np.ndarray, X: np.ndarray, demo: np.ndarray, at: np.ndarray, period: float
                  ) -> tuple[np.ndarray, np.ndarray]:
     """For the long intervals ending at samples ``at`` (N,) bool: which are clock steps (the
@@ -283,20 +296,23 @@ def _clock_steps(t: np.ndarray, X: np.ndarray, demo: np.ndarray, at: np.ndarray,
     if not len(k):
         return step, missing
     lo, hi = _demo_bounds(demo)
-    a, b = np.maximum(k - 1 - VELOCITY_SPAN, lo[k]), np.minimum(k + VELOCITY_SPAN, hi[k] - 1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        v_left = (X[k - 1] - X[a]) / (t[k - 1] - t[a])[:, None]
-        v_right = (X[b] - X[k]) / (t[b] - t[k])[:, None]
-    v = 0.5 * (np.nan_to_num(v_left) + np.nan_to_num(v_right))
+    m = max(int(round(VELOCITY_SPAN_S / period)), 2)  # samples on each side
+    before = k[:, None] - m + np.arange(m)  # k − m … k − 1
+    after = k[:, None] + np.arange(m)  # k … k + m − 1
+    ok_before = before >= lo[k][:, None]
+    ok_after = after < hi[k][:, None]
+    v_left, s_left = _slope(t, X, np.clip(before, 0, n - 1), ok_before)
+    v_right, s_right = _slope(t, X, np.clip(after, 0, n - 1), ok_after)
+    v = 0.5 * (v_left + v_right)
     speed = np.sqrt((v**2).sum(1))
     elapsed = np.einsum("md,md->m", X[k] - X[k - 1], v) / np.maximum(speed**2, 1e-300)
     sigma = max(float(np.sqrt(white_noise_var(X, demo).sum())), 1e-12)  # position noise, all axes
+    with np.errstate(divide="ignore"):
+        sigma_v = 0.5 * sigma * np.sqrt(1 / s_left + 1 / s_right)
     dt = t[k] - t[k - 1]
-    span = np.maximum(np.minimum(k - 1 - a, b - k), 1)
-    # the velocity is real (its noise: σ / (span · P)) and the two hypotheses, one period or dt,
-    # put the sample apart by more than the noise of the displacement (√2 σ)
-    moving = ((speed > MOTION_Z * sigma / (span * period))
-              & (speed * (dt - period) > MOTION_Z * np.sqrt(2) * sigma))
+    # the velocity is real and the two hypotheses, one period or dt, put the sample apart by
+    # more than the noise of the displacement (√2 σ)
+    moving = (speed > MOTION_Z * sigma_v) & (speed * (dt - period) > MOTION_Z * np.sqrt(2) * sigma)
     step[k] = moving & (np.abs(elapsed - period) < np.abs(elapsed - dt))
     missing[k] = np.where(moving, np.maximum(np.round(elapsed / period), 1.0), np.round(dt / period)) - 1
     return step, missing

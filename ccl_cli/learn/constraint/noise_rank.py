@@ -19,6 +19,9 @@ as quiet as the first, so that a free direction that barely rises above heavy no
 taken for a second constraint. s is the number of leading rows that are constraints,
 0 … m: "no constraint" is a legal answer.
 
+MARGIN, RATIO and SHARE were chosen on the simulated and reference problems
+(``benchmarks/bench_recordings.py --only rank``; docs/recordings.md).
+
 Second differences measure noise only on trajectories sampled in time: when the actions'
 total variance is below MIN_SNR × their estimated noise (samples not in time order, or no
 motion), :func:`noise_rank` cannot judge and returns None.
