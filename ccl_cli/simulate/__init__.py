@@ -1,10 +1,12 @@
 """Simulated demonstrations with ground truth: the reference problems of ALGORITHMS.md §7
-(:mod:`~ccl_cli.simulate.reference`) and realistic recordings
-(:mod:`~ccl_cli.simulate.tracker`). Every function is seeded and returns
-:class:`~ccl_cli.dataset.Demonstrations` with ``truth``."""
+(:mod:`~ccl_cli.simulate.reference`), realistic recordings (:mod:`~ccl_cli.simulate.tracker`),
+recordings with sensor faults, changing constraints, free phases or no constraint
+(:mod:`~ccl_cli.simulate.recordings`, :mod:`~ccl_cli.simulate.wipe`). Every function is
+seeded and returns :class:`~ccl_cli.dataset.Demonstrations` with ``truth``."""
 
 from __future__ import annotations
 
+from ccl_cli.simulate.recordings import flow2d, free_reach, tracker_flips, tracker_tilt
 from ccl_cli.simulate.reference import (
     LINEAR_POLICY,
     arm7,
@@ -16,6 +18,7 @@ from ccl_cli.simulate.reference import (
     varying_constraint,
 )
 from ccl_cli.simulate.tracker import arm_at_rest, tracker_plane, tracker_sphere
+from ccl_cli.simulate.wipe import arm_wipe, arm_wipe_joint, wipe_log
 
 PROBLEMS = {
     "toy2d": toy2d,
@@ -25,7 +28,14 @@ PROBLEMS = {
     "tracker_plane": tracker_plane,
     "tracker_sphere": tracker_sphere,
     "arm_at_rest": arm_at_rest,
+    "tracker_flips": tracker_flips,
+    "tracker_tilt": tracker_tilt,
+    "arm_wipe": arm_wipe,
+    "arm_wipe_joint": arm_wipe_joint,
+    "free_reach": free_reach,
+    "flow2d": flow2d,
 }
 
-__all__ = ["LINEAR_POLICY", "PROBLEMS", "arm7", "arm_at_rest", "armesto_policy", "toy2d", "toy_policy",
-           "tracker_plane", "tracker_sphere", "two_link", "two_link_constraint", "varying_constraint"]
+__all__ = ["LINEAR_POLICY", "PROBLEMS", "arm7", "arm_at_rest", "arm_wipe", "arm_wipe_joint", "armesto_policy",
+           "flow2d", "free_reach", "toy2d", "toy_policy", "tracker_flips", "tracker_plane", "tracker_sphere",
+           "tracker_tilt", "two_link", "two_link_constraint", "varying_constraint", "wipe_log"]

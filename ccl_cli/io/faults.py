@@ -1,0 +1,426 @@
+"""Sensor faults in a recording, found — and repaired where the repair can be known — on its
+positions and stamps, before velocities are derived from them.
+
+* :func:`hemisphere_flips` — a magnetic tracker (Trakstar, Polhemus) reports positions
+  mirrored through its transmitter, x → −x, while the sensor is in the other hemisphere: a
+  stretch with a jump of 2‖x‖ at each end. Repaired by mirroring back (or dropped).
+* :func:`spikes` — isolated outliers in states (or recorded actions). Dropped.
+* :func:`stamp_faults` — duplicated samples, repeated or out-of-order stamps, clock steps
+  (a jump of the stamps the positions do not show) and gaps (lost samples or pauses).
+  Duplicates dropped, bad stamps and clock steps re-stamped, gaps reported.
+* :func:`force_bias` — a force/torque channel that reads a constant offset where the tool is
+  free. Reported, never removed (what the sensor should read is not known).
+* :func:`clean_positions` — stamps, then flips, then spikes, as a reader would call them.
+
+Everything works on whole arrays (no loop over samples). Shapes: t (N,) s, X (N, d), demo
+(N,) ids of contiguous demonstrations. Each function returns :class:`Finding` s: the kind,
+the samples concerned (a mask, in the indices of the arrays it was given), what was done,
+and ``as_dict`` with count, [start, stop) index ranges and time ranges for the report.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ccl_cli.errors import ConfigError
+from ccl_cli.learn.noise import MAD_NORMAL, robust_std, second_differences, white_noise_var
+
+#: A flip boundary: the jump ‖x_n − x̂_n‖ (x̂_n = 2x_{n−1} − x_{n−2}) exceeds FLIP_RATIO × (the
+#: mismatch of the mirrored sample, ‖x_n + x̂_n‖, + the median ‖Δ²x‖ of the recording).
+FLIP_RATIO = 20.0
+#: A spike: its residual from the cubic through its two neighbours on each side exceeds
+#: SPIKE_Z robust standard deviations of those residuals (in some dimension), is the largest
+#: among its neighbours' and has their opposite sign (thresholds of this module: measured by
+#: ``benchmarks/bench_recordings.py --only faults``).
+SPIKE_Z = 8.0
+#: The five samples of a spike test span at most this many median periods.
+SPIKE_SPAN = 6.0
+#: Stamp intervals beyond GAP_PERIODS periods + GAP_JITTER robust spreads of the intervals
+#: are gaps (or clock steps).
+GAP_PERIODS = 1.5
+GAP_JITTER = 6.0
+#: A gap is a clock step when the positions moved across it as in one period while the
+#: velocity on either side (over VELOCITY_SPAN_S seconds each side) exceeds MOTION_Z times its
+#: noise and, had the gap's time passed, would have moved them by MOTION_Z × their noise more.
+MOTION_Z = 5.0
+VELOCITY_SPAN_S = 0.16
+#: Force bias: reported when the median of a channel at rest differs from zero by more than
+#: BIAS_Z standard errors and by more than half the channel's noise.
+BIAS_Z = 5.0
+#: Seconds at the start and end of each demonstration taken as free of contact.
+FREE_EDGE_S = 0.5
+#: What :func:`clean_positions` does with hemisphere flips, and the action it reports.
+FLIP_ACTIONS = {"mirror": "mirrored", "drop": "dropped", "keep": "reported"}
+
+
+def runs(mask: np.ndarray) -> np.ndarray:
+    """[start, stop) index pairs (R, 2) of the runs of True in ``mask`` (N,)."""
+    edges = np.diff(np.r_[0, np.asarray(mask, dtype=np.int8), 0])
+    return np.stack([np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)], 1)
+
+
+@dataclass
+class Finding:
+    """One kind of fault found in a recording.
+
+    ``mask`` (N,) marks the samples concerned; ``count`` the events (by default the runs of
+    ``mask``); ``action`` what was done: ``mirrored``, ``dropped``, ``restamped`` or
+    ``reported``; ``detail`` numbers for the report (JSON-serialisable)."""
+
+    kind: str
+    mask: np.ndarray
+    action: str
+    detail: dict[str, Any] = field(default_factory=dict)
+    count: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.count is None:
+            self.count = int(len(runs(self.mask)))
+
+    def __bool__(self) -> bool:
+        return bool(self.count)
+
+    def as_dict(self, t: np.ndarray) -> dict[str, Any]:
+        """kind, count, n_samples, action, ranges ([start, stop) indices), times (stamps of the
+        first and last sample of each range, s) and the detail."""
+        r = runs(self.mask)
+        return {"kind": self.kind, "count": int(self.count), "n_samples": int(self.mask.sum()),
+                "action": self.action, "ranges": r.tolist(),
+                "times": [[float(t[a]), float(t[b - 1])] for a, b in r], **self.detail}
+
+
+def _demo_bounds(demo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For every sample the [start, stop) indices of its demonstration, (N,) each."""
+    n = len(demo)
+    new = np.r_[True, demo[1:] != demo[:-1]]
+    starts = np.flatnonzero(new)
+    seg = np.cumsum(new) - 1
+    return starts[seg], np.r_[starts[1:], n][seg]
+
+
+def _per_demo_cumsum(values: np.ndarray, demo: np.ndarray) -> np.ndarray:
+    """Cumulative sum of ``values`` (N,) restarting at each demonstration."""
+    total = np.cumsum(values)
+    start, _ = _demo_bounds(demo)
+    return total - np.r_[0, total][start]
+
+
+# -- hemisphere flips --------------------------------------------------------------------
+def hemisphere_flips(X: np.ndarray, demo: np.ndarray, ratio: float = FLIP_RATIO,
+                     action: str = "mirrored") -> Finding:
+    """Stretches of positions X (N, d) mirrored through the origin (the transmitter).
+
+    At a flip's ends the sample jumps by ~2‖x‖ from the linear prediction x̂_n = 2x_{n−1} −
+    x_{n−2}, while the mirrored sample −x_n continues it: a boundary is where
+    ‖x_n − x̂_n‖ > ``ratio`` (‖x_n + x̂_n‖ + s), s the median ‖Δ²x‖ of the recording. Between
+    boundaries the samples alternate between the two hemispheres; within each demonstration
+    the hemisphere holding fewer samples is the mirrored one (a recording mirrored throughout
+    obeys the same constraints). Positions within ~10 (s + noise) of the origin flip without a
+    detectable jump and are not found. ``mask`` marks the mirrored samples; ``detail`` gives
+    the largest jump (m) at a boundary.
+    """
+    X = np.asarray(X, dtype=float)
+    n = len(X)
+    mask = np.zeros(n, dtype=bool)
+    d2, centre = second_differences(X, demo)
+    if not len(centre):
+        return Finding("hemisphere_flip", mask, action, {"max_jump_m": 0.0})
+    # boundary between n − 1 and n, with n = centre + 1 (n − 2 = centre − 1 in the same demo)
+    nxt = centre + 1
+    pred = 2 * X[centre] - X[centre - 1]
+    e_same = np.linalg.norm(d2, axis=1)  # ‖x_n − x̂_n‖
+    e_flip = np.linalg.norm(X[nxt] + pred, axis=1)
+    scale = float(np.median(e_same))
+    is_edge = e_same > ratio * (e_flip + scale)
+    boundary = np.zeros(n, dtype=np.int64)
+    boundary[nxt[is_edge]] = 1
+    side = _per_demo_cumsum(boundary, demo) % 2  # 0: the hemisphere the demonstration starts in
+    _, inverse = np.unique(demo, return_inverse=True)
+    share = np.bincount(inverse, weights=side) / np.bincount(inverse)
+    mirrored_side = (share > 0.5).astype(int)[inverse]  # the minority side is the mirrored one
+    mask = side != mirrored_side
+    detail = {"max_jump_m": float(e_same[is_edge].max()) if is_edge.any() else 0.0}
+    return Finding("hemisphere_flip", mask, action, detail)
+
+
+def unflip(X: np.ndarray, flips: Finding) -> np.ndarray:
+    """X (N, d) with the samples of a :func:`hemisphere_flips` finding mirrored back."""
+    return np.where(flips.mask[:, None], -X, X)
+
+
+# -- spikes --------------------------------------------------------------------------------
+def _cubic_residual(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """r_n = y_n − ŷ_n (M, d), ŷ_n the cubic through samples n ± 1, n ± 2 at their stamps
+    (Lagrange weights), for the n whose four neighbours share its demonstration and lie within
+    SPIKE_SPAN periods of each other (not across a gap); and those n."""
+    n = len(Y)
+    if n < 5:
+        return np.zeros((0, Y.shape[1])), np.zeros(0, dtype=int)
+    idx = np.arange(2, n - 2)
+    idx = idx[(demo[idx - 2] == demo[idx]) & (demo[idx + 2] == demo[idx])]
+    period, _ = _period(np.diff(t))
+    idx = idx[t[idx + 2] - t[idx - 2] <= SPIKE_SPAN * period]  # not across a gap
+    nb = idx[:, None] + np.array([-2, -1, 1, 2])  # (M, 4) neighbours
+    tn = t[nb] - t[idx][:, None]
+    diff = tn[:, :, None] - tn[:, None, :]  # (M, 4, 4) t_j − t_m
+    eye = np.eye(4, dtype=bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.prod(np.where(eye, 1.0, -tn[:, None, :] / np.where(eye, 1.0, diff)), axis=2)
+    ok = np.isfinite(w).all(1)
+    r = Y[idx[ok]] - np.einsum("mj,mjd->md", w[ok], Y[nb[ok]])
+    return r, idx[ok]
+
+
+def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -> Finding:
+    """Isolated outliers in Y (N, d) (positions, or recorded actions) sampled at t (N,).
+
+    Each sample is compared with the cubic through its two neighbours on each side (at their
+    stamps; for white noise of std σ the residual has std ≈ 1.39σ, and smooth motion adds
+    O(dt⁴)); a sample is a spike when its residual exceeds ``z`` robust standard deviations
+    (median|r|/0.6745 over the recording, per dimension) in some dimension and is the largest
+    of its neighbours' (a spike δ leaves −⅔δ on each neighbour). Bursts of adjacent outliers are
+    found only in part. The first and last two samples of a demonstration are not tested.
+    ``detail`` gives the largest residual in robust standard deviations.
+    """
+    Y = np.asarray(Y, dtype=float)
+    n = len(Y)
+    mask = np.zeros(n, dtype=bool)
+    r, idx = _cubic_residual(Y, np.asarray(t, float), demo)
+    if not len(idx):
+        return Finding("spike", mask, "dropped", {"max_z": 0.0})
+    sigma = robust_std(r)
+    floor = 1e-12 * max(float(np.abs(Y).max()), 1.0)
+    zr = np.zeros((n, Y.shape[1]))
+    zr[idx] = r / np.maximum(sigma, floor)
+    score = np.abs(zr).max(1)
+    peak = (score >= np.r_[0.0, score[:-1]]) & (score >= np.r_[score[1:], 0.0])
+    # the signature of a spike: both neighbours' residuals of the other sign, ≥ a third as large
+    # (smooth motion leaves residuals of one sign on neighbouring samples)
+    j = np.abs(zr).argmax(1)
+    rows = np.arange(n)
+    centre = zr[rows, j]
+    before, after = np.r_[0.0, zr[rows[:-1], j[1:]]], np.r_[zr[rows[1:], j[:-1]], 0.0]
+    signed = (before * centre < -(centre**2) / 3) & (after * centre < -(centre**2) / 3)
+    mask = (score > z) & peak & signed
+    return Finding("spike", mask, "dropped", {"max_z": float(score.max())})
+
+
+# -- stamps ----------------------------------------------------------------------------------
+def _period(dt: np.ndarray) -> tuple[float, float]:
+    """(median of the positive intervals, robust spread 1.4826·MAD of them)."""
+    pos = dt[dt > 0]
+    if not len(pos):
+        return 0.0, 0.0
+    med = float(np.median(pos))
+    return med, float(np.median(np.abs(pos - med)) / MAD_NORMAL)
+
+
+def stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
+                 ) -> tuple[list[Finding], np.ndarray, np.ndarray]:
+    """Faults of the stamps t (N,) of positions X (N, d); returns (findings, repaired stamps
+    (N,), keep (N,) bool).
+
+    With P the median interval and J the robust spread of the intervals (jitter), within each
+    demonstration:
+
+    * ``duplicate_sample`` — a sample with the stamp and the position of the one before it:
+      dropped (``keep`` False);
+    * ``bad_stamp`` — an interval ≤ 0 or a gap, where the stamps on either side are regular
+      (t_{n+1} − t_{n−1} within 2P ± ½P): a repeated, early or late stamp; re-stamped midway;
+    * ``backward_stamp`` — the stamps step back and go on from there (a clock step back):
+      the rest of the demonstration is shifted so that the interval is P;
+    * ``clock_step`` — an interval beyond GAP_PERIODS·P + GAP_JITTER·J across which the
+      positions moved as in one period (the time did not pass): shifted like a backward step;
+    * ``gap`` — such an interval the positions do not contradict (lost samples, a pause, or a
+      sensor at rest, where nobody can tell): reported with the number of missing periods.
+    """
+    t = np.asarray(t, dtype=float)
+    X = np.asarray(X, dtype=float)
+    n = len(t)
+    same = np.r_[False, demo[1:] == demo[:-1]]  # n has a predecessor in its demonstration
+    dt = np.r_[0.0, np.diff(t)]
+    period, jitter = _period(dt[same])
+    keep = ~(same & (dt == 0) & np.r_[False, (X[1:] == X[:-1]).all(1)])
+    findings = [Finding("duplicate_sample", ~keep, "dropped")]
+    t_new = t.copy()
+    if period <= 0:
+        return findings, t_new, keep
+    limit = GAP_PERIODS * period + GAP_JITTER * jitter
+    odd = same & keep & ((dt <= 0) | (dt > limit))
+    # a single bad stamp: its neighbours' stamps are two periods apart
+    prev_i, next_i = np.maximum(np.arange(n) - 1, 0), np.minimum(np.arange(n) + 1, n - 1)
+    has_next = np.r_[demo[1:] == demo[:-1], False]
+    span = t[next_i] - t[prev_i]
+    bad = odd & has_next & (np.abs(span - 2 * period) <= 0.5 * period)
+    t_new[bad] = 0.5 * (t[prev_i] + t[next_i])[bad]
+    after_bad = np.r_[False, bad[:-1]]  # the interval after a bad stamp is explained by it
+    rest = odd & ~bad & ~after_bad
+    back = rest & (dt <= 0)
+    forward = rest & (dt > 0)
+    step, missing = _clock_steps(t, X, demo, forward, period)
+    shift = np.where(back | step, period - dt, 0.0)
+    t_new += _per_demo_cumsum(shift, demo)
+    gaps = forward & ~step
+    findings += [Finding("bad_stamp", bad, "restamped"), Finding("backward_stamp", back, "restamped"),
+                 Finding("clock_step", step, "restamped"),
+                 Finding("gap", gaps, "reported", {"missing_periods": missing[gaps].tolist()})]
+    return [f for f in findings if f], t_new, keep
+
+
+def _slope(t: np.ndarray, X: np.ndarray, idx: np.ndarray, valid: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares velocity of X over the samples idx (M, m) where valid (M, m): (M, d), and
+    S = Σ(t − t̄)² (M,), so that white position noise σ gives the velocity noise σ/√S."""
+    w = valid.astype(float)
+    count = np.maximum(w.sum(1, keepdims=True), 1.0)
+    tc = t[idx] - (w * t[idx]).sum(1, keepdims=True) / count
+    Xc = X[idx] - np.einsum("mj,mjd->md", w, X[idx])[:, None, :] / count[..., None]
+    S = (w * tc**2).sum(1)
+    v = np.einsum("mj,mjd->md", w * tc, Xc) / np.maximum(S, 1e-300)[:, None]
+    return v, S
+
+
+def _clock_steps(t: np.ndarray, X: np.ndarray, demo: np.ndarray, at: np.ndarray, period: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """For the long intervals ending at samples ``at`` (N,) bool: which are clock steps (the
+    positions moved across the interval as in one period while the motion on either side,
+    had the interval's time passed, would have moved them by > MOTION_Z × noise), and the
+    number of periods the positions say passed (rounded, ≥ 1)."""
+    n = len(t)
+    step = np.zeros(n, dtype=bool)
+    missing = np.zeros(n)
+    k = np.flatnonzero(at)
+    if not len(k):
+        return step, missing
+    lo, hi = _demo_bounds(demo)
+    m = max(int(round(VELOCITY_SPAN_S / period)), 2)  # samples on each side
+    before = k[:, None] - m + np.arange(m)  # k − m … k − 1
+    after = k[:, None] + np.arange(m)  # k … k + m − 1
+    ok_before = before >= lo[k][:, None]
+    ok_after = after < hi[k][:, None]
+    v_left, s_left = _slope(t, X, np.clip(before, 0, n - 1), ok_before)
+    v_right, s_right = _slope(t, X, np.clip(after, 0, n - 1), ok_after)
+    v = 0.5 * (v_left + v_right)
+    speed = np.sqrt((v**2).sum(1))
+    elapsed = np.einsum("md,md->m", X[k] - X[k - 1], v) / np.maximum(speed**2, 1e-300)
+    sigma = max(float(np.sqrt(white_noise_var(X, demo).sum())), 1e-12)  # position noise, all axes
+    with np.errstate(divide="ignore"):
+        sigma_v = 0.5 * sigma * np.sqrt(1 / s_left + 1 / s_right)
+    dt = t[k] - t[k - 1]
+    # the velocity is real and the two hypotheses, one period or dt, put the sample apart by
+    # more than the noise of the displacement (√2 σ)
+    moving = (speed > MOTION_Z * sigma_v) & (speed * (dt - period) > MOTION_Z * np.sqrt(2) * sigma)
+    step[k] = moving & (np.abs(elapsed - period) < np.abs(elapsed - dt))
+    missing[k] = np.where(moving, np.maximum(np.round(elapsed / period), 1.0), np.round(dt / period)) - 1
+    return step, missing
+
+
+# -- force/torque ------------------------------------------------------------------------------
+def force_bias(F: np.ndarray, t: np.ndarray, demo: np.ndarray, free: np.ndarray | None = None,
+               edge_s: float = FREE_EDGE_S, z: float = BIAS_Z) -> Finding:
+    """A constant offset in a force/torque channel F (N, c).
+
+    Where the tool is free (``free`` (N,) bool, or by default the first and last ``edge_s`` s
+    of every demonstration, when a recording starts and ends out of contact) a zeroed sensor
+    reads zero plus noise. The bias is the median there, per channel; it is reported when it
+    exceeds ``z`` standard errors (1.25 σ/√n, σ from the median absolute deviation there) and
+    half of σ in some channel. Not removed: a reader cannot know what the sensor should read.
+    ``detail``: value (c,), its standard error, the noise σ, and the start-minus-end
+    difference of the medians (a drift, when it exceeds the standard errors).
+    """
+    F = np.asarray(F, dtype=float)
+    t = np.asarray(t, dtype=float)
+    if free is None:
+        lo, hi = _demo_bounds(demo)
+        free = (t - t[lo] <= edge_s) | (t[hi - 1] - t <= edge_s)
+    free = np.asarray(free, dtype=bool)
+    rest = F[free]
+    if len(rest) < 3:
+        return Finding("force_bias", np.zeros(len(F), bool), "reported", {}, count=0)
+    value = np.median(rest, axis=0)
+    sigma = robust_std(rest - value)
+    se = 1.2533 * sigma / np.sqrt(len(rest))
+    lo, _ = _demo_bounds(demo)
+    early = free & (t - t[lo] <= edge_s)
+    drift = np.median(F[early], 0) - np.median(F[free & ~early], 0) if (free & ~early).any() else value * 0
+    found = bool(np.any((np.abs(value) > z * se) & (np.abs(value) > 0.5 * sigma)))
+    detail = {"value": value.tolist(), "standard_error": se.tolist(), "noise_std": sigma.tolist(),
+              "start_minus_end": np.asarray(drift).tolist()}
+    return Finding("force_bias", np.zeros(len(F), bool), "reported", detail, count=int(found))
+
+
+# -- all of it, as a reader calls it ------------------------------------------------------------
+@dataclass
+class Cleaned:
+    """Positions after :func:`clean_positions`: t (M,), X (M, d), demo (M,) — the kept samples,
+    repaired — ``keep`` (N,) which input samples they are, and the findings (masks over the
+    N input samples)."""
+
+    t: np.ndarray
+    X: np.ndarray
+    demo: np.ndarray
+    keep: np.ndarray
+    findings: list[Finding]
+
+    def report(self, t: np.ndarray) -> list[dict[str, Any]]:
+        """Every finding as a dict, ranges and times in the input's samples and stamps t (N,)."""
+        return [f.as_dict(t) for f in self.findings]
+
+
+def run_edges(mask: np.ndarray, reach: int) -> np.ndarray:
+    """The samples within ``reach`` of a start or end of a run of True in ``mask`` (N,)."""
+    change = np.flatnonzero(np.diff(mask.astype(np.int8)) != 0) + 1
+    near = np.zeros(len(mask), dtype=bool)
+    for offset in range(-reach, reach):  # a loop over offsets, not samples
+        near[np.clip(change + offset, 0, len(mask) - 1)] = True
+    return near
+
+
+def _take(mask: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    return tuple(a[mask] for a in arrays)
+
+
+def _widen(mask: np.ndarray, where: np.ndarray, n: int) -> np.ndarray:
+    """A mask over ``n`` samples that is ``mask`` at the indices ``where``."""
+    out = np.zeros(n, dtype=bool)
+    out[where[mask]] = True
+    return out
+
+
+def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str = "mirror",
+                    drop_spikes: bool = True, stamps: bool = True) -> Cleaned:
+    """Stamp faults (:func:`stamp_faults`), then hemisphere flips (``flips``: ``mirror`` them
+    back, ``drop`` them, or ``keep`` them as they are), then spikes (dropped unless
+    ``drop_spikes`` is False) on t (N,), X (N, d), demo (N,). Findings that were kept are
+    reported with action ``reported``."""
+    if flips not in FLIP_ACTIONS:
+        raise ConfigError(f"flips must be one of {', '.join(FLIP_ACTIONS)}, got {flips!r}")
+    t, X, demo = np.asarray(t, float), np.asarray(X, float), np.asarray(demo)
+    n = len(t)
+    idx = np.arange(n)
+    findings: list[Finding] = []
+    if stamps:
+        found, t_new, keep = stamp_faults(t, X, demo)
+        findings += found
+        idx, t, X, demo = _take(keep, idx, t_new, X, demo)
+    flip = hemisphere_flips(X, demo)
+    if flip:
+        if flips == "mirror":
+            X = unflip(X, flip)
+        flip.action = FLIP_ACTIONS[flips]
+        findings.append(Finding(flip.kind, _widen(flip.mask, idx, n), flip.action, flip.detail))
+        if flips == "drop":
+            idx, t, X, demo = _take(~flip.mask, idx, t, X, demo)
+    spike = spikes(X, t, demo)
+    if flip and flips == "keep":  # the jumps of flips left in place are no spikes
+        edges = run_edges(flip.mask, 3)
+        spike = Finding(spike.kind, spike.mask & ~edges, spike.action, spike.detail)
+    if spike:
+        spike.action = "dropped" if drop_spikes else "reported"
+        findings.append(Finding(spike.kind, _widen(spike.mask, idx, n), spike.action, spike.detail))
+        if drop_spikes:
+            idx, t, X, demo = _take(~spike.mask, idx, t, X, demo)
+    return Cleaned(t=t, X=X, demo=demo, keep=_widen(np.ones(len(idx), bool), idx, n), findings=findings)

@@ -1,0 +1,135 @@
+"""The number of constraints from the noise the data show (issue 17; ALGORITHMS.md §3.4).
+
+A candidate row a(x) of a constraint learner is a constraint when the actions do not move
+along it beyond their noise — or beyond a negligible share of the motion. For rows
+a_1 … a_m in the learner's order (constant (m, q), or per sample (N, m, q)), taken as unit
+directions â = a/‖a‖:
+
+    e_k  = mean_n (â_kᵀ u_n)²                      the energy of the actions along row k
+    σ²_k = the noise variance of â_kᵀu, from second differences in time
+           (:mod:`ccl_cli.learn.noise`): for velocities derived from positions
+           σ²_x(â_k) Σc² (c the derivative's slope filter), for recorded actions σ²_u(â_k)
+    f_k  = e_k / mean_n ‖u_n‖²                     its share of all the motion
+
+Row 1 is a constraint when r_1 = e_1/σ²_1 ≤ MARGIN (motion at the noise level) or
+f_1 ≤ SHARE (a contact gives a little — a tool pressing into a table moves along its normal
+slightly, above a good sensor's noise — while a free direction carries a fair share of the
+motion). A further row k is one when f_k ≤ SHARE or r_k ≤ min(MARGIN, RATIO · max(r_1, 1)):
+as quiet as the first, so that a free direction that barely rises above heavy noise is not
+taken for a second constraint. s is the number of leading rows that are constraints,
+0 … m: "no constraint" is a legal answer.
+
+MARGIN, RATIO and SHARE were chosen on the simulated and reference problems
+(``benchmarks/bench_recordings.py --only rank``; docs/recordings.md).
+
+Second differences measure noise only on trajectories sampled in time: when the actions'
+total variance is below MIN_SNR × their estimated noise (samples not in time order, or no
+motion), :func:`noise_rank` cannot judge and returns None.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ccl_cli.learn.constraint.rank import Selection
+from ccl_cli.learn.linalg import unit_rows
+from ccl_cli.learn.noise import derived_noise_var, white_noise_var
+
+#: A row whose energy is at most MARGIN × its noise variance is at the noise level.
+MARGIN = 10.0
+#: A row carrying at most this share of the mean squared action is a constraint however far
+#: above the noise it is.
+SHARE = 1e-2
+#: A row after the first may move at most RATIO × as much (over its noise) as the first.
+RATIO = 2.0
+#: Below this ratio of the actions' total variance to their noise the rule cannot judge.
+MIN_SNR = 3.0
+RULE = "noise"
+
+
+@dataclass
+class RowEvidence:
+    """What the rule compares for candidate rows k = 1 … m: ``energy`` e_k, ``noise`` σ²_k and
+    ``share`` f_k (each (m,)); ``snr`` the actions' total variance over their total noise."""
+
+    energy: np.ndarray
+    noise: np.ndarray
+    share: np.ndarray
+    snr: float
+
+    @property
+    def ratio(self) -> np.ndarray:
+        """e_k / σ²_k (inf where the noise estimate is 0 and the energy is not)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(self.noise > 0, self.energy / self.noise, np.where(self.energy > 0, np.inf, 0.0))
+
+
+def _median_step(t: np.ndarray, demo: np.ndarray) -> float:
+    dt = np.diff(t)[demo[1:] == demo[:-1]]
+    dt = dt[dt > 0]
+    return float(np.median(dt)) if len(dt) else 0.0
+
+
+def row_evidence(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarray,
+                 X: np.ndarray | None = None, derivative: dict | None = None) -> RowEvidence:
+    """Energy, noise and share of the actions U (N, q) along candidate ``rows`` ((m, q) or
+    (N, m, q)), demonstrations ``demo`` (N,) sampled at ``t`` (N,) s.
+
+    ``derivative`` ({"window", "order"}) says U was derived from the positions X (N, q) by the
+    readers' local polynomial: the noise is then the positions' along each row times the
+    filter's gain at the median interval; without it U is taken as recorded (white noise)."""
+    U = np.asarray(U, dtype=float)
+    rows = unit_rows(np.asarray(rows, dtype=float))
+    demo = np.asarray(demo)
+    if rows.ndim == 2:
+        along = U @ rows.T
+    else:
+        along = np.einsum("nkq,nq->nk", rows, U)
+    energy = (along**2).mean(0)
+    total = float((U**2).sum(1).mean())
+    share = energy / total if total > 0 else np.zeros_like(energy)
+    if derivative is not None:
+        if X is None or np.shape(X)[1] != U.shape[1]:
+            raise ValueError("derived actions need the positions X they were derived from, (N, q)")
+        dt = _median_step(np.asarray(t, float), demo)
+        window, order = int(derivative["window"]), int(derivative.get("order", 2))
+        noise = derived_noise_var(X, demo, dt, window, order, rows)
+        per_dim = derived_noise_var(X, demo, dt, window, order)
+    else:
+        noise = white_noise_var(U, demo, rows)
+        per_dim = white_noise_var(U, demo)
+    var = float(U.var(0, ddof=1).sum()) if len(U) > 1 else 0.0
+    noise_total = float(per_dim.sum())
+    snr = var / noise_total if noise_total > 0 else (np.inf if var > 0 else 0.0)
+    return RowEvidence(energy=energy, noise=noise, share=share, snr=float(snr))
+
+
+def noise_rank(evidence: RowEvidence, max_k: int, margin: float = MARGIN, share: float = SHARE,
+               ratio: float = RATIO, min_snr: float = MIN_SNR) -> Selection | None:
+    """s = the number of leading rows k ≤ ``max_k`` that are constraints by the rule of the
+    module docstring (0 … max_k); None when evidence.snr < ``min_snr`` (no judgement).
+    ``values`` of the Selection: r_k = e_k/σ²_k."""
+    if not evidence.snr >= min_snr:
+        return None
+    r = evidence.ratio
+    limit = np.full(len(r), float(margin))
+    limit[1:] = min(margin, ratio * max(float(r[0]) if len(r) else 1.0, 1.0))
+    quiet = (r <= limit) | (evidence.share <= share)
+    m = min(int(max_k), len(quiet))
+    k = int(np.argmin(np.r_[quiet[:m], False]))  # the first row that moves
+    if k < m:
+        why = (f"row {k + 1} moves {r[k]:.3g}× its noise variance (> {limit[k]:.3g}) and carries "
+               f"{evidence.share[k]:.2g} of the motion (> {share:g})")
+    else:
+        why = f"all {k} candidate rows are quiet (at most {m} allowed)"
+    if k == 0:
+        why = "no constraint: " + why
+    return Selection(RULE, k, [float(v) for v in r], why, "energy / noise variance of row k")
+
+
+def choose(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarray, max_k: int,
+           X: np.ndarray | None = None, derivative: dict | None = None) -> Selection | None:
+    """:func:`row_evidence` then :func:`noise_rank` with the default thresholds."""
+    return noise_rank(row_evidence(U, rows, demo, t, X, derivative), max_k)

@@ -1,0 +1,183 @@
+"""Sensor faults (ccl_cli/io/faults.py) found against what the simulations injected, no
+findings on clean recordings, and the constraint of a repaired tracker recording."""
+
+import numpy as np
+import pytest
+
+from ccl_cli import simulate as sim
+from ccl_cli.errors import ConfigError
+from ccl_cli.io import faults
+from ccl_cli.learn.constraint import StateIndependentConstraint
+from ccl_cli.simulate.recordings import TRACKER_ORIGIN, derive
+
+ALL_STAMP_FAULTS = ("repeat", "duplicate", "skip", "step", "back")
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(min(abs(a @ b) / np.linalg.norm(a) / np.linalg.norm(b), 1.0))))
+
+
+def _normal(U: np.ndarray) -> np.ndarray:
+    return StateIndependentConstraint(n_constraints=1).fit(None, U).A_[0]
+
+
+def test_runs_and_report_of_a_mask():
+    mask = np.array([0, 1, 1, 0, 0, 1, 0, 1, 1, 1], bool)
+    assert faults.runs(mask).tolist() == [[1, 3], [5, 6], [7, 10]]
+    t = np.arange(10) * 0.5
+    rep = faults.Finding("spike", mask, "dropped", {"max_z": 9.0}).as_dict(t)
+    assert rep == {"kind": "spike", "count": 3, "n_samples": 6, "action": "dropped",
+                   "ranges": [[1, 3], [5, 6], [7, 10]], "times": [[0.5, 1.0], [2.5, 2.5], [3.5, 4.5]],
+                   "max_z": 9.0}
+
+
+@pytest.mark.parametrize(("seed", "rate"), [(0, 50.0), (1, 50.0), (2, 200.0)])
+def test_every_injected_fault_is_found_where_it_was_injected(seed, rate):
+    data = sim.tracker_flips(n_spikes=3, stamp_faults=ALL_STAMP_FAULTS, noise=1e-3, rate=rate, duration=60.0,
+                             seed=seed)
+    truth = {f["kind"]: f["ranges"] for f in data.metadata["faults"]}
+    assert truth["hemisphere_flip"] and len(truth["spike"]) == 3
+    cleaned = faults.clean_positions(data.t, data.X, data.demo)
+    found = {f["kind"]: f["ranges"] for f in cleaned.report(data.t)}
+    for kind in ("hemisphere_flip", "spike", "duplicate_sample", "bad_stamp", "backward_stamp"):
+        assert found[kind] == truth[kind], kind
+    # a clock step is told from a gap by the motion across it: at rest it is reported as a gap
+    step = truth["clock_step"][0]
+    assert step in found.get("clock_step", []) + found.get("gap", [])
+    assert truth["gap"][0] in found["gap"]
+    assert set(found) <= set(truth)
+    # repaired: no duplicate, no flip left, stamps increasing at the period except at the gaps
+    assert cleaned.keep.sum() == len(data.t) - 1 - 3
+    dt = np.diff(cleaned.t)
+    assert dt.min() > 0
+    gaps = np.sum(dt > 1.5 / rate)
+    assert gaps == len(found["gap"]) + len(found["spike"])  # a dropped spike leaves a gap of one period
+    normal = data.truth["A"][0]
+    U, _ = derive(cleaned.t, cleaned.X, cleaned.demo, rate)
+    assert _angle(_normal(U), normal) < 0.5
+    assert np.abs(U).max() < 1.0  # the metres-per-second spikes are gone
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_repaired_flips_put_nhat_within_5_degrees_and_raw_ones_do_not(seed):
+    data = sim.tracker_flips(seed=seed)
+    normal = data.truth["A"][0]
+    flips = [f for f in data.metadata["faults"] if f["kind"] == "hemisphere_flip"][0]
+    assert flips["count"] == 3 and 45 <= flips["n_samples"] <= 60  # 0.3–0.4 s at 50 Hz each
+    assert min(flips["peak_speed"]) > 1.0  # m/s: spikes in the derived velocity
+    raw = _angle(_normal(data.U), normal)
+    cleaned = faults.clean_positions(data.t, data.X, data.demo)
+    U, _ = derive(cleaned.t, cleaned.X, cleaned.demo, 50.0)
+    assert raw > 5.0
+    assert _angle(_normal(U), normal) < 5.0
+    assert np.array_equal(cleaned.X, sim.tracker_plane(seed=seed).X)  # mirrored back exactly
+
+
+def test_flips_dropped_instead_of_mirrored():
+    data = sim.tracker_flips(seed=4, duration=40.0)
+    cleaned = faults.clean_positions(data.t, data.X, data.demo, flips="drop")
+    flipped = np.zeros(len(data.t), bool)
+    for a, b in data.metadata["faults"][0]["ranges"]:
+        flipped[a:b] = True
+    assert np.array_equal(cleaned.keep, ~flipped)
+    assert cleaned.findings[0].action == "dropped"
+    kept = faults.clean_positions(data.t, data.X, data.demo, flips="keep")
+    assert np.array_equal(kept.X, data.X) and kept.findings[0].action == "reported"
+    assert [f.kind for f in kept.findings] == ["hemisphere_flip"]  # its jumps are not spikes
+    with pytest.raises(ConfigError, match="flips"):
+        faults.clean_positions(data.t, data.X, data.demo, flips="fix")
+
+
+def test_a_recording_that_starts_mirrored():
+    data = sim.tracker_flips(n_flips=2, seed=5, duration=40.0)
+    X = -data.X  # the sensor started in the other hemisphere: two long stretches are right
+    found = faults.hemisphere_flips(X, data.demo)
+    assert found.count == 2  # the two short stretches are the odd ones out: mirrored to match the rest
+    repaired = faults.unflip(data.X, faults.hemisphere_flips(data.X, data.demo))
+    assert np.allclose(faults.unflip(X, found), -repaired)
+
+
+CLEAN = {
+    "plane 0.2 mm 50 Hz": lambda: sim.tracker_plane(noise=2e-4, duration=40.0, seed=0),
+    "plane 2 mm 50 Hz": lambda: sim.tracker_plane(noise=2e-3, duration=40.0, seed=1),
+    "plane 1 mm 1 kHz": lambda: sim.tracker_plane(noise=1e-3, rate=1000.0, duration=20.0, seed=2),
+    "bowl 0.5 mm 200 Hz": lambda: sim.tracker_sphere(noise=5e-4, rate=200.0, duration=30.0, seed=3),
+    "plane 1 mm, jittery stamps": lambda: sim.tracker_plane(jitter=3e-3, duration=40.0, seed=4),
+    "around the transmitter": lambda: sim.tracker_flips(n_flips=0, offset=tuple(-TRACKER_ORIGIN),
+                                                        duration=40.0, seed=5),
+    "arm wipe, task space 200 Hz": lambda: sim.arm_wipe(n_demos=2, seed=6),
+    "arm wipe, joints 1 kHz": lambda: sim.arm_wipe_joint(n_demos=1, rate=1000.0, seed=7),
+    "reaches": lambda: sim.free_reach(seed=8),
+    "strokes to the origin": lambda: sim.flow2d(seed=9),
+}
+
+
+@pytest.mark.parametrize("name", list(CLEAN))
+def test_nothing_found_on_clean_recordings(name):
+    data = CLEAN[name]()
+    cleaned = faults.clean_positions(data.t, data.X, data.demo)
+    assert cleaned.findings == []
+    assert cleaned.keep.all() and np.array_equal(cleaned.X, data.X) and np.array_equal(cleaned.t, data.t)
+    assert not faults.spikes(data.U, data.t, data.demo)  # nor in the (derived or recorded) actions
+
+
+def test_spikes_in_recorded_actions():
+    data = sim.arm_wipe_joint(n_demos=2, rate=100.0, seed=1)
+    U = data.U.copy()
+    where = np.array([150, 700, 1300])
+    U[where, [0, 3, 6]] += 0.1  # rad/s: 50× the velocity noise
+    found = faults.spikes(U, data.t, data.demo)
+    assert np.flatnonzero(found.mask).tolist() == where.tolist()
+
+
+def _moving_and_resting(data):
+    speed = np.linalg.norm(data.truth["pi"], axis=1)
+    moving = int(np.argmax(speed[100:-100])) + 100
+    resting = int(np.flatnonzero(speed[100:-100] == 0)[len(np.flatnonzero(speed[100:-100] == 0)) // 2]) + 100
+    return moving, resting
+
+
+def test_clock_steps_are_undone_and_pauses_are_gaps():
+    data = sim.tracker_plane(duration=40.0, seed=6)
+    moving, resting = _moving_and_resting(data)
+    for at, kind in ((moving, "clock_step"), (resting, "gap")):
+        t = data.t.copy()
+        t[at:] += 0.7
+        found, t_new, keep = faults.stamp_faults(t, data.X, data.demo)
+        assert [f.kind for f in found] == [kind] and np.flatnonzero(found[0].mask).tolist() == [at]
+        assert keep.all()
+        assert np.allclose(t_new, data.t if kind == "clock_step" else t)
+    back = data.t.copy()
+    back[moving:] -= 0.06  # three periods back: stamps not monotonic
+    found, t_new, _ = faults.stamp_faults(back, data.X, data.demo)
+    assert [f.kind for f in found] == ["backward_stamp"] and np.allclose(t_new, data.t)
+
+
+def test_stamp_faults_of_one_sample():
+    data = sim.tracker_plane(duration=20.0, seed=7)
+    t = data.t.copy()
+    t[300] = t[299]  # a repeated stamp
+    t[500] = t[500] + 0.013  # a late stamp
+    X = np.insert(data.X, 800, data.X[799], axis=0)  # a message recorded twice
+    t = np.insert(t, 800, t[799])
+    demo = np.zeros(len(t), int)
+    found, t_new, keep = faults.stamp_faults(t, X, demo)
+    kinds = {f.kind: np.flatnonzero(f.mask).tolist() for f in found}
+    assert kinds == {"duplicate_sample": [800], "bad_stamp": [300, 500]}
+    assert np.allclose(t_new[keep], data.t)
+
+
+@pytest.mark.parametrize("bias", [1.0, 0.0])
+def test_force_bias_is_reported_not_removed(bias):
+    log = sim.wipe_log(n_demos=3, rate=100.0, bias=bias, seed=2)
+    found = faults.force_bias(log.wrench, log.t, log.demo)
+    assert found.action == "reported"
+    value = np.asarray(found.detail["value"])
+    if bias:
+        assert found.count == 1
+        # the free stretches read the bias plus noise: within 4 standard errors of the truth
+        assert np.all(np.abs(value - log.bias) < 4 * np.asarray(found.detail["standard_error"]))
+        assert np.abs(log.bias).max() > 1.0
+    else:
+        assert found.count == 0 and not found
+        assert np.all(np.abs(value) < 4 * np.asarray(found.detail["standard_error"]))
