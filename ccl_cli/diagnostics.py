@@ -36,6 +36,7 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.learn import model_selection as _selection
+from ccl_cli.learn.noise import slope_filter, white_noise_var
 
 log = logging.getLogger("ccl")
 
@@ -78,30 +79,11 @@ def emit(warnings: list[dict[str, str]]) -> list[dict[str, str]]:
     return warnings
 
 
-# -- noise estimates ----------------------------------------------------------------------
-def _second_differences(Y: np.ndarray, demo: np.ndarray) -> np.ndarray:
-    """Δ²y_n = y_{n+1} − 2y_n + y_{n−1} for the n whose three samples share a demonstration."""
-    if len(Y) < 3:
-        return np.zeros((0, Y.shape[1]))
-    same = (demo[2:] == demo[1:-1]) & (demo[1:-1] == demo[:-2])
-    return (Y[2:] - 2 * Y[1:-1] + Y[:-2])[same]
-
-
-def white_noise_var(Y: np.ndarray, demo: np.ndarray) -> np.ndarray:
-    """Per-dimension variance of white noise on ``Y`` (N, d): (median|Δ²y|/0.6745)²/6, (d,)."""
-    d2 = _second_differences(np.asarray(Y, float), demo)
-    if not len(d2):
-        return np.zeros(Y.shape[1])
-    return (np.median(np.abs(d2), axis=0) / 0.6745) ** 2 / 6.0
-
-
+# -- noise estimates (ccl_cli.learn.noise) ------------------------------------------------------
 def derivative_gain(dt: float, window: int = 9, order: int = 2) -> float:
     """Σc² of the local-polynomial slope filter c (1/s) on uniform stamps ``dt`` apart: the
     variance of a derived velocity per unit variance of white position noise."""
-    k = np.arange(window) - window // 2
-    V = (k[:, None] * dt) ** np.arange(order + 1)[None, :]
-    c = np.linalg.pinv(V)[1]
-    return float((c**2).sum())
+    return float((slope_filter(dt, window, order) ** 2).sum())
 
 
 def derivation(data: Demonstrations) -> tuple[bool | None, int, int]:

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from ccl_cli import simulate as sim
-from ccl_cli.io.assemble import local_polynomial_derivative
+from ccl_cli.io.derivative import local_polynomial_derivative
 from ccl_cli.learn import noise
 from ccl_cli.learn.constraint import StateIndependentConstraint
 from ccl_cli.learn.constraint import noise_rank as nr

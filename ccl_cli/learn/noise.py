@@ -7,7 +7,7 @@ rare outliers: σ̂² = (median|Δ²y| / 0.6745)² / 6 (0.6745: the median of |z
 normal z).
 
 Velocities derived from positions by a local polynomial (the readers' derivative,
-:func:`ccl_cli.io.assemble.local_polynomial_derivative`) carry the positions' noise through
+:func:`ccl_cli.io.derivative.local_polynomial_derivative`) carry the positions' noise through
 the slope filter c of that fit: on uniform stamps dt apart, σ²_u = σ²_x Σc².
 
 Shapes: Y (N, d) samples grouped by ``demo`` (N,) (contiguous, in time order); direction

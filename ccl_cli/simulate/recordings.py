@@ -28,7 +28,7 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError
-from ccl_cli.io.assemble import local_polynomial_derivative, window_for_rate
+from ccl_cli.io.derivative import local_polynomial_derivative, window_for_rate
 from ccl_cli.learn.linalg import nullspace_projection, unit_rows
 from ccl_cli.simulate.tracker import (
     _tilt,

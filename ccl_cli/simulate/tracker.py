@@ -234,7 +234,7 @@ def tracker(
     direction and a ``wobble`` (std, m) of the sensor off the surface as the finger rocks
     (five sines of 0.1–1 Hz along the normal); U (N, 3) the velocity the readers would derive
     from those positions (the same local polynomial, ``window`` samples, degree ``order``,
-    io/assemble.py; by default the odd window spanning 0.16 s: 9 samples at 50 Hz — the
+    io/derivative.py; by default the odd window spanning 0.16 s: 9 samples at 50 Hz — the
     readers' default — and 81 at 500 Hz, where 9 samples would leave velocities dominated by
     noise); stamps t (s) from 0 per recording, uniform at ``rate`` or with recorded-stamp
     errors of std ``jitter`` s (clipped to ±0.45 of a period).
