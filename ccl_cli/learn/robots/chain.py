@@ -1,0 +1,200 @@
+"""A serial kinematic chain and its batched forward kinematics and geometric Jacobian.
+
+A :class:`Chain` is the list of joints from a base link to a chosen frame, each with its fixed
+origin (the transform from the parent link to the joint frame, URDF ``<origin>``), its axis in
+the joint frame and its type. For postures Q (N, n) of the n moving joints, with T_j the origin
+of joint j and M_j(q_j) its motion (a rotation about, or a translation along, its axis),
+
+    T_frame(q) = Π_j T_j M_j(q_j)                                    (forward kinematics)
+
+and column j of the geometric Jacobian in the base frame (rows v_x, v_y, v_z, ω_x, ω_y, ω_z) is
+
+    revolute / continuous:  [z_j × (p − o_j); z_j],    prismatic:  [z_j; 0],
+
+with z_j the joint axis and o_j the joint origin in the base frame, p the frame's position
+(ALGORITHMS.md §7 uses it for the 7-DoF arm). Fixed joints are folded into the next origin.
+Postures are processed in chunks of :data:`CHUNK_POSTURES`, so the working memory does not grow
+with N; every step is a product of a (3 c, 3) block with a constant 3 × 3 matrix.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+from ccl_cli.errors import InputError
+from ccl_cli.learn.robots.transforms import skew
+
+#: Postures per block of the batched kinematics (a block holds ~ 40 floats per posture and joint).
+CHUNK_POSTURES = 32768
+
+#: Joint types of a chain (URDF names); ``continuous`` is a revolute joint without limits.
+JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed")
+
+
+@dataclass(frozen=True)
+class Joint:
+    """One joint: ``origin`` (4, 4) maps the joint frame to its parent link's frame; ``axis`` (3,)
+    is a unit vector in the joint frame; limits in rad or m (±inf when unlimited)."""
+
+    name: str
+    type: str
+    origin: np.ndarray
+    axis: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    lower: float = -np.inf
+    upper: float = np.inf
+    parent: str = ""
+    child: str = ""
+
+    def __post_init__(self) -> None:
+        if self.type not in JOINT_TYPES:
+            raise InputError(f"joint {self.name!r}: type {self.type!r} is not one of "
+                             f"{', '.join(JOINT_TYPES)}")
+        axis = np.asarray(self.axis, dtype=float)
+        norm = float(np.linalg.norm(axis))
+        if self.type != "fixed" and not norm > 1e-12:
+            raise InputError(f"joint {self.name!r}: axis {axis.tolist()} has zero length")
+        object.__setattr__(self, "axis", axis / norm if norm > 1e-12 else axis)
+        object.__setattr__(self, "origin", np.asarray(self.origin, dtype=float).reshape(4, 4))
+        object.__setattr__(self, "lower", float(self.lower))
+        object.__setattr__(self, "upper", float(self.upper))
+
+
+class Pose(NamedTuple):
+    """Poses of the chain's frame in the base frame: ``position`` (N, 3), ``rotation`` (N, 3, 3)."""
+
+    position: np.ndarray
+    rotation: np.ndarray
+
+
+@dataclass(frozen=True)
+class Chain:
+    """A serial chain from ``base`` to ``frame``: ``joints`` in order, fixed ones included.
+
+    ``source`` names where it came from (a file, ``DH table``) for error messages.
+    """
+
+    joints: tuple[Joint, ...]
+    base: str = "base"
+    frame: str = "frame"
+    source: str = "robot"
+
+    @property
+    def moving(self) -> tuple[Joint, ...]:
+        """The joints a posture sets (all but the fixed ones), in chain order."""
+        return tuple(j for j in self.joints if j.type != "fixed")
+
+    @property
+    def joint_names(self) -> list[str]:
+        return [j.name for j in self.moving]
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.moving)
+
+    @property
+    def lower(self) -> np.ndarray:
+        """Lower joint limits (n,) in rad or m; −inf when unlimited."""
+        return np.array([j.lower for j in self.moving])
+
+    @property
+    def upper(self) -> np.ndarray:
+        """Upper joint limits (n,); +inf when unlimited."""
+        return np.array([j.upper for j in self.moving])
+
+    def describe(self) -> str:
+        """``source base→frame (n joints)``, for messages."""
+        return f"{self.source} {self.base}→{self.frame} ({self.n_joints} joints)"
+
+    def _steps(self) -> tuple[list[tuple[np.ndarray, np.ndarray, str]], np.ndarray]:
+        """Per moving joint: (fixed transform before it (4, 4), unit axis (3,), type); and the fixed
+        transform from the last moving joint to the frame (4, 4)."""
+        steps, pending = [], np.eye(4)
+        for j in self.joints:
+            pending = pending @ j.origin
+            if j.type != "fixed":
+                steps.append((pending, j.axis, j.type))
+                pending = np.eye(4)
+        return steps, pending
+
+    def _postures(self, Q: np.ndarray) -> np.ndarray:
+        Q = np.asarray(Q, dtype=float)
+        if Q.ndim == 1 and self.n_joints > 0 and Q.size == self.n_joints:
+            Q = Q[None, :]
+        if Q.ndim != 2 or Q.shape[1] != self.n_joints:
+            raise InputError(f"postures have shape {Q.shape}; {self.describe()} needs (N, {self.n_joints}) "
+                             f"with columns {', '.join(self.joint_names)}")
+        return Q
+
+    def _chunk(self, Q: np.ndarray, jacobian: bool
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Frame pose and (optionally) Jacobian of one block of postures Q (c, n)."""
+        c = Q.shape[0]
+        steps, tail = self._steps()
+        R = np.broadcast_to(np.eye(3), (c, 3, 3)).copy()
+        p = np.zeros((c, 3))
+        axes, origins = np.empty((c, 3, len(steps))), np.empty((c, 3, len(steps)))
+        for k, (T, a, kind) in enumerate(steps):  # a loop over joints; each step batched over postures
+            R2 = R.reshape(-1, 3)
+            p = p + (R2 @ T[:3, 3]).reshape(c, 3)
+            A = T[:3, :3]
+            axes[:, :, k] = (R2 @ (A @ a)).reshape(c, 3)
+            origins[:, :, k] = p
+            if kind == "prismatic":
+                R = (R2 @ A).reshape(c, 3, 3)
+                p = p + axes[:, :, k] * Q[:, k, None]
+            else:
+                K = skew(a)
+                s, one_minus_c = np.sin(Q[:, k])[:, None, None], (1.0 - np.cos(Q[:, k]))[:, None, None]
+                R = ((R2 @ A).reshape(c, 3, 3) + s * (R2 @ (A @ K)).reshape(c, 3, 3)
+                     + one_minus_c * (R2 @ (A @ K @ K)).reshape(c, 3, 3))
+        p = p + (R.reshape(-1, 3) @ tail[:3, 3]).reshape(c, 3)
+        R = (R.reshape(-1, 3) @ tail[:3, :3]).reshape(c, 3, 3)
+        if not jacobian:
+            return p, R, None
+        J = np.zeros((c, 6, len(steps)))
+        revolute = np.array([kind != "prismatic" for _, _, kind in steps], dtype=bool)
+        J[:, :3, revolute] = np.cross(axes[:, :, revolute], p[:, :, None] - origins[:, :, revolute], axis=1)
+        J[:, 3:, revolute] = axes[:, :, revolute]
+        J[:, :3, ~revolute] = axes[:, :, ~revolute]
+        return p, R, J
+
+    def forward(self, Q: np.ndarray, chunk: int | None = None) -> Pose:
+        """Pose of ``frame`` in the base frame for postures Q (N, n): positions (N, 3), rotations
+        (N, 3, 3)."""
+        Q = self._postures(Q)
+        n = Q.shape[0]
+        P, Rs = np.empty((n, 3)), np.empty((n, 3, 3))
+        size = int(chunk or CHUNK_POSTURES)
+        for i in range(0, n, size):
+            P[i:i + size], Rs[i:i + size], _ = self._chunk(Q[i:i + size], jacobian=False)
+        return Pose(P, Rs)
+
+    def jacobian(self, Q: np.ndarray, rows: Sequence[int] | None = None, chunk: int | None = None
+                 ) -> np.ndarray:
+        """Geometric Jacobian of ``frame`` in the base frame, Q (N, n) → (N, 6, n), rows
+        (v_x, v_y, v_z, ω_x, ω_y, ω_z); only ``rows`` of them (N, len(rows), n) when given."""
+        Q = self._postures(Q)
+        keep = list(range(6)) if rows is None else [int(r) for r in rows]
+        if any(not 0 <= r < 6 for r in keep):
+            raise InputError(f"Jacobian rows {keep} must lie in 0..5 (v_x, v_y, v_z, ω_x, ω_y, ω_z)")
+        n = Q.shape[0]
+        out = np.empty((n, len(keep), self.n_joints))
+        size = int(chunk or CHUNK_POSTURES)
+        for i in range(0, n, size):
+            out[i:i + size] = self._chunk(Q[i:i + size], jacobian=True)[2][:, keep, :]
+        return out
+
+    def forward_jacobian(self, Q: np.ndarray, chunk: int | None = None
+                         ) -> tuple[Pose, np.ndarray]:
+        """:meth:`forward` and :meth:`jacobian` in one pass: (Pose, (N, 6, n))."""
+        Q = self._postures(Q)
+        n = Q.shape[0]
+        P, Rs, J = np.empty((n, 3)), np.empty((n, 3, 3)), np.empty((n, 6, self.n_joints))
+        size = int(chunk or CHUNK_POSTURES)
+        for i in range(0, n, size):
+            P[i:i + size], Rs[i:i + size], J[i:i + size] = self._chunk(Q[i:i + size], jacobian=True)
+        return Pose(P, Rs), J
