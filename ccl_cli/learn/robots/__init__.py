@@ -7,7 +7,8 @@ serial kinematic chains with batched forward kinematics and geometric Jacobians.
 * :func:`dh_chain`, :func:`dh_urdf`, :func:`chain_urdf` — DH tables (standard or modified) → Chain
   or URDF text;
 * :func:`load_robot` — a path or ``{"dh": [...]}`` mapping (a run spec's ``robot:``) → Chain;
-* :func:`match_joints` — a log's joint names → the chain's columns.
+* :func:`match_joints` — a log's joint names → the chain's columns;
+* :data:`LWR4`, :data:`PANDA` — published DH tables (:class:`DHRobot`: ``.chain()``, ``.urdf()``).
 """
 
 from __future__ import annotations
@@ -16,8 +17,10 @@ from ccl_cli.learn.robots.chain import CHUNK_POSTURES, JOINT_TYPES, Chain, Joint
 from ccl_cli.learn.robots.dh import chain_urdf, dh_chain, dh_urdf
 from ccl_cli.learn.robots.load import load_robot
 from ccl_cli.learn.robots.names import match_joints
+from ccl_cli.learn.robots.tables import LWR4, PANDA, DHRobot
 from ccl_cli.learn.robots.transforms import quaternions
 from ccl_cli.learn.robots.urdf import parse_urdf, read_urdf
 
-__all__ = ["CHUNK_POSTURES", "JOINT_TYPES", "Chain", "Joint", "Pose", "chain_urdf", "dh_chain", "dh_urdf",
-           "load_robot", "match_joints", "parse_urdf", "quaternions", "read_urdf"]
+__all__ = ["CHUNK_POSTURES", "JOINT_TYPES", "LWR4", "PANDA", "Chain", "DHRobot", "Joint", "Pose",
+           "chain_urdf", "dh_chain", "dh_urdf", "load_robot", "match_joints", "parse_urdf", "quaternions",
+           "read_urdf"]

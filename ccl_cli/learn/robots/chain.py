@@ -28,8 +28,9 @@ import numpy as np
 from ccl_cli.errors import InputError
 from ccl_cli.learn.robots.transforms import skew
 
-#: Postures per block of the batched kinematics (a block holds ~ 40 floats per posture and joint).
-CHUNK_POSTURES = 32768
+#: Postures per block of the batched kinematics: its arrays stay in cache, and its (3 c, 3) products
+#: stay below the size at which OpenBLAS starts threads (which stall on a shared machine).
+CHUNK_POSTURES = 4096
 
 #: Joint types of a chain (URDF names); ``continuous`` is a revolute joint without limits.
 JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed")
@@ -131,34 +132,42 @@ class Chain:
 
     def _chunk(self, Q: np.ndarray, jacobian: bool
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Frame pose and (optionally) Jacobian of one block of postures Q (c, n)."""
+        """Frame pose and (optionally) Jacobian of one block of postures Q (c, n).
+
+        Per joint, one product of the rotations so far (3 c, 3) with the constant (3, 11) block
+        [A, A K, A K², t, A a] (A, t: the joint's fixed origin; K = [a]×) gives the rotation after
+        the joint, R A (I + sin q K + (1 − cos q) K²), its origin p + R t and its axis R A a.
+        """
         c = Q.shape[0]
         steps, tail = self._steps()
         R = np.broadcast_to(np.eye(3), (c, 3, 3)).copy()
         p = np.zeros((c, 3))
-        axes, origins = np.empty((c, 3, len(steps))), np.empty((c, 3, len(steps)))
+        axes = np.empty((c if jacobian else 0, 3, len(steps)))  # joint axes z_j and origins o_j
+        origins = np.empty_like(axes)
         for k, (T, a, kind) in enumerate(steps):  # a loop over joints; each step batched over postures
-            R2 = R.reshape(-1, 3)
-            p = p + (R2 @ T[:3, 3]).reshape(c, 3)
-            A = T[:3, :3]
-            axes[:, :, k] = (R2 @ (A @ a)).reshape(c, 3)
-            origins[:, :, k] = p
+            A, K = T[:3, :3], skew(a)
+            G = np.concatenate([A, A @ K, A @ K @ K, T[:3, 3:], (A @ a)[:, None]], axis=1)
+            X = (R.reshape(-1, 3) @ G).reshape(c, 3, 11)
+            p = p + X[:, :, 9]
+            if jacobian:
+                axes[:, :, k], origins[:, :, k] = X[:, :, 10], p
             if kind == "prismatic":
-                R = (R2 @ A).reshape(c, 3, 3)
-                p = p + axes[:, :, k] * Q[:, k, None]
+                R = X[:, :, :3]
+                p = p + X[:, :, 10] * Q[:, k, None]
             else:
-                K = skew(a)
-                s, one_minus_c = np.sin(Q[:, k])[:, None, None], (1.0 - np.cos(Q[:, k]))[:, None, None]
-                R = ((R2 @ A).reshape(c, 3, 3) + s * (R2 @ (A @ K)).reshape(c, 3, 3)
-                     + one_minus_c * (R2 @ (A @ K @ K)).reshape(c, 3, 3))
-        p = p + (R.reshape(-1, 3) @ tail[:3, 3]).reshape(c, 3)
-        R = (R.reshape(-1, 3) @ tail[:3, :3]).reshape(c, 3, 3)
+                R = X[:, :, :3] + np.sin(Q[:, k])[:, None, None] * X[:, :, 3:6]
+                R += (1.0 - np.cos(Q[:, k]))[:, None, None] * X[:, :, 6:9]
+        X = (R.reshape(-1, 3) @ tail[:3, :]).reshape(c, 3, 4)
+        R, p = X[:, :, :3], p + X[:, :, 3]
         if not jacobian:
             return p, R, None
         J = np.zeros((c, 6, len(steps)))
         revolute = np.array([kind != "prismatic" for _, _, kind in steps], dtype=bool)
-        J[:, :3, revolute] = np.cross(axes[:, :, revolute], p[:, :, None] - origins[:, :, revolute], axis=1)
-        J[:, 3:, revolute] = axes[:, :, revolute]
+        z, d = axes[:, :, revolute], p[:, :, None] - origins[:, :, revolute]
+        J[:, 0, revolute] = z[:, 1] * d[:, 2] - z[:, 2] * d[:, 1]  # z × (p − o)
+        J[:, 1, revolute] = z[:, 2] * d[:, 0] - z[:, 0] * d[:, 2]
+        J[:, 2, revolute] = z[:, 0] * d[:, 1] - z[:, 1] * d[:, 0]
+        J[:, 3:, revolute] = z
         J[:, :3, ~revolute] = axes[:, :, ~revolute]
         return p, R, J
 
