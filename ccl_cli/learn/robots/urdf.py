@@ -51,8 +51,11 @@ def _joint(el: ET.Element, source: str) -> tuple[Joint | None, str, str, str]:
     if lim is not None and kind in ("revolute", "prismatic"):
         lower = floats(lim.get("lower"), 1, (0.0,), f"{what} limit lower")[0]
         upper = floats(lim.get("upper"), 1, (0.0,), f"{what} limit upper")[0]
-    joint = Joint(name, kind, origin_matrix(np.array(xyz), np.array(rpy)), np.array(axis),
-                  lower, upper, links[0], links[1])
+    try:
+        joint = Joint(name, kind, origin_matrix(np.array(xyz), np.array(rpy)), np.array(axis),
+                      lower, upper, links[0], links[1])
+    except InputError as e:
+        raise InputError(f"{source}: {e.message}") from None
     return joint, kind, links[0], links[1]
 
 
