@@ -291,10 +291,17 @@ def test_load_robot(tmp_path):
     np.testing.assert_allclose(dh.forward(Q).position, expected, atol=1e-12)
     with pytest.raises(ConfigError, match="unknown: dhh"):
         load_robot({"dh": [[0, 0, 0, 0]], "dhh": 1})
-    with pytest.raises(ConfigError, match=r"\.urdf file"):
+    with pytest.raises(ConfigError, match=r"a \.urdf or MJCF \.xml file"):
         load_robot(str(tmp_path / "arm.sdf"))
     with pytest.raises(InputError, match="cannot read"):
         load_robot(str(tmp_path / "missing.urdf"))
+    as_xml = tmp_path / "lwr.xml"  # a URDF is known by its <robot> root whatever its suffix
+    as_xml.write_text(LWR4.urdf())
+    np.testing.assert_array_equal(load_robot(str(as_xml)).jacobian(Q), chain.jacobian(Q))
+    other = tmp_path / "scene.xml"
+    other.write_text("<sdf/>")
+    with pytest.raises(InputError, match="neither URDF"):
+        load_robot(str(other))
     with pytest.raises(InputError, match="DH table"):
         dh_chain([[0, 0, 0]])
 
@@ -360,3 +367,78 @@ def test_urdf_writer_keeps_prismatic_limits_finite():
         dh_urdf([[0, 0, 0, 0]], types="P")
     text = dh_urdf([[0, 0, 0, 0]], types="P", limits=[[0, 0.5]])
     assert parse_urdf(text).moving[0].type == "prismatic"
+
+
+# --- MJCF (read by MuJoCo, the robots extra) ----------------------------------------------------
+
+ARM_MJCF = """<mujoco model="arm">
+  <compiler angle="degree"/>
+  <default><joint range="-150 150" limited="true"/></default>
+  <worldbody>
+    <body name="base" pos="0.1 0.2 0.3" euler="10 -20 30">
+      <joint name="yaw" type="hinge" axis="0 0 1" pos="0 0.05 0" ref="15"/>
+      <geom size="0.05"/>
+      <body name="upper" pos="0 0 0.4" quat="0.9 0.3 -0.2 0.1">
+        <joint name="pitch" type="hinge" axis="0 1 0.3" pos="0.02 0 -0.1"/>
+        <joint name="roll" type="hinge" axis="1 0 0" limited="false"/>
+        <geom size="0.05"/>
+        <body name="fore" pos="0.35 0 0" axisangle="0 0 1 40">
+          <joint name="slide" type="slide" axis="1 1 0" range="0 0.2" ref="0.05"/>
+          <geom size="0.04"/>
+          <site name="tool" pos="0.1 0 0.03" euler="0 90 0"/>
+        </body>
+      </body>
+      <body name="camera" pos="0 0.3 0"><joint name="pan" axis="0 0 1"/><geom size="0.02"/></body>
+    </body>
+    <body name="table" pos="1 0 0"><freejoint name="free"/><geom size="0.1"/></body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_mjcf_chain_matches_mujoco(tmp_path):
+    mujoco = pytest.importorskip("mujoco")
+    path = tmp_path / "arm.xml"
+    path.write_text(ARM_MJCF)
+    chain = load_robot(str(path), frame="tool")
+    assert chain.joint_names == ["yaw", "pitch", "roll", "slide"]
+    assert [j.type for j in chain.moving] == ["revolute", "revolute", "continuous", "prismatic"]
+    np.testing.assert_allclose(chain.lower, np.deg2rad([-150, -150, -np.inf, 0]) + [0, 0, 0, 0])
+    model = mujoco.MjModel.from_xml_path(str(path))
+    data = mujoco.MjData(model)
+    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "tool")
+    ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n) for n in chain.joint_names]
+    cols, adr = model.jnt_dofadr[ids], model.jnt_qposadr[ids]
+    Q = RNG.uniform([-2, -2, -3, 0], [2, 2, 3, 0.2], (30, 4))
+    pose, J = chain.forward_jacobian(Q)
+    jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+    for q, p, R, Jq in zip(Q, pose.position, pose.rotation, J, strict=True):
+        data.qpos[:] = model.qpos0
+        data.qpos[adr] = q
+        mujoco.mj_forward(model, data)
+        mujoco.mj_jacSite(model, data, jacp, jacr, site)
+        np.testing.assert_allclose(p, data.site_xpos[site], atol=1e-12)
+        np.testing.assert_allclose(R, data.site_xmat[site].reshape(3, 3), atol=1e-12)
+        np.testing.assert_allclose(Jq, np.vstack([jacp[:, cols], jacr[:, cols]]), atol=1e-12)
+    assert load_robot(str(path), frame="fore", base="upper").joint_names == ["slide"]
+    with pytest.raises(InputError, match="'nowhere' is neither a site nor a body"):
+        load_robot(str(path), frame="nowhere")
+    with pytest.raises(InputError, match="'free' of body 'table' is a free joint"):
+        load_robot(str(path), frame="table")
+    bad = tmp_path / "bad.xml"
+    bad.write_text(ARM_MJCF.replace('<geom size="0.04"/>', '<geom type="mesh" mesh="missing"/>'))
+    with pytest.raises(InputError, match="MuJoCo cannot load it") as e:
+        load_robot(str(bad), frame="tool")
+    assert "\n" not in str(e.value)
+
+
+def test_mjcf_without_mujoco_names_the_extra(tmp_path, monkeypatch):
+    import sys
+
+    path = tmp_path / "arm.xml"
+    path.write_text(ARM_MJCF)
+    monkeypatch.setitem(sys.modules, "mujoco", None)
+    with pytest.raises(ConfigError, match=r"pip install 'ccl_cli\[robots\]'"):
+        load_robot(str(path), frame="tool")
+    with pytest.raises(ConfigError, match="give frame"):
+        load_robot(str(path))

@@ -108,3 +108,11 @@ def quaternions(R: np.ndarray) -> np.ndarray:
     out = rows[np.arange(len(R)), k] / (2.0 * big[:, None])
     out *= np.where(out[:, :1] < 0, -1.0, 1.0)
     return out
+
+
+def quaternion_matrix(q: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) (4,) → rotation (3, 3) (normalised first)."""
+    w, x, y, z = np.asarray(q, dtype=float) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
