@@ -14,7 +14,7 @@ and column j of the geometric Jacobian in the base frame (rows v_x, v_y, v_z, ω
 with z_j the joint axis and o_j the joint origin in the base frame, p the frame's position
 (ALGORITHMS.md §7 uses it for the 7-DoF arm). Fixed joints are folded into the next origin.
 Postures are processed in chunks of :data:`CHUNK_POSTURES`, so the working memory does not grow
-with N; every step is a product of a (3 c, 3) block with a constant 3 × 3 matrix.
+with N; each joint costs one product of a (3 c, 3) block with a constant (3, 4) matrix.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ccl_cli.errors import InputError
-from ccl_cli.learn.robots.transforms import skew
+from ccl_cli.learn.robots.transforms import homogeneous, z_to_axis
 
 #: Postures per block of the batched kinematics: its arrays stay in cache, and its (3 c, 3) products
 #: stay below the size at which OpenBLAS starts threads (which stall on a shared machine).
@@ -110,15 +110,19 @@ class Chain:
         """``source base→frame (n joints)``, for messages."""
         return f"{self.source} {self.base}→{self.frame} ({self.n_joints} joints)"
 
-    def _steps(self) -> tuple[list[tuple[np.ndarray, np.ndarray, str]], np.ndarray]:
-        """Per moving joint: (fixed transform before it (4, 4), unit axis (3,), type); and the fixed
-        transform from the last moving joint to the frame (4, 4)."""
+    def _steps(self) -> tuple[list[tuple[np.ndarray, str]], np.ndarray]:
+        """Per moving joint: the fixed transform before it (4, 4), in a joint frame turned so that
+        its axis is z, and its type; and the fixed transform from the last joint to the frame.
+
+        A joint about (along) the unit axis a moves by S R_z(q) Sᵀ (S T_z(q) Sᵀ) with S e_z = a, so
+        S joins the joint's origin and Sᵀ the transform after it."""
         steps, pending = [], np.eye(4)
         for j in self.joints:
             pending = pending @ j.origin
             if j.type != "fixed":
-                steps.append((pending, j.axis, j.type))
-                pending = np.eye(4)
+                S = homogeneous(z_to_axis(j.axis))
+                steps.append((pending @ S, j.type))
+                pending = S.T
         return steps, pending
 
     def _postures(self, Q: np.ndarray) -> np.ndarray:
@@ -134,41 +138,44 @@ class Chain:
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Frame pose and (optionally) Jacobian of one block of postures Q (c, n).
 
-        Per joint, one product of the rotations so far (3 c, 3) with the constant (3, 11) block
-        [A, A K, A K², t, A a] (A, t: the joint's fixed origin; K = [a]×) gives the rotation after
-        the joint, R A (I + sin q K + (1 − cos q) K²), its origin p + R t and its axis R A a.
+        Per joint, one product of the rotations so far R (3 c, 3) with the joint's fixed origin
+        [A, t] (3, 4) gives its rotation R A, whose third column is the joint axis z_j, and its
+        origin o_j = p + R t; a revolute joint then mixes the first two columns by R_z(q).
         """
         c = Q.shape[0]
         steps, tail = self._steps()
-        R = np.broadcast_to(np.eye(3), (c, 3, 3)).copy()
+        R = np.broadcast_to(np.eye(3), (c, 3, 3))
         p = np.zeros((c, 3))
         axes = np.empty((c if jacobian else 0, 3, len(steps)))  # joint axes z_j and origins o_j
         origins = np.empty_like(axes)
-        for k, (T, a, kind) in enumerate(steps):  # a loop over joints; each step batched over postures
-            A, K = T[:3, :3], skew(a)
-            G = np.concatenate([A, A @ K, A @ K @ K, T[:3, 3:], (A @ a)[:, None]], axis=1)
-            X = (R.reshape(-1, 3) @ G).reshape(c, 3, 11)
-            p = p + X[:, :, 9]
+        for k, (T, kind) in enumerate(steps):  # a loop over joints; each step batched over postures
+            X = (np.reshape(R, (-1, 3)) @ T[:3, :]).reshape(c, 3, 4)  # [R A, R t]
+            p = p + X[:, :, 3]
+            z = X[:, :, 2]
             if jacobian:
-                axes[:, :, k], origins[:, :, k] = X[:, :, 10], p
+                axes[:, :, k], origins[:, :, k] = z, p
             if kind == "prismatic":
                 R = X[:, :, :3]
-                p = p + X[:, :, 10] * Q[:, k, None]
+                p = p + z * Q[:, k, None]
             else:
-                R = X[:, :, :3] + np.sin(Q[:, k])[:, None, None] * X[:, :, 3:6]
-                R += (1.0 - np.cos(Q[:, k]))[:, None, None] * X[:, :, 6:9]
-        X = (R.reshape(-1, 3) @ tail[:3, :]).reshape(c, 3, 4)
+                cq, sq = np.cos(Q[:, k])[:, None], np.sin(Q[:, k])[:, None]
+                R = np.empty((c, 3, 3))
+                R[:, :, 0] = cq * X[:, :, 0] + sq * X[:, :, 1]
+                R[:, :, 1] = cq * X[:, :, 1] - sq * X[:, :, 0]
+                R[:, :, 2] = z
+        X = (np.reshape(R, (-1, 3)) @ tail[:3, :]).reshape(c, 3, 4)
         R, p = X[:, :, :3], p + X[:, :, 3]
         if not jacobian:
             return p, R, None
-        J = np.zeros((c, 6, len(steps)))
-        revolute = np.array([kind != "prismatic" for _, _, kind in steps], dtype=bool)
-        z, d = axes[:, :, revolute], p[:, :, None] - origins[:, :, revolute]
-        J[:, 0, revolute] = z[:, 1] * d[:, 2] - z[:, 2] * d[:, 1]  # z × (p − o)
-        J[:, 1, revolute] = z[:, 2] * d[:, 0] - z[:, 0] * d[:, 2]
-        J[:, 2, revolute] = z[:, 0] * d[:, 1] - z[:, 1] * d[:, 0]
-        J[:, 3:, revolute] = z
-        J[:, :3, ~revolute] = axes[:, :, ~revolute]
+        d = p[:, :, None] - origins  # o_j → frame (c, 3, n)
+        J = np.empty((c, 6, len(steps)))
+        J[:, 0] = axes[:, 1] * d[:, 2] - axes[:, 2] * d[:, 1]  # z_j × (p − o_j)
+        J[:, 1] = axes[:, 2] * d[:, 0] - axes[:, 0] * d[:, 2]
+        J[:, 2] = axes[:, 0] * d[:, 1] - axes[:, 1] * d[:, 0]
+        J[:, 3:] = axes
+        prismatic = [k for k, (_, kind) in enumerate(steps) if kind == "prismatic"]
+        if prismatic:
+            J[:, :3, prismatic], J[:, 3:, prismatic] = axes[:, :, prismatic], 0.0
         return p, R, J
 
     def forward(self, Q: np.ndarray, chunk: int | None = None) -> Pose:

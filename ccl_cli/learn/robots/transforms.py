@@ -75,6 +75,17 @@ def skew(a: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
+def z_to_axis(axis: np.ndarray) -> np.ndarray:
+    """A rotation S (3, 3) with S e_z = a for the unit vector a (3,): the rotation about e_z × a
+    by the angle between them; a rotation by π about x when a = −e_z."""
+    a = np.asarray(axis, dtype=float)
+    v, cos = np.cross([0.0, 0.0, 1.0], a), float(a[2])
+    if cos < -1.0 + 1e-12:
+        return rot_x(np.pi)
+    K = skew(v)
+    return np.eye(3) + K + (K @ K) / (1.0 + cos)
+
+
 def axis_angle_matrices(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
     """Rotations by ``angles`` (N,) about one unit ``axis`` (3,): I + sin q [a]× + (1 − cos q) [a]×²
     → (N, 3, 3)."""
