@@ -25,6 +25,7 @@ from ccl_cli.learn.robots import (
     parse_urdf,
     quaternions,
     read_urdf,
+    robot_features,
 )
 from ccl_cli.learn.robots.transforms import matrix_rpy, rpy_matrix
 
@@ -248,6 +249,45 @@ def test_rotations_helpers_against_scipy():
         np.testing.assert_allclose(rpy_matrix(matrix_rpy(R1)), R1, atol=1e-12)
     lock = rpy_matrix([0.4, np.pi / 2, 0.0])
     np.testing.assert_allclose(rpy_matrix(matrix_rpy(lock)), lock, atol=1e-12)
+
+
+# --- known features of the lambda constraint ---------------------------------------------------
+
+def test_robot_features_equal_arm7_in_the_lambda_learner(tmp_path):
+    """The issue's bar: lambda with the arm7 chain given as a URDF learns the same N(q) as the
+    built-in ``arm7`` features."""
+    from ccl_cli.learn import KnownFeatureConstraint
+    from ccl_cli.learn.kinematics import ArmFeatures
+    from ccl_cli.learn.linalg import nullspace_projection
+    from ccl_cli.simulate.reference import arm7
+
+    arm = SevenDofArm()
+    path = tmp_path / "arm7.urdf"
+    path.write_text(dh_urdf(np.c_[arm.a, arm.d, arm.alpha, np.zeros(7)]))
+    features = robot_features({"robot": str(path), "rows": [0, 1, 2]})
+    data = arm7(rows=(0, 1, 2), constraint="jacobian", n_demos=10, n_steps=20, seed=1)
+    np.testing.assert_allclose(features(data.X), ArmFeatures("arm7", [0, 1, 2])(data.X), rtol=0, atol=1e-12)
+    fits = [KnownFeatureConstraint(features=f, tune=False, n_centres=1).fit(data.X, data.U, demo=data.demo)
+            for f in ({"arm": "arm7", "rows": [0, 1, 2]}, features)]
+    N = [nullspace_projection(m.constraint(data.X)) for m in fits]
+    assert fits[0].n_constraints_ == fits[1].n_constraints_
+    assert np.abs(N[0] - N[1]).max() < 1e-9
+
+
+def test_robot_features_spec_holds_the_chain(tmp_path):
+    path = tmp_path / "panda.urdf"
+    path.write_text(PANDA.urdf())
+    features = robot_features({"robot": str(path), "frame": "panda_link8", "rows": [2, 3, 4]})
+    spec = features.spec()
+    path.unlink()  # the stored form does not need the file
+    again = robot_features(spec)
+    Q = within_limits(features.chain, 200)
+    np.testing.assert_allclose(again(Q), features(Q), rtol=0, atol=1e-12)
+    assert again(Q).shape == (200, 3, 7)
+    with pytest.raises(ConfigError, match="rows"):
+        robot_features({"urdf": spec["urdf"], "rows": [7]})
+    with pytest.raises(ConfigError, match="unknown: row"):
+        robot_features({"urdf": spec["urdf"], "row": [1]})
 
 
 # --- joint names ------------------------------------------------------------------------------
