@@ -21,11 +21,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
 
 from ccl_cli.errors import InputError
+from ccl_cli.learn.linalg import row_chunks
 from ccl_cli.learn.robots.transforms import homogeneous, z_to_axis
 
 #: Postures per block of the batched kinematics: its arrays stay in cache, and its (3 c, 3) products
@@ -36,7 +38,7 @@ CHUNK_POSTURES = 4096
 JOINT_TYPES = ("revolute", "continuous", "prismatic", "fixed")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Joint:
     """One joint: ``origin`` (4, 4) maps the joint frame to its parent link's frame; ``axis`` (3,)
     is a unit vector in the joint frame; limits in rad or m (±inf when unlimited)."""
@@ -71,7 +73,7 @@ class Pose(NamedTuple):
     rotation: np.ndarray
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Chain:
     """A serial chain from ``base`` to ``frame``: ``joints`` in order, fixed ones included.
 
@@ -110,6 +112,7 @@ class Chain:
         """``source base→frame (n joints)``, for messages."""
         return f"{self.source} {self.base}→{self.frame} ({self.n_joints} joints)"
 
+    @cached_property
     def _steps(self) -> tuple[list[tuple[np.ndarray, str]], np.ndarray]:
         """Per moving joint: the fixed transform before it (4, 4), in a joint frame turned so that
         its axis is z, and its type; and the fixed transform from the last joint to the frame.
@@ -143,7 +146,7 @@ class Chain:
         origin o_j = p + R t; a revolute joint then mixes the first two columns by R_z(q).
         """
         c = Q.shape[0]
-        steps, tail = self._steps()
+        steps, tail = self._steps
         R = np.broadcast_to(np.eye(3), (c, 3, 3))
         p = np.zeros((c, 3))
         axes = np.empty((c if jacobian else 0, 3, len(steps)))  # joint axes z_j and origins o_j
@@ -182,11 +185,9 @@ class Chain:
         """Pose of ``frame`` in the base frame for postures Q (N, n): positions (N, 3), rotations
         (N, 3, 3)."""
         Q = self._postures(Q)
-        n = Q.shape[0]
-        P, Rs = np.empty((n, 3)), np.empty((n, 3, 3))
-        size = int(chunk or CHUNK_POSTURES)
-        for i in range(0, n, size):
-            P[i:i + size], Rs[i:i + size], _ = self._chunk(Q[i:i + size], jacobian=False)
+        P, Rs = np.empty((len(Q), 3)), np.empty((len(Q), 3, 3))
+        for block in row_chunks(len(Q), chunk or CHUNK_POSTURES):
+            P[block], Rs[block], _ = self._chunk(Q[block], jacobian=False)
         return Pose(P, Rs)
 
     def jacobian(self, Q: np.ndarray, rows: Sequence[int] | None = None, chunk: int | None = None
@@ -197,20 +198,16 @@ class Chain:
         keep = list(range(6)) if rows is None else [int(r) for r in rows]
         if any(not 0 <= r < 6 for r in keep):
             raise InputError(f"Jacobian rows {keep} must lie in 0..5 (v_x, v_y, v_z, ω_x, ω_y, ω_z)")
-        n = Q.shape[0]
-        out = np.empty((n, len(keep), self.n_joints))
-        size = int(chunk or CHUNK_POSTURES)
-        for i in range(0, n, size):
-            out[i:i + size] = self._chunk(Q[i:i + size], jacobian=True)[2][:, keep, :]
+        out = np.empty((len(Q), len(keep), self.n_joints))
+        for block in row_chunks(len(Q), chunk or CHUNK_POSTURES):
+            out[block] = self._chunk(Q[block], jacobian=True)[2][:, keep, :]
         return out
 
     def forward_jacobian(self, Q: np.ndarray, chunk: int | None = None
                          ) -> tuple[Pose, np.ndarray]:
         """:meth:`forward` and :meth:`jacobian` in one pass: (Pose, (N, 6, n))."""
         Q = self._postures(Q)
-        n = Q.shape[0]
-        P, Rs, J = np.empty((n, 3)), np.empty((n, 3, 3)), np.empty((n, 6, self.n_joints))
-        size = int(chunk or CHUNK_POSTURES)
-        for i in range(0, n, size):
-            P[i:i + size], Rs[i:i + size], J[i:i + size] = self._chunk(Q[i:i + size], jacobian=True)
+        P, Rs, J = np.empty((len(Q), 3)), np.empty((len(Q), 3, 3)), np.empty((len(Q), 6, self.n_joints))
+        for block in row_chunks(len(Q), chunk or CHUNK_POSTURES):
+            P[block], Rs[block], J[block] = self._chunk(Q[block], jacobian=True)
         return Pose(P, Rs), J
