@@ -102,9 +102,8 @@ def quaternions(R: np.ndarray) -> np.ndarray:
     """
     R = np.asarray(R, dtype=float)
     tr = np.trace(R, axis1=1, axis2=2)
-    d = np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], 1)
     # 4 w², 4 x², 4 y², 4 z² from the trace and the diagonal
-    sq = np.stack([1 + tr, 1 + 2 * d[:, 1] - tr, 1 + 2 * d[:, 2] - tr, 1 + 2 * d[:, 3] - tr], 1)
+    sq = np.stack([1 + tr, 1 + 2 * R[:, 0, 0] - tr, 1 + 2 * R[:, 1, 1] - tr, 1 + 2 * R[:, 2, 2] - tr], 1)
     k = np.argmax(sq, 1)
     big = np.sqrt(np.maximum(sq[np.arange(len(R)), k], 0.0))  # 2 |component k|
     # 4 w x, 4 w y, 4 w z, 4 x y, 4 x z, 4 y z from the off-diagonal entries
