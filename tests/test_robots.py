@@ -267,7 +267,7 @@ def test_robot_features_equal_arm7_in_the_lambda_learner(tmp_path):
     features = robot_features({"robot": str(path), "rows": [0, 1, 2]})
     data = arm7(rows=(0, 1, 2), constraint="jacobian", n_demos=10, n_steps=20, seed=1)
     np.testing.assert_allclose(features(data.X), ArmFeatures("arm7", [0, 1, 2])(data.X), rtol=0, atol=1e-12)
-    fits = [KnownFeatureConstraint(features=f, tune=False, n_centres=1).fit(data.X, data.U, demo=data.demo)
+    fits = [KnownFeatureConstraint(features=f, tune=False, n_centres=1).fit(data.X, data.U, groups=data.demo)
             for f in ({"arm": "arm7", "rows": [0, 1, 2]}, features)]
     N = [nullspace_projection(m.constraint(data.X)) for m in fits]
     assert fits[0].n_constraints_ == fits[1].n_constraints_
