@@ -23,7 +23,8 @@ from typing import ClassVar, get_args
 
 import numpy as np
 
-from ccl_cli.learn.basis import BasisParams, make_basis
+from ccl_cli.learn import blas
+from ccl_cli.learn.basis import Basis, BasisParams, make_basis
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.linalg import nullspace_projection, row_chunks
@@ -204,11 +205,26 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
         """Estimate W (and W_b) from states X (N, p) and actions U (N, q); ``groups`` (N,):
         demonstration ids, for the folds of tuning and of the ``cv`` rule."""
         X, U = self._prepare_fit(X, U)
-        if self._fit_tuned(X, U, groups=groups):
-            return self
-        self.n_action_ = U.shape[1]
+        with blas.threads(1):  # one BLAS thread: with more, OpenBLAS's results depend on their number
+            if not self._fit_tuned(X, U, groups=groups):
+                self._fit_core(X, U, groups=groups)
+        return self
+
+    def _fit_basis(self, X: np.ndarray, U: np.ndarray) -> Basis | None:
+        """The RBF feature map of ``rbf`` regressors (or task regressors) fitted on X; None
+        when no regressor family needs one."""
         if self.regressors == "rbf" or (self.task and self.task_regressors == "rbf"):
-            self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
+            return make_basis(self.basis, self.n_centres, self.seed).fit(X)
+        return None
+
+    def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                  basis: Basis | None = None, start: LinearConstraint | None = None) -> LinearConstraint:
+        """The closed-form estimate with a fitted ``basis`` (None: this learner's own);
+        ``start`` is not needed (nothing iterates)."""
+        self.n_action_ = U.shape[1]
+        basis = self._fit_basis(X, U) if basis is None else basis
+        if basis is not None:
+            self.basis_ = basis
         vals, vecs, scale, msq = self._solve(X, U, 1)
         d = vecs.shape[0]
         max_k = min(self.max_constraints or self.n_action_ - 1, d - 1)
