@@ -57,6 +57,13 @@ def eigen_lstsq(M: np.ndarray, r: np.ndarray, cutoff: float, absolute: bool = Fa
     pseudo-inverse, ALGORITHMS.md §4–§5). ``M`` is (..., d, d), ``r`` (..., d).
     """
     vals, vecs = np.linalg.eigh(M)
+    return eigen_solve(vals, vecs, r, cutoff, absolute)
+
+
+def eigen_solve(vals: np.ndarray, vecs: np.ndarray, r: np.ndarray, cutoff: float,
+                absolute: bool = False) -> np.ndarray:
+    """:func:`eigen_lstsq` from the eigen-decomposition (vals (..., d), vecs (..., d, d)) of M,
+    so several cut-offs of one M cost one decomposition."""
     top = np.maximum(vals[..., -1:], np.finfo(float).tiny)
     threshold = cutoff if absolute else cutoff * top
     inv = np.where(vals > threshold, 1.0 / np.where(vals > 0, vals, 1.0), 0.0)

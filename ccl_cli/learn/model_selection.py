@@ -12,7 +12,12 @@
 * :class:`Tuned` is the hyperparameter search as an estimator: a grid searched by
   cross-validation within a budget counted in model fits (candidates × folds), never in
   seconds, so the same data and settings give the same model on any machine at any
-  load. The learners' ``tune`` parameter delegates to it (:class:`Tunable`).
+  load. The learners' ``tune`` parameter delegates to it (:class:`Tunable`). The search
+  costs a few fits (:func:`search`): a candidate's folds share work (a closed-form
+  learner's normal equations are summed once and downdated per fold; an iterative
+  learner's folds start from its fit of all rows, seen through each fold's rows),
+  candidates on one basis share it, the grid runs from the smallest basis up and stops
+  where a larger one does not help, and large data are searched on a seeded subset.
 """
 
 from __future__ import annotations
@@ -267,16 +272,18 @@ def take_rows(fit_kw: dict[str, Any], rows: np.ndarray) -> dict[str, Any]:
 
 
 def candidate_models(estimator: Any, X: np.ndarray, U: np.ndarray, groups: np.ndarray, folds: Folds,
-                     basis: Any = None, **fit_kw: Any) -> tuple[Any | None, list[Any]]:
+                     basis: Any = None, shared: dict[Any, Any] | None = None, **fit_kw: Any
+                     ) -> tuple[Any | None, list[Any]]:
     """The models one candidate's cross-validation needs: (the candidate fitted on all of X
     (N, p), U (N, q), or None; one model per training fold of ``folds``).
 
     A :class:`Tunable` learner shares work between them (:meth:`Tunable._cv_models`: one
     basis, normal equations downdated per fold, folds started from the all-rows fit);
     any other estimator is cloned and fitted per fold. ``basis``: a fitted feature map
-    to use (Tunable learners only; None: fitted on X)."""
+    to use (Tunable learners only; None: fitted on X); ``shared``: a store the search keeps for
+    its candidates on the same data and folds (e.g. normal equations of a basis)."""
     if isinstance(estimator, Tunable):
-        return estimator._cv_models(X, U, groups, folds, basis=basis, **fit_kw)
+        return estimator._cv_models(X, U, groups, folds, basis=basis, shared=shared, **fit_kw)
     models = [clone(estimator).fit(X[train], U[train], groups=groups[train], **take_rows(fit_kw, train))
               for train, _ in folds.pairs]
     return None, models
@@ -356,9 +363,10 @@ def search(
     mean held-out error wins (the first of equals). Each candidate costs ``n_folds`` fits and runs while
     the fits so far plus its own stay within ``budget`` (the first always runs); the rest,
     and those after the stop, are counted in ``skipped``. Nothing depends on the machine or
-    its load. A candidate's fits share work (:func:`candidate_models`); its basis is fitted
-    on ``basis_data`` (X, U) when given (all the rows, when the search runs on a subset of
-    them), else on X.
+    its load. A candidate's fits share work (:func:`candidate_models`), and candidates that
+    differ only in other settings than the basis share its fit (and, for a closed-form
+    learner, its normal equations); the basis is fitted on ``basis_data`` (X, U) when given
+    (all the rows, when the search runs on a subset of them), else on X.
 
     Returns:
         :class:`SearchResult`; ``info`` = {"grid", "scores": [{params, mean, se}] in the
@@ -378,6 +386,8 @@ def search(
     ran: list[tuple[dict[str, Any], np.ndarray]] = []
     kept: list[tuple[Any, Any]] = []  # (full model, basis) of each row of ``rows``
     ran_errors: list[np.ndarray] = []  # fold errors of each row of ``rows``
+    bases: dict[tuple, Any] = {}  # fitted bases by their settings (candidates differing in others share one)
+    shared: dict[Any, Any] = {}  # what candidates on one basis share (a closed-form learner's equations)
     used = skipped = 0
     stopped: str | None = None
     best: int | None = None  # the row of the candidate the stopping rule holds best so far
@@ -397,9 +407,13 @@ def search(
         used += per_candidate
         candidate = clone(estimator).set_params(**params)
         try:
-            basis = (candidate._fit_basis(*basis_data)
-                     if basis_data is not None and isinstance(candidate, Tunable) else None)
-            full, models = candidate_models(candidate, X, U, groups, folds, basis, **fit_kw)
+            basis = None
+            if isinstance(candidate, Tunable):  # one fitted basis per distinct basis setting
+                key = candidate._basis_key()
+                if key not in bases:
+                    bases[key] = candidate._fit_basis(*(basis_data or (X, U)))
+                basis = bases[key]
+            full, models = candidate_models(candidate, X, U, groups, folds, basis, shared, **fit_kw)
             errors = held_out_errors(models, X, U, groups, folds, **fit_kw)
         except (InputError, LearningError, np.linalg.LinAlgError):
             ran.append((params, np.full(per_candidate, np.nan)))
@@ -425,24 +439,14 @@ def search(
     return SearchResult(chosen, info, _cv_results(ran, keys), *kept[best])
 
 
-def grid_search(
-    estimator: Any,
-    X: np.ndarray,
-    U: np.ndarray,
-    groups: np.ndarray | None,
-    grid: dict[str, list[Any]],
-    *,
-    budget: float = TUNE_BUDGET,
-    n_folds: int = N_FOLDS,
-    seed: int = 0,
-    gap: int = DEFAULT_GAP,
-    projections: np.ndarray | None = None,
-) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
-    """:func:`search` as (chosen parameters, info, cv_results) — cv_results in the layout of
-    scikit-learn's ``GridSearchCV.cv_results_`` (scores = −errors; candidates that failed
-    have NaN)."""
+def grid_search(estimator: Any, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None,
+                grid: dict[str, list[Any]], *, projections: np.ndarray | None = None, **options: Any
+                ) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """:func:`search` (``options``: its budget, n_folds, seed, gap) as (chosen parameters, info,
+    cv_results) — cv_results in the layout of scikit-learn's ``GridSearchCV.cv_results_``
+    (scores = −errors; candidates that failed have NaN)."""
     extra = {} if projections is None else {"projections": projections}
-    found = search(estimator, X, U, groups, grid, budget=budget, n_folds=n_folds, seed=seed, gap=gap, **extra)
+    found = search(estimator, X, U, groups, grid, **options, **extra)
     return found.chosen, found.info, found.cv_results
 
 
@@ -467,8 +471,8 @@ class Tuned(Estimator):
         grid: parameter → candidates, searched in order (the first: the default).
         folds: folds of the search (None: the estimator's ``TUNE_FOLDS``, else
             :data:`TUNE_FOLDS`); by demonstration when there are enough, else time blocks.
-        budget: the most model fits the search may run, candidates × folds (None:
-            :data:`TUNE_BUDGET`); the first candidate always runs.
+        budget: the most model fits the search may run, candidates × folds (None: the
+            estimator's ``TUNE_BUDGET``, else :data:`TUNE_BUDGET`); the first candidate always runs.
         max_rows: above this many samples the search runs on a seeded subset
             (:func:`tuning_subset`; None: the estimator's ``TUNE_MAX_ROWS``, else
             :data:`TUNE_MAX_ROWS`); the winner is fitted on all (a :class:`Tunable` learner
@@ -507,15 +511,16 @@ class Tuned(Estimator):
             rows, gs, subset_note = subset
             Xs, Us, kw = X[rows], U[rows], take_rows(fit_kw, rows)
         found: SearchResult | None = None
-        with blas.threads(1):  # one BLAS thread: with more, OpenBLAS's results depend on their number
+        with blas.threads(1):  # one BLAS thread, as every learner's fit (Tunable._fit)
             try:
                 make_folds(gs, len(Us), folds, 0, DEFAULT_GAP)
             except InputError as exc:  # too little data to cross-validate: say so, fit as given
                 self.tuning_: dict[str, Any] = {"chosen": None, "reason": f"not tuned: {exc.message}"}
                 self.cv_results_: dict[str, Any] = {}
             else:
-                found = search(est, Xs, Us, gs, self.grid,
-                               budget=TUNE_BUDGET if self.budget is None else self.budget, n_folds=folds,
+                budget = self.budget if self.budget is not None else getattr(est, "TUNE_BUDGET", None)
+                found = search(est, Xs, Us, gs, self.grid, budget=TUNE_BUDGET if budget is None else budget,
+                               n_folds=folds,
                                seed=self.seed, basis_data=None if subset is None else (X, U), **kw)
                 self.tuning_, self.cv_results_ = found.info, found.cv_results
                 if subset is not None:
@@ -579,6 +584,10 @@ class Tunable:
     TUNE_FOLDS: ClassVar[int | None] = None
     #: Rows of this learner's search above which it runs on a subset (None: :data:`TUNE_MAX_ROWS`).
     TUNE_MAX_ROWS: ClassVar[int | None] = None
+    #: Fits its default search may run (None: :data:`TUNE_BUDGET`).
+    TUNE_BUDGET: ClassVar[float | None] = None
+    #: The parameters its feature map depends on (:meth:`_fit_basis`, :meth:`_basis_key`).
+    BASIS_PARAMS: ClassVar[tuple[str, ...]] = ("basis", "n_centres", "seed")
     _parameter_constraints: ClassVar[dict[str, list]] = TUNE_PARAMS
     tune: bool | dict = TUNE
 
@@ -604,6 +613,11 @@ class Tunable:
 
         return make_basis(self.basis, self.n_centres, self.seed).fit(X)
 
+    def _basis_key(self) -> tuple:
+        """What :meth:`_fit_basis` depends on (the values of :attr:`BASIS_PARAMS`), hashable:
+        candidates with equal keys share one fitted basis in a search."""
+        return tuple(_frozen(getattr(self, name)) for name in self.BASIS_PARAMS)
+
     def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
                   basis: Any = None, start: Any = None, **fit_kw: Any) -> Any:
         """The untuned fit on checked X (N, p), U (N, q): with ``basis`` (fitted; None: the
@@ -622,18 +636,30 @@ class Tunable:
         return model
 
     def _cv_models(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray, folds: Folds, *,
-                   basis: Any = None, **fit_kw: Any) -> tuple[Any, list[Any]]:
+                   basis: Any = None, shared: dict[Any, Any] | None = None, **fit_kw: Any
+                   ) -> tuple[Any, list[Any]]:
         """The models of this candidate's cross-validation (:func:`candidate_models`): one
         basis fitted on all of X (unless given; k-means sees no actions), the candidate
         fitted on all rows, and each training fold fitted starting from that fit (an
         iterative fit run to its tolerance from a start near its optimum; a closed-form
-        learner overrides this with downdated normal equations)."""
+        learner overrides this with downdated normal equations and keeps them in ``shared``,
+        the search's store, for its candidates on the same basis)."""
         basis = self._fit_basis(X, U) if basis is None else basis
         full = self._fit_given(X, U, groups=groups, basis=basis, **fit_kw)
         models = [self._fit_given(X[train], U[train], groups=groups[train], basis=basis, start=full,
                                   **take_rows(fit_kw, train))
                   for train, _ in folds.pairs]
         return full, models
+
+    def _fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None, **fit_kw: Any) -> Any:
+        """The body of every learner's ``fit``: check the parameters and the data, then search
+        (``tune``) or fit once, with one BLAS thread (with more, OpenBLAS's results depend on
+        their number: eigh, solve and some products change in their last bits)."""
+        X, U = self._prepare_fit(X, U)
+        with blas.threads(1):
+            if not self._fit_tuned(X, U, groups=groups, **fit_kw):
+                self._fit_core(X, U, groups=groups, **fit_kw)
+        return self
 
     def _fit_tuned(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None, **fit_kw: Any) -> bool:
         """Search and adopt the winner when ``tune`` is on; False (``tuning_ = None``) when
@@ -650,6 +676,24 @@ class Tunable:
         self._adopt(search.best_estimator_)
         self.tuning_ = search.tuning_
         return True
+
+
+def _frozen(value: Any) -> Any:
+    """A hashable stand-in for a parameter value: mappings and sequences as tuples, arrays by
+    their shape and a digest of their bytes, callables and other objects by identity."""
+    if isinstance(value, dict):
+        return tuple(sorted((k, _frozen(v)) for k, v in value.items()))
+    if isinstance(value, list | tuple):
+        return tuple(_frozen(v) for v in value)
+    if isinstance(value, np.ndarray):
+        import hashlib
+
+        data = np.ascontiguousarray(value)
+        digest = hashlib.blake2b(data.view(np.uint8), digest_size=16).digest()
+        return ("array", data.shape, str(data.dtype), digest)
+    if isinstance(value, str | int | float | bool | type(None)):
+        return value
+    return ("object", id(value))
 
 
 def rbf_tunable(basis: Any) -> bool:

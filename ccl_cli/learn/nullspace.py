@@ -51,7 +51,6 @@ from typing import ClassVar
 import numpy as np
 
 from ccl_cli.errors import LearningError
-from ccl_cli.learn import blas
 from ccl_cli.learn.base import Estimator
 from ccl_cli.learn.basis import Basis, BasisParams, Blocks, feature_blocks, feature_cache_bytes
 from ccl_cli.learn.consistency import npe_error
@@ -126,8 +125,10 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
         tune: choose the basis by cross-validation (:class:`ccl_cli.learn.model_selection.Tuned`;
             True by default, a dict ``{budget, grid, folds, max_rows}`` to adjust, False for
             the fixed settings). Grid: K ∈ {n_centres, 16, 36, 64, 100} k-means RBF centres
-            (at most N/2; default width rule), scored by held-out NPE over :attr:`TUNE_FOLDS`
-            folds. A basis the user fixed (linear, explicit centres or σ²) is not tuned.
+            (at most N/2; default width rule), run from the smallest up while a larger one
+            helps (:func:`ccl_cli.learn.model_selection.search`), scored by held-out NPE over
+            :attr:`TUNE_FOLDS` folds on at most :attr:`TUNE_MAX_ROWS` rows. A basis the user
+            fixed (linear, explicit centres or σ²) is not tuned.
 
     Attributes:
         basis_, W_ (q, K), cost_ (Σ r² of the original residual at W_), objective_ (the
@@ -163,11 +164,7 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
             ) -> NullSpaceComponent:
         """Learn w̃ from states X (N, p) and actions U (N, q); ``groups`` (N,):
         demonstration ids, for the folds of tuning."""
-        X, U = self._prepare_fit(X, U)
-        with blas.threads(1):  # one BLAS thread: with more, OpenBLAS's results depend on their number
-            if not self._fit_tuned(X, U, groups=groups):
-                self._fit_core(X, U, groups=groups)
-        return self
+        return self._fit(X, U, groups=groups)
 
     def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
                   basis: Basis | None = None, start: NullSpaceComponent | None = None

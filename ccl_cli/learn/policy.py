@@ -23,22 +23,23 @@ feature matrix, no N × K q regressor matrix); predict works in the same blocks.
 
 from __future__ import annotations
 
-from typing import ClassVar, get_args
+from typing import Any, ClassVar, get_args
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError, LearningError
-from ccl_cli.learn import blas
 from ccl_cli.learn.base import Estimator, clone
 from ccl_cli.learn.basis import Basis, BasisParams, RBFBasis
 from ccl_cli.learn.consistency import inconsistency_error
 from ccl_cli.learn.defaults import POLICY_METHOD
-from ccl_cli.learn.linalg import eigen_lstsq, kron_rows, row_chunks
+from ccl_cli.learn.linalg import eigen_solve, kron_rows, row_chunks
 from ccl_cli.learn.model_selection import Folds, Tunable
 from ccl_cli.learn.params import CutoffRule, Interval, Options, SeedParams, parameters
 from ccl_cli.learn.params import PolicyMethod as Method
 
 METHODS = get_args(Method)
+#: Cut-offs a default search tries besides the configured one (docs/measurements.md, "pi and lwpi").
+CUTOFFS = (1e-9, 1e-12)
 
 
 @parameters
@@ -58,8 +59,10 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         chunk_size: rows per block of the normal-equation sums (default 8192).
         tune: choose the basis by cross-validation (:class:`ccl_cli.learn.model_selection.Tuned`;
             True by default, a dict ``{budget, grid, folds, max_rows}`` to adjust, False for
-            the fixed settings). Grid: K ∈ {n_centres, 16, 49, 100} × σ² factors {1, ½, ¼}; for
-            lwpi K ∈ {n_centres, 9, 16, 25, 49} × {1, ½, ¼, 0.1, 0.05}.
+            the fixed settings). Grid: K ∈ {n_centres, 16, 25, 49, 100} × σ² factors {1, ½, ¼}
+            × cut-offs {cutoff, 1e-9, 1e-12} (relative rule); for lwpi K ∈ {n_centres, 9, 16,
+            25, 49, 100} × {1, ¼, 0.1, 0.03, 0.01}; the search runs from the smallest basis up
+            (:func:`ccl_cli.learn.model_selection.search`).
 
     Attributes:
         basis_, W_ ((K, q); for lwpi (K, p + 1, q)), n_used_, n_features_in_, tuning_.
@@ -71,6 +74,8 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         "cutoff_rule": [Options.of(CutoffRule)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_action_": "value", "n_used_": "value", "W_": "array", "basis_": "basis"}
+    #: Fits of the default search at most: its grid, (5 sizes × 3 widths) × 3 cut-offs × 3 folds.
+    TUNE_BUDGET = 400
     method: Method = POLICY_METHOD
     cutoff: float = 1e-6
     min_norm: float = 1e-6
@@ -79,19 +84,24 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         if self.method == "lwpi":
-            return [((self.n_centres, 9, 16, 25, 49), (1.0, 0.5, 0.25, 0.1, 0.05))]
-        return [((self.n_centres, 16, 49, 100), (1.0, 0.5, 0.25))]
+            return [((self.n_centres, 9, 16, 25, 49, 100), (1.0, 0.25, 0.1, 0.03, 0.01))]
+        return [((self.n_centres, 16, 25, 49, 100), (1.0, 0.5, 0.25))]
+
+    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list[Any]]:
+        """The basis grid and, with the relative rule and a method with one global system, the
+        cut-offs {configured, 1e-9, 1e-12} (noise-free data want the small ones, noisy data the
+        configured one; candidates differing only in the cut-off share their normal equations)."""
+        grid = super()._tune_grid(X, U)
+        if grid and self.cutoff_rule == "relative" and self.method != "lwpi":
+            grid["cutoff"] = list(dict.fromkeys([float(self.cutoff), *CUTOFFS]))
+        return grid
 
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
             projections: np.ndarray | None = None) -> PolicyLearner:
         """Fit on states X (N, p), actions U (N, q); ``pi-coupled`` needs ``projections``
         Ñ_n (N, q, q) (true, or from a learnt constraint model). ``groups`` (N,):
         demonstration ids, only for the folds of tuning."""
-        X, U = self._prepare_fit(X, U)
-        with blas.threads(1):  # one BLAS thread: with more, OpenBLAS's results depend on their number
-            if not self._fit_tuned(X, U, groups=groups, projections=projections):
-                self._fit_core(X, U, groups=groups, projections=projections)
-        return self
+        return self._fit(X, U, groups=groups, projections=projections)
 
     def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
                   basis: Basis | None = None, start: PolicyLearner | None = None,
@@ -107,16 +117,31 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         return self._finish(basis, M, r, len(rows), U.shape[1])
 
     def _cv_models(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray, folds: Folds, *,
-                   basis: Basis | None = None, projections: np.ndarray | None = None
-                   ) -> tuple[PolicyLearner, list[PolicyLearner]]:
+                   basis: Basis | None = None, shared: dict[Any, Any] | None = None,
+                   projections: np.ndarray | None = None) -> tuple[PolicyLearner, list[PolicyLearner]]:
         """This candidate on all rows and on each training fold from one pass over the data:
         the normal equations of each test fold (and of the guard gaps of time blocks) are
         summed once, and a fold's training equations are the total minus them (a downdate)
-        — the fits the folds would give, for the cost of one fit."""
+        — the fits the folds would give, for the cost of one fit. The equations and their
+        eigen-decompositions are kept in ``shared`` (the search's store) for its other
+        candidates on the same basis: other cut-offs cost no pass and no decomposition."""
         basis = self._checked_basis(X, U, basis)
         P = self._checked_projections(projections, U)
         usable = self._usable(U)
-        n, q = U.shape
+        key = ("policy normal equations", id(basis), self.method, float(self.min_norm))
+        shared = {} if shared is None else shared
+        if key not in shared:
+            shared[key] = self._fold_equations(basis, X, U, P, usable, folds)
+        systems = shared[key]
+        q, p = U.shape[1], X.shape[1]
+        models = [self._copy(p)._finish(basis, M, r, n, q, eig) for M, r, n, eig in systems]
+        return models[0], models[1:]
+
+    def _fold_equations(self, basis: Basis, X: np.ndarray, U: np.ndarray, P: np.ndarray | None,
+                        usable: np.ndarray, folds: Folds) -> list[tuple]:
+        """(M, r, samples used, eigen-decomposition of M) of all rows, then of each training
+        fold, from one pass (see :meth:`_cv_models`)."""
+        n = len(U)
         in_test = np.zeros(n, bool)
         sets = []
         for _, test in folds.pairs:
@@ -133,16 +158,14 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         k = len(sets)
         M = sum(m for m, _ in sums[: k + 1])
         r = sum(v for _, v in sums[: k + 1])
-        full = self._copy(X.shape[1])._finish(basis, M, r, int(usable.sum()), q)
-        models = []
+        systems = [(M, r, int(usable.sum()))]
         for i, (train, _) in enumerate(folds.pairs):
             n_used = int(usable[train].sum())
             if n_used < 2:
                 raise LearningError(f"fewer than 2 samples with ‖u‖ > {self.min_norm} in a training fold")
-            Mi, ri = sums[i]
-            Mg, rg = sums[k + 1 + i]
-            models.append(self._copy(X.shape[1])._finish(basis, M - Mi - Mg, r - ri - rg, n_used, q))
-        return full, models
+            (Mi, ri), (Mg, rg) = sums[i], sums[k + 1 + i]
+            systems.append((M - Mi - Mg, r - ri - rg, n_used))
+        return [(M, r, n_used, np.linalg.eigh(M)) for M, r, n_used in systems]
 
     # -- the parts of a fit ----------------------------------------------------------------
     def _copy(self, n_features: int) -> PolicyLearner:
@@ -230,17 +253,19 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         M = (B.T @ (R[:, :, None] * R[:, None, :]).reshape(len(B), D * D)).reshape(len(B.T), D, D)
         return M, B.T @ (R * norm[:, None])
 
-    def _finish(self, basis: Basis, M: np.ndarray, r: np.ndarray, n_used: int, q: int) -> PolicyLearner:
-        """Solve the normal equations by the eigen pseudo-inverse (``cutoff``, ``cutoff_rule``)
-        and set the learnt attributes."""
+    def _finish(self, basis: Basis, M: np.ndarray, r: np.ndarray, n_used: int, q: int,
+                eig: tuple[np.ndarray, np.ndarray] | None = None) -> PolicyLearner:
+        """Solve the normal equations by the eigen pseudo-inverse (``cutoff``, ``cutoff_rule``;
+        ``eig``: the eigen-decomposition of M when known) and set the learnt attributes."""
         absolute = self.cutoff_rule == "absolute"
         K = basis.n_features
+        vals, vecs = np.linalg.eigh(M) if eig is None else eig
         if self.method == "dpl":
-            W = eigen_lstsq(M, r.T, self.cutoff, absolute).T
+            W = eigen_solve(vals[None], vecs[None], r.T, self.cutoff, absolute).T
         elif self.method == "lwpi":
-            W = eigen_lstsq(M, r, self.cutoff, absolute).reshape(K, -1, q)
+            W = eigen_solve(vals, vecs, r, self.cutoff, absolute).reshape(K, -1, q)
         else:
-            W = eigen_lstsq(M, r, self.cutoff, absolute).reshape(K, q)
+            W = eigen_solve(vals, vecs, r, self.cutoff, absolute).reshape(K, q)
         self.basis_, self.W_, self.n_used_, self.n_action_ = basis, W, int(n_used), int(q)
         return self
 

@@ -12,7 +12,6 @@ from typing import ClassVar
 import numpy as np
 
 from ccl_cli.errors import ConfigError
-from ccl_cli.learn import blas
 from ccl_cli.learn.basis import Basis, BasisParams
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.angular import (
@@ -107,8 +106,9 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
         seed, tol, gap_floor, cv_folds.
         tune: choose the basis by cross-validation (:class:`ccl_cli.learn.model_selection.Tuned`;
             True by default, a dict ``{budget, grid, folds, max_rows}`` to adjust, False for
-            the fixed settings). Grid: the configured K centres, 9 centres, then K centres
-            twice as wide (σ² × 2), k-means-placed, in that order.
+            the fixed settings). Grid: the configured K centres, 9 centres, and 36 centres at ¼
+            of the default width, k-means-placed, run from the smallest up while a larger basis
+            helps (:func:`ccl_cli.learn.model_selection.search`).
 
     Attributes:
         basis_, weights_ (list of (q−k, K) arrays), n_constraints_, nmse_, selection_,
@@ -124,11 +124,7 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
             ) -> StateDependentConstraint:
         """Learn Ã(x) from states X (N, p) and actions U (N, q); ``groups`` (N,):
         demonstration ids, for the folds of tuning and of the ``cv`` rule."""
-        X, U = self._prepare_fit(X, U)
-        with blas.threads(1):  # one BLAS thread: with more, OpenBLAS's results depend on their number
-            if not self._fit_tuned(X, U, groups=groups):
-                self._fit_core(X, U, groups=groups)
-        return self
+        return self._fit(X, U, groups=groups)
 
     def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
                   basis: Basis | None = None, start: StateDependentConstraint | None = None

@@ -15,7 +15,6 @@ from typing import ClassVar
 import numpy as np
 
 from ccl_cli.errors import ConfigError, LearningError
-from ccl_cli.learn import blas
 from ccl_cli.learn.basis import Basis, make_basis
 from ccl_cli.learn.constraint.alpha import AngularConstraintMixin
 from ccl_cli.learn.constraint.angular import rows_from_weights
@@ -68,6 +67,7 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
     _fitted_attributes: ClassVar[dict[str, str]] = {
         **AngularConstraintMixin._fitted_attributes, "n_task_": "value", "n_dropped_": "value"}
     features: ArmName | dict | Features = "arm2"
+    BASIS_PARAMS = ("basis", "n_centres", "seed", "features")
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         k = int(self.n_centres)
@@ -77,11 +77,7 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
             ) -> KnownFeatureConstraint:
         """Learn Λ̃(x) from states X (N, p) and joint-space actions U (N, q); ``groups``
         (N,): demonstration ids, for the folds of tuning and of the ``cv`` rule."""
-        X, U = self._prepare_fit(X, U)
-        with blas.threads(1):  # one BLAS thread: with more, OpenBLAS's results depend on their number
-            if not self._fit_tuned(X, U, groups=groups):
-                self._fit_core(X, U, groups=groups)
-        return self
+        return self._fit(X, U, groups=groups)
 
     def _task_actions(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """v_n = Φ(x_n) u_n (N, r), computed in row blocks (Φ is (N, r, q)), and the mask of

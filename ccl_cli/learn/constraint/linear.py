@@ -23,7 +23,6 @@ from typing import ClassVar, get_args
 
 import numpy as np
 
-from ccl_cli.learn import blas
 from ccl_cli.learn.basis import Basis, BasisParams, make_basis
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.base import ConstraintModel
@@ -89,6 +88,7 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
     task_regressors: TaskRegressors = "constant"
     whiten: Whiten = "rms"
     reweight: int = 3
+    BASIS_PARAMS = ("basis", "n_centres", "seed", "regressors", "task", "task_regressors")
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         return [((self.n_centres, 16, 9, 25, 36), (1.0, 0.5))] if self.regressors == "rbf" else []
@@ -204,11 +204,7 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None) -> LinearConstraint:
         """Estimate W (and W_b) from states X (N, p) and actions U (N, q); ``groups`` (N,):
         demonstration ids, for the folds of tuning and of the ``cv`` rule."""
-        X, U = self._prepare_fit(X, U)
-        with blas.threads(1):  # one BLAS thread: with more, OpenBLAS's results depend on their number
-            if not self._fit_tuned(X, U, groups=groups):
-                self._fit_core(X, U, groups=groups)
-        return self
+        return self._fit(X, U, groups=groups)
 
     def _fit_basis(self, X: np.ndarray, U: np.ndarray) -> Basis | None:
         """The RBF feature map of ``rbf`` regressors (or task regressors) fitted on X; None
