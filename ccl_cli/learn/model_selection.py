@@ -328,6 +328,26 @@ def _improves(errors: np.ndarray, best: np.ndarray, larger: bool) -> bool:
     return bool(diff.mean() < -max(STOP_SE * se, STOP_GAIN * float(best.mean())))
 
 
+def _held_back(best: int, rows: list[dict[str, Any]], errors: list[np.ndarray], grid: dict[str, list[Any]],
+               conservative: tuple[str, ...]) -> int:
+    """The winner, moved back along each ``conservative`` parameter (its values in the grid's
+    order, the first the most regularising): to the earliest value whose candidate (the same
+    otherwise) the winner does not beat as a larger basis must (:func:`_improves`)."""
+    for key in conservative:
+        if key not in grid:
+            continue
+        order = grid[key]
+        params = rows[best]["params"]
+        rivals = [i for i, r in enumerate(rows) if r["params"][key] != params[key]
+                  and all(r["params"][k] == params[k] for k in params if k != key)
+                  and order.index(r["params"][key]) < order.index(params[key])]
+        for i in sorted(rivals, key=lambda i: order.index(rows[i]["params"][key])):
+            if not _improves(errors[best], errors[i], True):
+                best = i
+                break
+    return best
+
+
 def _size(params: dict[str, Any]) -> float:
     """How large a candidate's basis is (its number of centres; 0 when it names none): the
     order in which :func:`search` runs the candidates and stops."""
@@ -360,7 +380,10 @@ def search(
     only fluctuate, or gain a fraction of a per cent, do not call for a costlier model); still
     larger bases cost more and, measured on the tutorials and at N = 1e4–1e5, were not better
     after such a step (docs/measurements.md, "Tuning"). Of the candidates run, the smallest
-    mean held-out error wins (the first of equals). Each candidate costs ``n_folds`` fits and runs while
+    mean held-out error wins (the first of equals) — except that along a parameter the
+    estimator lists in ``TUNE_CONSERVATIVE`` (e.g. the cut-off of a pseudo-inverse, its
+    configured value first) the winner keeps the earliest value it does not beat by that same
+    margin. Each candidate costs ``n_folds`` fits and runs while
     the fits so far plus its own stay within ``budget`` (the first always runs); the rest,
     and those after the stop, are counted in ``skipped``. Nothing depends on the machine or
     its load. A candidate's fits share work (:func:`candidate_models`), and candidates that
@@ -430,6 +453,7 @@ def search(
     if best is None:
         raise InputError("no hyperparameter candidate could be cross-validated on this data")
     best = min(range(len(rows)), key=lambda i: rows[i]["mean"])  # of those run, the first of equals
+    best = _held_back(best, rows, ran_errors, grid, getattr(estimator, "TUNE_CONSERVATIVE", ()))
     chosen = rows[best]["params"]
     info = {"grid": {k: list(v) for k, v in grid.items()}, "scores": rows, "chosen": chosen,
             "budget": budget, "budget_used": used, "budget_unit": BUDGET_UNIT, "skipped": skipped,
@@ -586,6 +610,9 @@ class Tunable:
     TUNE_MAX_ROWS: ClassVar[int | None] = None
     #: Fits its default search may run (None: :data:`TUNE_BUDGET`).
     TUNE_BUDGET: ClassVar[float | None] = None
+    #: Grid parameters whose first value a search leaves only on clear held-out evidence
+    #: (regularisation; :func:`search`).
+    TUNE_CONSERVATIVE: ClassVar[tuple[str, ...]] = ()
     #: The parameters its feature map depends on (:meth:`_fit_basis`, :meth:`_basis_key`).
     BASIS_PARAMS: ClassVar[tuple[str, ...]] = ("basis", "n_centres", "seed")
     _parameter_constraints: ClassVar[dict[str, list]] = TUNE_PARAMS

@@ -76,6 +76,8 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         "n_features_in_": "value", "n_action_": "value", "n_used_": "value", "W_": "array", "basis_": "basis"}
     #: Fits of the default search at most: its grid, (5 sizes × 3 widths) × 3 cut-offs × 3 folds.
     TUNE_BUDGET = 400
+    #: The cut-off leaves the configured one only on clear held-out evidence (noise-free data).
+    TUNE_CONSERVATIVE = ("cutoff",)
     method: Method = POLICY_METHOD
     cutoff: float = 1e-6
     min_norm: float = 1e-6
