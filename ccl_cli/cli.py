@@ -20,10 +20,9 @@ import typer
 from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer vendors its click
 from typer.core import TyperCommand, TyperGroup
 
-from ccl_cli import spec as S
+from ccl_cli import spec
 from ccl_cli.errors import CCLError, ConfigError, InputError
-from ccl_cli.learn import defaults as D
-from ccl_cli.learn import params as P
+from ccl_cli.learn import defaults, params
 
 log = logging.getLogger("ccl")
 
@@ -84,7 +83,7 @@ SeedOpt = Annotated[int | None, typer.Option("--seed", help="Seed of every rando
                                              show_default="config, else 0")]
 TestOpt = Annotated[float | None, typer.Option(
     "--test-fraction", help="Fraction of demonstrations held out (0: none).",
-    show_default=f"config, else {S.TestSplit().fraction}")]
+    show_default=f"config, else {spec.TestSplit().fraction}")]
 
 
 def _choices(name: str, literal: Any) -> type[Enum]:
@@ -101,18 +100,18 @@ def _value(v: Any) -> Any:
     return v.value if isinstance(v, Enum) else v
 
 
-Convention = _choices("Convention", S.Convention)
-LearnAMethod = _choices("LearnAMethod", S.ConstraintMethod)
-Selection = _choices("Selection", P.SelectionRule)
-PiMethod = _choices("PiMethod", P.PolicyMethod)
-Projections = _choices("Projections", S.Projections)
-BasisKind = _choices("BasisKind", P.BasisKind)
-Features = _choices("Features", P.ArmName)
-Regressors = _choices("Regressors", P.Regressors)
+Convention = _choices("Convention", spec.Convention)
+LearnAMethod = _choices("LearnAMethod", spec.ConstraintMethod)
+Selection = _choices("Selection", params.SelectionRule)
+PiMethod = _choices("PiMethod", params.PolicyMethod)
+Projections = _choices("Projections", spec.Projections)
+BasisKind = _choices("BasisKind", params.BasisKind)
+Features = _choices("Features", params.ArmName)
+Regressors = _choices("Regressors", params.Regressors)
 
 ConvOpt = Annotated[Convention | None, typer.Option("--convention",
                                                     help="Metric normalisers (docs/metrics.md).",
-                                                    show_default=_default(S.Metrics().convention))]
+                                                    show_default=_default(spec.Metrics().convention))]
 CentresOpt = Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres (also sets "
                                                 "basis.n_centres of a basis mapping; no basis search).",
                                                 show_default="config, else the stage's default")]
@@ -151,9 +150,9 @@ def _common(seed, test_fraction, convention) -> dict[str, Any]:
 
 
 def _config(path: Path | None, overrides: dict[str, Any]):
-    from ccl_cli import config as C
+    from ccl_cli import config
 
-    return C.load(path, overrides)
+    return config.load(path, overrides)
 
 
 def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
@@ -266,10 +265,11 @@ def _learning_command(stage: str):
 def learn_a(
     method: Annotated[LearnAMethod | None, typer.Option(
         help="nhat (constant A, closed form), alpha (state-dependent), lambda (known Φ), linear "
-             "(closed form, docs/methods.md).", show_default=_default(S.DEFAULT_CONSTRAINT_METHOD))] = None,
+             "(closed form, docs/methods.md).",
+        show_default=_default(spec.DEFAULT_CONSTRAINT_METHOD))] = None,
     selection: Annotated[Selection | None, typer.Option(
-        help="How the number of constraints s is chosen.", show_default=_default(D.DEFAULT_RULE))]
-    = None,
+        help="How the number of constraints s is chosen.",
+        show_default=_default(defaults.DEFAULT_RULE))] = None,
     n_constraints: Annotated[int | None, typer.Option(help="Fix the number of constraints s.",
                                                       show_default="chosen by --selection")] = None,
     features: Annotated[Features | None, typer.Option(help="lambda: built-in Φ.", show_default="config")]
@@ -300,7 +300,7 @@ def learn_v(n_centres: CentresOpt = None, basis: BasisOpt = None) -> dict[str, A
 @_learning_command("learn-pi")
 def learn_pi(
     method: Annotated[PiMethod | None, typer.Option(help="Policy learner (docs/methods.md).",
-                                                    show_default=_default(D.POLICY_METHOD))] = None,
+                                                    show_default=_default(defaults.POLICY_METHOD))] = None,
     projections: Annotated[Projections | None, typer.Option(
         help="pi-coupled: projections from the ground truth (true) or a learn-a stage (learnt).",
         show_default=_default("auto"))] = None,
@@ -410,13 +410,13 @@ def simulate(
     """Write a reference problem with ground truth (π, w, v, b, A, N) as canonical HDF5."""
     import inspect as pyinspect
 
-    from ccl_cli import simulate as S
+    from ccl_cli import simulate as simulations
     from ccl_cli.io import write_demonstrations
 
     _logging(quiet)
-    if problem not in S.PROBLEMS:
-        raise InputError(f"unknown problem {problem!r} (use {', '.join(S.PROBLEMS)})")
-    fn = S.PROBLEMS[problem]
+    if problem not in simulations.PROBLEMS:
+        raise InputError(f"unknown problem {problem!r} (use {', '.join(simulations.PROBLEMS)})")
+    fn = simulations.PROBLEMS[problem]
     given = {"noise": noise, "snr_db": snr_db, "n_demos": n_demos, "n_steps": n_steps,
              "constraint": constraint, "policy": policy, "task": task, "vary_constraint": vary_constraint,
              "sampling": sampling, "n_samples": n_samples, "rate": rate, "duration": duration,

@@ -33,8 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ccl_cli import __version__
-from ccl_cli import config as C
+from ccl_cli import __version__, config
 from ccl_cli.errors import CCLError, ConfigError
 
 log = logging.getLogger("ccl")
@@ -65,14 +64,14 @@ class JobResult:
 
 
 # -- planning ------------------------------------------------------------------------------
-def _resolve_config(path: str | None, overrides: list[dict], base: Path) -> C.Config:
+def _resolve_config(path: str | None, overrides: list[dict], base: Path) -> config.Config:
     """The config file of a rule (relative to the manifest) with the overrides merged in,
     validated (errors name the file and line of a key of the file)."""
-    cfg = C.load(base / path if path and not Path(path).is_absolute() else path)
+    cfg = config.load(base / path if path and not Path(path).is_absolute() else path)
     merged = cfg.raw
     for over in overrides:
-        merged = C.deep_merge(merged, over or {})
-    return C.from_mapping(merged, source=cfg.source, base=cfg.base, lines=cfg.lines)
+        merged = config.deep_merge(merged, over or {})
+    return config.from_mapping(merged, source=cfg.source, base=cfg.base, lines=cfg.lines)
 
 
 def job_key(files: list[str], cfg: dict[str, Any]) -> str:
@@ -204,7 +203,7 @@ def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
                     return JobResult(job.job_id, job.files, "skipped", 0.0, stages=summarise(stages))
             except (json.JSONDecodeError, OSError):
                 pass
-        cfg = C.from_mapping(job.config, source=job.config_path or "<batch>")
+        cfg = config.from_mapping(job.config, source=job.config_path or "<batch>")
         from ccl_cli.app.run import execute
 
         summary = write(execute("run", cfg, job.files), outdir, force=True, plot_workers=1,

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli import metrics as M
+from ccl_cli import metrics
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint import PerDemonstration, StateIndependentConstraint
@@ -31,7 +31,7 @@ from ccl_cli.learn.constraint import PerDemonstration, StateIndependentConstrain
 KINDS = {"learn-a": "constraint", "learn-v": "nullspace", "learn-pi": "policy"}
 
 
-def _dict(*items: M.Metric) -> dict[str, dict]:
+def _dict(*items: metrics.Metric) -> dict[str, dict]:
     return {m.name: m.as_dict() for m in items}
 
 
@@ -80,20 +80,21 @@ def constraint_metrics(model: Any, d: Demonstrations, Y: np.ndarray, convention:
     W = None
     if truth and sd:
         W = d.truth["w"] if d.has_truth("w") else np.einsum("nij,nj->ni", d.true_projection(), Pi)
-    items = [M.npoe(N_est, Y, convention, Pi=None if sd else Pi, W=W, V_est=task_part(model, d.X, d.demo),
+    items = [metrics.npoe(N_est, Y, convention, Pi=None if sd else Pi, W=W,
+                          V_est=task_part(model, d.X, d.demo),
                     of=of)]
     if truth:
-        items.append(M.nppe(d.true_projection(), N_est, Pi, d.U, convention, state_dependent=sd))
+        items.append(metrics.nppe(d.true_projection(), N_est, Pi, d.U, convention, state_dependent=sd))
     return _dict(*items)
 
 
 def nullspace_metrics(w: np.ndarray, d: Demonstrations, convention: str = "ccl") -> dict[str, dict]:
     """NPE of the learnt w̃ (N, q) and, with ground truth, NUPE of w and of v = u − w̃."""
-    items = [M.npe(d.U, w, convention)]
+    items = [metrics.npe(d.U, w, convention)]
     if d.has_truth("w"):
-        items.append(M.nupe(d.truth["w"], w, "NUPE_w", "w"))
+        items.append(metrics.nupe(d.truth["w"], w, "NUPE_w", "w"))
     if d.has_truth("v"):
-        items.append(M.nupe(d.truth["v"], d.U - w, "NUPE_v", "v"))
+        items.append(metrics.nupe(d.truth["v"], d.U - w, "NUPE_v", "v"))
     return _dict(*items)
 
 
@@ -103,12 +104,12 @@ def policy_metrics(est: np.ndarray, d: Demonstrations, constraint: Any = None, Y
     observations ``Y`` it was learnt from): NCPE_obs, the observations against Ñπ̃."""
     items = []
     if d.has_truth("pi"):
-        items.append(M.nupe(d.truth["pi"], est))
+        items.append(metrics.nupe(d.truth["pi"], est))
         if _has_true_constraint(d):
-            items.append(M.ncpe(d.true_projection(), d.truth["pi"], est))
+            items.append(metrics.ncpe(d.true_projection(), d.truth["pi"], est))
     if constraint is not None:
         Y = d.U if Y is None else Y
-        items.append(M.ncpe_observed(constraint.projection(d.X, groups=d.demo), Y, est,
+        items.append(metrics.ncpe_observed(constraint.projection(d.X, groups=d.demo), Y, est,
                                      task_part(constraint, d.X, d.demo), of))
     return _dict(*items)
 

@@ -16,11 +16,11 @@ from typing import Any
 import numpy as np
 
 from ccl_cli import diagnostics
-from ccl_cli.app import evaluate as E
+from ccl_cli.app import evaluate
 from ccl_cli.app.views import View, describe_constraint, stage_views
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, LearningError
-from ccl_cli.learn import model_selection as S
+from ccl_cli.learn import model_selection
 from ccl_cli.learn.constraint import PerDemonstration
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
@@ -64,11 +64,11 @@ def guard_gap(spec: Any, data: Demonstrations | None = None) -> int:
 
         derived, window, _ = derivation(data)
         if derived:
-            return max(window, S.DEFAULT_GAP)
+            return max(window, model_selection.DEFAULT_GAP)
     action = spec.data.action
     if action is not None and action.derive and action.window:
         return max(int(action.window), 1)
-    return S.DEFAULT_GAP
+    return model_selection.DEFAULT_GAP
 
 
 def split_data(data: Demonstrations, spec: Any, masks: dict[str, list[int]] | None = None) -> Split:
@@ -91,7 +91,8 @@ def split_data(data: Demonstrations, spec: Any, masks: dict[str, list[int]] | No
         return Split(data, None, {"kind": "none", "reason": "data.test.fraction is 0: no held-out test "
                                   "set, every metric is on training data",
                                   "n_train_samples": data.n_samples, "n_test_samples": 0})
-    hold = S.holdout_split(data.demo, float(test.fraction), test.seed, guard_gap(spec, data), test.min_demos,
+    hold = model_selection.holdout_split(data.demo, float(test.fraction), test.seed, guard_gap(spec, data),
+                                         test.min_demos,
                            test.blocks)
     train, held = data.subset(hold.train), data.subset(hold.test)
     return Split(train, held if held.n_samples else None, hold.info)
@@ -164,7 +165,7 @@ class Pipeline:
             result.info["tuning"] = model.tuning_
         ws = {part: model.predict(d.X) for part, d in self.parts()}
         self.w.update(ws)
-        result.score = lambda part, d, convention: E.nullspace_metrics(ws[part], d, convention)
+        result.score = lambda part, d, convention: evaluate.nullspace_metrics(ws[part], d, convention)
         self._score_parts(result)
         return result
 
@@ -192,7 +193,7 @@ class Pipeline:
             result.info["per_demo_note"] = ("One constraint per training demonstration: a held-out "
                                             "demonstration has none, so there are no test metrics.")
         targets = {part: self._target(on, part, d) for part, d in self.parts()}
-        result.score = lambda part, d, convention: E.constraint_metrics(
+        result.score = lambda part, d, convention: evaluate.constraint_metrics(
             model, d, targets[part], convention, of="learnt w" if on_w else "u")
         self._score_parts(result)
         return result
@@ -249,13 +250,15 @@ class Pipeline:
         def score(part: str, d: Demonstrations, convention: str) -> dict:
             knows = constraint is not None and not (isinstance(constraint, PerDemonstration)
                                                     and part != "train")
-            return E.policy_metrics(model.predict(d.X), d, constraint if knows else None, targets[part], of)
+            return evaluate.policy_metrics(model.predict(d.X), d, constraint if knows else None,
+                                           targets[part], of)
 
         result.score = score
         self._score_parts(result)
         if result.baseline is not None:  # the dpl baseline is its own model, with its own metrics
             baseline = StageResult("learn-pi", "dpl", result.baseline)
-            baseline.score = lambda part, d, convention: E.policy_metrics(result.baseline.predict(d.X), d)
+            baseline.score = lambda part, d, convention: evaluate.policy_metrics(
+                result.baseline.predict(d.X), d)
             self._score_parts(baseline)
             result.info["baseline"] = {"method": "dpl", **baseline.metrics}
         return result
