@@ -1,8 +1,8 @@
 """Data checks that return coded warnings (ALGORITHMS.md §1 data model, §3.4 identifiability).
 
 Each check returns a list of ``{"code": ..., "message": ...}`` dicts; the pipeline keeps
-them in ``Pipeline.warnings``, the runner puts them in ``--json``/``run.json`` and report.md
-(:func:`markdown_section`), and :func:`emit` logs each as ``warning: <message>`` (the CLI
+them in ``Pipeline.warnings``, the run puts them in ``--json``/``run.json`` and report.md
+(:func:`ccl_cli.render.report.diagnostics_lines`), and :func:`emit` logs each as ``warning: <message>`` (the CLI
 prints ``ccl: warning: ...`` on stderr).
 
 Codes: ``constant_dimension``, ``no_motion``, ``noisy_actions``, ``few_demos``,
@@ -15,16 +15,8 @@ demonstration, from second differences (MAD, robust to the smooth motion):
 (uniform stamps): σ̂²_u = σ̂²_x Σc². Recorded actions are taken as white. The signal-to-noise
 ratio of y is SNR = Σ var(y_j) / Σ σ̂²_j (1 for pure noise).
 
-Thresholds (measured with ``python benchmarks/diagnostics_thresholds.py --seeds 3``, JSON
-lines): moving tracker recordings (plane/bowl, 50 Hz, noise 0–2 mm) have action SNR ≥ 7 (at
-2 mm; ≥ 26 at 1 mm), state SNR ≥ 280 and states spread over 25 % of their magnitude; at
-500 Hz a 9-sample derivative window leaves action SNR 1.3–1.6 (→ ``noisy_actions``), the
-default 0.16-s window 220–420. Recordings at rest (finger on a table, 0.2–2 mm, derived
-velocities; a 9-joint arm with recorded velocities) have action SNR 0.006–1.04 and states
-within 1.1 % of their magnitude (→ ``no_motion``). The reference problems have action SNR
-≥ 97, except the uniformly sampled 2-D toy (not a trajectory: action SNR 0.3, state SNR
-0.74, states spread over 90× their mean), which the STILL_BAND condition keeps from a false
-no_motion and the SMOOTH_STATE_SNR condition from a false noisy_actions.
+Thresholds were chosen by measurement on simulated recordings (docs/measurements.md,
+"Diagnostics"; ``python benchmarks/diagnostics_thresholds.py``).
 """
 
 from __future__ import annotations
