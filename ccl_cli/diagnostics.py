@@ -2,8 +2,8 @@
 
 Each check returns a list of ``{"code": ..., "message": ...}`` dicts; the pipeline keeps
 them in ``Pipeline.warnings``, the run puts them in ``--json``/``run.json`` and report.md
-(:func:`ccl_cli.render.report.diagnostics_lines`), and :func:`emit` logs each as ``warning: <message>`` (the CLI
-prints ``ccl: warning: ...`` on stderr).
+(:func:`ccl_cli.render.report.diagnostics_lines`), and :func:`emit` logs each as
+``warning: <message>`` (the CLI prints ``ccl: warning: ...`` on stderr).
 
 Codes: ``constant_dimension``, ``no_motion``, ``noisy_actions``, ``few_demos``,
 ``short_demos``, ``low_rank_actions``, ``duplicate_stamps``, ``jittery_stamps``.
