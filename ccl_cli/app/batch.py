@@ -324,7 +324,7 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
                 progress(res)
     except BaseException:  # Ctrl-C or a failure here: do not wait for the running jobs
         executor.shutdown(wait=False, cancel_futures=True)
-        _kill_workers(executor)
+        _kill_workers()
         raise
     else:
         executor.shutdown(wait=True)
@@ -336,10 +336,11 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
     return sorted(results, key=lambda r: order[r.job_id])
 
 
-def _kill_workers(executor: Executor) -> None:
-    """SIGKILL the pool's worker processes (their partial job folders are temporaries)."""
-    import signal
+def _kill_workers() -> None:
+    """SIGKILL the local pool's worker processes (their partial job folders are temporaries):
+    every live child process of ccl is one of them (``multiprocessing.active_children``)."""
+    import multiprocessing
 
-    for proc in list((getattr(executor, "_processes", None) or {}).values()):
+    for proc in multiprocessing.active_children():
         with contextlib.suppress(OSError):
-            os.kill(proc.pid, signal.SIGKILL)
+            proc.kill()

@@ -18,7 +18,6 @@ Arrows are subsampled onto a grid and every figure is drawn once (< 0.5 s each).
 from __future__ import annotations
 
 import functools
-import json
 import logging
 import os
 import time
@@ -341,71 +340,54 @@ def _draw(make: Callable[[], Any], path: Path) -> float | None:
     return time.perf_counter() - t0
 
 
-def _fork_draw(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path) -> tuple[int, int] | None:
-    """Draw ``jobs`` in a forked child (it dies with this process); returns (pid, the read
-    end of a pipe on which it sends {name: seconds or None} as JSON), or None when no child
-    could be started."""
-    import warnings
-
+def _draw_in_child(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path, send: Any) -> None:
+    """A drawing process's work: draw ``jobs``, send {name: seconds or None} and end. It dies
+    with its parent; any failure ends it without a word (the parent redraws what is missing)."""
     from ccl_cli.lifeline import die_with_parent
 
-    read, write = os.pipe()
     try:
-        with warnings.catch_warnings():  # 3.12+: fork() beside the BLAS's own (idle) threads
-            warnings.simplefilter("ignore", DeprecationWarning)
-            pid = os.fork()
-    except OSError:
-        os.close(read), os.close(write)
-        return None
-    if pid == 0:  # the child: draw, report, leave without running the parent's exit handlers
-        code = 1
-        try:
-            os.close(read)
-            die_with_parent()
-            out = {name: _draw(make, pdir / name) for name, _, make in jobs}
-            os.write(write, json.dumps(out).encode())
-            code = 0
-        except BaseException:  # noqa: BLE001 - the parent redraws whatever the child did not
-            pass
-        finally:
-            os._exit(code)
-    os.close(write)
-    return pid, read
-
-
-def _collect(pid: int, read: int) -> dict[str, float | None]:
-    """The child's report, or {} when it failed (its figures are then drawn again)."""
-    chunks = []
-    try:
-        while chunk := os.read(read, 65536):
-            chunks.append(chunk)
+        die_with_parent()
+        send.send({name: _draw(make, pdir / name) for name, _, make in jobs})
+    except BaseException:  # noqa: BLE001 - the parent redraws whatever the child did not
+        pass
     finally:
-        os.close(read)
-        _, status = os.waitpid(pid, 0)
-    if not os.WIFEXITED(status) or os.WEXITSTATUS(status) != 0:
-        return {}
-    try:
-        return json.loads(b"".join(chunks))
-    except ValueError:
-        return {}
+        send.close()
 
 
 def render(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path, workers: int = 1
            ) -> dict[str, float | None]:
     """Draw every (file name, caption, make) job into ``pdir``; with ``workers`` ≥ 2 (and
-    fork) every other job is drawn by a forked child meanwhile — the figures are
-    independent, and drawing them is most of a small run's time. Returns {name: seconds, or
-    None for a job with nothing to draw}. A child that fails costs only time: the parent
+    fork) every other job is drawn meanwhile by a forked process (``multiprocessing``'s fork
+    context: it starts with the figures' data in memory, nothing is pickled) — the figures
+    are independent, and drawing them is most of a small run's time. Returns {name: seconds,
+    or None for a job with nothing to draw}. A child that fails costs only time: the parent
     then draws its jobs too, so the files are the same either way."""
-    child = None
-    theirs = jobs[1::2] if workers > 1 and len(jobs) > 1 and hasattr(os, "fork") else []
+    import multiprocessing
+    import warnings
+
+    theirs = jobs[1::2] if workers > 1 and len(jobs) > 1 and \
+        "fork" in multiprocessing.get_all_start_methods() else []
+    child = receive = None
     if theirs:
-        child = _fork_draw(theirs, pdir)
-    if child is None:
-        theirs = []
+        ctx = multiprocessing.get_context("fork")
+        receive, send = ctx.Pipe(duplex=False)
+        child = ctx.Process(target=_draw_in_child, args=(theirs, pdir, send), daemon=True)
+        try:
+            with warnings.catch_warnings():  # 3.12+: fork() beside the BLAS's own (idle) threads
+                warnings.simplefilter("ignore", DeprecationWarning)
+                child.start()
+        except OSError:
+            child, theirs = None, []
+        send.close()
     mine = jobs[0::2] if theirs else jobs
     done = {name: _draw(make, pdir / name) for name, _, make in mine}
-    got = _collect(*child) if child is not None else {}
+    got: dict[str, float | None] = {}
+    if child is not None:
+        try:
+            got = receive.recv()
+        except (EOFError, OSError):
+            got = {}  # the child failed: its figures are drawn here
+        child.join()
     for name, _, make in theirs:
         done[name] = got[name] if name in got else _draw(make, pdir / name)
     return done
