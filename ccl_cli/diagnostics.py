@@ -54,7 +54,17 @@ RANK_RELATIVE = 1e-4
 JITTER = 0.1
 
 CODES = ("constant_dimension", "no_motion", "noisy_actions", "few_demos", "short_demos",
-         "low_rank_actions", "duplicate_stamps", "jittery_stamps")
+         "low_rank_actions", "duplicate_stamps", "jittery_stamps", "hemisphere_flips", "spikes",
+         "stamp_faults")
+#: Sensor faults the readers found (:mod:`ccl_cli.io.faults`) → (warning code, what they are,
+#: the config key that keeps them); gaps are pauses or lost samples, stated in the report only.
+FAULTS = {"hemisphere_flip": ("hemisphere_flips", "hemisphere flip(s) of the tracker (positions "
+                                                  "mirrored through the transmitter)", "flips: keep"),
+          "spike": ("spikes", "spike(s) in the states", "spikes: keep"),
+          "duplicate_sample": ("stamp_faults", "duplicated sample(s)", "stamps: keep"),
+          "bad_stamp": ("stamp_faults", "repeated or misplaced stamp(s)", "stamps: keep"),
+          "backward_stamp": ("stamp_faults", "clock step(s) back", "stamps: keep"),
+          "clock_step": ("stamp_faults", "clock step(s) forward", "stamps: keep")}
 
 
 def warning(code: str, message: str) -> dict[str, str]:
@@ -225,7 +235,30 @@ def stamps(data: Demonstrations) -> list[dict[str, str]]:
 def check_data(data: Demonstrations) -> list[dict[str, str]]:
     """Every data check (not the rank check, which needs the learnt s): a list of warnings."""
     levels = noise_levels(data)
-    return [*constant_dimensions(data), *motion(data, levels), *demonstrations(data), *stamps(data)]
+    return [*sensor_faults(data), *constant_dimensions(data), *motion(data, levels), *demonstrations(data),
+            *stamps(data)]
+
+
+def _times(times: list[list[float]], limit: int = 4) -> str:
+    shown = ", ".join(f"{a:.2f}–{b:.2f} s" if b > a else f"{a:.2f} s" for a, b in times[:limit])
+    return shown + (f" and {len(times) - limit} more" if len(times) > limit else "")
+
+
+def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
+    """One warning per kind of sensor fault the readers found in a file (``metadata`` of each
+    file: ``faults``), with its count, time ranges (s from the file's first sample), what was
+    done and the ``data.faults`` key that keeps them."""
+    out = []
+    for entry in (data.metadata or {}).get("files", []):
+        for f in (entry.get("faults") or []) if isinstance(entry, dict) else []:
+            if f.get("kind") not in FAULTS or not f.get("count"):
+                continue
+            code, what, keep = FAULTS[f["kind"]]
+            done = "kept as recorded" if f.get("action") == "reported" else f["action"]
+            fix = "" if f.get("action") == "reported" else f"; data.faults: {{{keep}}} keeps them"
+            out.append(warning(code, f"{entry.get('path')}: {f['count']} {what}, {f['n_samples']} samples at "
+                                     f"{_times(f.get('times') or [])}: {done}{fix}"))
+    return out
 
 
 def action_rank(U: np.ndarray, noise_var: np.ndarray) -> int:
