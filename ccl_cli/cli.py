@@ -21,7 +21,7 @@ from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer vendo
 from typer.core import TyperCommand, TyperGroup
 
 from ccl_cli import spec
-from ccl_cli.errors import CCLError, ConfigError, InputError
+from ccl_cli.errors import CCLError, ConfigError, InputError, LearningError
 from ccl_cli.learn import defaults, params
 
 log = logging.getLogger("ccl")
@@ -79,6 +79,8 @@ OutOpt = Annotated[Path | None, typer.Option("--out", "-o", help="Output directo
 ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite existing outputs.")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="Only warnings and errors on stderr.")]
+StrictOpt = Annotated[bool, typer.Option("--strict", help="Exit 1 when a stage's verdict is not ok "
+                                         "(its held-out evidence does not support it).")]
 SeedOpt = Annotated[int | None, typer.Option("--seed", help="Seed of every random choice.",
                                              show_default="config, else 0")]
 TestOpt = Annotated[float | None, typer.Option(
@@ -176,7 +178,7 @@ def _wrote(command: str, out: Path, data, as_json: bool) -> None:
 
 
 def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
-           force: bool, as_json: bool, quiet: bool) -> None:
+           force: bool, as_json: bool, quiet: bool, strict: bool = False) -> None:
     from ccl_cli.app.run import default_outdir, execute
     from ccl_cli.render.outputs import check_output, write_run
 
@@ -189,7 +191,10 @@ def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
     finally:
         if bar:
             bar.stop()
-    _emit(write_run(result, outdir, force), as_json, quiet)
+    summary = write_run(result, outdir, force)
+    _emit(summary, as_json, quiet)
+    if strict and summary["status"] != "ok":
+        raise LearningError(f"--strict: the run is {summary['verdict']}")
 
 
 def _bar(label: str, total: int, quiet: bool):
@@ -224,7 +229,8 @@ def _bar(label: str, total: int, quiet: bool):
 #: The options every learning command takes besides its stage's own: (name, annotation, default).
 _LEADING = (("data", "DataArg", None), ("config", "ConfigOpt", None), ("out", "OutOpt", None))
 _TRAILING = (("seed", "SeedOpt", None), ("test_fraction", "TestOpt", None), ("convention", "ConvOpt", None),
-             ("force", "ForceOpt", False), ("json_out", "JsonOpt", False), ("quiet", "QuietOpt", False))
+             ("strict", "StrictOpt", False), ("force", "ForceOpt", False), ("json_out", "JsonOpt", False),
+             ("quiet", "QuietOpt", False))
 
 
 def _learning_command(stage: str):
@@ -251,7 +257,7 @@ def _learning_command(stage: str):
             _logging(common["quiet"])
             flags = _common(common["seed"], common["test_fraction"], common["convention"]) | {stage: fn(**kw)}
             _learn(stage, [stage], _config(common["config"], flags), common["data"], common["out"],
-                   common["force"], common["json_out"], common["quiet"])
+                   common["force"], common["json_out"], common["quiet"], common["strict"])
 
         command.__signature__ = pyinspect.Signature(params, return_annotation=None)
         command.__annotations__ = {p.name: p.annotation for p in params}
@@ -316,13 +322,13 @@ def run(
     pipeline: Annotated[Path, typer.Argument(help="Pipeline YAML with data and stages.")],
     data: Annotated[list[Path] | None, typer.Option("--data", help="Recordings overriding data.files.")]
     = None,
-    out: OutOpt = None, seed: SeedOpt = None, force: ForceOpt = False, json_out: JsonOpt = False,
-    quiet: QuietOpt = False,
+    out: OutOpt = None, seed: SeedOpt = None, strict: StrictOpt = False, force: ForceOpt = False,
+    json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Run the stages of a pipeline YAML in order (learn-v, learn-a, learn-pi, evaluate)."""
     _logging(quiet)
     cfg = _config(pipeline, {"seed": seed})
-    _learn("run", None, cfg, data, out, force, json_out, quiet)
+    _learn("run", None, cfg, data, out, force, json_out, quiet, strict)
 
 
 # -- using saved models -------------------------------------------------------------------

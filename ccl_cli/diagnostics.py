@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.dataset import Demonstrations
+from ccl_cli.errors import InputError
 from ccl_cli.learn import model_selection as _selection
 from ccl_cli.learn.noise import slope_filter, white_noise_var
 
@@ -55,7 +56,8 @@ JITTER = 0.1
 
 CODES = ("constant_dimension", "no_motion", "noisy_actions", "few_demos", "short_demos",
          "low_rank_actions", "duplicate_stamps", "jittery_stamps", "hemisphere_flips", "spikes",
-         "stamp_faults")
+         "stamp_faults", "overfit", "no_better_than_baseline", "constraint_does_not_hold",
+         "constraint_varies", "not_identifiable")
 #: Sensor faults the readers found (:mod:`ccl_cli.io.faults`) → (warning code, what they are,
 #: the config key that keeps them); gaps are pauses or lost samples, stated in the report only.
 FAULTS = {"hemisphere_flip": ("hemisphere_flips", "hemisphere flip(s) of the tracker (positions "
@@ -298,3 +300,87 @@ def low_rank_actions(data: Demonstrations, U: np.ndarray, n_constraints: int,
                             f"own ({r} in all, of q = {q}): s = {n_constraints} may count directions that "
                             "no demonstration explored; more demonstrations would tell")]
     return []
+
+
+# -- verdicts of fitted stages -------------------------------------------------------------------
+#: A stage is ``ok`` when its held-out evidence is; ``poor`` when a check below fails (the
+#: run completes and says what is wrong); ``failed`` when it could not produce a result.
+STATUSES = ("ok", "poor", "failed")
+#: Overfit: a held-out error above OVERFIT_RATIO × the training error, and above OVERFIT_FLOOR
+#: (below it both are at the level of noise and numerical error).
+OVERFIT_RATIO = 10.0
+OVERFIT_FLOOR = 1e-3
+#: Policies: a normalised error at or above 1 is no better than predicting zero.
+ZERO_LEVEL = 1.0
+
+
+def overfit(stage: str, name: str, train: dict | None, test: dict | None) -> list[dict[str, str]]:
+    """``overfit`` when the held-out value of metric ``name`` is OVERFIT_RATIO × its training
+    value and above OVERFIT_FLOOR (metric dicts of metrics.json, or None)."""
+    if not train or not test or not np.isfinite(train["value"]) or not np.isfinite(test["value"]):
+        return []
+    if test["value"] > OVERFIT_FLOOR and test["value"] > OVERFIT_RATIO * max(train["value"], 1e-300):
+        return [warning("overfit", f"{stage}: held-out {name} {test['value']:.3g} is "
+                                   f"{test['value'] / max(train['value'], 1e-300):.3g}× its training value "
+                                   f"{train['value']:.3g}: the model does not generalise")]
+    return []
+
+
+def not_better(stage: str, name: str, test: dict | None, baseline: float, what: str) -> list[dict[str, str]]:
+    """``no_better_than_baseline`` when the held-out ``test`` metric (minus its standard error)
+    is not below ``baseline``, the same metric of ``what`` (e.g. predicting zero)."""
+    if not test or not np.isfinite(test["value"]) or not np.isfinite(baseline):
+        return []
+    if test["value"] - (test.get("se") or 0.0) >= baseline:
+        return [warning("no_better_than_baseline",
+                        f"{stage}: held-out {name} {test['value']:.3g} is no better than {what} "
+                        f"({baseline:.3g})")]
+    return []
+
+
+def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[str, Any] | None:
+    """How far the observations ``Y`` (N, q) of ``d`` move along the learnt constraint rows
+    against their noise (:func:`ccl_cli.learn.constraint.noise_rank.row_evidence`): per row
+    ``ratio`` (energy / noise) and ``share`` (of all the motion), and ``holds`` — every row at
+    the noise level or a negligible share — or None when the data cannot tell (not a
+    trajectory in time, or no motion)."""
+    from ccl_cli.learn.constraint import noise_rank
+
+    if not getattr(model, "n_constraints_", 0):
+        return None
+    try:
+        rows = model.constraint(d.X, groups=d.demo)
+    except (InputError, NotImplementedError):
+        return None  # per-demonstration models: no rows on demonstrations they do not know
+    derived, window, order = derivation(d)
+    positions = derived and d.n_state == d.n_action
+    ev = noise_rank.row_evidence(Y, rows, d.demo, d.t, d.X if positions else None,
+                                 {"window": window, "order": order} if positions else None)
+    if ev.snr < noise_rank.MIN_SNR:
+        return None
+    ratio = ev.energy / np.maximum(ev.noise, np.finfo(float).tiny)
+    holds = (ratio <= noise_rank.MARGIN) | (ev.share <= noise_rank.SHARE)
+    return {"ratio": ratio.tolist(), "share": ev.share.tolist(), "holds": bool(holds.all())}
+
+
+def does_not_hold(stage: str, evidence: dict[str, Any] | None, where: str) -> list[dict[str, str]]:
+    """``constraint_does_not_hold`` when a learnt row moves beyond the noise on ``where``."""
+    from ccl_cli.learn.constraint.noise_rank import MARGIN, SHARE
+
+    if evidence is None or evidence["holds"]:
+        return []
+    k = next(i for i, (r, s) in enumerate(zip(evidence["ratio"], evidence["share"], strict=True))
+             if r > MARGIN and s > SHARE)
+    return [warning("constraint_does_not_hold",
+                    f"{stage}: on the {where} the motion along learnt constraint row {k + 1} is "
+                    f"{evidence['ratio'][k]:.3g}× its noise ({100 * evidence['share'][k]:.2g} % of all the "
+                    "motion): the constraint does not hold there")]
+
+
+def status(checks: list[dict[str, str]]) -> str:
+    """``poor`` when a verdict check fired, else ``ok``."""
+    return "poor" if any(c["code"] in VERDICT_CODES for c in checks) else "ok"
+
+
+#: The checks that make a stage ``poor``.
+VERDICT_CODES = ("overfit", "no_better_than_baseline", "constraint_does_not_hold")

@@ -69,6 +69,20 @@ def task_part(model: Any, X: np.ndarray, demo: np.ndarray | None = None) -> np.n
     return np.einsum("nqs,ns->nq", np.linalg.pinv(A), b)
 
 
+def groups_of(d: Demonstrations) -> np.ndarray:
+    """Ids of the contiguous pieces of ``d`` that the spread of a figure is taken over: each
+    demonstration, and inside one, each run of samples without a time gap (the held-out time
+    blocks of a continuous recording; a gap is over 5 median sampling intervals): (N,)."""
+    n = d.n_samples
+    if n < 2:
+        return np.zeros(n, dtype=int)
+    dt = np.diff(d.t)
+    same = d.demo[1:] == d.demo[:-1]
+    step = np.median(dt[same & (dt > 0)]) if np.any(same & (dt > 0)) else 0.0
+    cut = ~same | (dt > 5 * step if step > 0 else dt < 0)
+    return np.r_[0, np.cumsum(cut)]
+
+
 def constraint_metrics(model: Any, d: Demonstrations, Y: np.ndarray, convention: str = "ccl",
                        of: str = "u") -> dict[str, dict]:
     """NPOE of the observations ``Y`` (N, q) the model was learnt from (``of`` names them)
@@ -80,21 +94,23 @@ def constraint_metrics(model: Any, d: Demonstrations, Y: np.ndarray, convention:
     W = None
     if truth and sd:
         W = d.truth["w"] if d.has_truth("w") else np.einsum("nij,nj->ni", d.true_projection(), Pi)
+    groups = groups_of(d)
     items = [metrics.npoe(N_est, Y, convention, Pi=None if sd else Pi, W=W,
-                          V_est=task_part(model, d.X, d.demo),
-                    of=of)]
+                          V_est=task_part(model, d.X, d.demo), of=of, groups=groups)]
     if truth:
-        items.append(metrics.nppe(d.true_projection(), N_est, Pi, d.U, convention, state_dependent=sd))
+        items.append(metrics.nppe(d.true_projection(), N_est, Pi, d.U, convention, state_dependent=sd,
+                                  groups=groups))
     return _dict(*items)
 
 
 def nullspace_metrics(w: np.ndarray, d: Demonstrations, convention: str = "ccl") -> dict[str, dict]:
     """NPE of the learnt w̃ (N, q) and, with ground truth, NUPE of w and of v = u − w̃."""
-    items = [metrics.npe(d.U, w, convention)]
+    groups = groups_of(d)
+    items = [metrics.npe(d.U, w, convention, groups)]
     if d.has_truth("w"):
-        items.append(metrics.nupe(d.truth["w"], w, "NUPE_w", "w"))
+        items.append(metrics.nupe(d.truth["w"], w, "NUPE_w", "w", groups))
     if d.has_truth("v"):
-        items.append(metrics.nupe(d.truth["v"], d.U - w, "NUPE_v", "v"))
+        items.append(metrics.nupe(d.truth["v"], d.U - w, "NUPE_v", "v", groups))
     return _dict(*items)
 
 
@@ -103,14 +119,15 @@ def policy_metrics(est: np.ndarray, d: Demonstrations, constraint: Any = None, Y
     """With ground truth: NUPE and NCPE of π̃ (N, q). With a learnt ``constraint`` (and the
     observations ``Y`` it was learnt from): NCPE_obs, the observations against Ñπ̃."""
     items = []
+    groups = groups_of(d)
     if d.has_truth("pi"):
-        items.append(metrics.nupe(d.truth["pi"], est))
+        items.append(metrics.nupe(d.truth["pi"], est, groups=groups))
         if _has_true_constraint(d):
-            items.append(metrics.ncpe(d.true_projection(), d.truth["pi"], est))
+            items.append(metrics.ncpe(d.true_projection(), d.truth["pi"], est, groups))
     if constraint is not None:
         Y = d.U if Y is None else Y
         items.append(metrics.ncpe_observed(constraint.projection(d.X, groups=d.demo), Y, est,
-                                     task_part(constraint, d.X, d.demo), of))
+                                           task_part(constraint, d.X, d.demo), of, groups))
     return _dict(*items)
 
 

@@ -69,12 +69,29 @@ def execute(command: str, cfg: Config, files, stages: list[tuple[str, Any]] | No
         shown = pipeline.views() if (views if views is not None else cfg.spec.output.plots) else []
     metrics = stage_metrics(pipeline.results)
     seconds = time.perf_counter() - t0
-    summary = {"status": "ok", "command": command, "seconds": seconds, "validation": pipeline.split_info,
+    summary = {"status": overall_status(pipeline.results), "verdict": verdict(pipeline.results),
+               "command": command, "seconds": seconds, "validation": pipeline.split_info,
                "stages": summarise(metrics), "warnings": pipeline.warnings}
     record = provenance.run_record(command, cfg, data, pipeline, blas_threads,
                                    {"read": t_read} | {r.name: r.seconds for r in pipeline.results}
                                    | {"total": seconds})
     return RunResult(command, cfg, data, pipeline, metrics, summary, record, shown)
+
+
+def overall_status(results) -> str:
+    """The run's status: the worst of its stages' (ok < poor < failed)."""
+    order = {"ok": 0, "poor": 1, "failed": 2}
+    return max((r.status for r in results), key=order.__getitem__, default="ok")
+
+
+def verdict(results) -> str:
+    """One sentence: the run's status and, when a stage is not ok, what is wrong."""
+    poor = [c["message"] for r in results if r.status != "ok" for c in r.checks]
+    if not poor:
+        held = "held-out " if any("test" in r.metrics for r in results) else ""
+        return f"ok: every stage's {held}evidence supports it"
+    more = f" (+{len(poor) - 3} more)" if len(poor) > 3 else ""
+    return f"{overall_status(results)}: " + "; ".join(poor[:3]) + more
 
 
 def stage_metrics(results) -> dict[str, Any]:
@@ -92,7 +109,7 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
     """metrics.json → {stage: {method, n_constraints, train: {name: value}, test: {...},
     baseline: {method, train, test}}} (the baseline only where a stage has one)."""
     def one(e: dict[str, Any]) -> dict[str, Any]:
-        out = {k: v for k, v in e.items() if k in ("method", "n_constraints")}
+        out = {k: v for k, v in e.items() if k in ("method", "n_constraints", "status")}
         out.update({split: {m: v["value"] for m, v in e.get(split, {}).items()}
                     for split in ("train", "test") if split in e})
         if isinstance(e.get("baseline"), dict):

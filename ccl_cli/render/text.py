@@ -16,6 +16,8 @@ def summary_lines(summary: dict[str, Any], quiet: bool = False) -> list[str]:
     with its constraint count and metrics, where the outputs went. With ``quiet`` only a
     held-out set of time blocks is stated (a choice the user must know about, like a warning)."""
     out = []
+    if summary.get("verdict") and (not quiet or summary.get("status") != "ok"):
+        out.append(f"verdict: {summary['verdict']}")
     val = summary.get("validation")
     if val and (not quiet or val.get("kind") == "blocks"):
         out.append(f"validation: {val.get('kind')} ({val.get('reason')})")
@@ -23,7 +25,7 @@ def summary_lines(summary: dict[str, Any], quiet: bool = False) -> list[str]:
         return out
 
     def line(label: str, entry: dict[str, Any]) -> str:
-        parts = [label]
+        parts = [label] + ([entry["status"]] if entry.get("status") else [])
         if "n_constraints" in entry:
             parts.append(f"s={entry['n_constraints']}")
         for split in ("train", "test"):
