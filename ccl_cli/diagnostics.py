@@ -309,7 +309,7 @@ STATUSES = ("ok", "poor", "failed")
 #: Overfit: a held-out error above OVERFIT_RATIO × the training error, and above OVERFIT_FLOOR
 #: (below it both are at the level of noise and numerical error).
 OVERFIT_RATIO = 10.0
-OVERFIT_FLOOR = 1e-3
+OVERFIT_FLOOR = 1e-2
 #: Policies: a normalised error at or above 1 is no better than predicting zero.
 ZERO_LEVEL = 1.0
 
@@ -327,11 +327,11 @@ def overfit(stage: str, name: str, train: dict | None, test: dict | None) -> lis
 
 
 def not_better(stage: str, name: str, test: dict | None, baseline: float, what: str) -> list[dict[str, str]]:
-    """``no_better_than_baseline`` when the held-out ``test`` metric (minus its standard error)
-    is not below ``baseline``, the same metric of ``what`` (e.g. predicting zero)."""
+    """``no_better_than_baseline`` when the held-out ``test`` metric is not below ``baseline``
+    (the same metric of ``what``, e.g. predicting zero) by at least its standard error."""
     if not test or not np.isfinite(test["value"]) or not np.isfinite(baseline):
         return []
-    if test["value"] - (test.get("se") or 0.0) >= baseline:
+    if test["value"] + (test.get("se") or 0.0) >= baseline:
         return [warning("no_better_than_baseline",
                         f"{stage}: held-out {name} {test['value']:.3g} is no better than {what} "
                         f"({baseline:.3g})")]
