@@ -170,14 +170,21 @@ class Pipeline:
         order; ``progress()`` after each."""
         for name, opts in stages:
             t0 = time.perf_counter()
-            log.info("stage %s (%s)", name, getattr(opts, "method", None) or
-                     f"convention {getattr(opts, 'convention', None) or self.convention}")
+            log.info("stage %s (%s)", name, self._describe(name, opts))
             result = getattr(self, "_" + name.replace("-", "_"))(opts)
             result.seconds = time.perf_counter() - t0
             self.results.append(result)
             if progress is not None:
                 progress()
         return self.results
+
+    def _describe(self, name: str, opts: Any) -> str:
+        """What a stage runs, for the progress line: its method (or the evaluate convention)."""
+        if name == "learn-v":
+            return "ncl"
+        if name == "evaluate":
+            return f"every model under the {opts.convention or self.convention} convention"
+        return opts.method or PolicyLearner().method
 
     def _learn_v(self, opts: Any) -> StageResult:
         tr = self.split.train
