@@ -64,6 +64,7 @@ app = typer.Typer(
     help="Constraint Consistent Learning: learn constraints A(x), null-space components w(x) and "
          "null-space policies π(x) from demonstrations (HDF5, CSV, MCAP, ROS 1/2 bags).",
     no_args_is_help=True,
+    context_settings={"help_option_names": ["-h", "--help"]},
     add_completion=False,
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
@@ -74,8 +75,9 @@ DataArg = Annotated[list[Path] | None, typer.Argument(
     help="Recordings (files, bag directories or globs); overrides data.files of the config.",
     show_default=False)]
 ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="YAML config (see README).")]
-OutOpt = Annotated[Path | None, typer.Option("--out", "-o", help="Output directory.",
-                                             show_default="runs/<config name or command>")]
+OutOpt = Annotated[Path | None, typer.Option(
+    "--out", "-o", help="Output directory (an existing one is replaced only with --force, and only if ccl "
+    "wrote it).", show_default="a new runs/<command>-<input name>, then …-2, …-3: never an existing one")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite existing outputs.")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="Only warnings and errors on stderr.")]
@@ -182,7 +184,7 @@ def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
     from ccl_cli.app.run import default_outdir, execute
     from ccl_cli.render.outputs import check_output, write_run
 
-    outdir = out or default_outdir(command, cfg)
+    outdir = out or default_outdir(command, cfg, files)
     check_output(outdir, force)  # before any work: a folder ccl did not write is never replaced
     stages = cfg.stages() if stages is None else [(name, cfg.spec.section(name)) for name in stages]
     bar = _bar("stages", len(stages), quiet)
@@ -322,12 +324,12 @@ def run(
     pipeline: Annotated[Path, typer.Argument(help="Pipeline YAML with data and stages.")],
     data: Annotated[list[Path] | None, typer.Option("--data", help="Recordings overriding data.files.")]
     = None,
-    out: OutOpt = None, seed: SeedOpt = None, strict: StrictOpt = False, force: ForceOpt = False,
-    json_out: JsonOpt = False, quiet: QuietOpt = False,
+    out: OutOpt = None, seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
+    strict: StrictOpt = False, force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Run the stages of a pipeline YAML in order (learn-v, learn-a, learn-pi, evaluate)."""
     _logging(quiet)
-    cfg = _config(pipeline, {"seed": seed})
+    cfg = _config(pipeline, _common(seed, test_fraction, convention))
     _learn("run", None, cfg, data, out, force, json_out, quiet, strict)
 
 
@@ -446,20 +448,22 @@ def simulate(
 
 @app.command("inspect")
 def inspect_cmd(
-    data: Annotated[Path, typer.Argument(help="A recording (file or bag directory).")],
+    data: Annotated[Path, typer.Argument(help="A recording (file or bag directory) or a model file.")],
     config: ConfigOpt = None,
     gap: Annotated[float | None, typer.Option(help="Pause (seconds) that splits demonstrations "
                                               "[default: data.demos.split_on_gap, else 5 × the median "
                                               "sampling interval].", show_default=False)] = None,
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
-    """Topics (type, count, rate over the active time, fields, joint names), CSV columns, time span
-    and the demonstrations a gap split finds (default gap: 5 × the median sampling interval)."""
-    from ccl_cli.io import inspect_recording
+    """What a file holds. A recording: topics (type, count, rate over the active time, fields,
+    joint names), CSV columns, time span and the demonstrations a gap split finds (default gap:
+    5 × the median sampling interval). A model file: its method, constraints, basis and what it
+    was trained on (inputs, config, figures)."""
+    from ccl_cli.app.evaluate import inspect_file
 
     _logging(quiet)
     cfg = _config(config, {})
-    info = inspect_recording(data, cfg.spec.data, gap)
+    info = inspect_file(data, cfg.spec.data, gap)
     if json_out:
         _emit(info, True)
         return
@@ -565,6 +569,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except CCLError as exc:
         typer.echo(f"ccl: error: {exc.message}", err=True)
+        _json_error(argv, exc.exit_code, type(exc).__name__, exc.message)
         return exc.exit_code
     except KeyboardInterrupt:
         typer.echo("ccl: interrupted; no partial outputs were left", err=True)
@@ -572,13 +577,27 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # an unexpected failure: still one line, unless debugging
         if hasattr(exc, "show") and hasattr(exc, "exit_code"):  # typer's usage errors (exit 2)
             exc.show()
+            _json_error(argv, int(exc.exit_code), "UsageError", exc.format_message())
             return int(exc.exit_code)
         if os.environ.get("CCL_DEBUG"):
             raise
         first = str(exc).splitlines()[0] if str(exc) else ""
-        typer.echo(f"ccl: internal error: {type(exc).__name__}: {first} (set CCL_DEBUG=1 for a traceback)",
-                   err=True)
+        message = f"internal error: {type(exc).__name__}: {first}"
+        typer.echo(f"ccl: {message} (set CCL_DEBUG=1 for a traceback)", err=True)
+        _json_error(argv, 1, "InternalError", message)
         return 1
+
+
+def _json_error(argv: list[str] | None, code: int, kind: str, message: str) -> None:
+    """With ``--json`` on the command line, an error is one JSON object on stdout too, so a
+    script piping into ``jq`` always gets something to parse (the exit code is unchanged)."""
+    args = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    if "--json" in args:
+        import json
+
+        sys.stdout.write(json.dumps({"status": "error", "exit_code": code,
+                                     "error": {"type": kind, "message": message}}) + "\n")
+        sys.stdout.flush()
 
 
 def entry() -> None:

@@ -425,3 +425,50 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
             raise InputError(f"{where}: kind {kind!r} does not match method {method!r}")
         model = _read(f, method, where)
     return model, {"kind": kind, "method": method, "training": training, "schema_version": version}
+
+
+def is_model_file(path: str | Path) -> bool:
+    """Whether ``path`` is an HDF5 file whose ``format`` attribute says ccl model (a file
+    that is not HDF5, or cannot be opened, is not)."""
+    from ccl_cli.io.sniff import HDF5_MAGIC
+
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1024)
+    except OSError:
+        return False
+    if HDF5_MAGIC not in head:  # at 0, or behind the 512-byte user block ccl writes
+        return False
+    with open_hdf5(path, "model file") as f:
+        return h5.attr_str(f.attrs, "format", str(path), None) == FORMAT
+
+
+def describe_model(path: str | Path) -> dict[str, Any]:
+    """What a model file holds, for ``ccl inspect``: its method and kind, the number of
+    constraints and why, the basis, the dimensions, and what it was trained on (stage, input
+    files and their sha256, the config, package versions, its train/test figures)."""
+    model, info = load_model(path)
+    inner = next(iter(model.models_.values())) if isinstance(model, PerDemonstration) else model
+    out: dict[str, Any] = {"path": str(path), "format": FORMAT, "schema_version": info["schema_version"],
+                           "method": model.method if info["kind"] == "policy" else info["method"],
+                           "kind": info["kind"],
+                           "n_features_in": getattr(model, "n_features_in_", None),
+                           "n_action": getattr(inner, "n_action_", None)}
+    if isinstance(model, PerDemonstration):
+        out["demonstrations"] = sorted(model.models_)
+    if hasattr(model, "n_constraints_"):
+        out["n_constraints"] = int(model.n_constraints_)
+        selection = getattr(model, "selection_", None) or {}
+        out["selection"] = {k: selection[k] for k in ("rule", "reason") if k in selection}
+    basis = getattr(inner, "basis_", None)
+    if basis is not None:
+        state = basis.state()
+        out["basis"] = {"kind": state["kind"], **({"n_centres": int(len(state["centres"])),
+                                                   "sigma2": float(state["sigma2"])} if state["kind"] == "rbf"
+                                                  else {})}
+    training = info.get("training") or {}
+    out["training"] = {k: training[k] for k in ("stage", "inputs", "metrics", "versions") if k in training}
+    if "config" in training:
+        out["training"]["config"] = training["config"]
+    return out

@@ -240,3 +240,14 @@ def predict_saved(model_path: Path, data: Demonstrations, out: Path, force: bool
     write_predictions(out, outputs, model_path, info["method"], force)
     return {"status": "ok", "command": "predict", "out": str(out), "samples": data.n_samples,
             "outputs": sorted(outputs)}
+
+
+def inspect_file(path: Path, options: Any = None, gap: float | None = None) -> dict[str, Any]:
+    """``ccl inspect``: what a model file holds (:func:`ccl_cli.models.describe_model`), or what
+    a recording holds (:func:`ccl_cli.io.inspect_recording`)."""
+    from ccl_cli.io import inspect_recording
+    from ccl_cli.models import describe_model, is_model_file
+
+    if is_model_file(path):
+        return describe_model(path)
+    return inspect_recording(path, options, gap)

@@ -119,6 +119,17 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
     return {name: one(e) for name, e in metrics.items()}
 
 
-def default_outdir(command: str, cfg: Config) -> Path:
-    stem = Path(cfg.source.split(" + ")[0]).stem if command == "run" and cfg.source != "<flags>" else command
-    return Path("runs") / stem
+def default_outdir(command: str, cfg: Config, files=None) -> Path:
+    """Where a run writes without ``-o``: ``runs/<command>-<stem>`` — the stem of the pipeline
+    YAML for ``ccl run``, else of the first recording — or, when that exists, the first free
+    ``…-2``, ``…-3``: a second run never refuses and never overwrites the first."""
+    entries = [str(f) for f in files] if files else cfg.spec.data.files
+    first = entries if isinstance(entries, str) else (entries[0] if entries else None)
+    source = cfg.source if command == "run" and cfg.source != "<flags>" else first
+    stem = Path(str(source)).stem if source else "data"
+    base = Path("runs") / f"{command}-{stem.replace('*', '').strip('.') or 'data'}"
+    candidate, n = base, 1
+    while candidate.exists() or candidate.is_symlink():
+        n += 1
+        candidate = base.with_name(f"{base.name}-{n}")
+    return candidate

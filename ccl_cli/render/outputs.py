@@ -56,7 +56,8 @@ def write_run(result: RunResult, outdir: Path, force: bool = False, plot_workers
         for r in models:
             path = tmp / "model.h5" if len(models) == 1 else tmp / "models" / f"{r.name}.h5"
             path.parent.mkdir(exist_ok=True)
-            save_model(path, r.model, training=training_record(r.name, result.cfg, result.data))
+            save_model(path, r.model, training=training_record(r.name, result.cfg, result.data,
+                                                               result.metrics.get(r.name)))
         plot_seconds: dict[str, float] = {}
         if plot_workers is None:
             plot_workers = 2 if (os.cpu_count() or 1) >= 2 else 1
