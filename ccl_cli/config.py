@@ -205,8 +205,14 @@ def _apply_flags(raw: dict[str, Any], flags: dict[str, Any]) -> dict[str, Any]:
 
 
 # -- validation errors as one line -------------------------------------------------------------
+#: config keys whose flag is not named after the key alone
+FLAG_NAMES = {("data", "test", "fraction"): "--test-fraction", ("metrics", "convention"): "--convention"}
+
+
 def _where(source: str, lines: dict[tuple, int], path: tuple) -> str:
     if source == FLAGS and path:
+        if tuple(path[:3]) in FLAG_NAMES or tuple(path[:2]) in FLAG_NAMES:
+            return FLAG_NAMES.get(tuple(path[:3])) or FLAG_NAMES[tuple(path[:2])]
         last = next((p for p in reversed(path) if isinstance(p, str)), "")
         return "--" + last.replace("_", "-")
     for cut in range(len(path), -1, -1):

@@ -214,6 +214,10 @@ class Pipeline:
 
     def _fit_constraint(self, opts: Any, on: str) -> Any:
         tr = self.split.train
+        q = tr.n_action
+        if opts.n_constraints is not None and not 1 <= opts.n_constraints <= max(q - 1, 1):
+            raise ConfigError(f"learn-a.n_constraints (--n-constraints) is {opts.n_constraints}, but "
+                              f"{q}-dimensional actions allow 1 to {max(q - 1, 1)} constraints")
         model = make_constraint(opts, self.seed)
         try:
             model.fit(tr.X, self._target(on, "train", tr), groups=tr.demo)

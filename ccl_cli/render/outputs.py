@@ -32,10 +32,17 @@ def _default(value: Any) -> Any:
 
 
 def check_output(outdir: Path, force: bool) -> None:
-    """Before any work: an existing folder ccl did not write is never replaced (InputError)."""
+    """Before any work: an existing folder ccl did not write is never replaced, and the folder
+    the output goes into (or its nearest existing parent) must be writable (InputError)."""
+    from ccl_cli.errors import InputError
     from ccl_cli.io.atomic import check_replaceable
 
     check_replaceable(outdir, force)
+    parent = Path(outdir).absolute().parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{outdir}: cannot write the output ({parent} is not writable); nothing was done")
 
 
 def write_run(result: RunResult, outdir: Path, force: bool = False, plot_workers: int | None = None,
