@@ -196,7 +196,9 @@ def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
     summary = write_run(result, outdir, force)
     _emit(summary, as_json, quiet)
     if strict and summary["status"] != "ok":
-        raise LearningError(f"--strict: the run is {summary['verdict']}")
+        error = LearningError(f"--strict: the run is {summary['verdict']}")
+        error.summarised = as_json  # --json printed the run's summary (status poor): one object only
+        raise error
 
 
 def _bar(label: str, total: int, quiet: bool):
@@ -350,10 +352,11 @@ def evaluate(
     if out is not None:
         check_output(out, force)
     dataset, _ = read_data(cfg, data)
-    summary = evaluate_saved(model, dataset, cfg.spec.metrics.convention)
+    figures = out is not None and cfg.spec.output.plots
+    summary = evaluate_saved(model, dataset, cfg.spec.metrics.convention, figures)
     if out is not None:
-        write_evaluation(summary, out, force)
-    summary = {k: v for k, v in summary.items() if k not in ("entry", "inputs", "samples", "demos")}
+        write_evaluation(summary, out, force, cfg.spec.output.format)
+    summary = {k: v for k, v in summary.items() if k not in ("entry", "inputs", "samples", "demos", "views")}
     summary["outdir"] = str(out) if out else None
     if json_out:
         _emit({**summary, "metrics": {k: v["value"] for k, v in summary["metrics"].items()}}, True)
@@ -569,7 +572,8 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except CCLError as exc:
         typer.echo(f"ccl: error: {exc.message}", err=True)
-        _json_error(argv, exc.exit_code, type(exc).__name__, exc.message)
+        if not getattr(exc, "summarised", False):
+            _json_error(argv, exc.exit_code, type(exc).__name__, exc.message)
         return exc.exit_code
     except KeyboardInterrupt:
         typer.echo("ccl: interrupted; no partial outputs were left", err=True)

@@ -247,7 +247,10 @@ class Metrics(Section):
 
 
 class Output(Section):
+    """``plots``: draw the figures; ``format``: png, or svg / pdf (vector, for a paper)."""
+
     plots: bool = True
+    format: Literal["png", "svg", "pdf"] = "png"
 
 
 class StageItem(Section):

@@ -170,18 +170,30 @@ def check_dimensions(model: Any, data: Demonstrations) -> None:
 
 
 # -- using saved models ------------------------------------------------------------------
-def evaluate_saved(model_path: Path, data: Demonstrations, convention: str = "ccl") -> dict[str, Any]:
+def evaluate_saved(model_path: Path, data: Demonstrations, convention: str = "ccl", figures: bool = False
+                   ) -> dict[str, Any]:
     """``ccl evaluate``: score the model saved at ``model_path`` on ``data``. Returns the
-    summary (``metrics``: name → Metric dict) with ``entry``, metrics.json's content."""
+    summary (``metrics``: name → Metric dict) with ``entry``, metrics.json's content, and with
+    ``figures`` the figures' data (``views``: the same figures a run draws for its stage)."""
+    from ccl_cli.app.stages import StageResult
+    from ccl_cli.app.views import describe_constraint, stage_views
     from ccl_cli.models import load_model
 
     est, info = load_model(model_path)
     check_dimensions(est, data)
     metrics = evaluate_model(est, info["kind"], data, convention)
     entry = {"method": info["method"], "kind": info["kind"], "convention": convention, "all": metrics}
+    views = []
+    if figures:
+        stage = {v: k for k, v in KINDS.items()}[info["kind"]]
+        result = StageResult(stage, info["method"], est, info={})
+        if info["kind"] == "constraint":
+            result.info = {"selection": est.selection_, "constraint": describe_constraint(est, data)}
+        views = stage_views(result, data, "all", data, False)
     return {"status": "ok", "command": "evaluate", "model": str(model_path), "kind": info["kind"],
             "method": info["method"], "convention": convention, "metrics": metrics, "entry": entry,
-            "samples": data.n_samples, "demos": data.n_demos, "inputs": data.metadata.get("files")}
+            "samples": data.n_samples, "demos": data.n_demos, "inputs": data.metadata.get("files"),
+            "views": views}
 
 
 def predict(model: Any, kind: str, data: Demonstrations) -> dict[str, np.ndarray]:
