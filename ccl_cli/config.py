@@ -234,7 +234,7 @@ def _validate(model: type, raw: Any, source: str, lines: dict[tuple, int], base:
     try:
         return model.model_validate(raw)
     except ValidationError as exc:
-        path, message = describe(exc, model, label)
+        path, message = describe(exc, model, label, raw)
         raise ConfigError(f"{_where(source, lines, (*base, *path))}: {message}"[:300]) from None
 
 
@@ -255,7 +255,7 @@ def _fields_of(annotation: Any) -> list[type]:
     return [m for a in typing.get_args(annotation) for m in _fields_of(a)]
 
 
-def describe(exc: Any, model: type, label: str = "") -> tuple[tuple, str]:
+def describe(exc: Any, model: type, label: str = "", raw: Any = None) -> tuple[tuple, str]:
     """The most specific error of a pydantic ValidationError as (key path, message): the
     error that reached deepest into the config (a union tries every member; when several
     members fail at the same key, the key's description says what it takes)."""
@@ -263,6 +263,9 @@ def describe(exc: Any, model: type, label: str = "") -> tuple[tuple, str]:
     located = [(_keys(e["loc"], model, e["type"] == "extra_forbidden"), e) for e in errors]
     depth = max(len(keys[0]) for keys, _ in located)
     deepest = [(keys, e) for keys, e in located if len(keys[0]) == depth]
+    # a mapping that fits no member of a union: blame the member sharing the most of its keys
+    deepest.sort(key=lambda item: -_overlap(item[0][1], item[0][0], item[1]["type"] == "extra_forbidden",
+                                            raw))
     (path, cls, description), err = deepest[0]
     shown = (label,) + path if label else path
     name = _dotted(shown)
@@ -289,6 +292,22 @@ def describe(exc: Any, model: type, label: str = "") -> tuple[tuple, str]:
         return path, f"{name} must be a finite number{got}"
     what = description or _PHRASES.get(kind) or err["msg"][0].lower() + err["msg"][1:]
     return path, f"{name} must be {what}{got}"
+
+
+def _overlap(cls: Any, keys: tuple, unknown: bool, raw: Any) -> int:
+    """How many keys of the mapping an error is about (at ``keys`` in ``raw``; the parent of an
+    unknown key) are fields of model ``cls``."""
+    value = raw
+    for key in keys[:-1] if unknown else keys:
+        if not isinstance(value, dict | list):
+            return 0
+        try:
+            value = value[key]
+        except (KeyError, IndexError, TypeError):
+            return 0
+    if not isinstance(value, dict) or cls is None:
+        return 0
+    return len({f.alias or k for k, f in cls.model_fields.items()} & set(map(str, value)))
 
 
 def _keys(loc: tuple, model: type, unknown: bool) -> tuple[tuple, type | None, str | None]:

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ccl_cli import diagnostics
-from ccl_cli.app import evaluate
+from ccl_cli.app import scoring
 from ccl_cli.app.views import View, describe_constraint, stage_views
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, LearningError
@@ -196,11 +196,11 @@ class Pipeline:
             result.info["tuning"] = model.tuning_
         ws = {part: model.predict(d.X) for part, d in self.parts()}
         self.w.update(ws)
-        result.score = lambda part, d, convention: evaluate.nullspace_metrics(ws[part], d, convention)
+        result.score = lambda part, d, convention: scoring.nullspace_metrics(ws[part], d, convention)
         self._score_parts(result)
         # "no task part": u regressed on the same features (w̃ = E[u | x], v = 0)
         plain = PolicyLearner(method="dpl", basis=model.basis_, tune=False, seed=self.seed).fit(tr.X, tr.U)
-        baseline = {part: {"NPE": evaluate.nullspace_metrics(plain.predict(d.X), d)["NPE"]}
+        baseline = {part: {"NPE": scoring.nullspace_metrics(plain.predict(d.X), d)["NPE"]}
                     for part, d in self.parts()}
         result.info["baseline"] = {"method": "u regressed on the same features (no task part)", **baseline}
         part, _ = self._held_out()
@@ -270,7 +270,7 @@ class Pipeline:
             result.info["per_demo_note"] = ("One constraint per training demonstration: a held-out "
                                             "demonstration has none, so there are no test metrics.")
         targets = {part: self._target(on, part, d) for part, d in self.parts()}
-        result.score = lambda part, d, convention: evaluate.constraint_metrics(
+        result.score = lambda part, d, convention: scoring.constraint_metrics(
             model, d, targets[part], convention, of="learnt w" if on == "w" else "u")
         self._score_parts(result)
         part, d = self._held_out()
@@ -335,7 +335,7 @@ class Pipeline:
         def score(part: str, d: Demonstrations, convention: str) -> dict:
             knows = constraint is not None and not (isinstance(constraint, PerDemonstration)
                                                     and part != "train")
-            return evaluate.policy_metrics(model.predict(d.X), d, constraint if knows else None,
+            return scoring.policy_metrics(model.predict(d.X), d, constraint if knows else None,
                                            targets[part], of)
 
         result.score = score
@@ -344,7 +344,7 @@ class Pipeline:
             baseline = StageResult("learn-pi", "dpl", result.baseline)
             knows = {part: constraint is not None and not (isinstance(constraint, PerDemonstration)
                                                            and part != "train") for part, _ in self.parts()}
-            baseline.score = lambda part, d, convention: evaluate.policy_metrics(
+            baseline.score = lambda part, d, convention: scoring.policy_metrics(
                 result.baseline.predict(d.X), d, constraint if knows[part] else None, targets[part], of)
             self._score_parts(baseline)
             result.info["baseline"] = {"method": "dpl", **baseline.metrics}

@@ -121,7 +121,7 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
     blocks, so titles say so; a per-demonstration constraint is shown on its ``train``
     demonstrations), with ``constraint`` the learnt constraint model of an earlier learn-a
     stage (for the predicted u = ṽ + Ñπ̃ of a policy)."""
-    from ccl_cli.app.evaluate import task_part
+    from ccl_cli.app.scoring import task_part
 
     model = result.model
     if model is None:
