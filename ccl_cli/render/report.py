@@ -54,8 +54,10 @@ def markdown(title: str, result: Any, plots: list[tuple[str, str]]) -> str:
     lines += [f"- samples: {data_info.get('samples')} in {data_info.get('demos')} demonstrations "
               f"(train {data_info.get('train')}, test {data_info.get('test')})",
               f"- state dimension p = {data_info.get('p')}, action dimension q = {data_info.get('q')}",
+              *([f"- states: {', '.join(data_info['states'])}"] if data_info.get("states") else []),
+              *([f"- actions: {', '.join(data_info['actions'])}"] if data_info.get("actions") else []),
               f"- inputs: {', '.join(data_info.get('files', [])) or '—'}",
-              *([f"- actions: {data_info['actions']}"] if data_info.get("actions") else []),
+              *([f"- actions derived: {data_info['derived']}"] if data_info.get("derived") else []),
               "- metrics: mean squared error / normaliser, both shown; see docs/metrics.md", ""]
     lines += validation_markdown(data_info.get("validation"))
     for stage, entry in results_metrics.items():
