@@ -96,5 +96,5 @@ def _plot(out: Path, rows: list[dict], columns: list[str]) -> bool:
     from ccl_cli.io.atomic import atomic_path
 
     with atomic_path(out / "summary.png", force=True) as tmp:
-        save_figure(fig, tmp, dpi=80)
+        save_figure(fig, tmp, dpi=80, fmt="png")
     return True
