@@ -131,7 +131,7 @@ jobs:
 overrides:
   "{recordings}/rec_01.h5": {{learn-a: {{n_constraints: 1, selection: eigengap}}}}
 """)
-    code, summary, err = batch(capsys, manifest, "-j", 2)
+    code, summary, err = batch(capsys, manifest, "-j", 2, "--allow-outside")  # the recordings: elsewhere
     assert code == 0, err
     assert summary["ok"] == 4  # three single-file jobs and one group of two
     rows = {r["job_id"]: r for r in summary_results(tmp_path / "out")}

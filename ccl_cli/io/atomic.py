@@ -100,9 +100,19 @@ def clean_stale(path: Path, every: bool = False) -> int:
     return n
 
 
-def _failed(path: Path, exc: OSError) -> OutputError:
-    reason = exc.strerror or (str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
-    return OutputError(f"{path}: cannot write the output ({reason}); nothing was written")
+class WriteFailed(OutputError):
+    """An output that could not be written, with the system's ``reason`` (e.g. "No space
+    left on device"), so that an enclosing output can name itself instead."""
+
+    def __init__(self, path: Path, reason: str) -> None:
+        super().__init__(f"{path}: cannot write the output ({reason}); nothing was written")
+        self.reason = reason
+
+
+def _failed(path: Path, exc: OSError | WriteFailed) -> WriteFailed:
+    if isinstance(exc, WriteFailed):
+        return WriteFailed(path, exc.reason)
+    return WriteFailed(path, exc.strerror or (str(exc).splitlines()[0] if str(exc) else type(exc).__name__))
 
 
 def _prefix(path: Path) -> str:
@@ -134,7 +144,7 @@ def _staged(path: Path, kind: _Kind) -> Iterator[Path]:
         yield tmp
         kind.commit(tmp, path)
         tmp = None
-    except OSError as exc:
+    except (OSError, WriteFailed) as exc:  # a part inside failed: the output names itself
         raise _failed(path, exc) from None
     finally:
         if tmp is not None:

@@ -73,6 +73,8 @@ def _walk(f, where: str) -> None:
 
 #: exit status of a probe child that met an exception (its message on its output)
 REFUSED = 3
+#: how a refusal says that the file did not even open (the parent words that message)
+OPEN_FAILED = "open\t"
 
 
 def _probe_child(path: str, cpu_limit: int = CPU_LIMIT) -> str | None:
@@ -85,7 +87,11 @@ def _probe_child(path: str, cpu_limit: int = CPU_LIMIT) -> str | None:
 
     resource.setrlimit(resource.RLIMIT_CPU, (cpu_limit, cpu_limit + 1))
     try:
-        with h5py.File(path, "r") as f:
+        f = h5py.File(path, "r")
+    except BaseException as exc:  # noqa: BLE001 - not HDF5, or a damaged superblock
+        return f"{OPEN_FAILED}{error_text(exc)}"
+    try:
+        with f:
             _walk(f, path)
     except InputError as exc:
         return exc.message
@@ -136,7 +142,7 @@ def _identity(path: Path) -> tuple[str, int, int, int]:
     return str(path.resolve()), st.st_ino, st.st_size, st.st_mtime_ns
 
 
-def probe(path: Path, timeout: float = TIMEOUT, cpu_limit: int = CPU_LIMIT) -> None:
+def probe(path: Path, timeout: float = TIMEOUT, cpu_limit: int = CPU_LIMIT, what: str = "file") -> None:
     """Parse ``path`` in a child process first; refuse it if libhdf5 hangs or crashes there.
 
     A fork of this process when it runs one thread (fast: h5py is already loaded);
@@ -185,6 +191,8 @@ def probe(path: Path, timeout: float = TIMEOUT, cpu_limit: int = CPU_LIMIT) -> N
         raise InputError(f"{where}: libhdf5 crashed parsing the file (signal {-code}; damaged HDF5?); "
                          "refused")
     if code != 0:  # an exception in the child (or an exit of its own): fail closed
+        if refusal.startswith(OPEN_FAILED):
+            raise InputError(f"{where}: cannot open as HDF5 {what} ({refusal[len(OPEN_FAILED):].strip()})")
         line = refusal.strip().splitlines()[0] if refusal.strip() else \
             f"{where}: libhdf5 failed parsing the file (exit {code}; damaged HDF5?); refused"
         raise InputError(line)
@@ -208,7 +216,7 @@ def open_hdf5(path: str | Path, what: str = "data file", timeout: float | None =
     key = _identity(path)
     if key not in _PROBED and not sealed(path):
         # one probe per file version and process (a run opens a file twice)
-        probe(path, TIMEOUT if timeout is None else timeout)
+        probe(path, TIMEOUT if timeout is None else timeout, what=what)
         _PROBED.add(key)
     try:
         f = h5py.File(path, "r")
