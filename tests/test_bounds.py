@@ -215,6 +215,7 @@ def test_probe_refuses_a_file_whose_attribute_table_cannot_be_read(tmp_path, mon
     read_by_name: list[str] = []
     original = h5py.AttributeManager.__getitem__
     monkeypatch.setattr(h5py.AttributeManager, "__iter__", damaged)  # the fork inherits it
+    monkeypatch.setattr(h5probe.threading, "active_count", lambda: 1)  # the fork, whatever ran before
     monkeypatch.setattr(h5py.AttributeManager, "__getitem__",
                         lambda self, key: read_by_name.append(key) or original(self, key))
     with pytest.raises(InputError, match=r"failed parsing the file \(OSError: Unable to iterate") as info:
@@ -249,6 +250,7 @@ def test_probe_child_exit_without_a_message_is_a_refusal(tmp_path, monkeypatch):
     with h5py.File(path, "w") as f:
         f["x"] = np.ones(3)
     monkeypatch.setattr(h5probe, "_probe_child", lambda p, cpu_limit: os._exit(7))
+    monkeypatch.setattr(h5probe.threading, "active_count", lambda: 1)  # the fork, whatever ran before
     with pytest.raises(InputError, match=r"failed parsing the file \(exit 7"):
         h5probe.probe(path)
 
