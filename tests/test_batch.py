@@ -294,3 +294,20 @@ def test_manifest_paths_stay_in_its_folder(capsys, recordings, tmp_path, edit):
     assert sorted(p.name for p in tmp_path.iterdir()) == before and not (here / "out").exists()
     code, summary, err = batch(capsys, manifest, "-j", 1, "--allow-outside")
     assert code == 0 and summary["ok"] >= 1, err
+
+
+def test_batch_folder_of_an_earlier_version_is_resumed(capsys, recordings, tmp_path):
+    """A batch folder written before the .ccl-output marker (jobs/ and summaries only, each
+    job folder ccl's) is still ccl's: resumed, not refused."""
+    out = tmp_path / "old"
+    one = ["--files", recordings / "rec_00.h5", "-c", recordings / "pipeline.yaml", "-j", 1, "-o", out]
+    code, summary, err = batch(capsys, *one)
+    assert code == 0 and summary["ok"] == 1, err
+    (out / ".ccl-output").unlink()  # as an earlier version left it
+    code, summary, err = batch(capsys, *one)
+    assert code == 0 and summary["skipped"] == 1, err
+    (out / ".ccl-output").unlink()
+    (out / "notes.txt").write_text("mine\n")  # anything else: not a batch folder
+    code, _, err = batch(capsys, *one)
+    assert code == 2 and "holds files ccl did not write" in err
+    assert (out / "notes.txt").read_text() == "mine\n"

@@ -247,6 +247,24 @@ def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
                          f"internal error: {type(exc).__name__}: {first}", 1)
 
 
+#: what a batch folder of a ccl version before the .ccl-output marker holds
+BATCH_FILES = {"jobs", "summary.csv", "summary.md", "summary.json", "summary.png"}
+
+
+def written_by_earlier_batch(path: Path) -> bool:
+    """True for a batch folder of an earlier ccl (no marker): nothing but ``jobs/`` and the
+    summaries, every job folder one ccl wrote (:func:`~ccl_cli.io.atomic.written_by_ccl`)."""
+    from ccl_cli.io.atomic import is_temporary, written_by_ccl
+
+    try:
+        names = {p.name for p in path.iterdir()}
+        jobs = [p for p in (path / "jobs").iterdir() if not is_temporary(p.name)] if "jobs" in names else []
+    except OSError:
+        return False
+    return "jobs" in names and names <= BATCH_FILES and bool(jobs) and \
+        all(p.is_dir() and not p.is_symlink() and written_by_ccl(p) for p in jobs)
+
+
 def _ignore_file_size_signal() -> None:
     """A file-size limit (``ulimit -f``) is a write error (EFBIG) in a worker too, not a kill
     (``ccl`` itself ignores SIGXFSZ, and local workers inherit that; a Dask worker's job runs
@@ -349,7 +367,7 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
     is removed (:func:`~ccl_cli.io.atomic.release_folder`)."""
     from ccl_cli.io.atomic import claim_folder, clean_stale, release_folder
 
-    claim_folder(out)
+    claim_folder(out, earlier=written_by_earlier_batch)
     jobs_dir = out / "jobs"
     try:
         jobs_dir.mkdir(exist_ok=True)

@@ -76,6 +76,11 @@ def check_replaceable(path: Path, force: bool) -> None:
 _TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.[A-Za-z0-9_]+\.tmp$|^\.(?P<old>.+)\.old-(?P<opid>\d+)$")
 
 
+def is_temporary(name: str) -> bool:
+    """True for the name of a temporary of an output being written (or of a killed run)."""
+    return _TEMP.match(name) is not None
+
+
 def clean_stale(path: Path, every: bool = False) -> int:
     """Remove temporaries of ``path`` (``every``: of anything in the folder ``path``) left
     by ccl processes that no longer run. Returns how many were removed."""
@@ -234,17 +239,18 @@ def _created_here(path: Path) -> bool:
     return isinstance(found, dict) and found.get("created_by_pid") == os.getpid()
 
 
-def claim_folder(path: str | Path) -> bool:
+def claim_folder(path: str | Path, earlier: Callable[[Path], bool] | None = None) -> bool:
     """Make ``path`` a folder ccl may write into piece by piece (``ccl batch -o``): created
     here (and marked), or an empty folder (marked), or one ccl made before (it holds
-    :data:`MARKER`). A user's folder with anything in it, or a file, is refused untouched:
-    one :class:`InputError` line. Returns True when this call created the folder."""
+    :data:`MARKER`, or ``earlier(path)`` recognises what an earlier version wrote). A
+    user's folder with anything in it, or a file, is refused untouched: one
+    :class:`InputError` line. Returns True when this call created the folder."""
     path = Path(path)
     try:
         if path.is_symlink() or (path.exists() and not path.is_dir()):
             raise InputError(f"{path} exists and is not a folder ccl made; choose another output")
         created = not path.exists()
-        if not created and not (path / MARKER).is_file():
+        if not created and not (path / MARKER).is_file() and not (earlier is not None and earlier(path)):
             if any(path.iterdir()):
                 raise InputError(f"{path} holds files ccl did not write (no {MARKER} in it); ccl writes "
                                  "only into a new or empty folder or one it made (choose another output)")
