@@ -300,3 +300,21 @@ def test_arm_features_on_data_of_another_width_is_one_line(capsys, tmp_path):
     err = [ln for ln in capsys.readouterr().err.splitlines() if not ln.startswith("ccl: warning")]
     assert code == 2 and len(err) == 1 and "features arm7 need the 7 joint angles of the arm per sample" in \
         err[0] and "got 3 columns" in err[0], err
+
+
+def test_mat73_cells_that_are_not_references_or_loop_are_refused(tmp_path):
+    arm = sim.arm7(seed=0, n_demos=2, n_steps=10)
+    path = writers.write_mat73(tmp_path / "c.mat", {"X": [arm.X[arm.demo == d].T for d in arm.demo_ids]})
+    cfg = {"files": [str(path)], "state": {"variable": "X", "samples": "columns"}, "time": {"rate": 10}}
+    assert load_demonstrations(cfg).n_samples == 20  # as written
+    with h5py.File(path, "a") as f:  # the cell's references replaced by bytes
+        del f["X"]
+        f["X"] = np.zeros((2, 1), dtype=np.uint8)
+        f["X"].attrs["MATLAB_class"] = b"cell"
+    refused(cfg, "a cell must hold object references, got uint8")
+    with h5py.File(path, "a") as f:  # a cell whose only element is the cell itself
+        del f["X"]
+        ds = f.create_dataset("X", shape=(1, 1), dtype=h5py.ref_dtype)
+        ds.attrs["MATLAB_class"] = b"cell"
+        ds[0, 0] = ds.ref
+    refused(cfg, "nested deeper than 32 levels")

@@ -43,6 +43,8 @@ from ccl_cli.io.summary import summary
 NUMERIC_CLASSES = {"double", "single", "int8", "uint8", "int16", "uint16", "int32", "uint32",
                    "int64", "uint64", "logical"}
 CONTAINERS = {"cell", "struct"}
+#: cells and structs nested deeper than this are refused (references may loop)
+MAX_DEPTH = 32
 
 Value = np.ndarray | list  # a numeric (or char) array, or one value per cell / struct element
 
@@ -153,10 +155,12 @@ class _V73:
             raise InputError(f"{self.path}: variable {name!r} not found (variables: {names})")
         return self._walk(self.f[name], fields, name)
 
-    def _walk(self, obj, fields: list[str], at: str) -> Value:
+    def _walk(self, obj, fields: list[str], at: str, depth: int = 0) -> Value:
         import h5py
 
         where = f"{self.path}: {at}"
+        if depth > MAX_DEPTH:  # cells of cells, or references that loop
+            raise InputError(f"{where}: cells or structs nested deeper than {MAX_DEPTH} levels; refused")
         cls = _cls(obj)
         if cls == "struct" or (isinstance(obj, h5py.Group) and not cls):
             if not isinstance(obj, h5py.Group):
@@ -171,16 +175,23 @@ class _V73:
             if isinstance(child, h5py.Dataset) and child.dtype == h5py.ref_dtype and _cls(child) != "cell":
                 refs = self._read(child, f"{where}.{field}").ravel()  # struct array: a reference per element
                 if len(refs) > 1:
-                    return [self._walk(self.f[r], rest, f"{at}({k + 1}).{field}") for k, r in enumerate(refs)]
-                return self._walk(self.f[refs[0]], rest, f"{at}.{field}")
-            return self._walk(child, rest, f"{at}.{field}")
+                    return [self._walk(self._deref(r, where), rest, f"{at}({k + 1}).{field}", depth + 1)
+                            for k, r in enumerate(refs)]
+                if not len(refs):
+                    raise InputError(f"{where}.{field}: a struct array without elements")
+                return self._walk(self._deref(refs[0], where), rest, f"{at}.{field}", depth + 1)
+            return self._walk(child, rest, f"{at}.{field}", depth + 1)
         if fields:
             raise InputError(f"{where} is not a struct (cannot take field {fields[0]!r})")
         if not isinstance(obj, h5py.Dataset):
             raise InputError(f"{where}: a group of MATLAB class {cls!r}; not readable")
         if cls == "cell":
+            if obj.dtype != h5py.ref_dtype:
+                raise InputError(f"{where}: a cell must hold object references, got {obj.dtype} "
+                                 "(damaged file?)")
             refs = self._read(obj, where).ravel()  # stored transposed: C order is MATLAB's linear order
-            return [self._walk(self.f[r], [], f"{at}{{{k + 1}}}") for k, r in enumerate(refs)]
+            return [self._walk(self._deref(r, where), [], f"{at}{{{k + 1}}}", depth + 1)
+                    for k, r in enumerate(refs)]
         if cls not in NUMERIC_CLASSES | {"char"} or \
                 attr_value(obj.attrs, "MATLAB_object_decode", where, None) is not None:
             raise _refuse(where, cls or "value without MATLAB_class")
@@ -193,6 +204,15 @@ class _V73:
             return np.asarray(raw, dtype=np.uint16).astype("U1") if raw.size else np.array([], "U1")
         return np.asarray(raw).T  # back to MATLAB's orientation
 
+    def _deref(self, ref: Any, where: str) -> Any:
+        """The object an object reference points to (a null or dangling one: InputError)."""
+        try:
+            if not ref:
+                raise ValueError("null reference")
+            return self.f[ref]
+        except (KeyError, ValueError, TypeError, OSError, RuntimeError) as exc:
+            raise InputError(f"{where}: a reference that cannot be followed ({error_text(exc)}); "
+                             "damaged file?") from None
 
     def _read(self, obj, where: str) -> np.ndarray:
         """A dataset's values, its declared size (as float64) checked before reading."""
