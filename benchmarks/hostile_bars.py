@@ -230,8 +230,10 @@ def measure(only: set[str] | None, gigabytes: float) -> dict[str, Any]:
             before = {p.name: p.read_bytes() for p in user.iterdir()}
             res = run(["batch", "--files", toy, "-c", pipeline, "-o", user, "-q", "-j", "1"], root,
                       timeout=120)
-            after = {p.name: p.read_bytes() for p in user.iterdir()}
-            results["batch_user_dir"] = {**res, "files_intact": before == after}
+            after = {p.name: p.read_bytes() for p in user.iterdir() if p.is_file()}
+            intact = all(after.get(k) == v for k, v in before.items())
+            results["batch_user_dir"] = {**res, "files_intact": intact,
+                                         "added": sorted({p.name for p in user.iterdir()} - set(before))}
         if want("batch_read_only_parent"):
             ro = root / "ro"
             ro.mkdir()
