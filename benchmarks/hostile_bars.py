@@ -106,7 +106,7 @@ def one_line_csv(root: Path, gigabytes: float) -> tuple[Path, Path]:
     block = b"1.0," * (1 << 18)
     with open(path, "wb") as f:
         f.write(b"%time,")
-        for _ in range(int(gigabytes * (1 << 30)) // len(block)):
+        for _ in range(int(gigabytes * 1e9) // len(block)):
             f.write(block)
     cfg = _yaml(root / "csv.yaml", {"data": {"state": {"columns": ["x"]}, "time": {"rate": 10}}, **STAGE})
     return path, cfg
