@@ -111,6 +111,7 @@ class WriteFailed(OutputError):
 
     def __init__(self, path: Path, reason: str) -> None:
         super().__init__(f"{path}: cannot write the output ({reason}); nothing was written")
+        self.path = Path(path)
         self.reason = reason
 
 
@@ -149,7 +150,11 @@ def _staged(path: Path, kind: _Kind) -> Iterator[Path]:
         yield tmp
         kind.commit(tmp, path)
         tmp = None
-    except (OSError, WriteFailed) as exc:  # a part inside failed: the output names itself
+    except OSError as exc:
+        raise _failed(path, exc) from None
+    except WriteFailed as exc:  # a part inside this output failed: the output names itself
+        if tmp is None or tmp not in exc.path.parents:
+            raise
         raise _failed(path, exc) from None
     finally:
         if tmp is not None:
