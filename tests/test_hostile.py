@@ -377,7 +377,8 @@ def test_reader_boundaries(capsys, tmp_path, csv_rec, case, match):
     assert not (tmp_path / "o.h5").exists()
 
 
-@pytest.mark.parametrize("edit", ["count_text", "topics_int", "duration_list", "storage_map", "deep"])
+@pytest.mark.parametrize("edit", ["count_text", "topics_int", "duration_list", "storage_map", "deep",
+                                  "paths_nested", "paths_none", "files_text"])
 def test_ros2_metadata_with_odd_types(capsys, tmp_path, edit):
     import sys
 
@@ -399,6 +400,12 @@ def test_ros2_metadata_with_odd_types(capsys, tmp_path, edit):
         info["duration"] = [1, 2]
     elif edit == "storage_map":
         info["storage_identifier"] = {"a": 1}
+    elif edit == "paths_nested":
+        info["relative_file_paths"] = [["x"]]
+    elif edit == "paths_none":
+        info["relative_file_paths"] = [None]
+    elif edit == "files_text":
+        info["files"] = "x"
     meta_path.write_text(yaml.safe_dump(meta) if edit != "deep" else "a: " + "[" * 30000 + "]" * 30000)
     (tmp_path / "c.yaml").write_text("data:\n  state: {topic: /joint_states, field: position}\n")
     for command in (["inspect", bag], ["convert", bag, "-o", tmp_path / "o.h5"]):
@@ -408,6 +415,8 @@ def test_ros2_metadata_with_odd_types(capsys, tmp_path, edit):
             one_line_error(err)
         if edit == "deep":  # refused by ccl's bounded YAML parser before rosbags sees it
             assert code == 2 and "nested deeper than 64 levels" in err
+        if edit.startswith(("paths", "files")):  # the storage file names, checked before rosbags opens
+            assert code == 2 and ("storage file name must be" in err or "must be lists" in err), err
 
 
 # -- never lose data ---------------------------------------------------------------------------

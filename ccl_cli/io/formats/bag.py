@@ -60,10 +60,11 @@ def storage_files(root: Path, metadata: Any, allow_outside: bool = False) -> lis
     if not isinstance(names, list) or not isinstance(files, list):
         raise InputError(f"{where}: relative_file_paths and files must be lists")
     names = [*names, *(e.get("path") for e in files if isinstance(e, dict))]
+    bad = next((n for n in names if not isinstance(n, str) or not n), None)
+    if bad is not None or not all(isinstance(n, str) for n in names):
+        raise InputError(f"{where}: a storage file name must be a non-empty string, got {bad!r}"[:200])
     out = []
     for name in dict.fromkeys(names):
-        if not isinstance(name, str) or not name:
-            raise InputError(f"{where}: a storage file name must be a non-empty string, got {name!r}"[:200])
         full = inside(root, name, where, allow_outside)
         if full.exists() or full.is_symlink():  # missing ones: rosbags explains
             regular_file(full, "a storage file of the bag")
