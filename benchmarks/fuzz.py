@@ -635,7 +635,8 @@ def _child(argv: list[str] | None, manifest: Path, errfile: str, env: dict[str, 
     fd = os.open(errfile, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
     os.dup2(fd, 2)
     os.dup2(fd, 1)
-    sys.stdout = sys.stderr = open(fd, "w", buffering=1, closefd=False)  # also under pytest's capture
+    # also under pytest's capture; undecodable text escaped, as Python's own stderr does
+    sys.stdout = sys.stderr = open(fd, "w", buffering=1, closefd=False, errors="backslashreplace")
     os.environ["CCL_DEBUG"] = "1"  # internal errors raise: we record where
     code = 0
     try:

@@ -318,3 +318,23 @@ def test_mat73_cells_that_are_not_references_or_loop_are_refused(tmp_path):
         ds.attrs["MATLAB_class"] = b"cell"
         ds[0, 0] = ds.ref
     refused(cfg, "nested deeper than 32 levels")
+
+
+def test_attribute_text_that_is_not_utf8_is_refused_in_plain_text(capsys, tmp_path):
+    """A MATLAB_class written as bytes that are not UTF-8 (h5py hands them back with
+    surrogate escapes): one line that any terminal can print."""
+    arm = sim.arm7(seed=0, n_demos=1, n_steps=10)
+    path = writers.write_mat73(tmp_path / "c.mat", {"X": arm.X.T})
+    with h5py.File(path, "a") as f:
+        f["X"].attrs["MATLAB_class"] = b"\xff\xfe"
+    code = main(["learn-a", str(path), "-o", str(tmp_path / "o"), "-c", str(_config(tmp_path)), "-q"])
+    err = capsys.readouterr().err
+    assert code == 2 and "MATLAB_class' must be" in err and err.count("\n") == 1, err
+    err.encode("utf-8")  # no lone surrogate left in the message
+
+
+def _config(tmp_path: Path) -> Path:
+    cfg = tmp_path / "mat.yaml"
+    cfg.write_text("data: {state: {variable: X, samples: columns}, time: {rate: 10}}\n"
+                   "learn-a: {method: nhat}\n")
+    return cfg

@@ -53,7 +53,11 @@ def _as_str(value: Any) -> str | None:
             return bytes(value).decode("utf-8")
         except UnicodeDecodeError:
             return None
-    if isinstance(value, str):
+    if isinstance(value, str):  # h5py decodes invalid UTF-8 with surrogate escapes: refused too
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            return None
         return str(value)
     return None
 
