@@ -338,3 +338,17 @@ def _config(tmp_path: Path) -> Path:
     cfg.write_text("data: {state: {variable: X, samples: columns}, time: {rate: 10}}\n"
                    "learn-a: {method: nhat}\n")
     return cfg
+
+
+def test_probe_memory_is_bounded(tmp_path, monkeypatch):
+    """What libhdf5 allocates while the probe parses a file is bounded (a damaged string or
+    attribute table can make it claim gigabytes): over the bound, the file is refused."""
+    path = tmp_path / "big.h5"
+    with h5py.File(path, "w") as f:
+        f["x"] = np.arange(5_000_000, dtype=np.float64)  # 40 MB, read by the probe
+    monkeypatch.setattr(h5probe, "PROBE_MEMORY", 20 << 20)
+    monkeypatch.setattr(h5probe.threading, "active_count", lambda: 1)
+    with pytest.raises(InputError, match="parsing the file needs more than 20 MiB of memory"):
+        h5probe.probe(path)
+    monkeypatch.setattr(h5probe, "PROBE_MEMORY", 200 << 20)
+    h5probe.probe(path)  # within the bound: parsed

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import faulthandler
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -43,6 +44,9 @@ TIMEOUT = float(os.environ.get("CCL_HDF5_TIMEOUT", "60"))
 #: datasets up to this many bytes are read in the child (larger ones: metadata only)
 PROBE_BYTES = 64 << 20
 MAX_OBJECTS = 100_000
+#: address space the probe may add to what its process maps already: a damaged file that
+#: makes libhdf5 allocate more (a string or attribute claiming gigabytes) is refused
+PROBE_MEMORY = 1 << 30
 
 
 def _walk(f, where: str) -> None:
@@ -86,6 +90,7 @@ def _probe_child(path: str, cpu_limit: int = CPU_LIMIT) -> str | None:
     import h5py
 
     resource.setrlimit(resource.RLIMIT_CPU, (cpu_limit, cpu_limit + 1))
+    _limit_memory()
     try:
         f = h5py.File(path, "r")
     except BaseException as exc:  # noqa: BLE001 - not HDF5, or a damaged superblock
@@ -95,9 +100,31 @@ def _probe_child(path: str, cpu_limit: int = CPU_LIMIT) -> str | None:
             _walk(f, path)
     except InputError as exc:
         return exc.message
+    except MemoryError:
+        return (f"{path}: parsing the file needs more than {PROBE_MEMORY >> 20} MiB of memory "
+                "(damaged HDF5?); refused")
     except BaseException as exc:  # noqa: BLE001 - whatever libhdf5 or h5py raised: refused
         return f"{path}: libhdf5 failed parsing the file ({error_text(exc)}; damaged HDF5?); refused"
     return None
+
+
+def _limit_memory() -> None:
+    """Bound the probe's address space to what it maps now plus :data:`PROBE_MEMORY`
+    (Linux: from /proc; elsewhere unbounded)."""
+    import resource
+
+    try:
+        status = Path("/proc/self/status").read_text()
+    except OSError:
+        return
+    found = re.search(r"^VmSize:\s+(\d+) kB", status, re.MULTILINE)
+    if found is None:
+        return
+    limit = int(found.group(1)) * 1024 + PROBE_MEMORY
+    _, hard = resource.getrlimit(resource.RLIMIT_AS)
+    if hard != resource.RLIM_INFINITY:
+        limit = min(limit, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
 
 
 def _probe_main(path: str, cpu_limit: str) -> None:
