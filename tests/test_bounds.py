@@ -346,9 +346,10 @@ def test_probe_memory_is_bounded(tmp_path, monkeypatch):
     path = tmp_path / "big.h5"
     with h5py.File(path, "w") as f:
         f["x"] = np.arange(5_000_000, dtype=np.float64)  # 40 MB, read by the probe
-    monkeypatch.setattr(h5probe, "PROBE_MEMORY", 20 << 20)
-    monkeypatch.setattr(h5probe.threading, "active_count", lambda: 1)
+    # a fresh interpreter (the probe's other path): no memory this process freed to reuse
+    monkeypatch.setattr(h5probe.threading, "active_count", lambda: 2)
+    monkeypatch.setenv("CCL_HDF5_MEMORY_MB", "20")
     with pytest.raises(InputError, match="parsing the file needs more than 20 MiB of memory"):
         h5probe.probe(path)
-    monkeypatch.setattr(h5probe, "PROBE_MEMORY", 200 << 20)
+    monkeypatch.setenv("CCL_HDF5_MEMORY_MB", "400")
     h5probe.probe(path)  # within the bound: parsed

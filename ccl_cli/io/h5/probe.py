@@ -44,9 +44,9 @@ TIMEOUT = float(os.environ.get("CCL_HDF5_TIMEOUT", "60"))
 #: datasets up to this many bytes are read in the child (larger ones: metadata only)
 PROBE_BYTES = 64 << 20
 MAX_OBJECTS = 100_000
-#: address space the probe may add to what its process maps already: a damaged file that
-#: makes libhdf5 allocate more (a string or attribute claiming gigabytes) is refused
-PROBE_MEMORY = 1 << 30
+#: address space (bytes) the probe may add to what its process maps already: a damaged
+#: file that makes libhdf5 allocate more (a string or attribute claiming gigabytes) is refused
+PROBE_MEMORY = int(os.environ.get("CCL_HDF5_MEMORY_MB", "1024")) << 20
 
 
 def _walk(f, where: str) -> None:
