@@ -41,7 +41,7 @@ STAGE = {"learn-a": {"method": "nhat"}, "stages": ["learn-a"], "output": {"plots
 
 def run(argv: list[str], cwd: Path, timeout: float = 60.0, preexec: Any = None,
         prefix: list[str] | None = None) -> dict[str, Any]:
-    """Run one ccl command; exit status, seconds, peak RSS (MB) and stderr lines."""
+    """Run one ccl command; exit status, wall and CPU seconds, peak RSS (MB) and stderr lines."""
     err = cwd / ".stderr"
     t0 = time.monotonic()
     with open(err, "wb") as e:
@@ -61,7 +61,8 @@ def run(argv: list[str], cwd: Path, timeout: float = 60.0, preexec: Any = None,
     seconds = time.monotonic() - t0
     lines = [ln for ln in err.read_text(errors="replace").splitlines() if ln.strip()]
     err.unlink()
-    return {"exit": code, "seconds": round(seconds, 2), "peak_rss_mb": round(usage.ru_maxrss / 1024, 1),
+    return {"exit": code, "seconds": round(seconds, 2), "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
+            "peak_rss_mb": round(usage.ru_maxrss / 1024, 1),
             "stderr_lines": len(lines), "first_line": lines[0][:200] if lines else ""}
 
 
