@@ -506,6 +506,8 @@ def batch(
                                                 show_default="the number of cores")] = None,
     scheduler: Annotated[str | None, typer.Option(help="Address of a running Dask scheduler.")] = None,
     force: Annotated[bool, typer.Option("--force", help="Re-run jobs whose outputs are up to date.")] = False,
+    allow_outside: Annotated[bool, typer.Option("--allow-outside", help="Let the manifest name paths "
+                                                "outside its folder.")] = False,
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> int:
     """Run a pipeline per recording (or group) in parallel; resumable; summary.csv/.md/.png."""
@@ -519,7 +521,7 @@ def batch(
         raise ConfigError("batch --files needs --config/-c: a pipeline YAML with a stages: list")
     if scheduler is None:
         start_workers(workers, (write_run.__module__,))  # the workers' imports overlap the planning
-    jobs, manifest_out = plan(manifest, files, str(config) if config else None)
+    jobs, manifest_out = plan(manifest, files, str(config) if config else None, allow_outside)
     outdir = out or manifest_out or Path("runs") / "batch"
     from ccl_cli.render.figures import preload_in_background
 

@@ -463,15 +463,14 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
 
 def is_model_file(path: str | Path) -> bool:
     """Whether ``path`` is an HDF5 file whose ``format`` attribute says ccl model (a file
-    that is not HDF5, or cannot be opened, is not)."""
+    that is not HDF5 is not). A FIFO, device or folder is refused (InputError), never opened
+    to wait on."""
+    from ccl_cli.io.limits import open_regular
     from ccl_cli.io.sniff import HDF5_MAGIC
 
     path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            head = f.read(1024)
-    except OSError:
-        return False
+    with open_regular(path) as f:
+        head = f.read(1024)
     if HDF5_MAGIC not in head:  # at 0, or behind the 512-byte user block ccl writes
         return False
     with open_hdf5(path, "model file") as f:

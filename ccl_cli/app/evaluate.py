@@ -120,9 +120,9 @@ def write_predictions(out: Path, outputs: dict[str, np.ndarray], model_path: Pat
         with atomic_path(out, force=force) as tmp:
             np.savetxt(tmp, np.hstack(cols), delimiter=",", header=",".join(names), comments="")
         return
-    import h5py
+    from ccl_cli.io.h5.seal import create_hdf5
 
-    with atomic_path(out, force=force) as tmp, h5py.File(tmp, "w") as f:
+    with create_hdf5(out, force=force, sealed=False) as f:
         f.attrs["format"] = "ccl-predictions"
         f.attrs["model"] = str(model_path)
         f.attrs["method"] = method

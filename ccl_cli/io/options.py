@@ -168,8 +168,9 @@ class DataOptions(Options):
     """The ``data`` section: ``files`` (paths or globs), the ``format`` (auto: from the
     content), the ``state`` stream, the ``action`` (a stream, or derived from the state when
     absent), ``time``, ``demos``, what to do with samples holding NaN or inf (``nonfinite``),
-    with sensor ``faults``, the ``typestore`` of ROS 2 bags without message definitions, and
-    the fewest samples a dataset may have (``min_samples``)."""
+    with sensor ``faults``, the ``typestore`` of ROS 2 bags without message definitions, the
+    fewest samples a dataset may have (``min_samples``), and whether the files a ROS 2 bag's
+    metadata names may lie outside its folder (``allow_outside``; symlinks resolved)."""
 
     files: str | Path | list[str | Path] | None = Field(None, description="a path or a list of paths")
     format: Format = "auto"
@@ -181,6 +182,7 @@ class DataOptions(Options):
     nonfinite: Literal["drop", "fail"] = "drop"
     faults: FaultOptions = FaultOptions()
     min_samples: int = Field(2, ge=1, description="an integer ≥ 1")
+    allow_outside: bool = False
 
     @classmethod
     def from_mapping(cls, value: Self | Mapping[str, Any] | None, where: str = "", prefix: str = "data"
