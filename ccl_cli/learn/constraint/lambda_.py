@@ -26,25 +26,35 @@ from ccl_cli.learn.params import Fields, Options, parameters
 Features = Callable[[np.ndarray], np.ndarray]
 #: A built-in arm's Jacobian: its name, or {arm, rows} to keep some of its rows.
 _ARM = Options.of(ArmName)
+#: A robot's Jacobian rows: {robot: a URDF / MJCF path or {dh: [[a, d, alpha, theta0], ...], ...},
+#: frame, base, rows} (:func:`ccl_cli.learn.robots.robot_features`; ``urdf``: the stored form).
+ROBOT = Fields({"robot": [str, dict], "urdf": [str], "frame": [str, None], "base": [str, None],
+                "rows": [list, None], "kind": [str]})
 FEATURE_PARAMS: dict[str, list] = {
-    "features": [_ARM, Fields({"arm": [_ARM], "rows": [list, None]}), callable]}
+    "features": [_ARM, Fields({"arm": [_ARM], "rows": [list, None], "kind": [str]}), ROBOT, callable]}
 #: ‖Φu‖ below this carries no information about Λ.
 MIN_TASK_NORM = 1e-3
 
 
 def make_features(spec: ArmName | dict | Features) -> Features:
-    """Φ from a callable (X (N, p) → (N, r, q)) or a built-in arm: ``"arm2"``,
-    ``"arm7"``, or ``{"arm": "arm7", "rows": [0, 1, 2]}``."""
+    """Φ from a callable (X (N, p) → (N, r, q)), a built-in arm (``"arm2"``, ``"arm7"``, or
+    ``{"arm": "arm7", "rows": [0, 1, 2]}``) or a robot (``{"robot": "lwr.urdf", "frame":
+    "flange", "rows": [0, 1, 2]}``, also a DH table: ``{"robot": {"dh": [[a, d, α, θ0], ...]}}``)."""
     if callable(spec):
         return spec
     if isinstance(spec, str):
         spec = {"arm": spec}
+    if isinstance(spec, dict) and ("robot" in spec or "urdf" in spec):
+        from ccl_cli.learn.robots import robot_features
+
+        return robot_features(spec)
     if isinstance(spec, dict) and "arm" in spec:
         try:
             return ArmFeatures(spec["arm"], spec.get("rows"))
         except ValueError as exc:
             raise ConfigError(str(exc)) from exc
-    raise ConfigError(f"features must be a callable or a built-in arm (arm2, arm7), got {spec!r}")
+    raise ConfigError(f"features must be a callable, a built-in arm (arm2, arm7) or a robot ({{robot: "
+                      f"arm.urdf, frame: tool0, rows: [0, 1, 2]}}), got {spec!r}"[:300])
 
 
 @parameters
