@@ -459,14 +459,15 @@ def inspect_cmd(
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """What a file holds. A recording: topics (type, count, rate over the active time, fields,
-    joint names), CSV columns, time span and the demonstrations a gap split finds (default gap:
-    5 × the median sampling interval). A model file: its method, constraints, basis and what it
+    joint names), CSV columns, time span and the stretches between pauses (default: longer than
+    5 × the median sampling interval); with -c, the demonstrations learning reads with that
+    config. A model file: its method, constraints, basis and what it
     was trained on (inputs, config, figures)."""
     from ccl_cli.app.evaluate import inspect_file
 
     _logging(quiet)
     cfg = _config(config, {})
-    info = inspect_file(data, cfg.spec.data, gap)
+    info = inspect_file(data, cfg.spec.data, gap, configured=config is not None)
     if json_out:
         _emit(info, True)
         return

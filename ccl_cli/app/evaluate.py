@@ -144,12 +144,33 @@ def predict_saved(model_path: Path, data: Demonstrations, out: Path, force: bool
             "outputs": sorted(outputs)}
 
 
-def inspect_file(path: Path, options: Any = None, gap: float | None = None) -> dict[str, Any]:
+def inspect_file(path: Path, options: Any = None, gap: float | None = None,
+                 configured: bool = False) -> dict[str, Any]:
     """``ccl inspect``: what a model file holds (:func:`ccl_cli.models.describe_model`), or what
-    a recording holds (:func:`ccl_cli.io.inspect_recording`)."""
-    from ccl_cli.io import inspect_recording
+    a recording holds (:func:`ccl_cli.io.inspect_recording`). ``configured`` (a config was
+    given): the recording is also read as learning reads it with ``options``, and
+    ``as_configured`` says what learning would get — demonstrations, samples each, names and
+    the reader's warnings — so that inspect and learn never disagree on the demonstrations."""
+    from ccl_cli.io import inspect_recording, read_dataset
     from ccl_cli.models import describe_model, is_model_file
 
     if is_model_file(path):
         return describe_model(path)
-    return inspect_recording(path, options, gap)
+    info = inspect_recording(path, options, gap)
+    if configured:
+        data, _ = read_dataset(options, [path])
+        counts = np.bincount(np.unique(data.demo, return_inverse=True)[1])
+        info["as_configured"] = {
+            "demos": int(len(counts)), "samples": int(data.n_samples),
+            "samples_per_demo": counts.tolist(),
+            "seconds": round(float(sum(np.ptp(data.t[data.demo == d]) for d in np.unique(data.demo))), 3),
+            "state_names": list(data.state_names), "action_names": list(data.action_names),
+            "split": _split_words(options)}
+    return info
+
+
+def _split_words(options: Any) -> str:
+    """How the config's ``data.demos`` cuts a recording, in words."""
+    demos = options.demos
+    said = [f"{k}: {v}" for k, v in demos.model_dump(exclude_defaults=True).items()]
+    return "data.demos: {" + ", ".join(said) + "}" if said else "no data.demos option: one per file/run"

@@ -17,6 +17,7 @@ from ccl_cli.io.files import expand_files, file_hash
 from ccl_cli.io.options import DataOptions
 from ccl_cli.io.reader import Recording
 from ccl_cli.io.registry import format_of, open_reader
+from ccl_cli.io.units import configured, fill_units
 
 Options = DataOptions | Mapping[str, Any] | None
 
@@ -42,6 +43,8 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
             recordings.append(reader.read())
     parts = [r.data for r in recordings]
     data = parts[0] if len(parts) == 1 else Demonstrations.concatenate(parts)
+    fill_units(data, configured(options.state and options.state.units, data.n_state, "data.state"),
+               configured(options.action and options.action.units, data.n_action, "data.action"))
     data.metadata = {"files": [{"path": str(p), "sha256": file_hash(p),
                                 **{k: v for k, v in part.metadata.items() if k != "source"}}
                                for p, part in zip(paths, parts, strict=True)],

@@ -67,7 +67,9 @@ class StreamOptions(Options):
     names or 0-based indices), a ``dataset`` (HDF5 layouts) or ``variable`` (.mat, dotted for
     struct fields); ``stamp``: header.stamp where present, or the log time; ``file``: a
     sibling text file holding this stream; ``samples``: which side of a matrix holds the
-    samples (rows: one sample per row, as NumPy and HDF5 writers store them)."""
+    samples (rows: one sample per row, as NumPy and HDF5 writers store them); ``units``: the
+    unit of every dimension, or one list entry per dimension (shown in reports and figures;
+    JointState fields and derived actions get theirs without it)."""
 
     topic: str | None = None
     field: str | None = None
@@ -78,6 +80,7 @@ class StreamOptions(Options):
     variable: str | None = None
     file: str | None = None
     samples: Literal["rows", "columns"] | None = None
+    units: str | list[str] | None = Field(None, description="a unit, or a list of one per dimension")
 
     def describe(self) -> str:
         """'/joint_states field position', or 'columns [...]' (for messages)."""

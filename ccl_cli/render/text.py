@@ -96,8 +96,15 @@ def inspect_lines(info: dict[str, Any]) -> list[str]:
     for node in info.get("tree", []):  # HDF5 / .mat contents
         out.append("  " + "  ".join(str(v) for k, v in node.items() if k != "names"))
     if "gap_s" in info and "demos" in info:
-        out.append(f"demos:    {info['demos']} in {info.get('demos_from')} (split on pauses > "
-                   f"{info['gap_s']:.3g} s: {info.get('gap_rule')}; change with --gap)")
+        out.append(f"pauses:   {info['demos']} stretches in {info.get('demos_from')} between pauses > "
+                   f"{info['gap_s']:.3g} s ({info.get('gap_rule')}; change with --gap)")
+    if "as_configured" in info:
+        c = info["as_configured"]
+        each = c["samples_per_demo"]
+        shown = ", ".join(map(str, each[:8])) + (", …" if len(each) > 8 else "")
+        out.append(f"learning reads: {c['demos']} demonstration(s), {c['samples']} samples ({shown}), "
+                   f"{c['seconds']:.2f} s; {c['split']}")
+        out.append(f"  state {', '.join(c['state_names'])}; action {', '.join(c['action_names'])}")
     for key in ("samples", "demos", "samples_per_demo", "state_names", "action_names", "truth", "masks"):
         if key in info and not (key == "demos" and "gap_s" in info):
             out.append(f"{key + ':':9s} {info[key]}")
