@@ -72,6 +72,18 @@ def model_lines(info: dict[str, Any]) -> list[str]:
     return out
 
 
+def utc(ns: int) -> str:
+    """A log time (int ns since the Unix epoch) as an ISO date in UTC, to the millisecond;
+    a stamp before 1980 is a time since boot or a simulation clock, shown as seconds."""
+    if ns < 315_532_800 * 10**9:
+        return f"{ns / 1e9:.3f} s (a clock that is not a date: time since boot or simulation time)"
+    from datetime import UTC, datetime
+
+    seconds, rest = divmod(int(ns), 10**9)
+    stamp = datetime.fromtimestamp(seconds, tz=UTC)
+    return stamp.strftime("%Y-%m-%d %H:%M:%S") + f".{rest // 10**6:03d} UTC"
+
+
 def inspect_lines(info: dict[str, Any]) -> list[str]:
     """``ccl inspect``'s text rendering (one function, so every format's listing shows here)."""
     if info.get("format") == "ccl-model":
@@ -80,6 +92,12 @@ def inspect_lines(info: dict[str, Any]) -> list[str]:
     if "duration_s" in info:
         span = "summed over demonstrations" if info["format"] == "hdf5" else "first to last message"
         out.append(f"duration: {info['duration_s']:.3f} s ({span})")
+    if info.get("start_ns") is not None and info.get("end_ns") is not None:
+        out.append(f"start:    {utc(info['start_ns'])}")
+        out.append(f"end:      {utc(info['end_ns'])}")
+    for key in ("storage", "compression", "encoding"):
+        if info.get(key):
+            out.append(f"{key + ':':9s} {info[key]}")
     for topic, t in (info.get("topics") or {}).items():
         rate = f"{t['rate_hz']:.1f} Hz" if t.get("rate_hz") else "-"
         out.append(f"  {topic:30s} {t['type']:36s} {t['count']:>9d} msgs  {rate:>10s}"
