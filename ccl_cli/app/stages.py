@@ -17,7 +17,7 @@ import numpy as np
 
 from ccl_cli import diagnostics
 from ccl_cli.app import scoring
-from ccl_cli.app.views import View, describe_constraint, stage_views
+from ccl_cli.app.views import View, constant_rows, describe_constraint, stage_views
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn import model_selection
@@ -294,6 +294,9 @@ class Pipeline:
             evidence = diagnostics.constraint_evidence(model, d, d.U)
             result.info["evidence"] = {"part": part, **evidence} if evidence else None
             checks += diagnostics.does_not_hold("learn-a", evidence, f"{part} data")
+        rows = constant_rows(model, tr)
+        if rows is not None:
+            self.warnings += diagnostics.emit(diagnostics.constraint_varies("learn-a", rows, tr, target))
         self._judge(result, checks)
         return result
 
@@ -362,6 +365,8 @@ class Pipeline:
                 result.baseline.predict(d.X), d, constraint if knows[part] else None, targets[part], of)
             self._score_parts(baseline)
             result.info["baseline"] = {"method": "dpl", **baseline.metrics}
+        self.warnings += diagnostics.emit(diagnostics.not_identifiable(
+            "learn-pi", tr, self._target(on, "train", tr)))
         self._judge(result, self._policy_checks(result))
         return result
 
