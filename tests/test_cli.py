@@ -113,7 +113,11 @@ def test_simulate_learn_evaluate_predict_round_trip(tmp_path):
         assert np.array_equal(f["N"][()], est.projection(d.X, groups=d.demo))
     ccl("predict", model, data, "-o", tmp_path / "pred.csv")
     header = (tmp_path / "pred.csv").read_text().splitlines()[0].split(",")
-    assert header[:2] == ["x_0", "x_1"] and "N_48" in header
+    assert header[:2] == [f"x.{n}" for n in d.state_names[:2]] and "N[6][6]" in header
+    assert header[header.index("t [s]") - 1] == f"u.{d.action_names[-1]}"
+    with h5py.File(tmp_path / "pred.h5") as f:  # names and units beside each dataset
+        assert list(f["w"].attrs["names"]) == [f"w.{n}" for n in d.action_names]
+        assert len(f["N"].attrs["names"]) == 49
 
 
 @pytest.mark.parametrize("kind", ["alpha", "lambda", "linear", "ncl", "policy", "per_demo"])

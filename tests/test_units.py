@@ -58,3 +58,17 @@ def test_report_and_run_record_name_the_units(capsys, tmp_path):
     assert record["data"]["states"][0] == f"{JOINTS[0]}.position [rad]"
     assert record["data"]["actions"][0] == f"{JOINTS[0]}.velocity [rad/s]"
     assert f"{JOINTS[0]}.velocity [rad/s]" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_predictions_name_each_column_with_its_unit(capsys, tmp_path):
+    path = write_mcap_ros2(tmp_path / "r.mcap", joint_recording(n=400))
+    config = tmp_path / "c.yaml"
+    config.write_text(json.dumps({"data": {"state": {"topic": "/joint_states", "field": "position"},
+                                           "action": {"topic": "/joint_states", "field": "velocity"}},
+                                  "learn-a": {"method": "nhat"}, "stages": ["learn-a"]}))
+    assert main(["learn-a", str(path), "-c", str(config), "-o", str(tmp_path / "a"), "-q"]) == 0
+    assert main(["predict", str(tmp_path / "a" / "model.h5"), str(path), "-c", str(config),
+                 "-o", str(tmp_path / "p.csv"), "-q"]) == 0
+    header = (tmp_path / "p.csv").read_text().splitlines()[0].split(",")
+    assert header[0] == f"x.{JOINTS[0]}.position [rad]"
+    assert f"w.{JOINTS[6]}.velocity [rad/s]" in header and "t [s]" in header and "demo" in header

@@ -102,10 +102,29 @@ def predict(model: Any, kind: str, data: Demonstrations) -> dict[str, np.ndarray
     return outputs
 
 
+def output_names(key: str, width: int, data: Demonstrations | None) -> tuple[list[str], list[str]]:
+    """Names and units of the ``width`` columns of prediction ``key``: the data's state names
+    for x, its action names for u, w, v and π (``w.<name>``), N[i][j] for the projection,
+    t in s; ``key_j`` without names."""
+    states = (data.state_names, data.state_units) if data is not None else None
+    actions = (data.action_names, data.action_units) if data is not None else None
+    named = {"x": states, "u": actions, "w": actions, "v": actions, "pi": actions}.get(key)
+    if width == 1:
+        return [key], ["s" if key == "t" else ""]
+    if named is not None and len(named[0]) == width:
+        return [f"{key}.{n}" for n in named[0]], list(named[1])
+    if key == "N" and data is not None and width == data.n_action ** 2:
+        q = data.n_action
+        return [f"N[{i}][{j}]" for i in range(q) for j in range(q)], [""] * width
+    return [f"{key}_{j}" for j in range(width)], [""] * width
+
+
 def write_predictions(out: Path, outputs: dict[str, np.ndarray], model_path: Path, method: str,
-                      force: bool = False) -> None:
-    """Write predictions atomically as CSV (one column per component, a header row) or HDF5
-    (one dataset per output, attrs format="ccl-predictions", model, method)."""
+                      force: bool = False, data: Demonstrations | None = None) -> None:
+    """Write predictions atomically as CSV (one column per component, a header row naming
+    each by the data's names with its unit: ``w.joint_1.velocity [rad/s]``) or HDF5 (one
+    dataset per output with ``names`` and ``units`` attributes; attrs format="ccl-predictions",
+    model, method)."""
     from ccl_cli.io.atomic import atomic_path
 
     suffix = out.suffix.lower()
@@ -116,7 +135,8 @@ def write_predictions(out: Path, outputs: dict[str, np.ndarray], model_path: Pat
         for key, arr in outputs.items():
             flat = arr.reshape(len(arr), -1)
             cols.append(flat)
-            names += [key] if flat.shape[1] == 1 else [f"{key}_{j}" for j in range(flat.shape[1])]
+            labels, units = output_names(key, flat.shape[1], data)
+            names += [f"{n} [{u}]" if u else n for n, u in zip(labels, units, strict=True)]
         with atomic_path(out, force=force) as tmp:
             np.savetxt(tmp, np.hstack(cols), delimiter=",", header=",".join(names), comments="")
         return
@@ -127,7 +147,9 @@ def write_predictions(out: Path, outputs: dict[str, np.ndarray], model_path: Pat
         f.attrs["model"] = str(model_path)
         f.attrs["method"] = method
         for key, arr in outputs.items():
-            f.create_dataset(key, data=arr)
+            ds = f.create_dataset(key, data=arr)
+            labels, units = output_names(key, int(np.prod(arr.shape[1:], dtype=int)), data)
+            ds.attrs["names"], ds.attrs["units"] = labels, units
 
 
 def predict_saved(model_path: Path, data: Demonstrations, out: Path, force: bool = False) -> dict[str, Any]:
@@ -139,7 +161,7 @@ def predict_saved(model_path: Path, data: Demonstrations, out: Path, force: bool
     est, info = load_model(model_path)
     check_dimensions(est, data)
     outputs = predict(est, info["kind"], data)
-    write_predictions(out, outputs, model_path, info["method"], force)
+    write_predictions(out, outputs, model_path, info["method"], force, data)
     return {"status": "ok", "command": "predict", "out": str(out), "samples": data.n_samples,
             "outputs": sorted(outputs)}
 
