@@ -466,7 +466,7 @@ def inspect_cmd(
 
     _logging(quiet)
     cfg = _config(config, {})
-    info = inspect_file(data, cfg.spec.data, gap)
+    info = inspect_file(data, cfg.spec.data, gap, cfg.base)
     if json_out:
         _emit(info, True)
         return

@@ -144,7 +144,8 @@ def predict_saved(model_path: Path, data: Demonstrations, out: Path, force: bool
             "outputs": sorted(outputs)}
 
 
-def inspect_file(path: Path, options: Any = None, gap: float | None = None) -> dict[str, Any]:
+def inspect_file(path: Path, options: Any = None, gap: float | None = None, base: Path | None = None
+                 ) -> dict[str, Any]:
     """``ccl inspect``: what a model file holds (:func:`ccl_cli.models.describe_model`), or what
     a recording holds (:func:`ccl_cli.io.inspect_recording`)."""
     from ccl_cli.io import inspect_recording
@@ -152,4 +153,4 @@ def inspect_file(path: Path, options: Any = None, gap: float | None = None) -> d
 
     if is_model_file(path):
         return describe_model(path)
-    return inspect_recording(path, options, gap)
+    return inspect_recording(path, options, gap, base)
