@@ -25,7 +25,7 @@ from ccl_cli.io.derivative import derive_actions
 from ccl_cli.io.options import DataOptions, DemoOptions, FaultOptions, StreamOptions
 from ccl_cli.io.reader import ReaderBase, Recording
 from ccl_cli.io.segment import segment_ids
-from ccl_cli.io.task_space import to_task_space
+from ccl_cli.io.task_space import log_joint_names, to_task_space, with_joints
 
 log = logging.getLogger("ccl")
 
@@ -75,7 +75,8 @@ class StreamReader(ReaderBase):
             raise InputError(f"{self.path}: data.state is required for {self.format} input "
                              "(e.g. state: {topic: /joint_states, field: position})")
         derive = o.derives_action
-        selections = [o.state] if derive else [o.state, o.action]
+        fk = o.state.forward_kinematics
+        selections = [with_joints(s, fk) for s in ([o.state] if derive else [o.state, o.action])]
         signal = o.demos.where
         raw = self.streams(selections + ([signal.selection()] if signal is not None else []))
         state = _repaired(raw[0], selections[0], o)
@@ -104,8 +105,9 @@ class StreamReader(ReaderBase):
         else:
             action_names = [f"d{n}/dt" for n in state.names]
         state_names, units = state.names, None
-        if o.state.forward_kinematics is not None:  # joints → end-effector pose (and velocity)
-            X, U, joints = to_task_space(X, U, o.state.forward_kinematics, state.names, str(self.path))
+        if fk is not None:  # joints → end-effector pose (and velocity)
+            names = log_joint_names(selections[0], state.names)
+            X, U, joints = to_task_space(X, U, fk, names, str(self.path))
             state_names = joints.names
             action_names = [f"v{n}" for n in joints.names] if U is not None else \
                 [f"d{n}/dt" for n in joints.names]
@@ -163,7 +165,11 @@ def _repair_faults(stream: Stream, options: FaultOptions, demos: DemoOptions, wh
 
     t0 = stream.t_ns[0]
     t_s = (stream.t_ns - t0) / 1e9
-    pieces = segment_ids(np.maximum.accumulate(t_s), demos, where)
+    phases = {"where": None, "min_duration": None}
+    if isinstance(demos.ranges, dict):
+        phases["ranges"] = None
+    cuts = demos.model_copy(update=phases)  # faults are searched per demonstration, not per phase
+    pieces = segment_ids(np.maximum.accumulate(t_s), cuts, where)
     cleaned = clean_positions(t_s, stream.values, pieces, flips=options.flips,
                               drop_spikes=options.spikes == "drop", stamps=options.stamps == "repair")
     if not cleaned.findings:

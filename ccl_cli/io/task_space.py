@@ -7,9 +7,11 @@ recorded joint-velocity action q̇ is mapped through the Jacobian: v = J_p(q) q�
 (ALGORITHMS.md §3.3: the constraint at the end effector, A(q) = nᵀJ_p(q)); otherwise the
 action is derived from x as for any state.
 
-The log's joint names (JointState names, CSV headers, HDF5 name attributes) are matched to
-the chain's with :func:`ccl_cli.learn.robots.match_joints`; a log without names (.mat
-matrices) is taken in the chain's joint order and must have its number of columns.
+The log's joint names (a JointState's ``joints``, CSV headers, HDF5 name attributes) are
+matched to the chain's with :func:`ccl_cli.learn.robots.match_joints` (any order, one common
+prefix allowed); a JointState topic without ``joints`` is read by the chain's joint names; a
+log without names (.mat matrices) is taken in the chain's joint order and must have its
+number of columns.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
-from ccl_cli.io.options import ForwardKinematicsOptions
+from ccl_cli.io.options import ForwardKinematicsOptions, StreamOptions
 from ccl_cli.learn.robots import Chain, load_robot, match_joints, quaternions
 
 POSITION_NAMES = ["x", "y", "z"]
@@ -70,15 +72,32 @@ def continuous(quat: np.ndarray) -> np.ndarray:
     return quat * np.cumprod(flips)[:, None]
 
 
+def with_joints(selection: StreamOptions, options: ForwardKinematicsOptions | None) -> StreamOptions:
+    """A JointState ``selection`` (a topic) without ``joints`` reads the robot's joints by name, in
+    the chain's order; any other selection as it is."""
+    if options is None or selection.topic is None or selection.joints is not None:
+        return selection
+    return selection.model_copy(update={"joints": _chain(options, selection.topic).joint_names})
+
+
+def log_joint_names(selection: StreamOptions, names: list[str]) -> list[str]:
+    """The joint names of a log's columns: a JointState's ``joints``, else the column names."""
+    return list(selection.joints) if selection.joints is not None else names
+
+
+def _chain(options: ForwardKinematicsOptions, where: str) -> Chain:
+    try:
+        return load_robot(options.robot, options.frame, options.base)
+    except (ConfigError, InputError) as exc:
+        raise InputError(f"{where}: state.forward_kinematics: {exc}") from None
+
+
 def joint_map(options: ForwardKinematicsOptions, log_names: list[str] | None, n_columns: int,
               where: str) -> JointMap:
     """The chain of ``options`` and the columns of the log holding its joints: by name when the
     log names its columns (``log_names``), else by position (``n_columns`` must equal the
     chain's joint count). Errors name the file, the robot and the joints at fault."""
-    try:
-        chain = load_robot(options.robot, options.frame, options.base)
-    except (ConfigError, InputError) as exc:
-        raise InputError(f"{where}: state.forward_kinematics: {exc}") from None
+    chain = _chain(options, where)
     if log_names is None:
         if n_columns != chain.n_joints:
             raise InputError(f"{where}: state.forward_kinematics: the log has {n_columns} joint columns, "
