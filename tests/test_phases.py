@@ -252,3 +252,42 @@ def test_bar_lwr_wipe_mat_joints_forward_kinematics(tmp_path, capsys, lwr_log):
     task = load_demonstrations({**data_cfg, "state": {"variable": "proc_data.X", "samples": "columns",
                                                       "columns": [0, 1, 2]}})
     np.testing.assert_allclose(data.X, task.X, atol=1e-12)
+
+
+def test_shipped_lwr_wipe_configs(tmp_path, capsys):
+    """configs/lwr_wipe_{mat,fk,joints}.yaml on sample_data/lwr_wipe.mat (the tutorial
+    docs/tutorials/kuka_wipe.md): six wipes from labelled ranges and from the force cut, each
+    learnt normal within 1° of its wipe's plane; in joint space, A(q) ∥ nᵀJ_p(q) for the normal
+    of the plane of all wipes."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    normals = {}
+    for name in ("lwr_wipe_mat", "lwr_wipe_fk"):
+        cfg = root / "configs" / f"{name}.yaml"
+        out = tmp_path / name
+        assert main(["run", str(cfg), "-o", str(out), "--json", "-q"]) == 0
+        summary = json.loads(capsys.readouterr().out)
+        assert summary["stages"]["learn-a"]["n_constraints"] == 1
+        model, _ = load_model(out / "model.h5")
+        data = load_demonstrations(yaml.safe_load(cfg.read_text())["data"], base=cfg.parent)
+        assert data.n_demos == 6
+        for d in model.models_:
+            X = data.X[data.demo == d]
+            plane = np.linalg.svd(X - X.mean(0))[2][-1]
+            normals[(name, d)] = np.linalg.eigh(model.models_[d].projection(X[:1])[0])[1][:, 0]
+            assert _angle(normals[(name, d)], plane) < 1.0
+    assert all(_angle(normals[("lwr_wipe_mat", d)], normals[("lwr_wipe_fk", d)]) < 0.1
+               for _, d in normals)
+    cfg = root / "configs" / "lwr_wipe_joints.yaml"
+    assert main(["run", str(cfg), "-o", str(tmp_path / "joints"), "--json", "-q"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["stages"]["learn-a"]["test"]["NPOE"] < 1e-3
+    model, _ = load_model(tmp_path / "joints" / "model.h5")
+    data = load_demonstrations(yaml.safe_load(cfg.read_text())["data"], base=cfg.parent)
+    chain = LWR4.chain()
+    P = chain.forward(data.X).position
+    table = np.linalg.svd(P - P.mean(0))[2][-1]  # every wipe on one table
+    A = model.constraint(data.X)[:, 0, :]
+    truth = np.einsum("i,nij->nj", table, chain.jacobian(data.X, rows=[0, 1, 2]))
+    assert max(_angle(a, b) for a, b in zip(A[::50], truth[::50], strict=True)) < 1.0

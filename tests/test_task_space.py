@@ -122,3 +122,28 @@ def test_jointstate_bag_names_matched_to_a_dh_robot(tmp_path):
         other = {**short, "names": [*short["names"][:6], "8"]}
         state = {**cfg["state"], "joints": JOINTS, "forward_kinematics": {"robot": other}}
         load_demonstrations({**cfg, "state": state})
+
+
+def test_bag_joints_forward_kinematics_cut_where_a_force_topic_is_high(tmp_path):
+    rec = joint_recording(n=300, rate=100.0)
+    t_f = rec.t_ns[::2]  # a 50 Hz force topic (log time: no header)
+    force = np.zeros((len(t_f), 3))
+    force[20:60, 2] = 12.0  # contact 0.4–1.18 s
+    force[100:103, 0] = 9.0  # a 0.04-s brush
+    path = write_ros2_bag(tmp_path / "w", rec, extra=("/force", t_f, force))
+    dh = {"dh": [list(row) for row in LWR4.table], "names": JOINTS}
+    cfg = {"files": [str(path)], "state": {"topic": "/joint_states", "field": "position",
+                                           "forward_kinematics": {"robot": dh}},
+           "action": {"topic": "/joint_states", "field": "velocity"},
+           "demos": {"where": {"topic": "/force", "norm_above": 5.0}, "min_duration": 0.2}}
+    data = load_demonstrations(cfg)
+    assert data.n_demos == 1
+    # the force norm linearly interpolated onto the joint stamps: above 5 N from the midpoint
+    # before the first contact sample to the midpoint after the last (81 samples)
+    level = np.interp((rec.t_ns - t_f[0]).astype(float), (t_f - t_f[0]).astype(float), force[:, 2])
+    inside = level > 5.0
+    assert inside.sum() == 81
+    np.testing.assert_allclose(data.X, dh_positions(rec.position[inside]), atol=1e-12)
+    J = LWR4.chain().jacobian(rec.position[inside], rows=[0, 1, 2])
+    np.testing.assert_allclose(data.U, np.einsum("nij,nj->ni", J, rec.velocity[inside]), atol=1e-12)
+    assert data.action_names == ["vx", "vy", "vz"]
