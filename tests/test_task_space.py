@@ -147,3 +147,29 @@ def test_bag_joints_forward_kinematics_cut_where_a_force_topic_is_high(tmp_path)
     J = LWR4.chain().jacobian(rec.position[inside], rows=[0, 1, 2])
     np.testing.assert_allclose(data.U, np.einsum("nij,nj->ni", J, rec.velocity[inside]), atol=1e-12)
     assert data.action_names == ["vx", "vy", "vz"]
+
+
+def test_hdf5_layout_joint_names_forward_kinematics_and_ranges_per_demo(tmp_path, lwr_urdf):
+    import h5py
+
+    path = tmp_path / "robo.h5"
+    names = [f"arm/{n}" for n in LWR_NAMES[::-1]]  # reversed, with a namespace
+    t = np.arange(300) / 100.0
+    with h5py.File(path, "w") as f:  # a robomimic-like layout: data/demo_K/obs/joint_pos, joint_vel, t
+        for k in range(2):
+            q, dq = smooth_joints(t + k)
+            g = f.create_group(f"data/demo_{k}")
+            g.create_dataset("obs/joint_pos", data=q[:, ::-1]).attrs["names"] = names
+            g.create_dataset("obs/joint_vel", data=dq[:, ::-1])
+            g.create_dataset("t", data=t)
+    fk = {"robot": str(lwr_urdf)}
+    cfg = {"files": [str(path)], "state": {"dataset": "obs/joint_pos", "forward_kinematics": fk},
+           "action": {"dataset": "obs/joint_vel"}, "time": {"dataset": "t"},
+           "demos": {"group": "data/demo_*", "ranges": {1: [[0.5, 1.0]]}}}
+    data = load_demonstrations(cfg)
+    keep = (t >= 0.5) & (t <= 1.0)
+    q, dq = smooth_joints(t[keep] + 1)
+    np.testing.assert_allclose(data.X, dh_positions(q), atol=1e-12)
+    J = LWR4.chain().jacobian(q, rows=[0, 1, 2])
+    np.testing.assert_allclose(data.U, np.einsum("nij,nj->ni", J, dq), atol=1e-12)
+    assert data.n_demos == 1 and data.state_names == ["x", "y", "z"]
