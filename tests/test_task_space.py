@@ -114,7 +114,11 @@ def test_jointstate_bag_names_matched_to_a_dh_robot(tmp_path):
     # the robot's names with a driver's prefix in the log: matched through the joints given
     short = {"dh": [list(row) for row in LWR4.table], "names": [str(i) for i in range(1, 8)]}
     state = {**cfg["state"], "joints": JOINTS[::-1], "forward_kinematics": {"robot": short}}
-    np.testing.assert_allclose(load_demonstrations({**cfg, "state": state}).X, data.X, atol=1e-12)
+    action = {"topic": "/joint_states", "field": "velocity"}  # read in the state's joint order
+    named = load_demonstrations({**cfg, "state": state, "action": action})
+    np.testing.assert_allclose(named.X, data.X, atol=1e-12)
+    J = LWR4.chain().jacobian(rec.position, rows=[0, 1, 2])
+    np.testing.assert_allclose(named.U, np.einsum("nij,nj->ni", J, rec.velocity), atol=1e-12)
     bad = {"dh": [list(row) for row in LWR4.table], "names": LWR_NAMES}
     with pytest.raises(InputError, match=r"joint\(s\) a1, a2, a3, a4, a5, a6, a7 not in /joint_states"):
         load_demonstrations({**cfg, "state": {**cfg["state"], "forward_kinematics": {"robot": bad}}})

@@ -76,7 +76,9 @@ class StreamReader(ReaderBase):
                              "(e.g. state: {topic: /joint_states, field: position})")
         derive = o.derives_action
         fk = o.state.forward_kinematics
-        selections = [with_joints(s, fk) for s in ([o.state] if derive else [o.state, o.action])]
+        selections = [with_joints(o.state, fk)]
+        if not derive:
+            selections.append(with_joints(o.action, fk, selections[0].joints))
         signal = o.demos.where
         raw = self.streams(selections + ([signal.selection()] if signal is not None else []))
         state = _repaired(raw[0], selections[0], o)

@@ -72,12 +72,14 @@ def continuous(quat: np.ndarray) -> np.ndarray:
     return quat * np.cumprod(flips)[:, None]
 
 
-def with_joints(selection: StreamOptions, options: ForwardKinematicsOptions | None) -> StreamOptions:
-    """A JointState ``selection`` (a topic) without ``joints`` reads the robot's joints by name, in
-    the chain's order; any other selection as it is."""
+def with_joints(selection: StreamOptions, options: ForwardKinematicsOptions | None,
+                joints: list[str] | None = None) -> StreamOptions:
+    """A JointState ``selection`` (a topic) without ``joints`` reads ``joints`` (the state's, for
+    the action: the same columns in the same order), else the robot's joints by name in the
+    chain's order; any other selection as it is."""
     if options is None or selection.topic is None or selection.joints is not None:
         return selection
-    return selection.model_copy(update={"joints": _chain(options, selection.topic).joint_names})
+    return selection.model_copy(update={"joints": joints or _chain(options, selection.topic).joint_names})
 
 
 def log_joint_names(selection: StreamOptions, names: list[str]) -> list[str]:
