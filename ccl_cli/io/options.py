@@ -167,7 +167,8 @@ class DemoOptions(Options):
     """How a recording becomes demonstrations (:mod:`ccl_cli.io.segment`). Every format:
     ``split_on_gap`` (a pause longer than this many seconds starts a new one), ``ranges``
     (a list of [start, end] seconds from the file's first sample, or per demonstration
-    ``{index: [[start, end], ...]}`` in seconds from that demonstration's first sample;
+    ``{index: [[start, end], ...]}`` in seconds from that demonstration's first sample, the
+    index counting within each file;
     samples outside every range are dropped), ``where`` (a :class:`SignalOptions`: each
     stretch where the signal's norm passes its level is a demonstration), ``min_duration``
     (shorter pieces dropped), ``window`` (then fixed pieces of this many seconds). HDF5
