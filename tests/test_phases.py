@@ -120,6 +120,8 @@ def test_where_a_force_is_above_a_level_each_stretch_is_a_demonstration(tmp_path
                 tmp_path / "log.mat")
     # before the contact and after the touch; the 0.04 s between contact and touch is too short
     assert free.n_demos == 6 and np.bincount(free.demo)[:2].tolist() == [10, 7]
+    with pytest.raises(InputError, match="demos.where needs a level: norm_above and/or norm_below"):
+        load({**CELL_CFG, "demos": {"where": {"variable": "proc_data.F"}}}, tmp_path / "log.mat")
     with pytest.raises(InputError, match="demos.where needs variable"):
         load({**CELL_CFG, "demos": {"where": {"column": "F", "norm_above": 1}}}, tmp_path / "log.mat")
 

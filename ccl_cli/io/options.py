@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any, Literal, Self
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ccl_cli.errors import InputError
 
@@ -111,6 +111,12 @@ class SignalOptions(StreamOptions):
     column: int | str | None = None
     norm_above: Number | None = None
     norm_below: Number | None = None
+
+    @model_validator(mode="after")
+    def _a_level(self) -> SignalOptions:
+        if self.norm_above is None and self.norm_below is None:
+            raise ValueError("needs a level: norm_above and/or norm_below")
+        return self
 
     def selection(self) -> StreamOptions:
         """The stream to read (``column`` as a one-item ``columns``)."""
