@@ -471,7 +471,7 @@ def inspect_cmd(
 
     _logging(quiet)
     cfg = _config(config, {})
-    info = inspect_file(data, cfg.spec.data, gap, configured=config is not None)
+    info = inspect_file(data, cfg.spec.data, gap, cfg.base, configured=config is not None)
     if json_out:
         _emit(info, True)
         return

@@ -212,7 +212,8 @@ def demonstrations(data: Demonstrations) -> list[dict[str, str]]:
 
 def stamps(data: Demonstrations) -> list[dict[str, str]]:
     """``duplicate_stamps`` (a sampling interval ≤ 0 inside a demonstration) and
-    ``jittery_stamps`` (1.4826·MAD of the intervals > JITTER × their median)."""
+    ``jittery_stamps`` (1.4826·MAD of the intervals, each relative to its demonstration's median
+    interval, > JITTER: demonstrations logged at different but steady rates are not jittery)."""
     out = []
     inside = data.demo[1:] == data.demo[:-1]
     dt = np.diff(data.t)[inside]
@@ -222,10 +223,14 @@ def stamps(data: Demonstrations) -> list[dict[str, str]]:
     if dup:
         out.append(warning("duplicate_stamps",
                            f"{dup} samples repeat or precede the stamp of the sample before them"))
-    pos = dt[dt > 0]
+    ok = dt > 0
+    pos, owner = dt[ok], data.demo[1:][inside][ok]
     if len(pos) >= 3:
         med = float(np.median(pos))
-        spread = 1.4826 * float(np.median(np.abs(pos - med)))
+        own = np.empty_like(pos)
+        for d in np.unique(owner):  # a loop over demonstrations: each one's median interval
+            own[owner == d] = np.median(pos[owner == d])
+        spread = med * 1.4826 * float(np.median(np.abs(pos / own - 1.0)))
         if med > 0 and spread > JITTER * med:
             out.append(warning("jittery_stamps",
                                f"jittery stamps: the sampling interval varies by {100 * spread / med:.2g} % "

@@ -166,7 +166,7 @@ def predict_saved(model_path: Path, data: Demonstrations, out: Path, force: bool
             "outputs": sorted(outputs)}
 
 
-def inspect_file(path: Path, options: Any = None, gap: float | None = None,
+def inspect_file(path: Path, options: Any = None, gap: float | None = None, base: Path | None = None,
                  configured: bool = False) -> dict[str, Any]:
     """``ccl inspect``: what a model file holds (:func:`ccl_cli.models.describe_model`), or what
     a recording holds (:func:`ccl_cli.io.inspect_recording`). ``configured`` (a config was
@@ -178,9 +178,9 @@ def inspect_file(path: Path, options: Any = None, gap: float | None = None,
 
     if is_model_file(path):
         return describe_model(path)
-    info = inspect_recording(path, options, gap)
+    info = inspect_recording(path, options, gap, base)
     if configured:
-        data, _ = read_dataset(options, [path])
+        data, _ = read_dataset(options, [path], base)
         counts = np.bincount(np.unique(data.demo, return_inverse=True)[1])
         info["as_configured"] = {
             "demos": int(len(counts)), "samples": int(data.n_samples),
