@@ -20,7 +20,7 @@ import typer
 from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer vendors its click
 from typer.core import TyperCommand, TyperGroup
 
-from ccl_cli import spec
+from ccl_cli import progress, spec
 from ccl_cli.errors import CCLError, ConfigError, InputError, LearningError
 from ccl_cli.learn import defaults, params
 
@@ -144,6 +144,7 @@ _QUIET = [False]  # set by every command through _logging: -q silences the summa
 
 def _logging(quiet: bool) -> None:
     _QUIET[0] = quiet
+    progress.install(progress.terminal_hook(quiet))  # long reads: a bar on a terminal, not with -q
     level = logging.WARNING if quiet else logging.INFO
     logging.basicConfig(level=level, format="ccl: %(message)s", stream=sys.stderr, force=True)
 
