@@ -482,6 +482,8 @@ def convert(
     data: Annotated[list[Path], typer.Argument(help="Recordings to convert.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     config: ConfigOpt = None, force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
+    format_version: Annotated[int, typer.Option("--format-version", min=1, max=2,
+                                                help="2: columnar; 1: a group per demonstration.")] = 2,
 ) -> None:
     """Convert recordings (CSV, bags, MCAP) into the canonical ccl-demonstrations HDF5."""
     from ccl_cli.app.run import read_data
@@ -492,7 +494,8 @@ def convert(
     dataset, _ = read_data(cfg, data)
     write_demonstrations(out, dataset, time_origin_ns=int(dataset.metadata.get("time_origin_ns", 0)),
                          provenance={"converted_from": dataset.metadata.get("files"),
-                                     "data_config": cfg.raw.get("data")}, force=force)
+                                     "data_config": cfg.raw.get("data")}, force=force,
+                         format_version=format_version)
     _wrote("convert", out, dataset, json_out)
 
 
