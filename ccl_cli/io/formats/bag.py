@@ -121,7 +121,28 @@ class BagReader(TopicReader):
                                  "damaged bag metadata?")
         return reader
 
+    def _index(self) -> BagIndex | None:
+        """The index of a ROS 1 bag read with NumPy (:mod:`ccl_cli.io.formats.bag1`); None for
+        a ROS 2 bag or a bag whose index this does not read (rosbags' reader then explains)."""
+        root = bag_root(self.path)
+        if root.suffix != ".bag" or not root.is_file():
+            return None
+        try:
+            index = read_index(root)
+        except InputError:
+            return None
+        return index if set(index.entries) == {c.id for c in index.connections} else None
+
     def listing(self) -> dict[str, Any]:
+        index = self._index()
+        if index is not None and index.entries:  # from the index: no message read
+            topics: dict[str, dict[str, Any]] = {}
+            for conn in index.connections:
+                entry = topics.setdefault(conn.topic, {"type": normalize(conn.msgtype), "count": 0})
+                entry["count"] += int(len(index.entries[conn.id]))
+            times = [e[[0, -1], 0] for e in index.entries.values() if len(e)]
+            return {"start_ns": int(min(t[0] for t in times)), "end_ns": int(max(t[1] for t in times)),
+                    "topics": dict(sorted(topics.items()))}
         reader = self._open()
         try:
             where = str(self.path)
@@ -169,20 +190,16 @@ class BagReader(TopicReader):
         chunks with NumPy ({topic: streams}, and under ``_TYPES`` the type of every topic);
         None for a ROS 2 bag, a bag whose index this does not read, or an unknown topic
         (the library path then explains)."""
-        root = bag_root(self.path)
-        if root.suffix != ".bag" or not root.is_file():
+        index = self._index()
+        if index is None:
             return None  # ROS 2 bags, and whatever the library path refuses with its own words
         where = str(self.path)
-        try:
-            index = read_index(root)
-        except InputError:
-            return None  # rosbags' reader explains a damaged bag
         types = {c.topic: normalize(c.msgtype) for c in index.connections}
         if any(s.topic not in types for s in selections):
             return None
         collectors, _ = read_topics(list(selections), types, where)
         done: dict[str, Any] = {_TYPES: types}
-        with open_regular(root, "the bag") as f:
+        with open_regular(bag_root(self.path), "the bag") as f:
             for topic, collector in collectors.items():
                 streams = self._fixed(f, index, topic, collector.extractors)
                 if streams is not None:
@@ -260,7 +277,25 @@ class BagReader(TopicReader):
         return head, raw, msg
 
     def first_messages(self) -> dict[str, tuple[np.ndarray, Any]]:
-        """Log times (ns) of every message and the first message (decoded) of each topic."""
+        """Log times (ns) of every message and the first message (decoded) of each topic: for
+        a ROS 1 bag from its index (one message decoded per topic), else from every message."""
+        index = self._index()
+        if index is not None and index.entries:
+            out = {}
+            with open_regular(bag_root(self.path), "the bag") as f:
+                for topic in dict.fromkeys(c.topic for c in index.connections):
+                    conns = [c for c in index.connections if c.topic == topic and len(index.entries[c.id])]
+                    if not conns:
+                        continue
+                    times = np.sort(np.concatenate([index.entries[c.id][:, 0] for c in conns]))
+                    conn = min(conns, key=lambda c: tuple(index.entries[c.id][0]))
+                    first = self._first_message(f, index, conn, index.entries[conn.id][0]) \
+                        if conn.msgdef else None
+                    if first is None:
+                        break  # not a plain message record: rosbags' reader below
+                    out[topic] = (times, first[2])
+                else:
+                    return out
         bag = self._open()
         try:
             times: dict[str, list[int]] = {}

@@ -160,6 +160,7 @@ def read_index(path: Path) -> BagIndex:
                 entries[:, 2] = raw[:, 2]
                 parts.setdefault(_int(fields, "conn", "<I", where), []).append(entries)
         index = BagIndex(connections, chunks)
+        index.entries = {c.id: np.zeros((0, 3), dtype=np.int64) for c in connections}
         for conn, blocks in parts.items():
             entries = np.concatenate(blocks)
             # the order rosbags reads in: log time, then chunk, then place in the chunk

@@ -152,11 +152,36 @@ class McapReader(TopicReader):
             return None
         return gathered.finish()
 
+    def _indexed_times(self, f, summary) -> dict[str, np.ndarray] | None:
+        """Log times of every message per topic from the chunks' message indexes (None when a
+        chunk has none: the messages are read instead)."""
+        if not summary.chunk_indexes or any(not c.message_index_offsets for c in summary.chunk_indexes):
+            return None
+        parts: dict[str, list[np.ndarray]] = {}
+        for chunk in summary.chunk_indexes:
+            for cid, offset in chunk.message_index_offsets.items():
+                channel = summary.channels.get(cid)
+                if channel is None:
+                    return None
+                parts.setdefault(str(channel.topic), []).append(self._message_index(f, offset, cid)[:, 0])
+        out = {t: np.concatenate(p) for t, p in parts.items() if sum(map(len, p))}
+        if any(int(a.max()) >= 2**63 for a in out.values()):
+            return None  # log times beyond int64 (a damaged file): explained by the message path
+        return {t: np.sort(a.astype(np.int64)) for t, a in out.items()}
+
     def first_messages(self) -> dict[str, tuple[np.ndarray, Any]]:
-        """Log times (ns) and the first decoded message of each topic."""
+        """Log times (ns) and the first decoded message of each topic (times from the message
+        indexes where every chunk has them, else from reading every message)."""
         out: dict[str, tuple[np.ndarray, Any]] = {}
         where, what = str(self.path), "read MCAP messages"
         with self._open() as f:
+            mc, summary = self._summary(f)
+            indexed = self._indexed_times(f, summary)
+            if indexed is not None:
+                for topic, stamps in indexed.items():
+                    out[topic] = (stamps, self._first_decoded(f, topic))
+                return out
+            f.seek(0)
             mc, _ = self._summary(f)
             times: dict[str, list[int]] = {}
             enc: dict[str, str] = {}
@@ -164,16 +189,7 @@ class McapReader(TopicReader):
                 times.setdefault(channel.topic, []).append(message.log_time)
                 enc[channel.topic] = channel.message_encoding
             for topic in times:
-                f.seek(0)
-                mc, _ = self._summary(f)
-                if enc[topic] == "json":
-                    found = next(library_iter(where, what, mc.iter_messages(topics=[topic])), None)
-                    msg = library_call(where, what, json.loads, found[2].data) if found else None
-                else:
-                    found = next(library_iter(where, what, mc.iter_decoded_messages(topics=[topic])), None)
-                    msg = found[3] if found else None
-                if found is None:
-                    raise InputError(f"{where}: topic {topic} lost its messages on a second read")
+                msg = self._first_decoded(f, topic, enc[topic] == "json")
                 try:  # a damaged file can claim log times beyond int64
                     stamps = np.asarray(times[topic], dtype=np.int64)
                 except OverflowError:
@@ -225,3 +241,21 @@ class McapReader(TopicReader):
         kind = short_type(decoded[0].name if decoded[0] else "")
         return fixed_topic(topic, kind, decoded[1].message_encoding == "cdr", raw, decoded[3], extractors,
                            total, where)
+
+    def _first_decoded(self, f, topic: str, as_json: bool | None = None) -> Any:
+        """The first message of ``topic`` in log-time order, decoded (JSON by the standard
+        library, the rest by mcap's decoders)."""
+        where, what = str(self.path), "read MCAP messages"
+        f.seek(0)
+        mc, summary = self._summary(f)
+        if as_json is None:
+            as_json = any(c.message_encoding == "json" for c in summary.channels.values() if c.topic == topic)
+        if as_json:
+            found = next(library_iter(where, what, mc.iter_messages(topics=[topic])), None)
+            msg = library_call(where, what, json.loads, found[2].data) if found else None
+        else:
+            found = next(library_iter(where, what, mc.iter_decoded_messages(topics=[topic])), None)
+            msg = found[3] if found else None
+        if found is None:
+            raise InputError(f"{where}: topic {topic} lost its messages on a second read")
+        return msg
