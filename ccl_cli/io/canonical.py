@@ -124,23 +124,32 @@ def _write_columns(demos, data: Demonstrations, time_origin_ns: int) -> dict[int
     order = np.argsort(position, kind="stable")  # samples grouped by demonstration
     counts = np.bincount(position, minlength=len(ids))
     offsets = np.r_[0, np.cumsum(counts)].astype(np.int64)
-    t = data.t[order]
     names = [f"demo_{k:04d}" for k in range(len(ids))]
     demos.create_dataset("offsets", data=offsets)
     demos.create_dataset("name", data=_strings(names), dtype=h5py.string_dtype())
-    demos.create_dataset("t0_ns", data=time_origin_ns + np.round(t[offsets[:-1]] * 1e9).astype(np.int64))
+    t0 = data.t[order[offsets[:-1]]]
+    demos.create_dataset("t0_ns", data=time_origin_ns + np.round(t0 * 1e9).astype(np.int64))
     demos.create_dataset("source", data=_strings(_sources(data)), dtype=h5py.string_dtype())
-    _dataset(demos, "t", t)
-    _dataset(demos, "x", data.X[order])
-    _dataset(demos, "u", data.U[order])
-    if data.truth:
-        tg = demos.create_group("truth")
-        for key, value in data.truth.items():
-            if key in ("A", "N") and value.ndim == 2:
-                tg.create_dataset(key, data=value)
-            else:
-                _dataset(tg, key, value[order])
+    _write_samples(demos, data, order, collapse=False)
     return {int(d): name for d, name in zip(ids, names, strict=True)}
+
+
+def _write_samples(g, data: Demonstrations, rows: np.ndarray, collapse: bool) -> None:
+    """t, x, u and the truth of the samples ``rows`` (indices or a mask) into group ``g``;
+    ``collapse``: A and N constant over these rows are stored once (version 1)."""
+    _dataset(g, "t", data.t[rows])
+    _dataset(g, "x", data.X[rows])
+    _dataset(g, "u", data.U[rows])
+    if not data.truth:
+        return
+    tg = g.create_group("truth")
+    for key, value in data.truth.items():
+        if key in ("A", "N") and value.ndim == 2:
+            tg.create_dataset(key, data=value)
+        elif collapse and key in ("A", "N") and (value[rows] == value[rows][:1]).all():
+            tg.create_dataset(key, data=value[rows][0])  # constant within the demonstration
+        else:
+            _dataset(tg, key, value[rows])
 
 
 def _write_groups(demos, data: Demonstrations, time_origin_ns: int) -> dict[int, str]:
@@ -156,18 +165,7 @@ def _write_groups(demos, data: Demonstrations, time_origin_ns: int) -> dict[int,
         g.attrs["n_samples"] = int(m.sum())
         g.attrs["t0_ns"] = np.int64(time_origin_ns + int(round(data.t[m][0] * 1e9)))
         g.attrs["source"] = sources[order]
-        _dataset(g, "t", data.t[m])
-        _dataset(g, "x", data.X[m])
-        _dataset(g, "u", data.U[m])
-        if data.truth:
-            tg = g.create_group("truth")
-            for key, value in data.truth.items():
-                if key in ("A", "N") and value.ndim == 2:
-                    tg.create_dataset(key, data=value)
-                elif key in ("A", "N") and (value[m] == value[m][:1]).all():
-                    tg.create_dataset(key, data=value[m][0])  # constant within the demo
-                else:
-                    _dataset(tg, key, value[m])
+        _write_samples(g, data, m, collapse=True)
     return names
 
 
