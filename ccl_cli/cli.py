@@ -210,6 +210,8 @@ def _bar(label: str, total: int, quiet: bool):
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+    from ccl_cli import progress as shown
+
     counts_failures = label == "jobs"
     columns = [TextColumn(label), BarColumn(), TextColumn("{task.completed}/{task.total}")]
     columns += [TextColumn("failed {task.fields[failed]}"), TimeRemainingColumn()] if counts_failures \
@@ -217,6 +219,7 @@ def _bar(label: str, total: int, quiet: bool):
     progress = Progress(*columns, console=Console(stderr=True), transient=True)
     task = progress.add_task(label, total=total, failed=0)
     progress.start()
+    shown.live(+1)  # a long read meanwhile shows no second bar
     failed = [0]
 
     class Handle:
@@ -225,6 +228,7 @@ def _bar(label: str, total: int, quiet: bool):
             progress.update(task, advance=1, failed=failed[0])
 
         def stop(self) -> None:
+            shown.live(-1)
             progress.stop()
 
     return Handle()

@@ -30,6 +30,14 @@ class Hook(Protocol):
 
 
 _HOOK: list[Hook | None] = [None]
+#: displays live now on the terminal (a bar of this module, or one of the CLI's that called
+#: :func:`live`): a step started meanwhile shows nothing rather than a second display
+_LIVE = [0]
+
+
+def live(delta: int) -> None:
+    """Count a display of the front end in (+1, when it starts) or out (−1, when it stops)."""
+    _LIVE[0] = max(0, _LIVE[0] + delta)
 
 
 def _ignore(_: float) -> None:
@@ -52,21 +60,21 @@ def progress_of(label: str, total: float) -> AbstractContextManager[Advance]:
 
 @contextmanager
 def _rich_bar(label: str, total: float) -> Iterator[Advance]:
+    if _LIVE[0]:  # another display (a stage bar) is live: this step shows nothing
+        yield _ignore
+        return
     from rich.console import Console
-    from rich.errors import LiveError
     from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TimeRemainingColumn
 
     progress = Progress(TextColumn(label), BarColumn(), DownloadColumn(), TimeRemainingColumn(),
                         console=Console(stderr=True), transient=True)
     task = progress.add_task(label, total=total)
-    try:
-        progress.start()
-    except LiveError:  # another display (a stage bar) is live: this step shows nothing
-        yield _ignore
-        return
+    progress.start()
+    live(+1)
     try:
         yield lambda units: progress.update(task, advance=units)
     finally:
+        live(-1)
         progress.stop()
 
 

@@ -263,3 +263,14 @@ def test_progress_hook_sees_the_chunks_of_a_long_read(tmp_path):
         progress.install(previous)
     assert seen["total"] > 5000 * 8 * 14 and seen["done"] == seen["total"]  # every chunk's bytes
     assert progress.terminal_hook(quiet=True) is None
+
+
+def test_terminal_bar_stands_aside_while_another_display_is_live():
+    from ccl_cli import progress
+
+    progress.live(+1)  # e.g. the stage bar of ccl run
+    try:
+        with progress._rich_bar("reading", 100.0) as advance:
+            assert advance is progress._ignore
+    finally:
+        progress.live(-1)
