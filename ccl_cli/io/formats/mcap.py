@@ -223,6 +223,9 @@ class McapReader(TopicReader):
         what = f"read the chunk at byte {index.chunk_start_offset}"
         f.seek(index.chunk_start_offset + 9)  # past the record's opcode and length
         chunk = library_call(where, what, Chunk.read, ReadDataStream(f))
+        if chunk.uncompressed_size != index.uncompressed_size:  # the size checked is the size read
+            raise InputError(f"{where}: the chunk at byte {index.chunk_start_offset} claims "
+                             f"{chunk.uncompressed_size} bytes, its index {index.uncompressed_size}")
         stream, size = library_call(where, what, get_chunk_data_stream, chunk)
         return np.frombuffer(library_call(where, what, stream.read, size), dtype=np.uint8)
 
