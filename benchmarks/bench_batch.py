@@ -20,11 +20,19 @@
   neighbour takes a core, each job slows down ("job_s_median_j2" > "job_s_median") and
   the speed-up falls below 2 although the efficiency stays near 1.
 * {"measure": "dask", ...} (with ``--dask``): the trivial jobs on a 2-worker LocalCluster.
+* {"measure": "open", "demos", "version", "ccl_s", "h5py_s", "numpy_floor_s"} (with
+  ``--open``): opening a canonical file of 2,500 demonstrations with ccl
+  (``read_demonstrations``), with bare h5py (every dataset of the layout read), and the
+  floor of copying the same arrays in memory, for format versions 1 and 2.
+* {"measure": "small_speedup", "jobs", "demos_per_file", "version", "seconds_j1", "seconds_j2",
+  "speedup_2_over_1"} (with ``--small N``): ``ccl batch`` of N trivial jobs as a user runs it
+  (a fresh process each) at ``-j 1`` and ``-j 2``, on files of format version 1 and 2,
+  run back to back.
 
 ``load`` is the 1-minute load average before/after each measurement, and ``cpus`` the
 cores: on a shared machine a busy neighbour takes cores from ``-j 2``.
 
-Run:  python benchmarks/bench_batch.py [--jobs 24] [--long-jobs 8] [--dask]
+Run:  python benchmarks/bench_batch.py [--jobs 24] [--long-jobs 8] [--dask] [--open] [--small 40]
 """
 
 from __future__ import annotations
@@ -69,15 +77,62 @@ def timings(out: Path, results) -> list[dict[str, float]]:
     return [json.loads((out / "jobs" / r.job_id / "run.json").read_text())["timings"] for r in results]
 
 
-def recordings(root: Path, n: int, demos: int, tag: str) -> list[str]:
+def recordings(root: Path, n: int, demos: int, tag: str, version: int = 2) -> list[str]:
     from ccl_cli import simulate as sim
     from ccl_cli.io import write_demonstrations
 
     root.mkdir(parents=True, exist_ok=True)
     for i in range(n):
         data = sim.toy2d(constraint="parabola", n_demos=demos, seed=i)
-        write_demonstrations(root / f"{tag}{i:03d}.h5", data)
+        write_demonstrations(root / f"{tag}{i:03d}.h5", data, format_version=version)
     return [str(root / f"{tag}*.h5")]
+
+
+def open_times(root: Path, demos: int = 2500) -> None:
+    """Opening a canonical file of ``demos`` demonstrations: ccl, bare h5py, the in-memory floor."""
+    import h5py
+    import numpy as np
+
+    from ccl_cli import simulate as sim
+    from ccl_cli.io import read_demonstrations, write_demonstrations
+
+    data = sim.toy2d(n_demos=demos, n_steps=20, seed=0)
+    for version in (1, 2):
+        path = write_demonstrations(root / f"open-v{version}.h5", data, format_version=version)
+        t = time.perf_counter()
+        read_demonstrations(path)
+        ccl_s = time.perf_counter() - t
+        t = time.perf_counter()
+        with h5py.File(path, "r") as f:
+            def read_all(name, obj):
+                if isinstance(obj, h5py.Dataset):
+                    obj[()]
+            f["demos"].visititems(read_all)
+        h5_s = time.perf_counter() - t
+        t = time.perf_counter()
+        for a in (data.X, data.U, data.t, *data.truth.values()):
+            np.array(a, copy=True)
+        floor = time.perf_counter() - t
+        print(json.dumps({"measure": "open", "demos": demos, "version": version, "ccl_s": round(ccl_s, 3),
+                          "h5py_s": round(h5_s, 3), "numpy_floor_s": round(floor, 4), "load": load()}),
+              flush=True)
+
+
+def small_speedup(root: Path, n: int, demos: int = 50) -> None:
+    """``ccl batch`` of ``n`` trivial jobs at -j 1 and -j 2 (fresh processes), v1 and v2 files."""
+    for version in (1, 2):
+        files = recordings(root / f"small-v{version}", n, demos, "s", version)[0]
+        seconds = {}
+        for workers in (1, 2, 1, 2):  # each twice, alternating: the smaller of the two
+            t = time.perf_counter()
+            subprocess.run([*CCL, "batch", "--files", files, "-c", str(root / "trivial.yaml"), "-o",
+                            str(root / f"out-small-v{version}-j{workers}"), "--force", "-q", "-j",
+                            str(workers)], check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            seconds[workers] = min(seconds.get(workers, float("inf")), time.perf_counter() - t)
+        print(json.dumps({"measure": "small_speedup", "jobs": n, "demos_per_file": demos, "version": version,
+                          "seconds_j1": round(seconds[1], 3), "seconds_j2": round(seconds[2], 3),
+                          "speedup_2_over_1": round(seconds[1] / seconds[2], 2), "load": load(),
+                          "cpus": os.cpu_count()}), flush=True)
 
 
 CHILD = r"""
@@ -131,11 +186,20 @@ def main() -> int:
                     help="BLAS threads per worker in the speed-up runs (0: ccl's default, cores / workers); "
                          "1 measures process parallelism alone")
     ap.add_argument("--dask", action="store_true", help="also run the trivial jobs on a Dask LocalCluster")
+    ap.add_argument("--open", action="store_true", help="opening a 2,500-demonstration file, v1 and v2")
+    ap.add_argument("--small", type=int, default=0, help="ccl batch of this many small jobs, -j 1 and -j 2")
+    ap.add_argument("--only-new", action="store_true", help="only --open and --small")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         (root / "trivial.yaml").write_text(TRIVIAL)
         (root / "long.yaml").write_text(LONG)
+        if args.open:
+            open_times(root)
+        if args.small:
+            small_speedup(root, args.small)
+        if args.only_new:
+            return 0
         warm, _ = plan(files=recordings(root / "warm", 2, 5, "w"), config=str(root / "trivial.yaml"))
         timed_batch(warm, root / "out-warm", 1)  # the fork server starts once per process
         for demos in (5, 50):

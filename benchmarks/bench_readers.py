@@ -11,7 +11,16 @@ ccl_extra / library. ccl_end_to_end_seconds is the whole loader (state = positio
 action = velocities from the same topic) in a fresh process; peak memory is measured
 under tracemalloc (NumPy's buffers included) against the size of the arrays returned.
 
-Run:  python benchmarks/bench_readers.py [--n 1000000] [--containers ros1,mcap-ros2,...]
+With ``--floor`` (containers ros1, ros1-bz2, mcap-ros1, mcap-ros2) the numpy decode floor
+is measured next to ccl, in fresh processes run back to back: ``floor_seconds`` reads and
+decompresses every chunk (the libraries' codecs) and gathers stamps, positions and
+velocities of the fixed-layout records at places computed beforehand (one fancy index
+per chunk, no checks); ``reader_seconds`` is ccl's reader (both streams),
+``loader_seconds`` the whole loader (faults, alignment, demonstrations) and
+``convert_seconds`` the ``ccl convert`` command, each with its ratio to the floor (the
+smaller of two floor runs, one before and one after).
+
+Run:  python benchmarks/bench_readers.py [--n 1000000] [--containers ros1,mcap-ros2,...] [--floor]
 """
 
 from __future__ import annotations
@@ -40,7 +49,77 @@ cfg = {{"files": [str(path)],
        "state": {{"topic": "/joint_states", "field": "position", "joints": JOINTS}},
        "action": {{"topic": "/joint_states", "field": "velocity", "joints": JOINTS}}}}
 out = {{}}
-if mode == "mem":
+if mode == "floor":
+    import numpy as np
+    from ccl_cli.io.layouts import gather_rows, layout_of
+    if container.startswith("ros1"):
+        from ccl_cli.io.formats.bag1 import read_index
+        from rosbags.rosbag1.reader import decompressors
+        index = read_index(path)
+        (entries,) = index.entries.values()
+        plan = []  # per chunk: where its data is, its codec, the record starts of its messages
+        for k, chunk in enumerate(index.chunks):
+            plan.append((chunk.data_pos, chunk.data_len, decompressors[chunk.compression],
+                         np.sort(entries[entries[:, 1] == k, 2])))
+        with open(path, "rb") as f:
+            f.seek(plan[0][0]); buf = np.frombuffer(plan[0][2](f.read(plan[0][1])), np.uint8)
+        hlen = int(buf[plan[0][3][0]:plan[0][3][0] + 4].view("<u4")[0])
+        skip = 8 + hlen
+        size = int(buf[plan[0][3][0] + 4 + hlen:plan[0][3][0] + 8 + hlen].view("<u4")[0])
+        first = bytes(buf[plan[0][3][0] + skip:plan[0][3][0] + skip + size]); cdr = False
+    else:
+        from mcap.reader import make_reader
+        from mcap.records import Chunk
+        from mcap.data_stream import ReadDataStream
+        from mcap.stream_reader import get_chunk_data_stream
+        from ccl_cli.io.formats.mcap import McapReader, MESSAGE_PREFIX
+        from ccl_cli.io.options import DataOptions
+        r = McapReader(path, DataOptions())
+        plan = []
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
+            for ci in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+                (off,) = ci.message_index_offsets.values()
+                (cid,) = ci.message_index_offsets
+                starts = r._message_index(f, off, cid)[:, 1].astype(np.int64)
+                plan.append((ci.chunk_start_offset + 9, None, None, np.sort(starts)))
+            buf = r._chunk(f, summary.chunk_indexes[0])
+        skip = MESSAGE_PREFIX
+        size = int(buf[plan[0][3][0] + 1:plan[0][3][0] + 9].view("<u8")[0]) - (MESSAGE_PREFIX - 9)
+        first = bytes(buf[plan[0][3][0] + skip:plan[0][3][0] + skip + size]); cdr = first[:2] == b"\x00\x01"
+    layout = layout_of("JointState", first, cdr)
+    (_, p_at, _), (_, v_at, _) = layout.runs[:2]
+    s_at = layout.stamp[0]
+    total = sum(len(p[3]) for p in plan)
+    t = time.perf_counter()
+    pos, vel, stamp = np.empty((total, 7)), np.empty((total, 7)), np.empty(total, np.int64)
+    n = 0
+    with open(path, "rb") as f:
+        for pos_, length, decompress, starts in plan:
+            f.seek(pos_)
+            if container.startswith("ros1"):
+                buf = np.frombuffer(decompress(f.read(length)), np.uint8)
+            else:
+                stream, size_ = get_chunk_data_stream(Chunk.read(ReadDataStream(f)))
+                buf = np.frombuffer(stream.read(size_), np.uint8)
+            rows = gather_rows(buf, starts + skip, layout.size)
+            m = len(starts)
+            pos[n:n + m] = rows[:, p_at:p_at + 56].copy().view("<f8")
+            vel[n:n + m] = rows[:, v_at:v_at + 56].copy().view("<f8")
+            st = rows[:, s_at:s_at + 8].copy().view("<u4").astype(np.int64)
+            stamp[n:n + m] = st[:, 0] * 1_000_000_000 + st[:, 1]
+            n += m
+    out = {{"seconds": time.perf_counter() - t, "n": n}}
+elif mode == "reader":
+    from ccl_cli.io.formats.bag import BagReader
+    from ccl_cli.io.formats.mcap import McapReader
+    from ccl_cli.io.options import DataOptions
+    options = DataOptions.model_validate({{k: v for k, v in cfg.items() if k != "files"}})
+    cls = BagReader if container.startswith("ros") else McapReader
+    t = time.perf_counter()
+    streams = cls(path, options).streams([options.state, options.action])
+    out = {{"seconds": time.perf_counter() - t, "n": len(streams[0].t_ns)}}
+elif mode == "mem":
     import tracemalloc
     tracemalloc.start()
     d = load_demonstrations(cfg)
@@ -102,6 +181,35 @@ print(json.dumps(out))
 """
 
 
+def convert_seconds(path: Path, tmp: str) -> float:
+    """Wall seconds of ``ccl convert`` (a fresh process) on ``path``."""
+    from writers import JOINTS
+
+    cfg = Path(tmp) / "convert.yaml"
+    cfg.write_text(json.dumps({"data": {
+        "state": {"topic": "/joint_states", "field": "position", "joints": JOINTS},
+        "action": {"topic": "/joint_states", "field": "velocity", "joints": JOINTS}}}))
+    t = time.perf_counter()
+    ccl = str(Path(sys.executable).parent / "ccl")
+    out = str(Path(tmp) / "out.h5")
+    subprocess.run([ccl, "convert", str(path), "-c", str(cfg), "-q", "--force", "-o", out],
+                   check=True, capture_output=True)
+    return time.perf_counter() - t
+
+
+def floors(container: str, path: Path, tmp: str, n: int) -> dict:
+    """Reader, loader and ``ccl convert`` against the numpy decode floor (run back to back)."""
+    before = run("floor", container, path)["seconds"]
+    reader = run("reader", container, path)["seconds"]
+    loader = run("e2e", container, path)["seconds"]
+    convert = convert_seconds(path, tmp)
+    floor = min(before, run("floor", container, path)["seconds"])
+    return {"container": container, "N": n, "floor_seconds": round(floor, 3),
+            "reader_seconds": round(reader, 3), "reader_ratio": round(reader / floor, 2),
+            "loader_seconds": round(loader, 3), "loader_ratio": round(loader / floor, 2),
+            "convert_seconds": round(convert, 3), "convert_ratio": round(convert / floor, 2)}
+
+
 def run(mode: str, container: str, path: Path) -> dict:
     code = CHILD.format(tests=str(HERE.parent / "tests"))
     out = subprocess.run([sys.executable, "-c", code, mode, container, str(path)], check=True,
@@ -115,13 +223,20 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=1_000_000)
     ap.add_argument("--containers", default=",".join(sorted(WRITERS)))
+    ap.add_argument("--floor", action="store_true", help="reader, loader and convert against the floor")
+    ap.add_argument("--path", type=Path, help="an existing file of N JointState (one container)")
     args = ap.parse_args()
-    rec = joint_recording(n=args.n, shuffle=False)
+    rec = None if args.path else joint_recording(n=args.n, shuffle=False)
     for container in args.containers.split(","):
         with tempfile.TemporaryDirectory() as tmp:
             t = time.perf_counter()
-            path = WRITERS[container](Path(tmp), rec)
+            path = args.path or WRITERS[container](Path(tmp), rec)
             write_s = time.perf_counter() - t
+            if args.floor:
+                print(json.dumps({**floors(container, path, tmp, args.n),
+                                  "peak_ratio": round((m := run("mem", container, path))["peak"]
+                                                      / max(m["arrays"], 1), 2)}), flush=True)
+                continue
             split = run("split", container, path)
             e2e = run("e2e", container, path)
             mem = run("mem", container, path)

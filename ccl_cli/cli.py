@@ -20,7 +20,7 @@ import typer
 from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer vendors its click
 from typer.core import TyperCommand, TyperGroup
 
-from ccl_cli import spec
+from ccl_cli import progress, spec
 from ccl_cli.errors import CCLError, ConfigError, InputError, LearningError
 from ccl_cli.learn import defaults, params
 
@@ -144,6 +144,7 @@ _QUIET = [False]  # set by every command through _logging: -q silences the summa
 
 def _logging(quiet: bool) -> None:
     _QUIET[0] = quiet
+    progress.install(progress.terminal_hook(quiet))  # long reads: a bar on a terminal, not with -q
     level = logging.WARNING if quiet else logging.INFO
     logging.basicConfig(level=level, format="ccl: %(message)s", stream=sys.stderr, force=True)
 
@@ -209,6 +210,8 @@ def _bar(label: str, total: int, quiet: bool):
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+    from ccl_cli import progress as shown
+
     counts_failures = label == "jobs"
     columns = [TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}")]
     columns += [TextColumn("failed {task.fields[failed]}"), TimeRemainingColumn()] if counts_failures \
@@ -216,6 +219,7 @@ def _bar(label: str, total: int, quiet: bool):
     progress = Progress(*columns, console=Console(stderr=True), transient=True)
     task = progress.add_task(label, total=total, failed=0)
     progress.start()
+    shown.live(+1)  # a long read meanwhile shows no second bar
     failed = [0]
 
     class Handle:
@@ -228,6 +232,7 @@ def _bar(label: str, total: int, quiet: bool):
             progress.update(task, advance=1, failed=failed[0])
 
         def stop(self) -> None:
+            shown.live(-1)
             progress.stop()
 
     return Handle()
@@ -486,6 +491,8 @@ def convert(
     data: Annotated[list[Path], typer.Argument(help="Recordings to convert.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     config: ConfigOpt = None, force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
+    format_version: Annotated[int, typer.Option("--format-version", min=1, max=2,
+                                                help="2: columnar; 1: a group per demonstration.")] = 2,
 ) -> None:
     """Convert recordings (CSV, bags, MCAP) into the canonical ccl-demonstrations HDF5."""
     from ccl_cli.app.run import read_data
@@ -496,7 +503,8 @@ def convert(
     dataset, _ = read_data(cfg, data)
     write_demonstrations(out, dataset, time_origin_ns=int(dataset.metadata.get("time_origin_ns", 0)),
                          provenance={"converted_from": dataset.metadata.get("files"),
-                                     "data_config": cfg.raw.get("data")}, force=force)
+                                     "data_config": cfg.raw.get("data")}, force=force,
+                         format_version=format_version)
     _wrote("convert", out, dataset, json_out)
 
 

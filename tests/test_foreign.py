@@ -340,7 +340,7 @@ def test_bar_arm7_mat73_matrix_demo_index(tmp_path, capsys):
     held, config = tmp_path / "held.mat", tmp_path / "c.yaml"
     assert main(["convert", str(held), "-c", str(config), "-o", str(tmp_path / "held.h5"), "-q"]) == 0
     with h5py.File(tmp_path / "held.h5") as f:
-        assert len(f["demos"]) == 10 and f["demos/demo_0000/x"].shape == (40, 7)
+        assert np.diff(f["demos/offsets"][()]).tolist() == [40] * 10 and f["demos/x"].shape == (400, 7)
     assert main(["evaluate", str(tmp_path / "out" / "model.h5"), str(held), "-c", str(config), "--json",
                  "-q"]) == 0
     metrics = json.loads(capsys.readouterr().out)["metrics"]

@@ -39,7 +39,8 @@ def fixtures(tmp_path_factory):
     """A data file and a learnt null-space model (learn-v), both written by ccl."""
     root = tmp_path_factory.mktemp("hostile")
     data = root / "toy.h5"
-    write_demonstrations(data, sim.toy2d(n_demos=6, n_steps=40, seed=0))  # ≥ 5: no few-demos warning
+    # ≥ 5: no few-demos warning; version 1, whose per-demonstration objects the tests below damage
+    write_demonstrations(data, sim.toy2d(n_demos=6, n_steps=40, seed=0), format_version=1)
     assert main(["learn-v", str(data), "-o", str(root / "v"), "-q", "--n-centres", "4",
                  "--test-fraction", "0"]) == 0  # 4 demonstrations: too few for a held-out set
     return {"root": root, "data": data, "model": root / "v" / "model.h5"}

@@ -142,8 +142,8 @@ def test_canonical_hdf5_orders_demos_by_index_and_chunks_large_data(tmp_path):
     big = sim.toy2d(sampling="uniform", n_samples=120_001, n_demos=1)
     out = write_demonstrations(tmp_path / "big.h5", big)
     with h5py.File(out) as f:
-        assert f["demos/demo_0000/x"].compression == "gzip"
-        assert f["demos/demo_0000/x"].chunks is not None
+        assert f["demos/x"].compression == "gzip"
+        assert f["demos/x"].chunks is not None
 
 
 def test_detect_format_by_content(tmp_path):

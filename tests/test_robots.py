@@ -524,11 +524,13 @@ def test_a_relative_robot_path_is_taken_from_the_config_folder(tmp_path, monkeyp
 
     folder = tmp_path / "study"
     folder.mkdir()
-    (folder / "c.yaml").write_text("learn-a: {method: lambda, features: {robot: arm.urdf, frame: tool}}\n"
-                                   "stages: [{learn-a: {regressors: {robot: sub/arm.urdf}, method: linear}}]\n")
+    (folder / "c.yaml").write_text(
+        "learn-a: {method: lambda, features: {robot: arm.urdf, frame: tool}}\n"
+        "stages: [{learn-a: {regressors: {robot: sub/arm.urdf}, method: linear}}]\n")
     monkeypatch.chdir(tmp_path)
     cfg = config.load(folder / "c.yaml")
     assert cfg.raw["learn-a"]["features"]["robot"] == str(folder / "arm.urdf")
     assert cfg.raw["stages"][0]["learn-a"]["regressors"]["robot"] == str(folder / "sub" / "arm.urdf")
-    (folder / "abs.yaml").write_text(f"learn-a: {{method: lambda, features: {{robot: {folder / 'a.urdf'}}}}}\n")
+    absolute = folder / "a.urdf"
+    (folder / "abs.yaml").write_text(f"learn-a: {{method: lambda, features: {{robot: {absolute}}}}}\n")
     assert config.load(folder / "abs.yaml").raw["learn-a"]["features"]["robot"] == str(folder / "a.urdf")

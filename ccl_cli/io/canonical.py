@@ -1,18 +1,28 @@
 """The canonical ``ccl-demonstrations`` HDF5 layout (read and write).
 
-::
+Version 2 (written by default) is columnar: one dataset per field across all
+demonstrations, cut by sample offsets, so opening a file costs a few datasets whatever
+the number of demonstrations::
 
-    /                  attrs: format="ccl-demonstrations", format_version, state_names[p],
+    /                  attrs: format="ccl-demonstrations", format_version=2, state_names[p],
                               action_names[q], state_units, action_units, time_unit="s",
                               time_origin_ns (int64), frame_id, provenance (JSON string)
+    /demos/offsets (D+1,) int64   demonstration k is samples offsets[k]:offsets[k+1]
+        name (D,) str (the names masks use), t0_ns (D,) int64, source (D,) str
+        t (N,) float64 seconds since time_origin_ns, strictly increasing within a demonstration
+        x (N, p)  u (N, q)
+        truth/pi (N, q)  truth/w  truth/v  truth/b (N, s)
+        truth/A (s, q) constant | (N, s, q);  truth/N (q, q) | (N, q, q)
+    /mask/train, /mask/test   names of demonstrations (optional)
+
+Version 1 (read, and written with ``format_version=1``) keeps one group per demonstration::
+
     /demos/demo_0000/  attrs: index (demo order), n_samples, t0_ns, source
-        t (n,) float64 seconds since time_origin_ns, strictly increasing
-        x (n, p)  u (n, q)
+        t (n,)  x (n, p)  u (n, q)
         truth/pi (n, q)  truth/w  truth/v  truth/b (n, s)
         truth/A (s, q) constant | (n, s, q);  truth/N (q, q) | (n, q, q)
-    /mask/train, /mask/test   names of demo groups (optional)
 
-Groups are ordered by their ``index`` attribute, never by name. Datasets of more than
+Its groups are ordered by their ``index`` attribute, never by name. Datasets of more than
 ``CHUNK_ROWS`` rows are chunked and gzip-compressed. Writing is atomic, and the file
 carries its content hash in the HDF5 user block (:mod:`ccl_cli.io.h5.seal`). Reading goes
 through :func:`~ccl_cli.io.h5.probe.open_hdf5` (no links or storage outside the file, no
@@ -46,7 +56,9 @@ from ccl_cli.io.h5.probe import open_hdf5
 from ccl_cli.io.h5.seal import create_hdf5
 
 FORMAT = "ccl-demonstrations"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: the versions this ccl reads
+READ_VERSIONS = (1, 2)
 CHUNK_ROWS = 100_000
 
 
@@ -65,17 +77,21 @@ def _dataset(group, name: str, data: np.ndarray) -> None:
 
 def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns: int = 0,
                          frame_id: str = "", provenance: dict[str, Any] | None = None,
-                         masks: dict[str, list[int]] | None = None, force: bool = False) -> Path:
+                         masks: dict[str, list[int]] | None = None, force: bool = False,
+                         format_version: int = FORMAT_VERSION) -> Path:
     """Write ``data`` in the canonical layout, atomically (temp file + rename).
 
-    ``masks`` maps ``train``/``test`` to demo ids (written as group names).
+    ``masks`` maps ``train``/``test`` to demo ids (written as demonstration names);
+    ``format_version``: 2 (columnar, the default) or 1 (a group per demonstration).
     """
     import h5py
 
+    if format_version not in READ_VERSIONS:
+        raise ValueError(f"format_version must be one of {READ_VERSIONS}, got {format_version!r}")
     path = Path(path)
     with create_hdf5(path, force=force) as f:
         f.attrs["format"] = FORMAT
-        f.attrs["format_version"] = FORMAT_VERSION
+        f.attrs["format_version"] = format_version
         str_dt = h5py.string_dtype()
         for key, values in (("state_names", data.state_names), ("action_names", data.action_names),
                             ("state_units", data.state_units), ("action_units", data.action_units)):
@@ -84,29 +100,8 @@ def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns:
         f.attrs["time_origin_ns"] = np.int64(time_origin_ns)
         f.attrs["frame_id"] = frame_id
         f.attrs["provenance"] = json.dumps(provenance or data.metadata or {}, default=str)
-        demos = f.create_group("demos")
-        names: dict[int, str] = {}
-        for order, d in enumerate(data.demo_ids):
-            m = data.demo == d
-            name = f"demo_{order:04d}"
-            names[int(d)] = name
-            g = demos.create_group(name)
-            g.attrs["index"] = order
-            g.attrs["n_samples"] = int(m.sum())
-            g.attrs["t0_ns"] = np.int64(time_origin_ns + int(round(data.t[m][0] * 1e9)))
-            g.attrs["source"] = str(data.metadata.get("sources", {}).get(str(int(d)), ""))
-            _dataset(g, "t", data.t[m])
-            _dataset(g, "x", data.X[m])
-            _dataset(g, "u", data.U[m])
-            if data.truth:
-                tg = g.create_group("truth")
-                for key, value in data.truth.items():
-                    if key in ("A", "N") and value.ndim == 2:
-                        tg.create_dataset(key, data=value)
-                    elif key in ("A", "N") and (value[m] == value[m][:1]).all():
-                        tg.create_dataset(key, data=value[m][0])  # constant within the demo
-                    else:
-                        _dataset(tg, key, value[m])
+        write = _write_columns if format_version == 2 else _write_groups
+        names = write(f.create_group("demos"), data, time_origin_ns)
         if masks:
             mg = f.create_group("mask")
             for key, ids in masks.items():
@@ -114,16 +109,80 @@ def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns:
     return path
 
 
-def check_header(attrs, where: str, fmt: str, version_key: str, version: int, what: str) -> None:
+def _sources(data: Demonstrations) -> list[str]:
+    return [str(data.metadata.get("sources", {}).get(str(int(d)), "")) for d in data.demo_ids]
+
+
+def _write_columns(demos, data: Demonstrations, time_origin_ns: int) -> dict[int, str]:
+    """Version 2: the demonstrations in file order, one dataset per field, cut by offsets."""
+    import h5py
+
+    ids = data.demo_ids  # in order of first appearance, as version 1 numbers them
+    unique, inverse = np.unique(data.demo, return_inverse=True)
+    rank = np.empty(len(ids), dtype=np.int64)
+    rank[np.searchsorted(unique, ids)] = np.arange(len(ids))
+    position = rank[inverse]  # each sample's demonstration, numbered in file order
+    order = np.argsort(position, kind="stable")  # samples grouped by demonstration
+    counts = np.bincount(position, minlength=len(ids))
+    offsets = np.r_[0, np.cumsum(counts)].astype(np.int64)
+    names = [f"demo_{k:04d}" for k in range(len(ids))]
+    demos.create_dataset("offsets", data=offsets)
+    demos.create_dataset("name", data=_strings(names), dtype=h5py.string_dtype())
+    t0 = data.t[order[offsets[:-1]]]
+    demos.create_dataset("t0_ns", data=time_origin_ns + np.round(t0 * 1e9).astype(np.int64))
+    demos.create_dataset("source", data=_strings(_sources(data)), dtype=h5py.string_dtype())
+    _write_samples(demos, data, order, collapse=False)
+    return {int(d): name for d, name in zip(ids, names, strict=True)}
+
+
+def _write_samples(g, data: Demonstrations, rows: np.ndarray, collapse: bool) -> None:
+    """t, x, u and the truth of the samples ``rows`` (indices or a mask) into group ``g``;
+    ``collapse``: A and N constant over these rows are stored once (version 1)."""
+    _dataset(g, "t", data.t[rows])
+    _dataset(g, "x", data.X[rows])
+    _dataset(g, "u", data.U[rows])
+    if not data.truth:
+        return
+    tg = g.create_group("truth")
+    for key, value in data.truth.items():
+        if key in ("A", "N") and value.ndim == 2:
+            tg.create_dataset(key, data=value)
+        elif collapse and key in ("A", "N") and (value[rows] == value[rows][:1]).all():
+            tg.create_dataset(key, data=value[rows][0])  # constant within the demonstration
+        else:
+            _dataset(tg, key, value[rows])
+
+
+def _write_groups(demos, data: Demonstrations, time_origin_ns: int) -> dict[int, str]:
+    """Version 1: one group per demonstration."""
+    names: dict[int, str] = {}
+    sources = _sources(data)
+    for order, d in enumerate(data.demo_ids):
+        m = data.demo == d
+        name = f"demo_{order:04d}"
+        names[int(d)] = name
+        g = demos.create_group(name)
+        g.attrs["index"] = order
+        g.attrs["n_samples"] = int(m.sum())
+        g.attrs["t0_ns"] = np.int64(time_origin_ns + int(round(data.t[m][0] * 1e9)))
+        g.attrs["source"] = sources[order]
+        _write_samples(g, data, m, collapse=True)
+    return names
+
+
+def check_header(attrs, where: str, fmt: str, version_key: str, version: int | tuple[int, ...],
+                 what: str) -> None:
     """Refuse a file whose ``format`` attribute is not ``fmt`` or whose ``version_key``
-    attribute does not name the version ``version`` (an integer, or "1" / "1.0"; one message
-    naming the file and what was found)."""
+    attribute does not name ``version`` (or one of them): an integer, or "1" / "1.0" as other
+    writers store it (one message naming the file and what was found)."""
     found = attr_str(attrs, "format", where, None)
     if found != fmt:
         raise InputError(f"{where}: not a {what} (format attribute {found!r})")
     got = attr_version(attrs, version_key, where)
-    if got != version:
-        raise InputError(f"{where}: {what} version {got} is not supported (this ccl reads version {version})")
+    versions = version if isinstance(version, tuple) else (version,)
+    if got not in versions:
+        told = " or ".join(map(str, versions))
+        raise InputError(f"{where}: {what} version {got} is not supported (this ccl reads version {told})")
 
 
 def is_canonical(path: Path) -> bool:
@@ -132,8 +191,8 @@ def is_canonical(path: Path) -> bool:
         return attr_str(f.attrs, "format", str(path), "") == FORMAT
 
 
-def _demo_arrays(g, where: str, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    label = f"{where}: /demos/{name}"
+def _demo_arrays(g, where: str, name: str, ordered: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    label = f"{where}: /demos/{name}".rstrip("/")
     t = numeric(g, "t", where, ndim=(1,))
     x = numeric(g, "x", where, ndim=(1, 2), finite=False)
     u = numeric(g, "u", where, ndim=(1, 2), finite=False)
@@ -144,7 +203,7 @@ def _demo_arrays(g, where: str, name: str) -> tuple[np.ndarray, np.ndarray, np.n
         raise InputError(f"{label}: t, x, u have {t.shape}, {x.shape}, {u.shape}")
     if n == 0 or x.shape[1] == 0 or u.shape[1] == 0:
         raise InputError(f"{label}: empty (t, x, u have {t.shape}, {x.shape}, {u.shape})")
-    if n > 1 and not np.all(np.diff(t) > 0):
+    if ordered and n > 1 and not np.all(np.diff(t) > 0):
         raise InputError(f"{label}/t is not strictly increasing")
     return t, x, u
 
@@ -170,8 +229,89 @@ def _truth(g, where: str, name: str, n: int, q: int) -> dict[str, np.ndarray]:
     return out
 
 
+Arrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray], list[str]]
+
+
+def _read_groups(demos, where: str) -> Arrays:
+    """Version 1: X, U, t, demo ids, truth and names from one group per demonstration."""
+    names = members(demos, where)
+    if not names:
+        raise InputError(f"{where}: no demonstrations under /demos")
+    groups = []
+    for name in names:
+        g = group_of(demos, name, f"{where}: /demos")
+        groups.append((attr_int(g.attrs, "index", f"{where}: /demos/{name}"), name, g))
+    groups.sort(key=lambda item: item[0])
+    X, U, T, demo, truth_parts = [], [], [], [], {}
+    p = q = None
+    truth_keys = None
+    for order, (_, name, g) in enumerate(groups):
+        t, x, u = _demo_arrays(g, where, name)
+        n = t.shape[0]
+        if p is None:
+            p, q = x.shape[1], u.shape[1]
+        elif (x.shape[1], u.shape[1]) != (p, q):
+            raise InputError(f"{where}: /demos/{name} has dimensions ({x.shape[1]}, {u.shape[1]}), "
+                             f"other demos ({p}, {q})")
+        X.append(x)
+        U.append(u)
+        T.append(t)
+        demo.append(np.full(n, order))
+        parts = _truth(g, where, name, n, q)
+        truth_keys = set(parts) if truth_keys is None else truth_keys & set(parts)
+        for key, value in parts.items():
+            truth_parts.setdefault(key, []).append((n, value))
+    truth: dict[str, np.ndarray] = {}
+    for key in sorted(truth_keys or ()):
+        parts = truth_parts[key]
+        if key == "b" and len({v.shape[1] for _, v in parts}) > 1:
+            raise InputError(f"{where}: truth/b has different widths across demonstrations")
+        if key == "A" and len({v.shape[-2] for _, v in parts}) > 1:
+            raise InputError(f"{where}: truth/A has different numbers of rows across demonstrations")
+        const = key in ("A", "N") and all(v.ndim == 2 for _, v in parts)
+        if const and all(np.array_equal(parts[0][1], v) for _, v in parts):
+            truth[key] = parts[0][1]
+        else:
+            truth[key] = np.concatenate([np.broadcast_to(v, (n, *v.shape)) if
+                                         (key in ("A", "N") and v.ndim == 2) else v
+                                         for n, v in parts])
+    return (np.concatenate(X), np.concatenate(U), np.concatenate(T), np.concatenate(demo), truth,
+            [name for _, name, _ in groups])
+
+
+def _read_columns(demos, where: str) -> Arrays:
+    """Version 2: the field datasets, cut by ``offsets`` (checked: 0 … N, every
+    demonstration non-empty, t strictly increasing within each)."""
+    label = f"{where}: /demos"
+    offsets = numeric(demos, "offsets", where, ndim=(1,))
+    n_demos = offsets.size - 1
+    if n_demos < 1:
+        raise InputError(f"{where}: no demonstrations under /demos")
+    t, x, u = _demo_arrays(demos, where, "", ordered=False)
+    n = t.shape[0]
+    if offsets[0] != 0 or offsets[-1] != n or not (np.diff(offsets) > 0).all() or \
+            not (offsets == np.round(offsets)).all():
+        raise InputError(f"{label}/offsets must rise strictly from 0 to the {n} samples, got "
+                         f"{offsets[:4].tolist()}{' …' if offsets.size > 4 else ''}")
+    counts = np.diff(offsets).astype(np.int64)
+    demo = np.repeat(np.arange(n_demos), counts)
+    rises = np.diff(t) > 0
+    rises[offsets[1:-1].astype(np.int64) - 1] = True  # a new demonstration may start earlier
+    if not rises.all():
+        k = int(demo[np.argmin(rises)])
+        raise InputError(f"{label}/t is not strictly increasing within demonstration {k}")
+    names = strings(demos, "name", where)
+    if len(names) != n_demos or len(set(names)) != n_demos:
+        raise InputError(f"{label}/name must hold {n_demos} distinct names, got {len(names)}")
+    truth = _truth(demos, where, "", n, u.shape[1])
+    if "b" in truth and truth["b"].ndim != 2:
+        raise InputError(f"{label}/truth/b must be (N, s), got {truth['b'].shape}")
+    return x, u, t, demo, truth, names
+
+
 def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any]]:
-    """Read a canonical file → (Demonstrations, info with time_origin_ns, masks, provenance).
+    """Read a canonical file (version 1 or 2) → (Demonstrations, info with time_origin_ns,
+    masks, provenance, the demonstrations' names and the file's ``format_version``).
 
     Every structural problem (foreign file, missing dataset, wrong types or shapes,
     unknown version, links or storage outside the file) is an :class:`InputError`
@@ -180,50 +320,13 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
     path = Path(path)
     where = str(path)
     with open_hdf5(path, f"{FORMAT} file") as f:
-        check_header(f.attrs, where, FORMAT, "format_version", FORMAT_VERSION, f"{FORMAT} file")
+        check_header(f.attrs, where, FORMAT, "format_version", READ_VERSIONS, f"{FORMAT} file")
+        version = attr_int(f.attrs, "format_version", where)
         demos = group_of(f, "demos", where, required=False)
-        names = members(demos, where) if demos is not None else []
-        if not names:
+        if demos is None:
             raise InputError(f"{where}: no demonstrations under /demos")
-        groups = []
-        for name in names:
-            g = group_of(demos, name, f"{where}: /demos")
-            groups.append((attr_int(g.attrs, "index", f"{where}: /demos/{name}"), name, g))
-        groups.sort(key=lambda item: item[0])
-        X, U, T, demo, truth_parts = [], [], [], [], {}
-        p = q = None
-        truth_keys = None
-        for order, (_, name, g) in enumerate(groups):
-            t, x, u = _demo_arrays(g, where, name)
-            n = t.shape[0]
-            if p is None:
-                p, q = x.shape[1], u.shape[1]
-            elif (x.shape[1], u.shape[1]) != (p, q):
-                raise InputError(f"{where}: /demos/{name} has dimensions ({x.shape[1]}, {u.shape[1]}), "
-                                 f"other demos ({p}, {q})")
-            X.append(x)
-            U.append(u)
-            T.append(t)
-            demo.append(np.full(n, order))
-            parts = _truth(g, where, name, n, q)
-            truth_keys = set(parts) if truth_keys is None else truth_keys & set(parts)
-            for key, value in parts.items():
-                truth_parts.setdefault(key, []).append((n, value))
-        truth: dict[str, np.ndarray] = {}
-        for key in sorted(truth_keys or ()):
-            parts = truth_parts[key]
-            if key == "b" and len({v.shape[1] for _, v in parts}) > 1:
-                raise InputError(f"{where}: truth/b has different widths across demonstrations")
-            if key == "A" and len({v.shape[-2] for _, v in parts}) > 1:
-                raise InputError(f"{where}: truth/A has different numbers of rows across demonstrations")
-            const = key in ("A", "N") and all(v.ndim == 2 for _, v in parts)
-            if const and all(np.array_equal(parts[0][1], v) for _, v in parts):
-                truth[key] = parts[0][1]
-            else:
-                truth[key] = np.concatenate([np.broadcast_to(v, (n, *v.shape)) if
-                                             (key in ("A", "N") and v.ndim == 2) else v
-                                             for n, v in parts])
-        names = [name for _, name, _ in groups]
+        X, U, T, demo, truth, names = (_read_columns if version == 2 else _read_groups)(demos, where)
+        p, q = X.shape[1], U.shape[1]
         masks = {}
         mask = group_of(f, "mask", where, required=False)
         if mask is not None:
@@ -235,8 +338,7 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
                         raise InputError(f"{where}: /mask/{key} names unknown groups {unknown[:3]}")
                     masks[key] = [names.index(w) for w in wanted]
         data = Demonstrations(
-            X=np.concatenate(X), U=np.concatenate(U), demo=np.concatenate(demo), t=np.concatenate(T),
-            truth=truth,
+            X=X, U=U, demo=demo, t=T, truth=truth,
             state_names=attr_strings(f.attrs, "state_names", where, p),
             action_names=attr_strings(f.attrs, "action_names", where, q),
             state_units=attr_strings(f.attrs, "state_units", where, p),
@@ -248,5 +350,5 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
         except InputError:
             provenance = {}
         info = {"time_origin_ns": attr_int(f.attrs, "time_origin_ns", where, 0), "masks": masks,
-                "provenance": provenance, "groups": names}
+                "provenance": provenance, "groups": names, "format_version": version}
         return data, info

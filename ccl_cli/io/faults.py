@@ -163,15 +163,20 @@ def _cubic_residual(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np.
     idx = idx[(demo[idx - 2] == demo[idx]) & (demo[idx + 2] == demo[idx])]
     period, _ = _period(np.diff(t))
     idx = idx[t[idx + 2] - t[idx - 2] <= SPIKE_SPAN * period]  # not across a gap
-    nb = idx[:, None] + np.array([-2, -1, 1, 2])  # (M, 4) neighbours
-    tn = t[nb] - t[idx][:, None]
-    diff = tn[:, :, None] - tn[:, None, :]  # (M, 4, 4) t_j − t_m
-    eye = np.eye(4, dtype=bool)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w = np.prod(np.where(eye, 1.0, -tn[:, None, :] / np.where(eye, 1.0, diff)), axis=2)
+    steps = (-2, -1, 1, 2)
+    tn = t[idx[:, None] + np.array(steps)] - t[idx][:, None]  # (M, 4) neighbours' stamps τ_j
+    w = np.empty_like(tn)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for j in range(4):  # w_j = Π_{m≠j} (0 − τ_m) / (τ_j − τ_m): four columns, not a loop over samples
+            others = [tn[:, m] for m in range(4) if m != j]
+            w[:, j] = -(others[0] * others[1] * others[2]) / \
+                ((tn[:, j] - others[0]) * (tn[:, j] - others[1]) * (tn[:, j] - others[2]))
     ok = np.isfinite(w).all(1)
-    r = Y[idx[ok]] - np.einsum("mj,mjd->md", w[ok], Y[nb[ok]])
-    return r, idx[ok]
+    keep, w = idx[ok], w[ok]
+    fit = w[:, :1] * Y[keep + steps[0]]
+    for j in range(1, 4):
+        fit += w[:, j:j + 1] * Y[keep + steps[j]]
+    return Y[keep] - fit, keep
 
 
 def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -> Finding:

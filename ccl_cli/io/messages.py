@@ -420,8 +420,11 @@ def read_topics(specs: list[StreamOptions], msgtypes: dict[str, str], where: str
     return {t: TopicCollector(ex, where) for t, ex in by_topic.items()}, slots
 
 
-def finish_topics(collectors: dict[str, TopicCollector], slots: list[tuple[str, int]]) -> list[Stream]:
-    done = {t: c.finish() for t, c in collectors.items()}
+def finish_topics(collectors: dict[str, TopicCollector], slots: list[tuple[str, int]],
+                  done: dict[str, list[Stream]] | None = None) -> list[Stream]:
+    """The streams in the order of ``slots``: the collectors' and those already ``done``
+    (topics read without decoding messages, :mod:`ccl_cli.io.layouts`)."""
+    done = {**(done or {}), **{t: c.finish() for t, c in collectors.items()}}
     return [done[t][k] for t, k in slots]
 
 

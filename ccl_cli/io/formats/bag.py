@@ -14,15 +14,25 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import InputError
+from ccl_cli.io.formats.bag1 import BagIndex, read_chunk, read_index
+from ccl_cli.io.layouts import NotFixed, fixed_topic, gather_rows, read_uint
 from ccl_cli.io.library_errors import library_call, library_iter
-from ccl_cli.io.limits import inside, regular_file
-from ccl_cli.io.messages import TopicReader, finish_topics, read_topics
+from ccl_cli.io.limits import inside, open_regular, regular_file
+from ccl_cli.io.messages import TopicReader, finish_topics, read_topics, short_type
 from ccl_cli.io.options import StreamOptions
 from ccl_cli.io.sniff import BAG2_METADATA
 from ccl_cli.io.streams import Stream
 from ccl_cli.io.yamlsafe import read_yaml
+from ccl_cli.progress import progress_of
 
 log = logging.getLogger("ccl")
+_TYPES = "\0types"  # the key of the topic types among the topics read by _fixed_topics
+
+
+def normalize(msgtype: str) -> str:
+    """'sensor_msgs/JointState' (ROS 1) → 'sensor_msgs/msg/JointState', as rosbags names it."""
+    parts = msgtype.split("/")
+    return "/".join([parts[0], "msg", parts[-1]]) if len(parts) == 2 else msgtype
 
 
 def _typestore(name: str | None):
@@ -111,7 +121,28 @@ class BagReader(TopicReader):
                                  "damaged bag metadata?")
         return reader
 
+    def _index(self) -> BagIndex | None:
+        """The index of a ROS 1 bag read with NumPy (:mod:`ccl_cli.io.formats.bag1`); None for
+        a ROS 2 bag or a bag whose index this does not read (rosbags' reader then explains)."""
+        root = bag_root(self.path)
+        if root.suffix != ".bag" or not root.is_file():
+            return None
+        try:
+            index = read_index(root)
+        except InputError:
+            return None
+        return index if set(index.entries) == {c.id for c in index.connections} else None
+
     def listing(self) -> dict[str, Any]:
+        index = self._index()
+        if index is not None and index.entries:  # from the index: no message read
+            topics: dict[str, dict[str, Any]] = {}
+            for conn in index.connections:
+                entry = topics.setdefault(conn.topic, {"type": normalize(conn.msgtype), "count": 0})
+                entry["count"] += int(len(index.entries[conn.id]))
+            times = [e[[0, -1], 0] for e in index.entries.values() if len(e)]
+            return {"start_ns": int(min(t[0] for t in times)), "end_ns": int(max(t[1] for t in times)),
+                    "topics": dict(sorted(topics.items()))}
         reader = self._open()
         try:
             where = str(self.path)
@@ -125,8 +156,15 @@ class BagReader(TopicReader):
             library_call(str(self.path), "close bag", reader.close)
 
     def streams(self, selections: Sequence[StreamOptions]) -> list[Stream]:
-        """Several streams in one pass over the bag (each message deserialised once)."""
+        """Several streams in one pass over the bag (each message deserialised once); topics
+        of fixed-layout messages in a ROS 1 bag are gathered from the chunks with NumPy
+        (:meth:`_fixed`), the others decoded message by message."""
         where = str(self.path)
+        done = self._fixed_topics(selections)
+        if done is not None and all(s.topic in done for s in selections):
+            _, slots = read_topics(list(selections), done.pop(_TYPES), where)
+            return finish_topics({}, slots, done)
+        done = {} if done is None else {t: v for t, v in done.items() if t != _TYPES}
         reader = self._open()
         try:
             msgtypes = {}
@@ -137,17 +175,127 @@ class BagReader(TopicReader):
                     raise InputError(f"{where}: topic {selection.topic!r} not found (topics: {have})")
                 msgtypes[selection.topic] = str(found[0].msgtype)
             collectors, slots = read_topics(selections, msgtypes, where)
+            collectors = {t: c for t, c in collectors.items() if t not in done}
             conns = [c for c in reader.connections if c.topic in collectors]
             what = f"decode {', '.join(collectors)}"
             for conn, log_ns, raw in library_iter(where, what, reader.messages(connections=conns)):
                 msg = library_call(where, what, reader.deserialize, raw, conn.msgtype)
                 collectors[conn.topic].add(msg, log_ns)
-            return finish_topics(collectors, slots)
+            return finish_topics(collectors, slots, done)
         finally:
             library_call(str(self.path), "close bag", reader.close)
 
+    def _fixed_topics(self, selections: Sequence[StreamOptions]) -> dict[str, Any] | None:
+        """The topics of a ROS 1 bag whose messages are all laid out alike, read from the
+        chunks with NumPy ({topic: streams}, and under ``_TYPES`` the type of every topic);
+        None for a ROS 2 bag, a bag whose index this does not read, or an unknown topic
+        (the library path then explains)."""
+        index = self._index()
+        if index is None:
+            return None  # ROS 2 bags, and whatever the library path refuses with its own words
+        where = str(self.path)
+        types = {c.topic: normalize(c.msgtype) for c in index.connections}
+        if any(s.topic not in types for s in selections):
+            return None
+        collectors, _ = read_topics(list(selections), types, where)
+        done: dict[str, Any] = {_TYPES: types}
+        with open_regular(bag_root(self.path), "the bag") as f:
+            for topic, collector in collectors.items():
+                streams = self._fixed(f, index, topic, collector.extractors)
+                if streams is not None:
+                    done[topic] = streams
+        return done
+
+    def _fixed(self, f, index: BagIndex, topic: str, extractors: list) -> list[Stream] | None:
+        """The streams of ``topic`` gathered from the chunks (:mod:`ccl_cli.io.layouts`), or None
+        when its messages are not all laid out alike."""
+        where = str(self.path)
+        conns = [c for c in index.connections if c.topic == topic]
+        entries = index.entries.get(conns[0].id) if len(conns) == 1 else None
+        if entries is None or not entries.size or not conns[0].msgdef:
+            return None
+        conn = conns[0]
+        by_chunk = entries[np.lexsort((entries[:, 2], entries[:, 1]))]
+        numbers = np.unique(by_chunk[:, 1])
+        bounds = np.searchsorted(by_chunk[:, 1], np.append(numbers, numbers[-1] + 1))
+        try:
+            first = self._first_message(f, index, conn, entries[0])
+            if first is None:
+                return None
+            head, raw, msg = first
+            gathered = fixed_topic(topic, short_type(conn.msgtype), False, raw, msg, extractors,
+                                   len(entries), where)
+            varying = np.zeros(len(head), dtype=bool)
+            at = head.find(b"time=")
+            if at < 0 or head.find(b"op=\x02") < 0:
+                return None
+            varying[at + 5:at + 13] = True
+            fixed_head = np.frombuffer(head, dtype=np.uint8)[~varying]
+            total = sum(index.chunks[int(k)].size for k in numbers)
+            with progress_of(f"reading {topic}", total) as advance:
+                for k, lo, hi in zip(numbers, bounds[:-1], bounds[1:], strict=True):
+                    chunk = index.chunks[int(k)]
+                    buf = read_chunk(f, chunk, where)
+                    starts = by_chunk[lo:hi, 2]
+                    # every record: the first's header length, header (but its time) and data length
+                    if not (read_uint(buf, starts, 4) == len(head)).all():
+                        return None
+                    heads = gather_rows(buf, starts + 4, len(head))
+                    if not (heads[:, ~varying] == fixed_head).all() or \
+                            not (read_uint(buf, starts + 4 + len(head), 4) == len(raw)).all():
+                        return None
+                    gathered.add(buf, starts + 8 + len(head), by_chunk[lo:hi, 0])
+                    advance(chunk.size)
+        except NotFixed:
+            return None
+        return gathered.finish()
+
+    def _first_message(self, f, index: BagIndex, conn, entry: np.ndarray
+                       ) -> tuple[bytes, bytes, Any] | None:
+        """Record header, serialised data and rosbags' decoding (with the bag's own message
+        definition) of the message at ``entry``; None when it is not a plain message record."""
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        where = str(self.path)
+        buf = read_chunk(f, index.chunks[int(entry[1])], where)
+        at = int(entry[2])
+        if at + 8 > buf.size:
+            return None
+        hlen = int(read_uint(buf, np.array([at]), 4)[0])
+        if at + 8 + hlen > buf.size:
+            return None
+        size = int(read_uint(buf, np.array([at + 4 + hlen]), 4)[0])
+        head = bytes(buf[at + 4:at + 4 + hlen])
+        raw = bytes(buf[at + 8 + hlen:at + 8 + hlen + size])
+        if len(raw) != size:
+            return None
+        msgtype = normalize(conn.msgtype)
+        store = get_typestore(Stores.EMPTY)
+        library_call(where, f"read the message definition of {conn.topic}", store.register,
+                     get_types_from_msg(conn.msgdef, msgtype))
+        msg = library_call(where, f"decode {conn.topic}", store.deserialize_ros1, raw, msgtype)
+        return head, raw, msg
+
     def first_messages(self) -> dict[str, tuple[np.ndarray, Any]]:
-        """Log times (ns) of every message and the first message (decoded) of each topic."""
+        """Log times (ns) of every message and the first message (decoded) of each topic: for
+        a ROS 1 bag from its index (one message decoded per topic), else from every message."""
+        index = self._index()
+        if index is not None and index.entries:
+            out = {}
+            with open_regular(bag_root(self.path), "the bag") as f:
+                for topic in dict.fromkeys(c.topic for c in index.connections):
+                    conns = [c for c in index.connections if c.topic == topic and len(index.entries[c.id])]
+                    if not conns:
+                        continue
+                    times = np.sort(np.concatenate([index.entries[c.id][:, 0] for c in conns]))
+                    conn = min(conns, key=lambda c: tuple(index.entries[c.id][0]))
+                    first = self._first_message(f, index, conn, index.entries[conn.id][0]) \
+                        if conn.msgdef else None
+                    if first is None:
+                        break  # not a plain message record: rosbags' reader below
+                    out[topic] = (times, first[2])
+                else:
+                    return out
         bag = self._open()
         try:
             times: dict[str, list[int]] = {}

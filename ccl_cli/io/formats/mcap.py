@@ -8,18 +8,26 @@ library's json, which is what the encoding is).
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from ccl_cli.errors import InputError
+from ccl_cli.io.layouts import FixedTopic, NotFixed, fixed_topic, read_uint
 from ccl_cli.io.library_errors import library_call, library_iter
 from ccl_cli.io.limits import check_claim, open_regular
-from ccl_cli.io.messages import TopicReader, finish_topics, read_topics
+from ccl_cli.io.messages import TopicReader, finish_topics, read_topics, short_type
 from ccl_cli.io.options import StreamOptions
 from ccl_cli.io.sniff import MCAP_MAGIC
 from ccl_cli.io.streams import Stream
+from ccl_cli.progress import progress_of
+
+#: MCAP record opcodes, and the bytes of a Message record before its data (opcode, length,
+#: channel id, sequence, log time, publish time)
+MESSAGE_OPCODE, MESSAGE_INDEX_OPCODE = 0x05, 0x07
+MESSAGE_PREFIX = 1 + 8 + 2 + 4 + 8 + 8
 
 
 def _decoders():
@@ -87,7 +95,15 @@ class McapReader(TopicReader):
                 msgtypes[selection.topic] = schema.name if schema else ""
                 encodings[selection.topic] = channels[0].message_encoding
             collectors, slots = read_topics(selections, msgtypes, where)
+            done: dict[str, list[Stream]] = {}
+            for topic, collector in collectors.items():
+                fast = self._fixed(f, reader, summary, topic, collector.extractors)
+                if fast is not None:
+                    done[topic] = fast
+            collectors = {t: c for t, c in collectors.items() if t not in done}
             topics = list(collectors)
+            if not topics:
+                return finish_topics({}, slots, done)
             what = f"decode {', '.join(topics)}"
             if all(encodings[t] == "json" for t in topics):
                 for _, channel, message in library_iter(where, what, reader.iter_messages(topics=topics)):
@@ -97,13 +113,75 @@ class McapReader(TopicReader):
                 for _, channel, message, decoded in library_iter(where, what,
                                                                  reader.iter_decoded_messages(topics=topics)):
                     collectors[channel.topic].add(decoded, message.log_time)
-            return finish_topics(collectors, slots)
+            return finish_topics(collectors, slots, done)
+
+    def _fixed(self, f, reader, summary, topic: str, extractors: list) -> list[Stream] | None:
+        """The streams of ``topic`` gathered with NumPy from the chunks (:mod:`ccl_cli.io.layouts`),
+        or None when its messages are not all laid out alike (or not indexed): the caller
+        decodes them message by message."""
+        channels = [c for c in summary.channels.values() if c.topic == topic]
+        if len(channels) != 1 or channels[0].message_encoding not in ("cdr", "ros1"):
+            return None
+        cid = channels[0].id
+        chunks = sorted((c for c in summary.chunk_indexes if cid in c.message_index_offsets),
+                        key=lambda c: c.chunk_start_offset)
+        if not chunks or any(not c.message_index_offsets for c in summary.chunk_indexes):
+            return None  # chunks without message indexes: which hold the topic is unknown
+        indexes = [self._message_index(f, c.message_index_offsets[cid], cid) for c in chunks]
+        total = sum(len(i) for i in indexes)
+        counts = summary.statistics.channel_message_counts if summary.statistics else {}
+        if total == 0 or total != int(counts.get(cid, total)):
+            return None  # an index that does not count every message: decoded one by one
+        gathered = None
+        try:
+            with progress_of(f"reading {topic}", sum(c.uncompressed_size for c in chunks)) as advance:
+                for chunk_index, entries in zip(chunks, indexes, strict=True):
+                    buf = self._chunk(f, chunk_index)
+                    entries = entries[np.argsort(entries[:, 1], kind="stable")]
+                    starts = entries[:, 1].astype(np.int64)
+                    if gathered is None:
+                        gathered = self._first_fixed(f, reader, topic, buf, starts[0], extractors, total)
+                        size = gathered.layout.size
+                    if not ((buf[starts] == MESSAGE_OPCODE).all()  # Message records of this channel
+                            and (read_uint(buf, starts + 9, 2) == cid).all()
+                            and (read_uint(buf, starts + 1, 8) == size + MESSAGE_PREFIX - 9).all()):
+                        return None
+                    gathered.add(buf, starts + MESSAGE_PREFIX, entries[:, 0].astype(np.int64))
+                    advance(chunk_index.uncompressed_size)
+        except NotFixed:
+            return None
+        return gathered.finish()
+
+    def _indexed_times(self, f, summary) -> dict[str, np.ndarray] | None:
+        """Log times of every message per topic from the chunks' message indexes (None when a
+        chunk has none: the messages are read instead)."""
+        if not summary.chunk_indexes or any(not c.message_index_offsets for c in summary.chunk_indexes):
+            return None
+        parts: dict[str, list[np.ndarray]] = {}
+        for chunk in summary.chunk_indexes:
+            for cid, offset in chunk.message_index_offsets.items():
+                channel = summary.channels.get(cid)
+                if channel is None:
+                    return None
+                parts.setdefault(str(channel.topic), []).append(self._message_index(f, offset, cid)[:, 0])
+        out = {t: np.concatenate(p) for t, p in parts.items() if sum(map(len, p))}
+        if any(int(a.max()) >= 2**63 for a in out.values()):
+            return None  # log times beyond int64 (a damaged file): explained by the message path
+        return {t: np.sort(a.astype(np.int64)) for t, a in out.items()}
 
     def first_messages(self) -> dict[str, tuple[np.ndarray, Any]]:
-        """Log times (ns) and the first decoded message of each topic."""
+        """Log times (ns) and the first decoded message of each topic (times from the message
+        indexes where every chunk has them, else from reading every message)."""
         out: dict[str, tuple[np.ndarray, Any]] = {}
         where, what = str(self.path), "read MCAP messages"
         with self._open() as f:
+            mc, summary = self._summary(f)
+            indexed = self._indexed_times(f, summary)
+            if indexed is not None:
+                for topic, stamps in indexed.items():
+                    out[topic] = (stamps, self._first_decoded(f, topic))
+                return out
+            f.seek(0)
             mc, _ = self._summary(f)
             times: dict[str, list[int]] = {}
             enc: dict[str, str] = {}
@@ -111,16 +189,7 @@ class McapReader(TopicReader):
                 times.setdefault(channel.topic, []).append(message.log_time)
                 enc[channel.topic] = channel.message_encoding
             for topic in times:
-                f.seek(0)
-                mc, _ = self._summary(f)
-                if enc[topic] == "json":
-                    found = next(library_iter(where, what, mc.iter_messages(topics=[topic])), None)
-                    msg = library_call(where, what, json.loads, found[2].data) if found else None
-                else:
-                    found = next(library_iter(where, what, mc.iter_decoded_messages(topics=[topic])), None)
-                    msg = found[3] if found else None
-                if found is None:
-                    raise InputError(f"{where}: topic {topic} lost its messages on a second read")
+                msg = self._first_decoded(f, topic, enc[topic] == "json")
                 try:  # a damaged file can claim log times beyond int64
                     stamps = np.asarray(times[topic], dtype=np.int64)
                 except OverflowError:
@@ -128,3 +197,68 @@ class McapReader(TopicReader):
                                      "(damaged file?)") from None
                 out[topic] = (stamps, msg)
         return out
+
+    def _message_index(self, f, offset: int, cid: int) -> np.ndarray:
+        """(n, 2) uint64 (log time, offset in the chunk) of one MessageIndex record."""
+        where = str(self.path)
+        f.seek(offset)
+        head = f.read(15)
+        if len(head) != 15 or head[0] != MESSAGE_INDEX_OPCODE or \
+                int.from_bytes(head[9:11], "little") != cid:
+            raise InputError(f"{where}: no message index at byte {offset} (damaged file?)")
+        size = int.from_bytes(head[11:15], "little")
+        check_claim(where, f"the message index at byte {offset}", size, 1, os.path.getsize(where))
+        raw = f.read(size)
+        if len(raw) != size or size % 16:
+            raise InputError(f"{where}: the message index at byte {offset} is truncated")
+        return np.frombuffer(raw, dtype="<u8").reshape(-1, 2)
+
+    def _chunk(self, f, index) -> np.ndarray:
+        """The decompressed records of one chunk (mcap's own chunk reader and codecs), as uint8."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.records import Chunk
+        from mcap.stream_reader import get_chunk_data_stream
+
+        where = str(self.path)
+        what = f"read the chunk at byte {index.chunk_start_offset}"
+        f.seek(index.chunk_start_offset + 9)  # past the record's opcode and length
+        chunk = library_call(where, what, Chunk.read, ReadDataStream(f))
+        if chunk.uncompressed_size != index.uncompressed_size:  # the size checked is the size read
+            raise InputError(f"{where}: the chunk at byte {index.chunk_start_offset} claims "
+                             f"{chunk.uncompressed_size} bytes, its index {index.uncompressed_size}")
+        stream, size = library_call(where, what, get_chunk_data_stream, chunk)
+        return np.frombuffer(library_call(where, what, stream.read, size), dtype=np.uint8)
+
+    def _first_fixed(self, f, reader, topic: str, buf: np.ndarray, start: int, extractors: list,
+                     total: int) -> FixedTopic:
+        """The :class:`FixedTopic` of ``topic`` from its first message (at ``start`` in ``buf``),
+        decoded once by mcap's decoders for the extractors' checks."""
+        where = str(self.path)
+        size = int(read_uint(buf, np.array([start + 1]), 8)[0]) - (MESSAGE_PREFIX - 9)
+        raw = bytes(buf[start + MESSAGE_PREFIX:start + MESSAGE_PREFIX + size])
+        f.seek(0)
+        decoded = next(library_iter(where, f"decode {topic}",
+                                    reader.iter_decoded_messages(topics=[topic])), None)
+        if decoded is None or bytes(decoded[2].data) != raw:
+            raise NotFixed("the first message in the index is not the first the library reads")
+        kind = short_type(decoded[0].name if decoded[0] else "")
+        return fixed_topic(topic, kind, decoded[1].message_encoding == "cdr", raw, decoded[3], extractors,
+                           total, where)
+
+    def _first_decoded(self, f, topic: str, as_json: bool | None = None) -> Any:
+        """The first message of ``topic`` in log-time order, decoded (JSON by the standard
+        library, the rest by mcap's decoders)."""
+        where, what = str(self.path), "read MCAP messages"
+        f.seek(0)
+        mc, summary = self._summary(f)
+        if as_json is None:
+            as_json = any(c.message_encoding == "json" for c in summary.channels.values() if c.topic == topic)
+        if as_json:
+            found = next(library_iter(where, what, mc.iter_messages(topics=[topic])), None)
+            msg = library_call(where, what, json.loads, found[2].data) if found else None
+        else:
+            found = next(library_iter(where, what, mc.iter_decoded_messages(topics=[topic])), None)
+            msg = found[3] if found else None
+        if found is None:
+            raise InputError(f"{where}: topic {topic} lost its messages on a second read")
+        return msg
