@@ -189,7 +189,7 @@ def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
     stages = cfg.stages() if stages is None else [(name, cfg.spec.section(name)) for name in stages]
     bar = _bar("stages", len(stages), quiet)
     try:
-        result = execute(command, cfg, files, stages, progress=bar.advance if bar else None)
+        result = execute(command, cfg, files, stages, progress=bar)
     finally:
         if bar:
             bar.stop()
@@ -210,7 +210,7 @@ def _bar(label: str, total: int, quiet: bool):
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     counts_failures = label == "jobs"
-    columns = [TextColumn(label), BarColumn(), TextColumn("{task.completed}/{task.total}")]
+    columns = [TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}")]
     columns += [TextColumn("failed {task.fields[failed]}"), TimeRemainingColumn()] if counts_failures \
         else [TimeElapsedColumn()]
     progress = Progress(*columns, console=Console(stderr=True), transient=True)
@@ -219,6 +219,10 @@ def _bar(label: str, total: int, quiet: bool):
     failed = [0]
 
     class Handle:
+        def start(self, what: str) -> None:
+            """Name what runs now: 'learn-v (ncl)' beside the bar."""
+            progress.update(task, description=f"{label}: {what}")
+
         def advance(self, result: Any = None) -> None:
             failed[0] += getattr(result, "status", None) == "failed"
             progress.update(task, advance=1, failed=failed[0])
@@ -459,14 +463,15 @@ def inspect_cmd(
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """What a file holds. A recording: topics (type, count, rate over the active time, fields,
-    joint names), CSV columns, time span and the demonstrations a gap split finds (default gap:
-    5 × the median sampling interval). A model file: its method, constraints, basis and what it
+    joint names), CSV columns, time span and the stretches between pauses (default: longer than
+    5 × the median sampling interval); with -c, the demonstrations learning reads with that
+    config. A model file: its method, constraints, basis and what it
     was trained on (inputs, config, figures)."""
     from ccl_cli.app.evaluate import inspect_file
 
     _logging(quiet)
     cfg = _config(config, {})
-    info = inspect_file(data, cfg.spec.data, gap)
+    info = inspect_file(data, cfg.spec.data, gap, cfg.base, configured=config is not None)
     if json_out:
         _emit(info, True)
         return

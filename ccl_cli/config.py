@@ -92,7 +92,7 @@ def from_mapping(raw: dict[str, Any], *, source: str = "<flags>", base: Path | N
     flags = _drop_none(flags or {})
     if flags:
         _validate(spec.run_spec_model(), _apply_flags({}, flags), FLAGS, {}, ())
-    merged = _apply_flags(raw, flags)
+    merged = _robot_paths(_apply_flags(raw, flags), base)
     run = _validate(spec.run_spec_model(), merged, source, lines, ())
     items = tuple(_stage_item(run, item, i, flags, source, lines)
                   for i, item in enumerate(merged.get("stages") or []))
@@ -100,6 +100,32 @@ def from_mapping(raw: dict[str, Any], *, source: str = "<flags>", base: Path | N
         if name == "learn-a":
             _check_method_keys(options, source, lines)
     return Config(run, merged, items, source, base, lines)
+
+
+def _robot_paths(raw: dict[str, Any], base: Path | None) -> dict[str, Any]:
+    """``raw`` with a relative robot file of learn-a's ``features`` / ``regressors`` (also in
+    ``stages`` items) taken from the config's folder ``base``, as data paths are."""
+    if base is None:
+        return raw
+
+    def fix(section: Any) -> Any:
+        if not isinstance(section, dict):
+            return section
+        out = dict(section)
+        for key in ("features", "regressors"):
+            value = out.get(key)
+            if isinstance(value, dict) and isinstance(value.get("robot"), str) \
+                    and not Path(value["robot"]).is_absolute():
+                out[key] = {**value, "robot": str(base / value["robot"])}
+        return out
+
+    merged = dict(raw)
+    if "learn-a" in merged:
+        merged["learn-a"] = fix(merged["learn-a"])
+    if isinstance(merged.get("stages"), list):
+        merged["stages"] = [{"learn-a": fix(item["learn-a"])} if isinstance(item, dict) and
+                            list(item) == ["learn-a"] else item for item in merged["stages"]]
+    return merged
 
 
 def _stage_item(run: Any, item: Any, i: int, flags: dict[str, Any], source: str,

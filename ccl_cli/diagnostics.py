@@ -212,7 +212,8 @@ def demonstrations(data: Demonstrations) -> list[dict[str, str]]:
 
 def stamps(data: Demonstrations) -> list[dict[str, str]]:
     """``duplicate_stamps`` (a sampling interval ≤ 0 inside a demonstration) and
-    ``jittery_stamps`` (1.4826·MAD of the intervals > JITTER × their median)."""
+    ``jittery_stamps`` (1.4826·MAD of the intervals, each relative to its demonstration's median
+    interval, > JITTER: demonstrations logged at different but steady rates are not jittery)."""
     out = []
     inside = data.demo[1:] == data.demo[:-1]
     dt = np.diff(data.t)[inside]
@@ -222,10 +223,14 @@ def stamps(data: Demonstrations) -> list[dict[str, str]]:
     if dup:
         out.append(warning("duplicate_stamps",
                            f"{dup} samples repeat or precede the stamp of the sample before them"))
-    pos = dt[dt > 0]
+    ok = dt > 0
+    pos, owner = dt[ok], data.demo[1:][inside][ok]
     if len(pos) >= 3:
         med = float(np.median(pos))
-        spread = 1.4826 * float(np.median(np.abs(pos - med)))
+        own = np.empty_like(pos)
+        for d in np.unique(owner):  # a loop over demonstrations: each one's median interval
+            own[owner == d] = np.median(pos[owner == d])
+        spread = med * 1.4826 * float(np.median(np.abs(pos / own - 1.0)))
         if med > 0 and spread > JITTER * med:
             out.append(warning("jittery_stamps",
                                f"jittery stamps: the sampling interval varies by {100 * spread / med:.2g} % "
@@ -375,6 +380,90 @@ def does_not_hold(stage: str, evidence: dict[str, Any] | None, where: str) -> li
                     f"{stage}: on the {where} the motion along learnt constraint row {k + 1} is "
                     f"{evidence['ratio'][k]:.3g}× its noise ({100 * evidence['share'][k]:.2g} % of all the "
                     "motion): the constraint does not hold there")]
+
+
+#: A constant constraint varies when one demonstration's own rows lie more than VARIES_DEG
+#: (largest principal angle) from the common ones and explain its actions VARIES_GAIN× better.
+VARIES_DEG = 5.0
+VARIES_GAIN = 2.0
+#: A single recording is cut into stretches of about VARIES_WINDOW_S seconds (2 to 24 of them).
+VARIES_WINDOW_S = 5.0
+
+
+def _null_rows(Y: np.ndarray, s: int) -> tuple[np.ndarray, float]:
+    """The s directions the actions Y (n, q) move least along (eigenvectors of YᵀY/n with the
+    s smallest eigenvalues — the closed form of a constant constraint, ALGORITHMS.md §4.1)
+    as rows (s, q), and the mean squared motion along them."""
+    ev, vec = np.linalg.eigh(Y.T @ Y / max(len(Y), 1))
+    return vec[:, :s].T, float(ev[:s].sum())
+
+
+def _stretches(d: Demonstrations, blocks: int | None = None) -> list[tuple[str, np.ndarray]]:
+    """(label, sample mask) per demonstration, or for a single recording ``blocks``
+    contiguous stretches of equal length in time (default: about VARIES_WINDOW_S each)."""
+    if d.n_demos >= 2:
+        return [(f"demonstration {g}", d.demo == g) for g in d.demo_ids]
+    if blocks is None:
+        blocks = int(np.clip(round(float(np.ptp(d.t)) / VARIES_WINDOW_S), 2, 24))
+    edges = np.linspace(d.t.min(), d.t.max(), blocks + 1)
+    part = np.clip(np.searchsorted(edges, d.t, side="right") - 1, 0, blocks - 1)
+    return [(f"the stretch {edges[b] - edges[0]:.1f}–{edges[b + 1] - edges[0]:.1f} s", part == b)
+            for b in range(blocks)]
+
+
+def constraint_varies(stage: str, rows: np.ndarray, d: Demonstrations, Y: np.ndarray,
+                      noise_var: np.ndarray | None = None, blocks: int | None = None) -> list[dict[str, str]]:
+    """``constraint_varies`` for a constant constraint with rows (s, q) learnt on ``d`` (the
+    training data; actions ``Y`` (N, q)): a demonstration (or, in a single recording, one of
+    ``blocks`` stretches of time) whose own s rows lie more than VARIES_DEG from the common ones and
+    leave VARIES_GAIN× less motion along them — the surface tilted or changed. Stretches
+    whose actions do not span the q − s free directions cannot tell and are skipped."""
+    s, q = rows.shape
+    if s == 0:
+        return []
+    if noise_var is None:
+        lv = noise_levels(d)
+        noise_var = lv["u_noise"] if lv["temporal"] and len(lv["u_noise"]) == q else np.zeros(q)
+    worst: tuple[float, str] | None = None
+    for label, mask in _stretches(d, blocks):
+        Yg = Y[mask]
+        if len(Yg) < 3 * q or action_rank(Yg, noise_var) < q - s:
+            continue
+        own, own_motion = _null_rows(Yg, s)
+        common_motion = float(np.mean(((Yg @ rows.T) ** 2).sum(1)))
+        cosines = np.linalg.svd(own @ rows.T, compute_uv=False)
+        angle = float(np.degrees(np.arccos(np.clip(cosines.min(), -1.0, 1.0))))
+        if angle > VARIES_DEG and common_motion > VARIES_GAIN * max(own_motion, np.finfo(float).tiny):
+            if worst is None or angle > worst[0]:
+                worst = (angle, label)
+    if worst is None:
+        return []
+    return [warning("constraint_varies",
+                    f"{stage}: the constraint of {worst[1]} alone lies {worst[0]:.3g}° from the common one "
+                    f"and fits its motion > {VARIES_GAIN:g}× better: the constraint changes over the data "
+                    "(learn-a method: auto, or per_demo: true, fits one per stretch)")]
+
+
+def not_identifiable(stage: str, data: Demonstrations, Y: np.ndarray,
+                     noise_var: np.ndarray | None = None) -> list[dict[str, str]]:
+    """``not_identifiable`` when the training targets ``Y`` (N, q) of a policy never move along
+    some direction (rank r < q beyond their noise): π cannot be learnt along it — a constant
+    constraint hides it — so π's predictions there are the basis' extrapolation (the
+    constrained motion N π does not depend on them). Names the hidden direction."""
+    q = Y.shape[1]
+    if noise_var is None:
+        lv = noise_levels(data)
+        noise_var = lv["u_noise"] if lv["temporal"] and len(lv["u_noise"]) == q else np.zeros(q)
+    r = action_rank(Y, noise_var)
+    if r >= q or r == 0:
+        return []
+    hidden, _ = _null_rows(Y, q - r)
+    v = hidden[0] * np.sign(hidden[0][np.argmax(np.abs(hidden[0]))])
+    words = " + ".join(f"{c:.2f}·{n}" for c, n in zip(v, data.action_names, strict=True) if abs(c) >= 0.05)
+    return [warning("not_identifiable",
+                    f"{stage}: the training targets span {r} of {q} directions: π is not identifiable along "
+                    f"{q - r} direction(s) ({words}{', …' if q - r > 1 else ''}); its predictions there are "
+                    "extrapolation, the constrained motion N π is not affected")]
 
 
 def status(checks: list[dict[str, str]]) -> str:

@@ -469,6 +469,8 @@ def is_model_file(path: str | Path) -> bool:
     from ccl_cli.io.sniff import HDF5_MAGIC
 
     path = Path(path)
+    if path.is_dir():  # a ROS 2 bag folder
+        return False
     with open_regular(path) as f:
         head = f.read(1024)
     if HDF5_MAGIC not in head:  # at 0, or behind the 512-byte user block ccl writes

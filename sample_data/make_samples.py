@@ -7,7 +7,9 @@ canonical HDF5 writer; the "real format" samples are written by the third-party
 writers: a Trakstar-style CSV export (csv module) of a finger sliding on a tilted
 plane at 50 Hz, one continuous 60-s recording of a finger in a bowl (CSV), and a ROS 1
 bag (rosbags) of a 7-DoF KUKA-like arm publishing sensor_msgs/JointState at 100 Hz while its
-end-effector height is held fixed.
+end-effector height is held fixed, and a KUKA LWR 4+ wiping log as researchers save it from
+MATLAB (scipy.io.savemat, v5: ``proc_data``, a 1×6 cell of structs with X 13×T, J 7×T, dt) with
+the LWR's URDF written from its DH table.
 """
 
 from __future__ import annotations
@@ -113,12 +115,32 @@ def kuka_bag(path: Path, n_demos: int = 4, rate: float = 100.0, seconds: float =
             t_ns += 1_000_000_000  # one second between demonstrations
 
 
+def lwr_wipe_mat(path: Path, urdf: Path, n_demos: int = 6) -> dict[int, list[list[float]]]:
+    """The LWR 4+ wiping a tilted table (approach → wipe → retract; :mod:`ccl_cli.simulate.lwr_wipe`),
+    each demonstration at its own sampling interval (0.0097–0.0135 s); returns the labelled wipe
+    phases (``demos.ranges``, seconds from each demonstration's start)."""
+    import scipy.io
+
+    from ccl_cli.learn.robots import LWR4
+    from ccl_cli.simulate.lwr_wipe import lwr_wipe_log, proc_data, wipe_ranges
+
+    log = lwr_wipe_log(n_demos=n_demos, seed=0, wipe_s=(3.0, 5.0), force=(8.0, 15.0), bias=0.3)
+    cells = np.empty((1, n_demos), dtype=object)
+    for k, cell in enumerate(proc_data(log, seed=0)):
+        cells[0, k] = cell
+    scipy.io.savemat(path, {"proc_data": cells}, do_compression=True)
+    urdf.write_text(LWR4.urdf())
+    return wipe_ranges(log)
+
+
 if __name__ == "__main__":
     simulated()
     trakstar_csv(HERE / "trakstar_plane.csv")
     trakstar_bowl_csv(HERE / "trakstar_bowl.csv")
     (HERE / "kuka_wipe.bag").unlink(missing_ok=True)
     kuka_bag(HERE / "kuka_wipe.bag")
+    for k, span in lwr_wipe_mat(HERE / "lwr_wipe.mat", HERE / "lwr4.urdf").items():
+        print(f"lwr_wipe.mat demo {k}: wipe {span}")
     for p in sorted(HERE.iterdir()):
-        if p.suffix in (".h5", ".csv", ".bag"):
+        if p.suffix in (".h5", ".csv", ".bag", ".mat"):
             print(f"{p.name:28s} {p.stat().st_size / 1024:8.1f} KiB")

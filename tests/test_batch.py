@@ -311,3 +311,11 @@ def test_batch_folder_of_an_earlier_version_is_resumed(capsys, recordings, tmp_p
     code, _, err = batch(capsys, *one)
     assert code == 2 and "holds files ccl did not write" in err
     assert (out / "notes.txt").read_text() == "mine\n"
+
+
+def test_summary_figure_names_each_job_without_its_key_hash():
+    from ccl_cli.render.summary import _short
+
+    assert _short("toy2d_ncl_h5-67f8dc25") == "toy2d_ncl_h5"
+    assert _short("a_very_long_recording_name_of_a_kuka_log_bag-0123abcd") == "a_very_long_recording_n…"
+    assert _short("plain-name") == "plain-name"

@@ -113,7 +113,11 @@ def test_simulate_learn_evaluate_predict_round_trip(tmp_path):
         assert np.array_equal(f["N"][()], est.projection(d.X, groups=d.demo))
     ccl("predict", model, data, "-o", tmp_path / "pred.csv")
     header = (tmp_path / "pred.csv").read_text().splitlines()[0].split(",")
-    assert header[:2] == ["x_0", "x_1"] and "N_48" in header
+    assert header[:2] == [f"x.{n}" for n in d.state_names[:2]] and "N[6][6]" in header
+    assert header[header.index("t [s]") - 1] == f"u.{d.action_names[-1]}"
+    with h5py.File(tmp_path / "pred.h5") as f:  # names and units beside each dataset
+        assert list(f["w"].attrs["names"]) == [f"w.{n}" for n in d.action_names]
+        assert len(f["N"].attrs["names"]) == 49
 
 
 @pytest.mark.parametrize("kind", ["alpha", "lambda", "linear", "ncl", "policy", "per_demo"])
@@ -317,7 +321,38 @@ def test_inspect_rate_over_active_time_joints_and_default_demos(capsys, tmp_path
     code, out, _ = run_main(capsys, "inspect", path, "--json", "--gap", "2.0")  # --gap without -c
     assert json.loads(out)["demos"] == 1
     code, out, _ = run_main(capsys, "inspect", path)
-    assert "500.0 Hz" in out and "joints:" in out and "demos:    2" in out
+    assert "500.0 Hz" in out and "joints:" in out and "pauses:   2 stretches" in out
+
+
+@pytest.mark.parametrize("split", [None, 0.5])
+def test_inspect_with_a_config_says_what_learning_reads(capsys, tmp_path, split):
+    """inspect -c and learn-a with the same config agree on the demonstrations: the pauses
+    inspect finds are listed apart from the demonstrations the config cuts."""
+    from writers import joint_recording, write_mcap_ros2
+
+    rec = joint_recording(n=1001, rate=500.0, gap_after=400, gap_s=1.5)
+    path = write_mcap_ros2(tmp_path / "r.mcap", rec)
+    data = {"state": {"topic": "/joint_states", "field": "position"},
+            "action": {"topic": "/joint_states", "field": "velocity"}}
+    if split is not None:
+        data["demos"] = {"split_on_gap": split}
+    config = tmp_path / "c.yaml"
+    config.write_text(json.dumps({"data": data, "learn-a": {"method": "nhat"}, "stages": ["learn-a"]}))
+    code, out, err = run_main(capsys, "inspect", path, "-c", config, "--json")
+    assert code == 0, err
+    info = json.loads(out)
+    assert info["demos"] == 2  # stretches between pauses
+    read = info["as_configured"]
+    code, out, err = run_main(capsys, "learn-a", path, "-c", config, "-o", tmp_path / "la", "--json", "-q")
+    assert code == 0, err
+    learnt = json.loads(out)
+    expected = 1 if split is None else 2
+    assert read["demos"] == expected and read["samples"] == 1001
+    assert sum(read["samples_per_demo"]) == 1001 and len(read["samples_per_demo"]) == expected
+    said = "a single continuous recording" if expected == 1 else f"only {expected} demonstrations"
+    assert learnt["validation"]["reason"].startswith(said), learnt["validation"]
+    code, out, _ = run_main(capsys, "inspect", path, "-c", config)
+    assert f"learning reads: {expected} demonstration(s), 1001 samples" in out
 
 
 # -- command-line conventions ------------------------------------------------------------------

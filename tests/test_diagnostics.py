@@ -98,6 +98,15 @@ def test_duplicate_and_jittery_stamps():
     dup = Demonstrations(X=clean.X, U=clean.U, demo=clean.demo, t=t)
     assert codes(D.stamps(dup)) == ["duplicate_stamps"]
     assert D.stamps(dup)[0]["message"].startswith("2 samples")
+    # demonstrations at different but steady rates (0.0097 s and 0.0135 s, as a real-time loop
+    # per demonstration) are not jittery; the same spread inside one demonstration is
+    n = 200
+    t2 = np.r_[np.arange(n) * 0.0097, np.arange(n) * 0.0135]
+    steady = Demonstrations(X=np.zeros((2 * n, 1)), U=np.zeros((2 * n, 1)), demo=np.repeat([0, 1], n), t=t2)
+    assert D.stamps(steady) == []
+    mixed = np.cumsum(np.array([0.0097, 0.0116, 0.0135])[np.arange(2 * n) % 3])
+    one = Demonstrations(X=np.zeros((2 * n, 1)), U=np.zeros((2 * n, 1)), demo=np.zeros(2 * n, int), t=mixed)
+    assert codes(D.stamps(one)) == ["jittery_stamps"]
 
 
 def test_low_rank_actions_when_few_demonstrations_each_explore_one_direction():

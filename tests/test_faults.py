@@ -153,6 +153,24 @@ def test_clock_steps_are_undone_and_pauses_are_gaps():
     assert [f.kind for f in found] == ["backward_stamp"] and np.allclose(t_new, data.t)
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_a_pause_before_a_stroke_elsewhere_is_a_gap_not_a_clock_step(seed):
+    """Strokes recorded one after another in one file (the Trakstar sample): the tool lifts,
+    pauses 0.2 s and lands somewhere else still moving. Whatever direction the jump takes,
+    that is a gap, never a clock step to undo (nor a spike)."""
+    data = sim.tracker_plane(duration=40.0, seed=seed)
+    moving, _ = _moving_and_resting(data)
+    rng = np.random.default_rng(seed)
+    X = data.X.copy()
+    jump = rng.normal(size=3)
+    X[moving:] += 0.08 * jump / np.linalg.norm(jump)  # lands 8 cm away
+    t = data.t.copy()
+    t[moving:] += 0.2
+    found, t_new, keep = faults.stamp_faults(t, X, data.demo)
+    assert [f.kind for f in found] == ["gap"] and np.flatnonzero(found[0].mask).tolist() == [moving]
+    assert keep.all() and np.array_equal(t_new, t)
+
+
 def test_stamp_faults_of_one_sample():
     data = sim.tracker_plane(duration=20.0, seed=7)
     t = data.t.copy()

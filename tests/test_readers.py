@@ -44,7 +44,7 @@ def test_default_fields_and_all_joints(tmp_path):
     data = load_demonstrations({"files": [str(path)], "state": {"topic": "/joint_states"},
                                 "action": {"topic": "/joint_states", "field": "velocity"}})
     np.testing.assert_array_equal(data.X, rec.position)
-    assert data.state_names[0] == "position[0]"
+    assert data.state_names[0] == f"{JOINTS[0]}.position"  # named by the message's joint names
 
 
 def test_multi_rate_alignment(tmp_path):

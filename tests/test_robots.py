@@ -516,3 +516,19 @@ def test_features_robot_through_the_command_line_and_a_saved_model(capsys, tmp_p
     assert main(["learn-a", str(path), "-c", str(cfg), "-o", str(tmp_path / "lin"), "-q"]) == 0
     linear, _ = load_model(tmp_path / "lin" / "model.h5")
     assert linear.W_.shape[1] == 3 and np.isfinite(linear.projection(data.X)).all()
+
+
+def test_a_relative_robot_path_is_taken_from_the_config_folder(tmp_path, monkeypatch):
+    """As data paths are: a config in another folder names its URDF beside it."""
+    from ccl_cli import config
+
+    folder = tmp_path / "study"
+    folder.mkdir()
+    (folder / "c.yaml").write_text("learn-a: {method: lambda, features: {robot: arm.urdf, frame: tool}}\n"
+                                   "stages: [{learn-a: {regressors: {robot: sub/arm.urdf}, method: linear}}]\n")
+    monkeypatch.chdir(tmp_path)
+    cfg = config.load(folder / "c.yaml")
+    assert cfg.raw["learn-a"]["features"]["robot"] == str(folder / "arm.urdf")
+    assert cfg.raw["stages"][0]["learn-a"]["regressors"]["robot"] == str(folder / "sub" / "arm.urdf")
+    (folder / "abs.yaml").write_text(f"learn-a: {{method: lambda, features: {{robot: {folder / 'a.urdf'}}}}}\n")
+    assert config.load(folder / "abs.yaml").raw["learn-a"]["features"]["robot"] == str(folder / "a.urdf")

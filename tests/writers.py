@@ -178,12 +178,26 @@ MATLAB_HEADER = (b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Nov 3
                  b"HDF5 schema 1.00 .")
 
 
+class Cell(list):
+    """A cell array for :func:`write_mat73` whose cells may hold structs (dicts), arrays or numbers
+    (``proc_data``: a 1×D cell of structs, one demonstration per cell)."""
+
+
 def write_mat73(path: Path, variables: dict) -> Path:
     """MATLAB's v7.3 layout written with h5py. Values are in MATLAB's orientation:
-    arrays (stored transposed), lists (cell arrays of arrays), dicts (structs)."""
+    arrays (stored transposed; a number as 1×1), lists (cell arrays of arrays), dicts
+    (structs), :class:`Cell` (cells of anything, structs included, stored in ``#refs#``)."""
 
     def put(parent, refs, name, value):
-        if isinstance(value, list) and isinstance(value[0], dict):  # struct array: a field = references
+        if isinstance(value, Cell):
+            rs = []
+            for k, item in enumerate(value):
+                key = f"{name}_{k}_{len(refs)}"
+                put(refs, refs, key, item)
+                rs.append(refs[key].ref)
+            ds = parent.create_dataset(name, data=np.array(rs, dtype=h5py.ref_dtype).reshape(len(rs), 1))
+            ds.attrs["MATLAB_class"] = np.bytes_("cell")
+        elif isinstance(value, list) and isinstance(value[0], dict):  # struct array: a field = references
             g = parent.create_group(name)
             g.attrs["MATLAB_class"] = np.bytes_("struct")
             for key in value[0]:
@@ -210,7 +224,8 @@ def write_mat73(path: Path, variables: dict) -> Path:
             ds = parent.create_dataset(name, data=np.frombuffer(value.encode("utf-16-le"), np.uint16)[None].T)
             ds.attrs["MATLAB_class"] = np.bytes_("char")
         else:
-            ds = parent.create_dataset(name, data=np.asarray(value, dtype=float).T)
+            arr = np.asarray(value, dtype=float)
+            ds = parent.create_dataset(name, data=(arr.reshape(1, 1) if arr.ndim == 0 else arr).T)
             ds.attrs["MATLAB_class"] = np.bytes_("double")
 
     with h5py.File(path, "w", userblock_size=512) as f:

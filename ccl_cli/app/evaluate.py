@@ -102,10 +102,29 @@ def predict(model: Any, kind: str, data: Demonstrations) -> dict[str, np.ndarray
     return outputs
 
 
+def output_names(key: str, width: int, data: Demonstrations | None) -> tuple[list[str], list[str]]:
+    """Names and units of the ``width`` columns of prediction ``key``: the data's state names
+    for x, its action names for u, w, v and π (``w.<name>``), N[i][j] for the projection,
+    t in s; ``key_j`` without names."""
+    states = (data.state_names, data.state_units) if data is not None else None
+    actions = (data.action_names, data.action_units) if data is not None else None
+    named = {"x": states, "u": actions, "w": actions, "v": actions, "pi": actions}.get(key)
+    if width == 1:
+        return [key], ["s" if key == "t" else ""]
+    if named is not None and len(named[0]) == width:
+        return [f"{key}.{n}" for n in named[0]], list(named[1])
+    if key == "N" and data is not None and width == data.n_action ** 2:
+        q = data.n_action
+        return [f"N[{i}][{j}]" for i in range(q) for j in range(q)], [""] * width
+    return [f"{key}_{j}" for j in range(width)], [""] * width
+
+
 def write_predictions(out: Path, outputs: dict[str, np.ndarray], model_path: Path, method: str,
-                      force: bool = False) -> None:
-    """Write predictions atomically as CSV (one column per component, a header row) or HDF5
-    (one dataset per output, attrs format="ccl-predictions", model, method)."""
+                      force: bool = False, data: Demonstrations | None = None) -> None:
+    """Write predictions atomically as CSV (one column per component, a header row naming
+    each by the data's names with its unit: ``w.joint_1.velocity [rad/s]``) or HDF5 (one
+    dataset per output with ``names`` and ``units`` attributes; attrs format="ccl-predictions",
+    model, method)."""
     from ccl_cli.io.atomic import atomic_path
 
     suffix = out.suffix.lower()
@@ -116,7 +135,8 @@ def write_predictions(out: Path, outputs: dict[str, np.ndarray], model_path: Pat
         for key, arr in outputs.items():
             flat = arr.reshape(len(arr), -1)
             cols.append(flat)
-            names += [key] if flat.shape[1] == 1 else [f"{key}_{j}" for j in range(flat.shape[1])]
+            labels, units = output_names(key, flat.shape[1], data)
+            names += [f"{n} [{u}]" if u else n for n, u in zip(labels, units, strict=True)]
         with atomic_path(out, force=force) as tmp:
             np.savetxt(tmp, np.hstack(cols), delimiter=",", header=",".join(names), comments="")
         return
@@ -127,7 +147,9 @@ def write_predictions(out: Path, outputs: dict[str, np.ndarray], model_path: Pat
         f.attrs["model"] = str(model_path)
         f.attrs["method"] = method
         for key, arr in outputs.items():
-            f.create_dataset(key, data=arr)
+            ds = f.create_dataset(key, data=arr)
+            labels, units = output_names(key, int(np.prod(arr.shape[1:], dtype=int)), data)
+            ds.attrs["names"], ds.attrs["units"] = labels, units
 
 
 def predict_saved(model_path: Path, data: Demonstrations, out: Path, force: bool = False) -> dict[str, Any]:
@@ -139,17 +161,38 @@ def predict_saved(model_path: Path, data: Demonstrations, out: Path, force: bool
     est, info = load_model(model_path)
     check_dimensions(est, data)
     outputs = predict(est, info["kind"], data)
-    write_predictions(out, outputs, model_path, info["method"], force)
+    write_predictions(out, outputs, model_path, info["method"], force, data)
     return {"status": "ok", "command": "predict", "out": str(out), "samples": data.n_samples,
             "outputs": sorted(outputs)}
 
 
-def inspect_file(path: Path, options: Any = None, gap: float | None = None) -> dict[str, Any]:
+def inspect_file(path: Path, options: Any = None, gap: float | None = None, base: Path | None = None,
+                 configured: bool = False) -> dict[str, Any]:
     """``ccl inspect``: what a model file holds (:func:`ccl_cli.models.describe_model`), or what
-    a recording holds (:func:`ccl_cli.io.inspect_recording`)."""
-    from ccl_cli.io import inspect_recording
+    a recording holds (:func:`ccl_cli.io.inspect_recording`). ``configured`` (a config was
+    given): the recording is also read as learning reads it with ``options``, and
+    ``as_configured`` says what learning would get — demonstrations, samples each, names and
+    the reader's warnings — so that inspect and learn never disagree on the demonstrations."""
+    from ccl_cli.io import inspect_recording, read_dataset
     from ccl_cli.models import describe_model, is_model_file
 
     if is_model_file(path):
         return describe_model(path)
-    return inspect_recording(path, options, gap)
+    info = inspect_recording(path, options, gap, base)
+    if configured:
+        data, _ = read_dataset(options, [path], base)
+        counts = np.bincount(np.unique(data.demo, return_inverse=True)[1])
+        info["as_configured"] = {
+            "demos": int(len(counts)), "samples": int(data.n_samples),
+            "samples_per_demo": counts.tolist(),
+            "seconds": round(float(sum(np.ptp(data.t[data.demo == d]) for d in np.unique(data.demo))), 3),
+            "state_names": list(data.state_names), "action_names": list(data.action_names),
+            "split": _split_words(options)}
+    return info
+
+
+def _split_words(options: Any) -> str:
+    """How the config's ``data.demos`` cuts a recording, in words."""
+    demos = options.demos
+    said = [f"{k}: {v}" for k, v in demos.model_dump(exclude_defaults=True).items()]
+    return "data.demos: {" + ", ".join(said) + "}" if said else "no data.demos option: one per file/run"

@@ -9,16 +9,18 @@ renderers' job (:mod:`ccl_cli.render.outputs`); nothing here formats or draws.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ccl_cli.app import provenance
 from ccl_cli.app.views import View
 from ccl_cli.config import Config
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.learn import blas
+
+if TYPE_CHECKING:
+    from ccl_cli.app.stages import StageProgress
 
 
 def read_data(cfg: Config, files: list[Path] | list[str] | None):
@@ -55,9 +57,9 @@ class RunResult:
 
 
 def execute(command: str, cfg: Config, files, stages: list[tuple[str, Any]] | None = None,
-            progress: Callable[[], None] | None = None, views: bool | None = None) -> RunResult:
+            progress: StageProgress | None = None, views: bool | None = None) -> RunResult:
     """Read the data, run the ``stages`` ((name, options) pairs; default: the config's
-    ``stages``; each calls ``progress`` when done) and collect the results; with ``views``
+    ``stages``, shown by ``progress``) and collect the results; with ``views``
     (default: the config's ``output.plots``) also the figures' data."""
     from ccl_cli.app.stages import Pipeline
 

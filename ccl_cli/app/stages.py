@@ -11,13 +11,13 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from ccl_cli import diagnostics
 from ccl_cli.app import scoring
-from ccl_cli.app.views import View, describe_constraint, stage_views
+from ccl_cli.app.views import View, constant_rows, describe_constraint, stage_views
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn import model_selection
@@ -114,6 +114,15 @@ def make_constraint(options: Any, seed: int):
     return PerDemonstration(model) if options.per_demo else model
 
 
+class StageProgress(Protocol):
+    """What shows a run's progress (the CLI's bar): a label as each stage starts, a step as it
+    ends."""
+
+    def start(self, label: str) -> None: ...
+
+    def advance(self) -> None: ...
+
+
 class Pipeline:
     """Holds the data split and what earlier stages learnt."""
 
@@ -165,17 +174,22 @@ class Pipeline:
         return self.parts()[-1]
 
     # -- stages -------------------------------------------------------------------------
-    def run(self, stages: list[tuple[str, Any]], progress=None) -> list[StageResult]:
+    def run(self, stages: list[tuple[str, Any]], progress: StageProgress | None = None) -> list[StageResult]:
         """Run ``stages`` — (name, options: the stage's section of the run spec) pairs — in
-        order; ``progress()`` after each."""
+        order; ``progress.start(label)`` before each and ``progress.advance()`` after it
+        (without a progress display, each stage is one INFO log line)."""
         for name, opts in stages:
             t0 = time.perf_counter()
-            log.info("stage %s (%s)", name, self._describe(name, opts))
+            label = f"{name} ({self._describe(name, opts)})"
+            if progress is None:
+                log.info("stage %s", label)
+            else:
+                progress.start(label)
             result = getattr(self, "_" + name.replace("-", "_"))(opts)
             result.seconds = time.perf_counter() - t0
             self.results.append(result)
             if progress is not None:
-                progress()
+                progress.advance()
         return self.results
 
     def _describe(self, name: str, opts: Any) -> str:
@@ -280,6 +294,9 @@ class Pipeline:
             evidence = diagnostics.constraint_evidence(model, d, d.U)
             result.info["evidence"] = {"part": part, **evidence} if evidence else None
             checks += diagnostics.does_not_hold("learn-a", evidence, f"{part} data")
+        rows = constant_rows(model, tr)
+        if rows is not None:
+            self.warnings += diagnostics.emit(diagnostics.constraint_varies("learn-a", rows, tr, target))
         self._judge(result, checks)
         return result
 
@@ -348,6 +365,8 @@ class Pipeline:
                 result.baseline.predict(d.X), d, constraint if knows[part] else None, targets[part], of)
             self._score_parts(baseline)
             result.info["baseline"] = {"method": "dpl", **baseline.metrics}
+        self.warnings += diagnostics.emit(diagnostics.not_identifiable(
+            "learn-pi", tr, self._target(on, "train", tr)))
         self._judge(result, self._policy_checks(result))
         return result
 

@@ -65,6 +65,16 @@ def null_direction(model: Any):
     return direction
 
 
+def constant_rows(model: Any, d: Demonstrations) -> np.ndarray | None:
+    """The rows (s, q) of a constant learnt constraint (a model with ``A_``), orthonormal;
+    None for state-dependent or per-demonstration models."""
+    if isinstance(model, PerDemonstration) or getattr(model, "A_", None) is None:
+        return None
+    if not getattr(model, "n_constraints_", 0):
+        return np.zeros((0, d.n_action))
+    return row_basis(model.constraint(d.X[:1])[0])
+
+
 def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
     """The learnt constraint in readable form, for the report and metrics.json.
 

@@ -17,7 +17,9 @@ import numpy as np
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
 from ccl_cli.io.derivative import derive_actions
-from ccl_cli.io.options import UNIT_NS, DataOptions, TimeOptions
+from ccl_cli.io.options import UNIT_NS, DataOptions, DemoOptions, TimeOptions
+from ccl_cli.io.segment import CUTS, cut
+from ccl_cli.io.task_space import to_task_space
 
 NAME_ATTRS = ("names", "column_names", "joint_names", "labels", "fields")
 
@@ -226,7 +228,42 @@ def named_parts(chunks: list[tuple[str, dict[str, np.ndarray]]], options: DataOp
         default = names_for(labels[key], getattr(parts[0], attr).shape[1], given.get(key))
         return pick_columns(parts, attr, default, getattr(options, key).columns, where)
 
-    return parts, names("state", "X"), None if derive else names("action", "U"), origin, time_used
+    named = given.get("state") is not None and len(given["state"]) == parts[0].X.shape[1]
+    state_names, action_names = names("state", "X"), None if derive else names("action", "U")
+    fk = options.state.forward_kinematics
+    if fk is not None:  # joints → end-effector pose; a recorded joint velocity → v = J_p(q) q̇
+        log_names = state_names if named else None  # unnamed columns: the chain's joint order
+        for part in parts:  # a loop over demonstrations; each call batched over samples
+            part.X, part.U, joints = to_task_space(part.X, part.U, fk, log_names, f"{where}: {part.label}")
+            part.meta["forward_kinematics"] = joints.describe()
+        state_names = joints.names
+        action_names = None if derive else [f"v{n}" for n in joints.names]
+    return parts, state_names, action_names, origin, time_used
+
+
+def cut_parts(parts: list[Part], demos: DemoOptions, where: str, passes: list[np.ndarray] | None = None
+              ) -> list[Part]:
+    """Each demonstration cut into the phases the ``demos`` options ask for
+    (:func:`ccl_cli.io.segment.cut`: split_on_gap, ranges — per demonstration keyed by its
+    position —, where, min_duration, window); ``passes``: per part, where the ``demos.where``
+    signal passes (n,) bool. A piece's label gives its span in seconds."""
+    cuts = DemoOptions(**{k: getattr(demos, k) for k in CUTS if getattr(demos, k) is not None})
+    if not cuts.given():
+        return parts
+    out: list[Part] = []
+    first = 0
+    for k, part in enumerate(parts):  # a loop over demonstrations; the cut is batched over samples
+        ids, n_base = cut(part.t, cuts, f"{where}: {part.label}", passes[k] if passes else None, first)
+        first += n_base
+        for j in range(int(ids.max()) + 1 if (ids >= 0).any() else 0):
+            rows = ids == j
+            t = part.t[rows]
+            out.append(Part(part.X[rows], part.U[rows] if part.U is not None else None, t,
+                            f"{part.label} [{t[0]:.4g}, {t[-1]:.4g}] s", dict(part.meta)))
+    if not out:
+        raise InputError(f"{where}: no samples left after the demos cuts "
+                         f"({', '.join('demos.' + k for k in sorted(cuts.given()))})")
+    return out
 
 
 def assemble(parts: list[Part], options: DataOptions, where: str, state_names: list[str],
@@ -279,5 +316,10 @@ def assemble(parts: list[Part], options: DataOptions, where: str, state_names: l
     if dropped:
         meta["dropped_nonfinite"] = dropped
     meta["demos"] = [part.label for part in parts]
+    units = None
+    if "forward_kinematics" in parts[0].meta:
+        meta["forward_kinematics"] = parts[0].meta["forward_kinematics"]
+        units = meta["forward_kinematics"]["units"]
     return Demonstrations(X=X, U=U, demo=ids, t=t, state_names=state_names, action_names=action_names,
+                          state_units=units, action_units=[f"{u}/s" for u in units] if units else None,
                           metadata=meta)

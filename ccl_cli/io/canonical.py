@@ -35,6 +35,7 @@ from ccl_cli.io.h5.access import (
     attr_json,
     attr_str,
     attr_strings,
+    attr_version,
     group_of,
     has,
     members,
@@ -115,11 +116,12 @@ def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns:
 
 def check_header(attrs, where: str, fmt: str, version_key: str, version: int, what: str) -> None:
     """Refuse a file whose ``format`` attribute is not ``fmt`` or whose ``version_key``
-    attribute is not the integer ``version`` (one message naming the file and what was found)."""
+    attribute does not name the version ``version`` (an integer, or "1" / "1.0"; one message
+    naming the file and what was found)."""
     found = attr_str(attrs, "format", where, None)
     if found != fmt:
         raise InputError(f"{where}: not a {what} (format attribute {found!r})")
-    got = attr_int(attrs, version_key, where)
+    got = attr_version(attrs, version_key, where)
     if got != version:
         raise InputError(f"{where}: {what} version {got} is not supported (this ccl reads version {version})")
 

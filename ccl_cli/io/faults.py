@@ -286,8 +286,9 @@ def _slope(t: np.ndarray, X: np.ndarray, idx: np.ndarray, valid: np.ndarray
 def _clock_steps(t: np.ndarray, X: np.ndarray, demo: np.ndarray, at: np.ndarray, period: float
                  ) -> tuple[np.ndarray, np.ndarray]:
     """For the long intervals ending at samples ``at`` (N,) bool: which are clock steps (the
-    positions moved across the interval as in one period while the motion on either side,
-    had the interval's time passed, would have moved them by > MOTION_Z × noise), and the
+    positions moved across the interval as in one period — displacement within MOTION_Z
+    noise plus half a period's motion of v·period — while the motion on either side, had the
+    interval's time passed, would have moved them by > MOTION_Z × noise), and the
     number of periods the positions say passed (rounded, ≥ 1)."""
     n = len(t)
     step = np.zeros(n, dtype=bool)
@@ -313,7 +314,11 @@ def _clock_steps(t: np.ndarray, X: np.ndarray, demo: np.ndarray, at: np.ndarray,
     # the velocity is real and the two hypotheses, one period or dt, put the sample apart by
     # more than the noise of the displacement (√2 σ)
     moving = (speed > MOTION_Z * sigma_v) & (speed * (dt - period) > MOTION_Z * np.sqrt(2) * sigma)
-    step[k] = moving & (np.abs(elapsed - period) < np.abs(elapsed - dt))
+    # and the displacement is the motion of one period (within the noise and half a period's
+    # motion), not a jump elsewhere across a pause (a new stroke starting somewhere else)
+    one_period = np.sqrt(((X[k] - X[k - 1] - v * period) ** 2).sum(1))
+    fits = one_period <= MOTION_Z * np.sqrt(2) * sigma + 0.5 * speed * period
+    step[k] = moving & fits & (np.abs(elapsed - period) < np.abs(elapsed - dt))
     missing[k] = np.where(moving, np.maximum(np.round(elapsed / period), 1.0), np.round(dt / period)) - 1
     return step, missing
 

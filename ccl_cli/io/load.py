@@ -17,6 +17,7 @@ from ccl_cli.io.files import expand_files, file_hash
 from ccl_cli.io.options import DataOptions
 from ccl_cli.io.reader import Recording
 from ccl_cli.io.registry import format_of, open_reader
+from ccl_cli.io.units import configured, fill_units
 
 Options = DataOptions | Mapping[str, Any] | None
 
@@ -36,12 +37,15 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
     if not entries:
         raise ConfigError("no input data: give files on the command line or data.files in the config")
     paths = expand_files(entries, None if files else base)
+    options = robot_relative_to(options, base)
     recordings: list[Recording] = []
     for path in paths:
         with open_reader(path, options) as reader:
             recordings.append(reader.read())
     parts = [r.data for r in recordings]
     data = parts[0] if len(parts) == 1 else Demonstrations.concatenate(parts)
+    fill_units(data, configured(options.state and options.state.units, data.n_state, "data.state"),
+               configured(options.action and options.action.units, data.n_action, "data.action"))
     data.metadata = {"files": [{"path": str(p), "sha256": file_hash(p),
                                 **{k: v for k, v in part.metadata.items() if k != "source"}}
                                for p, part in zip(paths, parts, strict=True)],
@@ -55,21 +59,33 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
     return data, single.masks if single is not None else None
 
 
+def robot_relative_to(options: DataOptions, base: Path | None) -> DataOptions:
+    """``options`` with a relative robot path of ``state.forward_kinematics`` taken from ``base``
+    (the config's folder)."""
+    fk = options.state.forward_kinematics if options.state is not None else None
+    if base is None or fk is None or not isinstance(fk.robot, str) or Path(fk.robot).is_absolute():
+        return options
+    fk = fk.model_copy(update={"robot": str(base / fk.robot)})
+    return options.model_copy(update={"state": options.state.model_copy(update={"forward_kinematics": fk})})
+
+
 def load_demonstrations(options: Options, base: Path | None = None,
                         files: Sequence[str | Path] | None = None) -> Demonstrations:
     """:func:`read_dataset` without the masks."""
     return read_dataset(options, files, base)[0]
 
 
-def inspect_recording(path: str | Path, options: Options = None, gap: float | None = None) -> dict[str, Any]:
+def inspect_recording(path: str | Path, options: Options = None, gap: float | None = None,
+                      base: Path | None = None) -> dict[str, Any]:
     """What a recording holds, for ``ccl inspect``: ``path``, ``format``, ``size_bytes`` and
     the reader's listing (topics with type, count, rate over the active time, fields and
     joint names; or columns, rows and time column; or the HDF5/.mat tree with what the
     options read from it). For streams, ``demos`` (with ``demos_from``, ``gap_s``,
     ``gap_rule``) counts the pieces a split on pauses longer than ``gap`` finds: ``gap``,
-    else ``demos.split_on_gap`` of the options, else 5 × the median sampling interval."""
+    else ``demos.split_on_gap`` of the options, else 5 × the median sampling interval.
+    ``base``: the config's folder (a relative robot path of the options is taken from it)."""
     path = Path(path)
-    options = DataOptions.from_mapping(options)
+    options = robot_relative_to(DataOptions.from_mapping(options), base)
     rule = "--gap"
     if gap is None:
         gap, rule = options.demos.split_on_gap, "data.demos.split_on_gap of the config"

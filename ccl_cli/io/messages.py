@@ -135,6 +135,7 @@ class FieldExtractor:
         self._joint_names: list[str] | None = None
         self._joint_index: np.ndarray | None = None
         self._joint_identity = False
+        self._wanted: list[str] | None = list(spec.joints) if spec.joints is not None else None
 
     def _resolve(self, msg: Any) -> Any:
         """Slow, checked walk of the path (first message, and to explain failures)."""
@@ -154,6 +155,9 @@ class FieldExtractor:
         except TypeError:
             raise InputError(f"{self.where}: field {self.field!r} of {self.spec.topic} is not numeric") \
                 from None
+        if not names:
+            raise InputError(f"{self.where}: field {self.field!r} of {self.spec.topic} is empty (no values "
+                             "in its first message)")
         self.names = names
         if isinstance(leaf, np.ndarray | list | tuple) and all(
                 isinstance(v, int | float | np.number) for v in np.asarray(leaf).ravel()[:1]):
@@ -172,7 +176,7 @@ class FieldExtractor:
                 leaf = self._get(msg)
             except (AttributeError, KeyError, TypeError):
                 leaf = self._resolve(msg)
-        if self.spec.joints is not None and self.kind == "JointState":
+        if self.kind == "JointState" and self._by_joint(msg, leaf):
             return self._joints(msg, leaf)
         if self.names is None:
             return self._first(msg, leaf)
@@ -190,6 +194,24 @@ class FieldExtractor:
                              f"({len(self.names)} → {len(vals)})")
         return vals
 
+    @property
+    def by_joint(self) -> bool:
+        """Read joint by joint (decided by the first message: :meth:`_by_joint`)."""
+        return self.kind == "JointState" and bool(self._wanted)
+
+    def _by_joint(self, msg: Any, leaf: Any) -> bool:
+        """Whether this JointState field is read joint by joint: the configured ``joints``,
+        else the joints the first message names (so columns are named ``<joint>.<field>``
+        and follow the joints if later messages reorder them). A message without joint
+        names (or a field that is not one value per joint) is read by position."""
+        if self._wanted is None and self.names is None:
+            names = _get(msg, "name") if _has(msg, "name") else None
+            per_joint = isinstance(leaf, list | tuple | np.ndarray) and isinstance(names, list | tuple) \
+                and len(names) == len(leaf) > 0 and all(isinstance(n, str) for n in names) \
+                and len(set(names)) == len(names)
+            self._wanted = list(names) if per_joint else []
+        return bool(self._wanted)
+
     def _joints(self, msg: Any, leaf: Any) -> np.ndarray | Any:
         names = _get(msg, "name") if _has(msg, "name") else None
         if names != self._joint_names:  # list equality: cheap, and robust to reordering
@@ -201,15 +223,15 @@ class FieldExtractor:
                                  f"of numbers, got {type(leaf).__name__}")
             names = list(names)
             lookup = {n: i for i, n in enumerate(names)}
-            missing = [j for j in self.spec.joints if j not in lookup]
+            missing = [j for j in self._wanted if j not in lookup]
             if missing:
                 raise InputError(f"{self.where}: joint(s) {', '.join(missing)} not in {self.spec.topic} "
                                  f"(it has: {', '.join(names)})")
             self._joint_names = names
-            self._joint_index = np.array([lookup[j] for j in self.spec.joints])
-            self._joint_identity = len(names) == len(self.spec.joints) and \
+            self._joint_index = np.array([lookup[j] for j in self._wanted])
+            self._joint_identity = len(names) == len(self._wanted) and \
                 bool((self._joint_index == np.arange(len(names))).all())
-            self.names = [f"{j}.{self.field}" for j in self.spec.joints]
+            self.names = [f"{j}.{self.field}" for j in self._wanted]
         if len(leaf) != len(names):
             raise InputError(f"{self.where}: {self.spec.topic} has {len(names)} joint names but "
                              f"{len(leaf)} values in {self.field!r}")
@@ -300,7 +322,7 @@ class TopicCollector:
         self._getters, self._index = [], []
         self._name_of = None
         for ex in self.extractors:
-            if ex.spec.joints is not None and ex.kind == "JointState":
+            if ex.by_joint:
                 get = ex._get
                 self._index.append(None if ex._joint_identity else ex._joint_index)
                 self._name_of = _getter(["name"], msg)
@@ -327,7 +349,7 @@ class TopicCollector:
                 raise InputError(f"{self.where}: field {ex.field!r} of {self.topic} changes length "
                                  "between messages") from None
             rows = rows.reshape(n, -1)
-            if ex.spec.joints is not None and ex.kind == "JointState" and self._names is not None:
+            if ex.by_joint and self._names is not None:
                 if rows.shape[1] != len(self._names):
                     raise InputError(f"{self.where}: {self.topic} has {len(self._names)} joint names but "
                                      f"{rows.shape[1]} values in {ex.field!r}")

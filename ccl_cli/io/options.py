@@ -23,7 +23,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal, Self
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ccl_cli.errors import InputError
 
@@ -61,13 +62,28 @@ class Options(BaseModel):
             raise InputError(_at(where, describe_error(exc, cls, prefix))) from None
 
 
+class ForwardKinematicsOptions(Options):
+    """Task space from joint logs: the state's joint columns q mapped to the end-effector pose of
+    ``frame`` of ``robot`` (a URDF / MJCF path, relative to the config, or ``{dh: [...]}``; see
+    :func:`ccl_cli.learn.robots.load_robot`) from ``base``: positions x, y, z (m) and, with
+    ``orientation``, unit quaternions qw, qx, qy, qz."""
+
+    robot: str | dict[str, Any]
+    frame: str | None = None
+    base: str | None = None
+    orientation: bool = False
+
+
 class StreamOptions(Options):
     """One stream: a ``topic`` (bags, MCAP) with a dotted ``field`` path to numbers and the
     ``joints`` to pick (JointState), ``columns`` (CSV tables, HDF5 datasets, .mat variables:
     names or 0-based indices), a ``dataset`` (HDF5 layouts) or ``variable`` (.mat, dotted for
     struct fields); ``stamp``: header.stamp where present, or the log time; ``file``: a
     sibling text file holding this stream; ``samples``: which side of a matrix holds the
-    samples (rows: one sample per row, as NumPy and HDF5 writers store them)."""
+    samples (rows: one sample per row, as NumPy and HDF5 writers store them); ``units``: the
+    unit of every dimension, or one list entry per dimension (shown in reports and figures;
+    JointState fields and derived actions get theirs without it); ``forward_kinematics``:
+    joint columns → end-effector pose (:class:`ForwardKinematicsOptions`)."""
 
     topic: str | None = None
     field: str | None = None
@@ -78,12 +94,49 @@ class StreamOptions(Options):
     variable: str | None = None
     file: str | None = None
     samples: Literal["rows", "columns"] | None = None
+    units: str | list[str] | None = Field(None, description="a unit, or a list of one per dimension")
+    forward_kinematics: ForwardKinematicsOptions | None = None
 
     def describe(self) -> str:
         """'/joint_states field position', or 'columns [...]' (for messages)."""
         if self.topic:
             return self.topic + (f" field {self.field}" if self.field else "")
+        if self.variable or self.dataset:
+            return str(self.variable or self.dataset)
         return f"columns {self.columns}"
+
+
+class SignalOptions(StreamOptions):
+    """A signal that cuts demonstrations (``demos.where``): a stream as :class:`StreamOptions`
+    names it (``column``: one CSV column) and a level on its Euclidean norm per sample —
+    kept where the norm is above ``norm_above`` and/or below ``norm_below``."""
+
+    column: int | str | None = None
+    norm_above: Number | None = None
+    norm_below: Number | None = None
+
+    @model_validator(mode="after")
+    def _a_level(self) -> SignalOptions:
+        if self.norm_above is None and self.norm_below is None:
+            raise ValueError("needs a level: norm_above and/or norm_below")
+        return self
+
+    def selection(self) -> StreamOptions:
+        """The stream to read (``column`` as a one-item ``columns``)."""
+        keep = {k: getattr(self, k) for k in StreamOptions.model_fields if getattr(self, k) is not None}
+        if self.column is not None:
+            keep["columns"] = [self.column]
+        return StreamOptions(**keep)
+
+    def passes(self, values: np.ndarray) -> np.ndarray:
+        """Samples (N, d) → (N,) bool: the norm is within the levels (NaN never passes)."""
+        norm = np.linalg.norm(np.atleast_2d(values.T).T, axis=1)
+        ok = np.isfinite(norm)
+        if self.norm_above is not None:
+            ok &= norm > self.norm_above
+        if self.norm_below is not None:
+            ok &= norm < self.norm_below
+        return ok
 
 
 class ActionOptions(StreamOptions):
@@ -120,14 +173,22 @@ class TimeOptions(Options):
 
 
 class DemoOptions(Options):
-    """How a recording becomes demonstrations. Streams and canonical HDF5: ``split_on_gap``
-    (a pause longer than this many seconds starts a new one), ``ranges`` ([start, end]
-    seconds from the first sample; samples outside every range are dropped), ``window``
-    (then fixed pieces of this many seconds). HDF5 layouts: one per ``group`` matching a glob,
-    or a ``dataset`` holding a demo id per sample; .mat: a demo-index ``variable``."""
+    """How a recording becomes demonstrations (:mod:`ccl_cli.io.segment`). Every format:
+    ``split_on_gap`` (a pause longer than this many seconds starts a new one), ``ranges``
+    (a list of [start, end] seconds from the file's first sample, or per demonstration
+    ``{index: [[start, end], ...]}`` in seconds from that demonstration's first sample, the
+    index counting within each file;
+    samples outside every range are dropped), ``where`` (a :class:`SignalOptions`: each
+    stretch where the signal's norm passes its level is a demonstration), ``min_duration``
+    (shorter pieces dropped), ``window`` (then fixed pieces of this many seconds). HDF5
+    layouts: one per ``group`` matching a glob, or a ``dataset`` holding a demo id per
+    sample; .mat: a demo-index ``variable``."""
 
     split_on_gap: Number | None = Field(None, gt=0, description="positive seconds")
-    ranges: list[list[Number]] | None = Field(None, description="a list of [start, end] pairs")
+    ranges: list[list[Number]] | dict[int, list[list[Number]]] | None = Field(
+        None, description="a list of [start, end] pairs or {demo index: [[start, end], ...]}")
+    where: SignalOptions | None = None
+    min_duration: Number | None = Field(None, ge=0, description="seconds ≥ 0")
     window: Number | None = Field(None, gt=0, description="positive seconds")
     per_file: bool | None = None
     group: str | None = None
@@ -138,18 +199,32 @@ class DemoOptions(Options):
     @classmethod
     def _pairs(cls, value: Any) -> Any:
         """Each range two finite numbers, start < end (checked before the types, so a range
-        that is not a pair is named as a whole)."""
+        that is not a pair is named as a whole); per demonstration, keys are indices ≥ 0
+        (written as integers or digit strings)."""
         if value is None:
             return value
-        if not isinstance(value, list | tuple):
-            raise ValueError("must be a list of [start, end] pairs")
-        for k, pair in enumerate(value):
-            numbers = isinstance(pair, list | tuple) and len(pair) == 2 and all(
-                isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in pair)
-            if not numbers or not pair[0] < pair[1]:
-                raise ValueError(f"[{k}] must be [start, end] (finite seconds) with start < end, "
-                                 f"got {pair!r}")
-        return [list(pair) for pair in value]
+        if isinstance(value, Mapping):
+            out = {}
+            for key, pairs in value.items():
+                index = int(key) if isinstance(key, str) and key.isdigit() else key
+                if isinstance(index, bool) or not isinstance(index, int) or index < 0:
+                    raise ValueError(f"keys must be demonstration indices (0, 1, ...), got {key!r}")
+                out[index] = _range_list(pairs, f"[{index}]")
+            return out
+        return _range_list(value, "")
+
+
+def _range_list(value: Any, at: str) -> list[list[Any]]:
+    """``value`` checked as a list of [start, end] pairs of finite seconds, start < end."""
+    if not isinstance(value, list | tuple):
+        raise ValueError(f"{at} must be a list of [start, end] pairs".lstrip())
+    for k, pair in enumerate(value):
+        numbers = isinstance(pair, list | tuple) and len(pair) == 2 and all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in pair)
+        if not numbers or not pair[0] < pair[1]:
+            raise ValueError(f"{at}[{k}] must be [start, end] (finite seconds) with start < end, "
+                             f"got {pair!r}")
+    return [list(pair) for pair in value]
 
 
 class FaultOptions(Options):

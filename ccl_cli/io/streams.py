@@ -4,7 +4,9 @@ A :class:`StreamReader` yields one :class:`Stream` per selection (a topic's fiel
 table columns). :meth:`StreamReader.read` reads the state (and action) stream the options
 name, drops non-finite samples, aligns the action onto the state's stamps by linear
 interpolation (state samples outside the action's span are dropped) or derives it from
-the state (:mod:`ccl_cli.io.derivative`), and cuts demonstrations (:mod:`ccl_cli.io.segment`).
+the state (:mod:`ccl_cli.io.derivative`), maps joints to the end effector when the state asks
+for ``forward_kinematics`` (:mod:`ccl_cli.io.task_space`), and cuts demonstrations and phases
+(:mod:`ccl_cli.io.segment`; ``demos.where`` reads its signal as one more stream).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from ccl_cli.io.derivative import derive_actions
 from ccl_cli.io.options import DataOptions, DemoOptions, FaultOptions, StreamOptions
 from ccl_cli.io.reader import ReaderBase, Recording
 from ccl_cli.io.segment import segment_ids
+from ccl_cli.io.task_space import log_joint_names, to_task_space, with_joints
 
 log = logging.getLogger("ccl")
 
@@ -72,10 +75,14 @@ class StreamReader(ReaderBase):
             raise InputError(f"{self.path}: data.state is required for {self.format} input "
                              "(e.g. state: {topic: /joint_states, field: position})")
         derive = o.derives_action
-        selections = [o.state] if derive else [o.state, o.action]
-        raw = self.streams(selections)
+        fk = o.state.forward_kinematics
+        selections = [with_joints(o.state, fk)]
+        if not derive:
+            selections.append(with_joints(o.action, fk, selections[0].joints))
+        signal = o.demos.where
+        raw = self.streams(selections + ([signal.selection()] if signal is not None else []))
         state = _repaired(raw[0], selections[0], o)
-        rest = [_clean(s, sel, o.nonfinite) for s, sel in zip(raw[1:], selections[1:], strict=True)]
+        rest = [_clean(s, sel, o.nonfinite) for s, sel in zip(raw[1:], selections[1:], strict=False)]
         t_ns, X = state.t_ns, state.values
         meta: dict[str, Any] = {"source": str(self.path), "format": self.format, "state": state.meta}
         if state.meta.get("faults"):
@@ -99,8 +106,22 @@ class StreamReader(ReaderBase):
                               "dropped_outside_span": dropped}
         else:
             action_names = [f"d{n}/dt" for n in state.names]
+        state_names, units = state.names, None
+        if fk is not None:  # joints → end-effector pose (and velocity)
+            names = log_joint_names(selections[0], state.names)
+            X, U, joints = to_task_space(X, U, fk, names, str(self.path))
+            state_names = joints.names
+            action_names = [f"v{n}" for n in joints.names] if U is not None else \
+                [f"d{n}/dt" for n in joints.names]
+            meta["forward_kinematics"], units = joints.describe(), joints.units
         t_s = (t_ns - t_ns[0]) / 1e9
-        demo = segment_ids(t_s, o.demos, str(self.path))
+        passes = None
+        if signal is not None:  # demos.where: the signal's level at the state stamps
+            level = _clean(raw[-1], signal.selection(), "drop")
+            values, inside = align(t_ns, level.t_ns, level.values)
+            passes = np.zeros(len(t_ns), bool)
+            passes[inside] = signal.passes(values)
+        demo = segment_ids(t_s, o.demos, str(self.path), passes)
         keep = demo >= 0
         if not keep.all():  # samples outside every demos.range
             t_ns, t_s, X, demo = t_ns[keep], t_s[keep], X[keep], demo[keep]
@@ -108,7 +129,8 @@ class StreamReader(ReaderBase):
         if U is None:
             U, meta["action"] = derive_actions(t_s, X, demo, o.action)
         data = Demonstrations(X=X, U=U, demo=demo, t=(t_ns - t_ns[0]) / 1e9,
-                              state_names=state.names, action_names=action_names, metadata=meta)
+                              state_names=state_names, action_names=action_names, state_units=units,
+                              action_units=[f"{u}/s" for u in units] if units else None, metadata=meta)
         return Recording(data, int(t_ns[0]))
 
     def inspect(self, gap: float | None = None) -> dict[str, Any]:
@@ -145,7 +167,11 @@ def _repair_faults(stream: Stream, options: FaultOptions, demos: DemoOptions, wh
 
     t0 = stream.t_ns[0]
     t_s = (stream.t_ns - t0) / 1e9
-    pieces = segment_ids(np.maximum.accumulate(t_s), demos, where)
+    phases = {"where": None, "min_duration": None}
+    if isinstance(demos.ranges, dict):
+        phases["ranges"] = None
+    cuts = demos.model_copy(update=phases)  # faults are searched per demonstration, not per phase
+    pieces = segment_ids(np.maximum.accumulate(t_s), cuts, where)
     cleaned = clean_positions(t_s, stream.values, pieces, flips=options.flips,
                               drop_spikes=options.spikes == "drop", stamps=options.stamps == "repair")
     if not cleaned.findings:

@@ -41,7 +41,6 @@ STYLE = {
     "baseline": {"color": "tab:blue", "lw": 0.9, "ls": ":"},
     "predicted": {"color": "tab:purple", "lw": 1.0, "ls": "--"},
 }
-JOINT_UNITS = {"position": "rad", "velocity": "rad/s", "effort": "N m"}
 
 
 def _matplotlib() -> None:
@@ -122,12 +121,8 @@ def save_figure(fig, path: Path, dpi: float = DPI, fmt: str | None = None) -> No
 
 # -- labels ----------------------------------------------------------------------------------
 def _units(names: list[str], units: list[str] | None) -> list[str]:
-    """The data's units; where none is given, a JointState field's unit from its name."""
-    out = list(units or [""] * len(names))
-    for j, name in enumerate(names):
-        if not out[j] and "." in name:
-            out[j] = JOINT_UNITS.get(name.rsplit(".", 1)[1], "")
-    return out
+    """The data's units (the readers fill in those the names imply: ``ccl_cli.io.units``)."""
+    return list(units or [""] * len(names))
 
 
 def wrap(text: str, width: int = 70) -> str:

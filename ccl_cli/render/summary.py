@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import json
+import re
 from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
@@ -85,6 +86,12 @@ def _write_summary(out: Path, results: list[JobResult], seconds: float) -> dict[
     return summary
 
 
+def _short(name: str, width: int = 24) -> str:
+    """A job name for a tick label: without its key's hash suffix, cut to ``width``."""
+    name = re.sub(r"-[0-9a-f]{8}$", "", name)
+    return name if len(name) <= width else name[:width - 1] + "…"
+
+
 def _plot(stage: Callable[[str], Path], rows: list[dict], columns: list[str]) -> bool:
     """One panel per metric: its value per job, coloured by method (log scale), saved to
     ``stage("summary.png")``; False when there is nothing to plot."""
@@ -108,6 +115,12 @@ def _plot(stage: Callable[[str], Path], rows: list[dict], columns: list[str]) ->
                 ax.scatter(*zip(*pts, strict=True), color=colours[m], label=m, s=18)
         ax.set_yscale("log")
         ax.set_ylabel(col, fontsize=7)
+        ax.set_xticks(range(len(rows)))  # one tick per job, named below
+        ax.set_xticklabels([] if ax is not axes[-1, 0] else [_short(r["job"]) for r in rows],
+                           rotation=60 if len(rows) > 3 else 0, ha="right" if len(rows) > 3 else "center",
+                           fontsize=6)
+        ax.set_xlim(-0.5, len(rows) - 0.5)
+        ax.grid(axis="x", alpha=0.2)
     axes[-1, 0].set_xlabel("job")
     axes[0, 0].legend(fontsize=6, loc="best")
     fig.tight_layout()

@@ -72,6 +72,18 @@ def model_lines(info: dict[str, Any]) -> list[str]:
     return out
 
 
+def utc(ns: int) -> str:
+    """A log time (int ns since the Unix epoch) as an ISO date in UTC, to the millisecond;
+    a stamp before 1980 is a time since boot or a simulation clock, shown as seconds."""
+    if ns < 315_532_800 * 10**9:
+        return f"{ns / 1e9:.3f} s (a clock that is not a date: time since boot or simulation time)"
+    from datetime import UTC, datetime
+
+    seconds, rest = divmod(int(ns), 10**9)
+    stamp = datetime.fromtimestamp(seconds, tz=UTC)
+    return stamp.strftime("%Y-%m-%d %H:%M:%S") + f".{rest // 10**6:03d} UTC"
+
+
 def inspect_lines(info: dict[str, Any]) -> list[str]:
     """``ccl inspect``'s text rendering (one function, so every format's listing shows here)."""
     if info.get("format") == "ccl-model":
@@ -80,6 +92,12 @@ def inspect_lines(info: dict[str, Any]) -> list[str]:
     if "duration_s" in info:
         span = "summed over demonstrations" if info["format"] == "hdf5" else "first to last message"
         out.append(f"duration: {info['duration_s']:.3f} s ({span})")
+    if info.get("start_ns") is not None and info.get("end_ns") is not None:
+        out.append(f"start:    {utc(info['start_ns'])}")
+        out.append(f"end:      {utc(info['end_ns'])}")
+    for key in ("storage", "compression", "encoding"):
+        if info.get(key):
+            out.append(f"{key + ':':9s} {info[key]}")
     for topic, t in (info.get("topics") or {}).items():
         rate = f"{t['rate_hz']:.1f} Hz" if t.get("rate_hz") else "-"
         out.append(f"  {topic:30s} {t['type']:36s} {t['count']:>9d} msgs  {rate:>10s}"
@@ -96,8 +114,15 @@ def inspect_lines(info: dict[str, Any]) -> list[str]:
     for node in info.get("tree", []):  # HDF5 / .mat contents
         out.append("  " + "  ".join(str(v) for k, v in node.items() if k != "names"))
     if "gap_s" in info and "demos" in info:
-        out.append(f"demos:    {info['demos']} in {info.get('demos_from')} (split on pauses > "
-                   f"{info['gap_s']:.3g} s: {info.get('gap_rule')}; change with --gap)")
+        out.append(f"pauses:   {info['demos']} stretches in {info.get('demos_from')} between pauses > "
+                   f"{info['gap_s']:.3g} s ({info.get('gap_rule')}; change with --gap)")
+    if "as_configured" in info:
+        c = info["as_configured"]
+        each = c["samples_per_demo"]
+        shown = ", ".join(map(str, each[:8])) + (", …" if len(each) > 8 else "")
+        out.append(f"learning reads: {c['demos']} demonstration(s), {c['samples']} samples ({shown}), "
+                   f"{c['seconds']:.2f} s; {c['split']}")
+        out.append(f"  state {', '.join(c['state_names'])}; action {', '.join(c['action_names'])}")
     for key in ("samples", "demos", "samples_per_demo", "state_names", "action_names", "truth", "masks"):
         if key in info and not (key == "demos" and "gap_s" in info):
             out.append(f"{key + ':':9s} {info[key]}")

@@ -23,6 +23,7 @@ from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError
 from ccl_cli.learn.kinematics import SevenDofArm
 from ccl_cli.learn.linalg import nullspace_projection, unit_rows
+from ccl_cli.learn.robots import Chain
 from ccl_cli.simulate.recordings import _sampled, derive, fault, stroke_phase
 from ccl_cli.simulate.tracker import _tilt, _tracker_path, _tracker_segments
 
@@ -119,7 +120,28 @@ class _Paths:
         return x, v, phase
 
 
-def _joint_rates(arm: SevenDofArm, q: np.ndarray, xdot: np.ndarray, target: np.ndarray) -> np.ndarray:
+class ChainArm:
+    """A robot chain (:class:`~ccl_cli.learn.robots.Chain`, e.g. ``LWR4.chain()``) with the
+    interface the wipe simulator drives: ``forward`` (N, n) → (N, 3), ``jacobian`` → (N, 6, n),
+    ``limits_deg`` (n,) the smaller side of each joint's limits."""
+
+    def __init__(self, chain: Chain) -> None:
+        self.chain = chain
+        self.name = chain.source
+        self.n_joints = chain.n_joints
+        self.limits_deg = np.rad2deg(np.minimum(-chain.lower, chain.upper))
+
+    def forward(self, Q: np.ndarray) -> np.ndarray:
+        return self.chain.forward(Q).position
+
+    def jacobian(self, Q: np.ndarray) -> np.ndarray:
+        return self.chain.jacobian(Q)
+
+
+Arm = SevenDofArm | ChainArm
+
+
+def _joint_rates(arm: Arm, q: np.ndarray, xdot: np.ndarray, target: np.ndarray) -> np.ndarray:
     """q̇ = J_p⁺ ẋ_d + (I − J_p⁺J_p) k (q* − q) for postures q (N, 7), desired ẋ_d (N, 3)."""
     J = arm.jacobian(q)[:, :3, :]
     Jp = J.transpose(0, 2, 1) @ np.linalg.inv(J @ J.transpose(0, 2, 1))  # J⁺ of a full-rank (3, 7) J
@@ -146,6 +168,8 @@ def wipe_log(
     bias: float = 1.0,
     force_noise: float = 0.2,
     seed: int = 0,
+    arm: Arm | None = None,
+    posture: np.ndarray | None = None,
 ) -> WipeLog:
     """Simulate ``n_demos`` wipes of a table by the 7-DoF arm, logged at ``rate`` Hz.
 
@@ -167,17 +191,23 @@ def wipe_log(
     ±20 % at 0.5 Hz, friction ``friction`` × that force opposes the motion, torques are r × F
     for a tool tip 0.1 m below the sensor; the bias is constant, uniform in ±5·``bias`` N and
     ±0.3·``bias`` N m (the sensor was not zeroed).
+
+    ``arm``: the 7-DoF arm (default :class:`~ccl_cli.learn.kinematics.SevenDofArm`; a
+    :class:`ChainArm` for a robot model such as the LWR 4+); ``posture`` (7,) rad: the
+    comfortable posture q* is drawn within ±10° of it (default: anywhere within 80 % of half the
+    joint limits).
     """
     if n_demos < 1 or not 50.0 <= rate <= 1000.0:
         raise ConfigError(f"wipe_log needs n_demos ≥ 1 and a rate in [50, 1000] Hz, got {n_demos}, {rate}")
     rng = np.random.default_rng(seed)
-    arm = SevenDofArm()
+    arm = arm or SevenDofArm()
     half = np.deg2rad(arm.limits_deg) / 2
     normal = _tilt(rng, tilt_deg)[:, 2]
     e1 = unit_rows(np.cross(normal, rng.normal(size=3))[None])[0]
     E = np.stack([e1, np.cross(normal, e1)], 1)  # (3, 2) in-plane axes
     for _attempt in range(50):  # postures until the arm stays clear of singularities and limits
-        target = rng.uniform(-half, half) * 0.8
+        target = rng.uniform(-half, half) * 0.8 if posture is None else \
+            np.asarray(posture, float) + np.deg2rad(rng.uniform(-10, 10, 7))
         q0 = target + np.deg2rad(rng.uniform(-10, 10, (n_demos, 7)))
         log = _integrate(arm, rng, q0, target, normal, E, rate, approach_s, wipe_s, retract_s, height,
                          extent, speed, compliance)
@@ -210,7 +240,7 @@ def wipe_log(
                    dq_true=dq_true, ee_true=ee_true, ee_vel=ee_vel, normal=normal, bias=b, metadata=meta)
 
 
-def _integrate(arm: SevenDofArm, rng: np.random.Generator, q0: np.ndarray, target: np.ndarray,
+def _integrate(arm: Arm, rng: np.random.Generator, q0: np.ndarray, target: np.ndarray,
                normal: np.ndarray, E: np.ndarray, rate: float, approach_s: tuple[float, float],
                wipe_s: tuple[float, float], retract_s: tuple[float, float], height: tuple[float, float],
                extent: float, speed: tuple[float, float], compliance: float) -> tuple | None:

@@ -30,7 +30,16 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.arrays import NAME_ATTRS, Variable, as_numeric, assemble, named_parts, orient, split_by_index
+from ccl_cli.io.arrays import (
+    NAME_ATTRS,
+    Variable,
+    as_numeric,
+    assemble,
+    cut_parts,
+    named_parts,
+    orient,
+    split_by_index,
+)
 from ccl_cli.io.canonical import FORMAT, is_canonical, read_demonstrations
 from ccl_cli.io.h5.access import attr_names, attr_str, error_text
 from ccl_cli.io.h5.listing import list_hdf5
@@ -38,7 +47,7 @@ from ccl_cli.io.h5.probe import open_hdf5
 from ccl_cli.io.limits import check_claim
 from ccl_cli.io.options import DataOptions, StreamOptions
 from ccl_cli.io.reader import ReaderBase, Recording
-from ccl_cli.io.segment import resegment
+from ccl_cli.io.segment import CUTS, resegment
 from ccl_cli.io.sniff import MAT73_MAGIC, read_head
 from ccl_cli.io.summary import summary
 
@@ -150,10 +159,11 @@ def read_layout(f, path: Path, options: DataOptions) -> Recording:
                          f"(the file has: {_contents(f)})")
     derive = options.derives_action
     demos = options.demos
-    unknown = demos.given() - {"group", "dataset"}
+    cuts = set(CUTS) - {"per_file", "where"}
+    unknown = demos.given() - {"group", "dataset"} - cuts
     if unknown:
         raise InputError(f"unknown demos option(s) for an HDF5 layout: {', '.join(sorted(unknown))} "
-                         "(use group or dataset)")
+                         f"(use group or dataset, then {', '.join(sorted(cuts))})")
     if demos.group is not None and demos.dataset is not None:
         raise InputError("data.demos: give group (one demonstration per group) or dataset (a demo id "
                          "per sample), not both")
@@ -182,6 +192,7 @@ def read_layout(f, path: Path, options: DataOptions) -> Recording:
     parts, state_names, action_names, origin, time_used = named_parts(
         chunks, options, where, {k: s.dataset.strip("/").split("/")[-1] for k, s in selections.items()},
         {k: variables[k].names for k in selections}, derive)
+    parts = cut_parts(parts, demos, where)  # phases: gaps, ranges per demonstration, windows
     time = options.time.dataset
     meta = {"source": where, "format": "hdf5", "layout": {
         "state": state.dataset, "action": "derived" if derive else options.action.dataset,

@@ -30,13 +30,14 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.arrays import Variable, as_numeric, assemble, named_parts, orient, split_by_index
+from ccl_cli.io.arrays import Variable, as_numeric, assemble, cut_parts, named_parts, orient, split_by_index
 from ccl_cli.io.h5.access import attr_str, attr_value, error_text
 from ccl_cli.io.h5.listing import list_hdf5, truncate
 from ccl_cli.io.h5.probe import open_hdf5
 from ccl_cli.io.limits import check_claim
-from ccl_cli.io.options import DataOptions
+from ccl_cli.io.options import DataOptions, SignalOptions
 from ccl_cli.io.reader import ReaderBase, Recording
+from ccl_cli.io.segment import CUTS
 from ccl_cli.io.sniff import MAT5_MAGIC, MAT73_MAGIC, read_head
 from ccl_cli.io.summary import summary
 
@@ -119,10 +120,11 @@ class _V5:
             if len(elems) == 1:
                 return self._walk(elems[0][field], rest, f"{at}.{field}", where)
             return [self._walk(e[field], rest, f"{at}({k + 1}).{field}", where) for k, e in enumerate(elems)]
+        if arr.dtype == object:  # cell array: one value per cell, MATLAB linear order (a field: of each)
+            cells = arr.ravel(order="F")
+            return [self._walk(c, fields, f"{at}{{{k + 1}}}", where) for k, c in enumerate(cells)]
         if fields:
             raise InputError(f"{self.path}: {at} is not a struct (cannot take field {fields[0]!r})")
-        if arr.dtype == object:  # cell array: one value per cell, MATLAB linear order
-            return [self._walk(c, [], f"{at}{{{k + 1}}}", where) for k, c in enumerate(arr.ravel(order="F"))]
         return arr
 
 
@@ -181,16 +183,16 @@ class _V73:
                     raise InputError(f"{where}.{field}: a struct array without elements")
                 return self._walk(self._deref(refs[0], where), rest, f"{at}.{field}", depth + 1)
             return self._walk(child, rest, f"{at}.{field}", depth + 1)
-        if fields:
+        if fields and cls != "cell":
             raise InputError(f"{where} is not a struct (cannot take field {fields[0]!r})")
         if not isinstance(obj, h5py.Dataset):
             raise InputError(f"{where}: a group of MATLAB class {cls!r}; not readable")
-        if cls == "cell":
+        if cls == "cell":  # one value per cell (a field: of each cell's struct)
             if obj.dtype != h5py.ref_dtype:
                 raise InputError(f"{where}: a cell must hold object references, got {obj.dtype} "
                                  "(damaged file?)")
             refs = self._read(obj, where).ravel()  # stored transposed: C order is MATLAB's linear order
-            return [self._walk(self._deref(r, where), [], f"{at}{{{k + 1}}}", depth + 1)
+            return [self._walk(self._deref(r, where), fields, f"{at}{{{k + 1}}}", depth + 1)
                     for k, r in enumerate(refs)]
         if cls not in NUMERIC_CLASSES | {"char"} or \
                 attr_value(obj.attrs, "MATLAB_object_decode", where, None) is not None:
@@ -265,16 +267,21 @@ def read_mat(src: _V5 | _V73, path: Path, options: DataOptions) -> Recording:
     if not derive and options.action.variable is None:
         raise InputError(f"{where}: data.action needs variable: NAME (or derive: state)")
     demos = options.demos
-    unknown = demos.given() - {"variable"}
+    unknown = demos.given() - {"variable", *CUTS} - {"per_file"}
     if unknown:
         raise InputError(f"unknown demos option(s) for a .mat file: {', '.join(sorted(unknown))} "
-                         "(use variable, or cell arrays)")
+                         f"(use variable, {', '.join(c for c in CUTS if c != 'per_file')}, or cell arrays)")
+    signal = demos.where
+    if signal is not None and signal.variable is None:
+        raise InputError(f"{where}: demos.where needs variable: NAME for a .mat file")
     # the variable and the samples side of each array read
     specs = {"state": (state.variable, state.samples)}
     if not derive:
         specs["action"] = (options.action.variable, options.action.samples)
     if options.time.variable is not None:
         specs["time"] = (options.time.variable, None)
+    if signal is not None:
+        specs["where"] = (signal.variable, signal.samples)
     values = {key: src.get(name) for key, (name, _) in specs.items()}
     cells = {key: isinstance(v, list) for key, v in values.items()}
     chunks: list[tuple[str, dict[str, np.ndarray]]] = []
@@ -293,7 +300,7 @@ def read_mat(src: _V5 | _V73, path: Path, options: DataOptions) -> Recording:
             label = f"{state.variable}{{{k + 1}}}"
             arrays = {key: _variable(v[k], f"{where}: {specs[key][0]}{{{k + 1}}}",
                                      specs[key][1], key == "time") for key, v in values.items()}
-            chunks.append((label, orient(arrays, None, f"{where}: {label}")))
+            chunks.append((label, _oriented(arrays, f"{where}: {label}")))
     else:
         for key, v in values.items():
             if isinstance(v, list):
@@ -309,20 +316,48 @@ def read_mat(src: _V5 | _V73, path: Path, options: DataOptions) -> Recording:
             if not (arrays["demo"].values.ndim == 1 or 1 in arrays["demo"].values.shape):
                 raise InputError(f"{arrays['demo'].where}: a demo index must be a vector, "
                                  f"got {'×'.join(map(str, arrays['demo'].values.shape))}")
-            oriented = orient(arrays, None, where)
+            oriented = _oriented(arrays, where)
             index_col = oriented.pop("demo")[:, 0]
             chunks = [(f"demo {label.split()[-1]}", a)
                       for label, a in split_by_index(oriented, index_col, f"{where}: {demos.variable}")]
         else:
-            chunks = [(state.variable, orient(arrays, None, where))]
+            chunks = [(state.variable, _oriented(arrays, where))]
+    passes = [signal.passes(_signal_columns(a.pop("where"), signal, where)) for _, a in chunks] \
+        if signal is not None else None
     parts, state_names, action_names, origin, time_used = named_parts(
         chunks, options, where, {k: name for k, (name, _) in specs.items()}, {}, derive)
+    parts = cut_parts(parts, demos, where, passes)
     time = options.time.variable
     meta = {"source": where, "format": "mat",
             "mat_version": "7.3" if isinstance(src, _V73) else "5",
             "variables": {k: name for k, (name, _) in specs.items()},
             "time": f"{time}: {time_used}" if time else time_used}
     return Recording(assemble(parts, options, where, state_names, action_names, meta), origin)
+
+
+def _oriented(arrays: dict[str, Variable], where: str) -> dict[str, np.ndarray]:
+    """:func:`orient`, where a time variable holding one number is the sampling interval (s, or
+    ``time.unit``) of its demonstration: t = k · dt."""
+    time = arrays.get("time")
+    if time is None or time.values.size != 1:
+        return orient(arrays, None, where)
+    dt = float(time.values.ravel()[0])
+    if not (np.isfinite(dt) and dt > 0):
+        raise InputError(f"{time.where}: a sampling interval must be a positive number, got {dt!r}")
+    out = orient({k: v for k, v in arrays.items() if k != "time"}, None, where)
+    out["time"] = (np.arange(len(out["state"])) * dt)[:, None]
+    return out
+
+
+def _signal_columns(values: np.ndarray, signal: SignalOptions, where: str) -> np.ndarray:
+    """The ``columns`` (0-based indices) of a ``demos.where`` variable, or all of it."""
+    picks = signal.selection().columns
+    if not picks:
+        return values
+    if not all(isinstance(c, int) and 0 <= c < values.shape[1] for c in picks):
+        raise InputError(f"{where}: demos.where columns must be indices in 0..{values.shape[1] - 1}, "
+                         f"got {picks}")
+    return values[:, picks]
 
 
 class MatReader(ReaderBase):
@@ -352,7 +387,8 @@ class MatReader(ReaderBase):
         variable in the options, what would be read."""
         head = read_head(self.path)
         out: dict[str, Any] = {"tree": list_v5(self.path) if head.startswith(MAT5_MAGIC) else
-                               list_hdf5(self.path, matlab=head.startswith(MAT73_MAGIC))}
+                               list_v73(self.path) if head.startswith(MAT73_MAGIC) else
+                               list_hdf5(self.path)}
         if self.options.state is not None and self.options.state.variable is not None:
             out.update(summary(self.read().data))
         return out
@@ -388,7 +424,33 @@ def _v5_children(value: Any, at: str, depth: int = 0) -> list[dict[str, Any]]:
             child = np.asarray(cell)
             out.append({"path": f"{at}{{{k + 1}}}", "kind": "cell", "shape": list(child.shape),
                         "class": _v5_class(child)})
+            out += _v5_children(child, f"{at}{{{k + 1}}}", depth + 1)
     return out
+
+
+def list_v73(path: Path) -> list[dict[str, Any]]:
+    """The HDF5 tree of a v7.3 file (:func:`list_hdf5`, MATLAB's orientation) and what its cell
+    arrays hold — each cell (first 20) and, for a struct in a cell, its fields with shapes."""
+    import h5py
+
+    out = list_hdf5(path, matlab=True)
+    src = _V73(path)
+    try:
+        cells: list[tuple[str, Any]] = []
+        src.f.visititems(lambda name, obj: cells.append((name, obj)) if not name.startswith("#") and
+                         isinstance(obj, h5py.Dataset) and _cls(obj) == "cell" else None)
+        for name, obj in cells:
+            for k, ref in enumerate(src._read(obj, f"{path}: {name}").ravel()[:20]):
+                child, at = src._deref(ref, f"{path}: {name}"), f"{name}{{{k + 1}}}"
+                out.append({"path": at, "kind": "cell", "shape": list(_matlab_shape(child)),
+                            "class": _cls(child)})
+                if isinstance(child, h5py.Group):
+                    out += [{"path": f"{at}.{field}", "kind": "field",
+                             "shape": list(_matlab_shape(child[field])), "class": _cls(child[field])}
+                            for field in child if not field.startswith("#")]
+    finally:
+        src.close()
+    return truncate(out)
 
 
 def _v5_class(arr: np.ndarray) -> str:

@@ -88,6 +88,22 @@ def attr_int(attrs, key: str, where: str, default: Any = _MISSING) -> int:
     raise InputError(f"{where}: attribute {key!r} must be an integer, got {_describe(value)}")
 
 
+def attr_version(attrs, key: str, where: str) -> int:
+    """A format version: an integer, or a number or text that names one ("1", "1.0", 1.0 —
+    as other writers and MATLAB store it); anything else is one InputError line."""
+    value = _attr(attrs, key, where, _MISSING)
+    text = _as_str(value)
+    if text is not None or isinstance(value, float | np.floating):
+        try:
+            number = float(text if text is not None else value)
+        except ValueError:
+            number = float("nan")
+        if number.is_integer() and 0 <= number < 2**31:
+            return int(number)
+        raise InputError(f"{where}: attribute {key!r} must be a version number, got {_describe(value)}")
+    return attr_int(attrs, key, where)
+
+
 def attr_float(attrs, key: str, where: str, default: Any = _MISSING, positive: bool = False) -> float:
     """A finite scalar number attribute."""
     value = _attr(attrs, key, where, default)

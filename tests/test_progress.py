@@ -1,0 +1,35 @@
+"""What a run shows while it works: each stage named with its method as it starts."""
+
+from pathlib import Path
+
+from ccl_cli import config
+from ccl_cli.app.run import execute
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
+
+class Recorder:
+    def __init__(self) -> None:
+        self.events: list[str] = []
+
+    def start(self, label: str) -> None:
+        self.events.append(f"start {label}")
+
+    def advance(self) -> None:
+        self.events.append("done")
+
+
+def test_each_stage_is_named_with_its_method_before_it_runs():
+    cfg = config.load(CONFIGS / "toy2d_learn_v_then_a.yaml")
+    shown = Recorder()
+    result = execute("run", cfg, None, progress=shown, views=False)
+    assert shown.events == ["start learn-v (ncl)", "done", "start learn-a (nhat)", "done",
+                            "start evaluate (every model under the ccl convention)", "done"]
+    assert [r.name for r in result.pipeline.results] == ["learn-v", "learn-a", "evaluate"]
+
+
+def test_inspect_dates_are_utc_and_a_boot_clock_is_not_a_date():
+    from ccl_cli.render.text import utc
+
+    assert utc(1_700_000_000_002_000_000) == "2023-11-14 22:13:20.002 UTC"  # date -u -d @1700000000
+    assert utc(12_500_000_000).startswith("12.500 s (a clock that is not a date")
