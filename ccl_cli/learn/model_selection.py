@@ -412,6 +412,7 @@ def search(
     per_candidate = len(folds.pairs)  # fits
     rows: list[dict[str, Any]] = []
     ran: list[tuple[dict[str, Any], np.ndarray]] = []
+    first_failure = ""  # why the first candidate that could not be fitted failed (for the error)
     kept: list[tuple[Any, Any]] = []  # (full model, basis) of each row of ``rows``
     ran_errors: list[np.ndarray] = []  # fold errors of each row of ``rows``
     bases: dict[tuple, Any] = {}  # fitted bases by their settings (candidates differing in others share one)
@@ -443,8 +444,9 @@ def search(
                 basis = bases[key]
             full, models = candidate_models(candidate, X, U, groups, folds, basis, shared, **fit_kw)
             errors = held_out_errors(models, X, U, groups, folds, **fit_kw)
-        except (InputError, LearningError, np.linalg.LinAlgError):
+        except (InputError, LearningError, np.linalg.LinAlgError) as exc:
             ran.append((params, np.full(per_candidate, np.nan)))
+            first_failure = first_failure or f"{params}: {exc}"
             continue  # e.g. more centres than training samples in a fold
         ran.append((params, errors))
         mean = float(errors.mean())
@@ -456,7 +458,8 @@ def search(
             best = len(rows) - 1
         ran_errors.append(errors)
     if best is None:
-        raise InputError("no hyperparameter candidate could be cross-validated on this data")
+        raise InputError("no hyperparameter candidate could be cross-validated on this data (the first "
+                         f"failed with {first_failure})"[:600])
     best = min(range(len(rows)), key=lambda i: rows[i]["mean"])  # of those run, the first of equals
     best = _held_back(best, rows, ran_errors, grid, getattr(estimator, "TUNE_CONSERVATIVE", ()))
     chosen = rows[best]["params"]
