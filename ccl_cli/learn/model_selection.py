@@ -315,24 +315,29 @@ STOP_EARLY = True
 STOP_SE = 0.5
 #: ... and by more than this fraction of the best mean error.
 STOP_GAIN = 0.01
+#: A ``TUNE_CONSERVATIVE`` parameter leaves its configured value only for a held-out error lower
+#: by more than this fraction (and STOP_SE): a smaller cut-off gains orders of magnitude on
+#: noise-free data and a few per cent of noise on noisy data (docs/measurements.md, "pi and lwpi").
+CONSERVATIVE_GAIN = 0.1
 
 
-def _improves(errors: np.ndarray, best: np.ndarray, larger: bool) -> bool:
+def _improves(errors: np.ndarray, best: np.ndarray, larger: bool, gain: float = STOP_GAIN) -> bool:
     """Whether fold errors ``errors`` beat ``best`` (n_folds,): a lower mean; for a larger basis
     than the best's, lower by more than STOP_SE standard errors of the paired difference and
-    by more than STOP_GAIN of the best mean."""
+    by more than ``gain`` of the best mean."""
     diff = errors - best
     if not larger:
         return bool(diff.mean() < 0)
     se = diff.std(ddof=1) / np.sqrt(len(diff)) if len(diff) > 1 else 0.0
-    return bool(diff.mean() < -max(STOP_SE * se, STOP_GAIN * float(best.mean())))
+    return bool(diff.mean() < -max(STOP_SE * se, gain * float(best.mean())))
 
 
 def _held_back(best: int, rows: list[dict[str, Any]], errors: list[np.ndarray], grid: dict[str, list[Any]],
                conservative: tuple[str, ...]) -> int:
     """The winner, moved back along each ``conservative`` parameter (its values in the grid's
     order, the first the most regularising): to the earliest value whose candidate (the same
-    otherwise) the winner does not beat as a larger basis must (:func:`_improves`)."""
+    otherwise) the winner does not beat by :data:`STOP_SE` and :data:`CONSERVATIVE_GAIN`
+    (:func:`_improves`)."""
     for key in conservative:
         if key not in grid:
             continue
@@ -342,7 +347,7 @@ def _held_back(best: int, rows: list[dict[str, Any]], errors: list[np.ndarray], 
                   and all(r["params"][k] == params[k] for k in params if k != key)
                   and order.index(r["params"][key]) < order.index(params[key])]
         for i in sorted(rivals, key=lambda i: order.index(rows[i]["params"][key])):
-            if not _improves(errors[best], errors[i], True):
+            if not _improves(errors[best], errors[i], True, CONSERVATIVE_GAIN):
                 best = i
                 break
     return best
@@ -382,8 +387,8 @@ def search(
     after such a step (docs/measurements.md, "Tuning"). Of the candidates run, the smallest
     mean held-out error wins (the first of equals) — except that along a parameter the
     estimator lists in ``TUNE_CONSERVATIVE`` (e.g. the cut-off of a pseudo-inverse, its
-    configured value first) the winner keeps the earliest value it does not beat by that same
-    margin. Each candidate costs ``n_folds`` fits and runs while
+    configured value first) the winner keeps the earliest value it does not beat by STOP_SE
+    and :data:`CONSERVATIVE_GAIN`. Each candidate costs ``n_folds`` fits and runs while
     the fits so far plus its own stay within ``budget`` (the first always runs); the rest,
     and those after the stop, are counted in ``skipped``. Nothing depends on the machine or
     its load. A candidate's fits share work (:func:`candidate_models`), and candidates that
@@ -407,6 +412,7 @@ def search(
     per_candidate = len(folds.pairs)  # fits
     rows: list[dict[str, Any]] = []
     ran: list[tuple[dict[str, Any], np.ndarray]] = []
+    first_failure = ""  # why the first candidate that could not be fitted failed (for the error)
     kept: list[tuple[Any, Any]] = []  # (full model, basis) of each row of ``rows``
     ran_errors: list[np.ndarray] = []  # fold errors of each row of ``rows``
     bases: dict[tuple, Any] = {}  # fitted bases by their settings (candidates differing in others share one)
@@ -438,8 +444,9 @@ def search(
                 basis = bases[key]
             full, models = candidate_models(candidate, X, U, groups, folds, basis, shared, **fit_kw)
             errors = held_out_errors(models, X, U, groups, folds, **fit_kw)
-        except (InputError, LearningError, np.linalg.LinAlgError):
+        except (InputError, LearningError, np.linalg.LinAlgError) as exc:
             ran.append((params, np.full(per_candidate, np.nan)))
+            first_failure = first_failure or f"{params}: {exc}"
             continue  # e.g. more centres than training samples in a fold
         ran.append((params, errors))
         mean = float(errors.mean())
@@ -451,7 +458,8 @@ def search(
             best = len(rows) - 1
         ran_errors.append(errors)
     if best is None:
-        raise InputError("no hyperparameter candidate could be cross-validated on this data")
+        raise InputError("no hyperparameter candidate could be cross-validated on this data (the first "
+                         f"failed with {first_failure})"[:600])
     best = min(range(len(rows)), key=lambda i: rows[i]["mean"])  # of those run, the first of equals
     best = _held_back(best, rows, ran_errors, grid, getattr(estimator, "TUNE_CONSERVATIVE", ()))
     chosen = rows[best]["params"]
