@@ -12,6 +12,7 @@ import logging
 import os
 import sys
 import time
+from contextlib import contextmanager
 from enum import Enum
 from pathlib import Path
 from typing import Annotated, Any, get_args
@@ -221,10 +222,31 @@ def _bar(label: str, total: int, quiet: bool):
     progress.start()
     shown.live(+1)  # a long read meanwhile shows no second bar
     failed = [0]
+    now = [""]  # what runs now, e.g. 'learn-v (ncl)'
+
+    @contextmanager
+    def step(what: str, total: float):
+        """A step inside the running stage (a search's candidates, a long read), shown after
+        the stage's name: 'learn-v (ncl) · tuning, candidates 3/8'."""
+        done = [0.0]
+
+        def advance(units: float) -> None:
+            done[0] += units
+            count = f"{100 * done[0] / total:.0f} %" if total > 1000 else f"{done[0]:g}/{total:g}"
+            progress.update(task, description=f"{label}: {now[0]} · {what} {count}")
+
+        advance(0)
+        try:
+            yield advance
+        finally:
+            progress.update(task, description=f"{label}: {now[0]}")
+
+    previous = shown.install(step)
 
     class Handle:
         def start(self, what: str) -> None:
             """Name what runs now: 'learn-v (ncl)' beside the bar."""
+            now[0] = what
             progress.update(task, description=f"{label}: {what}")
 
         def advance(self, result: Any = None) -> None:
@@ -232,6 +254,7 @@ def _bar(label: str, total: int, quiet: bool):
             progress.update(task, advance=1, failed=failed[0])
 
         def stop(self) -> None:
+            shown.install(previous)
             shown.live(-1)
             progress.stop()
 

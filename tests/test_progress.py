@@ -33,3 +33,41 @@ def test_inspect_dates_are_utc_and_a_boot_clock_is_not_a_date():
 
     assert utc(1_700_000_000_002_000_000) == "2023-11-14 22:13:20.002 UTC"  # date -u -d @1700000000
     assert utc(12_500_000_000).startswith("12.500 s (a clock that is not a date")
+
+
+def test_a_search_reports_its_candidates_through_the_progress_hook():
+    """Inside a stage the bar shows the search's candidates: the library reports them through
+    ccl_cli.progress (nothing is shown unless a front end installed a hook)."""
+    from contextlib import contextmanager
+
+    import numpy as np
+
+    from ccl_cli import progress
+    from ccl_cli.learn.nullspace import NullSpaceComponent
+
+    seen: list[tuple[str, float, float]] = []
+
+    @contextmanager
+    def hook(label, total):
+        done = [0.0]
+
+        def advance(units):
+            done[0] += units
+            seen.append((label, done[0], total))
+
+        yield advance
+
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-1, 1, (300, 2))
+    U = np.c_[X[:, 1], -X[:, 0]] + 0.01 * rng.normal(size=(300, 2))
+    previous = progress.install(hook)
+    try:
+        model = NullSpaceComponent(seed=0).fit(X, U, groups=np.repeat(np.arange(6), 50))
+    finally:
+        progress.install(previous)
+    ran = len(model.tuning_["scores"])
+    labels = {label for label, _, _ in seen}
+    assert labels == {"tuning, candidates"}
+    total = seen[0][2]
+    assert ran - 1 <= max(done for _, done, _ in seen) <= total  # advanced as each later candidate began
+    assert ran <= total

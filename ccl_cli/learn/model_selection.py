@@ -45,6 +45,7 @@ from ccl_cli.learn.defaults import (  # noqa: F401 - the shared defaults, re-exp
     TUNE_MAX_ROWS,
 )
 from ccl_cli.learn.params import SEED, Fields, Interval, parameters
+from ccl_cli.progress import progress_of
 
 
 # -- splitters ------------------------------------------------------------------------------
@@ -421,42 +422,44 @@ def search(
     stopped: str | None = None
     best: int | None = None  # the row of the candidate the stopping rule holds best so far
     incumbent: int | None = None  # the same, when the previous size began
-    for i, params in enumerate(combos):
-        if i and _size(params) != _size(combos[i - 1]):  # a size is complete
-            if STOP_EARLY and incumbent is not None and best == incumbent:
-                stopped = (f"{_size(combos[i - 1]):g} centres did not lower the held-out error of "
-                           f"fewer centres by more than {STOP_SE:g} standard error of the paired "
-                           f"difference and {STOP_GAIN:.0%}: larger bases not run")
-                skipped += len(combos) - i
-                break
-            incumbent = best
-        if used and used + per_candidate > budget:
-            skipped += 1
-            continue
-        used += per_candidate
-        candidate = clone(estimator).set_params(**params)
-        try:
-            basis = None
-            if isinstance(candidate, Tunable):  # one fitted basis per distinct basis setting
-                key = candidate._basis_key()
-                if key not in bases:
-                    bases[key] = candidate._fit_basis(*(basis_data or (X, U)))
-                basis = bases[key]
-            full, models = candidate_models(candidate, X, U, groups, folds, basis, shared, **fit_kw)
-            errors = held_out_errors(models, X, U, groups, folds, **fit_kw)
-        except (InputError, LearningError, np.linalg.LinAlgError) as exc:
-            ran.append((params, np.full(per_candidate, np.nan)))
-            first_failure = first_failure or f"{params}: {exc}"
-            continue  # e.g. more centres than training samples in a fold
-        ran.append((params, errors))
-        mean = float(errors.mean())
-        se = float(errors.std(ddof=1) / np.sqrt(len(errors))) if len(errors) > 1 else 0.0
-        rows.append({"params": params, "mean": mean if np.isfinite(mean) else float("inf"), "se": se})
-        kept.append((full, basis if basis is not None else getattr(full, "basis_", None)))
-        if np.isfinite(mean) and (best is None or _improves(
-                errors, ran_errors[best], _size(params) > _size(rows[best]["params"]))):
-            best = len(rows) - 1
-        ran_errors.append(errors)
+    with progress_of("tuning, candidates", len(combos)) as advance:
+        for i, params in enumerate(combos):
+            advance(1 if i else 0)  # candidates begun so far, for the progress display
+            if i and _size(params) != _size(combos[i - 1]):  # a size is complete
+                if STOP_EARLY and incumbent is not None and best == incumbent:
+                    stopped = (f"{_size(combos[i - 1]):g} centres did not lower the held-out error of "
+                               f"fewer centres by more than {STOP_SE:g} standard error of the paired "
+                               f"difference and {STOP_GAIN:.0%}: larger bases not run")
+                    skipped += len(combos) - i
+                    break
+                incumbent = best
+            if used and used + per_candidate > budget:
+                skipped += 1
+                continue
+            used += per_candidate
+            candidate = clone(estimator).set_params(**params)
+            try:
+                basis = None
+                if isinstance(candidate, Tunable):  # one fitted basis per distinct basis setting
+                    key = candidate._basis_key()
+                    if key not in bases:
+                        bases[key] = candidate._fit_basis(*(basis_data or (X, U)))
+                    basis = bases[key]
+                full, models = candidate_models(candidate, X, U, groups, folds, basis, shared, **fit_kw)
+                errors = held_out_errors(models, X, U, groups, folds, **fit_kw)
+            except (InputError, LearningError, np.linalg.LinAlgError) as exc:
+                ran.append((params, np.full(per_candidate, np.nan)))
+                first_failure = first_failure or f"{params}: {exc}"
+                continue  # e.g. more centres than training samples in a fold
+            ran.append((params, errors))
+            mean = float(errors.mean())
+            se = float(errors.std(ddof=1) / np.sqrt(len(errors))) if len(errors) > 1 else 0.0
+            rows.append({"params": params, "mean": mean if np.isfinite(mean) else float("inf"), "se": se})
+            kept.append((full, basis if basis is not None else getattr(full, "basis_", None)))
+            if np.isfinite(mean) and (best is None or _improves(
+                    errors, ran_errors[best], _size(params) > _size(rows[best]["params"]))):
+                best = len(rows) - 1
+            ran_errors.append(errors)
     if best is None:
         raise InputError("no hyperparameter candidate could be cross-validated on this data (the first "
                          f"failed with {first_failure})"[:600])
