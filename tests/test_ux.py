@@ -1,83 +1,97 @@
-"""What a researcher touches (issue 21): outputs that never refuse by default, --json errors,
--h, ccl inspect MODEL.h5, figures of ccl evaluate, vector figures, time plots with gaps."""
+"""What a user sees: the progress of a run (stages named with their method, a search's
+candidates) and what inspect says of a recording (dates, storage, compression, encoding)."""
 
-from __future__ import annotations
+from pathlib import Path
 
-import json
-import os
+import pytest
 
-import numpy as np
-from tests_paths import CCL
+from ccl_cli import config
+from ccl_cli.app.run import execute
 
-from ccl_cli import simulate as sim
-from ccl_cli.cli import main
-from ccl_cli.io import write_demonstrations
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 
-def test_two_runs_without_out_both_succeed_in_new_folders(capsys, tmp_path, monkeypatch):
-    data = write_demonstrations(tmp_path / "arm.h5", sim.arm7(rows=(0,), n_demos=12, seed=1))
-    monkeypatch.chdir(tmp_path)
-    assert main(["learn-a", str(data), "-q"]) == 0
-    assert main(["learn-a", str(data), "-q"]) == 0
-    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["learn-a-arm", "learn-a-arm-2"]
-    assert (tmp_path / "runs" / "learn-a-arm-2" / "model.h5").exists()
+class Recorder:
+    def __init__(self) -> None:
+        self.events: list[str] = []
+
+    def start(self, label: str) -> None:
+        self.events.append(f"start {label}")
+
+    def advance(self) -> None:
+        self.events.append("done")
 
 
-def test_json_errors_are_one_object_and_help_has_a_short_flag(capsys, tmp_path):
-    code = main(["learn-a", str(tmp_path / "missing.h5"), "--json"])
-    out = capsys.readouterr().out
-    assert code == 2 and out.count("\n") == 1
-    error = json.loads(out)
-    assert error["status"] == "error" and error["exit_code"] == 2
-    assert "missing.h5" in error["error"]["message"]
-    import subprocess
-
-    for args in (["-h"], ["learn-a", "-h"]):
-        proc = subprocess.run([CCL, *args], capture_output=True, text=True)
-        assert proc.returncode == 0 and "Usage: ccl" in proc.stdout
+def test_each_stage_is_named_with_its_method_before_it_runs():
+    cfg = config.load(CONFIGS / "toy2d_learn_v_then_a.yaml")
+    shown = Recorder()
+    result = execute("run", cfg, None, progress=shown, views=False)
+    assert shown.events == ["start learn-v (ncl)", "done", "start learn-a (nhat)", "done",
+                            "start evaluate (every model under the ccl convention)", "done"]
+    assert [r.name for r in result.pipeline.results] == ["learn-v", "learn-a", "evaluate"]
 
 
-def test_inspect_a_model_names_its_method_and_constraints(capsys, tmp_path):
-    data = write_demonstrations(tmp_path / "arm.h5", sim.arm7(rows=(0, 1), n_demos=12, seed=2))
-    assert main(["learn-a", str(data), "-o", str(tmp_path / "o"), "-q"]) == 0
-    capsys.readouterr()
-    assert main(["inspect", str(tmp_path / "o" / "model.h5")]) == 0
-    text = capsys.readouterr().out
-    assert "method nhat" in text and "constraints: 2" in text and str(data) in text
-    assert main(["inspect", str(tmp_path / "o" / "model.h5"), "--json"]) == 0
+def test_inspect_dates_are_utc_and_a_boot_clock_is_not_a_date():
+    from ccl_cli.render.text import utc
+
+    assert utc(1_700_000_000_002_000_000) == "2023-11-14 22:13:20.002 UTC"  # date -u -d @1700000000
+    assert utc(12_500_000_000).startswith("12.500 s (a clock that is not a date")
+
+
+def test_a_search_reports_its_candidates_through_the_progress_hook():
+    """Inside a stage the bar shows the search's candidates: the library reports them through
+    ccl_cli.progress (nothing is shown unless a front end installed a hook)."""
+    from contextlib import contextmanager
+
+    import numpy as np
+
+    from ccl_cli import progress
+    from ccl_cli.learn.nullspace import NullSpaceComponent
+
+    seen: list[tuple[str, float, float]] = []
+
+    @contextmanager
+    def hook(label, total):
+        done = [0.0]
+
+        def advance(units):
+            done[0] += units
+            seen.append((label, done[0], total))
+
+        yield advance
+
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-1, 1, (300, 2))
+    U = np.c_[X[:, 1], -X[:, 0]] + 0.01 * rng.normal(size=(300, 2))
+    previous = progress.install(hook)
+    try:
+        model = NullSpaceComponent(seed=0).fit(X, U, groups=np.repeat(np.arange(6), 50))
+    finally:
+        progress.install(previous)
+    ran = len(model.tuning_["scores"])
+    labels = {label for label, _, _ in seen}
+    assert labels == {"tuning, candidates"}
+    total = seen[0][2]
+    assert ran - 1 <= max(done for _, done, _ in seen) <= total  # advanced as each later candidate began
+    assert ran <= total
+
+
+@pytest.mark.parametrize("container", ["ros1", "ros1-bz2", "ros2", "mcap"])
+def test_inspect_names_storage_compression_and_encoding(tmp_path, capsys, container):
+    import json
+
+    from writers import joint_recording, write_mcap_ros2, write_ros1_bag, write_ros2_bag
+
+    from ccl_cli.cli import main
+
+    rec = joint_recording(n=100)
+    path = {"ros1": lambda: write_ros1_bag(tmp_path / "a.bag", rec),
+            "ros1-bz2": lambda: write_ros1_bag(tmp_path / "a.bag", rec, compress=True),
+            "ros2": lambda: write_ros2_bag(tmp_path / "b", rec),
+            "mcap": lambda: write_mcap_ros2(tmp_path / "r.mcap", rec)}[container]()
+    assert main(["inspect", str(path), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
-    assert info["n_constraints"] == 2 and info["training"]["metrics"]["test"]["NPPE"] < 1e-3
-
-
-def test_evaluate_writes_the_figures_of_a_run_and_vector_output(capsys, tmp_path):
-    data = write_demonstrations(tmp_path / "arm.h5", sim.arm7(rows=(0,), n_demos=12, seed=3))
-    assert main(["learn-a", str(data), "-o", str(tmp_path / "o"), "-q"]) == 0
-    model = tmp_path / "o" / "model.h5"
-    assert main(["evaluate", str(model), str(data), "-o", str(tmp_path / "e"), "-q"]) == 0
-    plots = sorted(p.name for p in (tmp_path / "e" / "plots").iterdir())
-    assert "learn-a-time.png" in plots and "learn-a-constraint.png" in plots
-    report = (tmp_path / "e" / "report.md").read_text()
-    assert all(f"plots/{p}" in report for p in plots)
-    cfg = tmp_path / "svg.yaml"
-    cfg.write_text(f"data: {{files: [{data}]}}\noutput: {{format: svg}}\nstages: [learn-a]\n")
-    assert main(["run", str(cfg), "-o", str(tmp_path / "s"), "-q"]) == 0
-    svgs = list((tmp_path / "s" / "plots").glob("*.svg"))
-    assert svgs and all(p.read_text().lstrip().startswith("<?xml") for p in svgs)
-
-
-def test_time_plots_leave_gaps_as_gaps():
-    from ccl_cli.render.figures import with_gaps
-
-    t = np.r_[np.arange(10) * 0.1, 12.0 + np.arange(5) * 0.1]  # a 12-s gap (a training block)
-    times, cut = with_gaps(t)
-    assert np.isnan(times).sum() == 1 and np.isnan(times[10])
-    assert np.isnan(cut(np.arange(15.0))[10]) and len(cut(np.arange(15.0))) == 16
-
-
-def test_quiet_prints_nothing_on_success(tmp_path):
-    import subprocess
-
-    data = write_demonstrations(tmp_path / "arm.h5", sim.arm7(rows=(0,), n_demos=12, seed=4))
-    proc = subprocess.run([CCL, "learn-a", str(data), "-o", str(tmp_path / "o"), "-q"], capture_output=True,
-                          text=True, env={**os.environ, "COLUMNS": "200"})
-    assert proc.returncode == 0 and proc.stdout == "" and proc.stderr == ""
+    expected = {"ros1": ("ROS 1 bag", "none", "ros1msg"), "ros1-bz2": ("ROS 1 bag", "bz2", "ros1msg"),
+                "ros2": ("ROS 2 bag (sqlite3", "none", "cdr"), "mcap": ("MCAP", "zstd", "cdr")}[container]
+    assert info["storage"].startswith(expected[0])
+    assert info["compression"] == expected[1] and info["encoding"] == expected[2]

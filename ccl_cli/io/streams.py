@@ -65,9 +65,11 @@ class StreamReader(ReaderBase):
         raise NotImplementedError
 
     def span(self, listing: dict[str, Any]) -> dict[str, Any]:
-        """Start, end and duration (s) of a :meth:`listing`."""
+        """Start, end and duration (s) of a :meth:`listing`, and the container's storage,
+        compression and message encoding where it says them."""
         return {"start_ns": listing["start_ns"], "end_ns": listing["end_ns"],
-                "duration_s": (listing["end_ns"] - listing["start_ns"]) / 1e9}
+                "duration_s": (listing["end_ns"] - listing["start_ns"]) / 1e9,
+                **{k: listing[k] for k in ("storage", "compression", "encoding") if listing.get(k)}}
 
     def read(self) -> Recording:
         o = self.options

@@ -141,7 +141,10 @@ class BagReader(TopicReader):
                 entry = topics.setdefault(conn.topic, {"type": normalize(conn.msgtype), "count": 0})
                 entry["count"] += int(len(index.entries[conn.id]))
             times = [e[[0, -1], 0] for e in index.entries.values() if len(e)]
+            codecs = sorted({c.compression or "none" for c in index.chunks}) or ["none"]
             return {"start_ns": int(min(t[0] for t in times)), "end_ns": int(max(t[1] for t in times)),
+                    "storage": f"ROS 1 bag 2.0, {len(index.chunks)} chunk(s)",
+                    "compression": ", ".join(codecs), "encoding": "ros1msg",
                     "topics": dict(sorted(topics.items()))}
         reader = self._open()
         try:
@@ -151,9 +154,32 @@ class BagReader(TopicReader):
                       for name, info in items}
             start, end = library_call(where, "read bag metadata",
                                       lambda: (reader.start_time, reader.end_time))
-            return {"start_ns": _count(start, where), "end_ns": _count(end, where), "topics": topics}
+            return {"start_ns": _count(start, where), "end_ns": _count(end, where), "topics": topics,
+                    **self._container()}
         finally:
             library_call(str(self.path), "close bag", reader.close)
+
+    def _container(self) -> dict[str, str]:
+        """Storage, compression and message encoding of a ROS 2 bag (its metadata.yaml) or of a
+        ROS 1 bag rosbags opened; what the metadata does not say is left out."""
+        root = bag_root(self.path)
+        if not root.is_dir():
+            return {"storage": "ROS 1 bag", "encoding": "ros1msg"}
+        metadata, _ = read_yaml(root / BAG2_METADATA, "ROS 2 bag metadata", error=InputError)
+        info = metadata.get("rosbag2_bagfile_information") if isinstance(metadata, dict) else None
+        if not isinstance(info, dict):
+            return {}
+        mode = str(info.get("compression_mode") or "").lower()
+        codec = str(info.get("compression_format") or "none")
+        out = {"storage": f"ROS 2 bag ({info.get('storage_identifier') or 'storage not named'}, "
+                          f"version {info.get('version', '?')})",
+               "compression": codec + (f" per {mode}" if mode else "")}
+        formats = {t.get("topic_metadata", {}).get("serialization_format") for t in
+                   info.get("topics_with_message_count") or [] if isinstance(t, dict)}
+        formats = sorted(str(f) for f in formats if f)
+        if formats:
+            out["encoding"] = ", ".join(formats)
+        return {k: str(v) for k, v in out.items()}
 
     def streams(self, selections: Sequence[StreamOptions]) -> list[Stream]:
         """Several streams in one pass over the bag (each message deserialised once); topics

@@ -76,8 +76,12 @@ class McapReader(TopicReader):
             topics[str(ch.topic)] = {"type": schema.name if schema else "", "encoding": ch.message_encoding,
                                      "count": int(counts.get(cid, 0))}
         st = summary.statistics
+        codecs = sorted({str(c.compression) or "none" for c in summary.chunk_indexes}) or ["none"]
+        encodings = sorted({str(ch.message_encoding) for ch in summary.channels.values()})
         return {"start_ns": int(st.message_start_time) if st else 0,
-                "end_ns": int(st.message_end_time) if st else 0, "topics": dict(sorted(topics.items()))}
+                "end_ns": int(st.message_end_time) if st else 0,
+                "storage": f"MCAP, {len(summary.chunk_indexes)} chunk(s)", "compression": ", ".join(codecs),
+                "encoding": ", ".join(encodings), "topics": dict(sorted(topics.items()))}
 
     def streams(self, selections: Sequence[StreamOptions]) -> list[Stream]:
         """Several streams in one pass over the file (each message decoded once), in log-time
