@@ -79,7 +79,7 @@ def test_joint_states_equal_the_libraries_decoding(tmp_path, container, gathered
     np.testing.assert_array_equal(streams[0].values, pos)
     np.testing.assert_array_equal(streams[1].values, vel)
     np.testing.assert_array_equal(streams[0].values, rec.position)  # and the truth written
-    assert streams[0].names == [f"position[{i}]" for i in range(7)]
+    assert streams[0].names == [f"{j}.position" for j in JOINTS]  # named by the messages' joints
     assert streams[0].meta["stamp"] == "header" and streams[1].meta["stamp"] == "log"
 
 

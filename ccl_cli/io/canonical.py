@@ -321,7 +321,7 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
     where = str(path)
     with open_hdf5(path, f"{FORMAT} file") as f:
         check_header(f.attrs, where, FORMAT, "format_version", READ_VERSIONS, f"{FORMAT} file")
-        version = attr_int(f.attrs, "format_version", where)
+        version = attr_version(f.attrs, "format_version", where)
         demos = group_of(f, "demos", where, required=False)
         if demos is None:
             raise InputError(f"{where}: no demonstrations under /demos")
