@@ -45,12 +45,19 @@ def test_configured_units_and_their_count(tmp_path):
         read_dataset(options, [path])
 
 
-def test_report_and_run_record_name_the_units(capsys, tmp_path):
+@pytest.fixture
+def joint_log(tmp_path):
+    """An MCAP JointState log and a config that names no joints: (recording, config)."""
     path = write_mcap_ros2(tmp_path / "r.mcap", joint_recording(n=400))
     config = tmp_path / "c.yaml"
     config.write_text(json.dumps({"data": {"state": {"topic": "/joint_states", "field": "position"},
                                            "action": {"topic": "/joint_states", "field": "velocity"}},
                                   "learn-a": {"method": "nhat"}, "stages": ["learn-a"]}))
+    return path, config
+
+
+def test_report_and_run_record_name_the_units(capsys, tmp_path, joint_log):
+    path, config = joint_log
     code = main(["run", str(config), "--data", str(path), "-o", str(tmp_path / "out"), "-q"])
     err = capsys.readouterr().err
     assert code == 0, err
@@ -60,12 +67,8 @@ def test_report_and_run_record_name_the_units(capsys, tmp_path):
     assert f"{JOINTS[0]}.velocity [rad/s]" in (tmp_path / "out" / "report.md").read_text()
 
 
-def test_predictions_name_each_column_with_its_unit(capsys, tmp_path):
-    path = write_mcap_ros2(tmp_path / "r.mcap", joint_recording(n=400))
-    config = tmp_path / "c.yaml"
-    config.write_text(json.dumps({"data": {"state": {"topic": "/joint_states", "field": "position"},
-                                           "action": {"topic": "/joint_states", "field": "velocity"}},
-                                  "learn-a": {"method": "nhat"}, "stages": ["learn-a"]}))
+def test_predictions_name_each_column_with_its_unit(tmp_path, joint_log):
+    path, config = joint_log
     assert main(["learn-a", str(path), "-c", str(config), "-o", str(tmp_path / "a"), "-q"]) == 0
     assert main(["predict", str(tmp_path / "a" / "model.h5"), str(path), "-c", str(config),
                  "-o", str(tmp_path / "p.csv"), "-q"]) == 0
