@@ -26,7 +26,9 @@ import numpy as np
 from ccl_cli import metrics as M
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
-from ccl_cli.learn.constraint import PerDemonstration, StateIndependentConstraint
+from ccl_cli.learn.constraint import NoConstraint, PerDemonstration, PerWindow, StateIndependentConstraint
+from ccl_cli.learn.constraint.base import projection_at
+from ccl_cli.learn.constraint.windows import refit_on_new_demos
 
 KINDS = {"learn-a": "constraint", "learn-v": "nullspace", "learn-pi": "policy"}
 
@@ -36,12 +38,25 @@ def _dict(*items: M.Metric) -> dict[str, dict]:
 
 
 def _base(model: Any) -> Any:
+    model = vars(model).get("model_", model)  # auto: the model it chose
     return model.estimator if isinstance(model, PerDemonstration) else model
 
 
 def state_dependent(model: Any) -> bool:
-    """Whether a constraint model's A depends on x (everything but nhat)."""
-    return not isinstance(_base(model), StateIndependentConstraint)
+    """Whether a constraint model's A depends on x (everything but nhat, per window or none)."""
+    return not isinstance(_base(model), StateIndependentConstraint | PerWindow | NoConstraint)
+
+
+def projection_on(model: Any, d: Demonstrations, Y: np.ndarray, new_data: bool = False
+                  ) -> tuple[np.ndarray, str | None]:
+    """Ñ (N, q, q) of a constraint model on ``d``, and None — or, for a model fitted per window
+    or per demonstration on demonstrations it has not seen (any, with ``new_data``: a saved
+    model on a recording), Ñ of the same kind of model fitted on ``d``'s observations ``Y``
+    (N, q) and the sentence saying so."""
+    refit = refit_on_new_demos(model, d.X, Y, d.demo, d.t, always=new_data)
+    if refit is not None:
+        return projection_at(refit[0], d.X, d.demo, d.t), refit[1]
+    return projection_at(model, d.X, d.demo, d.t), None
 
 
 def _has_true_constraint(d: Demonstrations) -> bool:
@@ -70,10 +85,11 @@ def task_part(model: Any, X: np.ndarray, demo: np.ndarray | None = None) -> np.n
 
 
 def constraint_metrics(model: Any, d: Demonstrations, Y: np.ndarray, convention: str = "ccl",
-                       of: str = "u") -> dict[str, dict]:
+                       of: str = "u", new_data: bool = False) -> dict[str, dict]:
     """NPOE of the observations ``Y`` (N, q) the model was learnt from (``of`` names them)
-    and, with ground truth π and N, NPPE; both under ``convention``."""
-    N_est = model.projection(d.X, groups=d.demo)
+    and, with ground truth π and N, NPPE; both under ``convention`` (``new_data``: see
+    :func:`projection_on`)."""
+    N_est, note = projection_on(model, d, Y, new_data)
     sd = state_dependent(model)
     truth = _has_true_constraint(d)
     Pi = d.truth["pi"] if truth else None
@@ -84,7 +100,11 @@ def constraint_metrics(model: Any, d: Demonstrations, Y: np.ndarray, convention:
                     of=of)]
     if truth:
         items.append(M.nppe(d.true_projection(), N_est, Pi, d.U, convention, state_dependent=sd))
-    return _dict(*items)
+    out = _dict(*items)
+    if note:
+        for entry in out.values():
+            entry["note"] = note
+    return out
 
 
 def nullspace_metrics(w: np.ndarray, d: Demonstrations, convention: str = "ccl") -> dict[str, dict]:
@@ -108,18 +128,9 @@ def policy_metrics(est: np.ndarray, d: Demonstrations, constraint: Any = None, Y
             items.append(M.ncpe(d.true_projection(), d.truth["pi"], est))
     if constraint is not None:
         Y = d.U if Y is None else Y
-        items.append(M.ncpe_observed(constraint.projection(d.X, groups=d.demo), Y, est,
+        items.append(M.ncpe_observed(projection_on(constraint, d, Y)[0], Y, est,
                                      task_part(constraint, d.X, d.demo), of))
     return _dict(*items)
-
-
-def check_demos(model: Any, data: Demonstrations) -> None:
-    """A per-demonstration model can only score the demonstrations it was fitted on."""
-    if isinstance(model, PerDemonstration):
-        missing = set(int(k) for k in np.unique(data.demo)) - set(model.models_)
-        if missing:
-            raise InputError("this per-demonstration model does not know demonstrations "
-                             f"{sorted(missing)[:5]} of the data")
 
 
 def evaluate_model(model: Any, kind: str, data: Demonstrations, convention: str = "ccl") -> dict:
@@ -127,10 +138,10 @@ def evaluate_model(model: Any, kind: str, data: Demonstrations, convention: str 
 
     The same functions score the pipeline's stages, so a model scored on the same data
     and observations gets the same numbers here. A policy on data without ground truth
-    has no metric (an empty dict)."""
+    has no metric (an empty dict). A model per window or per demonstration is fitted on
+    ``data`` (the same window and rows; the metrics then carry a note saying so)."""
     if kind == "constraint":
-        check_demos(model, data)
-        return constraint_metrics(model, data, data.U, convention)
+        return constraint_metrics(model, data, data.U, convention, new_data=True)
     if kind == "nullspace":
         return nullspace_metrics(model.predict(data.X), data, convention)
     return policy_metrics(model.predict(data.X), data)
@@ -161,17 +172,24 @@ def evaluate_saved(model_path: Path, data: Demonstrations, convention: str = "cc
     check_dimensions(est, data)
     metrics = evaluate_model(est, info["kind"], data, convention)
     entry = {"method": info["method"], "kind": info["kind"], "convention": convention, "all": metrics}
+    note = next((m["note"] for m in metrics.values() if "note" in m), None)
     return {"status": "ok", "command": "evaluate", "model": str(model_path), "kind": info["kind"],
-            "method": info["method"], "convention": convention, "metrics": metrics, "entry": entry,
+            "method": info["method"], "convention": convention, "metrics": metrics,
+            "entry": {**entry, "note": note} if note else entry, **({"note": note} if note else {}),
             "samples": data.n_samples, "demos": data.n_demos, "inputs": data.metadata.get("files")}
 
 
-def predict(model: Any, kind: str, data: Demonstrations) -> dict[str, np.ndarray]:
+def predict(model: Any, kind: str, data: Demonstrations, notes: list[str] | None = None
+            ) -> dict[str, np.ndarray]:
     """Predictions of a model on ``data``: x, u, t, demo and N (N, q, q) and w = N u for a
-    constraint; w and v = u − w for a null-space component; π for a policy."""
+    constraint; w and v = u − w for a null-space component; π for a policy. A model per window
+    or per demonstration is fitted on ``data`` first (it describes only its own recording), and
+    ``notes`` gets the sentence saying so (a saved model: always)."""
     outputs: dict[str, np.ndarray] = {"x": data.X, "u": data.U, "t": data.t, "demo": data.demo}
     if kind == "constraint":
-        N = model.projection(data.X, groups=data.demo)
+        N, note = projection_on(model, data, data.U, new_data=True)
+        if note and notes is not None:
+            notes.append(note)
         outputs["N"] = N
         outputs["w"] = np.einsum("nij,nj->ni", N, data.U)
     elif kind == "nullspace":
@@ -218,7 +236,8 @@ def predict_saved(model_path: Path, data: Demonstrations, out: Path, force: bool
         raise InputError(f"{out}: output must end in .h5 or .csv")
     est, info = load_model(model_path)
     check_dimensions(est, data)
-    outputs = predict(est, info["kind"], data)
+    notes: list[str] = []
+    outputs = predict(est, info["kind"], data, notes)
     write_predictions(out, outputs, model_path, info["method"], force)
     return {"status": "ok", "command": "predict", "out": str(out), "samples": data.n_samples,
-            "outputs": sorted(outputs)}
+            "outputs": sorted(outputs), **({"note": notes[0]} if notes else {})}

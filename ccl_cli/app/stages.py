@@ -21,7 +21,8 @@ from ccl_cli.app.views import View, describe_constraint, stage_views
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn import model_selection as S
-from ccl_cli.learn.constraint import PerDemonstration
+from ccl_cli.learn.constraint import PerDemonstration, PerWindow
+from ccl_cli.learn.constraint.base import fit_constraint
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
 from ccl_cli.spec import constraint_class
@@ -99,14 +100,25 @@ def split_data(data: Demonstrations, spec: Any, masks: dict[str, list[int]] | No
 
 def make_constraint(options: Any, seed: int):
     """The constraint estimator of a learn-a section (its ``method``, its parameters, one per
-    demonstration with ``per_demo``)."""
+    demonstration with ``per_demo``: for ``auto`` and ``per_window``, one constant constraint
+    per demonstration, :class:`~ccl_cli.learn.constraint.PerWindow` with no window)."""
+    if options.per_demo and options.method in ("auto", "per_window"):  # nhat per demonstration
+        return PerWindow(**{**options.estimator_params(PerWindow), "window": None})
     cls = constraint_class(options.method)
     params = options.estimator_params(cls)
     if options.method == "lambda" and "features" not in params:
         raise ConfigError("learn-a method lambda needs features (e.g. features: arm2, or "
                           "{arm: arm7, rows: [0, 1, 2]})")
-    model = cls(seed=seed, **params)
+    model = cls(**({"seed": seed} if "seed" in cls._param_names() else {}), **params)
     return PerDemonstration(model) if options.per_demo else model
+
+
+def action_derivative(data: Demonstrations) -> dict | bool | None:
+    """How the actions of ``data`` were made, for the noise of the constraint learners:
+    the readers' {"window", "order"} when derived from the states, False when recorded,
+    None when the data do not say (:func:`ccl_cli.diagnostics.derivation`)."""
+    derived, window, order = diagnostics.derivation(data)
+    return {"window": window, "order": order} if derived else derived
 
 
 class Pipeline:
@@ -174,7 +186,8 @@ class Pipeline:
         model = make_constraint(opts, self.seed)
         target = self._target(on, "train", tr)
         try:
-            model.fit(tr.X, target, groups=tr.demo)
+            fit_constraint(model, tr.X, target, tr.demo, tr.t,
+                           action_derivative(tr) if target is tr.U else False)
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             raise LearningError(f"learn-a failed: {exc}") from None
         self.constraint = model

@@ -35,7 +35,7 @@ import numpy as np
 
 from ccl_cli.learn.constraint.rank import Selection
 from ccl_cli.learn.linalg import unit_rows
-from ccl_cli.learn.noise import derived_noise_var, white_noise_var
+from ccl_cli.learn.noise import default_window, derived_noise_var, white_noise_var
 
 #: A row whose energy is at most MARGIN × its noise variance is at the noise level.
 MARGIN = 10.0
@@ -73,13 +73,18 @@ def _median_step(t: np.ndarray, demo: np.ndarray) -> float:
 
 
 def row_evidence(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarray,
-                 X: np.ndarray | None = None, derivative: dict | None = None) -> RowEvidence:
+                 X: np.ndarray | None = None, derivative: dict | None = None, *,
+                 recorded: bool = True) -> RowEvidence:
     """Energy, noise and share of the actions U (N, q) along candidate ``rows`` ((m, q) or
     (N, m, q)), demonstrations ``demo`` (N,) sampled at ``t`` (N,) s.
 
     ``derivative`` ({"window", "order"}) says U was derived from the positions X (N, q) by the
     readers' local polynomial: the noise is then the positions' along each row times the
-    filter's gain at the median interval; without it U is taken as recorded (white noise)."""
+    filter's gain at the median interval. Without it U is taken as recorded (white noise), or,
+    with ``recorded=False`` (how U was made is not known), the noise is the larger of U's own
+    white-noise estimate and the derived one with the readers' default filter at the data's
+    rate (when X has q columns): recorded actions then get their own noise, derived ones the
+    filtered positions' noise (which a white-noise estimate of smoothed velocities misses)."""
     U = np.asarray(U, dtype=float)
     rows = unit_rows(np.asarray(rows, dtype=float))
     demo = np.asarray(demo)
@@ -90,16 +95,22 @@ def row_evidence(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarra
     energy = (along**2).mean(0)
     total = float((U**2).sum(1).mean())
     share = energy / total if total > 0 else np.zeros_like(energy)
+    dt = _median_step(np.asarray(t, float), demo) if t is not None else 0.0
     if derivative is not None:
         if X is None or np.shape(X)[1] != U.shape[1]:
             raise ValueError("derived actions need the positions X they were derived from, (N, q)")
-        dt = _median_step(np.asarray(t, float), demo)
+        if not dt > 0:
+            raise ValueError("derived actions need the sample times t")
         window, order = int(derivative["window"]), int(derivative.get("order", 2))
         noise = derived_noise_var(X, demo, dt, window, order, rows)
         per_dim = derived_noise_var(X, demo, dt, window, order)
     else:
         noise = white_noise_var(U, demo, rows)
         per_dim = white_noise_var(U, demo)
+        if not recorded and X is not None and np.shape(X)[1] == U.shape[1] and dt > 0:
+            window = default_window(dt)
+            noise = np.maximum(noise, derived_noise_var(X, demo, dt, window, 2, rows))
+            per_dim = np.maximum(per_dim, derived_noise_var(X, demo, dt, window, 2))
     var = float(U.var(0, ddof=1).sum()) if len(U) > 1 else 0.0
     noise_total = float(per_dim.sum())
     snr = var / noise_total if noise_total > 0 else (np.inf if var > 0 else 0.0)
