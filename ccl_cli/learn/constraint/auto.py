@@ -233,8 +233,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
                 found = self._per_stretch(name, data, gap, m)
                 (out if isinstance(found, ev.Candidate) else skipped).append(found)
             elif name == "alpha" and p > MAX_RBF_STATES:
-                why = (f"{p} state dimensions: RBF centres cover at most {MAX_RBF_STATES} (here: alpha_linear, "
-                       "or lambda with features)")
+                why = (f"{p} state dimensions: RBF centres cover at most {MAX_RBF_STATES} "
+                       "(here: alpha_linear, or lambda with features)")
                 skipped.append(ev.not_tried(name, why))
             elif name.startswith("alpha"):
                 basis = {"basis": "linear"} if name == "alpha_linear" else {}
