@@ -100,6 +100,14 @@ def derivation(data: Demonstrations) -> tuple[bool | None, int, int]:
     return None, 9, 2
 
 
+def action_derivative(data: Demonstrations) -> dict | bool | None:
+    """How the actions were made, as the constraint learners take it (``derivative`` of
+    :class:`~ccl_cli.learn.constraint.AutoConstraint`): {"window", "order"} when derived from the
+    states, False when recorded, None when the metadata do not say."""
+    derived, window, order = derivation(data)
+    return {"window": window, "order": order} if derived else derived
+
+
 def noise_levels(data: Demonstrations) -> dict[str, Any]:
     """Estimated noise variances and SNRs of states and actions.
 

@@ -113,14 +113,6 @@ def make_constraint(options: Any, seed: int):
     return PerDemonstration(model) if options.per_demo else model
 
 
-def action_derivative(data: Demonstrations) -> dict | bool | None:
-    """How the actions of ``data`` were made, for the noise of the constraint learners:
-    the readers' {"window", "order"} when derived from the states, False when recorded,
-    None when the data do not say (:func:`ccl_cli.diagnostics.derivation`)."""
-    derived, window, order = diagnostics.derivation(data)
-    return {"window": window, "order": order} if derived else derived
-
-
 class Pipeline:
     """Holds the data split and what earlier stages learnt."""
 
@@ -187,7 +179,7 @@ class Pipeline:
         target = self._target(on, "train", tr)
         try:
             fit_constraint(model, tr.X, target, tr.demo, tr.t,
-                           action_derivative(tr) if target is tr.U else False)
+                           diagnostics.action_derivative(tr) if target is tr.U else False)
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             raise LearningError(f"learn-a failed: {exc}") from None
         self.constraint = model

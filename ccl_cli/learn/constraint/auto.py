@@ -42,12 +42,13 @@ Evidence, from one cross-validation
    global model finds any): within a short stretch the motion often takes fewer than q − k
    directions, and such a model would call every direction it did not take a constraint.
 3. *Class.* k* = the largest rank any candidate reaches — every candidate of rank k* explains
-   k* directions of held-out motion as noise, which no candidate of smaller rank does. Among
-   the candidates of rank k*, their held-out NPOE (§6) with k* rows — comparable, since each
-   removes k* directions — decides: the simplest within one standard error of the best wins
-   (the standard error of the difference of the two means over folds, √(SE² + SE_best²):
-   candidates of the two fold families are scored on different held-out samples). For
-   k* = 0 that is ``none``.
+   k* directions of held-out motion as noise, which no candidate of smaller rank does. The
+   candidates of rank k* are then scored on the same held-out samples — the blocks inside
+   windows when a per-stretch model is among them (the global ones fitted again without those
+   blocks), else their common folds — by their held-out NPOE (§6) with k* rows, comparable
+   since each removes k* directions. The simplest whose mean exceeds the best's by at most
+   one standard error of their per-fold differences (a paired comparison) wins. For k* = 0
+   that is ``none``.
 
 Why not held-out NPOE across ranks: Ñ = I has NPOE 0, so NPOE alone always prefers fewer
 constraints; and a flexible model can lower the NPOE of one row by turning it towards
@@ -313,8 +314,10 @@ class AutoConstraint(ConstraintModel, SeedParams):
         else:
             k_star = max([c.k for c in ok], default=0)
             top = [c for c in ok if c.k == k_star]
+        local = [c for c in top if c.candidate.segments is not None]
+        common = local[-1].folds if local else None  # the finest stretches: blocks inside them
         for c in top:
-            ev.score(c, k_star, data.U)
+            ev.score(c, k_star, data, common)
         winner = best = None
         if k_star > 0 and top:
             best = min(top, key=lambda c: c.mean)
@@ -332,7 +335,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
                   "within one SE of the best held-out NPOE")
         self.heldout_ = None if winner is None else {
             "error": "NPOE", "mean": winner.mean, "se": winner.se, "per_fold": winner.errors.tolist(),
-            "folds": winner.folds.reason}
+            "folds": winner.scored_on.reason}
         if isinstance(self.model_, PerWindow):
             self.model_.heldout_ = self.heldout_
         values = [] if winner is None else [float(v) for v in winner.evidence.ratio]
@@ -354,8 +357,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
         q = data.U.shape[1]
         rows = np.linalg.eigh(data.U.T @ data.U)[1].T[: q - 1]
         pieces = data.groups
-        chosen = nr.noise_rank(data.rows_evidence(np.broadcast_to(rows, (len(data.U), *rows.shape)), pieces),
-                               min(self.max_constraints or q - 1, q - 1))
+        evidence = data.rows_evidence(np.broadcast_to(rows, (len(data.U), *rows.shape)), pieces)
+        chosen = nr.noise_rank(evidence, min(self.max_constraints or q - 1, q - 1), share_rows=nr.SHARE_ROWS)
         k = self.n_constraints if self.n_constraints is not None else getattr(chosen, "n_constraints", None)
         model = NoConstraint() if k == 0 else StateIndependentConstraint(n_constraints=k, seed=self.seed)
         self.model_ = model.fit(data.X, data.U, groups=data.groups)

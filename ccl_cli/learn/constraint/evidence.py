@@ -62,9 +62,10 @@ def standard_error(errors: np.ndarray) -> float:
 
 @dataclass
 class Tried:
-    """What the cross-validation found for one candidate: its held-out ``rows``, its rank ``k``
-    (None: the fits failed, ``note`` says why), the ``evidence`` the rank read, and its held-out
-    NPOE per fold with the rows that decide (``errors``)."""
+    """What the cross-validation found for one candidate: on its own ``folds``, its held-out
+    ``rows``, its rank ``k`` (None: the fits failed, ``note`` says why) and the ``evidence`` the
+    rank read; then its held-out NPOE per fold with the rows that decide (``errors``), on the
+    folds every candidate of that rank is compared on (``scored_on``)."""
 
     candidate: Candidate
     folds: ms.Folds
@@ -73,6 +74,7 @@ class Tried:
     evidence: nr.RowEvidence | None = None
     rank_reason: str = ""
     errors: np.ndarray | None = None
+    scored_on: ms.Folds | None = None
     note: str = ""
 
     @property
@@ -91,7 +93,8 @@ class Tried:
                 "se": None if self.errors is None else self.se,
                 "noise_ratio": None if ev is None else [float(v) for v in ev.ratio],
                 "share": None if ev is None else [float(v) for v in ev.share],
-                "folds": self.folds.reason, "rank_reason": self.rank_reason, "chosen": chosen,
+                "folds": self.folds.reason, "rank_reason": self.rank_reason,
+                "scored_on": None if self.scored_on is None else self.scored_on.reason, "chosen": chosen,
                 "reason": reason}
 
 
@@ -99,7 +102,7 @@ def not_tried(name: str, why: str) -> dict[str, Any]:
     """The table row of a candidate that was not tried."""
     return {"class": name, "model": name, "k": None, "error": "held-out NPOE", "heldout_error": None,
             "se": None, "noise_ratio": None, "share": None, "folds": None, "rank_reason": "",
-            "chosen": False, "reason": f"not tried: {why}"}
+            "scored_on": None, "chosen": False, "reason": f"not tried: {why}"}
 
 
 def held_out_rows(cand: Candidate, folds: ms.Folds, m: int, data: Sample) -> np.ndarray:
@@ -127,7 +130,7 @@ def rank(tried: Tried, m: int, data: Sample) -> None:
     trajectories it can judge — the ratio rule on the held-out energies (k ≥ 1)."""
     ev = data.rows_evidence(tried.rows, pieces(tried.folds, data.groups))
     tried.evidence = ev
-    chosen = nr.noise_rank(ev, m)
+    chosen = nr.noise_rank(ev, m, share_rows=nr.SHARE_ROWS)
     if chosen is None:
         chosen = sel.ratio(ev.energy, m, criterion="held-out energy along row k")
         chosen.reason = ("the samples are not trajectories the noise rule can judge (total variance "
@@ -150,14 +153,18 @@ def cap_local(tried: list[Tried]) -> None:
             c.k = cap
 
 
-def score(tried: Tried, k: int, U: np.ndarray) -> None:
-    """Held-out NPOE per fold of the candidate's first k held-out rows (``errors``)."""
-    tried.errors = np.array([npoe_error(nullspace_projection(tried.rows[test, :k]), U[test]) if k else 0.0
-                             for _, test in tried.folds.pairs])
+def score(tried: Tried, k: int, data: Sample, folds: ms.Folds | None = None) -> None:
+    """Held-out NPOE per fold of the candidate with k rows (``errors``), on ``folds`` (None: its
+    own; others: the candidate is fitted again on their training parts) → ``scored_on``."""
+    folds = folds or tried.folds
+    rows = tried.rows if folds is tried.folds else held_out_rows(tried.candidate, folds, max(k, 1), data)
+    tried.errors = np.array([npoe_error(nullspace_projection(rows[test, :k]), data.U[test]) if k else 0.0
+                             for _, test in folds.pairs])
+    tried.scored_on = folds
 
 
 def within_one_se(c: Tried, best: Tried) -> bool:
-    """Whether ``c``'s mean held-out NPOE is within one standard error of the best's: the
-    standard error of their difference, √(SE_c² + SE_best²), as the two may be scored on
-    different folds (unpaired)."""
-    return c.mean - best.mean <= float(np.hypot(c.se, best.se))
+    """Whether ``c``'s mean held-out NPOE is within one standard error of the best's, both scored
+    on the same folds: the standard error of their per-fold differences (a paired comparison)."""
+    diff = c.errors - best.errors
+    return float(diff.mean()) <= standard_error(diff)

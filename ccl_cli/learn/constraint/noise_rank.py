@@ -17,7 +17,10 @@ slightly, above a good sensor's noise — while a free direction carries a fair 
 motion). A further row k is one when f_k ≤ SHARE or r_k ≤ min(MARGIN, RATIO · max(r_1, 1)):
 as quiet as the first, so that a free direction that barely rises above heavy noise is not
 taken for a second constraint. s is the number of leading rows that are constraints,
-0 … m: "no constraint" is a legal answer.
+0 … m: "no constraint" is a legal answer. Learners that choose their rows per state or per
+stretch of time (learn-a's ``auto``, the per-window model) admit rows after the first by
+their noise ratio only (``share_rows``, SHARE_ROWS): such a learner can always find a direction
+that carries little of the motion (docs/auto.md).
 
 MARGIN, RATIO and SHARE were chosen on the simulated and reference problems
 (``benchmarks/bench_recordings.py --only rank``; docs/recordings.md).
@@ -47,6 +50,10 @@ RATIO = 2.0
 #: Below this ratio of the actions' total variance to their noise the rule cannot judge.
 MIN_SNR = 3.0
 RULE = "noise"
+#: Rows that may be constraints by their share alone, for learners that choose their rows per
+#: state or per stretch (``share_rows`` of :func:`noise_rank`): the first — a contact that
+#: gives a little; a further row must be as quiet as the noise says.
+SHARE_ROWS = 1
 
 
 @dataclass
@@ -118,16 +125,23 @@ def row_evidence(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarra
 
 
 def noise_rank(evidence: RowEvidence, max_k: int, margin: float = MARGIN, share: float = SHARE,
-               ratio: float = RATIO, min_snr: float = MIN_SNR) -> Selection | None:
+               ratio: float = RATIO, min_snr: float = MIN_SNR, share_rows: int | None = None
+               ) -> Selection | None:
     """s = the number of leading rows k ≤ ``max_k`` that are constraints by the rule of the
     module docstring (0 … max_k); None when evidence.snr < ``min_snr`` (no judgement).
+    ``share_rows``: only the first this many rows may be constraints by their share alone (None:
+    every row) — a model that learns its rows per state or per stretch can always find a
+    direction carrying little of the motion, which its noise ratio then shows to be motion.
     ``values`` of the Selection: r_k = e_k/σ²_k."""
     if not evidence.snr >= min_snr:
         return None
     r = evidence.ratio
     limit = np.full(len(r), float(margin))
     limit[1:] = min(margin, ratio * max(float(r[0]) if len(r) else 1.0, 1.0))
-    quiet = (r <= limit) | (evidence.share <= share)
+    by_share = evidence.share <= share
+    if share_rows is not None:
+        by_share[share_rows:] = False
+    quiet = (r <= limit) | by_share
     m = min(int(max_k), len(quiet))
     k = int(np.argmin(np.r_[quiet[:m], False]))  # the first row that moves
     if k < m:

@@ -33,6 +33,7 @@ from typing import ClassVar
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.learn.basis import cluster_sums
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import rank as sel
@@ -70,8 +71,7 @@ def window_rows(U: np.ndarray, seg: np.ndarray, n_seg: int, shrinkage: float) ->
     """Rows of every window in order of use (ascending eigenvalues of C_w, module docstring):
     U (N, q), seg (N,) in 0..n_seg−1 → (n_seg, q, q)."""
     q = U.shape[1]
-    outer = (U[:, :, None] * U[:, None, :]).reshape(len(U), q * q)
-    C = np.stack([np.bincount(seg, weights=outer[:, j], minlength=n_seg) for j in range(q * q)], 1)
+    C = cluster_sums((U[:, :, None] * U[:, None, :]).reshape(len(U), q * q), seg, n_seg)
     counts = np.bincount(seg, minlength=n_seg)
     pooled = U.T @ U / max(len(U), 1)
     C = C.reshape(n_seg, q, q) + shrinkage * counts[:, None, None] * pooled[None]
@@ -178,7 +178,7 @@ class PerWindow(ConstraintModel):
         derived = derivative if isinstance(derivative, dict) and t is not None and positions is not None \
             else None
         ev = nr.row_evidence(U, along, seg, t, positions, derived, recorded=derivative is False)
-        chosen = nr.noise_rank(ev, q - 1)
+        chosen = nr.noise_rank(ev, q - 1, share_rows=nr.SHARE_ROWS)
         if chosen is None:
             chosen = sel.ratio(ev.energy, q - 1, criterion="mean squared action along row k of each window")
             chosen.reason = "the noise rule cannot judge these samples; " + chosen.reason
