@@ -18,6 +18,10 @@ JSON lines on stdout:
   the two-link arm (test NPPE); with fit seconds and the chosen bases.
 * ``time`` — fit seconds of every learner, tuned vs untuned, on its tutorial problem.
 * ``configs`` — wall seconds of ``ccl run`` on every shipped config (tuning on).
+* ``original`` — pi and lwpi with their defaults against the original library's hand-tuned
+  settings on the original's own tutorial data (issue 17.7; :func:`original_table`): one row per
+  problem (attractor, limit cycle and linear-map toys, the 2-link arm) × size × noise × learner,
+  the median test NUPE over seeds and whether the default is ≤ the original's setting.
 """
 
 from __future__ import annotations
@@ -27,6 +31,8 @@ import json
 import subprocess
 import sys
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +47,8 @@ from ccl_cli.learn.constraint import (  # noqa: E402
     StateDependentConstraint,
     StateIndependentConstraint,
 )
+from ccl_cli.learn.kinematics import TwoLinkArm  # noqa: E402
+from ccl_cli.learn.linalg import nullspace_projection, unit_rows  # noqa: E402
 from ccl_cli.learn.nullspace import NullSpaceComponent  # noqa: E402
 from ccl_cli.learn.policy import PolicyLearner  # noqa: E402
 from ccl_cli.metrics import nupe  # noqa: E402
@@ -185,10 +193,133 @@ def configs(tmp: Path) -> None:
                           "ok": proc.returncode == 0, "stages": stages}), flush=True)
 
 
+# -- the original library's tutorials: its data recipe and its hand-tuned settings --------------
+#: The original toy's "linear" policy: π(x) = [x; 1]ᵀ W.
+ORIGINAL_LINEAR = np.array([[1.0, 2.0], [3.0, 4.0], [-1.0, 0.0]])
+
+
+@dataclass
+class PolicyData:
+    """States X (N, p), the actions the learners see U (N, q), demonstration ids (N,) and the
+    true unconstrained policy π (N, q)."""
+
+    X: np.ndarray
+    U: np.ndarray
+    demo: np.ndarray
+    pi: np.ndarray
+
+
+def original_policy(name: str) -> Callable[[np.ndarray], np.ndarray]:
+    """The toy tutorial's null-space policies, X (N, 2) → π (N, 2): the attractor 0.5 (0 − x),
+    the limit cycle (radius 0.75, angular speed 1), the linear map [x; 1]ᵀ W."""
+    if name == "linear":
+        return lambda X: np.hstack([X, np.ones((len(X), 1))]) @ ORIGINAL_LINEAR
+    return sim.toy_policy(name)
+
+
+def random_rows(rng: np.random.Generator, n: int) -> np.ndarray:
+    """n random constraint rows as the original draws them: unit vectors of U(0, 1)² (n, 2)."""
+    return unit_rows(rng.uniform(0.0, 1.0, (n, 2)))
+
+
+def original_toy(policy: str, n: int, noise: float, seed: int, n_demos: int = 50) -> PolicyData:
+    """The toy tutorial's policy data: n states uniform in [−1, 1]², each with its own random
+    constraint row, u = N π (+ noise of std ``noise``; the original fits the noise-free null-space
+    component); the samples are dealt round robin into ``n_demos`` groups, the folds of a search."""
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(-1.0, 1.0, (n, 2))
+    pi = original_policy(policy)(X)
+    W = np.einsum("nij,nj->ni", nullspace_projection(random_rows(rng, n)[:, None, :]), pi)
+    return PolicyData(X, W + noise * rng.normal(size=W.shape), np.arange(n) % n_demos, pi)
+
+
+def original_arm(n_traj: int, noise: float, seed: int, n_steps: int = 40, dt: float = 0.01) -> PolicyData:
+    """The 2-link arm tutorial's policy data: ``n_traj`` trajectories from q = (0°, 90°) + U(0, 10°)
+    per joint, π = q* − q with q* = (10°, −10°), A = r J(q) with a new random row r at every step,
+    the state updated by dt · N π plus the original's state noise (std 0.01), a trajectory ended
+    once ‖N π‖ < 1e-3; u = N π (+ noise of std ``noise``). Demonstration ids: the trajectories."""
+    rng = np.random.default_rng(seed)
+    arm = TwoLinkArm()
+    target = np.deg2rad([10.0, -10.0])
+    q = np.deg2rad(np.array([0.0, 90.0]) + rng.uniform(0.0, 10.0, (n_traj, 2)))
+    live = np.ones(n_traj, bool)
+    Xs, Ws, Ps, ids = [], [], [], []
+    for _ in range(n_steps):  # over time steps; all trajectories at once
+        pi = target - q
+        A = np.einsum("nr,nrq->nq", random_rows(rng, n_traj), arm.jacobian(q))[:, None, :]
+        w = np.einsum("nij,nj->ni", nullspace_projection(A), pi)
+        live &= np.linalg.norm(w, axis=1) >= 1e-3
+        Xs.append(q[live]), Ws.append(w[live]), Ps.append(pi[live]), ids.append(np.flatnonzero(live))
+        q = q + dt * w + 0.01 * rng.normal(size=q.shape)
+    demo = np.concatenate(ids)
+    order = np.argsort(demo, kind="stable")
+    X, W, pi = (np.concatenate(a)[order] for a in (Xs, Ws, Ps))
+    return PolicyData(X, W + noise * rng.normal(size=W.shape), demo[order], pi)
+
+
+#: The 10 × 10 grid of the toy tutorial over [−1.1, 1.1]².
+TOY_GRID = np.stack([g.ravel() for g in np.meshgrid(*[np.linspace(-1.1, 1.1, 10)] * 2, indexing="ij")], 1)
+
+
+def original_settings(problem: str, method: str) -> dict:
+    """The original tutorials' hand-tuned settings of ``method`` (pi or lwpi) on ``problem``: the
+    toys a 10 × 10 grid of RBFs with σ² = 0.5 (pi) or 0.005 (lwpi), the arm a 5 × 5 grid over the
+    data with the default width; the original's absolute eigenvalue cut-off, no tuning."""
+    if problem == "arm":
+        basis = {"kind": "rbf", "n_centres": 25, "centres": "grid"}
+    else:
+        basis = {"kind": "rbf", "centres": TOY_GRID, "sigma2": 0.5 if method == "pi" else 0.005}
+    return {"basis": basis, "cutoff_rule": "absolute", "tune": False}
+
+
+#: Test NUPE below which both settings reproduce π to the rounding of float64 sums (a tie).
+EXACT = 1e-20
+#: (problem, sizes: toy samples or arm trajectories, the first the tutorial's)
+ORIGINAL_PROBLEMS = [("attractor", (500, 2000, 10_000)), ("limit_cycle", (500, 2000, 10_000)),
+                     ("linear", (500, 2000, 10_000)), ("arm", (40, 80, 250))]
+
+
+def original_data(problem: str, size: int, noise: float, seed: int) -> tuple[PolicyData, PolicyData]:
+    """(train, test) of one table row: the test set an independent draw of the tutorial's size."""
+    if problem == "arm":
+        return original_arm(size, noise, seed), original_arm(40, 0.0, seed + 10_000)
+    return original_toy(problem, size, noise, seed), original_toy(problem, 500, 0.0, seed + 10_000)
+
+
+def original_row(problem: str, size: int, noise: float, method: str, seeds: range) -> dict:
+    """Median test NUPE over ``seeds`` of ``method`` with its defaults and with the original's
+    settings; the bar: the default's ≤ the original's, or both below :data:`EXACT`."""
+    errs: dict[str, list[float]] = {"default": [], "original": []}
+    for seed in seeds:
+        train, test = original_data(problem, size, noise, seed)
+        for tag, kw in (("default", {}), ("original", original_settings(problem, method))):
+            model = PolicyLearner(method=method, seed=seed, **kw).fit(train.X, train.U, groups=train.demo)
+            errs[tag].append(nupe(test.pi, model.predict(test.X)).value)
+    med = {k: float(np.median(v)) for k, v in errs.items()}
+    exact = max(med.values()) < EXACT  # both reproduce π to rounding: a tie
+    return {"bench": "original", "problem": problem, "size": size, "n_samples": len(train.X), "noise": noise,
+            "learner": method, "default": med["default"], "original": med["original"],
+            "ratio": med["default"] / med["original"] if med["original"] > 0 else float("nan"),
+            "meets_bar": bool(med["default"] <= med["original"] or exact), "exact": bool(exact),
+            "seeds": len(seeds)}
+
+
+def original_table(seeds: range, noises: tuple[float, ...] = (0.0, 0.01)) -> list[dict]:
+    """Every row: problems × sizes × noise levels × (pi, lwpi), printed as they come."""
+    rows = []
+    for problem, sizes in ORIGINAL_PROBLEMS:
+        for size in sizes:
+            for noise in noises:
+                for method in ("pi", "lwpi"):
+                    rows.append(original_row(problem, size, noise, method, seeds))
+                    print(json.dumps(rows[-1]), flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--only", default="accuracy,angles,time,configs")
+    ap.add_argument("--only", default="accuracy,angles,time,configs,original")
     args = ap.parse_args()
     parts = set(args.only.split(","))
     if "accuracy" in parts:
@@ -197,6 +328,8 @@ def main() -> None:
         angles(range(args.seeds))
     if "time" in parts:
         fit_times()
+    if "original" in parts:
+        original_table(range(args.seeds))
     if "configs" in parts:
         import tempfile
 

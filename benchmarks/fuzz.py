@@ -12,13 +12,22 @@ reads it (``ccl convert`` / ``learn-a`` / ``inspect`` for recordings, ``predict`
 models, ``run`` for configs, the manifest planner for manifests) in a forked child with
 a wall-clock limit.
 
+Mixes (``--mix``): ``classic`` — the mutations above; ``hostile`` and ``even`` — 70 % / 35 %
+of the cases instead get one of issue 20: datasets declaring gigabytes they do not hold
+(HDF5, models, MATLAB v7.3), sparse and huge-sparse matrices in MATLAB v5 files, CSV lines
+over the line cap (run with ``CCL_MAX_BYTES=1M``), damaged attribute tables, inputs
+replaced by FIFOs, sockets, folders or /dev/zero (also the storage files a ROS 2 bag's
+metadata names), storage files and manifest paths outside their folder, and JSON MCAP
+messages missing a key or holding one of another type. Peak RSS of each case's process
+is recorded (``peak_rss_mb``, ``over_500MB``) beside its time (``over_20s``).
+
 Outcomes per format: ``ok`` (exit 0), ``error`` (exit 2, one ``ccl: error:`` line),
 ``exit1`` (a learning failure, one line), ``internal`` (anything but our error classes:
 an internal error, a traceback, a multi-line message), ``crash`` (killed by a signal)
 and ``timeout`` (over ``--timeout`` seconds). Internal errors are grouped by exception
 type and the innermost ccl_cli frame.
 
-Run:  python benchmarks/fuzz.py --cases 20000 [--seed 0] [--timeout 20] [--subprocess 200]
+Run:  python benchmarks/fuzz.py --cases 20000 [--seed 0] [--mix hostile] [--timeout 20] [--subprocess 200]
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ from __future__ import annotations
 import argparse
 import collections
 import copy
+import inspect
 import json
 import os
 import random
@@ -92,6 +102,7 @@ def build_fixtures(root: Path) -> list[dict[str, Any]]:
                               "learn-a": {"method": "nhat"}, "stages": ["learn-a"],
                               "output": {"plots": False}}))
     bases.append({"format": "csv", "name": "csv", "path": csv_path, "input": csv_path, "config": csv_cfg})
+    bases += mat_fixtures(root)
     # canonical HDF5 and models
     toy = root / "toy2d.h5"
     write_demonstrations(toy, sim.toy2d(n_demos=4, n_steps=40, seed=0), masks={"train": [0, 1, 2],
@@ -146,6 +157,32 @@ def build_fixtures(root: Path) -> list[dict[str, Any]]:
     bases.append({"format": "manifest", "name": "manifest", "path": manifest, "input": manifest,
                   "yaml": True})
     return bases
+
+
+def mat_fixtures(root: Path) -> list[dict[str, Any]]:
+    """MATLAB files of a 7-joint arm: v5 (scipy.io.savemat; matrices, one sample per column)
+    and v7.3 (h5py in MATLAB's layout; one cell per demonstration), with their configs."""
+    import scipy.io
+    import writers
+
+    from ccl_cli import simulate as sim
+
+    arm = sim.arm7(seed=0, n_demos=3, n_steps=20)
+    v5 = root / "arm.mat"
+    scipy.io.savemat(v5, {"X": arm.X.T, "U": arm.U.T, "demo": arm.demo[None, :] + 1.0})
+    stage = {"learn-a": {"method": "nhat"}, "stages": ["learn-a"], "output": {"plots": False}}
+    v5_cfg = root / "mat5.yaml"
+    v5_cfg.write_text(_yaml({"data": {"format": "mat", "state": {"variable": "X", "samples": "columns"},
+                                      "action": {"variable": "U", "samples": "columns"},
+                                      "time": {"rate": 50}, "demos": {"variable": "demo"}}, **stage}))
+    cells = {k: [v[arm.demo == d].T for d in arm.demo_ids] for k, v in (("X", arm.X), ("U", arm.U))}
+    v73 = writers.write_mat73(root / "arm73.mat", cells)
+    v73_cfg = root / "mat73.yaml"
+    v73_cfg.write_text(_yaml({"data": {"state": {"variable": "X", "samples": "columns"},
+                                       "action": {"variable": "U", "samples": "columns"},
+                                       "time": {"rate": 50}}, **stage}))
+    return [{"format": "mat5", "name": "mat5", "path": v5, "input": v5, "config": v5_cfg},
+            {"format": "mat73", "name": "mat73", "path": v73, "input": v73, "config": v73_cfg}]
 
 
 # -- mutations -------------------------------------------------------------------------------------
@@ -313,9 +350,238 @@ def hdf5_mutation(path: Path, rng: random.Random) -> str:
         return "external-link"
 
 
+# -- hostile mutations (issue 20): bombs, special files, paths that leave their folder -------------
+#: a manifest case with this variable set is planned without --allow-outside (the fixture
+#: manifest names files in another folder, as manifests with absolute paths do)
+BOUNDED = "CCL_FUZZ_BOUNDED"
+#: cap of the cases that test it (CCL_MAX_BYTES): small, so that a bomb costs little to write
+SMALL_CAP = "1M"
+HUGE = [(400_000_000, 3), (1_000_000_000,), (3, 400_000_000), (100_000, 100_000)]
+
+
+def bomb_dataset(path: Path, rng: random.Random) -> str:
+    """An HDF5 dataset (x, u, a model's weights, a MATLAB variable) replaced by a chunked one
+    that declares a huge shape and holds no data: a file of a few KB claiming GBs."""
+    import h5py
+
+    with h5py.File(path, "a") as f:
+        found: list[str] = []
+        f.visititems(lambda name, obj: found.append(name) if isinstance(obj, h5py.Dataset) else None)
+        found = [n for n in found if not n.startswith("#refs#") or rng.random() < 0.5]
+        if not found:
+            return "bomb:none"
+        name = rng.choice(found)
+        attrs = dict(f[name].attrs)
+        del f[name]
+        shape = rng.choice(HUGE)
+        ds = f.create_dataset(name, shape=shape, dtype=rng.choice(["f8", "f4", "u1"]),
+                              chunks=tuple(min(d, 1024) for d in shape),
+                              compression=rng.choice([None, "gzip"]))
+        for key, value in attrs.items():
+            ds.attrs[key] = value
+    return f"bomb:{'x'.join(map(str, shape))}"
+
+
+#: attribute names whose neighbourhood is damaged (the attribute messages and heaps)
+ATTR_NAMES = [b"format", b"schema_version", b"format_version", b"kind", b"method", b"params", b"fitted",
+              b"MATLAB_class", b"state_names", b"index", b"n_samples", b"provenance", b"sigma2"]
+
+
+def damage_attributes(raw: bytes, rng: random.Random) -> tuple[str, bytes]:
+    """Byte damage next to an attribute's name: its message, datatype, dataspace or heap."""
+    hits = [(n, m) for n in ATTR_NAMES for m in _find_all(raw, n)]
+    if not hits:
+        return byte_mutation(raw, rng)
+    name, at = rng.choice(hits)
+    b = bytearray(raw)
+    for _ in range(rng.randint(1, 6)):
+        k = min(len(b) - 1, max(0, at + rng.randint(-48, len(name) + 48)))
+        b[k] = rng.randrange(256) if rng.random() < 0.5 else b[k] ^ (1 << rng.randrange(8))
+    return f"attr-table:{name.decode()}", bytes(b)
+
+
+def _find_all(raw: bytes, needle: bytes) -> list[int]:
+    out, k = [], raw.find(needle)
+    while k >= 0 and len(out) < 50:
+        out.append(k)
+        k = raw.find(needle, k + 1)
+    return out
+
+
+def special_file(target: Path, rng: random.Random) -> str:
+    """The input replaced by what is not a regular file: a FIFO (a read would block forever),
+    /dev/zero (a read never ends), a socket, a folder, or a symlink to one of them."""
+    import socket
+
+    if target.is_dir():
+        shutil.rmtree(target)
+    else:
+        target.unlink()
+    kind = rng.choice(["fifo", "fifo", "dev-zero", "socket", "folder", "link-fifo"])
+    if kind == "fifo":
+        os.mkfifo(target)
+    elif kind == "dev-zero":
+        target.symlink_to("/dev/zero")
+    elif kind == "socket":
+        sock = socket.socket(socket.AF_UNIX)
+        try:
+            sock.bind(str(target))
+        except OSError:  # a path too long for a socket: a FIFO instead
+            os.mkfifo(target)
+            kind = "fifo"
+        finally:
+            sock.close()
+    elif kind == "folder":
+        target.mkdir()
+    else:
+        fifo = target.with_name(target.name + ".fifo")
+        os.mkfifo(fifo)
+        target.symlink_to(fifo)
+    return f"special:{kind}"
+
+
+def outside_storage(bag: Path, target: Path, rng: random.Random) -> str:
+    """A ROS 2 bag whose storage file lives outside its folder: symlinked back in, or named
+    through ../ in metadata.yaml."""
+    import yaml
+
+    outside = bag.parent / f"elsewhere_{target.name}"
+    shutil.move(str(target), outside)
+    if rng.random() < 0.5:
+        target.symlink_to(outside)
+        return "outside:symlink"
+    meta_path = bag / "metadata.yaml"
+    meta = yaml.safe_load(meta_path.read_text())
+    info = meta["rosbag2_bagfile_information"]
+    info["relative_file_paths"] = [f"../{outside.name}" if p == target.name else p
+                                   for p in info.get("relative_file_paths", [])]
+    for entry in info.get("files", []) or []:
+        if entry.get("path") == target.name:
+            entry["path"] = f"../{outside.name}"
+    meta_path.write_text(yaml.safe_dump(meta, sort_keys=False))
+    return "outside:dotdot"
+
+
+def json_messages(target: Path, rng: random.Random) -> str:
+    """The JSON MCAP rewritten with messages missing a key or holding one of another type."""
+    import writers
+
+    rec = writers.joint_recording(n=60, gap_after=30)
+    msgs = [writers.msg_dict(rec, i) for i in range(len(rec.t_ns))]
+    key = rng.choice(["name", "position", "velocity", "header", "header.stamp", "header.stamp.sec",
+                      "header.stamp.nanosec"])
+    how = rng.choice(["drop", "drop", "null", "string", "number", "dict", "nested"])
+    picks = range(len(msgs)) if rng.random() < 0.2 else rng.sample(range(len(msgs)), rng.randint(1, 3))
+    for i in picks:
+        *parents, last = key.split(".")
+        obj = msgs[i]
+        for p in parents:
+            obj = obj[p]
+        if how == "drop":
+            del obj[last]
+        else:
+            obj[last] = {"null": None, "string": "x", "number": 7, "dict": {"a": 1},
+                         "nested": [[1.0, 2.0], [3.0]]}[how]
+    writers.write_mcap_json(target, rec, msgs)
+    return f"json:{how}:{key}"
+
+
+def sparse_mat(target: Path, rng: random.Random) -> str:
+    """The v5 .mat with X (or U) replaced: a sparse matrix (of the data's size, or declaring a
+    dense size of gigabytes), a cell of sparse matrices, or a struct."""
+    import numpy as np
+    import scipy.io
+    import scipy.sparse
+
+    data = scipy.io.loadmat(target)
+    name = rng.choice(["X", "U"])
+    kind = rng.choice(["sparse", "huge", "huge", "cell-huge", "struct", "int"])
+    if kind == "sparse":
+        data[name] = scipy.sparse.csc_matrix(data[name])
+    elif kind in ("huge", "cell-huge"):
+        rows, cols = rng.choice([(100_000_000, 7), (7, 100_000), (1_000_000, 1_000)])
+        m = scipy.sparse.csc_matrix((np.ones(3), ([0, 1, 2], [0, 1, 2])), shape=(rows, cols))
+        data[name] = m if kind == "huge" else np.array([m], dtype=object).reshape(1, 1)
+    elif kind == "struct":
+        data[name] = {"a": data[name]}
+    else:
+        data[name] = data[name].astype(np.int64)
+    scipy.io.savemat(target, {k: v for k, v in data.items() if not k.startswith("__")})
+    return f"mat:{kind}:{name}"
+
+
+def long_line(raw: bytes, rng: random.Random) -> tuple[str, bytes]:
+    """A CSV line longer than the line cap of a 1 MB cap (the case runs with CCL_MAX_BYTES=1M):
+    one line holding the whole file, or one cell of 1.5 MB, with or without line ends."""
+    kind = rng.choice(["one-line", "cell", "cr-only"])
+    if kind == "one-line":
+        return "long:one-line", raw.replace(b"\n", b",") * 40 + b"1," * 600_000
+    if kind == "cr-only":
+        return "long:cr-only", raw.replace(b"\n", b"\r")
+    lines = raw.split(b"\n")
+    k = rng.randrange(1, max(2, len(lines) - 1))
+    lines[k] = lines[k] + b"9" * 1_500_000
+    return "long:cell", b"\n".join(lines)
+
+
+def outside_manifest(target: Path, rng: random.Random) -> str:
+    """A manifest that names paths outside its folder: ../ in a job's files or out."""
+    import yaml
+
+    spec = yaml.safe_load(target.read_text())
+    kind = rng.choice(["files", "out", "config", "symlink"])
+    job = spec["jobs"][0]
+    if kind == "files":  # the same files, named through ../ from the manifest's folder
+        job["files"] = [os.path.relpath(p, target.parent) for p in job["files"]]
+    elif kind == "out":
+        spec["out"] = "../../escaped"
+    elif kind == "config":
+        job["config"] = os.path.relpath(job["config"], target.parent)
+    else:  # a folder inside that is a symlink to the files' folder
+        link = target.parent / "data"
+        link.symlink_to(Path(job["files"][0]).parent)
+        job["files"] = [f"data/{Path(p).name}" for p in job["files"]]
+    target.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return f"outside:{kind}"
+
+
+def hostile_mutation(base: dict[str, Any], dst: Path, target: Path, rng: random.Random
+                     ) -> tuple[str, dict[str, str]] | None:
+    """One of the mutations of issue 20 for this input (None: none applies, or not drawn).
+    Returns (mutation, environment of the case)."""
+    fmt = base["format"]
+    r = rng.random()
+    if r < 0.2:
+        return special_file(target, rng), {}
+    if fmt in ("hdf5", "model", "mat73") and r < 0.55:
+        return bomb_dataset(target, rng), {}
+    if fmt in ("hdf5", "model", "mat73"):
+        mutation, new = damage_attributes(target.read_bytes(), rng)
+        target.write_bytes(new)
+        return mutation, {}
+    if fmt == "mat5":
+        return sparse_mat(target, rng), {}
+    if fmt == "csv":
+        mutation, new = long_line(target.read_bytes(), rng)
+        target.write_bytes(new)
+        return mutation, {"CCL_MAX_BYTES": SMALL_CAP}
+    if fmt == "mcap" and base["name"] == "mcap-json":
+        return json_messages(target, rng), {}
+    if fmt in ("ros2", "ros2-metadata") and target.name != "metadata.yaml":
+        return outside_storage(dst, target, rng), {}
+    if fmt == "ros2-metadata":
+        storage = next(p for p in sorted(dst.iterdir()) if p.suffix in (".db3", ".mcap"))
+        return special_file(storage, rng) + ":storage", {}
+    if fmt == "manifest":  # planned with its paths bounded to its folder
+        return outside_manifest(target, rng), {BOUNDED: "1"}
+    return None
+
+
 # -- one case ----------------------------------------------------------------------------------------
-def make_case(base: dict[str, Any], work: Path, rng: random.Random) -> tuple[str, list[str] | None, Path]:
-    """Copy the base input into ``work``, mutate it, and return (mutation, argv, path)."""
+def make_case(base: dict[str, Any], work: Path, rng: random.Random, hostile: float = 0.0
+              ) -> tuple[str, list[str] | None, Path, dict[str, str]]:
+    """Copy the base input into ``work``, mutate it, and return (mutation, argv, path, the
+    case's environment). ``hostile``: the share of cases given a mutation of issue 20."""
     if work.exists():
         shutil.rmtree(work)
     work.mkdir(parents=True)
@@ -328,40 +594,49 @@ def make_case(base: dict[str, Any], work: Path, rng: random.Random) -> tuple[str
     target = dst / base["path"].name if src.is_dir() else dst
     raw = target.read_bytes()
     fmt = base["format"]
+    env: dict[str, str] = {}
+    drawn = hostile_mutation(base, dst, target, rng) if rng.random() < hostile else None
     r = rng.random()
-    if base.get("yaml") and r < 0.6:
+    if drawn is not None:
+        mutation, env = drawn
+    elif base.get("yaml") and r < 0.6:
         mutation, new = yaml_mutation(raw, rng)
         target.write_bytes(new)
     elif fmt == "csv" and r < 0.5:
         mutation, new = csv_mutation(raw, rng)
         target.write_bytes(new)
-    elif fmt in ("hdf5", "model") and r < 0.5:
+    elif fmt in ("hdf5", "model", "mat73") and r < 0.5:
         mutation = hdf5_mutation(target, rng)
     else:
         mutation, new = byte_mutation(raw, rng)
         target.write_bytes(new)
     out = work / "out"
     if fmt == "manifest":
-        return mutation, None, dst
+        return mutation, None, dst, env
     if fmt == "config":
-        return mutation, ["run", str(dst), "-o", str(out), "-q"], dst
+        return mutation, ["run", str(dst), "-o", str(out), "-q"], dst, env
     if fmt == "model":
-        return mutation, ["predict", str(dst), str(base["data"]), "-o", str(work / "p.csv"), "-q"], dst
+        command = "inspect-model" if rng.random() < 0.25 else "predict"
+        if command == "inspect-model":
+            return mutation, ["inspect", str(dst), "--json", "-q"], dst, env
+        return mutation, ["predict", str(dst), str(base["data"]), "-o", str(work / "p.csv"), "-q"], dst, env
     cfg = ["-c", str(base["config"])] if base.get("config") else []
     command = rng.choice(["convert", "learn-a", "inspect"])
     if command == "convert":
-        return mutation, ["convert", str(dst), "-o", str(work / "c.h5"), "-q", *cfg], dst
+        return mutation, ["convert", str(dst), "-o", str(work / "c.h5"), "-q", *cfg], dst, env
     if command == "learn-a":
-        return mutation, ["learn-a", str(dst), "-o", str(out), "-q", *cfg], dst
-    return mutation, ["inspect", str(dst), "--json", "-q", *cfg], dst
+        return mutation, ["learn-a", str(dst), "-o", str(out), "-q", *cfg], dst, env
+    return mutation, ["inspect", str(dst), "--json", "-q", *cfg], dst, env
 
 
-def _child(argv: list[str] | None, manifest: Path, errfile: str) -> None:
+def _child(argv: list[str] | None, manifest: Path, errfile: str, env: dict[str, str] | None = None) -> None:
     """Forked child: run the case, write a verdict line, exit."""
+    os.environ.update(env or {})
     fd = os.open(errfile, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
     os.dup2(fd, 2)
     os.dup2(fd, 1)
-    sys.stdout = sys.stderr = open(fd, "w", buffering=1, closefd=False)  # also under pytest's capture
+    # also under pytest's capture; undecodable text escaped, as Python's own stderr does
+    sys.stdout = sys.stderr = open(fd, "w", buffering=1, closefd=False, errors="backslashreplace")
     os.environ["CCL_DEBUG"] = "1"  # internal errors raise: we record where
     code = 0
     try:
@@ -371,7 +646,10 @@ def _child(argv: list[str] | None, manifest: Path, errfile: str) -> None:
             from ccl_cli.app.batch import plan
 
             try:
-                plan(manifest)
+                if "allow_outside" in inspect.signature(plan).parameters:
+                    plan(manifest, allow_outside=os.environ.get(BOUNDED) != "1")
+                else:  # a version before the bound
+                    plan(manifest)
             except CCLError as exc:
                 sys.stderr.write(f"ccl: error: {exc.message}\n")
                 code = exc.exit_code
@@ -410,38 +688,47 @@ def classify(code: int | None, err: str) -> tuple[str, str]:
     return "internal", f"exit {code}: {errors[0][:120]}"
 
 
-def run_case(argv: list[str] | None, manifest: Path, errfile: Path, timeout: float
-             ) -> tuple[int | None, float]:
+def run_case(argv: list[str] | None, manifest: Path, errfile: Path, timeout: float,
+             env: dict[str, str] | None = None) -> tuple[int | None, float, float]:
+    """(exit code or None on timeout, wall seconds, peak RSS in MB of the case's process)."""
     t0 = time.monotonic()
     pid = os.fork()
     if pid == 0:
-        _child(argv, manifest, str(errfile))
+        _child(argv, manifest, str(errfile), env)
     while True:
-        done, status = os.waitpid(pid, os.WNOHANG)
+        done, status, usage = os.wait4(pid, os.WNOHANG)
         if done:
-            return os.waitstatus_to_exitcode(status), time.monotonic() - t0
+            return os.waitstatus_to_exitcode(status), time.monotonic() - t0, usage.ru_maxrss / 1024
         if time.monotonic() - t0 > timeout:
             os.kill(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
-            return None, time.monotonic() - t0
+            _, _, usage = os.wait4(pid, 0)
+            return None, time.monotonic() - t0, usage.ru_maxrss / 1024
         time.sleep(0.002 if time.monotonic() - t0 < 0.2 else 0.02)
 
 
-def run_subprocess(argv: list[str] | None, manifest: Path, timeout: float) -> tuple[int | None, str]:
+def run_subprocess(argv: list[str] | None, manifest: Path, timeout: float,
+                   env: dict[str, str] | None = None) -> tuple[int | None, str]:
     ccl = shutil.which("ccl") or str(Path(sys.executable).parent / "ccl")
     cmd = [ccl, *argv] if argv is not None else [ccl, "batch", str(manifest), "-q", "--json"]
     try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL,
+                              env={**os.environ, **(env or {})})
     except subprocess.TimeoutExpired:
         return None, ""
     return proc.returncode, proc.stderr
 
 
+#: share of cases given a mutation of issue 20, per mix
+MIXES = {"classic": 0.0, "hostile": 0.7, "even": 0.35}
+
+
 def fuzz(cases: int, seed: int = 0, timeout: float = 20.0, subprocess_cases: int = 0,
          keep: Path | None = None, formats: list[str] | None = None,
-         progress: Path | None = None) -> dict[str, Any]:
+         progress: Path | None = None, mix: str = "classic") -> dict[str, Any]:
     """Run ``cases`` mutated inputs (and ``subprocess_cases`` of them through the real
-    ``ccl`` executable); return the outcome counts and the internal-error groups."""
+    ``ccl`` executable); return the outcome counts, the internal-error groups, the slowest
+    cases and the peak memory of the cases' processes. ``mix``: how many cases get the
+    mutations of issue 20 (:data:`MIXES`)."""
     import h5py  # noqa: F401 - loaded once before forking
     import yaml  # noqa: F401
 
@@ -462,6 +749,8 @@ def fuzz(cases: int, seed: int = 0, timeout: float = 20.0, subprocess_cases: int
         groups: collections.Counter = collections.Counter()
         examples: dict[str, str] = {}
         slowest: list[tuple[float, str, str]] = []
+        biggest: list[tuple[float, str, str]] = []
+        over = {"over_20s": 0, "over_500MB": 0}
         sub_counts: collections.Counter = collections.Counter()
         errfile = tmp / "stderr.txt"
 
@@ -469,46 +758,61 @@ def fuzz(cases: int, seed: int = 0, timeout: float = 20.0, subprocess_cases: int
             total: collections.Counter = collections.Counter()
             for c in counts.values():
                 total.update(c)
-            return {"benchmark": "fuzz", "cases": done, "seed": seed, "timeout_s": timeout,
+            return {"benchmark": "fuzz", "cases": done, "seed": seed, "mix": mix, "timeout_s": timeout,
                     "seconds": round(time.monotonic() - t_start, 1),
                     "total": {k: total.get(k, 0) for k in OUTCOMES},
                     "per_format": {f: {k: c.get(k, 0) for k in OUTCOMES} for f, c in sorted(counts.items())},
                     "through_ccl_executable": {k: sub_counts.get(k, 0) for k in OUTCOMES},
                     "internal_groups": groups.most_common(60), "examples": examples,
-                    "slowest": slowest}
+                    "slowest": slowest, "peak_rss_mb": biggest, **over}
 
         for i in range(cases):
             if progress is not None and i and i % 200 == 0:
                 progress.write_text(json.dumps(result(i)) + "\n")
             base = bases[i % len(bases)] if i < len(bases) else rng.choice(bases)
-            mutation, argv, dst = make_case(base, tmp / "case", rng)
+            mutation, argv, dst, env = make_case(base, tmp / "case", rng, MIXES[mix])
             # manifests through the executable would run whole batches: they go through the
             # planner in-process only
             through_ccl = i < subprocess_cases and argv is not None
             if through_ccl:
-                code, err = run_subprocess(argv, dst, timeout)
-                seconds = 0.0
+                t_case = time.monotonic()
+                code, err = run_subprocess(argv, dst, timeout, env)
+                seconds, rss = time.monotonic() - t_case, 0.0
             else:
-                code, seconds = run_case(argv, dst, errfile, timeout)
+                code, seconds, rss = run_case(argv, dst, errfile, timeout, env)
                 err = errfile.read_text(errors="replace") if errfile.exists() else ""
             outcome, detail = classify(code, err)
             counts[base["format"]][outcome] += 1
             if through_ccl:
                 sub_counts[outcome] += 1
             slowest = sorted([*slowest, (round(seconds, 2), base["name"], mutation)], reverse=True)[:5]
+            biggest = sorted([*biggest, (round(rss, 1), base["name"], mutation)], reverse=True)[:5]
+            over["over_20s"] += seconds > 20
+            over["over_500MB"] += rss > 500
             if outcome in ("internal", "crash", "timeout"):
                 key = f"{base['format']}: {detail}"[:200]
                 groups[key] += 1
                 if keep is not None and key not in examples:
                     keep.mkdir(parents=True, exist_ok=True)
                     name = f"case_{i}_{base['name']}"
-                    shutil.copytree(tmp / "case", keep / name, dirs_exist_ok=True)
-                    (keep / name / "argv.json").write_text(json.dumps({"argv": argv, "mutation": mutation}))
+                    shutil.copytree(tmp / "case", keep / name, dirs_exist_ok=True, symlinks=True,
+                                    copy_function=_copy_regular)
+                    (keep / name / "argv.json").write_text(json.dumps({"argv": argv, "mutation": mutation,
+                                                                       "env": env}))
                     examples[key] = str(keep / name)
         return result(cases)
     finally:
         if keep is None:  # with --keep the fixtures stay, so that kept cases can be re-run
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _copy_regular(src: str, dst: str) -> None:
+    """Copy a regular file; a FIFO, socket or device is recreated as a note (opening one
+    to copy it would block)."""
+    if Path(src).is_file():
+        shutil.copy2(src, dst)
+    else:
+        Path(dst + ".special").write_text(f"{src} was not a regular file\n")
 
 
 def main() -> None:
@@ -520,9 +824,11 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None, help="copy one example per failure group here")
     ap.add_argument("--formats", default=None, help="comma-separated subset of formats")
     ap.add_argument("--progress", type=Path, default=None, help="write partial results here every 200 cases")
+    ap.add_argument("--mix", choices=sorted(MIXES), default="classic",
+                    help="share of cases given the mutations of issue 20 (bombs, special files, ...)")
     args = ap.parse_args()
     result = fuzz(args.cases, args.seed, args.timeout, args.subprocess, args.keep,
-                  args.formats.split(",") if args.formats else None, args.progress)
+                  args.formats.split(",") if args.formats else None, args.progress, args.mix)
     sys.stdout.write(json.dumps(result) + "\n")
 
 

@@ -20,10 +20,9 @@ import typer
 from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer vendors its click
 from typer.core import TyperCommand, TyperGroup
 
-from ccl_cli import spec as S
-from ccl_cli.errors import CCLError, ConfigError, InputError
-from ccl_cli.learn import defaults as D
-from ccl_cli.learn import params as P
+from ccl_cli import spec
+from ccl_cli.errors import CCLError, ConfigError, InputError, LearningError
+from ccl_cli.learn import defaults, params
 
 log = logging.getLogger("ccl")
 
@@ -65,6 +64,7 @@ app = typer.Typer(
     help="Constraint Consistent Learning: learn constraints A(x), null-space components w(x) and "
          "null-space policies π(x) from demonstrations (HDF5, CSV, MCAP, ROS 1/2 bags).",
     no_args_is_help=True,
+    context_settings={"help_option_names": ["-h", "--help"]},
     add_completion=False,
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
@@ -75,16 +75,19 @@ DataArg = Annotated[list[Path] | None, typer.Argument(
     help="Recordings (files, bag directories or globs); overrides data.files of the config.",
     show_default=False)]
 ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="YAML config (see README).")]
-OutOpt = Annotated[Path | None, typer.Option("--out", "-o", help="Output directory.",
-                                             show_default="runs/<config name or command>")]
+OutOpt = Annotated[Path | None, typer.Option(
+    "--out", "-o", help="Output directory (an existing one is replaced only with --force, and only if ccl "
+    "wrote it).", show_default="a new runs/<command>-<input name>, then …-2, …-3: never an existing one")]
 ForceOpt = Annotated[bool, typer.Option("--force", help="Overwrite existing outputs.")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a machine-readable summary on stdout.")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="Only warnings and errors on stderr.")]
+StrictOpt = Annotated[bool, typer.Option("--strict", help="Exit 1 when a stage's verdict is not ok "
+                                         "(its held-out evidence does not support it).")]
 SeedOpt = Annotated[int | None, typer.Option("--seed", help="Seed of every random choice.",
                                              show_default="config, else 0")]
 TestOpt = Annotated[float | None, typer.Option(
     "--test-fraction", help="Fraction of demonstrations held out (0: none).",
-    show_default=f"config, else {S.TestSplit().fraction}")]
+    show_default=f"config, else {spec.TestSplit().fraction}")]
 
 
 def _choices(name: str, literal: Any) -> type[Enum]:
@@ -101,18 +104,18 @@ def _value(v: Any) -> Any:
     return v.value if isinstance(v, Enum) else v
 
 
-Convention = _choices("Convention", S.Convention)
-LearnAMethod = _choices("LearnAMethod", S.ConstraintMethod)
-Selection = _choices("Selection", P.SelectionRule)
-PiMethod = _choices("PiMethod", P.PolicyMethod)
-Projections = _choices("Projections", S.Projections)
-BasisKind = _choices("BasisKind", P.BasisKind)
-Features = _choices("Features", P.ArmName)
-Regressors = _choices("Regressors", P.Regressors)
+Convention = _choices("Convention", spec.Convention)
+LearnAMethod = _choices("LearnAMethod", spec.ConstraintMethod)
+Selection = _choices("Selection", params.SelectionRule)
+PiMethod = _choices("PiMethod", params.PolicyMethod)
+Projections = _choices("Projections", spec.Projections)
+BasisKind = _choices("BasisKind", params.BasisKind)
+Features = _choices("Features", params.ArmName)
+Regressors = _choices("Regressors", params.Regressors)
 
 ConvOpt = Annotated[Convention | None, typer.Option("--convention",
                                                     help="Metric normalisers (docs/metrics.md).",
-                                                    show_default=_default(S.Metrics().convention))]
+                                                    show_default=_default(spec.Metrics().convention))]
 CentresOpt = Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres (also sets "
                                                 "basis.n_centres of a basis mapping; no basis search).",
                                                 show_default="config, else the stage's default")]
@@ -151,9 +154,9 @@ def _common(seed, test_fraction, convention) -> dict[str, Any]:
 
 
 def _config(path: Path | None, overrides: dict[str, Any]):
-    from ccl_cli import config as C
+    from ccl_cli import config
 
-    return C.load(path, overrides)
+    return config.load(path, overrides)
 
 
 def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
@@ -177,11 +180,11 @@ def _wrote(command: str, out: Path, data, as_json: bool) -> None:
 
 
 def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
-           force: bool, as_json: bool, quiet: bool) -> None:
+           force: bool, as_json: bool, quiet: bool, strict: bool = False) -> None:
     from ccl_cli.app.run import default_outdir, execute
     from ccl_cli.render.outputs import check_output, write_run
 
-    outdir = out or default_outdir(command, cfg)
+    outdir = out or default_outdir(command, cfg, files)
     check_output(outdir, force)  # before any work: a folder ccl did not write is never replaced
     stages = cfg.stages() if stages is None else [(name, cfg.spec.section(name)) for name in stages]
     bar = _bar("stages", len(stages), quiet)
@@ -190,7 +193,12 @@ def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
     finally:
         if bar:
             bar.stop()
-    _emit(write_run(result, outdir, force), as_json, quiet)
+    summary = write_run(result, outdir, force)
+    _emit(summary, as_json, quiet)
+    if strict and summary["status"] != "ok":
+        error = LearningError(f"--strict: the run is {summary['verdict']}")
+        error.summarised = as_json  # --json printed the run's summary (status poor): one object only
+        raise error
 
 
 def _bar(label: str, total: int, quiet: bool):
@@ -225,7 +233,8 @@ def _bar(label: str, total: int, quiet: bool):
 #: The options every learning command takes besides its stage's own: (name, annotation, default).
 _LEADING = (("data", "DataArg", None), ("config", "ConfigOpt", None), ("out", "OutOpt", None))
 _TRAILING = (("seed", "SeedOpt", None), ("test_fraction", "TestOpt", None), ("convention", "ConvOpt", None),
-             ("force", "ForceOpt", False), ("json_out", "JsonOpt", False), ("quiet", "QuietOpt", False))
+             ("strict", "StrictOpt", False), ("force", "ForceOpt", False), ("json_out", "JsonOpt", False),
+             ("quiet", "QuietOpt", False))
 
 
 def _learning_command(stage: str):
@@ -252,7 +261,7 @@ def _learning_command(stage: str):
             _logging(common["quiet"])
             flags = _common(common["seed"], common["test_fraction"], common["convention"]) | {stage: fn(**kw)}
             _learn(stage, [stage], _config(common["config"], flags), common["data"], common["out"],
-                   common["force"], common["json_out"], common["quiet"])
+                   common["force"], common["json_out"], common["quiet"], common["strict"])
 
         command.__signature__ = pyinspect.Signature(params, return_annotation=None)
         command.__annotations__ = {p.name: p.annotation for p in params}
@@ -268,10 +277,10 @@ def learn_a(
         help="auto (model class and number of constraints, 0 included, by held-out evidence), nhat "
              "(constant A, closed form), alpha (state-dependent), lambda (known Φ), linear (closed form), "
              "per_window (one constant A per time window; docs/methods.md).",
-        show_default=_default(S.DEFAULT_CONSTRAINT_METHOD))] = None,
+        show_default=_default(spec.DEFAULT_CONSTRAINT_METHOD))] = None,
     selection: Annotated[Selection | None, typer.Option(
-        help="How the number of constraints s is chosen.", show_default=_default(D.DEFAULT_RULE))]
-    = None,
+        help="How the number of constraints s is chosen.",
+        show_default=_default(defaults.DEFAULT_RULE))] = None,
     n_constraints: Annotated[int | None, typer.Option(help="Fix the number of constraints s.",
                                                       show_default="chosen by --selection")] = None,
     features: Annotated[Features | None, typer.Option(help="lambda: built-in Φ.", show_default="config")]
@@ -302,7 +311,7 @@ def learn_v(n_centres: CentresOpt = None, basis: BasisOpt = None) -> dict[str, A
 @_learning_command("learn-pi")
 def learn_pi(
     method: Annotated[PiMethod | None, typer.Option(help="Policy learner (docs/methods.md).",
-                                                    show_default=_default(D.POLICY_METHOD))] = None,
+                                                    show_default=_default(defaults.POLICY_METHOD))] = None,
     projections: Annotated[Projections | None, typer.Option(
         help="pi-coupled: projections from the ground truth (true) or a learn-a stage (learnt).",
         show_default=_default("auto"))] = None,
@@ -318,13 +327,13 @@ def run(
     pipeline: Annotated[Path, typer.Argument(help="Pipeline YAML with data and stages.")],
     data: Annotated[list[Path] | None, typer.Option("--data", help="Recordings overriding data.files.")]
     = None,
-    out: OutOpt = None, seed: SeedOpt = None, force: ForceOpt = False, json_out: JsonOpt = False,
-    quiet: QuietOpt = False,
+    out: OutOpt = None, seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
+    strict: StrictOpt = False, force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Run the stages of a pipeline YAML in order (learn-v, learn-a, learn-pi, evaluate)."""
     _logging(quiet)
-    cfg = _config(pipeline, {"seed": seed})
-    _learn("run", None, cfg, data, out, force, json_out, quiet)
+    cfg = _config(pipeline, _common(seed, test_fraction, convention))
+    _learn("run", None, cfg, data, out, force, json_out, quiet, strict)
 
 
 # -- using saved models -------------------------------------------------------------------
@@ -344,10 +353,11 @@ def evaluate(
     if out is not None:
         check_output(out, force)
     dataset, _ = read_data(cfg, data)
-    summary = evaluate_saved(model, dataset, cfg.spec.metrics.convention)
+    figures = out is not None and cfg.spec.output.plots
+    summary = evaluate_saved(model, dataset, cfg.spec.metrics.convention, figures)
     if out is not None:
-        write_evaluation(summary, out, force)
-    summary = {k: v for k, v in summary.items() if k not in ("entry", "inputs", "samples", "demos")}
+        write_evaluation(summary, out, force, cfg.spec.output.format)
+    summary = {k: v for k, v in summary.items() if k not in ("entry", "inputs", "samples", "demos", "views")}
     summary["outdir"] = str(out) if out else None
     if json_out:
         _emit({**summary, "metrics": {k: v["value"] for k, v in summary["metrics"].items()}}, True)
@@ -416,13 +426,13 @@ def simulate(
     """Write a reference problem with ground truth (π, w, v, b, A, N) as canonical HDF5."""
     import inspect as pyinspect
 
-    from ccl_cli import simulate as S
+    from ccl_cli import simulate as simulations
     from ccl_cli.io import write_demonstrations
 
     _logging(quiet)
-    if problem not in S.PROBLEMS:
-        raise InputError(f"unknown problem {problem!r} (use {', '.join(S.PROBLEMS)})")
-    fn = S.PROBLEMS[problem]
+    if problem not in simulations.PROBLEMS:
+        raise InputError(f"unknown problem {problem!r} (use {', '.join(simulations.PROBLEMS)})")
+    fn = simulations.PROBLEMS[problem]
     given = {"noise": noise, "snr_db": snr_db, "n_demos": n_demos, "n_steps": n_steps,
              "constraint": constraint, "policy": policy, "task": task, "vary_constraint": vary_constraint,
              "sampling": sampling, "n_samples": n_samples, "rate": rate, "duration": duration,
@@ -446,20 +456,22 @@ def simulate(
 
 @app.command("inspect")
 def inspect_cmd(
-    data: Annotated[Path, typer.Argument(help="A recording (file or bag directory).")],
+    data: Annotated[Path, typer.Argument(help="A recording (file or bag directory) or a model file.")],
     config: ConfigOpt = None,
     gap: Annotated[float | None, typer.Option(help="Pause (seconds) that splits demonstrations "
                                               "[default: data.demos.split_on_gap, else 5 × the median "
                                               "sampling interval].", show_default=False)] = None,
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
-    """Topics (type, count, rate over the active time, fields, joint names), CSV columns, time span
-    and the demonstrations a gap split finds (default gap: 5 × the median sampling interval)."""
-    from ccl_cli.io import inspect_recording
+    """What a file holds. A recording: topics (type, count, rate over the active time, fields,
+    joint names), CSV columns, time span and the demonstrations a gap split finds (default gap:
+    5 × the median sampling interval). A model file: its method, constraints, basis and what it
+    was trained on (inputs, config, figures)."""
+    from ccl_cli.app.evaluate import inspect_file
 
     _logging(quiet)
     cfg = _config(config, {})
-    info = inspect_recording(data, cfg.spec.data, gap)
+    info = inspect_file(data, cfg.spec.data, gap)
     if json_out:
         _emit(info, True)
         return
@@ -499,6 +511,8 @@ def batch(
                                                 show_default="the number of cores")] = None,
     scheduler: Annotated[str | None, typer.Option(help="Address of a running Dask scheduler.")] = None,
     force: Annotated[bool, typer.Option("--force", help="Re-run jobs whose outputs are up to date.")] = False,
+    allow_outside: Annotated[bool, typer.Option("--allow-outside", help="Let the manifest name paths "
+                                                "outside its folder.")] = False,
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> int:
     """Run a pipeline per recording (or group) in parallel; resumable; summary.csv/.md/.png."""
@@ -512,7 +526,7 @@ def batch(
         raise ConfigError("batch --files needs --config/-c: a pipeline YAML with a stages: list")
     if scheduler is None:
         start_workers(workers, (write_run.__module__,))  # the workers' imports overlap the planning
-    jobs, manifest_out = plan(manifest, files, str(config) if config else None)
+    jobs, manifest_out = plan(manifest, files, str(config) if config else None, allow_outside)
     outdir = out or manifest_out or Path("runs") / "batch"
     from ccl_cli.render.figures import preload_in_background
 
@@ -565,6 +579,8 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except CCLError as exc:
         typer.echo(f"ccl: error: {exc.message}", err=True)
+        if not getattr(exc, "summarised", False):
+            _json_error(argv, exc.exit_code, type(exc).__name__, exc.message)
         return exc.exit_code
     except KeyboardInterrupt:
         typer.echo("ccl: interrupted; no partial outputs were left", err=True)
@@ -572,13 +588,27 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # an unexpected failure: still one line, unless debugging
         if hasattr(exc, "show") and hasattr(exc, "exit_code"):  # typer's usage errors (exit 2)
             exc.show()
+            _json_error(argv, int(exc.exit_code), "UsageError", exc.format_message())
             return int(exc.exit_code)
         if os.environ.get("CCL_DEBUG"):
             raise
         first = str(exc).splitlines()[0] if str(exc) else ""
-        typer.echo(f"ccl: internal error: {type(exc).__name__}: {first} (set CCL_DEBUG=1 for a traceback)",
-                   err=True)
+        message = f"internal error: {type(exc).__name__}: {first}"
+        typer.echo(f"ccl: {message} (set CCL_DEBUG=1 for a traceback)", err=True)
+        _json_error(argv, 1, "InternalError", message)
         return 1
+
+
+def _json_error(argv: list[str] | None, code: int, kind: str, message: str) -> None:
+    """With ``--json`` on the command line, an error is one JSON object on stdout too, so a
+    script piping into ``jq`` always gets something to parse (the exit code is unchanged)."""
+    args = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    if "--json" in args:
+        import json
+
+        sys.stdout.write(json.dumps({"status": "error", "exit_code": code,
+                                     "error": {"type": kind, "message": message}}) + "\n")
+        sys.stdout.flush()
 
 
 def entry() -> None:

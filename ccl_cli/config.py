@@ -86,14 +86,14 @@ def load(path: str | Path | None, flags: dict[str, Any] | None = None) -> Config
 def from_mapping(raw: dict[str, Any], *, source: str = "<flags>", base: Path | None = None,
                  lines: dict[tuple, int] | None = None, flags: dict[str, Any] | None = None) -> Config:
     """The config of a mapping (a manifest job's, or a test's), validated like a file's."""
-    from ccl_cli import spec as S
+    from ccl_cli import spec
 
     lines = lines or {}
     flags = _drop_none(flags or {})
     if flags:
-        _validate(S.run_spec_model(), _apply_flags({}, flags), FLAGS, {}, ())
+        _validate(spec.run_spec_model(), _apply_flags({}, flags), FLAGS, {}, ())
     merged = _apply_flags(raw, flags)
-    run = _validate(S.run_spec_model(), merged, source, lines, ())
+    run = _validate(spec.run_spec_model(), merged, source, lines, ())
     items = tuple(_stage_item(run, item, i, flags, source, lines)
                   for i, item in enumerate(merged.get("stages") or []))
     for name, options in [*(("learn-a", run.section("learn-a")),), *items]:
@@ -105,7 +105,7 @@ def from_mapping(raw: dict[str, Any], *, source: str = "<flags>", base: Path | N
 def _stage_item(run: Any, item: Any, i: int, flags: dict[str, Any], source: str,
                 lines: dict[tuple, int]) -> tuple[str, Any]:
     """A ``stages`` item → (name, its section's options with the item's and the flags' on top)."""
-    from ccl_cli import spec as S
+    from ccl_cli import spec
 
     where = _where(source, lines, ("stages", i))
     if isinstance(item, str):
@@ -116,15 +116,15 @@ def _stage_item(run: Any, item: Any, i: int, flags: dict[str, Any], source: str,
     else:
         raise ConfigError(f"{where}: each stage is a name or a one-key mapping (e.g. - learn-a: "
                           f"{{method: nhat}}), got {item!r}"[:300])
-    if name not in S.STAGES:
-        close = difflib.get_close_matches(str(name), S.STAGES, n=1)
-        hint = f" (did you mean {close[0]!r}?)" if close else f" (stages: {', '.join(S.STAGES)})"
+    if name not in spec.STAGES:
+        close = difflib.get_close_matches(str(name), spec.STAGES, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else f" (stages: {', '.join(spec.STAGES)})"
         raise ConfigError(f"{where}: unknown stage {name!r}{hint}")
     if not isinstance(options, dict):
         raise ConfigError(f"{where}: the options of stage {name} must be a mapping, got {options!r}"[:300])
     section = run.section(name).model_dump(exclude_unset=True, by_alias=True)
     merged = _override(deep_merge(section, options), flags.get(name) or {})
-    model = S.stage_models()[name]
+    model = spec.stage_models()[name]
     return name, _validate(model, merged, source, lines, ("stages", i, name), label=name)
 
 
@@ -133,14 +133,14 @@ def _check_method_keys(options: Any, source: str, lines: dict[tuple, int]) -> No
     manifest may switch the method of a config written for another)."""
     import inspect
 
-    from ccl_cli import spec as S
+    from ccl_cli import spec
 
-    params = set(inspect.signature(S.constraint_class(options.method).__init__).parameters)
+    params = set(inspect.signature(spec.constraint_class(options.method).__init__).parameters)
     for key in sorted(options.model_fields_set - set(type(options).APP_KEYS)):
-        name = S.RENAMED.get((options.method, key), key)
+        name = spec.RENAMED.get((options.method, key), key)
         if name not in params:
-            takes = [m for m in S.CONSTRAINT_METHODS if S.RENAMED.get((m, key), key) in
-                     inspect.signature(S.constraint_class(m).__init__).parameters]
+            takes = [m for m in spec.CONSTRAINT_METHODS if spec.RENAMED.get((m, key), key) in
+                     inspect.signature(spec.constraint_class(m).__init__).parameters]
             logging.getLogger("ccl").warning("%s: learn-a.%s applies to method %s, not %s: ignored",
                                              _where(source, lines, ("learn-a", key)), key, " or ".join(takes),
                                              options.method)
@@ -205,8 +205,14 @@ def _apply_flags(raw: dict[str, Any], flags: dict[str, Any]) -> dict[str, Any]:
 
 
 # -- validation errors as one line -------------------------------------------------------------
+#: config keys whose flag is not named after the key alone
+FLAG_NAMES = {("data", "test", "fraction"): "--test-fraction", ("metrics", "convention"): "--convention"}
+
+
 def _where(source: str, lines: dict[tuple, int], path: tuple) -> str:
     if source == FLAGS and path:
+        if tuple(path[:3]) in FLAG_NAMES or tuple(path[:2]) in FLAG_NAMES:
+            return FLAG_NAMES.get(tuple(path[:3])) or FLAG_NAMES[tuple(path[:2])]
         last = next((p for p in reversed(path) if isinstance(p, str)), "")
         return "--" + last.replace("_", "-")
     for cut in range(len(path), -1, -1):
@@ -228,7 +234,7 @@ def _validate(model: type, raw: Any, source: str, lines: dict[tuple, int], base:
     try:
         return model.model_validate(raw)
     except ValidationError as exc:
-        path, message = describe(exc, model, label)
+        path, message = describe(exc, model, label, raw)
         raise ConfigError(f"{_where(source, lines, (*base, *path))}: {message}"[:300]) from None
 
 
@@ -249,7 +255,7 @@ def _fields_of(annotation: Any) -> list[type]:
     return [m for a in typing.get_args(annotation) for m in _fields_of(a)]
 
 
-def describe(exc: Any, model: type, label: str = "") -> tuple[tuple, str]:
+def describe(exc: Any, model: type, label: str = "", raw: Any = None) -> tuple[tuple, str]:
     """The most specific error of a pydantic ValidationError as (key path, message): the
     error that reached deepest into the config (a union tries every member; when several
     members fail at the same key, the key's description says what it takes)."""
@@ -257,6 +263,9 @@ def describe(exc: Any, model: type, label: str = "") -> tuple[tuple, str]:
     located = [(_keys(e["loc"], model, e["type"] == "extra_forbidden"), e) for e in errors]
     depth = max(len(keys[0]) for keys, _ in located)
     deepest = [(keys, e) for keys, e in located if len(keys[0]) == depth]
+    # a mapping that fits no member of a union: blame the member sharing the most of its keys
+    deepest.sort(key=lambda item: -_overlap(item[0][1], item[0][0], item[1]["type"] == "extra_forbidden",
+                                            raw))
     (path, cls, description), err = deepest[0]
     shown = (label,) + path if label else path
     name = _dotted(shown)
@@ -283,6 +292,22 @@ def describe(exc: Any, model: type, label: str = "") -> tuple[tuple, str]:
         return path, f"{name} must be a finite number{got}"
     what = description or _PHRASES.get(kind) or err["msg"][0].lower() + err["msg"][1:]
     return path, f"{name} must be {what}{got}"
+
+
+def _overlap(cls: Any, keys: tuple, unknown: bool, raw: Any) -> int:
+    """How many keys of the mapping an error is about (at ``keys`` in ``raw``; the parent of an
+    unknown key) are fields of model ``cls``."""
+    value = raw
+    for key in keys[:-1] if unknown else keys:
+        if not isinstance(value, dict | list):
+            return 0
+        try:
+            value = value[key]
+        except (KeyError, IndexError, TypeError):
+            return 0
+    if not isinstance(value, dict) or cls is None:
+        return 0
+    return len({f.alias or k for k, f in cls.model_fields.items()} & set(map(str, value)))
 
 
 def _keys(loc: tuple, model: type, unknown: bool) -> tuple[tuple, type | None, str | None]:

@@ -170,7 +170,13 @@ class Demonstrations:
         demos = []
         for part in parts:
             if part.n_state != first.n_state or part.n_action != first.n_action:
-                raise InputError("cannot join datasets with different state/action dimensions")
+                def named(d: Demonstrations) -> str:
+                    source = d.metadata.get("source") or "a dataset"
+                    return f"{source} (state p = {d.n_state}, action q = {d.n_action})"
+
+                raise InputError(f"cannot join {named(part)} with {named(first)}: every file must give the "
+                                 "same state and action dimensions (select the same joints or columns, "
+                                 "e.g. data.state.joints, or run the files separately)")
             _, inv = np.unique(part.demo, return_inverse=True)
             demos.append(inv + offset)
             offset += int(inv.max()) + 1 if len(inv) else 0

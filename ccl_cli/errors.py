@@ -23,6 +23,13 @@ class InputError(CCLError):
     exit_code = 2
 
 
+class OutputError(InputError):
+    """An output could not be written (a full disk, a file-size limit, a read-only folder);
+    nothing of it was left."""
+
+    exit_code = 2
+
+
 class ConfigError(CCLError):
     """Bad configuration: unknown key, wrong type, inconsistent options."""
 

@@ -29,23 +29,38 @@ CONVENTIONS = ("ccl", "original")
 
 @dataclass(frozen=True)
 class Metric:
-    """A normalised error: ``value = error / normaliser``."""
+    """A normalised error: ``value = error / normaliser``; with groups (demonstrations or
+    held-out time blocks), ``se`` is the standard error of ``value`` over the ``n_groups``
+    groups (the spread of the groups' mean errors, each over the same normaliser)."""
 
     name: str
     value: float
     error: float
     normaliser: float
     normaliser_of: str
+    se: float | None = None
+    n_groups: int = 0
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        out = asdict(self)
+        if self.se is None:
+            del out["se"], out["n_groups"]
+        return out
 
 
-def _metric(name: str, diff: np.ndarray, denom: float, of: str) -> Metric:
+def _metric(name: str, diff: np.ndarray, denom: float, of: str, groups: np.ndarray | None = None
+            ) -> Metric:
     err = mean_squared(diff)
     if not np.isfinite(denom) or denom <= 0:
         return Metric(name, float("nan"), err, float(denom), of)
-    return Metric(name, err / denom, err, float(denom), of)
+    se, n_groups = None, 0
+    if groups is not None:
+        _, inverse, counts = np.unique(groups, return_inverse=True, return_counts=True)
+        n_groups = len(counts)
+        if n_groups > 1:
+            per_group = np.bincount(inverse, weights=np.sum(np.asarray(diff) ** 2, axis=1)) / counts / denom
+            se = float(per_group.std(ddof=1) / np.sqrt(n_groups))
+    return Metric(name, err / denom, err, float(denom), of, se, n_groups)
 
 
 def _convention(convention: str) -> None:
@@ -60,6 +75,7 @@ def nppe(
     U: np.ndarray,
     convention: str = "ccl",
     state_dependent: bool = False,
+    groups: np.ndarray | None = None,
 ) -> Metric:
     """Normalised projected policy error: mean ‖N π − Ñ π‖² / Σ var(U).
 
@@ -69,9 +85,9 @@ def nppe(
     diff = _apply(N_true, Pi) - _apply(N_est, Pi)
     if convention == "original":
         if state_dependent:
-            return _metric("NPPE", diff, total_variance(_apply(N_true, Pi)), "w")
-        return _metric("NPPE", diff, total_variance(Pi), "pi")
-    return _metric("NPPE", diff, total_variance(U), "u")
+            return _metric("NPPE", diff, total_variance(_apply(N_true, Pi)), "w", groups)
+        return _metric("NPPE", diff, total_variance(Pi), "pi", groups)
+    return _metric("NPPE", diff, total_variance(U), "u", groups)
 
 
 def npoe(
@@ -82,6 +98,7 @@ def npoe(
     W: np.ndarray | None = None,
     V_est: np.ndarray | None = None,
     of: str = "u",
+    groups: np.ndarray | None = None,
 ) -> Metric:
     """Normalised projected observation error: mean ‖z − Ñ z‖² / Σ var(U), z = u − ṽ.
 
@@ -97,46 +114,50 @@ def npoe(
     diff = projection_residual(N_est, Z)
     if convention == "original":
         if W is not None:
-            return _metric("NPOE", diff, total_variance(W), "w")
+            return _metric("NPOE", diff, total_variance(W), "w", groups)
         if Pi is not None:
-            return _metric("NPOE", diff, total_variance(Pi), "pi")
-        return _metric("NPOE", diff, total_variance(U), f"{of} (no true pi/w for the original normaliser)")
-    return _metric("NPOE", diff, total_variance(U), of)
+            return _metric("NPOE", diff, total_variance(Pi), "pi", groups)
+        return _metric("NPOE", diff, total_variance(U), f"{of} (no true pi/w for the original normaliser)",
+                       groups)
+    return _metric("NPOE", diff, total_variance(U), of, groups)
 
 
-def npe(U: np.ndarray, W_est: np.ndarray, convention: str = "ccl") -> Metric:
+def npe(U: np.ndarray, W_est: np.ndarray, convention: str = "ccl", groups: np.ndarray | None = None
+        ) -> Metric:
     """Null-space projection error: mean ‖P̃ u − w̃‖² / Σ var(U), P̃ = w̃w̃ᵀ/‖w̃‖².
 
     ddof = 1 (``convention="ccl"``) or 0 (``"original"``).
     """
     _convention(convention)
     ddof = 0 if convention == "original" else 1
-    return _metric("NPE", self_projection_residual(W_est, U), total_variance(U, ddof=ddof), "u")
+    return _metric("NPE", self_projection_residual(W_est, U), total_variance(U, ddof=ddof), "u", groups)
 
 
-def nupe(Pi: np.ndarray, Pi_est: np.ndarray, name: str = "NUPE", of: str = "pi") -> Metric:
+def nupe(Pi: np.ndarray, Pi_est: np.ndarray, name: str = "NUPE", of: str = "pi",
+         groups: np.ndarray | None = None) -> Metric:
     """Normalised unconstrained policy error: mean ‖π − π̃‖² / Σ var(π).
 
     The same normalised error serves other targets (``name="NUPE_w", of="w"`` for the
     null-space component, ``"NUPE_v"`` for the task part, ``"NUPE_dpl"`` for the baseline).
     """
-    return _metric(name, Pi - Pi_est, total_variance(Pi), of)
+    return _metric(name, Pi - Pi_est, total_variance(Pi), of, groups)
 
 
-def ncpe(N_true: np.ndarray, Pi: np.ndarray, Pi_est: np.ndarray) -> Metric:
+def ncpe(N_true: np.ndarray, Pi: np.ndarray, Pi_est: np.ndarray, groups: np.ndarray | None = None
+         ) -> Metric:
     """Normalised constrained policy error: mean ‖N π − N π̃‖² / Σ var(N π)."""
     w = _apply(N_true, Pi)
-    return _metric("NCPE", w - _apply(N_true, Pi_est), total_variance(w), "N pi")
+    return _metric("NCPE", w - _apply(N_true, Pi_est), total_variance(w), "N pi", groups)
 
 
 def ncpe_observed(N_est: np.ndarray, U: np.ndarray, Pi_est: np.ndarray, V_est: np.ndarray | None = None,
-                  of: str = "u") -> Metric:
+                  of: str = "u", groups: np.ndarray | None = None) -> Metric:
     """NCPE with what is observable: mean ‖z − Ñ π̃‖² / Σ var(z), z = u − ṽ, with the learnt
     Ñ and the observations z (minus a learnt task part ``V_est``) in place of the true N
     and Nπ (reported as ``NCPE_obs``). U, Pi_est, V_est: (N, q)."""
     Z = U if V_est is None else U - V_est
     label = of if V_est is None else f"{of} - learnt v"
-    return _metric("NCPE_obs", Z - _apply(N_est, Pi_est), total_variance(Z), label)
+    return _metric("NCPE_obs", Z - _apply(N_est, Pi_est), total_variance(Z), label, groups)
 
 
 def nmse(Y: np.ndarray, Y_est: np.ndarray, ddof: int = 1) -> np.ndarray:

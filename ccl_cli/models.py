@@ -90,6 +90,9 @@ def _params(model: Any) -> dict[str, Any]:
                               "use a built-in (an arm name, or regressors identity/rbf/polynomial)")
         if hasattr(value, "state"):  # a basis object given directly: saved from the fitted basis
             value = None
+        if isinstance(value, dict) and "robot" in value:  # saved as the chain itself (URDF text)
+            fitted = getattr(model, f"{name}_", None)
+            value = fitted.spec() if fitted is not None else value
         params[name] = value
     return params
 
@@ -325,28 +328,50 @@ def _check_n_features(model: Any, where: str) -> None:
 
 
 def _check_features(model: Any, where: str) -> None:
+    """A lambda model's features: a built-in arm, or a robot stored as URDF text; its task and
+    action dimensions and its basis must fit them."""
     from ccl_cli.learn.constraint.lambda_ import make_features
     from ccl_cli.learn.kinematics import ARMS
 
     spec = model.features
     spec = {"arm": spec} if isinstance(spec, str) else spec
-    if not isinstance(spec, dict) or set(spec) - {"arm", "rows", "kind"} or spec.get("arm") not in ARMS:
-        raise InputError(f"{where}: features must name a built-in arm ({', '.join(ARMS)}), "
-                         f"got {spec!r}"[:200])
-    arm = ARMS[spec["arm"]]()
-    n_rows = arm.jacobian(np.zeros((1, arm.n_joints))).shape[1]
-    rows = spec.get("rows")
+    if isinstance(spec, dict) and spec.get("kind") == "robot":
+        features = _robot(spec, where, "features")
+        n_joints, n_rows, name = features.n_joints, 6, "the stored robot"
+        rows = spec.get("rows")
+    else:
+        if not isinstance(spec, dict) or set(spec) - {"arm", "rows", "kind"} or spec.get("arm") not in ARMS:
+            raise InputError(f"{where}: features must name a built-in arm ({', '.join(ARMS)}) or hold a "
+                             f"robot, got {spec!r}"[:200])
+        arm = ARMS[spec["arm"]]()
+        n_joints, n_rows, name = arm.n_joints, arm.jacobian(np.zeros((1, arm.n_joints))).shape[1], spec["arm"]
+        rows = spec.get("rows")
+        features = None
     if rows is not None and (not isinstance(rows, list) or not rows or any(
             not isinstance(r, int) or isinstance(r, bool) or not 0 <= r < n_rows for r in rows)):
         raise InputError(f"{where}: features.rows must be a list of Jacobian rows in [0, {n_rows}), "
                          f"got {rows!r}"[:200])
-    model.features_ = make_features({"arm": spec["arm"], "rows": rows})
+    model.features_ = features or make_features({"arm": spec["arm"], "rows": rows})
     r = n_rows if rows is None else len(rows)
-    if model.n_task_ != r or model.n_action_ != arm.n_joints:
+    if model.n_task_ != r or model.n_action_ != n_joints:
         raise InputError(f"{where}: n_task_ {model.n_task_} / n_action_ {model.n_action_} do not fit "
-                         f"{spec['arm']} with {r} rows")
-    if not hasattr(model, "basis_") or _n_state(model.basis_) != arm.n_joints:
-        raise InputError(f"{where}: the basis does not fit {spec['arm']} ({arm.n_joints} joints)")
+                         f"{name} with {r} rows")
+    if not hasattr(model, "basis_") or _n_state(model.basis_) != n_joints:
+        raise InputError(f"{where}: the basis does not fit {name} ({n_joints} joints)")
+
+
+def _robot(spec: dict[str, Any], where: str, key: str) -> Any:
+    """The robot features a model stores (``{kind: robot, urdf, frame, rows}``), rebuilt from
+    the URDF text (one InputError naming the file when it does not parse)."""
+    from ccl_cli.errors import CCLError
+    from ccl_cli.learn.robots import robot_features
+
+    if not isinstance(spec.get("urdf"), str):
+        raise InputError(f"{where}: {key} holds a robot without its URDF text")
+    try:
+        return robot_features({k: v for k, v in spec.items() if k in ("urdf", "frame", "base", "rows")})
+    except CCLError as exc:
+        raise InputError(f"{where}: {key}: {exc.message}"[:300]) from None
 
 
 def _n_state(basis: Any) -> int:
@@ -388,12 +413,21 @@ def _check_shapes(model: Any, method: str, where: str) -> None:
         if s > d - 1 or any(w.shape != (d - 1 - k, K) for k, w in enumerate(model.weights_)):
             bad = "weights"
     elif method == "linear":
-        if model.regressors not in ("identity", "polynomial", "rbf") or \
+        robot = isinstance(model.regressors, dict) and model.regressors.get("kind") == "robot"
+        if (not robot and model.regressors not in ("identity", "polynomial", "rbf")) or \
                 model.task_regressors not in ("constant", "polynomial", "rbf"):
-            raise InputError(f"{where}: unknown regressors {model.regressors!r} / {model.task_regressors!r}")
-        widths = _linear_width(model, model.regressors, q)
+            raise InputError(f"{where}: unknown regressors {model.regressors!r} / {model.task_regressors!r}"
+                             [:300])
+        if robot:  # A(q) = W J(q)[rows]: one column of W per Jacobian row
+            model.regressors_ = _robot(model.regressors, where, "regressors")
+            if model.regressors_.n_joints != q:
+                raise InputError(f"{where}: the stored robot has {model.regressors_.n_joints} joints, the "
+                                 f"model {q} actions")
+            widths = [len(model.regressors_.rows or range(6))]
+        else:
+            widths = [w * q for w in _linear_width(model, model.regressors, q)]
         if model.W_ is None or model.W_.ndim != 2 or model.W_.shape[0] != s or \
-                model.W_.shape[1] not in [w * q for w in widths]:
+                model.W_.shape[1] not in widths:
             bad = "W_"
         elif model.task and (model.Wb_ is None or model.Wb_.ndim != 2 or model.Wb_.shape[0] != s or
                              model.Wb_.shape[1] not in _linear_width(model, model.task_regressors, q)):
@@ -441,3 +475,49 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
             raise InputError(f"{where}: kind {kind!r} does not match method {method!r}")
         model = _read(f, method, where)
     return model, {"kind": kind, "method": method, "training": training, "schema_version": version}
+
+
+def is_model_file(path: str | Path) -> bool:
+    """Whether ``path`` is an HDF5 file whose ``format`` attribute says ccl model (a file
+    that is not HDF5 is not). A FIFO, device or folder is refused (InputError), never opened
+    to wait on."""
+    from ccl_cli.io.limits import open_regular
+    from ccl_cli.io.sniff import HDF5_MAGIC
+
+    path = Path(path)
+    with open_regular(path) as f:
+        head = f.read(1024)
+    if HDF5_MAGIC not in head:  # at 0, or behind the 512-byte user block ccl writes
+        return False
+    with open_hdf5(path, "model file") as f:
+        return h5.attr_str(f.attrs, "format", str(path), None) == FORMAT
+
+
+def describe_model(path: str | Path) -> dict[str, Any]:
+    """What a model file holds, for ``ccl inspect``: its method and kind, the number of
+    constraints and why, the basis, the dimensions, and what it was trained on (stage, input
+    files and their sha256, the config, package versions, its train/test figures)."""
+    model, info = load_model(path)
+    inner = next(iter(model.models_.values())) if isinstance(model, PerDemonstration) else model
+    out: dict[str, Any] = {"path": str(path), "format": FORMAT, "schema_version": info["schema_version"],
+                           "method": model.method if info["kind"] == "policy" else info["method"],
+                           "kind": info["kind"],
+                           "n_features_in": getattr(model, "n_features_in_", None),
+                           "n_action": getattr(inner, "n_action_", None)}
+    if isinstance(model, PerDemonstration):
+        out["demonstrations"] = sorted(model.models_)
+    if hasattr(model, "n_constraints_"):
+        out["n_constraints"] = int(model.n_constraints_)
+        selection = getattr(model, "selection_", None) or {}
+        out["selection"] = {k: selection[k] for k in ("rule", "reason") if k in selection}
+    basis = getattr(inner, "basis_", None)
+    if basis is not None:
+        state = basis.state()
+        out["basis"] = {"kind": state["kind"], **({"n_centres": int(len(state["centres"])),
+                                                   "sigma2": float(state["sigma2"])} if state["kind"] == "rbf"
+                                                  else {})}
+    training = info.get("training") or {}
+    out["training"] = {k: training[k] for k in ("stage", "inputs", "metrics", "versions") if k in training}
+    if "config" in training:
+        out["training"]["config"] = training["config"]
+    return out

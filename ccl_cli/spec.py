@@ -96,8 +96,9 @@ def _type_of(form: Any, name: str) -> Any:
         return Annotated[form.type, Field(**bounds)]
     if isinstance(form, Options):
         return Literal[tuple(sorted(form.values))]
-    if isinstance(form, Fields):
-        return _fields_model(name, tuple((k, tuple(v)) for k, v in form.fields.items()))
+    if isinstance(form, Fields):  # named by its first key too: two mappings of one parameter differ
+        return _fields_model(f"{name}_{next(iter(form.fields))}",
+                             tuple((k, tuple(v)) for k, v in form.fields.items()))
     if form in (bool, str):
         return form
     if form is dict:
@@ -251,7 +252,10 @@ class Metrics(Section):
 
 
 class Output(Section):
+    """``plots``: draw the figures; ``format``: png, or svg / pdf (vector, for a paper)."""
+
     plots: bool = True
+    format: Literal["png", "svg", "pdf"] = "png"
 
 
 class StageItem(Section):

@@ -131,7 +131,7 @@ jobs:
 overrides:
   "{recordings}/rec_01.h5": {{learn-a: {{n_constraints: 1, selection: eigengap}}}}
 """)
-    code, summary, err = batch(capsys, manifest, "-j", 2)
+    code, summary, err = batch(capsys, manifest, "-j", 2, "--allow-outside")  # the recordings: elsewhere
     assert code == 0, err
     assert summary["ok"] == 4  # three single-file jobs and one group of two
     rows = {r["job_id"]: r for r in summary_results(tmp_path / "out")}
@@ -245,3 +245,69 @@ def test_manifest_fields_are_typed(capsys, tmp_path, text, match):
     manifest.write_text(text)
     code, _, err = batch(capsys, manifest, "-o", tmp_path / "o")
     assert code == 2 and re.search(match, err) and err.count("\n") == 1, err
+
+
+def test_batch_never_writes_into_a_users_folder(capsys, recordings, tmp_path):
+    """-o on a folder with the user's files (even ones named like the summaries): exit 2,
+    every file as it was; an empty folder, or one ccl made, is written into."""
+    user = tmp_path / "user"
+    user.mkdir()
+    mine = {name: f"my {name}\n".encode() for name in ("summary.md", "summary.csv", "summary.json",
+                                                       "summary.png", "notes.txt")}
+    for name, raw in mine.items():
+        (user / name).write_bytes(raw)
+    one = ["--files", recordings / "rec_00.h5", "-c", recordings / "pipeline.yaml", "-j", 1]
+    code, _, err = batch(capsys, *one, "-o", user)
+    assert code == 2 and "holds files ccl did not write" in err and err.count("\n") == 1, err
+    assert {p.name: p.read_bytes() for p in user.iterdir()} == mine
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    code, summary, err = batch(capsys, *one, "-o", empty)
+    assert code == 0 and summary["ok"] == 1 and (empty / ".ccl-output").is_file(), err
+    code, summary, err = batch(capsys, *one, "-o", empty)  # ccl's own folder: resumed
+    assert code == 0 and summary["skipped"] == 1, err
+
+
+@pytest.mark.parametrize("edit", ["dotdot", "symlink", "out", "config"])
+def test_manifest_paths_stay_in_its_folder(capsys, recordings, tmp_path, edit):
+    """Paths a manifest names lead inside its folder (.., symlinks resolved), unless
+    --allow-outside: nothing is written outside."""
+    here = tmp_path / "project"
+    here.mkdir()
+    shutil.copy(recordings / "pipeline.yaml", here / "pipeline.yaml")
+    shutil.copy(recordings / "rec_00.h5", here / "rec_00.h5")
+    files, config, out = "[rec_00.h5]", "pipeline.yaml", "out"
+    if edit == "dotdot":
+        files = f"[{os.path.relpath(recordings / 'rec_00.h5', here)}]"
+    elif edit == "symlink":
+        (here / "data").symlink_to(recordings)
+        files = "[data/rec_0*.h5]"
+    elif edit == "out":
+        out = "../escaped"
+    else:
+        config = os.path.relpath(recordings / "pipeline.yaml", here)
+    manifest = here / "m.yaml"
+    manifest.write_text(f"out: {out}\njobs:\n  - files: {files}\n    config: {config}\n")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, _, err = batch(capsys, manifest, "-j", 1)
+    assert code == 2 and "outside" in err and "--allow-outside allows it" in err and err.count("\n") == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before and not (here / "out").exists()
+    code, summary, err = batch(capsys, manifest, "-j", 1, "--allow-outside")
+    assert code == 0 and summary["ok"] >= 1, err
+
+
+def test_batch_folder_of_an_earlier_version_is_resumed(capsys, recordings, tmp_path):
+    """A batch folder written before the .ccl-output marker (jobs/ and summaries only, each
+    job folder ccl's) is still ccl's: resumed, not refused."""
+    out = tmp_path / "old"
+    one = ["--files", recordings / "rec_00.h5", "-c", recordings / "pipeline.yaml", "-j", 1, "-o", out]
+    code, summary, err = batch(capsys, *one)
+    assert code == 0 and summary["ok"] == 1, err
+    (out / ".ccl-output").unlink()  # as an earlier version left it
+    code, summary, err = batch(capsys, *one)
+    assert code == 0 and summary["skipped"] == 1, err
+    (out / ".ccl-output").unlink()
+    (out / "notes.txt").write_text("mine\n")  # anything else: not a batch folder
+    code, _, err = batch(capsys, *one)
+    assert code == 2 and "holds files ccl did not write" in err
+    assert (out / "notes.txt").read_text() == "mine\n"

@@ -223,7 +223,8 @@ def test_the_budget_counts_fits_and_binds_the_same_way_on_any_clock(monkeypatch)
     rushed = fits()
     assert calm[0].tuning_ == rushed[0].tuning_ and calm[1].tuning_ == rushed[1].tuning_
     assert calm[0].tuning_["budget_used"] == 6 and len(calm[0].tuning_["scores"]) == 2
-    assert calm[0].tuning_["skipped"] == len(calm[0]._tune_grid(TOY.X, TOY.U)["basis"]) - 2
+    grid = calm[0]._tune_grid(TOY.X, TOY.U)  # bases × cut-offs
+    assert calm[0].tuning_["skipped"] == int(np.prod([len(v) for v in grid.values()])) - 2
     np.testing.assert_array_equal(calm[0].W_, rushed[0].W_)
     for a, b in zip(calm[1].weights_, rushed[1].weights_, strict=True):
         np.testing.assert_array_equal(a, b)

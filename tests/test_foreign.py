@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import scipy.io
 import yaml
+from writers import write_mat73
 
 from ccl_cli.cli import main
 from ccl_cli.errors import InputError
@@ -35,54 +36,6 @@ def write_robomimic(path: Path, demos: list[dict[str, np.ndarray]], names: list[
                 pos.attrs["names"] = names
             g.create_dataset("obs/joint_vel", data=d["u"])
             g.create_dataset("t", data=d["t"])
-    return path
-
-
-MATLAB_HEADER = (b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Nov 30 12:00:00 2026 "
-                 b"HDF5 schema 1.00 .")
-
-
-def write_mat73(path: Path, variables: dict) -> Path:
-    """MATLAB's v7.3 layout written with h5py. Values are in MATLAB's orientation:
-    arrays (stored transposed), lists (cell arrays of arrays), dicts (structs)."""
-
-    def put(parent, refs, name, value):
-        if isinstance(value, list) and isinstance(value[0], dict):  # struct array: a field = references
-            g = parent.create_group(name)
-            g.attrs["MATLAB_class"] = np.bytes_("struct")
-            for key in value[0]:
-                rs = []
-                for k, elem in enumerate(value):
-                    ds = refs.create_dataset(f"{name}_{key}_{k}", data=np.asarray(elem[key], dtype=float).T)
-                    ds.attrs["MATLAB_class"] = np.bytes_("double")
-                    rs.append(ds.ref)
-                g.create_dataset(key, data=np.array(rs, dtype=h5py.ref_dtype).reshape(len(rs), 1))
-        elif isinstance(value, list):
-            rs = []
-            for k, item in enumerate(value):
-                ds = refs.create_dataset(f"{name}_{k}_{len(refs)}", data=np.asarray(item).T)
-                ds.attrs["MATLAB_class"] = np.bytes_("double")
-                rs.append(ds.ref)
-            ds = parent.create_dataset(name, data=np.array(rs, dtype=h5py.ref_dtype).reshape(len(rs), 1))
-            ds.attrs["MATLAB_class"] = np.bytes_("cell")
-        elif isinstance(value, dict):
-            g = parent.create_group(name)
-            g.attrs["MATLAB_class"] = np.bytes_("struct")
-            for key, v in value.items():
-                put(g, refs, key, v)
-        elif isinstance(value, str):
-            ds = parent.create_dataset(name, data=np.frombuffer(value.encode("utf-16-le"), np.uint16)[None].T)
-            ds.attrs["MATLAB_class"] = np.bytes_("char")
-        else:
-            ds = parent.create_dataset(name, data=np.asarray(value, dtype=float).T)
-            ds.attrs["MATLAB_class"] = np.bytes_("double")
-
-    with h5py.File(path, "w", userblock_size=512) as f:
-        refs = f.create_group("#refs#")
-        for name, value in variables.items():
-            put(f, refs, name, value)
-    with open(path, "r+b") as fh:  # MATLAB's header: 116 bytes text, subsys offset, version, endian
-        fh.write(MATLAB_HEADER.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02" + b"IM")
     return path
 
 

@@ -35,6 +35,17 @@ def test_mutation_loop_small_budget():
     assert result["total"]["error"] > 0 and result["total"]["ok"] > 0
 
 
+def test_hostile_mix_small_budget():
+    """The mutations of issue 20 (declared-size bombs, FIFOs and other special files,
+    sparse .mat, long CSV lines, JSON messages missing keys, damaged attribute tables,
+    paths outside their folder): only our error classes, no crash, nothing slow."""
+    result = fuzz.fuzz(cases=60, seed=1, timeout=20.0, mix="hostile")
+    bad = {k: result["total"][k] for k in ("internal", "crash", "timeout")}
+    assert bad == {"internal": 0, "crash": 0, "timeout": 0}, result["internal_groups"]
+    assert result["over_500MB"] == 0, result["peak_rss_mb"]
+    assert result["total"]["error"] > result["total"]["ok"] > 0
+
+
 @pytest.fixture(scope="module")
 def csv_text(tmp_path_factory) -> str:
     path = writers.write_csv(tmp_path_factory.mktemp("csv") / "rec.csv", writers.joint_recording(n=12))

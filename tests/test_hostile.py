@@ -377,7 +377,8 @@ def test_reader_boundaries(capsys, tmp_path, csv_rec, case, match):
     assert not (tmp_path / "o.h5").exists()
 
 
-@pytest.mark.parametrize("edit", ["count_text", "topics_int", "duration_list", "storage_map", "deep"])
+@pytest.mark.parametrize("edit", ["count_text", "topics_int", "duration_list", "storage_map", "deep",
+                                  "paths_nested", "paths_none", "files_text"])
 def test_ros2_metadata_with_odd_types(capsys, tmp_path, edit):
     import sys
 
@@ -399,6 +400,12 @@ def test_ros2_metadata_with_odd_types(capsys, tmp_path, edit):
         info["duration"] = [1, 2]
     elif edit == "storage_map":
         info["storage_identifier"] = {"a": 1}
+    elif edit == "paths_nested":
+        info["relative_file_paths"] = [["x"]]
+    elif edit == "paths_none":
+        info["relative_file_paths"] = [None]
+    elif edit == "files_text":
+        info["files"] = "x"
     meta_path.write_text(yaml.safe_dump(meta) if edit != "deep" else "a: " + "[" * 30000 + "]" * 30000)
     (tmp_path / "c.yaml").write_text("data:\n  state: {topic: /joint_states, field: position}\n")
     for command in (["inspect", bag], ["convert", bag, "-o", tmp_path / "o.h5"]):
@@ -408,6 +415,8 @@ def test_ros2_metadata_with_odd_types(capsys, tmp_path, edit):
             one_line_error(err)
         if edit == "deep":  # refused by ccl's bounded YAML parser before rosbags sees it
             assert code == 2 and "nested deeper than 64 levels" in err
+        if edit.startswith(("paths", "files")):  # the storage file names, checked before rosbags opens
+            assert code == 2 and ("storage file name must be" in err or "must be lists" in err), err
 
 
 # -- never lose data ---------------------------------------------------------------------------
@@ -487,16 +496,11 @@ def test_disk_full_is_one_line_and_leaves_nothing(fixtures, tmp_path):
 def test_read_only_output_folder_is_one_line(fixtures, tmp_path):
     """Run as a user that permissions bind: as root (how CI runs), ccl runs without the
     capabilities that let root write anywhere (setpriv drops CAP_DAC_OVERRIDE)."""
-    import shutil
     import subprocess
 
     from tests_paths import CCL
 
-    prefix: list[str] = []
-    if os.geteuid() == 0:
-        setpriv = shutil.which("setpriv")
-        assert setpriv, "setpriv (util-linux) is needed to run this test as root"
-        prefix = [setpriv, "--bounding-set=-dac_override,-dac_read_search", "--inh-caps=-all", "--"]
+    prefix = unprivileged()
     ro = tmp_path / "ro"
     ro.mkdir()
     ro.chmod(0o555)
@@ -507,6 +511,67 @@ def test_read_only_output_folder_is_one_line(fixtures, tmp_path):
         ro.chmod(0o755)
     assert proc.returncode == 2 and "cannot write the output" in one_line_error(proc.stderr), proc.stderr
     assert list(ro.iterdir()) == []
+
+
+def unprivileged() -> list[str]:
+    """A prefix that runs a command as a user that permissions bind: as root (how CI runs),
+    without the capabilities that let root write anywhere (setpriv drops CAP_DAC_OVERRIDE)."""
+    import shutil
+
+    if os.geteuid() != 0:
+        return []
+    setpriv = shutil.which("setpriv")
+    assert setpriv, "setpriv (util-linux) is needed to run this test as root"
+    return [setpriv, "--bounding-set=-dac_override,-dac_read_search", "--inh-caps=-all", "--"]
+
+
+def test_batch_under_a_read_only_parent_is_one_line(fixtures, tmp_path):
+    import subprocess
+
+    from tests_paths import CCL
+
+    cfg = tmp_path / "pipeline.yaml"
+    cfg.write_text("learn-a: {method: nhat}\nstages: [learn-a]\noutput: {plots: false}\n")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        proc = subprocess.run([*unprivileged(), CCL, "batch", "--files", str(fixtures["data"]), "-c",
+                               str(cfg), "-o", str(ro / "out"), "-q", "-j", "1"], capture_output=True,
+                              text=True, timeout=300)
+    finally:
+        ro.chmod(0o755)
+    line = one_line_error(proc.stderr)
+    assert proc.returncode == 2 and "cannot write the output (Permission denied)" in line, proc.stderr
+    assert list(ro.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", ["learn-a", "learn-v", "batch"])
+def test_file_size_limit_is_one_line_and_leaves_nothing(fixtures, tmp_path, command):
+    """``ulimit -f 8``: every write past 8 kB fails (SIGXFSZ ignored: EFBIG), in ccl and in
+    its batch workers; exit 2, one line, no temporary left."""
+    import resource
+    import subprocess
+
+    from tests_paths import CCL
+
+    cfg = tmp_path / "pipeline.yaml"
+    cfg.write_text("learn-a: {method: nhat}\nstages: [learn-a]\noutput: {plots: false}\n")
+    work = tmp_path / "work"
+    work.mkdir()
+    argv = {"learn-a": ["learn-a", str(fixtures["data"]), "-o", "out"],
+            "learn-v": ["learn-v", str(fixtures["data"]), "-o", "out", "--n-centres", "4"],
+            "batch": ["batch", "--files", str(fixtures["data"]), "-c", str(cfg), "-o", "out", "-j", "1"],
+            }[command]
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (8192, 8192))
+
+    proc = subprocess.run([CCL, *argv, "-q"], capture_output=True, text=True, preexec_fn=limit, timeout=300,
+                          cwd=work)
+    assert proc.returncode == 2, proc.stderr
+    assert "cannot write the output (File too large); nothing was written" in one_line_error(proc.stderr)
+    assert list(work.iterdir()) == []
 
 
 # -- faults ------------------------------------------------------------------------------------

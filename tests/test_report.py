@@ -155,7 +155,7 @@ def test_original_convention_changes_the_normalisers_it_should(tmp_path):
 
 
 def test_original_convention_state_independent_and_npe(tmp_path):
-    from ccl_cli.app.evaluate import constraint_metrics, nullspace_metrics
+    from ccl_cli.app.scoring import constraint_metrics, nullspace_metrics
     from ccl_cli.dataset import Demonstrations
     from ccl_cli.learn.constraint import StateIndependentConstraint
 

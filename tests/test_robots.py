@@ -482,3 +482,37 @@ def test_mjcf_without_mujoco_names_the_extra(tmp_path, monkeypatch):
         load_robot(str(path), frame="tool")
     with pytest.raises(ConfigError, match="give frame"):
         load_robot(str(path))
+
+
+def test_features_robot_through_the_command_line_and_a_saved_model(capsys, tmp_path):
+    """``features: {robot: arm.urdf, rows: [...]}`` in a config: lambda learns the same N(q) as
+    ``features: arm7`` (max |ΔN| < 1e-9), the model file holds the chain itself (it loads and
+    predicts with the URDF file gone), and linear takes the robot's Jacobian rows as regressors."""
+    from ccl_cli.cli import main
+    from ccl_cli.io import write_demonstrations
+    from ccl_cli.models import load_model
+    from ccl_cli.simulate.reference import arm7
+
+    arm = SevenDofArm()
+    urdf = tmp_path / "arm7.urdf"
+    urdf.write_text(dh_urdf(np.c_[arm.a, arm.d, arm.alpha, np.zeros(7)]))
+    data = arm7(rows=(0, 1, 2), constraint="jacobian", n_demos=10, n_steps=20, seed=2)
+    path = write_demonstrations(tmp_path / "arm.h5", data)
+    models = {}
+    specs = (("urdf", f"{{robot: {urdf}, rows: [0, 1, 2]}}"), ("arm", "{arm: arm7, rows: [0, 1, 2]}"))
+    for name, features in specs:
+        cfg = tmp_path / f"{name}.yaml"
+        cfg.write_text(f"learn-a: {{method: lambda, n_centres: 1, tune: false, features: {features}}}\n")
+        assert main(["learn-a", str(path), "-c", str(cfg), "-o", str(tmp_path / name), "-q"]) == 0
+        models[name] = tmp_path / name / "model.h5"
+    urdf.unlink()  # the saved model holds the chain as URDF text
+    robot, _ = load_model(models["urdf"])
+    builtin, _ = load_model(models["arm"])
+    assert np.abs(robot.projection(data.X) - builtin.projection(data.X)).max() < 1e-9
+    assert robot.features["kind"] == "robot" and "<robot" in robot.features["urdf"]
+    urdf.write_text(dh_urdf(np.c_[arm.a, arm.d, arm.alpha, np.zeros(7)]))
+    cfg = tmp_path / "linear.yaml"
+    cfg.write_text(f"learn-a: {{method: linear, regressors: {{robot: {urdf}, rows: [0, 1, 2]}}}}\n")
+    assert main(["learn-a", str(path), "-c", str(cfg), "-o", str(tmp_path / "lin"), "-q"]) == 0
+    linear, _ = load_model(tmp_path / "lin" / "model.h5")
+    assert linear.W_.shape[1] == 3 and np.isfinite(linear.projection(data.X)).all()

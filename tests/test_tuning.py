@@ -135,23 +135,30 @@ def test_lambda_tuning_on_the_7dof_arm_picks_from_its_grid():
     np.testing.assert_allclose(N, np.swapaxes(N, 1, 2), atol=1e-10)
 
 
-def test_alpha_grid_the_wide_candidate_wins_back_the_parabola():
-    """Parabola seed 4: with {25, 9} centres held-out NPOE chose 9 (test NPPE 0.14); the
-    third candidate, 25 centres twice as wide, wins the CV and gives 0.025 (untuned 0.039)."""
+def test_alpha_grid_runs_from_the_smallest_basis_up_and_finds_the_finer_one():
+    """Parabola, 2000 states uniform in the box (one recording, so time-block folds): the grid
+    {25, 9, 36 centres at ¼ of the default width} runs from 9 centres up; held-out NPOE falls at
+    each step and 36 narrow centres win, with half the test NPPE of the untuned 25 (measured
+    over 10 draws at N = 1e4: median 0.0019 against 0.0049, and the worst draw 1.08× the median
+    against 1.28×; docs/measurements.md)."""
     from ccl_cli.learn.constraint import StateDependentConstraint
     from ccl_cli.metrics import nppe
 
-    train, test = sim.toy2d(constraint="parabola", seed=4).split(0.3, 4)
-    model = StateDependentConstraint(seed=4, tune={"budget": 60})
+    data = sim.toy2d(constraint="parabola", sampling="uniform", n_samples=7000, n_demos=1, seed=1)
+    train, test = data.subset(np.arange(2000)), data.subset(np.arange(2000, 7000))
+    model = StateDependentConstraint(seed=1)
     grid = model._tune_grid(train.X, train.U)["basis"]
-    assert [(c["n_centres"], "sigma2" in c) for c in grid] == [(25, False), (9, False), (25, True)]
+    assert [(c["n_centres"], "sigma2" in c) for c in grid] == [(25, False), (9, False), (36, True)]
     model.fit(train.X, train.U, groups=train.demo)
-    narrow = StateDependentConstraint(seed=4, tune={"grid": {"basis": grid[:2]}}).fit(
-        train.X, train.U, groups=train.demo)
-    assert model.tuning_["chosen"]["basis"] == grid[2] and narrow.tuning_["chosen"]["basis"] == grid[1]
+    info = model.tuning_
+    run = [r["params"]["basis"]["n_centres"] for r in info["scores"]]
+    means = [r["mean"] for r in info["scores"]]
+    assert run == [9, 25, 36] and means[0] > means[1] > means[2] and info["stopped"] is None
+    assert info["chosen"]["basis"] == grid[2] and model.basis_.n_features == 36
+    untuned = StateDependentConstraint(seed=1, tune=False).fit(train.X, train.U)
     err = [nppe(test.true_projection(), m.projection(test.X), test.truth["pi"], test.U).value
-           for m in (model, narrow)]
-    assert err[0] < 0.04 < 0.1 < err[1], err
+           for m in (model, untuned)]
+    assert err[0] < 0.6 * err[1] and err[0] < 0.004, err
 
 
 def test_alpha_and_lambda_with_too_few_samples_for_any_candidate_fit_as_given():
@@ -193,15 +200,16 @@ def test_ncl_default_grid_beats_the_tutorials_16_centres():
 def test_ncl_defaults_match_the_hand_tuned_100_centres_on_the_two_link_arm():
     """ncl on the 2-link arm with a task part (b ~ U(−1, 1) per demonstration, 30 % of the
     demonstrations held out): the defaults are no worse than the hand-tuned 100 centres, median
-    of 5 seeds (measured: 5.2e-5 vs 5.5e-5; the untuned 16 centres 8.9e-4). The budget is lifted
-    so the test does not depend on the machine's load; grid and folds are the defaults."""
+    of 5 seeds (measured: 5.45e-5 both, 100 centres chosen in 4 of 5 seeds and 36 in the fifth,
+    which is better there; the untuned 16 centres 8.9e-4). Grid and folds are the defaults."""
     from ccl_cli.learn.nullspace import NullSpaceComponent
 
     tuned, hand = [], []
     for seed in range(5):
         train, test = sim.two_link(task=True, seed=seed).split(0.3, seed)
         model = NullSpaceComponent(seed=seed, tune={"budget": 600}).fit(train.X, train.U, groups=train.demo)
-        assert model.tuning_["skipped"] == 0 and len(model.tuning_["scores"]) == 4
+        info = model.tuning_  # the whole grid ran, or the search says why larger bases did not
+        assert len(info["scores"]) >= 3 and (info["skipped"] == 0) != bool(info["stopped"])
         tuned.append(nupe(test.truth["w"], model.predict(test.X)).value)
         model = NullSpaceComponent(n_centres=100, seed=seed, tune=False).fit(train.X, train.U)
         hand.append(nupe(test.truth["w"], model.predict(test.X)).value)
@@ -231,3 +239,19 @@ def test_large_data_is_tuned_on_a_seeded_subset_and_the_winner_fitted_on_all():
     assert model.basis_.n_features == model.tuning_["chosen"]["basis"]["n_centres"]
     full = PolicyLearner(method="pi", tune=False, basis=model.tuning_["chosen"]["basis"]).fit(data.X, data.U)
     np.testing.assert_allclose(model.W_, full.W_)  # the winner is fitted on all samples
+
+
+def test_tuned_alpha_is_robust_over_training_draws():
+    """Issue 19.4: the default alpha's worst of 10 training draws is within 1.5× the median
+    test error (uniform parabola, 2000 samples per draw; measured at N = 1e4 and 1e5: 1.08× and
+    1.07×, against 1.28× and 2.38× for the fixed 25 centres, whose placement decides)."""
+    from ccl_cli.learn.constraint import StateDependentConstraint
+    from ccl_cli.metrics import nppe
+
+    errs = []
+    for seed in range(10):
+        data = sim.toy2d(constraint="parabola", sampling="uniform", n_samples=5000, n_demos=1, seed=seed)
+        train, test = data.subset(np.arange(2000)), data.subset(np.arange(2000, 5000))
+        model = StateDependentConstraint(seed=seed).fit(train.X, train.U, groups=train.demo)
+        errs.append(nppe(test.true_projection(), model.projection(test.X), test.truth["pi"], test.U).value)
+    assert max(errs) <= 1.5 * np.median(errs) and np.median(errs) < 0.004, errs

@@ -8,6 +8,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import h5py
 import numpy as np
 
 JOINTS = [f"joint_{i}" for i in range(1, 8)]
@@ -60,7 +61,7 @@ def _msg(ts, rec: Recording, i: int):
                       velocity=rec.velocity[i, o].copy(), effort=np.zeros(0))
 
 
-def _msg_dict(rec: Recording, i: int) -> dict:
+def msg_dict(rec: Recording, i: int) -> dict:
     o = rec.order[i]
     sec, nsec = divmod(int(rec.t_ns[i]), 1_000_000_000)
     return {"header": {"stamp": {"sec": sec, "nanosec": nsec}, "frame_id": "base"},
@@ -120,7 +121,7 @@ def write_mcap_ros2(path: Path, rec: Recording) -> Path:
         writer = Writer(f)
         schema = writer.register_msgdef(MSG, msgdef)
         for i in range(len(rec.t_ns)):
-            writer.write_message("/joint_states", schema, _msg_dict(rec, i),
+            writer.write_message("/joint_states", schema, msg_dict(rec, i),
                                  log_time=int(rec.log_ns[i]), publish_time=int(rec.log_ns[i]))
         writer.finish()
     return path
@@ -143,7 +144,9 @@ def write_mcap_ros1(path: Path, rec: Recording) -> Path:
     return path
 
 
-def write_mcap_json(path: Path, rec: Recording) -> Path:
+def write_mcap_json(path: Path, rec: Recording, messages: list[dict] | None = None) -> Path:
+    """JSON-encoded JointState messages (``messages``: these dicts instead of ``rec``'s, one
+    per stamp of ``rec``)."""
     from mcap.writer import Writer
 
     with open(path, "wb") as f:
@@ -153,8 +156,8 @@ def write_mcap_json(path: Path, rec: Recording) -> Path:
                                      json.dumps({"type": "object"}).encode())
         cid = writer.register_channel("/joint_states", "json", sid)
         for i in range(len(rec.t_ns)):
-            writer.add_message(cid, int(rec.log_ns[i]), json.dumps(_msg_dict(rec, i)).encode(),
-                               int(rec.log_ns[i]))
+            msg = msg_dict(rec, i) if messages is None else messages[i]
+            writer.add_message(cid, int(rec.log_ns[i]), json.dumps(msg).encode(), int(rec.log_ns[i]))
         writer.finish()
     return path
 
@@ -168,6 +171,54 @@ def write_csv(path: Path, rec: Recording, duplicate_names: bool = True) -> Path:
         w.writerow(header)
         for i in range(len(rec.t_ns)):
             w.writerow([int(rec.t_ns[i]), *map(repr, rec.position[i].tolist())])
+    return path
+
+
+MATLAB_HEADER = (b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Nov 30 12:00:00 2026 "
+                 b"HDF5 schema 1.00 .")
+
+
+def write_mat73(path: Path, variables: dict) -> Path:
+    """MATLAB's v7.3 layout written with h5py. Values are in MATLAB's orientation:
+    arrays (stored transposed), lists (cell arrays of arrays), dicts (structs)."""
+
+    def put(parent, refs, name, value):
+        if isinstance(value, list) and isinstance(value[0], dict):  # struct array: a field = references
+            g = parent.create_group(name)
+            g.attrs["MATLAB_class"] = np.bytes_("struct")
+            for key in value[0]:
+                rs = []
+                for k, elem in enumerate(value):
+                    ds = refs.create_dataset(f"{name}_{key}_{k}", data=np.asarray(elem[key], dtype=float).T)
+                    ds.attrs["MATLAB_class"] = np.bytes_("double")
+                    rs.append(ds.ref)
+                g.create_dataset(key, data=np.array(rs, dtype=h5py.ref_dtype).reshape(len(rs), 1))
+        elif isinstance(value, list):
+            rs = []
+            for k, item in enumerate(value):
+                ds = refs.create_dataset(f"{name}_{k}_{len(refs)}", data=np.asarray(item).T)
+                ds.attrs["MATLAB_class"] = np.bytes_("double")
+                rs.append(ds.ref)
+            ds = parent.create_dataset(name, data=np.array(rs, dtype=h5py.ref_dtype).reshape(len(rs), 1))
+            ds.attrs["MATLAB_class"] = np.bytes_("cell")
+        elif isinstance(value, dict):
+            g = parent.create_group(name)
+            g.attrs["MATLAB_class"] = np.bytes_("struct")
+            for key, v in value.items():
+                put(g, refs, key, v)
+        elif isinstance(value, str):
+            ds = parent.create_dataset(name, data=np.frombuffer(value.encode("utf-16-le"), np.uint16)[None].T)
+            ds.attrs["MATLAB_class"] = np.bytes_("char")
+        else:
+            ds = parent.create_dataset(name, data=np.asarray(value, dtype=float).T)
+            ds.attrs["MATLAB_class"] = np.bytes_("double")
+
+    with h5py.File(path, "w", userblock_size=512) as f:
+        refs = f.create_group("#refs#")
+        for name, value in variables.items():
+            put(f, refs, name, value)
+    with open(path, "r+b") as fh:  # MATLAB's header: 116 bytes text, subsys offset, version, endian
+        fh.write(MATLAB_HEADER.ljust(116, b" ") + b"\x00" * 8 + b"\x00\x02" + b"IM")
     return path
 
 

@@ -33,9 +33,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ccl_cli import __version__
-from ccl_cli import config as C
-from ccl_cli.errors import CCLError, ConfigError
+from ccl_cli import __version__, config
+from ccl_cli.errors import CCLError, ConfigError, OutputError
 
 log = logging.getLogger("ccl")
 #: writes one job's folder: (RunResult, outdir, *, force, plot_workers, extra_files) → summary
@@ -62,17 +61,19 @@ class JobResult:
     error: str = ""
     exit_code: int = 0
     stages: dict[str, Any] = field(default_factory=dict)
+    #: the job's folder could not be written (a full disk, a file-size limit): the batch stops
+    output_fault: bool = False
 
 
 # -- planning ------------------------------------------------------------------------------
-def _resolve_config(path: str | None, overrides: list[dict], base: Path) -> C.Config:
+def _resolve_config(path: str | None, overrides: list[dict], base: Path) -> config.Config:
     """The config file of a rule (relative to the manifest) with the overrides merged in,
     validated (errors name the file and line of a key of the file)."""
-    cfg = C.load(base / path if path and not Path(path).is_absolute() else path)
+    cfg = config.load(base / path if path and not Path(path).is_absolute() else path)
     merged = cfg.raw
     for over in overrides:
-        merged = C.deep_merge(merged, over or {})
-    return C.from_mapping(merged, source=cfg.source, base=cfg.base, lines=cfg.lines)
+        merged = config.deep_merge(merged, over or {})
+    return config.from_mapping(merged, source=cfg.source, base=cfg.base, lines=cfg.lines)
 
 
 def job_key(files: list[str], cfg: dict[str, Any]) -> str:
@@ -94,11 +95,14 @@ def _job_id(files: list[str]) -> str:
 
 
 def plan(manifest: str | Path | None = None, files: list[str] | None = None,
-         config: str | None = None) -> tuple[list[Job], Path | None]:
+         config: str | None = None, allow_outside: bool = False) -> tuple[list[Job], Path | None]:
     """Jobs from a manifest, or from ``files`` (paths/globs) with one ``config``.
 
     Returns (jobs, the manifest's ``out`` if it names one). Manifest or config problems
-    raise :class:`ConfigError` (exit 2) before anything runs.
+    raise :class:`ConfigError` (exit 2) before anything runs. Every path a manifest names
+    (files and globs, configs, per-file overrides, ``out``) must lead inside the manifest's
+    folder once ``..`` and symlinks are resolved, unless ``allow_outside``
+    (:func:`~ccl_cli.io.limits.inside`).
     """
     from ccl_cli.io import expand_files, read_yaml
 
@@ -124,19 +128,25 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
         out = Path(out_value) if out_value else None
         if out is not None and not out.is_absolute():
             out = base / out
+        if out is not None:
+            _inside(base, out, mpath, allow_outside, "out")
         where = f"{mpath}: "
+        named: Path | None = mpath
     else:
         if not files:
             raise ConfigError("give a manifest or --files with --config")
         base = Path.cwd()
         rules = [{"files": files, "config": config}]
-        per_file, out, where = {}, None, ""
-    file_over = [(_resolved(expand_files([k], base)), v) for k, v in per_file.items()]
+        per_file, out, where, named = {}, None, "", None  # paths the user typed: not bounded
+    file_over = [(_resolved(expand_files([k], base), base, named, allow_outside), v)
+                 for k, v in per_file.items()]
     jobs: list[Job] = []
     seen: set[str] = set()
     for i, rule in enumerate(rules):
         _check_rule(rule, f"{where}jobs[{i}]")
-        matched = _resolved(expand_files(rule["files"], base))
+        matched = _resolved(expand_files(rule["files"], base), base, named, allow_outside)
+        if named is not None and rule.get("config"):
+            _inside(base, Path(rule["config"]), named, allow_outside, f"jobs[{i}].config")
         groups = [matched] if rule.get("group") else [[f] for f in matched]
         for group in groups:
             extra = [v for paths, v in file_over if any(p in group for p in paths)]
@@ -158,9 +168,22 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
     return jobs, out
 
 
-def _resolved(paths: list[Path]) -> list[str]:
-    """Absolute, symlink-free paths: a job is the same however its files were spelled."""
+def _resolved(paths: list[Path], base: Path, manifest: Path | None, allow_outside: bool) -> list[str]:
+    """Absolute, symlink-free paths: a job is the same however its files were spelled. Those
+    a ``manifest`` names stay inside its folder ``base`` (unless ``allow_outside``)."""
+    if manifest is not None:
+        return [str(_inside(base, p, manifest, allow_outside, "files")) for p in paths]
     return [str(p.resolve()) for p in paths]
+
+
+def _inside(base: Path, path: Path, manifest: Path, allow_outside: bool, key: str) -> Path:
+    """``path`` (named by ``manifest`` under ``key``) resolved, inside ``base`` unless allowed."""
+    from ccl_cli.io.limits import inside
+
+    try:
+        return inside(base, path, f"{manifest} ({key})", allow_outside, flag="--allow-outside")
+    except CCLError as exc:
+        raise ConfigError(exc.message) from None
 
 
 def _check_rule(rule: Any, where: str) -> None:
@@ -190,6 +213,7 @@ def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
     command line passes :func:`ccl_cli.render.outputs.write_run`: a module-level function,
     so it pickles to the workers)."""
     logging.getLogger("ccl").setLevel(logging.WARNING)
+    _ignore_file_size_signal()
     t0 = time.perf_counter()
     outdir = Path(jobs_dir) / job.job_id
     try:
@@ -204,12 +228,15 @@ def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
                     return JobResult(job.job_id, job.files, "skipped", 0.0, stages=summarise(stages))
             except (json.JSONDecodeError, OSError):
                 pass
-        cfg = C.from_mapping(job.config, source=job.config_path or "<batch>")
+        cfg = config.from_mapping(job.config, source=job.config_path or "<batch>")
         from ccl_cli.app.run import execute
 
         summary = write(execute("run", cfg, job.files), outdir, force=True, plot_workers=1,
                         extra_files={"job.json": {"key": key, "files": job.files, "config": job.config_path}})
         return JobResult(job.job_id, job.files, "ok", time.perf_counter() - t0, stages=summary["stages"])
+    except OutputError as exc:
+        return JobResult(job.job_id, job.files, "failed", time.perf_counter() - t0, exc.message,
+                         exc.exit_code, output_fault=True)
     except CCLError as exc:
         return JobResult(job.job_id, job.files, "failed", time.perf_counter() - t0, exc.message,
                          exc.exit_code)
@@ -217,6 +244,35 @@ def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
         first = str(exc).splitlines()[0] if str(exc) else ""
         return JobResult(job.job_id, job.files, "failed", time.perf_counter() - t0,
                          f"internal error: {type(exc).__name__}: {first}", 1)
+
+
+#: what a batch folder of a ccl version before the .ccl-output marker holds
+BATCH_FILES = {"jobs", "summary.csv", "summary.md", "summary.json", "summary.png"}
+
+
+def written_by_earlier_batch(path: Path) -> bool:
+    """True for a batch folder of an earlier ccl (no marker): nothing but ``jobs/`` and the
+    summaries, every job folder one ccl wrote (:func:`~ccl_cli.io.atomic.written_by_ccl`)."""
+    from ccl_cli.io.atomic import is_temporary, written_by_ccl
+
+    try:
+        names = {p.name for p in path.iterdir()}
+        jobs = [p for p in (path / "jobs").iterdir() if not is_temporary(p.name)] if "jobs" in names else []
+    except OSError:
+        return False
+    return "jobs" in names and names <= BATCH_FILES and bool(jobs) and \
+        all(p.is_dir() and not p.is_symlink() and written_by_ccl(p) for p in jobs)
+
+
+def _ignore_file_size_signal() -> None:
+    """A file-size limit (``ulimit -f``) is a write error (EFBIG) in a worker too, not a kill
+    (``ccl`` itself ignores SIGXFSZ, and local workers inherit that; a Dask worker's job runs
+    in a thread, where signals cannot be set)."""
+    import signal
+    import threading
+
+    if hasattr(signal, "SIGXFSZ") and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 
 
 def make_executor(workers: int | None, scheduler: str | None,
@@ -302,11 +358,22 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
               scheduler: str | None = None, force: bool = False, progress=None) -> list[JobResult]:
     """Run ``jobs`` into ``out/jobs/`` over ``workers`` local processes (or the Dask cluster at
     ``scheduler``), each job's folder written by ``write`` (see :func:`run_job`); results in
-    the jobs' order. ``progress(result)`` is called as each job ends."""
-    jobs_dir = out / "jobs"
-    jobs_dir.mkdir(parents=True, exist_ok=True)
-    from ccl_cli.io.atomic import clean_stale
+    the jobs' order. ``progress(result)`` is called as each job ends.
 
+    ``out`` must be new, empty, or a batch folder ccl made (:func:`~ccl_cli.io.atomic.claim_folder`):
+    a user's folder is refused untouched. A job whose folder cannot be written (a full disk,
+    a file-size limit) stops the batch: :class:`OutputError`, and what this run left empty
+    is removed (:func:`~ccl_cli.io.atomic.release_folder`)."""
+    from ccl_cli.io.atomic import claim_folder, clean_stale, release_folder
+
+    claim_folder(out, earlier=written_by_earlier_batch)
+    jobs_dir = out / "jobs"
+    try:
+        jobs_dir.mkdir(exist_ok=True)
+    except OSError as exc:
+        release_folder(out)
+        raise OutputError(f"{jobs_dir}: cannot write the output ({exc.strerror}); nothing was written") \
+            from None
     removed = clean_stale(jobs_dir, every=True)
     if removed:
         log.info("removed %d unfinished job folder(s) of an interrupted batch", removed)
@@ -323,9 +390,13 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
             results.append(res)
             if progress is not None:
                 progress(res)
-    except BaseException:  # Ctrl-C or a failure here: do not wait for the running jobs
+            if res.output_fault:  # the disk is full or a size limit hit: every job would fail
+                raise OutputError(res.error)
+    except BaseException as exc:  # Ctrl-C or a failure here: do not wait for the running jobs
         executor.shutdown(wait=False, cancel_futures=True)
-        _kill_workers(executor)
+        _kill_workers()
+        clean_stale(jobs_dir, every=True)
+        release_folder(out, fault=isinstance(exc, OutputError))
         raise
     else:
         executor.shutdown(wait=True)
@@ -337,10 +408,11 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
     return sorted(results, key=lambda r: order[r.job_id])
 
 
-def _kill_workers(executor: Executor) -> None:
-    """SIGKILL the pool's worker processes (their partial job folders are temporaries)."""
-    import signal
+def _kill_workers() -> None:
+    """SIGKILL the local pool's worker processes (their partial job folders are temporaries):
+    every live child process of ccl is one of them (``multiprocessing.active_children``)."""
+    import multiprocessing
 
-    for proc in list((getattr(executor, "_processes", None) or {}).values()):
+    for proc in multiprocessing.active_children():
         with contextlib.suppress(OSError):
-            os.kill(proc.pid, signal.SIGKILL)
+            proc.kill()

@@ -51,14 +51,20 @@ def derived_actions(meta: dict[str, Any]) -> str | None:
     return "; ".join(seen) or None
 
 
+def named(names: list[str], units: list[str]) -> list[str]:
+    """``name [unit]`` per dimension (``name`` alone where the unit is unknown)."""
+    return [f"{n} [{u}]" if u else n for n, u in zip(names, units, strict=True)]
+
+
 def data_summary(pipeline: Any) -> dict[str, Any]:
     """Sizes of the data and of its train/test parts, the input files, how actions were made."""
     d = pipeline.data
     return {"samples": d.n_samples, "demos": d.n_demos, "p": d.n_state, "q": d.n_action,
+            "states": named(d.state_names, d.state_units), "actions": named(d.action_names, d.action_units),
             "train": pipeline.split.train.n_samples,
             "test": pipeline.split.test.n_samples if pipeline.split.test is not None else 0,
             "files": [f["path"] for f in d.metadata.get("files", [])],
-            "actions": derived_actions(d.metadata)}
+            "derived": derived_actions(d.metadata)}
 
 
 def run_record(command: str, cfg: Any, data: Demonstrations, pipeline: Any, blas_threads: int | None,
@@ -74,6 +80,11 @@ def run_record(command: str, cfg: Any, data: Demonstrations, pipeline: Any, blas
     }
 
 
-def training_record(stage: str, cfg: Any, data: Demonstrations) -> dict[str, Any]:
-    """What a saved model records of its training: stage, config, input hashes, versions."""
-    return {"stage": stage, "config": cfg.raw, "inputs": input_hashes(data), "versions": versions()}
+def training_record(stage: str, cfg: Any, data: Demonstrations, metrics: dict[str, Any] | None = None
+                    ) -> dict[str, Any]:
+    """What a saved model records of its training: stage, config, input hashes, versions and
+    its figures ({train|test: {metric: value}} from metrics.json's stage entry)."""
+    figures = {part: {name: m["value"] for name, m in (metrics or {}).get(part, {}).items()}
+               for part in ("train", "test") if part in (metrics or {})}
+    return {"stage": stage, "config": cfg.raw, "inputs": input_hashes(data), "versions": versions(),
+            "metrics": figures}

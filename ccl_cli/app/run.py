@@ -24,8 +24,13 @@ from ccl_cli.learn import blas
 def read_data(cfg: Config, files: list[Path] | list[str] | None):
     """The dataset and its train/test masks (canonical HDF5 may carry them): ``files``, else
     the config's ``data.files`` (relative to the config's folder)."""
+    from ccl_cli.errors import InputError
     from ccl_cli.io import read_dataset
 
+    for f in files or []:
+        if Path(f).suffix.lower() in (".yaml", ".yml") and Path(f).name != "metadata.yaml":
+            raise InputError(f"{f}: a YAML file is a config, not a recording: pass it with -c/--config "
+                             "(or to ccl run), and the recordings as the data")
     return read_dataset(cfg.spec.data, files, cfg.base)
 
 
@@ -69,12 +74,29 @@ def execute(command: str, cfg: Config, files, stages: list[tuple[str, Any]] | No
         shown = pipeline.views() if (views if views is not None else cfg.spec.output.plots) else []
     metrics = stage_metrics(pipeline.results)
     seconds = time.perf_counter() - t0
-    summary = {"status": "ok", "command": command, "seconds": seconds, "validation": pipeline.split_info,
+    summary = {"status": overall_status(pipeline.results), "verdict": verdict(pipeline.results),
+               "command": command, "seconds": seconds, "validation": pipeline.split_info,
                "stages": summarise(metrics), "warnings": pipeline.warnings}
     record = provenance.run_record(command, cfg, data, pipeline, blas_threads,
                                    {"read": t_read} | {r.name: r.seconds for r in pipeline.results}
                                    | {"total": seconds})
     return RunResult(command, cfg, data, pipeline, metrics, summary, record, shown)
+
+
+def overall_status(results) -> str:
+    """The run's status: the worst of its stages' (ok < poor < failed)."""
+    order = {"ok": 0, "poor": 1, "failed": 2}
+    return max((r.status for r in results), key=order.__getitem__, default="ok")
+
+
+def verdict(results) -> str:
+    """One sentence: the run's status and, when a stage is not ok, what is wrong."""
+    poor = [c["message"] for r in results if r.status != "ok" for c in r.checks]
+    if not poor:
+        held = "held-out " if any("test" in r.metrics for r in results) else ""
+        return f"ok: every stage's {held}evidence supports it"
+    more = f" (+{len(poor) - 3} more)" if len(poor) > 3 else ""
+    return f"{overall_status(results)}: " + "; ".join(poor[:3]) + more
 
 
 def stage_metrics(results) -> dict[str, Any]:
@@ -92,7 +114,7 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
     """metrics.json → {stage: {method, n_constraints, train: {name: value}, test: {...},
     baseline: {method, train, test}}} (the baseline only where a stage has one)."""
     def one(e: dict[str, Any]) -> dict[str, Any]:
-        out = {k: v for k, v in e.items() if k in ("method", "n_constraints")}
+        out = {k: v for k, v in e.items() if k in ("method", "n_constraints", "status")}
         out.update({split: {m: v["value"] for m, v in e.get(split, {}).items()}
                     for split in ("train", "test") if split in e})
         if isinstance(e.get("baseline"), dict):
@@ -102,6 +124,17 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
     return {name: one(e) for name, e in metrics.items()}
 
 
-def default_outdir(command: str, cfg: Config) -> Path:
-    stem = Path(cfg.source.split(" + ")[0]).stem if command == "run" and cfg.source != "<flags>" else command
-    return Path("runs") / stem
+def default_outdir(command: str, cfg: Config, files=None) -> Path:
+    """Where a run writes without ``-o``: ``runs/<command>-<stem>`` — the stem of the pipeline
+    YAML for ``ccl run``, else of the first recording — or, when that exists, the first free
+    ``…-2``, ``…-3``: a second run never refuses and never overwrites the first."""
+    entries = [str(f) for f in files] if files else cfg.spec.data.files
+    first = entries if isinstance(entries, str) else (entries[0] if entries else None)
+    source = cfg.source if command == "run" and cfg.source != "<flags>" else first
+    stem = Path(str(source)).stem if source else "data"
+    base = Path("runs") / f"{command}-{stem.replace('*', '').strip('.') or 'data'}"
+    candidate, n = base, 1
+    while candidate.exists() or candidate.is_symlink():
+        n += 1
+        candidate = base.with_name(f"{base.name}-{n}")
+    return candidate

@@ -16,11 +16,11 @@ from typing import Any
 import numpy as np
 
 from ccl_cli import diagnostics
-from ccl_cli.app import evaluate as E
+from ccl_cli.app import scoring
 from ccl_cli.app.views import View, describe_constraint, stage_views
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, LearningError
-from ccl_cli.learn import model_selection as S
+from ccl_cli.learn import model_selection
 from ccl_cli.learn.constraint import PerDemonstration, PerWindow
 from ccl_cli.learn.constraint.base import fit_constraint
 from ccl_cli.learn.nullspace import NullSpaceComponent
@@ -44,6 +44,10 @@ class StageResult:
     score: Callable[[str, Demonstrations, str], dict] | None = None
     #: the figures of this stage (:meth:`Pipeline.views`), drawn by ccl_cli.render.figures
     views: list[View] = field(default_factory=list)
+    #: the verdict: ``ok`` when the held-out evidence is, ``poor`` when a check fired
+    #: (:mod:`ccl_cli.diagnostics`: overfit, no_better_than_baseline, constraint_does_not_hold)
+    status: str = "ok"
+    checks: list[dict[str, str]] = field(default_factory=list)
 
 
 @dataclass
@@ -65,11 +69,11 @@ def guard_gap(spec: Any, data: Demonstrations | None = None) -> int:
 
         derived, window, _ = derivation(data)
         if derived:
-            return max(window, S.DEFAULT_GAP)
+            return max(window, model_selection.DEFAULT_GAP)
     action = spec.data.action
     if action is not None and action.derive and action.window:
         return max(int(action.window), 1)
-    return S.DEFAULT_GAP
+    return model_selection.DEFAULT_GAP
 
 
 def split_data(data: Demonstrations, spec: Any, masks: dict[str, list[int]] | None = None) -> Split:
@@ -92,7 +96,8 @@ def split_data(data: Demonstrations, spec: Any, masks: dict[str, list[int]] | No
         return Split(data, None, {"kind": "none", "reason": "data.test.fraction is 0: no held-out test "
                                   "set, every metric is on training data",
                                   "n_train_samples": data.n_samples, "n_test_samples": 0})
-    hold = S.holdout_split(data.demo, float(test.fraction), test.seed, guard_gap(spec, data), test.min_demos,
+    hold = model_selection.holdout_split(data.demo, float(test.fraction), test.seed, guard_gap(spec, data),
+                                         test.min_demos,
                            test.blocks)
     train, held = data.subset(hold.train), data.subset(hold.test)
     return Split(train, held if held.n_samples else None, hold.info)
@@ -125,6 +130,9 @@ class Pipeline:
         self.convention = spec.metrics.convention
         self.results: list[StageResult] = []
         self.w: dict[str, np.ndarray] = {}
+        #: the observations later stages learn from under ``on: auto``: "u", or "w" (the learnt
+        #: w̃) — decided by learn-a on held-out evidence, else w̃ when a learn-v stage generalised
+        self.observations: str | None = None
         self.constraint: Any = None
         #: coded data warnings ({code, message}); stages and other checks append to it
         self.warnings: list[dict[str, str]] = diagnostics.emit(diagnostics.check_data(data))
@@ -136,12 +144,29 @@ class Pipeline:
             out.append(("test", self.split.test))
         return out
 
+    def _on(self, on: str) -> str:
+        """Which observations ``on`` (auto, u, w) means now: "u" or "w"."""
+        if on != "auto":
+            return on
+        return self.observations or ("w" if self.w else "u")
+
     def _target(self, on: str, part: str, data: Demonstrations) -> np.ndarray:
-        if on == "w" or (on == "auto" and self.w):
+        if self._on(on) == "w":
             if part not in self.w:
                 raise ConfigError("'on: w' needs a learn-v stage before this one")
             return self.w[part]
         return data.U
+
+    def _judge(self, result: StageResult, checks: list[dict[str, str]]) -> None:
+        """Attach the stage's verdict (its checks and status) and report the checks."""
+        result.checks = diagnostics.emit(checks)
+        result.status = diagnostics.status(checks)
+        result.info["status"] = result.status
+        self.warnings += result.checks
+
+    def _held_out(self) -> tuple[str, Demonstrations]:
+        """The data a verdict is judged on: the held-out part, else (said so) the training part."""
+        return self.parts()[-1]
 
     # -- stages -------------------------------------------------------------------------
     def run(self, stages: list[tuple[str, Any]], progress=None) -> list[StageResult]:
@@ -149,14 +174,21 @@ class Pipeline:
         order; ``progress()`` after each."""
         for name, opts in stages:
             t0 = time.perf_counter()
-            log.info("stage %s (%s)", name, getattr(opts, "method", None) or
-                     f"convention {getattr(opts, 'convention', None) or self.convention}")
+            log.info("stage %s (%s)", name, self._describe(name, opts))
             result = getattr(self, "_" + name.replace("-", "_"))(opts)
             result.seconds = time.perf_counter() - t0
             self.results.append(result)
             if progress is not None:
                 progress()
         return self.results
+
+    def _describe(self, name: str, opts: Any) -> str:
+        """What a stage runs, for the progress line: its method (or the evaluate convention)."""
+        if name == "learn-v":
+            return "ncl"
+        if name == "evaluate":
+            return f"every model under the {opts.convention or self.convention} convention"
+        return opts.method or PolicyLearner().method
 
     def _learn_v(self, opts: Any) -> StageResult:
         tr = self.split.train
@@ -168,28 +200,75 @@ class Pipeline:
             result.info["tuning"] = model.tuning_
         ws = {part: model.predict(d.X) for part, d in self.parts()}
         self.w.update(ws)
-        result.score = lambda part, d, convention: E.nullspace_metrics(ws[part], d, convention)
+        result.score = lambda part, d, convention: scoring.nullspace_metrics(ws[part], d, convention)
         self._score_parts(result)
+        # "no task part": u regressed on the same features (w̃ = E[u | x], v = 0)
+        plain = PolicyLearner(method="dpl", basis=model.basis_, tune=False, seed=self.seed).fit(tr.X, tr.U)
+        baseline = {part: {"NPE": scoring.nullspace_metrics(plain.predict(d.X), d)["NPE"]}
+                    for part, d in self.parts()}
+        result.info["baseline"] = {"method": "u regressed on the same features (no task part)", **baseline}
+        part, _ = self._held_out()
+        self._judge(result, [
+            *diagnostics.overfit("learn-v", "NPE", result.metrics["train"]["NPE"],
+                                 result.metrics.get("test", {}).get("NPE")),
+            *diagnostics.not_better("learn-v", "NPE", result.metrics.get("test", {}).get("NPE"),
+                                    baseline.get("test", {}).get("NPE", {}).get("value", np.nan),
+                                    "u regressed on the same features with no task part")])
         return result
 
-    def _learn_a(self, opts: Any) -> StageResult:
+    def _fit_constraint(self, opts: Any, on: str) -> Any:
         tr = self.split.train
-        on = opts.on
+        q = tr.n_action
+        if opts.n_constraints is not None and not 1 <= opts.n_constraints <= max(q - 1, 1):
+            raise ConfigError(f"learn-a.n_constraints (--n-constraints) is {opts.n_constraints}, but "
+                              f"{q}-dimensional actions allow 1 to {max(q - 1, 1)} constraints")
         model = make_constraint(opts, self.seed)
         target = self._target(on, "train", tr)
-        try:
+        try:  # the learners that read the time structure (auto, per_window) get t and how u was made
             fit_constraint(model, tr.X, target, tr.demo, tr.t,
                            diagnostics.action_derivative(tr) if target is tr.U else False)
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             raise LearningError(f"learn-a failed: {exc}") from None
+        return model
+
+    def _choose_observations(self, opts: Any) -> tuple[Any, str, str]:
+        """``on: auto`` after a learn-v stage: the constraint is learnt from u when it holds on
+        the held-out u at the noise level (no task part is needed for it — the learnt w̃ is a
+        model's output, self-consistent whatever its direction), from w̃ when it does not and
+        learn-v generalised; → (model, "u" or "w", why)."""
+        model = self._fit_constraint(opts, "u")
+        part, d = self._held_out()
+        evidence = diagnostics.constraint_evidence(model, d, d.U)
+        learn_v = next((r for r in self.results if r.name == "learn-v"), None)
+        if evidence is None or evidence["holds"]:
+            why = ("no constraint row of u to test" if evidence is None and not model.n_constraints_ else
+                   "the data cannot tell the noise of u" if evidence is None else
+                   f"it holds on the {part} u at the noise level (motion along its rows "
+                   f"{max(evidence['ratio']):.3g}× their noise)")
+            return model, "u", f"learnt from u: {why}, so no task part is needed for it"
+        if learn_v is not None and learn_v.status != "ok":
+            return model, "u", ("learnt from u: learn-v did not generalise, so its w̃ is not used (the "
+                                f"constraint does not hold on the {part} u either)")
+        return self._fit_constraint(opts, "w"), "w", (
+            f"learnt from the learnt w̃: no constraint holds on the {part} u itself (motion along row 1 "
+            f"{evidence['ratio'][0]:.3g}× its noise) and learn-v generalised")
+
+    def _learn_a(self, opts: Any) -> StageResult:
+        tr = self.split.train
+        if opts.on == "auto" and self.w:
+            model, on, why = self._choose_observations(opts)
+            self.observations = on
+        else:
+            on = self._on(opts.on)
+            model = self._fit_constraint(opts, on)
+            why = "learnt from the learnt w̃ (on: w)" if on == "w" else "learnt from u"
         self.constraint = model
+        target = self._target(on, "train", tr)
         self.warnings += diagnostics.emit(diagnostics.low_rank_actions(tr, target, int(model.n_constraints_)))
         method = opts.method + (" per demonstration" if opts.per_demo else "")
-        on_w = on == "w" or (on == "auto" and bool(self.w))
         result = StageResult("learn-a", method, model,
                              info={"n_constraints": int(model.n_constraints_),
-                                   "selection": model.selection_,
-                                   "on": "w" if on_w else "u"})
+                                   "selection": model.selection_, "on": on, "on_reason": why})
         if getattr(model, "tuning_", None):
             result.info["tuning"] = model.tuning_
         result.info["constraint"] = describe_constraint(model, tr)
@@ -197,9 +276,17 @@ class Pipeline:
             result.info["per_demo_note"] = ("One constraint per training demonstration: a held-out "
                                             "demonstration has none, so there are no test metrics.")
         targets = {part: self._target(on, part, d) for part, d in self.parts()}
-        result.score = lambda part, d, convention: E.constraint_metrics(
-            model, d, targets[part], convention, of="learnt w" if on_w else "u")
+        result.score = lambda part, d, convention: scoring.constraint_metrics(
+            model, d, targets[part], convention, of="learnt w" if on == "w" else "u")
         self._score_parts(result)
+        part, d = self._held_out()
+        checks = diagnostics.overfit("learn-a", "NPOE", result.metrics["train"]["NPOE"],
+                                     result.metrics.get("test", {}).get("NPOE"))
+        if on == "u" and not isinstance(model, PerDemonstration):
+            evidence = diagnostics.constraint_evidence(model, d, d.U)
+            result.info["evidence"] = {"part": part, **evidence} if evidence else None
+            checks += diagnostics.does_not_hold("learn-a", evidence, f"{part} data")
+        self._judge(result, checks)
         return result
 
     def _score_parts(self, result: StageResult, convention: str | None = None,
@@ -249,21 +336,44 @@ class Pipeline:
                 tr.X, self._target(on, "train", tr), groups=tr.demo)
         constraint = self.constraint
         targets = {part: self._target(on, part, d) for part, d in self.parts()}
-        of = "learnt w" if on == "w" or (on == "auto" and self.w) else "u"
+        of = "learnt w" if self._on(on) == "w" else "u"
 
         def score(part: str, d: Demonstrations, convention: str) -> dict:
             knows = constraint is not None and not (isinstance(constraint, PerDemonstration)
                                                     and part != "train")
-            return E.policy_metrics(model.predict(d.X), d, constraint if knows else None, targets[part], of)
+            return scoring.policy_metrics(model.predict(d.X), d, constraint if knows else None,
+                                           targets[part], of)
 
         result.score = score
         self._score_parts(result)
         if result.baseline is not None:  # the dpl baseline is its own model, with its own metrics
             baseline = StageResult("learn-pi", "dpl", result.baseline)
-            baseline.score = lambda part, d, convention: E.policy_metrics(result.baseline.predict(d.X), d)
+            knows = {part: constraint is not None and not (isinstance(constraint, PerDemonstration)
+                                                           and part != "train") for part, _ in self.parts()}
+            baseline.score = lambda part, d, convention: scoring.policy_metrics(
+                result.baseline.predict(d.X), d, constraint if knows[part] else None, targets[part], of)
             self._score_parts(baseline)
             result.info["baseline"] = {"method": "dpl", **baseline.metrics}
+        self._judge(result, self._policy_checks(result))
         return result
+
+    def _policy_checks(self, result: StageResult) -> list[dict[str, str]]:
+        """A policy is no better than predicting zero when its held-out NCPE_obs (or, with ground
+        truth, NUPE) is ≥ 1, no better than the dpl baseline when not below the baseline's, and
+        overfit when far above its training value."""
+        checks: list[dict[str, str]] = []
+        test = result.metrics.get("test", {})
+        base = (result.info.get("baseline") or {}).get("test", {})
+        for name in ("NCPE_obs", "NUPE"):
+            if name not in result.metrics.get("train", {}):
+                continue
+            checks += diagnostics.overfit("learn-pi", name, result.metrics["train"][name], test.get(name))
+            checks += diagnostics.not_better("learn-pi", name, test.get(name), diagnostics.ZERO_LEVEL,
+                                             "predicting zero")
+            if name in base:
+                checks += diagnostics.not_better("learn-pi", name, test.get(name), base[name]["value"],
+                                                 "the dpl baseline (u regressed on the features)")
+        return checks
 
     def views(self) -> list[View]:
         """Compute every stage's figures (:func:`~ccl_cli.app.views.stage_views`) on the

@@ -124,7 +124,7 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
     blocks, so titles say so; a per-demonstration constraint is shown on its ``train``
     demonstrations), with ``constraint`` the learnt constraint model of an earlier learn-a
     stage (for the predicted u = ṽ + Ñπ̃ of a policy)."""
-    from ccl_cli.app.evaluate import projection_on, task_part
+    from ccl_cli.app.scoring import projection_on, task_part
 
     model = result.model
     if model is None:
@@ -149,8 +149,8 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
         N = projection_on(model, d, d.U)[0]
         v = task_part(model, d.X, d.demo)
         Y = d.U if v is None else d.U - v
-        arrows = {"observed": ("observed u" if v is None else "u − learnt ṽ", Y),
-                  "learnt": ("Ñ(u − ṽ)" if v is not None else "Ñ u", np.einsum("nij,nj->ni", N, Y))}
+        arrows = {"observed": ("observed u" if v is None else "u − its learnt task part Ã⁺b̃", Y),
+                  "learnt": ("Ñ(u − Ã⁺b̃)" if v is not None else "Ñ u", np.einsum("nij,nj->ni", N, Y))}
         if d.has_truth("pi") and (d.has_truth("N") or d.has_truth("A")):
             pi = d.truth["pi"]
             arrows = {"observed": arrows["observed"],
@@ -168,6 +168,10 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
             out.append(View("learn-a-time.png",
                             "learn-a: learnt projection against the observations over time",
                             "time", {"title": title_a, "part": dpart, "d": d, "lines": arrows}))
+        if d.n_state == 3 and d.n_action == 3 and model.n_constraints_:
+            out.append(View("learn-a-trajectory.png",
+                            "learn-a: the trajectory and the learnt constraint in 3-D", "trajectory",
+                            trajectory_normals(model, d, title, dpart)))
         out.append(View("learn-a-selection.png", "learn-a: how the number of constraints was chosen",
                         "selection", {"selection": result.info.get("selection") or {}, "q": d.n_action}))
         info = result.info.get("constraint")
@@ -186,7 +190,7 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
             v = task_part(constraint, d.X, d.demo)
             N = projection_on(constraint, d, d.U)[0]
             pred = np.einsum("nij,nj->ni", N, est) + (0 if v is None else v)
-            lines["predicted"] = ("predicted u = ṽ + Ñπ̃", pred)
+            lines["predicted"] = ("predicted u = Ñπ̃" if v is None else "predicted u = Ã⁺b̃ + Ñπ̃", pred)
         out += _field_and_time("learn-pi", f"{title}: null-space policy π", d, dpart, arrows, lines,
                                model.predict if planar else None, "learnt π̃(x) on a grid",
                                ("learnt vs true policy", "learnt policy (and the predicted u) over time"))
@@ -205,3 +209,32 @@ def _field_and_time(stage: str, title: str, d: Demonstrations, part: str, arrows
     out.append(View(f"{stage}-time.png", f"{stage}: {captions[1]}", "time",
                     {"title": title, "part": part, "d": d, "lines": lines}))
     return out
+
+
+#: Arrows of the learnt constraint drawn along a 3-D trajectory.
+TRAJECTORY_ARROWS = 40
+
+
+def trajectory_normals(model: Any, d: Demonstrations, title: str, part: str) -> dict[str, Any]:
+    """The data of a 3-D trajectory figure: the states of ``d`` (N, 3) per demonstration and,
+    at about TRAJECTORY_ARROWS states spread along them, the learnt constraint rows (unit,
+    sign fixed towards the mean row) and the true ones where known: {"X", "demo", "at" (M,),
+    "learnt" (M, s, 3), "true" (M, s', 3) or None, ...}."""
+    at = np.unique(np.linspace(0, d.n_samples - 1, TRAJECTORY_ARROWS).astype(int))
+    if isinstance(model, PerDemonstration):
+        rows = np.zeros((len(at), model.n_constraints_, 3))
+        for k, m in model.models_.items():
+            sel = d.demo[at] == k
+            if sel.any() and m.n_constraints_ == model.n_constraints_:
+                rows[sel] = m.constraint(d.X[at[sel]])
+    else:
+        rows = model.constraint(d.X[at], groups=d.demo[at])
+    rows = rows / np.maximum(np.linalg.norm(rows, axis=-1, keepdims=True), 1e-300)
+    ref = rows.mean(0)  # one sign for every arrow of a row: towards the row's mean direction
+    rows = rows * np.sign(np.einsum("msq,sq->ms", rows, ref) + 1e-300)[..., None]
+    true = None
+    if d.has_truth("A"):
+        true = d.truth_per_sample("A")[at]
+        true = true / np.maximum(np.linalg.norm(true, axis=-1, keepdims=True), 1e-300)
+    return {"title": f"{title}: the trajectory and the learnt constraint", "d": d, "part": part, "at": at,
+            "learnt": rows, "true": true}

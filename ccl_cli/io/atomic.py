@@ -19,10 +19,12 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-from ccl_cli.errors import InputError
+from ccl_cli.errors import InputError, OutputError
 from ccl_cli.lifeline import pid_alive
 
 #: file every output folder ccl writes holds (JSON: written_by, version)
@@ -74,6 +76,11 @@ def check_replaceable(path: Path, force: bool) -> None:
 _TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.[A-Za-z0-9_]+\.tmp$|^\.(?P<old>.+)\.old-(?P<opid>\d+)$")
 
 
+def is_temporary(name: str) -> bool:
+    """True for the name of a temporary of an output being written (or of a killed run)."""
+    return _TEMP.match(name) is not None
+
+
 def clean_stale(path: Path, every: bool = False) -> int:
     """Remove temporaries of ``path`` (``every``: of anything in the folder ``path``) left
     by ccl processes that no longer run. Returns how many were removed."""
@@ -98,13 +105,108 @@ def clean_stale(path: Path, every: bool = False) -> int:
     return n
 
 
-def _failed(path: Path, exc: OSError) -> InputError:
-    reason = exc.strerror or (str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
-    return InputError(f"{path}: cannot write the output ({reason}); nothing was written")
+class WriteFailed(OutputError):
+    """An output that could not be written, with the system's ``reason`` (e.g. "No space
+    left on device"), so that an enclosing output can name itself instead."""
+
+    def __init__(self, path: Path, reason: str) -> None:
+        super().__init__(f"{path}: cannot write the output ({reason}); nothing was written")
+        self.path = Path(path)
+        self.reason = reason
+
+
+def _failed(path: Path, exc: OSError | WriteFailed) -> WriteFailed:
+    if isinstance(exc, WriteFailed):
+        return WriteFailed(path, exc.reason)
+    return WriteFailed(path, exc.strerror or (str(exc).splitlines()[0] if str(exc) else type(exc).__name__))
 
 
 def _prefix(path: Path) -> str:
     return f".{path.name}.{os.getpid()}."
+
+
+@dataclass(frozen=True)
+class _Kind:
+    """How one kind of output is staged: ``make(folder, prefix)`` creates the temporary,
+    ``commit(tmp, path)`` puts it in place, ``discard(tmp)`` removes it."""
+
+    make: Callable[[Path, str], Path]
+    commit: Callable[[Path, Path], None]
+    discard: Callable[[Path], None]
+
+
+@contextlib.contextmanager
+def _staged(path: Path, kind: _Kind) -> Iterator[Path]:
+    """The one staging mechanism of every output: a temporary next to ``path`` (stale ones
+    of dead processes removed first), yielded, committed on success and removed on any
+    failure (an exception, Ctrl-C). An ``OSError`` anywhere — a full disk (ENOSPC), a
+    file-size limit (EFBIG; ``ccl`` ignores SIGXFSZ so the limit is a write error), a
+    read-only folder — becomes one :class:`InputError` line."""
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        clean_stale(path)
+        tmp = kind.make(path.parent, _prefix(path))
+        yield tmp
+        kind.commit(tmp, path)
+        tmp = None
+    except OSError as exc:
+        raise _failed(path, exc) from None
+    except WriteFailed as exc:  # a part inside this output failed: the output names itself
+        if tmp is None or tmp not in exc.path.parents:
+            raise
+        raise _failed(path, exc) from None
+    finally:
+        if tmp is not None:
+            kind.discard(tmp)
+
+
+def _make_file(folder: Path, prefix: str) -> Path:
+    fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=folder)
+    os.close(fd)
+    return Path(tmp)
+
+
+def _commit_file(tmp: Path, path: Path) -> None:
+    os.chmod(tmp, 0o666 & ~_umask())
+    os.replace(tmp, path)
+
+
+def _discard_file(tmp: Path) -> None:
+    with contextlib.suppress(OSError):
+        tmp.unlink()
+
+
+def _make_dir(folder: Path, prefix: str) -> Path:
+    return Path(tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=folder))
+
+
+def _commit_dir(tmp: Path, path: Path, force: bool) -> None:
+    """Mark the folder as ccl's, then swap it in (an existing one only if ccl wrote it)."""
+    mark(tmp)
+    os.chmod(tmp, 0o777 & ~_umask())
+    if path.exists():
+        check_replaceable(path, force)  # it may have appeared while we computed
+        old = path.with_name(f".{path.name}.old-{os.getpid()}")
+        os.replace(path, old)
+        os.replace(tmp, path)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, path)
+
+
+def _discard_dir(tmp: Path) -> None:
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+FILE = _Kind(_make_file, _commit_file, _discard_file)
+
+
+def mark(folder: Path, **extra: Any) -> None:
+    """Write the :data:`MARKER` that says ccl wrote ``folder`` (``extra``: more JSON fields)."""
+    from ccl_cli import __version__
+
+    (folder / MARKER).write_text(json.dumps({"written_by": "ccl", "version": __version__, **extra}) + "\n")
 
 
 @contextlib.contextmanager
@@ -116,22 +218,8 @@ def atomic_path(path: str | Path, force: bool = False) -> Iterator[Path]:
     """
     path = Path(path)
     check_writable(path, force)
-    tmp_path = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        clean_stale(path)
-        fd, tmp = tempfile.mkstemp(prefix=_prefix(path), suffix=".tmp", dir=path.parent)
-        os.close(fd)
-        tmp_path = Path(tmp)
-        yield tmp_path
-        os.chmod(tmp_path, 0o666 & ~_umask())
-        os.replace(tmp_path, path)
-    except OSError as exc:
-        raise _failed(path, exc) from None
-    finally:
-        if tmp_path is not None:
-            with contextlib.suppress(OSError):
-                tmp_path.unlink()
+    with _staged(path, FILE) as tmp:
+        yield tmp
 
 
 @contextlib.contextmanager
@@ -141,27 +229,58 @@ def atomic_dir(path: str | Path, force: bool = False) -> Iterator[Path]:
     Interrupted → nothing left; an ``OSError`` becomes an :class:`InputError`."""
     path = Path(path)
     check_replaceable(path, force)
-    tmp = None
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        clean_stale(path)
-        tmp = Path(tempfile.mkdtemp(prefix=_prefix(path), suffix=".tmp", dir=path.parent))
+    kind = _Kind(_make_dir, lambda tmp, dst: _commit_dir(tmp, dst, force), _discard_dir)
+    with _staged(path, kind) as tmp:
         yield tmp
-        from ccl_cli import __version__
 
-        (tmp / MARKER).write_text(json.dumps({"written_by": "ccl", "version": __version__}) + "\n")
-        os.chmod(tmp, 0o777 & ~_umask())
-        if path.exists():
-            check_replaceable(path, force)  # it may have appeared while we computed
-            old = path.with_name(f".{path.name}.old-{os.getpid()}")
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
-        tmp = None
+
+# -- folders written piece by piece (ccl batch) ----------------------------------------------------
+def _created_here(path: Path) -> bool:
+    """True when this process created ``path`` (:func:`claim_folder` recorded its pid)."""
+    try:
+        found = json.loads((path / MARKER).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+        return False
+    return isinstance(found, dict) and found.get("created_by_pid") == os.getpid()
+
+
+def claim_folder(path: str | Path, earlier: Callable[[Path], bool] | None = None) -> bool:
+    """Make ``path`` a folder ccl may write into piece by piece (``ccl batch -o``): created
+    here (and marked), or an empty folder (marked), or one ccl made before (it holds
+    :data:`MARKER`, or ``earlier(path)`` recognises what an earlier version wrote). A
+    user's folder with anything in it, or a file, is refused untouched: one
+    :class:`InputError` line. Returns True when this call created the folder."""
+    path = Path(path)
+    try:
+        if path.is_symlink() or (path.exists() and not path.is_dir()):
+            raise InputError(f"{path} exists and is not a folder ccl made; choose another output")
+        created = not path.exists()
+        if not created and not (path / MARKER).is_file() and not (earlier is not None and earlier(path)):
+            if any(path.iterdir()):
+                raise InputError(f"{path} holds files ccl did not write (no {MARKER} in it); ccl writes "
+                                 "only into a new or empty folder or one it made (choose another output)")
+        path.mkdir(parents=True, exist_ok=True)
+        if not (path / MARKER).is_file():
+            mark(path, **({"created_by_pid": os.getpid()} if created else {}))
     except OSError as exc:
         raise _failed(path, exc) from None
-    finally:
-        if tmp is not None:
-            shutil.rmtree(tmp, ignore_errors=True)
+    return created
+
+
+def release_folder(path: str | Path, fault: bool = False) -> None:
+    """Undo :func:`claim_folder` where nothing was written: empty subfolders go, and the
+    folder itself when only its marker is left in it (a folder holding any output keeps
+    its marker, so a later run may resume in it). ``fault`` (an output could not be
+    written): a folder this process created goes whole, as an atomic output would."""
+    path = Path(path)
+    if fault and _created_here(path):
+        shutil.rmtree(path, ignore_errors=True)
+        return
+    for folder, _, _ in os.walk(path, topdown=False):
+        if Path(folder) != path:
+            with contextlib.suppress(OSError):
+                os.rmdir(folder)  # only empty ones go
+    with contextlib.suppress(OSError):
+        if [p.name for p in path.iterdir()] == [MARKER]:
+            (path / MARKER).unlink()
+            path.rmdir()

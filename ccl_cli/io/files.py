@@ -8,6 +8,7 @@ import hashlib
 from pathlib import Path
 
 from ccl_cli.errors import InputError
+from ccl_cli.io.limits import regular_file
 
 
 def expand_files(files: list[str] | str, base: Path | None = None) -> list[Path]:
@@ -43,6 +44,8 @@ def file_hash(path: Path) -> str:
     (a batch job's content key, then the run's provenance).
     """
     path = Path(path)
+    if not path.is_dir():
+        regular_file(path)  # a FIFO would block the read
     paths = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
     stats = [(p, p.stat()) for p in paths]
     return _sha256_of(tuple((str(p.resolve()), st.st_size, st.st_mtime_ns) for p, st in stats))

@@ -191,8 +191,14 @@ class FieldExtractor:
         return vals
 
     def _joints(self, msg: Any, leaf: Any) -> np.ndarray | Any:
-        names = _get(msg, "name")
+        names = _get(msg, "name") if _has(msg, "name") else None
         if names != self._joint_names:  # list equality: cheap, and robust to reordering
+            if not isinstance(names, list | tuple) or not all(isinstance(n, str) for n in names):
+                raise InputError(f"{self.where}: {self.spec.topic}: a JointState needs name: a list of "
+                                 f"strings, got {type(names).__name__}")
+            if not isinstance(leaf, list | tuple | np.ndarray):
+                raise InputError(f"{self.where}: field {self.field!r} of {self.spec.topic} must be a list "
+                                 f"of numbers, got {type(leaf).__name__}")
             names = list(names)
             lookup = {n: i for i, n in enumerate(names)}
             missing = [j for j in self.spec.joints if j not in lookup]
@@ -247,14 +253,41 @@ class TopicCollector:
 
     # -- per message -------------------------------------------------------------------
     def add(self, msg: Any, log_ns: int) -> None:
-        if not self._compiled or (self._name_of is not None and self._name_of(msg) != self._names):
-            self._checked(msg)
-        for rows, get in zip(self._rows, self._getters, strict=True):
-            rows.append(get(msg))
-        self._stamps.append(self._stamp(msg) if self._stamp is not None else (0, 0))
+        try:
+            if not self._compiled or (self._name_of is not None and self._name_of(msg) != self._names):
+                self._checked(msg)
+            for rows, get in zip(self._rows, self._getters, strict=True):
+                rows.append(get(msg))
+            self._stamps.append(self._stamp(msg) if self._stamp is not None else (0, 0))
+        except (KeyError, AttributeError, TypeError, IndexError) as exc:
+            # a message shaped unlike the first (a JSON message missing a key, a field of
+            # another type): named here, not left to the caller
+            raise self._misshapen(msg, exc) from None
         self._logs.append(log_ns)
         if len(self._logs) >= self.BLOCK:
             self._flush()
+
+    def _misshapen(self, msg: Any, exc: Exception) -> InputError:
+        """The one-line error for a message the compiled path cannot read: the extractors'
+        own explanation when they have one, else the missing key or attribute."""
+        n = self.n_messages + 1
+        try:
+            for ex in self.extractors:
+                ex.values(msg)
+        except InputError as err:
+            return InputError(f"{err.message} (message {n})")
+        except (KeyError, AttributeError, TypeError, IndexError) as err:
+            exc = err
+        what = f"has no {exc.args[0]!r}" if isinstance(exc, KeyError) and exc.args else \
+            f"cannot be read ({type(exc).__name__}: {str(exc)[:80]})"
+        stamp = " (header.stamp)" if self._stamp is not None else ""
+        return InputError(f"{self.where}: message {n} of {self.topic} {what}{stamp}; every message needs "
+                          "the fields of the first")
+
+    @property
+    def n_messages(self) -> int:
+        """Messages added so far."""
+        return sum(len(b) for b in self._lblocks) + len(self._logs)
 
     def _checked(self, msg: Any) -> None:
         """Validate ``msg`` with the extractors and (re)compile the fast path."""
@@ -290,7 +323,7 @@ class TopicCollector:
         for k, ex in enumerate(self.extractors):
             try:
                 rows = np.array(self._rows[k], dtype=float)
-            except ValueError:
+            except (ValueError, TypeError):
                 raise InputError(f"{self.where}: field {ex.field!r} of {self.topic} changes length "
                                  "between messages") from None
             rows = rows.reshape(n, -1)

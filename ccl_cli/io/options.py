@@ -152,12 +152,25 @@ class DemoOptions(Options):
         return [list(pair) for pair in value]
 
 
+class FaultOptions(Options):
+    """What the readers do with sensor faults in a recording's states (:mod:`ccl_cli.io.faults`,
+    before velocities are derived): hemisphere ``flips`` of a magnetic tracker mirrored back,
+    dropped or kept; ``spikes`` (isolated outliers) dropped or kept; ``stamps`` (duplicated
+    samples, repeated or out-of-order stamps, clock steps) repaired or kept. Whatever is found
+    is reported, with its count and time ranges."""
+
+    flips: Literal["mirror", "drop", "keep"] = "mirror"
+    spikes: Literal["drop", "keep"] = "drop"
+    stamps: Literal["repair", "keep"] = "repair"
+
+
 class DataOptions(Options):
     """The ``data`` section: ``files`` (paths or globs), the ``format`` (auto: from the
     content), the ``state`` stream, the ``action`` (a stream, or derived from the state when
     absent), ``time``, ``demos``, what to do with samples holding NaN or inf (``nonfinite``),
-    the ``typestore`` of ROS 2 bags without message definitions, and the fewest samples a
-    dataset may have (``min_samples``)."""
+    with sensor ``faults``, the ``typestore`` of ROS 2 bags without message definitions, the
+    fewest samples a dataset may have (``min_samples``), and whether the files a ROS 2 bag's
+    metadata names may lie outside its folder (``allow_outside``; symlinks resolved)."""
 
     files: str | Path | list[str | Path] | None = Field(None, description="a path or a list of paths")
     format: Format = "auto"
@@ -167,7 +180,9 @@ class DataOptions(Options):
     time: TimeOptions = TimeOptions()
     demos: DemoOptions = DemoOptions()
     nonfinite: Literal["drop", "fail"] = "drop"
+    faults: FaultOptions = FaultOptions()
     min_samples: int = Field(2, ge=1, description="an integer ≥ 1")
+    allow_outside: bool = False
 
     @classmethod
     def from_mapping(cls, value: Self | Mapping[str, Any] | None, where: str = "", prefix: str = "data"

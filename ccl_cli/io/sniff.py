@@ -1,6 +1,7 @@
 """What a file is, from its first bytes: the magic numbers and content tests of each format.
 
-A leaf: no format module is imported here, so every reader and the registry can use it.
+A leaf (it imports only the errors and :mod:`ccl_cli.io.limits`): no format module is
+imported here, so every reader and the registry can use it.
 Each ``is_*`` test takes the path and its first :data:`HEAD_BYTES` bytes (empty for a
 directory) and answers without parsing the file (HDF5 behind a user block asks h5py).
 """
@@ -10,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ccl_cli.errors import InputError
+from ccl_cli.io.limits import open_regular
 
 HEAD_BYTES = 128
 HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
@@ -22,9 +24,10 @@ BAG2_METADATA = "metadata.yaml"
 
 
 def read_head(path: Path, n: int = HEAD_BYTES) -> bytes:
-    """The first ``n`` bytes of the file ``path`` (an unreadable file is an InputError)."""
+    """The first ``n`` bytes of the regular file ``path`` (an unreadable file, a FIFO or a
+    device is an InputError, found before anything blocks on it)."""
     try:
-        with open(path, "rb") as f:
+        with open_regular(path) as f:
             return f.read(n)
     except OSError as exc:
         raise InputError(f"{path}: {exc.strerror}") from None
@@ -33,7 +36,7 @@ def read_head(path: Path, n: int = HEAD_BYTES) -> bytes:
 def is_bag(path: Path, head: bytes) -> bool:
     """A ROS 1 ``.bag``, a ROS 2 bag directory, or a file of one (its metadata.yaml or storage)."""
     if path.is_dir():
-        return (path / BAG2_METADATA).exists()
+        return (path / BAG2_METADATA).exists() or (path / BAG2_METADATA).is_symlink()
     if path.name == BAG2_METADATA or head.startswith(BAG1_MAGIC):
         return True
     beside = (path.parent / BAG2_METADATA).exists()

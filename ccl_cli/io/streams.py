@@ -20,7 +20,7 @@ import numpy as np
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
 from ccl_cli.io.derivative import derive_actions
-from ccl_cli.io.options import DataOptions, StreamOptions
+from ccl_cli.io.options import DataOptions, DemoOptions, FaultOptions, StreamOptions
 from ccl_cli.io.reader import ReaderBase, Recording
 from ccl_cli.io.segment import segment_ids
 
@@ -73,10 +73,13 @@ class StreamReader(ReaderBase):
                              "(e.g. state: {topic: /joint_states, field: position})")
         derive = o.derives_action
         selections = [o.state] if derive else [o.state, o.action]
-        state, *rest = [_clean(s, sel, o.nonfinite)
-                        for s, sel in zip(self.streams(selections), selections, strict=True)]
+        raw = self.streams(selections)
+        state = _repaired(raw[0], selections[0], o)
+        rest = [_clean(s, sel, o.nonfinite) for s, sel in zip(raw[1:], selections[1:], strict=True)]
         t_ns, X = state.t_ns, state.values
         meta: dict[str, Any] = {"source": str(self.path), "format": self.format, "state": state.meta}
+        if state.meta.get("faults"):
+            meta["faults"] = state.meta.pop("faults")
         U: np.ndarray | None = None
         if rest:
             (action,), selection = rest, o.action
@@ -112,12 +115,46 @@ class StreamReader(ReaderBase):
         raise NotImplementedError
 
 
-def _clean(stream: Stream, selection: StreamOptions, nonfinite: str) -> Stream:
+def _clean(stream: Stream, selection: StreamOptions, nonfinite: str, options: DataOptions | None = None
+           ) -> Stream:
+    """Non-finite samples dropped (or refused), then — for the state (``options`` given) — its
+    sensor faults found and handled as ``options.faults`` says
+    (:func:`ccl_cli.io.faults.clean_positions`, the findings in ``stream.meta["faults"]``); the
+    stamps must then increase strictly."""
     where = f"{stream.source} ({selection.describe()})"
     stream.t_ns, stream.values = drop_nonfinite(stream.t_ns, stream.values, nonfinite, where)
     if len(stream.t_ns) == 0:
         raise InputError(f"{where}: no samples left")
+    if options is not None and len(stream.t_ns) >= 5:
+        stream = _repair_faults(stream, options.faults, options.demos, where)
     check_increasing(stream.t_ns, where)
+    return stream
+
+
+def _repaired(stream: Stream, selection: StreamOptions, options: DataOptions) -> Stream:
+    return _clean(stream, selection, options.nonfinite, options)
+
+
+def _repair_faults(stream: Stream, options: FaultOptions, demos: DemoOptions, where: str) -> Stream:
+    """The state stream with its faults handled: stamps repaired (a re-stamped sample gets the
+    repaired time, every other keeps its exact int64 stamp), flips mirrored back or dropped,
+    spikes dropped — as ``options`` says; the findings, with counts, sample and time ranges
+    (seconds from the first sample), in ``meta["faults"]``. Each demonstration the ``demos``
+    options cut (e.g. on pauses) is searched on its own: a cut is never taken for a fault."""
+    from ccl_cli.io.faults import clean_positions
+
+    t0 = stream.t_ns[0]
+    t_s = (stream.t_ns - t0) / 1e9
+    pieces = segment_ids(np.maximum.accumulate(t_s), demos, where)
+    cleaned = clean_positions(t_s, stream.values, pieces, flips=options.flips,
+                              drop_spikes=options.spikes == "drop", stamps=options.stamps == "repair")
+    if not cleaned.findings:
+        return stream
+    kept = stream.t_ns[cleaned.keep]
+    moved = cleaned.t != t_s[cleaned.keep]
+    stream.t_ns = np.where(moved, t0 + np.round(cleaned.t * 1e9).astype(np.int64), kept)
+    stream.values = cleaned.X
+    stream.meta = {**stream.meta, "faults": cleaned.report(t_s)}
     return stream
 
 

@@ -15,7 +15,8 @@ from typing import Any
 
 import yaml
 
-from ccl_cli.errors import ConfigError
+from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.io.limits import open_regular
 
 #: limits of a YAML document (configs, manifests): nesting depth, nodes after expanding
 #: aliases (billion laughs), and size of the file
@@ -91,8 +92,10 @@ def read_yaml(path: str | Path, what: str = "config", error: type = ConfigError
     """
     path = Path(path)
     try:
-        with open(path, "rb") as f:
+        with open_regular(path, f"the {what}") as f:
             raw = f.read(MAX_BYTES + 1)
+    except InputError as exc:  # a FIFO or device: refused before it could block
+        raise error(exc.message) from None
     except OSError as exc:
         raise error(f"{path}: cannot read {what} ({exc.strerror})") from None
     if len(raw) > MAX_BYTES:

@@ -12,6 +12,7 @@ from typing import get_args
 
 import numpy as np
 
+from ccl_cli.errors import InputError
 from ccl_cli.learn.params import ArmName
 
 
@@ -108,8 +109,21 @@ class ArmFeatures:
         self._model = ARMS[arm]()
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
-        J = self._model.jacobian(np.asarray(X, dtype=float))
-        return J if self.rows is None else J[:, list(self.rows), :]
+        """Φ(X) (N, len(rows), n_joints) for joint angles X (N, n_joints); a state of another
+        width, or rows beyond the Jacobian's, is an InputError naming both."""
+        X = np.asarray(X, dtype=float)
+        n = self._model.n_joints
+        if X.ndim != 2 or X.shape[1] != n:
+            got = f"{X.shape[1]} columns" if X.ndim == 2 else f"shape {X.shape}"
+            raise InputError(f"features {self.arm} need the {n} joint angles of the arm per sample "
+                             f"(state of {n} columns), got {got}")
+        J = self._model.jacobian(X)
+        if self.rows is None:
+            return J
+        bad = [r for r in self.rows if not -J.shape[1] <= int(r) < J.shape[1]]
+        if bad:
+            raise InputError(f"features {self.arm}: rows {bad} are beyond its Jacobian's {J.shape[1]} rows")
+        return J[:, list(self.rows), :]
 
     def spec(self) -> dict:
         return {"kind": "arm", "arm": self.arm, "rows": self.rows}

@@ -57,6 +57,13 @@ def eigen_lstsq(M: np.ndarray, r: np.ndarray, cutoff: float, absolute: bool = Fa
     pseudo-inverse, ALGORITHMS.md §4–§5). ``M`` is (..., d, d), ``r`` (..., d).
     """
     vals, vecs = np.linalg.eigh(M)
+    return eigen_solve(vals, vecs, r, cutoff, absolute)
+
+
+def eigen_solve(vals: np.ndarray, vecs: np.ndarray, r: np.ndarray, cutoff: float,
+                absolute: bool = False) -> np.ndarray:
+    """:func:`eigen_lstsq` from the eigen-decomposition (vals (..., d), vecs (..., d, d)) of M,
+    so several cut-offs of one M cost one decomposition."""
     top = np.maximum(vals[..., -1:], np.finfo(float).tiny)
     threshold = cutoff if absolute else cutoff * top
     inv = np.where(vals > threshold, 1.0 / np.where(vals > 0, vals, 1.0), 0.0)
@@ -70,6 +77,12 @@ def eigen_lstsq(M: np.ndarray, r: np.ndarray, cutoff: float, absolute: bool = Fa
 #: of JᵀJ weaker than this (near-collinear RBF features) are not stepped along.
 LM_CUTOFF = 1e-12
 
+#: Relative tolerance of an iterative fit started from a fit of the same model and basis on
+#: other rows of the same data (the fold fits of a search, the winner's fit on all rows after
+#: a search on a subset): it starts next to its optimum, and below this the passes only
+#: crawl along directions the data barely determine (docs/measurements.md, "Tuning").
+WARM_TOL = 1e-6
+
 #: Rows per block of the chunked passes: temporaries are O(CHUNK_ROWS · K q), not O(N · K q).
 CHUNK_ROWS = 8192
 
@@ -80,6 +93,24 @@ def row_chunks(n: int, size: int | None = None) -> list[slice]:
     if size < 1:
         raise ValueError(f"chunk size must be positive, got {size}")
     return [slice(i, min(i + size, n)) for i in range(0, n, size)]
+
+
+def lift_to_rows(W: np.ndarray, blocks: Callable[[], Iterable[tuple[slice, np.ndarray]]],
+                 rel: float = 1e-6) -> np.ndarray:
+    """A map y = W β (W (m, K)) seen only through the rows of ``blocks`` ((rows, β) pairs): the
+    ridge regression of its values at those rows on their features, argmin_V Σ ‖V β_n − W β_n‖²
+    + λ‖V‖², λ = ``rel`` · tr(BᵀB)/K, summed block by block → V (m, K). Where the rows pin the
+    features down V = W; along a direction they leave free (features of a region no row
+    visits) V has the ridge's small weights, as a fit from scratch would. The start of a fit
+    taken from a fit on more rows (a fold's, from the fit of all of them) so carries nothing
+    the other rows alone taught it: no held-out information leaks into the fold."""
+    K = W.shape[1]
+    G, R = np.zeros((K, K)), np.zeros((K, W.shape[0]))
+    for _, B in blocks():
+        G += B.T @ B
+        R += B.T @ (B @ W.T)
+    lam = rel * np.trace(G) / K
+    return np.linalg.solve(G + lam * np.eye(K), R).T
 
 
 def kron_rows(G: np.ndarray, B: np.ndarray) -> np.ndarray:

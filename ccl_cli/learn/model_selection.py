@@ -12,7 +12,12 @@
 * :class:`Tuned` is the hyperparameter search as an estimator: a grid searched by
   cross-validation within a budget counted in model fits (candidates × folds), never in
   seconds, so the same data and settings give the same model on any machine at any
-  load. The learners' ``tune`` parameter delegates to it (:class:`Tunable`).
+  load. The learners' ``tune`` parameter delegates to it (:class:`Tunable`). The search
+  costs a few fits (:func:`search`): a candidate's folds share work (a closed-form
+  learner's normal equations are summed once and downdated per fold; an iterative
+  learner's folds start from its fit of all rows, seen through each fold's rows),
+  candidates on one basis share it, the grid runs from the smallest basis up and stops
+  where a larger one does not help, and large data are searched on a seeded subset.
 """
 
 from __future__ import annotations
@@ -284,7 +289,97 @@ TUNE_PARAMS: dict[str, list] = {"tune": [bool, Fields(TUNE_FIELDS)]}
 BUDGET_UNIT = "fits (candidates × folds)"
 
 
-def grid_search(
+def take_rows(fit_kw: dict[str, Any], rows: np.ndarray) -> dict[str, Any]:
+    """The per-sample arguments of ``fit`` (e.g. ``projections`` (N, q, q)) for ``rows``."""
+    return {k: None if v is None else np.asarray(v)[rows] for k, v in fit_kw.items()}
+
+
+def candidate_models(estimator: Any, X: np.ndarray, U: np.ndarray, groups: np.ndarray, folds: Folds,
+                     basis: Any = None, shared: dict[Any, Any] | None = None, **fit_kw: Any
+                     ) -> tuple[Any | None, list[Any]]:
+    """The models one candidate's cross-validation needs: (the candidate fitted on all of X
+    (N, p), U (N, q), or None; one model per training fold of ``folds``).
+
+    A :class:`Tunable` learner shares work between them (:meth:`Tunable._cv_models`: one
+    basis, normal equations downdated per fold, folds started from the all-rows fit);
+    any other estimator is cloned and fitted per fold. ``basis``: a fitted feature map
+    to use (Tunable learners only; None: fitted on X); ``shared``: a store the search keeps for
+    its candidates on the same data and folds (e.g. normal equations of a basis)."""
+    if isinstance(estimator, Tunable):
+        return estimator._cv_models(X, U, groups, folds, basis=basis, shared=shared, **fit_kw)
+    models = [clone(estimator).fit(X[train], U[train], groups=groups[train], **take_rows(fit_kw, train))
+              for train, _ in folds.pairs]
+    return None, models
+
+
+def held_out_errors(models: list[Any], X: np.ndarray, U: np.ndarray, groups: np.ndarray, folds: Folds,
+                    **fit_kw: Any) -> np.ndarray:
+    """−model.score on each test fold (the learner's own consistency error): (n_folds,)."""
+    return np.array([-m.score(X[test], U[test], groups=groups[test], **take_rows(fit_kw, test))
+                     for m, (_, test) in zip(models, folds.pairs, strict=True)], dtype=float)
+
+
+@dataclass
+class SearchResult:
+    """What :func:`search` found: the chosen parameters, the report's summary, scikit-learn's
+    ``cv_results_``, and the winner's model fitted on all searched rows (None when the
+    search does not keep one) with its fitted basis (None: none shared)."""
+
+    chosen: dict[str, Any]
+    info: dict[str, Any]
+    cv_results: dict[str, Any]
+    full: Any = None
+    basis: Any = None
+
+
+#: Stop the search at the first basis size that does not lower the held-out error (:func:`search`).
+STOP_EARLY = True
+#: ... by more than this many standard errors of the paired difference over the folds ...
+STOP_SE = 0.5
+#: ... and by more than this fraction of the best mean error.
+STOP_GAIN = 0.01
+
+
+def _improves(errors: np.ndarray, best: np.ndarray, larger: bool) -> bool:
+    """Whether fold errors ``errors`` beat ``best`` (n_folds,): a lower mean; for a larger basis
+    than the best's, lower by more than STOP_SE standard errors of the paired difference and
+    by more than STOP_GAIN of the best mean."""
+    diff = errors - best
+    if not larger:
+        return bool(diff.mean() < 0)
+    se = diff.std(ddof=1) / np.sqrt(len(diff)) if len(diff) > 1 else 0.0
+    return bool(diff.mean() < -max(STOP_SE * se, STOP_GAIN * float(best.mean())))
+
+
+def _held_back(best: int, rows: list[dict[str, Any]], errors: list[np.ndarray], grid: dict[str, list[Any]],
+               conservative: tuple[str, ...]) -> int:
+    """The winner, moved back along each ``conservative`` parameter (its values in the grid's
+    order, the first the most regularising): to the earliest value whose candidate (the same
+    otherwise) the winner does not beat as a larger basis must (:func:`_improves`)."""
+    for key in conservative:
+        if key not in grid:
+            continue
+        order = grid[key]
+        params = rows[best]["params"]
+        rivals = [i for i, r in enumerate(rows) if r["params"][key] != params[key]
+                  and all(r["params"][k] == params[k] for k in params if k != key)
+                  and order.index(r["params"][key]) < order.index(params[key])]
+        for i in sorted(rivals, key=lambda i: order.index(rows[i]["params"][key])):
+            if not _improves(errors[best], errors[i], True):
+                best = i
+                break
+    return best
+
+
+def _size(params: dict[str, Any]) -> float:
+    """How large a candidate's basis is (its number of centres; 0 when it names none): the
+    order in which :func:`search` runs the candidates and stops."""
+    basis = params.get("basis")
+    k = basis.get("n_centres") if isinstance(basis, dict) else params.get("n_centres")
+    return float(k) if isinstance(k, int | float) and not isinstance(k, bool) else 0.0
+
+
+def search(
     estimator: Any,
     X: np.ndarray,
     U: np.ndarray,
@@ -295,57 +390,111 @@ def grid_search(
     n_folds: int = N_FOLDS,
     seed: int = 0,
     gap: int = DEFAULT_GAP,
-    projections: np.ndarray | None = None,
-) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
-    """Grid search by :func:`cross_validate` within ``budget`` model fits.
+    basis_data: tuple[np.ndarray, np.ndarray] | None = None,
+    **fit_kw: Any,
+) -> SearchResult:
+    """Grid search by cross-validation within ``budget`` model fits (candidates × folds).
 
-    Candidates run in the grid's order (the default and the cheap first); each costs
-    ``n_folds`` fits. A candidate runs while the fits so far plus its own stay within
-    ``budget`` — the first always runs — and the rest are counted in ``skipped``. The
-    count does not depend on the machine or its load. The candidate with the smallest
-    mean held-out error wins (the first of equals).
+    Candidates run from the smallest basis up (their number of centres; the grid's order
+    among equals, so the configured basis comes first of its size), and the search stops at
+    the first size that does not beat the best so far: a larger basis counts as better only
+    when its fold errors are lower by more than :data:`STOP_SE` standard error of the paired
+    difference and by more than :data:`STOP_GAIN` of the best's mean (held-out errors that
+    only fluctuate, or gain a fraction of a per cent, do not call for a costlier model); still
+    larger bases cost more and, measured on the tutorials and at N = 1e4–1e5, were not better
+    after such a step (docs/measurements.md, "Tuning"). Of the candidates run, the smallest
+    mean held-out error wins (the first of equals) — except that along a parameter the
+    estimator lists in ``TUNE_CONSERVATIVE`` (e.g. the cut-off of a pseudo-inverse, its
+    configured value first) the winner keeps the earliest value it does not beat by that same
+    margin. Each candidate costs ``n_folds`` fits and runs while
+    the fits so far plus its own stay within ``budget`` (the first always runs); the rest,
+    and those after the stop, are counted in ``skipped``. Nothing depends on the machine or
+    its load. A candidate's fits share work (:func:`candidate_models`), and candidates that
+    differ only in other settings than the basis share its fit (and, for a closed-form
+    learner, its normal equations); the basis is fitted on ``basis_data`` (X, U) when given
+    (all the rows, when the search runs on a subset of them), else on X.
 
     Returns:
-        (chosen parameters, info, cv_results) with info = {"grid", "scores": [{params,
-        mean, se}], "chosen", "budget", "budget_used", "budget_unit", "skipped", "folds",
-        "rule"} and cv_results as scikit-learn's ``GridSearchCV.cv_results_`` (scores =
-        −errors; candidates that failed have NaN).
+        :class:`SearchResult`; ``info`` = {"grid", "scores": [{params, mean, se}] in the
+        order run, "chosen", "budget", "budget_used", "budget_unit", "skipped", "stopped"
+        (why larger candidates did not run, or None), "folds", "rule"}.
     """
     if not grid:
         raise ConfigError("tuning needs a non-empty grid")
     keys = list(grid)
     combos = [dict(zip(keys, vals, strict=True)) for vals in itertools.product(*(grid[k] for k in keys))]
+    combos.sort(key=_size)  # stable: the grid's order among candidates of one size
     n = len(U)
     groups = np.zeros(n, int) if groups is None else np.asarray(groups)
     folds = make_folds(groups, n, n_folds, seed, gap)
     per_candidate = len(folds.pairs)  # fits
     rows: list[dict[str, Any]] = []
     ran: list[tuple[dict[str, Any], np.ndarray]] = []
+    kept: list[tuple[Any, Any]] = []  # (full model, basis) of each row of ``rows``
+    ran_errors: list[np.ndarray] = []  # fold errors of each row of ``rows``
+    bases: dict[tuple, Any] = {}  # fitted bases by their settings (candidates differing in others share one)
+    shared: dict[Any, Any] = {}  # what candidates on one basis share (a closed-form learner's equations)
     used = skipped = 0
-    for params in combos:
+    stopped: str | None = None
+    best: int | None = None  # the row of the candidate the stopping rule holds best so far
+    incumbent: int | None = None  # the same, when the previous size began
+    for i, params in enumerate(combos):
+        if i and _size(params) != _size(combos[i - 1]):  # a size is complete
+            if STOP_EARLY and incumbent is not None and best == incumbent:
+                stopped = (f"{_size(combos[i - 1]):g} centres did not lower the held-out error of "
+                           f"fewer centres by more than {STOP_SE:g} standard error of the paired "
+                           f"difference and {STOP_GAIN:.0%}: larger bases not run")
+                skipped += len(combos) - i
+                break
+            incumbent = best
         if used and used + per_candidate > budget:
             skipped += 1
             continue
         used += per_candidate
+        candidate = clone(estimator).set_params(**params)
         try:
-            res = cross_validate(clone(estimator).set_params(**params), X, U, groups, folds=folds,
-                                 projections=projections)
+            basis = None
+            if isinstance(candidate, Tunable):  # one fitted basis per distinct basis setting
+                key = candidate._basis_key()
+                if key not in bases:
+                    bases[key] = candidate._fit_basis(*(basis_data or (X, U)))
+                basis = bases[key]
+            full, models = candidate_models(candidate, X, U, groups, folds, basis, shared, **fit_kw)
+            errors = held_out_errors(models, X, U, groups, folds, **fit_kw)
         except (InputError, LearningError, np.linalg.LinAlgError):
             ran.append((params, np.full(per_candidate, np.nan)))
             continue  # e.g. more centres than training samples in a fold
-        ran.append((params, res.errors))
-        mean = float(res.mean)
-        rows.append({"params": params, "mean": mean if np.isfinite(mean) else float("inf"),
-                     "se": float(res.se)})
-    if not rows:
+        ran.append((params, errors))
+        mean = float(errors.mean())
+        se = float(errors.std(ddof=1) / np.sqrt(len(errors))) if len(errors) > 1 else 0.0
+        rows.append({"params": params, "mean": mean if np.isfinite(mean) else float("inf"), "se": se})
+        kept.append((full, basis if basis is not None else getattr(full, "basis_", None)))
+        if np.isfinite(mean) and (best is None or _improves(
+                errors, ran_errors[best], _size(params) > _size(rows[best]["params"]))):
+            best = len(rows) - 1
+        ran_errors.append(errors)
+    if best is None:
         raise InputError("no hyperparameter candidate could be cross-validated on this data")
-    best = min(range(len(rows)), key=lambda i: rows[i]["mean"])
+    best = min(range(len(rows)), key=lambda i: rows[i]["mean"])  # of those run, the first of equals
+    best = _held_back(best, rows, ran_errors, grid, getattr(estimator, "TUNE_CONSERVATIVE", ()))
     chosen = rows[best]["params"]
     info = {"grid": {k: list(v) for k, v in grid.items()}, "scores": rows, "chosen": chosen,
             "budget": budget, "budget_used": used, "budget_unit": BUDGET_UNIT, "skipped": skipped,
-            "folds": {"kind": folds.kind, "n": per_candidate, "reason": folds.reason},
-            "rule": "smallest held-out error"}
-    return chosen, info, _cv_results(ran, keys)
+            "stopped": stopped, "folds": {"kind": folds.kind, "n": per_candidate, "reason": folds.reason},
+            "rule": (f"smallest mean held-out error; larger bases run while each lowers it by more "
+                     f"than {STOP_SE:g} standard error of the paired difference and {STOP_GAIN:.0%}")}
+    return SearchResult(chosen, info, _cv_results(ran, keys), *kept[best])
+
+
+def grid_search(estimator: Any, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None,
+                grid: dict[str, list[Any]], *, projections: np.ndarray | None = None, **options: Any
+                ) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+    """:func:`search` (``options``: its budget, n_folds, seed, gap) as (chosen parameters, info,
+    cv_results) — cv_results in the layout of scikit-learn's ``GridSearchCV.cv_results_``
+    (scores = −errors; candidates that failed have NaN)."""
+    extra = {} if projections is None else {"projections": projections}
+    found = search(estimator, X, U, groups, grid, **options, **extra)
+    return found.chosen, found.info, found.cv_results
 
 
 def _cv_results(ran: list[tuple[dict[str, Any], np.ndarray]], keys: list[str]) -> dict[str, Any]:
@@ -369,10 +518,12 @@ class Tuned(Estimator):
         grid: parameter → candidates, searched in order (the first: the default).
         folds: folds of the search (None: the estimator's ``TUNE_FOLDS``, else
             :data:`TUNE_FOLDS`); by demonstration when there are enough, else time blocks.
-        budget: the most model fits the search may run, candidates × folds (None:
-            :data:`TUNE_BUDGET`); the first candidate always runs.
+        budget: the most model fits the search may run, candidates × folds (None: the
+            estimator's ``TUNE_BUDGET``, else :data:`TUNE_BUDGET`); the first candidate always runs.
         max_rows: above this many samples the search runs on a seeded subset
-            (:func:`tuning_subset`; None: :data:`TUNE_MAX_ROWS`); the winner is fitted on all.
+            (:func:`tuning_subset`; None: the estimator's ``TUNE_MAX_ROWS``, else
+            :data:`TUNE_MAX_ROWS`); the winner is fitted on all (a :class:`Tunable` learner
+            starts that fit from its search fit).
         seed: of the folds and the subset.
 
     Attributes:
@@ -398,31 +549,40 @@ class Tuned(Estimator):
         self._validate_params()
         X, U = check_xu(X, U)
         n = len(U)
-        folds = int(self.folds or getattr(self.estimator, "TUNE_FOLDS", None) or TUNE_FOLDS)
-        Xs, Us, gs = X, U, groups
-        projections = fit_kw.get("projections")
-        subset = tuning_subset(groups, n, self.seed, self.max_rows)
+        est = self.estimator
+        folds = int(self.folds or getattr(est, "TUNE_FOLDS", None) or TUNE_FOLDS)
+        groups = np.zeros(n, int) if groups is None else np.asarray(groups)
+        Xs, Us, gs, kw = X, U, groups, fit_kw
+        subset = tuning_subset(groups, n, self.seed, self.max_rows or getattr(est, "TUNE_MAX_ROWS", None))
         if subset is not None:  # large N: search on a seeded subset, fit the winner on all
             rows, gs, subset_note = subset
-            Xs, Us = X[rows], U[rows]
-            projections = None if projections is None else np.asarray(projections)[rows]
-        chosen: dict[str, Any] = {}
-        try:
-            make_folds(gs, len(Us), folds, 0, DEFAULT_GAP)
-        except InputError as exc:  # too little data to cross-validate: say so, fit as given
-            self.tuning_: dict[str, Any] = {"chosen": None, "reason": f"not tuned: {exc.message}"}
-            self.cv_results_: dict[str, Any] = {}
-        else:
-            with blas.threads(blas.stage_threads(len(Us))):  # many small fits: one BLAS thread
-                chosen, self.tuning_, self.cv_results_ = grid_search(
-                    self.estimator, Xs, Us, gs, self.grid,
-                    budget=TUNE_BUDGET if self.budget is None else self.budget,
-                    n_folds=folds, seed=self.seed, projections=projections)
-            if subset is not None:
-                self.tuning_["subset"] = subset_note
+            Xs, Us, kw = X[rows], U[rows], take_rows(fit_kw, rows)
+        found: SearchResult | None = None
+        with blas.threads(1):  # one BLAS thread, as every learner's fit (Tunable._fit)
+            try:
+                make_folds(gs, len(Us), folds, 0, DEFAULT_GAP)
+            except InputError as exc:  # too little data to cross-validate: say so, fit as given
+                self.tuning_: dict[str, Any] = {"chosen": None, "reason": f"not tuned: {exc.message}"}
+                self.cv_results_: dict[str, Any] = {}
+            else:
+                budget = self.budget if self.budget is not None else getattr(est, "TUNE_BUDGET", None)
+                found = search(est, Xs, Us, gs, self.grid, budget=TUNE_BUDGET if budget is None else budget,
+                               n_folds=folds,
+                               seed=self.seed, basis_data=None if subset is None else (X, U), **kw)
+                self.tuning_, self.cv_results_ = found.info, found.cv_results
+                if subset is not None:
+                    self.tuning_["subset"] = subset_note
+            chosen = found.chosen if found is not None else {}
+            winner = clone(est).set_params(**chosen)
+            if found is not None and found.full is not None and subset is None:
+                self.best_estimator_ = found.full  # the search fitted the winner on all rows already
+            elif found is not None and isinstance(winner, Tunable):
+                self.best_estimator_ = winner._fit_given(X, U, groups=groups, basis=found.basis,
+                                                         start=found.full, **fit_kw)
+            else:
+                self.best_estimator_ = winner.fit(X, U, groups=groups, **fit_kw)
         self.best_params_ = chosen
         self.best_score_ = -min((r["mean"] for r in self.tuning_.get("scores", [])), default=np.nan)
-        self.best_estimator_ = clone(self.estimator).set_params(**chosen).fit(X, U, groups=groups, **fit_kw)
         if hasattr(self.best_estimator_, "n_features_in_"):
             self.n_features_in_ = self.best_estimator_.n_features_in_
         return self
@@ -462,10 +622,22 @@ class Tunable:
     ``tuning_`` records the search. The constructor parameters are left unchanged.
 
     A learner lists its basis candidates in :meth:`_basis_candidates`; only a default
-    RBF basis is tuned (:func:`rbf_tunable`)."""
+    RBF basis is tuned (:func:`rbf_tunable`). Its fit is split so that a search can share
+    work: :meth:`_fit_basis` (the feature map), :meth:`_fit_core` (the fit given a fitted
+    basis and, optionally, a fitted model to start from) and :meth:`_cv_models` (the models
+    of one candidate's cross-validation)."""
 
     #: Folds of this learner's default search (None: :data:`TUNE_FOLDS`).
     TUNE_FOLDS: ClassVar[int | None] = None
+    #: Rows of this learner's search above which it runs on a subset (None: :data:`TUNE_MAX_ROWS`).
+    TUNE_MAX_ROWS: ClassVar[int | None] = None
+    #: Fits its default search may run (None: :data:`TUNE_BUDGET`).
+    TUNE_BUDGET: ClassVar[float | None] = None
+    #: Grid parameters whose first value a search leaves only on clear held-out evidence
+    #: (regularisation; :func:`search`).
+    TUNE_CONSERVATIVE: ClassVar[tuple[str, ...]] = ()
+    #: The parameters its feature map depends on (:meth:`_fit_basis`, :meth:`_basis_key`).
+    BASIS_PARAMS: ClassVar[tuple[str, ...]] = ("basis", "n_centres", "seed")
     _parameter_constraints: ClassVar[dict[str, list]] = TUNE_PARAMS
     tune: bool | dict = TUNE
 
@@ -483,6 +655,62 @@ class Tunable:
                 for spec in basis_grid(X, sizes, widths, self.seed)]
         return {"basis": grid} if grid else {}
 
+    # -- the fit in parts ------------------------------------------------------------------
+    def _fit_basis(self, X: np.ndarray, U: np.ndarray) -> Any:
+        """The learner's feature map (its ``basis``, ``n_centres`` and ``seed``) fitted on the
+        states X (N, p) of a fit with actions U (N, q)."""
+        from ccl_cli.learn.basis import make_basis
+
+        return make_basis(self.basis, self.n_centres, self.seed).fit(X)
+
+    def _basis_key(self) -> tuple:
+        """What :meth:`_fit_basis` depends on (the values of :attr:`BASIS_PARAMS`), hashable:
+        candidates with equal keys share one fitted basis in a search."""
+        return tuple(_frozen(getattr(self, name)) for name in self.BASIS_PARAMS)
+
+    def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                  basis: Any = None, start: Any = None, **fit_kw: Any) -> Any:
+        """The untuned fit on checked X (N, p), U (N, q): with ``basis`` (fitted; None: the
+        learner's own, :meth:`_fit_basis`) and ``start``, a fitted model of the same learner
+        and basis to start an iterative fit from (None: the learner's own start)."""
+        raise NotImplementedError
+
+    def _fit_given(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None, basis: Any = None,
+                   start: Any = None, **fit_kw: Any) -> Any:
+        """:meth:`_fit_core` of an untuned copy after the checks of ``fit``; returns the copy
+        (with ``_fit_rows``, the number of rows it was fitted on)."""
+        model = clone(self).set_params(tune=False)
+        X, U = model._prepare_fit(X, U)
+        model._fit_core(X, U, groups=groups, basis=basis, start=start, **fit_kw)
+        model._fit_rows = len(U)  # a fit started from this one reads how many rows it saw
+        return model
+
+    def _cv_models(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray, folds: Folds, *,
+                   basis: Any = None, shared: dict[Any, Any] | None = None, **fit_kw: Any
+                   ) -> tuple[Any, list[Any]]:
+        """The models of this candidate's cross-validation (:func:`candidate_models`): one
+        basis fitted on all of X (unless given; k-means sees no actions), the candidate
+        fitted on all rows, and each training fold fitted starting from that fit (an
+        iterative fit run to its tolerance from a start near its optimum; a closed-form
+        learner overrides this with downdated normal equations and keeps them in ``shared``,
+        the search's store, for its candidates on the same basis)."""
+        basis = self._fit_basis(X, U) if basis is None else basis
+        full = self._fit_given(X, U, groups=groups, basis=basis, **fit_kw)
+        models = [self._fit_given(X[train], U[train], groups=groups[train], basis=basis, start=full,
+                                  **take_rows(fit_kw, train))
+                  for train, _ in folds.pairs]
+        return full, models
+
+    def _fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None, **fit_kw: Any) -> Any:
+        """The body of every learner's ``fit``: check the parameters and the data, then search
+        (``tune``) or fit once, with one BLAS thread (with more, OpenBLAS's results depend on
+        their number: eigh, solve and some products change in their last bits)."""
+        X, U = self._prepare_fit(X, U)
+        with blas.threads(1):
+            if not self._fit_tuned(X, U, groups=groups, **fit_kw):
+                self._fit_core(X, U, groups=groups, **fit_kw)
+        return self
+
     def _fit_tuned(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None, **fit_kw: Any) -> bool:
         """Search and adopt the winner when ``tune`` is on; False (``tuning_ = None``) when
         there is nothing to tune and the caller fits as usual."""
@@ -498,6 +726,24 @@ class Tunable:
         self._adopt(search.best_estimator_)
         self.tuning_ = search.tuning_
         return True
+
+
+def _frozen(value: Any) -> Any:
+    """A hashable stand-in for a parameter value: mappings and sequences as tuples, arrays by
+    their shape and a digest of their bytes, callables and other objects by identity."""
+    if isinstance(value, dict):
+        return tuple(sorted((k, _frozen(v)) for k, v in value.items()))
+    if isinstance(value, list | tuple):
+        return tuple(_frozen(v) for v in value)
+    if isinstance(value, np.ndarray):
+        import hashlib
+
+        data = np.ascontiguousarray(value)
+        digest = hashlib.blake2b(data.view(np.uint8), digest_size=16).digest()
+        return ("array", data.shape, str(data.dtype), digest)
+    if isinstance(value, str | int | float | bool | type(None)):
+        return value
+    return ("object", id(value))
 
 
 def rbf_tunable(basis: Any) -> bool:

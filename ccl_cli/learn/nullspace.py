@@ -52,9 +52,9 @@ import numpy as np
 
 from ccl_cli.errors import LearningError
 from ccl_cli.learn.base import Estimator
-from ccl_cli.learn.basis import BasisParams, feature_blocks, make_basis
+from ccl_cli.learn.basis import Basis, BasisParams, Blocks, feature_blocks, feature_cache_bytes
 from ccl_cli.learn.consistency import npe_error
-from ccl_cli.learn.linalg import eigen_lstsq, kron_least_squares, row_chunks
+from ccl_cli.learn.linalg import WARM_TOL, eigen_lstsq, kron_least_squares, lift_to_rows, row_chunks
 from ccl_cli.learn.model_selection import Tunable
 from ccl_cli.learn.params import ITERATION_PARAMS, Interval, SeedParams, parameters
 
@@ -125,8 +125,10 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
         tune: choose the basis by cross-validation (:class:`ccl_cli.learn.model_selection.Tuned`;
             True by default, a dict ``{budget, grid, folds, max_rows}`` to adjust, False for
             the fixed settings). Grid: K ∈ {n_centres, 16, 36, 64, 100} k-means RBF centres
-            (at most N/2; default width rule), scored by held-out NPE over :attr:`TUNE_FOLDS`
-            folds. A basis the user fixed (linear, explicit centres or σ²) is not tuned.
+            (at most N/2; default width rule), run from the smallest up while a larger one
+            helps (:func:`ccl_cli.learn.model_selection.search`), scored by held-out NPE over
+            :attr:`TUNE_FOLDS` folds on at most :attr:`TUNE_MAX_ROWS` rows. A basis the user
+            fixed (linear, explicit centres or σ²) is not tuned.
 
     Attributes:
         basis_, W_ (q, K), cost_ (Σ r² of the original residual at W_), objective_ (the
@@ -140,6 +142,9 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
 
     #: Folds of the basis search: 5, not 3 (docs/measurements.md, "ncl").
     TUNE_FOLDS = 5
+    #: Rows of the basis search at most (a seeded subset above; docs/measurements.md, "Tuning":
+    #: the same test errors at N = 1e5 as with 20000 rows, at a third of the time).
+    TUNE_MAX_ROWS = 5000
     _parameter_constraints: ClassVar[dict[str, list]] = {
         **ITERATION_PARAMS, "chunk_size": [Interval(int, 1, None), None],
         "polish": [bool], "smoothing": [Interval(float, 0, None)]}
@@ -159,62 +164,96 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
             ) -> NullSpaceComponent:
         """Learn w̃ from states X (N, p) and actions U (N, q); ``groups`` (N,):
         demonstration ids, for the folds of tuning."""
-        X, U = self._prepare_fit(X, U)
-        if self._fit_tuned(X, U, groups=groups):
-            return self
-        self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
-        blocks = feature_blocks(self.basis_, X, self.chunk_size)
-        K = self.basis_.n_features
+        return self._fit(X, U, groups=groups)
+
+    def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                  basis: Basis | None = None, start: NullSpaceComponent | None = None
+                  ) -> NullSpaceComponent:
+        """The staged fit with a fitted ``basis`` (None: this learner's own). From ``start``
+        (a fitted model on the same basis, e.g. on other rows of the same data) the first
+        stages are skipped: its W (seen through these rows when it was fitted on more,
+        :func:`~ccl_cli.learn.linalg.lift_to_rows`) is the start of stage 3 (δ² from its w̃ on
+        these rows; with
+        ``polish=False`` of the smooth stage on all rows), run to
+        :data:`~ccl_cli.learn.linalg.WARM_TOL`."""
+        self.basis_ = self._fit_basis(X, U) if basis is None else basis
+        cache = feature_cache_bytes(X, U)
+        blocks = feature_blocks(self.basis_, X, self.chunk_size, cache)
         n, q = U.shape
+        self.stages_: list[dict] = []
+        if start is not None:  # the last stages from a fit of the same basis on other rows of the data
+            W = np.array(start.W_, dtype=float)
+            if start._fit_rows > n:  # a fit on more rows (a fold's start): what these rows see of it
+                W = lift_to_rows(W, blocks)
+            if self.polish:
+                return self._polish(W, blocks, U, n, n, blocks, U, WARM_TOL)
+            W, cost = self._stage("smooth", W, blocks, smooth_residual(U), n, max(self.tol, WARM_TOL), 1e-12)
+            return self._done(W, cost, blocks, U, n, q)
+        K = self.basis_.n_features
         BtB, BtU = np.zeros((K, K)), np.zeros((K, q))
         for rows, B in blocks():
             BtB += B.T @ B
             BtU += B.T @ U[rows]
         W = eigen_lstsq(BtB, BtU.T, 1e-8)  # (q, K): the OLS start
-
         m = subsample_size(n, K * q)
         if m < n:
             keep = np.sort(np.random.default_rng(self.seed).choice(n, m, replace=False))
-            U_s, sub_blocks = U[keep], feature_blocks(self.basis_, X[keep], self.chunk_size)
+            U_s, sub_blocks = U[keep], feature_blocks(self.basis_, X[keep], self.chunk_size, cache)
         else:
             U_s, sub_blocks = U, blocks
-
-        def stage(name: str, W: np.ndarray, on_all: bool, residual: Residual, tol: float,
-                  mu0: float, delta2: float | None = None, passes: int | None = None
-                  ) -> tuple[np.ndarray, float]:
-            info: dict = {}
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # checked below
-                W, cost, _ = kron_least_squares(W, blocks if on_all else sub_blocks, residual,
-                                                passes or self.max_iter, tol, info=info, mu0=mu0)
-            self.stages_.append({"stage": name, "rows": n if on_all else m, "delta2": delta2,
-                                 **info})
-            return W, cost
-
-        self.stages_: list[dict] = []
         if not np.any(W):  # BᵀU = 0: no action has a component along the features
             return self._finish(W, 0.0, 0.0, "zero start", q)
         last = not self.polish and m == n
-        W, cost = stage("smooth", W, m == n, smooth_residual(U_s),
-                        self.tol if last else STAGE_TOL, 1e-3)
-        if not self.polish and m < n:
-            W, cost = stage("smooth", W, True, smooth_residual(U), self.tol, 1e-12)
-        if self.polish:
-            Wt2 = 0.0
-            with np.errstate(over="ignore", invalid="ignore"):
-                for _, B in sub_blocks():
-                    Wt2 += float(np.sum((B @ W.T) ** 2))
-            delta2 = self.smoothing * Wt2 / m
-            name = "smoothed original" if delta2 > 0 else "original"
+        W, cost = self._stage("smooth", W, sub_blocks if m < n else blocks, smooth_residual(U_s), m,
+                              self.tol if last else STAGE_TOL, 1e-3)
+        if not self.polish:
             if m < n:
-                W, cost = stage(name, W, False, wall_residual(U_s, delta2), STAGE_TOL * 1e-2,
-                                1e-8, delta2)
-            W, cost = stage(name, W, True, wall_residual(U, delta2), self.tol,
-                            1e-12 if m < n else 1e-8, delta2)
-            if delta2 > 0:
-                W, cost = stage("original", W, True, wall_residual(U, 0.0), self.tol, 1e-12, 0.0,
-                                min(ORIGINAL_PASSES, self.max_iter))
-                if self.stages_[-1]["stop"] == "max_iter":
-                    self.stages_[-1]["stop"] = "budget"
+                W, cost = self._stage("smooth", W, blocks, smooth_residual(U), n, self.tol, 1e-12)
+            return self._done(W, cost, blocks, U, n, q)
+        return self._polish(W, blocks, U, n, m, sub_blocks, U_s)
+
+    def _mean_square(self, W: np.ndarray, blocks: Blocks, n: int) -> float:
+        """mean_n ‖w̃_n‖² over the rows of ``blocks`` (n of them)."""
+        total = 0.0
+        with np.errstate(over="ignore", invalid="ignore"):
+            for _, B in blocks():
+                total += float(np.sum((B @ W.T) ** 2))
+        return total / n
+
+    def _polish(self, W: np.ndarray, blocks: Blocks, U: np.ndarray, n: int, m: int, sub_blocks: Blocks,
+                U_s: np.ndarray, tol: float | None = None) -> NullSpaceComponent:
+        """Stages 2–4 from W (q, K): the smoothed original residual on the m-row subsample
+        (when m < n) and on all n rows, then at most ORIGINAL_PASSES of the original; stages
+        3–4 to ``tol`` when larger than the learner's."""
+        tol = max(self.tol, tol or 0.0)
+        delta2 = self.smoothing * self._mean_square(W, sub_blocks, m)
+        name = "smoothed original" if delta2 > 0 else "original"
+        if m < n:
+            W, cost = self._stage(name, W, sub_blocks, wall_residual(U_s, delta2), m, STAGE_TOL * 1e-2,
+                                  1e-8, delta2)
+        W, cost = self._stage(name, W, blocks, wall_residual(U, delta2), n, tol,
+                              1e-12 if m < n or not self.stages_ else 1e-8, delta2)
+        if delta2 > 0:
+            W, cost = self._stage("original", W, blocks, wall_residual(U, 0.0), n, tol, 1e-12, 0.0,
+                                  min(ORIGINAL_PASSES, self.max_iter))
+            if self.stages_[-1]["stop"] == "max_iter":
+                self.stages_[-1]["stop"] = "budget"
+        return self._done(W, cost, blocks, U, n, U.shape[1])
+
+    def _stage(self, name: str, W: np.ndarray, blocks: Blocks, residual: Residual, rows: int, tol: float,
+               mu0: float, delta2: float | None = None, passes: int | None = None
+               ) -> tuple[np.ndarray, float]:
+        """One Levenberg–Marquardt stage; its passes and stop reason go to ``stages_``."""
+        info: dict = {}
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # checked by _done
+            W, cost, _ = kron_least_squares(W, blocks, residual, passes or self.max_iter, tol, info=info,
+                                            mu0=mu0)
+        self.stages_.append({"stage": name, "rows": rows, "delta2": delta2, **info})
+        return W, cost
+
+    def _done(self, W: np.ndarray, cost: float, blocks: Blocks, U: np.ndarray, n: int, q: int
+              ) -> NullSpaceComponent:
+        """The original cost at W (a pass, unless the last stage minimised it on all rows)."""
         if self.stages_[-1]["delta2"] == 0.0 and self.stages_[-1]["rows"] == n:
             original_cost = cost  # the last stage minimised the original residual itself
         else:

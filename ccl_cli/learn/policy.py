@@ -23,21 +23,23 @@ feature matrix, no N × K q regressor matrix); predict works in the same blocks.
 
 from __future__ import annotations
 
-from typing import ClassVar, get_args
+from typing import Any, ClassVar, get_args
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError, LearningError
-from ccl_cli.learn.base import Estimator
-from ccl_cli.learn.basis import BasisParams, RBFBasis, make_basis
+from ccl_cli.learn.base import Estimator, clone
+from ccl_cli.learn.basis import Basis, BasisParams, RBFBasis
 from ccl_cli.learn.consistency import inconsistency_error
 from ccl_cli.learn.defaults import POLICY_METHOD
-from ccl_cli.learn.linalg import eigen_lstsq, kron_rows, row_chunks
-from ccl_cli.learn.model_selection import Tunable
+from ccl_cli.learn.linalg import eigen_solve, kron_rows, row_chunks
+from ccl_cli.learn.model_selection import Folds, Tunable
 from ccl_cli.learn.params import CutoffRule, Interval, Options, SeedParams, parameters
 from ccl_cli.learn.params import PolicyMethod as Method
 
 METHODS = get_args(Method)
+#: Cut-offs a default search tries besides the configured one (docs/measurements.md, "pi and lwpi").
+CUTOFFS = (1e-9, 1e-12)
 
 
 @parameters
@@ -57,8 +59,10 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         chunk_size: rows per block of the normal-equation sums (default 8192).
         tune: choose the basis by cross-validation (:class:`ccl_cli.learn.model_selection.Tuned`;
             True by default, a dict ``{budget, grid, folds, max_rows}`` to adjust, False for
-            the fixed settings). Grid: K ∈ {n_centres, 16, 49, 100} × σ² factors {1, ½, ¼}; for
-            lwpi K ∈ {n_centres, 9, 16, 25, 49} × {1, ½, ¼, 0.1, 0.05}.
+            the fixed settings). Grid: K ∈ {n_centres, 16, 25, 49, 100} × σ² factors {1, ½, ¼}
+            × cut-offs {cutoff, 1e-9, 1e-12} (relative rule); for lwpi K ∈ {n_centres, 9, 16,
+            25, 49, 100} × {1, ¼, 0.1, 0.03, 0.01}; the search runs from the smallest basis up
+            (:func:`ccl_cli.learn.model_selection.search`).
 
     Attributes:
         basis_, W_ ((K, q); for lwpi (K, p + 1, q)), n_used_, n_features_in_, tuning_.
@@ -70,6 +74,10 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         "cutoff_rule": [Options.of(CutoffRule)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_action_": "value", "n_used_": "value", "W_": "array", "basis_": "basis"}
+    #: Fits of the default search at most: its grid, (5 sizes × 3 widths) × 3 cut-offs × 3 folds.
+    TUNE_BUDGET = 400
+    #: The cut-off leaves the configured one only on clear held-out evidence (noise-free data).
+    TUNE_CONSERVATIVE = ("cutoff",)
     method: Method = POLICY_METHOD
     cutoff: float = 1e-6
     min_norm: float = 1e-6
@@ -78,77 +86,189 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         if self.method == "lwpi":
-            return [((self.n_centres, 9, 16, 25, 49), (1.0, 0.5, 0.25, 0.1, 0.05))]
-        return [((self.n_centres, 16, 49, 100), (1.0, 0.5, 0.25))]
+            return [((self.n_centres, 9, 16, 25, 49, 100), (1.0, 0.25, 0.1, 0.03, 0.01))]
+        return [((self.n_centres, 16, 25, 49, 100), (1.0, 0.5, 0.25))]
+
+    def _tune_grid(self, X: np.ndarray, U: np.ndarray) -> dict[str, list[Any]]:
+        """The basis grid and, with the relative rule and a method with one global system, the
+        cut-offs {configured, 1e-9, 1e-12} (noise-free data want the small ones, noisy data the
+        configured one; candidates differing only in the cut-off share their normal equations)."""
+        grid = super()._tune_grid(X, U)
+        if grid and self.cutoff_rule == "relative" and self.method != "lwpi":
+            grid["cutoff"] = list(dict.fromkeys([float(self.cutoff), *CUTOFFS]))
+        return grid
 
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
             projections: np.ndarray | None = None) -> PolicyLearner:
         """Fit on states X (N, p), actions U (N, q); ``pi-coupled`` needs ``projections``
         Ñ_n (N, q, q) (true, or from a learnt constraint model). ``groups`` (N,):
         demonstration ids, only for the folds of tuning."""
-        X, U = self._prepare_fit(X, U)
-        if self._fit_tuned(X, U, groups=groups, projections=projections):
-            return self
-        absolute = self.cutoff_rule == "absolute"
-        self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
-        self.n_action_ = U.shape[1]
-        norm = np.linalg.norm(U, axis=1)
-        if self.method in ("pi", "pi-weighted", "lwpi"):
-            keep = norm > self.min_norm
-            if not keep.all():
-                X, U, norm = X[keep], U[keep], norm[keep]
-            if len(X) < 2:
-                raise LearningError(f"fewer than 2 samples with ‖u‖ > {self.min_norm}")
-        self.n_used_ = int(len(X))
-        q = self.n_action_
-        K = self.basis_.n_features
-        P = None
-        if self.method == "pi-coupled":
-            if projections is None:
-                raise InputError("pi-coupled needs the projections Ñ_n (true or learnt)")
-            P = np.asarray(projections, dtype=float)
-            if P.shape != (len(X), q, q):
-                raise InputError(f"projections must be ({len(X)}, {q}, {q}), got {P.shape}")
-        if self.method == "lwpi" and not isinstance(self.basis_, RBFBasis):
+        return self._fit(X, U, groups=groups, projections=projections)
+
+    def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                  basis: Basis | None = None, start: PolicyLearner | None = None,
+                  projections: np.ndarray | None = None) -> PolicyLearner:
+        """The closed-form fit with a fitted ``basis`` (None: this learner's own); ``start``
+        is not needed (nothing iterates)."""
+        basis = self._checked_basis(X, U, basis)
+        P = self._checked_projections(projections, U)
+        rows = np.flatnonzero(self._usable(U))
+        if len(rows) < 2:
+            raise LearningError(f"fewer than 2 samples with ‖u‖ > {self.min_norm}")
+        M, r = self._normal_equations(basis, X, U, P, [None if len(rows) == len(U) else rows])[0]
+        return self._finish(basis, M, r, len(rows), U.shape[1])
+
+    def _cv_models(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray, folds: Folds, *,
+                   basis: Basis | None = None, shared: dict[Any, Any] | None = None,
+                   projections: np.ndarray | None = None) -> tuple[PolicyLearner, list[PolicyLearner]]:
+        """This candidate on all rows and on each training fold from one pass over the data:
+        the normal equations of each test fold (and of the guard gaps of time blocks) are
+        summed once, and a fold's training equations are the total minus them (a downdate)
+        — the fits the folds would give, for the cost of one fit. The equations and their
+        eigen-decompositions are kept in ``shared`` (the search's store) for its other
+        candidates on the same basis: other cut-offs cost no pass and no decomposition."""
+        basis = self._checked_basis(X, U, basis)
+        P = self._checked_projections(projections, U)
+        usable = self._usable(U)
+        key = ("policy normal equations", id(basis), self.method, float(self.min_norm))
+        shared = {} if shared is None else shared
+        if key not in shared:
+            shared[key] = self._fold_equations(basis, X, U, P, usable, folds)
+        systems = shared[key]
+        q, p = U.shape[1], X.shape[1]
+        models = [self._copy(p)._finish(basis, M, r, n, q, eig) for M, r, n, eig in systems]
+        return models[0], models[1:]
+
+    def _fold_equations(self, basis: Basis, X: np.ndarray, U: np.ndarray, P: np.ndarray | None,
+                        usable: np.ndarray, folds: Folds) -> list[tuple]:
+        """(M, r, samples used, eigen-decomposition of M) of all rows, then of each training
+        fold, from one pass (see :meth:`_cv_models`)."""
+        n = len(U)
+        in_test = np.zeros(n, bool)
+        sets = []
+        for _, test in folds.pairs:
+            in_test[test] = True
+            sets.append(test[usable[test]])
+        rest = np.flatnonzero(usable & ~in_test)
+        gaps = []
+        for train, test in folds.pairs:  # rows neither trained on nor tested (guard gaps)
+            out = np.ones(n, bool)
+            out[train] = False
+            out[test] = False
+            gaps.append(np.flatnonzero(out & usable))
+        sums = self._normal_equations(basis, X, U, P, [*sets, rest, *gaps])
+        k = len(sets)
+        M = sum(m for m, _ in sums[: k + 1])
+        r = sum(v for _, v in sums[: k + 1])
+        systems = [(M, r, int(usable.sum()))]
+        for i, (train, _) in enumerate(folds.pairs):
+            n_used = int(usable[train].sum())
+            if n_used < 2:
+                raise LearningError(f"fewer than 2 samples with ‖u‖ > {self.min_norm} in a training fold")
+            (Mi, ri), (Mg, rg) = sums[i], sums[k + 1 + i]
+            systems.append((M - Mi - Mg, r - ri - rg, n_used))
+        return [(M, r, n_used, np.linalg.eigh(M)) for M, r, n_used in systems]
+
+    # -- the parts of a fit ----------------------------------------------------------------
+    def _copy(self, n_features: int) -> PolicyLearner:
+        """A copy with this learner's parameters, untuned, for a fit of a search on states of
+        ``n_features`` dimensions (recorded as ``n_features_in_``, as ``fit`` does)."""
+        model = clone(self).set_params(tune=False)
+        model.n_features_in_ = int(n_features)
+        return model
+
+    def _checked_basis(self, X: np.ndarray, U: np.ndarray, basis: Basis | None) -> Basis:
+        """``basis`` or this learner's own fitted on X; lwpi needs an RBF basis."""
+        basis = self._fit_basis(X, U) if basis is None else basis
+        if self.method == "lwpi" and not isinstance(basis, RBFBasis):
             raise ConfigError("lwpi needs an RBF basis (its centres weight the local models)")
-        d = X.shape[1] + 1
-        size = {"dpl": K, "lwpi": K * d * q}.get(self.method, K * q)
-        M = np.zeros((K, d * q, d * q)) if self.method == "lwpi" else np.zeros((size, size))
-        r = np.zeros((K, d * q) if self.method == "lwpi" else (size, q) if self.method == "dpl"
-                     else size)
-        for rows in row_chunks(len(X), self.chunk_size):
-            B = self.basis_.transform(X[rows])
-            Ub, nb = U[rows], norm[rows]
-            if self.method == "dpl":
-                M += B.T @ B
-                r += B.T @ Ub
-            elif self.method in ("pi", "pi-weighted"):
-                # rows kron(β_n, û_n) (pi) or kron(β_n, u_n) (pi-weighted), target ‖u‖ or ‖u‖²
-                R = kron_rows(B, Ub / nb[:, None] if self.method == "pi" else Ub)
-                M += R.T @ R
-                r += R.T @ (nb if self.method == "pi" else nb**2)
-            elif self.method == "pi-coupled":
-                # rows Ñ_n [β_1 I, ..., β_K I] (q, K q): M = Σ_n kron(β_n β_nᵀ, Ñ_nᵀÑ_n),
-                # one BLAS product per (i, j) entry; r = Σ_n β_n ⊗ Ñ_nᵀ u_n
-                Pb = P[rows]
-                G = np.einsum("nai,naj->nij", Pb, Pb, optimize=True)
-                M4 = M.reshape(K, q, K, q)
-                for i in range(q):  # loops over action dimensions, not samples
-                    for j in range(q):
-                        M4[:, i, :, j] += (B * G[:, i, j, None]).T @ B
-                r += (B.T @ np.einsum("nai,na->ni", Pb, Ub, optimize=True)).ravel()
-            else:  # lwpi: per centre c, Σ_n β_c(x_n) R_n R_nᵀ with rows R_n = φ_n ⊗ û_n
-                phi = np.hstack([X[rows], np.ones((len(B), 1))])
-                R = kron_rows(phi, Ub / nb[:, None])
-                D = R.shape[1]
-                M += (B.T @ (R[:, :, None] * R[:, None, :]).reshape(len(B), D * D)).reshape(K, D, D)
-                r += B.T @ (R * nb[:, None])
+        return basis
+
+    def _checked_projections(self, projections: np.ndarray | None, U: np.ndarray) -> np.ndarray | None:
+        """The projections Ñ_n (N, q, q) of pi-coupled (None for the other methods)."""
+        if self.method != "pi-coupled":
+            return None
+        if projections is None:
+            raise InputError("pi-coupled needs the projections Ñ_n (true or learnt)")
+        P = np.asarray(projections, dtype=float)
+        n, q = U.shape
+        if P.shape != (n, q, q):
+            raise InputError(f"projections must be ({n}, {q}, {q}), got {P.shape}")
+        return P
+
+    def _usable(self, U: np.ndarray) -> np.ndarray:
+        """Samples that enter the fit (N,): ‖u‖ > ``min_norm`` for pi, pi-weighted and lwpi
+        (a direction is needed), all for dpl and pi-coupled."""
+        if self.method in ("pi", "pi-weighted", "lwpi"):
+            return np.linalg.norm(U, axis=1) > self.min_norm
+        return np.ones(len(U), bool)
+
+    def _normal_equations(self, basis: Basis, X: np.ndarray, U: np.ndarray, P: np.ndarray | None,
+                          index_sets: list[np.ndarray | None]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The normal equations (M, r) of each set of rows (an index array, or None: all),
+        summed over blocks of ``chunk_size`` rows. Shapes: dpl M (K, K), r (K, q); lwpi
+        M (K, D, D), r (K, D) with D = (p + 1) q; else M (K q, K q), r (K q,)."""
+        K, q, d = basis.n_features, U.shape[1], X.shape[1] + 1
+        out = []
+        for idx in index_sets:
+            n = len(U) if idx is None else len(idx)
+            if self.method == "lwpi":
+                M, r = np.zeros((K, d * q, d * q)), np.zeros((K, d * q))
+            elif self.method == "dpl":
+                M, r = np.zeros((K, K)), np.zeros((K, q))
+            else:
+                M, r = np.zeros((K * q, K * q)), np.zeros(K * q)
+            for block in row_chunks(n, self.chunk_size):
+                rows = block if idx is None else idx[block]
+                Mb, rb = self._block_equations(basis, X[rows], U[rows], None if P is None else P[rows])
+                M += Mb
+                r += rb
+            out.append((M, r))
+        return out
+
+    def _block_equations(self, basis: Basis, X: np.ndarray, U: np.ndarray, P: np.ndarray | None
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """The normal equations of one block of samples X (c, p), U (c, q) (P (c, q, q))."""
+        B = basis.transform(X)
         if self.method == "dpl":
-            self.W_ = eigen_lstsq(M, r.T, self.cutoff, absolute).T
+            return B.T @ B, B.T @ U
+        norm = np.linalg.norm(U, axis=1)
+        if self.method in ("pi", "pi-weighted"):
+            # rows kron(β_n, û_n) (pi) or kron(β_n, u_n) (pi-weighted), target ‖u‖ or ‖u‖²
+            R = kron_rows(B, U / norm[:, None] if self.method == "pi" else U)
+            return R.T @ R, R.T @ (norm if self.method == "pi" else norm**2)
+        if self.method == "pi-coupled":
+            # rows Ñ_n [β_1 I, ..., β_K I] (q, K q): M = Σ_n kron(β_n β_nᵀ, Ñ_nᵀÑ_n),
+            # one BLAS product per (i, j) entry; r = Σ_n β_n ⊗ Ñ_nᵀ u_n
+            K, q = B.shape[1], U.shape[1]
+            G = np.einsum("nai,naj->nij", P, P, optimize=True)
+            M = np.empty((K, q, K, q))
+            for i in range(q):  # loops over action dimensions, not samples
+                for j in range(q):
+                    M[:, i, :, j] = (B * G[:, i, j, None]).T @ B
+            r = (B.T @ np.einsum("nai,na->ni", P, U, optimize=True)).ravel()
+            return M.reshape(K * q, K * q), r
+        # lwpi: per centre c, Σ_n β_c(x_n) R_n R_nᵀ with rows R_n = φ_n ⊗ û_n
+        phi = np.hstack([X, np.ones((len(B), 1))])
+        R = kron_rows(phi, U / norm[:, None])
+        D = R.shape[1]
+        M = (B.T @ (R[:, :, None] * R[:, None, :]).reshape(len(B), D * D)).reshape(len(B.T), D, D)
+        return M, B.T @ (R * norm[:, None])
+
+    def _finish(self, basis: Basis, M: np.ndarray, r: np.ndarray, n_used: int, q: int,
+                eig: tuple[np.ndarray, np.ndarray] | None = None) -> PolicyLearner:
+        """Solve the normal equations by the eigen pseudo-inverse (``cutoff``, ``cutoff_rule``;
+        ``eig``: the eigen-decomposition of M when known) and set the learnt attributes."""
+        absolute = self.cutoff_rule == "absolute"
+        K = basis.n_features
+        vals, vecs = np.linalg.eigh(M) if eig is None else eig
+        if self.method == "dpl":
+            W = eigen_solve(vals[None], vecs[None], r.T, self.cutoff, absolute).T
         elif self.method == "lwpi":
-            self.W_ = eigen_lstsq(M, r, self.cutoff, absolute).reshape(K, d, q)
+            W = eigen_solve(vals, vecs, r, self.cutoff, absolute).reshape(K, -1, q)
         else:
-            self.W_ = eigen_lstsq(M, r, self.cutoff, absolute).reshape(K, q)
+            W = eigen_solve(vals, vecs, r, self.cutoff, absolute).reshape(K, q)
+        self.basis_, self.W_, self.n_used_, self.n_action_ = basis, W, int(n_used), int(q)
         return self
 
     def predict(self, X: np.ndarray) -> np.ndarray:

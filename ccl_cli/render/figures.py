@@ -18,7 +18,6 @@ Arrows are subsampled onto a grid and every figure is drawn once (< 0.5 s each).
 from __future__ import annotations
 
 import functools
-import json
 import logging
 import os
 import time
@@ -110,10 +109,15 @@ def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], **
     return fig, fig.subplots(nrows, ncols, **kw)
 
 
-def save_figure(fig, path: Path, dpi: float = DPI) -> None:
-    """Write ``fig`` as PNG to ``path``."""
-    fig.savefig(path, format="png", dpi=dpi, pil_kwargs={"compress_level": 3})  # zlib 6 → 3: same pixels,
-    # ~1 % larger files, encoding ~40 % faster
+def save_figure(fig, path: Path, dpi: float = DPI, fmt: str | None = None) -> None:
+    """Write ``fig`` to ``path`` as ``fmt`` (default: the format its suffix names): PNG (zlib
+    level 3: the same pixels as 6, ~1 % larger, ~40 % faster to encode), or vector SVG / PDF
+    for a paper. A staging path (``x.png.tmp``) passes the final name's format."""
+    fmt = fmt or Path(path).suffix.lstrip(".").lower() or "png"
+    if fmt == "png":
+        fig.savefig(path, format="png", dpi=dpi, pil_kwargs={"compress_level": 3})
+    else:
+        fig.savefig(path, format=fmt)
 
 
 # -- labels ----------------------------------------------------------------------------------
@@ -124,6 +128,13 @@ def _units(names: list[str], units: list[str] | None) -> list[str]:
         if not out[j] and "." in name:
             out[j] = JOINT_UNITS.get(name.rsplit(".", 1)[1], "")
     return out
+
+
+def wrap(text: str, width: int = 70) -> str:
+    """``text`` broken into lines of at most ``width`` characters (titles that fit the figure)."""
+    import textwrap
+
+    return "\n".join(textwrap.wrap(text, width)) or text
 
 
 def label(name: str, unit: str) -> str:
@@ -140,7 +151,7 @@ def action_labels(d: Demonstrations) -> list[str]:
 
 def describe_data(part: str, d: Demonstrations, ids: np.ndarray | None = None) -> str:
     """Which demonstrations a figure shows: all of ``d`` (``ids`` None) or the given ones."""
-    what = {"test": "held-out (test)", "train": "training",
+    what = {"test": "held-out (test)", "train": "training", "all": "given",
             "test-blocks": "held-out (test) time blocks of", "train-blocks": "training samples of"}[part]
     if ids is None:
         return f"the {d.n_demos} {what} demonstrations"
@@ -217,6 +228,20 @@ def field_figure(title: str, d: Demonstrations, part: str, arrows: dict[str, tup
     return fig
 
 
+def with_gaps(t: np.ndarray, factor: float = 3.0) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]:
+    """Times (n,) with a NaN inserted wherever an interval exceeds ``factor`` × the median one
+    (held-out time blocks, pauses), and the function that does the same to a series (n,), so
+    a line is never drawn across a gap."""
+    dt = np.diff(t)
+    step = np.median(dt[dt > 0]) if np.any(dt > 0) else 0.0
+    breaks = np.flatnonzero(dt > factor * step) + 1 if step > 0 else np.zeros(0, dtype=int)
+
+    def cut(y: np.ndarray) -> np.ndarray:
+        return np.insert(np.asarray(y, dtype=float), breaks, np.nan)
+
+    return cut(t), cut
+
+
 def time_figure(title: str, part: str, d: Demonstrations, lines: dict[str, tuple[str, np.ndarray]]):
     """One row per action dimension over time for up to MAX_DEMOS demonstrations of ``d``;
     ``lines``: style → (label, (N, q))."""
@@ -226,20 +251,20 @@ def time_figure(title: str, part: str, d: Demonstrations, lines: dict[str, tuple
                              sharex="col")
     names = action_labels(d)
     for c, k in enumerate(ids):
-        sel = d.demo == k
-        t = d.t[sel] - d.t[sel][0]
+        sel = np.flatnonzero(d.demo == k)
+        t, cut = with_gaps(d.t[sel])
         for j in range(q):
             ax = axes[j, c]
             for style in ("true", "observed", "baseline", "learnt", "predicted"):
                 if style in lines:
                     name, Y = lines[style]
                     s = STYLE[style]
-                    ax.plot(t, Y[sel, j], label=name, **s)
+                    ax.plot(t, cut(Y[sel, j]), label=name, **s)
             ax.text(0.01, 0.96, names[j], transform=ax.transAxes, va="top", fontsize=7,
                     bbox={"facecolor": "white", "alpha": 0.7, "lw": 0, "pad": 1})
             ax.tick_params(labelsize=7)
         axes[0, c].set_title(f"demonstration {int(k)}", fontsize=8)
-        axes[-1, c].set_xlabel("time from start of demonstration [s]", fontsize=8)
+        axes[-1, c].set_xlabel("time from the start of the recording [s]", fontsize=8)
     fig.suptitle(f"{title}\non {describe_data(part, d, ids)}", fontsize=10)
     fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", ncol=len(lines), fontsize=8,
                frameon=False)
@@ -253,15 +278,16 @@ def selection_figure(selection: dict[str, Any], q: int):
     the chosen k marked; per demonstration, how many demonstrations chose each k."""
     chosen = int(selection.get("n_constraints", 0))
     if "per_demo" in selection:
-        counts = np.bincount(list(selection["per_demo"].values()), minlength=q + 1)[1:]
-        fig, ax = subplots(figsize=(5, 3.2))
-        ax.bar(np.arange(1, len(counts) + 1), counts, color=["tab:red" if k + 1 == chosen else "0.6"
-                                                              for k in range(len(counts))])
+        counts = np.bincount(list(selection["per_demo"].values()), minlength=q)
+        k = np.arange(len(counts))
+        fig, ax = subplots(figsize=(5, 3.4))
+        ax.bar(k, counts, width=0.6, color=["tab:red" if i == chosen else "0.6" for i in k])
+        ax.set_xticks(k)
         ax.set_xlabel("number of constraints k")
         ax.set_ylabel("demonstrations")
-        ax.set_title(f"Constraint count per training demonstration ({selection.get('rule')}); "
-                     f"most common: {chosen}", fontsize=9)
-        fig.subplots_adjust(left=0.14, right=0.97, top=0.88, bottom=0.16)
+        ax.set_title(wrap(f"Number of constraints chosen in each training demonstration; most common: "
+                          f"{chosen}"), fontsize=9)
+        fig.subplots_adjust(left=0.14, right=0.97, top=0.84, bottom=0.16)
         return fig
     series = {key: np.asarray(v, dtype=float) for key, v in selection.items()
               if isinstance(v, list) and len(v) > 1 and all(isinstance(x, int | float) for x in v)}
@@ -281,9 +307,11 @@ def selection_figure(selection: dict[str, Any], q: int):
             "cv": "cross-validated NPOE", "eigengap": "residual of candidate k",
             "threshold": "residual of candidate k"}.get(str(selection.get("rule")), key)
         ax.set_ylabel(f"{meaning if key == 'values' else key} (log)")
-    fig.suptitle(f"How the number of constraints was chosen: rule {selection.get('rule')}\n"
-                 f"{selection.get('reason', '')}", fontsize=9)
-    fig.subplots_adjust(left=0.16 / len(series), right=0.97, top=0.8, bottom=0.3, wspace=0.35)
+    title = wrap(f"How the number of constraints was chosen: rule {selection.get('rule')}") + "\n" + \
+        wrap(str(selection.get("reason", "")), 80)
+    fig.suptitle(title, fontsize=9)
+    top = 1 - (0.15 + 0.17 * (title.count("\n") + 1)) / fig.get_figheight()
+    fig.subplots_adjust(left=0.16 / len(series), right=0.97, top=top, bottom=0.3, wspace=0.35)
     return fig
 
 
@@ -341,71 +369,54 @@ def _draw(make: Callable[[], Any], path: Path) -> float | None:
     return time.perf_counter() - t0
 
 
-def _fork_draw(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path) -> tuple[int, int] | None:
-    """Draw ``jobs`` in a forked child (it dies with this process); returns (pid, the read
-    end of a pipe on which it sends {name: seconds or None} as JSON), or None when no child
-    could be started."""
-    import warnings
-
+def _draw_in_child(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path, send: Any) -> None:
+    """A drawing process's work: draw ``jobs``, send {name: seconds or None} and end. It dies
+    with its parent; any failure ends it without a word (the parent redraws what is missing)."""
     from ccl_cli.lifeline import die_with_parent
 
-    read, write = os.pipe()
     try:
-        with warnings.catch_warnings():  # 3.12+: fork() beside the BLAS's own (idle) threads
-            warnings.simplefilter("ignore", DeprecationWarning)
-            pid = os.fork()
-    except OSError:
-        os.close(read), os.close(write)
-        return None
-    if pid == 0:  # the child: draw, report, leave without running the parent's exit handlers
-        code = 1
-        try:
-            os.close(read)
-            die_with_parent()
-            out = {name: _draw(make, pdir / name) for name, _, make in jobs}
-            os.write(write, json.dumps(out).encode())
-            code = 0
-        except BaseException:  # noqa: BLE001 - the parent redraws whatever the child did not
-            pass
-        finally:
-            os._exit(code)
-    os.close(write)
-    return pid, read
-
-
-def _collect(pid: int, read: int) -> dict[str, float | None]:
-    """The child's report, or {} when it failed (its figures are then drawn again)."""
-    chunks = []
-    try:
-        while chunk := os.read(read, 65536):
-            chunks.append(chunk)
+        die_with_parent()
+        send.send({name: _draw(make, pdir / name) for name, _, make in jobs})
+    except BaseException:  # noqa: BLE001 - the parent redraws whatever the child did not
+        pass
     finally:
-        os.close(read)
-        _, status = os.waitpid(pid, 0)
-    if not os.WIFEXITED(status) or os.WEXITSTATUS(status) != 0:
-        return {}
-    try:
-        return json.loads(b"".join(chunks))
-    except ValueError:
-        return {}
+        send.close()
 
 
 def render(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path, workers: int = 1
            ) -> dict[str, float | None]:
     """Draw every (file name, caption, make) job into ``pdir``; with ``workers`` ≥ 2 (and
-    fork) every other job is drawn by a forked child meanwhile — the figures are
-    independent, and drawing them is most of a small run's time. Returns {name: seconds, or
-    None for a job with nothing to draw}. A child that fails costs only time: the parent
+    fork) every other job is drawn meanwhile by a forked process (``multiprocessing``'s fork
+    context: it starts with the figures' data in memory, nothing is pickled) — the figures
+    are independent, and drawing them is most of a small run's time. Returns {name: seconds,
+    or None for a job with nothing to draw}. A child that fails costs only time: the parent
     then draws its jobs too, so the files are the same either way."""
-    child = None
-    theirs = jobs[1::2] if workers > 1 and len(jobs) > 1 and hasattr(os, "fork") else []
+    import multiprocessing
+    import warnings
+
+    theirs = jobs[1::2] if workers > 1 and len(jobs) > 1 and \
+        "fork" in multiprocessing.get_all_start_methods() else []
+    child = receive = None
     if theirs:
-        child = _fork_draw(theirs, pdir)
-    if child is None:
-        theirs = []
+        ctx = multiprocessing.get_context("fork")
+        receive, send = ctx.Pipe(duplex=False)
+        child = ctx.Process(target=_draw_in_child, args=(theirs, pdir, send), daemon=True)
+        try:
+            with warnings.catch_warnings():  # 3.12+: fork() beside the BLAS's own (idle) threads
+                warnings.simplefilter("ignore", DeprecationWarning)
+                child.start()
+        except OSError:
+            child, theirs = None, []
+        send.close()
     mine = jobs[0::2] if theirs else jobs
     done = {name: _draw(make, pdir / name) for name, _, make in mine}
-    got = _collect(*child) if child is not None else {}
+    got: dict[str, float | None] = {}
+    if child is not None:
+        try:
+            got = receive.recv()
+        except (EOFError, OSError):
+            got = {}  # the child failed: its figures are drawn here
+        child.join()
     for name, _, make in theirs:
         done[name] = got[name] if name in got else _draw(make, pdir / name)
     return done
@@ -416,22 +427,79 @@ DRAW: dict[str, Callable[..., Any]] = {}
 
 
 def draw_views(outdir: Path, views: list[Any], seconds: dict[str, float] | None = None,
-               workers: int = 1) -> list[tuple[str, str]]:
+               workers: int = 1, fmt: str = "png") -> list[tuple[str, str]]:
     """Draw every figure of a run (:class:`~ccl_cli.app.views.View` data) into
-    ``outdir/plots``; returns (caption, relative path) pairs, captions starting with the
-    stage name. ``seconds`` (if given) receives the time of each figure (drawing and PNG;
-    file name → s) and of matplotlib's import."""
+    ``outdir/plots`` as ``fmt`` files (png, svg or pdf); returns (caption, relative path)
+    pairs, captions starting with the stage name. ``seconds`` (if given) receives the time of
+    each figure (drawing and writing; file name → s) and of matplotlib's import."""
     pdir = outdir / "plots"
     pdir.mkdir(exist_ok=True)
     t0 = time.perf_counter()
     _import_matplotlib()
     if seconds is not None:
         seconds["matplotlib import"] = time.perf_counter() - t0
-    jobs = [(v.name, v.caption, partial(DRAW[v.kind], **v.args)) for v in views]
+    jobs = [(str(Path(v.name).with_suffix(f".{fmt}")), v.caption, partial(DRAW[v.kind], **v.args))
+            for v in views]
     drawn = render(jobs, pdir, workers)
     if seconds is not None:
         seconds.update({name: s for name, s in drawn.items() if s is not None})
     return [(caption, f"plots/{name}") for name, caption, _ in jobs if drawn.get(name) is not None]
 
 
-DRAW.update(field=field_figure, time=time_figure, selection=selection_figure, constraint=constraint_figure)
+def trajectory_figure(title: str, d: Demonstrations, part: str, at: np.ndarray, learnt: np.ndarray,
+                      true: np.ndarray | None):
+    """A 3-D view of the states X (N, 3) of ``d``, one colour per demonstration (phases cut
+    into demonstrations show as colours), with the learnt constraint rows (M, s, 3) drawn as
+    arrows at the states ``at`` (M,) and the true ones (wide, light) where known."""
+    Figure, _ = _import_matplotlib()
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    fig = Figure(figsize=(6.4, 5.6))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(projection="3d")
+    names = state_labels(d)
+    extent = float(np.max(d.X.max(0) - d.X.min(0))) or 1.0
+    length = 0.08 * extent
+    colours = _colours(len(d.demo_ids))
+    for c, k in zip(colours, d.demo_ids, strict=True):
+        sel = np.flatnonzero(d.demo == k)
+        ax.plot(*d.X[sel].T, color=c, lw=0.8, alpha=0.8)
+    P = d.X[at]
+    if true is not None:
+        for r in range(true.shape[1]):
+            ax.quiver(*P.T, *(length * true[:, r]).T, color=STYLE["true"]["color"], alpha=0.45, lw=3,
+                      arrow_length_ratio=0.2, label="true constraint row" if r == 0 else None)
+    for r in range(learnt.shape[1]):
+        ax.quiver(*P.T, *(length * learnt[:, r]).T, color=STYLE["learnt"]["color"], lw=1.1,
+                  arrow_length_ratio=0.25, label=f"learnt constraint row{'s' if learnt.shape[1] > 1 else ''}"
+                  if r == 0 else None)
+    ax.set_xlabel(names[0], fontsize=8)
+    ax.set_ylabel(names[1], fontsize=8)
+    ax.set_zlabel(names[2], fontsize=8)
+    ax.tick_params(labelsize=7)
+    _equal_3d(ax, d.X)
+    fig.suptitle(wrap(f"{title} (one colour per demonstration)") + f"\non {describe_data(part, d)}",
+                 fontsize=10)
+    fig.legend(*ax.get_legend_handles_labels(), loc="lower center", ncol=2, fontsize=8, frameon=False)
+    fig.subplots_adjust(left=0.02, right=0.98, top=0.88, bottom=0.08)
+    return fig
+
+
+def _colours(n: int) -> list[Any]:
+    import matplotlib
+
+    cmap = matplotlib.colormaps["tab10" if n <= 10 else "viridis"]
+    return [cmap(i % 10) if n <= 10 else cmap(i / max(n - 1, 1)) for i in range(n)]
+
+
+def _equal_3d(ax: Any, X: np.ndarray) -> None:
+    """Equal scale on the three axes, so a normal looks normal."""
+    mid = (X.max(0) + X.min(0)) / 2
+    half = float(np.max(X.max(0) - X.min(0))) / 2 or 1.0
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+    ax.set_zlim(mid[2] - half, mid[2] + half)
+
+
+DRAW.update(field=field_figure, time=time_figure, selection=selection_figure, constraint=constraint_figure,
+            trajectory=trajectory_figure)

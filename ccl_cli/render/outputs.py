@@ -32,10 +32,17 @@ def _default(value: Any) -> Any:
 
 
 def check_output(outdir: Path, force: bool) -> None:
-    """Before any work: an existing folder ccl did not write is never replaced (InputError)."""
+    """Before any work: an existing folder ccl did not write is never replaced, and the folder
+    the output goes into (or its nearest existing parent) must be writable (InputError)."""
+    from ccl_cli.errors import InputError
     from ccl_cli.io.atomic import check_replaceable
 
     check_replaceable(outdir, force)
+    parent = Path(outdir).absolute().parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"{outdir}: cannot write the output ({parent} is not writable); nothing was done")
 
 
 def write_run(result: RunResult, outdir: Path, force: bool = False, plot_workers: int | None = None,
@@ -56,11 +63,13 @@ def write_run(result: RunResult, outdir: Path, force: bool = False, plot_workers
         for r in models:
             path = tmp / "model.h5" if len(models) == 1 else tmp / "models" / f"{r.name}.h5"
             path.parent.mkdir(exist_ok=True)
-            save_model(path, r.model, training=training_record(r.name, result.cfg, result.data))
+            save_model(path, r.model, training=training_record(r.name, result.cfg, result.data,
+                                                               result.metrics.get(r.name)))
         plot_seconds: dict[str, float] = {}
         if plot_workers is None:
             plot_workers = 2 if (os.cpu_count() or 1) >= 2 else 1
-        plots = draw_views(tmp, result.views, plot_seconds, plot_workers) if result.views else []
+        plots = draw_views(tmp, result.views, plot_seconds, plot_workers, result.cfg.spec.output.format) \
+            if result.views else []
         write_json(tmp / "metrics.json", result.metrics)
         (tmp / "report.md").write_text(markdown(f"ccl {result.command}", result, plots))
         (tmp / "config.yaml").write_text(yaml.safe_dump(result.cfg.raw, sort_keys=False))
@@ -70,20 +79,24 @@ def write_run(result: RunResult, outdir: Path, force: bool = False, plot_workers
     return {**result.summary, "outdir": str(outdir)}
 
 
-def write_evaluation(summary: dict[str, Any], out: Path, force: bool = False) -> None:
-    """``ccl evaluate -o DIR``: metrics.json, report.md and run.json of an evaluation
+def write_evaluation(summary: dict[str, Any], out: Path, force: bool = False, fmt: str = "png") -> None:
+    """``ccl evaluate -o DIR``: metrics.json, report.md (with the figures a run draws for the
+    model's stage, ``plots/``) and run.json of an evaluation
     (:func:`ccl_cli.app.evaluate.evaluate_saved`'s summary), atomically."""
     from ccl_cli.app.provenance import versions
     from ccl_cli.io.atomic import atomic_dir
+    from ccl_cli.render.figures import draw_views
     from ccl_cli.render.report import metric_rows
 
     with atomic_dir(out, force=force) as tmp:
+        plots = draw_views(tmp, summary["views"], fmt=fmt) if summary.get("views") else []
         write_json(tmp / "metrics.json", {"evaluate": summary["entry"]})
         lines = [f"# ccl evaluate: {summary['kind']} model {summary['method']} ({summary['model']})", "",
                  f"On {summary['samples']} samples in {summary['demos']} demonstrations; "
                  f"normalisers: {summary['convention']} convention (docs/metrics.md).", ""]
         lines += metric_rows({"all": summary["metrics"]}) or ["No metric: the data has no ground truth for "
                                                              "this model.", ""]
+        lines += [f"![{caption}]({rel})\n" for caption, rel in plots]
         (tmp / "report.md").write_text("\n".join(lines))
         write_json(tmp / "run.json", {"command": "evaluate", "model": summary["model"],
                                       "inputs": summary["inputs"], "versions": versions()})

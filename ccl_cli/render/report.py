@@ -35,11 +35,13 @@ def metric_rows(entry: dict[str, Any]) -> list[str]:
     rows = []
     for part in ("train", "test", "all"):
         for name, m in (entry.get(part) or {}).items():
-            rows.append(f"| {part} | {name} | {_fmt(m['value'])} | {_fmt(m['error'])} | "
+            spread = f" ± {m['se']:.1e} ({m['n_groups']} pieces)" if m.get("se") is not None else ""
+            rows.append(f"| {part} | {name} | {_fmt(m['value'])}{spread} | {_fmt(m['error'])} | "
                         f"{_fmt(m['normaliser'])} (var of {m['normaliser_of']}) |")
     if not rows:
         return []
-    return ["| data | metric | value | error (mean sq.) | normaliser |", "|---|---|---|---|---|", *rows, ""]
+    return ["| data | metric | value (± SE over demonstrations or held-out blocks) | error (mean sq.) | "
+            "normaliser |", "|---|---|---|---|---|", *rows, ""]
 
 
 def markdown(title: str, result: Any, plots: list[tuple[str, str]]) -> str:
@@ -48,12 +50,14 @@ def markdown(title: str, result: Any, plots: list[tuple[str, str]]) -> str:
     then the diagnostics."""
     results_metrics = result.metrics
     data_info = {**result.record["data"], "validation": result.record["validation"]}
-    lines = [f"# {title}", ""]
+    lines = [f"# {title}", "", f"**Verdict: {result.summary['verdict']}**", ""]
     lines += [f"- samples: {data_info.get('samples')} in {data_info.get('demos')} demonstrations "
               f"(train {data_info.get('train')}, test {data_info.get('test')})",
               f"- state dimension p = {data_info.get('p')}, action dimension q = {data_info.get('q')}",
+              *([f"- states: {', '.join(data_info['states'])}"] if data_info.get("states") else []),
+              *([f"- actions: {', '.join(data_info['actions'])}"] if data_info.get("actions") else []),
               f"- inputs: {', '.join(data_info.get('files', [])) or '—'}",
-              *([f"- actions: {data_info['actions']}"] if data_info.get("actions") else []),
+              *([f"- actions derived: {data_info['derived']}"] if data_info.get("derived") else []),
               "- metrics: mean squared error / normaliser, both shown; see docs/metrics.md", ""]
     lines += validation_markdown(data_info.get("validation"))
     for stage, entry in results_metrics.items():
@@ -62,8 +66,13 @@ def markdown(title: str, result: Any, plots: list[tuple[str, str]]) -> str:
                       "convention", ""]
         else:
             lines += [f"## {HEADINGS.get(stage, stage)} — method {entry.get('method')}", ""]
+        if entry.get("status"):
+            lines += [f"Status: **{entry['status']}**" + "".join(
+                f" — {c['message']}" for c in stage_checks(result, stage)), ""]
         if "on" in entry:
-            lines += [f"Learnt from {OBSERVATIONS.get(entry['on'], entry['on'])}.", ""]
+            why = entry.get("on_reason")
+            source = OBSERVATIONS.get(entry["on"], entry["on"])
+            lines += [f"Learnt from {source}" + (f" ({why})." if why else "."), ""]
         if "n_constraints" in entry:
             sel = entry.get("selection") or {}
             lines.append(f"Constraints: **{entry['n_constraints']}** (rule: {sel.get('rule')}; "
@@ -161,3 +170,8 @@ def diagnostics_lines(warnings: list[dict[str, str]]) -> list[str]:
     lines += ["| code | warning |", "|---|---|"]
     lines += [f"| `{w['code']}` | {w['message'].replace('|', '/')} |" for w in warnings]
     return [*lines, ""]
+
+
+def stage_checks(result: Any, stage: str) -> list[dict[str, str]]:
+    """The verdict checks that fired for ``stage``."""
+    return [c for r in result.results if r.name == stage for c in r.checks]

@@ -3,13 +3,16 @@ one row per job, from the jobs' results (:class:`~ccl_cli.app.batch.JobResult`).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 from ccl_cli.app.batch import JobResult
+from ccl_cli.errors import OutputError
 
 
 def _flat(res: JobResult) -> dict[str, Any]:
@@ -30,17 +33,24 @@ def _flat(res: JobResult) -> dict[str, Any]:
 
 
 def write_summary(out: Path, results: list[JobResult], seconds: float) -> dict[str, Any]:
-    """summary.csv, summary.md, summary.json and summary.png under ``out`` (atomic each)."""
+    """summary.csv, summary.md, summary.json and summary.png under ``out``, staged together:
+    all of them replace the previous ones, or (a full disk, a file-size limit) none does and
+    an :class:`~ccl_cli.errors.OutputError` says so; what the batch left empty goes too."""
+    from ccl_cli.io.atomic import release_folder
+
+    try:
+        return _write_summary(out, results, seconds)
+    except BaseException as exc:
+        release_folder(out, fault=isinstance(exc, OutputError))
+        raise
+
+
+def _write_summary(out: Path, results: list[JobResult], seconds: float) -> dict[str, Any]:
     from ccl_cli.io.atomic import atomic_path
 
     rows = [_flat(r) for r in results]
     fixed = ["job", "files", "method", "n_constraints", "status", "seconds", "error"]
     metric_cols = sorted({k for r in rows for k in r} - set(fixed))
-    with atomic_path(out / "summary.csv", force=True) as tmp, open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fixed[:6] + metric_cols + ["error"])
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: r.get(k, "") for k in w.fieldnames})
     counts = {s: sum(r.status == s for r in results) for s in ("ok", "skipped", "failed")}
     lines = [f"# ccl batch — {len(results)} jobs: {counts['ok']} ran, {counts['skipped']} skipped, "
              f"{counts['failed']} failed ({seconds:.1f} s)", ""]
@@ -55,21 +65,29 @@ def write_summary(out: Path, results: list[JobResult], seconds: float) -> dict[s
     if failed:
         lines += ["", "## Failures", ""]
         lines += [f"- `{r.job_id}` ({', '.join(r.files)}): {r.error}" for r in failed]
-    if _plot(out, rows, shown):
-        lines += ["", "![metrics across jobs](summary.png)"]
-    with atomic_path(out / "summary.md", force=True) as tmp:
-        tmp.write_text("\n".join(lines) + "\n")
     summary = {"status": "ok" if not failed else "failed", "jobs": len(results), **counts,
                "seconds": seconds, "failures": [{"job": r.job_id, "files": r.files, "error": r.error}
                                                 for r in failed],
                "results": [asdict(r) for r in results]}
-    with atomic_path(out / "summary.json", force=True) as tmp:
-        tmp.write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    with contextlib.ExitStack() as staged:  # each commits when the stack closes without error
+        def stage(name: str) -> Path:
+            return staged.enter_context(atomic_path(out / name, force=True))
+
+        with open(stage("summary.csv"), "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=fixed[:6] + metric_cols + ["error"])
+            w.writeheader()
+            for r in rows:
+                w.writerow({k: r.get(k, "") for k in w.fieldnames})
+        if _plot(stage, rows, shown):
+            lines += ["", "![metrics across jobs](summary.png)"]
+        stage("summary.md").write_text("\n".join(lines) + "\n")
+        stage("summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
     return summary
 
 
-def _plot(out: Path, rows: list[dict], columns: list[str]) -> bool:
-    """One panel per metric: its value per job, coloured by method (log scale)."""
+def _plot(stage: Callable[[str], Path], rows: list[dict], columns: list[str]) -> bool:
+    """One panel per metric: its value per job, coloured by method (log scale), saved to
+    ``stage("summary.png")``; False when there is nothing to plot."""
     cols = [c for c in columns if any(isinstance(r.get(c), float) and r[c] > 0 for r in rows)][:6]
     if not cols:
         return False
@@ -93,8 +111,5 @@ def _plot(out: Path, rows: list[dict], columns: list[str]) -> bool:
     axes[-1, 0].set_xlabel("job")
     axes[0, 0].legend(fontsize=6, loc="best")
     fig.tight_layout()
-    from ccl_cli.io.atomic import atomic_path
-
-    with atomic_path(out / "summary.png", force=True) as tmp:
-        save_figure(fig, tmp, dpi=80)
+    save_figure(fig, stage("summary.png"), dpi=80, fmt="png")
     return True

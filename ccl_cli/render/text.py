@@ -12,18 +12,20 @@ def json_line(summary: dict[str, Any]) -> str:
 
 
 def summary_lines(summary: dict[str, Any], quiet: bool = False) -> list[str]:
-    """A run's summary for stderr: the validation split, one line per stage (and baseline)
-    with its constraint count and metrics, where the outputs went. With ``quiet`` only a
-    held-out set of time blocks is stated (a choice the user must know about, like a warning)."""
+    """A run's summary for stderr: the verdict, the validation split, one line per stage (and
+    baseline) with its status, constraint count and metrics, where the outputs went; nothing
+    with ``quiet``."""
+    if quiet:  # -q: nothing but warnings and errors (the checks behind a poor verdict are warnings)
+        return []
     out = []
+    if summary.get("verdict"):
+        out.append(f"verdict: {summary['verdict']}")
     val = summary.get("validation")
-    if val and (not quiet or val.get("kind") == "blocks"):
+    if val:
         out.append(f"validation: {val.get('kind')} ({val.get('reason')})")
-    if quiet:
-        return out
 
     def line(label: str, entry: dict[str, Any]) -> str:
-        parts = [label]
+        parts = [label] + ([entry["status"]] if entry.get("status") else [])
         if "n_constraints" in entry:
             parts.append(f"s={entry['n_constraints']}")
         for split in ("train", "test"):
@@ -40,8 +42,40 @@ def summary_lines(summary: dict[str, Any], quiet: bool = False) -> list[str]:
     return out
 
 
+def model_lines(info: dict[str, Any]) -> list[str]:
+    """``ccl inspect MODEL.h5``: what the model is and what it was trained on."""
+    out = [f"path:     {info['path']}", f"format:   ccl model (schema {info['schema_version']})",
+           f"model:    {info['kind']}, method {info['method']}"
+           + (f", {len(info['demonstrations'])} demonstrations" if info.get("demonstrations") else "")]
+    if "n_constraints" in info:
+        sel = info.get("selection") or {}
+        why = f" (rule {sel.get('rule')}: {sel.get('reason')})" if sel.get("rule") else ""
+        out.append(f"constraints: {info['n_constraints']}{why}")
+    dims = f"state p = {info.get('n_features_in')}" if info.get("n_features_in") else "state p not recorded"
+    out.append(f"dimensions: {dims}, action q = {info.get('n_action')}")
+    if info.get("basis"):
+        b = info["basis"]
+        rbf = f"{b['n_centres']} normalised RBFs, σ² = {b['sigma2']:.4g}" if b["kind"] == "rbf" else ""
+        out.append("basis:    " + (rbf or "linear [x; 1]"))
+    training = info.get("training") or {}
+    if training.get("stage"):
+        out.append(f"trained:  stage {training['stage']}")
+    for path, digest in (training.get("inputs") or {}).items():
+        out.append(f"  input   {path}  sha256 {digest[:16]}…")
+    for part, figures in (training.get("metrics") or {}).items():
+        out.append(f"  {part:7s} " + "  ".join(f"{k}={v:.3e}" for k, v in figures.items()
+                                               if isinstance(v, float)))
+    if training.get("config"):
+        import json
+
+        out.append(f"config:   {json.dumps(training['config'], default=str)[:300]}")
+    return out
+
+
 def inspect_lines(info: dict[str, Any]) -> list[str]:
     """``ccl inspect``'s text rendering (one function, so every format's listing shows here)."""
+    if info.get("format") == "ccl-model":
+        return model_lines(info)
     out = [f"path:     {info['path']}", f"format:   {info['format']}  ({info['size_bytes']} bytes)"]
     if "duration_s" in info:
         span = "summed over demonstrations" if info["format"] == "hdf5" else "first to last message"

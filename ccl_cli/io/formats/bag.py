@@ -6,6 +6,7 @@ typestore (``typestore: ros2_humble`` by default; any name of ``rosbags.typesys.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -14,11 +15,14 @@ import numpy as np
 
 from ccl_cli.errors import InputError
 from ccl_cli.io.library_errors import library_call, library_iter
+from ccl_cli.io.limits import inside, regular_file
 from ccl_cli.io.messages import TopicReader, finish_topics, read_topics
 from ccl_cli.io.options import StreamOptions
 from ccl_cli.io.sniff import BAG2_METADATA
 from ccl_cli.io.streams import Stream
 from ccl_cli.io.yamlsafe import read_yaml
+
+log = logging.getLogger("ccl")
 
 
 def _typestore(name: str | None):
@@ -42,6 +46,35 @@ def bag_root(path: Path) -> Path:
     return path
 
 
+def storage_files(root: Path, metadata: Any, allow_outside: bool = False) -> list[Path]:
+    """The storage files a ROS 2 bag's metadata names (``relative_file_paths``, and the
+    ``files`` entries of newer versions), each checked before rosbags opens it: inside the
+    bag folder once ``..`` and symlinks are resolved (unless ``allow_outside``; a symlink
+    followed is reported) and a regular file (a FIFO would block the open forever)."""
+    where = str(root / BAG2_METADATA)
+    info = metadata.get("rosbag2_bagfile_information") if isinstance(metadata, dict) else None
+    if not isinstance(info, dict):
+        return []  # rosbags explains what is missing
+    names = info.get("relative_file_paths") or []
+    files = info.get("files") or []
+    if not isinstance(names, list) or not isinstance(files, list):
+        raise InputError(f"{where}: relative_file_paths and files must be lists")
+    names = [*names, *(e.get("path") for e in files if isinstance(e, dict))]
+    bad = next((n for n in names if not isinstance(n, str) or not n), None)
+    if bad is not None or not all(isinstance(n, str) for n in names):
+        raise InputError(f"{where}: a storage file name must be a non-empty string, got {bad!r}"[:200])
+    out = []
+    for name in dict.fromkeys(names):
+        full = inside(root, name, where, allow_outside)
+        if full.exists() or full.is_symlink():  # missing ones: rosbags explains
+            regular_file(full, "a storage file of the bag")
+        if root.resolve() not in full.parents:
+            log.warning("%s: %s leads to %s, outside the bag (followed: data.allow_outside)",
+                        where, name, full)
+        out.append(full)
+    return out
+
+
 def _count(value, where: str) -> int:
     """A count or time from bag metadata (metadata.yaml can hold anything)."""
     if value is None:
@@ -62,9 +95,12 @@ class BagReader(TopicReader):
         where = str(self.path)
         typestore = _typestore(self.options.typestore)
         root = bag_root(self.path)
-        if root.is_dir() and (root / BAG2_METADATA).is_file():
+        if root.is_dir():
             # bounded first (size, depth, aliases): rosbags' YAML parser is not
-            read_yaml(root / BAG2_METADATA, "ROS 2 bag metadata", error=InputError)
+            metadata, _ = read_yaml(root / BAG2_METADATA, "ROS 2 bag metadata", error=InputError)
+            storage_files(root, metadata, self.options.allow_outside)
+        else:
+            regular_file(root, "the bag")
         reader = library_call(where, "read bag", AnyReader, [root], default_typestore=typestore)
         library_call(where, "read bag", reader.open)
         for conn in reader.connections:  # metadata.yaml is the bag's own text: names typed here

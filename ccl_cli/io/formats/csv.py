@@ -23,14 +23,16 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
 import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
 from ccl_cli.errors import InputError
+from ccl_cli.io.limits import check_claim, max_line_bytes, open_regular
 from ccl_cli.io.options import UNIT_NS, DataOptions, StreamOptions, TimeOptions
 from ccl_cli.io.streams import Stream, StreamReader
 from ccl_cli.io.summary import activity
@@ -215,13 +217,18 @@ class CsvTable:
 
     # -- parsing ---------------------------------------------------------------------------
     def _read_text(self) -> str:
+        """The file's text, once its size and the length of its longest line are known to be
+        within the caps (:func:`check_lines`: a scan that never holds a line)."""
         try:
-            with open(self.path, newline="", encoding="utf-8-sig") as f:
-                return f.read()
+            with open_regular(self.path, "the CSV file") as f:
+                check_lines(f, str(self.path))
+                raw = f.read()
+        except OSError as exc:
+            raise InputError(f"{self.path}: {exc.strerror or type(exc).__name__}") from None
+        try:
+            return raw.decode("utf-8-sig")
         except UnicodeDecodeError:
             raise InputError(f"{self.path}: not a text (CSV) file") from None
-        except OSError as exc:
-            raise InputError(f"{self.path}: {exc.strerror}") from None
 
     def load(self) -> tuple[list[str], _Matrix | _Cells]:
         """(column names, body), parsed once."""
@@ -367,6 +374,29 @@ class CsvTable:
         labels = [f"{self.path.stem}[{names[k]}]" if self.headerless else names[k] for k in idx]
         return Stream(t_ns, values, labels, str(self.path),
                       {"columns": [names[k] for k in idx], "time_column": tcol, "sample_axis": self.samples})
+
+
+def check_lines(f: IO[bytes], where: str) -> None:
+    """Refuse a text file over the cap (:func:`~ccl_cli.io.limits.check_claim`) or with a line
+    longer than :func:`~ccl_cli.io.limits.max_line_bytes`, before it is read: the file is
+    mapped, not loaded, and each step looks for the last line end (LF or CR) in the next
+    window of that many bytes, so a file of n bytes takes about n / window steps."""
+    import mmap
+
+    size = os.fstat(f.fileno()).st_size
+    check_claim(where, "the text", size, 1)
+    window = max_line_bytes()
+    if size <= window:
+        return
+    with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+        start = 0
+        while size - start > window:
+            end = start + window + 1  # a line of exactly ``window`` bytes ends inside
+            last = max(mm.rfind(b"\n", start, end), mm.rfind(b"\r", start, end))
+            if last < 0:
+                raise InputError(f"{where}: a line longer than {window} bytes starts at byte {start}; "
+                                 "not a CSV table (refused before reading it)")
+            start = last + 1
 
 
 def find_time_column(names: list[str], body: _Matrix | _Cells) -> int | None:

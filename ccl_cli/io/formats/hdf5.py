@@ -22,6 +22,7 @@ write is parsed in a time-limited child process first.
 from __future__ import annotations
 
 import fnmatch
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -31,8 +32,10 @@ import numpy as np
 from ccl_cli.errors import InputError
 from ccl_cli.io.arrays import NAME_ATTRS, Variable, as_numeric, assemble, named_parts, orient, split_by_index
 from ccl_cli.io.canonical import FORMAT, is_canonical, read_demonstrations
+from ccl_cli.io.h5.access import attr_names, attr_str, error_text
 from ccl_cli.io.h5.listing import list_hdf5
 from ccl_cli.io.h5.probe import open_hdf5
+from ccl_cli.io.limits import check_claim
 from ccl_cli.io.options import DataOptions, StreamOptions
 from ccl_cli.io.reader import ReaderBase, Recording
 from ccl_cli.io.segment import resegment
@@ -97,21 +100,26 @@ def _dataset(group, rel: str, where: str, samples: str | None = None, keep_int: 
         raise InputError(f"{here}: missing, not a dataset (this group has: {_contents(group)})") from None
     if not isinstance(oid, h5py.h5d.DatasetID):
         raise InputError(f"{here}: a group, not a dataset (this group has: {_contents(group)})")
-    dtype = oid.dtype
+    try:
+        dtype, shape = oid.dtype, tuple(oid.shape)
+    except (OSError, RuntimeError, ValueError, TypeError) as exc:  # a damaged datatype or dataspace
+        raise InputError(f"{here}: unreadable type or shape ({error_text(exc)})") from None
     if dtype.kind not in "biuf":  # text, references, compounds: refused before reading
         raw = np.zeros(0, dtype=dtype if dtype.kind in "SUOc" else "V1")
     else:
-        raw = np.empty(oid.shape, dtype=dtype)
+        # the declared size, before anything is allocated (read as float64 afterwards)
+        check_claim(here, "the dataset", shape, 8, os.path.getsize(where))
+        raw = np.empty(shape, dtype=dtype)
         try:
             if raw.size:
                 oid.read(h5py.h5s.ALL, h5py.h5s.ALL, raw)
-        except (OSError, TypeError, ValueError) as exc:
-            raise InputError(f"{here}: cannot read ({exc})") from None
+        except (OSError, RuntimeError, TypeError, ValueError) as exc:
+            raise InputError(f"{here}: cannot read ({error_text(exc)})") from None
     found = None
     attrs = h5py.Dataset(oid).attrs if names else {}
     for key in NAME_ATTRS if names else ():
-        if key in attrs:
-            found = [v.decode() if isinstance(v, bytes) else str(v) for v in np.ravel(attrs[key])]
+        found = attr_names(attrs, key, here)
+        if found is not None:
             break
     return Variable(as_numeric(raw, here, keep_int), here, samples, found)
 
@@ -193,9 +201,7 @@ class Hdf5Reader(ReaderBase):
         with open_hdf5(self.path, "HDF5 recording") as f:
             if uses_layout(self.options):
                 return read_layout(f, self.path, self.options)
-            found = f.attrs.get("format")
-            found = found.decode() if isinstance(found, bytes) else found
-            if found != FORMAT:
+            if attr_str(f.attrs, "format", str(self.path), "") != FORMAT:
                 raise InputError(
                     f"{self.path}: HDF5 not in the {FORMAT} layout; say where the data is with "
                     "data.state.dataset (and action.dataset or action.derive, time.dataset or "

@@ -23,6 +23,7 @@ opaque classes are refused, never loaded.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -30,8 +31,10 @@ import numpy as np
 
 from ccl_cli.errors import InputError
 from ccl_cli.io.arrays import Variable, as_numeric, assemble, named_parts, orient, split_by_index
+from ccl_cli.io.h5.access import attr_str, attr_value, error_text
 from ccl_cli.io.h5.listing import list_hdf5, truncate
 from ccl_cli.io.h5.probe import open_hdf5
+from ccl_cli.io.limits import check_claim
 from ccl_cli.io.options import DataOptions
 from ccl_cli.io.reader import ReaderBase, Recording
 from ccl_cli.io.sniff import MAT5_MAGIC, MAT73_MAGIC, read_head
@@ -40,6 +43,8 @@ from ccl_cli.io.summary import summary
 NUMERIC_CLASSES = {"double", "single", "int8", "uint8", "int16", "uint16", "int32", "uint32",
                    "int64", "uint64", "logical"}
 CONTAINERS = {"cell", "struct"}
+#: cells and structs nested deeper than this are refused (references may loop)
+MAX_DEPTH = 32
 
 Value = np.ndarray | list  # a numeric (or char) array, or one value per cell / struct element
 
@@ -64,8 +69,14 @@ class _V5:
         return [(name, shape, cls) for name, (shape, cls) in self.whos.items()]
 
     def load(self, name: str) -> Any:
-        """Variable ``name`` as scipy reads it (structs as record arrays, cells as object arrays)."""
+        """Variable ``name`` as scipy reads it (structs as record arrays, cells as object arrays),
+        its declared size checked first (a sparse matrix: the dense array it becomes)."""
         from scipy.io import loadmat
+
+        shape, cls = self.whos[name]
+        if cls in NUMERIC_CLASSES | {"char", "sparse"}:
+            check_claim(f"{self.path}: {name}", f"the {cls} variable", shape, 8,
+                        None if cls == "sparse" else os.path.getsize(self.path))
 
         try:
             return loadmat(str(self.path), variable_names=[name], squeeze_me=False,
@@ -92,7 +103,8 @@ class _V5:
             raise _refuse(f"{self.path}: {at}", type(value).__name__)
         if isinstance(value, list):
             return [self._walk(v, fields, f"{at}({k + 1})", where) for k, v in enumerate(value)]
-        if hasattr(value, "tocsc"):  # scipy.sparse
+        if hasattr(value, "tocsc"):  # scipy.sparse: its dense size checked before it exists
+            check_claim(f"{self.path}: {at}", "the sparse matrix", value.shape, 8)
             value = value.toarray()
         arr = np.asarray(value)
         if arr.dtype.names:  # struct (array)
@@ -116,8 +128,8 @@ class _V5:
 
 # -- v7.3 (HDF5) --------------------------------------------------------------------------
 def _cls(obj) -> str:
-    raw = obj.attrs.get("MATLAB_class", b"")
-    return raw.decode() if isinstance(raw, bytes) else str(raw)
+    """The ``MATLAB_class`` attribute ('' when absent; a damaged one is an InputError)."""
+    return attr_str(obj.attrs, "MATLAB_class", f"{obj.file.filename}:{obj.name}", "")
 
 
 class _V73:
@@ -143,10 +155,12 @@ class _V73:
             raise InputError(f"{self.path}: variable {name!r} not found (variables: {names})")
         return self._walk(self.f[name], fields, name)
 
-    def _walk(self, obj, fields: list[str], at: str) -> Value:
+    def _walk(self, obj, fields: list[str], at: str, depth: int = 0) -> Value:
         import h5py
 
         where = f"{self.path}: {at}"
+        if depth > MAX_DEPTH:  # cells of cells, or references that loop
+            raise InputError(f"{where}: cells or structs nested deeper than {MAX_DEPTH} levels; refused")
         cls = _cls(obj)
         if cls == "struct" or (isinstance(obj, h5py.Group) and not cls):
             if not isinstance(obj, h5py.Group):
@@ -159,31 +173,63 @@ class _V73:
                 raise InputError(f"{where} has no field {field!r} (fields: {', '.join(members)})")
             child = obj[field]
             if isinstance(child, h5py.Dataset) and child.dtype == h5py.ref_dtype and _cls(child) != "cell":
-                refs = child[()].ravel()  # struct array: one reference per element
+                refs = self._read(child, f"{where}.{field}").ravel()  # struct array: a reference per element
                 if len(refs) > 1:
-                    return [self._walk(self.f[r], rest, f"{at}({k + 1}).{field}") for k, r in enumerate(refs)]
-                return self._walk(self.f[refs[0]], rest, f"{at}.{field}")
-            return self._walk(child, rest, f"{at}.{field}")
+                    return [self._walk(self._deref(r, where), rest, f"{at}({k + 1}).{field}", depth + 1)
+                            for k, r in enumerate(refs)]
+                if not len(refs):
+                    raise InputError(f"{where}.{field}: a struct array without elements")
+                return self._walk(self._deref(refs[0], where), rest, f"{at}.{field}", depth + 1)
+            return self._walk(child, rest, f"{at}.{field}", depth + 1)
         if fields:
             raise InputError(f"{where} is not a struct (cannot take field {fields[0]!r})")
         if not isinstance(obj, h5py.Dataset):
             raise InputError(f"{where}: a group of MATLAB class {cls!r}; not readable")
         if cls == "cell":
-            refs = obj[()].ravel()  # stored transposed: C order here is MATLAB's linear order
-            return [self._walk(self.f[r], [], f"{at}{{{k + 1}}}") for k, r in enumerate(refs)]
-        if cls not in NUMERIC_CLASSES | {"char"} or "MATLAB_object_decode" in obj.attrs:
+            if obj.dtype != h5py.ref_dtype:
+                raise InputError(f"{where}: a cell must hold object references, got {obj.dtype} "
+                                 "(damaged file?)")
+            refs = self._read(obj, where).ravel()  # stored transposed: C order is MATLAB's linear order
+            return [self._walk(self._deref(r, where), [], f"{at}{{{k + 1}}}", depth + 1)
+                    for k, r in enumerate(refs)]
+        if cls not in NUMERIC_CLASSES | {"char"} or \
+                attr_value(obj.attrs, "MATLAB_object_decode", where, None) is not None:
             raise _refuse(where, cls or "value without MATLAB_class")
-        if obj.attrs.get("MATLAB_empty", 0):
+        if _empty(obj):
             return np.zeros((0, 0))
-        try:
-            raw = obj[()]
-        except (OSError, TypeError, ValueError) as exc:
-            raise InputError(f"{where}: cannot read ({exc})") from None
+        raw = self._read(obj, where)
         if raw.dtype.names and set(raw.dtype.names) == {"real", "imag"}:
             raise InputError(f"{where}: complex numbers are not supported")
         if cls == "char":
             return np.asarray(raw, dtype=np.uint16).astype("U1") if raw.size else np.array([], "U1")
         return np.asarray(raw).T  # back to MATLAB's orientation
+
+    def _deref(self, ref: Any, where: str) -> Any:
+        """The object an object reference points to (a null or dangling one: InputError)."""
+        try:
+            if not ref:
+                raise ValueError("null reference")
+            return self.f[ref]
+        except (KeyError, ValueError, TypeError, OSError, RuntimeError) as exc:
+            raise InputError(f"{where}: a reference that cannot be followed ({error_text(exc)}); "
+                             "damaged file?") from None
+
+    def _read(self, obj, where: str) -> np.ndarray:
+        """A dataset's values, its declared size (as float64) checked before reading."""
+        try:
+            shape = tuple(obj.shape)
+        except (OSError, RuntimeError, TypeError, ValueError) as exc:
+            raise InputError(f"{where}: unreadable shape ({error_text(exc)})") from None
+        check_claim(where, "the variable", shape, 8, os.path.getsize(self.path))
+        try:
+            return np.asarray(obj[()])
+        except (OSError, RuntimeError, TypeError, ValueError) as exc:
+            raise InputError(f"{where}: cannot read ({error_text(exc)})") from None
+
+
+def _empty(obj) -> bool:
+    """MATLAB's mark of an empty array (its dimensions stored as the data)."""
+    return bool(np.any(attr_value(obj.attrs, "MATLAB_empty", f"{obj.file.filename}:{obj.name}", 0)))
 
 
 def _matlab_shape(obj) -> tuple[int, ...]:
@@ -191,7 +237,7 @@ def _matlab_shape(obj) -> tuple[int, ...]:
 
     if isinstance(obj, h5py.Group):
         return (1, 1)
-    if obj.attrs.get("MATLAB_empty", 0):
+    if _empty(obj):
         return (0, 0)
     return tuple(reversed(obj.shape))
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from ccl_cli.errors import InputError
 from ccl_cli.io.library_errors import library_call, library_iter
+from ccl_cli.io.limits import check_claim, open_regular
 from ccl_cli.io.messages import TopicReader, finish_topics, read_topics
 from ccl_cli.io.options import StreamOptions
 from ccl_cli.io.sniff import MCAP_MAGIC
@@ -37,10 +38,7 @@ class McapReader(TopicReader):
 
     def _open(self):
         where = str(self.path)
-        try:
-            f = open(self.path, "rb")
-        except OSError as exc:
-            raise InputError(f"{where}: {exc.strerror}") from None
+        f = open_regular(self.path, "the MCAP file")
         if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
             f.close()
             raise InputError(f"{where}: not an MCAP file (no MCAP magic at the start)")
@@ -55,6 +53,9 @@ class McapReader(TopicReader):
         summary = library_call(where, "read MCAP", reader.get_summary)
         if summary is None:
             raise InputError(f"{where}: MCAP has no summary (truncated?)")
+        for index in summary.chunk_indexes:  # what each chunk decompresses to, before it is read
+            check_claim(where, f"the chunk at byte {index.chunk_start_offset}",
+                        max(int(index.uncompressed_size), int(index.chunk_length)), 1)
         return reader, summary
 
     def listing(self) -> dict[str, Any]:

@@ -3,7 +3,8 @@
 Each accessor turns one attribute or dataset of an open ``h5py`` object into a checked
 Python or NumPy value, or raises one :class:`~ccl_cli.errors.InputError` line naming the
 file (``where``) and the object: missing, of the wrong type or shape, unreadable (a
-damaged file), not finite, or claiming more bytes than the file could hold.
+damaged file), not finite, or claiming more bytes than the file could hold or the cap
+allows (:mod:`ccl_cli.io.limits`).
 Datasets are read through h5py's low-level API (``H5Dread`` into a float64 buffer), which
 converts while reading; ``docs/readers.md`` has the measurements behind that choice.
 """
@@ -12,16 +13,13 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 import os
 from typing import Any
 
 import numpy as np
 
 from ccl_cli.errors import InputError
-
-#: a dataset may not claim more than this many bytes per byte of file (decompression bombs)
-MAX_EXPANSION = 1000
+from ccl_cli.io.limits import check_claim
 
 _MISSING = object()
 
@@ -55,9 +53,18 @@ def _as_str(value: Any) -> str | None:
             return bytes(value).decode("utf-8")
         except UnicodeDecodeError:
             return None
-    if isinstance(value, str):
+    if isinstance(value, str):  # h5py decodes invalid UTF-8 with surrogate escapes: refused too
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            return None
         return str(value)
     return None
+
+
+def attr_value(attrs, key: str, where: str, default: Any = _MISSING) -> Any:
+    """An attribute as h5py reads it, unchecked (a damaged one is an InputError)."""
+    return _attr(attrs, key, where, default)
 
 
 def attr_str(attrs, key: str, where: str, default: Any = _MISSING) -> str:
@@ -120,6 +127,22 @@ def attr_strings(attrs, key: str, where: str, n: int) -> list[str]:
     if texts is None or any(t is None for t in texts) or len(texts) != n:
         raise InputError(f"{where}: attribute {key!r} must be {n} strings, got {_describe(value)}")
     return texts  # type: ignore[return-value]
+
+
+def attr_names(attrs, key: str, where: str) -> list[str] | None:
+    """An attribute naming columns (a string or an array of them; numbers by their text),
+    None when absent; undecodable bytes or other types are an InputError."""
+    value = _attr(attrs, key, where, None)
+    if value is None:
+        return None
+    out = []
+    for v in np.ravel(np.asarray(value, dtype=object)):
+        text = _as_str(v) if isinstance(v, bytes | str | np.bytes_) else \
+            str(v) if isinstance(v, int | float | np.integer | np.floating) else None
+        if text is None:
+            raise InputError(f"{where}: attribute {key!r} must hold names (strings), got {_describe(value)}")
+        out.append(text)
+    return out
 
 
 def members(group, where: str) -> list[str]:
@@ -191,7 +214,7 @@ def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite
     """A real numeric dataset as float64, of one of the dimensionalities ``ndim``.
 
     Checked before reading: the type (integers or floats, no strings, compounds,
-    references) and the size (at most ``MAX_EXPANSION`` bytes per byte of file, against
+    references) and the declared size (:func:`~ccl_cli.io.limits.check_claim`: the cap, and
     decompression bombs); after: finiteness (``finite``) and magnitude (``|v| <= limit``).
     """
     import h5py
@@ -208,10 +231,7 @@ def numeric(group, name: str, where: str, ndim: tuple[int, ...] = (1, 2), finite
     if len(shape) not in ndim:
         allowed = " or ".join(f"{d}-D" for d in ndim)
         raise InputError(f"{where}: {ds().name} must be {allowed}, got shape {shape}")
-    nbytes = math.prod(shape) * 8
-    if nbytes > (64 << 20) and nbytes > MAX_EXPANSION * os.path.getsize(ds().file.filename):
-        raise InputError(f"{where}: {ds().name} claims shape {shape} ({nbytes} bytes), far more than the "
-                         "file holds")
+    check_claim(where, ds().name, shape, 8, os.path.getsize(ds().file.filename))
     from h5py import h5s
 
     try:  # libhdf5 converts to float64 while reading
@@ -234,6 +254,7 @@ def strings(group, name: str, where: str) -> list[str]:
     label = f"{where}: {ds.name}"
     if ds.ndim != 1 or ds.dtype.kind not in "OSU":
         raise InputError(f"{label} must be a 1-D array of strings, got {ds.dtype} {ds.shape}")
+    check_claim(where, ds.name, ds.shape, max(ds.dtype.itemsize, 64), os.path.getsize(ds.file.filename))
     try:
         raw = ds[()]
     except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:

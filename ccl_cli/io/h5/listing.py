@@ -6,11 +6,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ccl_cli.errors import InputError
+from ccl_cli.io.h5.access import attr_names, attr_str
 from ccl_cli.io.h5.probe import probe
 from ccl_cli.io.h5.seal import sealed
+from ccl_cli.io.limits import regular_file
 
 LIMIT = 500
 
@@ -32,6 +32,7 @@ def list_hdf5(path: str | Path, matlab: bool = False, limit: int = LIMIT) -> lis
     import h5py
 
     path = Path(path)
+    regular_file(path, "the HDF5 file")
     if not sealed(path):
         probe(path)
     try:
@@ -58,12 +59,13 @@ def list_hdf5(path: str | Path, matlab: bool = False, limit: int = LIMIT) -> lis
                                  dtype=str(obj.dtype) if obj.dtype != h5py.ref_dtype else "reference")
                     if obj.is_virtual:
                         entry["virtual"] = True
-                names = obj.attrs.get("names", obj.attrs.get("column_names"))
+                at = f"{path}:/{name}"
+                names = attr_names(obj.attrs, "names", at) or attr_names(obj.attrs, "column_names", at)
                 if names is not None:
-                    entry["names"] = [v.decode() if isinstance(v, bytes) else str(v) for v in np.ravel(names)]
-                cls = obj.attrs.get("MATLAB_class")
+                    entry["names"] = names
+                cls = attr_str(obj.attrs, "MATLAB_class", at, None)
                 if cls is not None:
-                    entry["class"] = cls.decode() if isinstance(cls, bytes) else str(cls)
+                    entry["class"] = cls
             out.append(entry)
 
         try:

@@ -13,7 +13,9 @@ files) is opened here, which
    :data:`PROBE_BYTES` is read there, under a CPU-time limit (:data:`CPU_LIMIT`, via
    ``RLIMIT_CPU``; the hangs met in fuzzing are CPU-bound loops, and CPU time is robust on
    a loaded machine where wall time is not) with a wall-clock backstop (:data:`TIMEOUT`).
-   A child over either limit, or killed by a signal, means the file is refused: one line.
+   A child over either limit, killed by a signal, or meeting any exception (a damaged
+   attribute table, an unreadable dataset: it fails closed) means the file is refused:
+   one line, and nothing of the file — not even an attribute by name — is read here.
 
 ``docs/readers.md`` records the fuzzing behind these limits.
 """
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import faulthandler
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -32,6 +35,7 @@ from pathlib import Path
 from ccl_cli.errors import InputError
 from ccl_cli.io.h5.access import error_text
 from ccl_cli.io.h5.seal import sealed
+from ccl_cli.io.limits import regular_file
 
 #: CPU seconds a foreign file may take to be parsed in the child process, and the
 #: wall-clock backstop
@@ -40,14 +44,17 @@ TIMEOUT = float(os.environ.get("CCL_HDF5_TIMEOUT", "60"))
 #: datasets up to this many bytes are read in the child (larger ones: metadata only)
 PROBE_BYTES = 64 << 20
 MAX_OBJECTS = 100_000
+#: address space (bytes) the probe may add to what its process maps already: a damaged
+#: file that makes libhdf5 allocate more (a string or attribute claiming gigabytes) is refused
+PROBE_MEMORY = int(os.environ.get("CCL_HDF5_MEMORY_MB", "1024")) << 20
 
 
-def _walk(f) -> None:
+def _walk(f, where: str) -> None:
     """What the probe does: structure check, then read every attribute and every
     dataset that is small enough (values discarded)."""
     import h5py
 
-    check_tree(f, "")
+    check_tree(f, where)
     budget = PROBE_BYTES
 
     def attrs(obj) -> None:
@@ -68,17 +75,66 @@ def _walk(f) -> None:
     f.visititems(each)
 
 
-def _probe_child(path: str, cpu_limit: int = CPU_LIMIT) -> None:
-    """Child side: parse the file; any Python exception is fine (the parent will meet
-    it again, and report it), only a hang or a crash of libhdf5 matters."""
+#: exit status of a probe child that met an exception (its message on its output)
+REFUSED = 3
+#: how a refusal says that the file did not even open (the parent words that message)
+OPEN_FAILED = "open\t"
+
+
+def _probe_child(path: str, cpu_limit: int = CPU_LIMIT) -> str | None:
+    """Child side: parse the file under the CPU limit. Returns None when every part
+    parsed, else the one-line refusal: any exception fails closed (the parent then reads
+    nothing from the file, not even an attribute by name)."""
     import resource
 
     import h5py
 
     resource.setrlimit(resource.RLIMIT_CPU, (cpu_limit, cpu_limit + 1))
+    _limit_memory()
+    try:
+        f = h5py.File(path, "r")
+    except BaseException as exc:  # noqa: BLE001 - not HDF5, or a damaged superblock
+        return f"{OPEN_FAILED}{error_text(exc)}"
+    try:
+        with f:
+            _walk(f, path)
+    except InputError as exc:
+        return exc.message
+    except MemoryError:
+        return (f"{path}: parsing the file needs more than {PROBE_MEMORY >> 20} MiB of memory "
+                "(damaged HDF5?); refused")
+    except BaseException as exc:  # noqa: BLE001 - whatever libhdf5 or h5py raised: refused
+        return f"{path}: libhdf5 failed parsing the file ({error_text(exc)}; damaged HDF5?); refused"
+    return None
 
-    with h5py.File(path, "r") as f:
-        _walk(f)
+
+def _limit_memory() -> None:
+    """Bound the probe's address space to what it maps now plus :data:`PROBE_MEMORY`
+    (Linux: from /proc; elsewhere unbounded)."""
+    import resource
+
+    try:
+        status = Path("/proc/self/status").read_text()
+    except OSError:
+        return
+    found = re.search(r"^VmSize:\s+(\d+) kB", status, re.MULTILINE)
+    if found is None:
+        return
+    limit = int(found.group(1)) * 1024 + PROBE_MEMORY
+    _, hard = resource.getrlimit(resource.RLIMIT_AS)
+    if hard != resource.RLIM_INFINITY:
+        limit = min(limit, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (limit, hard))
+
+
+def _probe_main(path: str, cpu_limit: str) -> None:
+    """Entry of the fresh-interpreter probe: the refusal on stdout, exit :data:`REFUSED`."""
+    refusal = _probe_child(path, int(cpu_limit))
+    if refusal is not None:
+        sys.stdout.write(refusal[:2000])
+        sys.stdout.flush()
+        os._exit(REFUSED)
+    os._exit(0)
 
 
 def _wait(pid: int, timeout: float) -> int | None:
@@ -113,7 +169,7 @@ def _identity(path: Path) -> tuple[str, int, int, int]:
     return str(path.resolve()), st.st_ino, st.st_size, st.st_mtime_ns
 
 
-def probe(path: Path, timeout: float = TIMEOUT, cpu_limit: int = CPU_LIMIT) -> None:
+def probe(path: Path, timeout: float = TIMEOUT, cpu_limit: int = CPU_LIMIT, what: str = "file") -> None:
     """Parse ``path`` in a child process first; refuse it if libhdf5 hangs or crashes there.
 
     A fork of this process when it runs one thread (fast: h5py is already loaded);
@@ -122,22 +178,36 @@ def probe(path: Path, timeout: float = TIMEOUT, cpu_limit: int = CPU_LIMIT) -> N
     import h5py  # noqa: F401 - loaded before the fork, so the child does not import it
 
     where = str(path)
+    refusal = ""
     if hasattr(os, "fork") and threading.active_count() == 1:
+        read_end, write_end = os.pipe()
         pid = os.fork()
         if pid == 0:  # child: never returns into the caller's code
+            code = REFUSED
             try:
+                os.close(read_end)
                 signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
                 faulthandler.disable()  # a crash here is reported by the parent, in one line
-                _probe_child(str(path), cpu_limit)
+                found = _probe_child(where, cpu_limit)
+                if found is None:
+                    code = 0
+                else:
+                    os.write(write_end, found.encode("utf-8", "replace")[:2000])
             finally:
-                os._exit(0)
-        code = _wait(pid, timeout)
-    else:
-        cmd = [sys.executable, "-c", "import sys; from ccl_cli.io.h5.probe import _probe_child; "
-               "_probe_child(sys.argv[1], int(sys.argv[2]))", str(path), str(cpu_limit)]
+                os._exit(code)
+        os.close(write_end)
         try:
-            code = subprocess.run(cmd, timeout=timeout, stdin=subprocess.DEVNULL,
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
+            code = _wait(pid, timeout)
+            if code == REFUSED:
+                refusal = os.read(read_end, 4096).decode("utf-8", "replace")
+        finally:
+            os.close(read_end)
+    else:
+        cmd = [sys.executable, "-c", "import sys; from ccl_cli.io.h5.probe import _probe_main; "
+               "_probe_main(sys.argv[1], sys.argv[2])", where, str(cpu_limit)]
+        try:
+            proc = subprocess.run(cmd, timeout=timeout, stdin=subprocess.DEVNULL, capture_output=True)
+            code, refusal = proc.returncode, proc.stdout.decode("utf-8", "replace")
         except subprocess.TimeoutExpired:
             code = None
     if code is None or code == -signal.SIGXCPU:
@@ -147,6 +217,12 @@ def probe(path: Path, timeout: float = TIMEOUT, cpu_limit: int = CPU_LIMIT) -> N
     if code < 0:
         raise InputError(f"{where}: libhdf5 crashed parsing the file (signal {-code}; damaged HDF5?); "
                          "refused")
+    if code != 0:  # an exception in the child (or an exit of its own): fail closed
+        if refusal.startswith(OPEN_FAILED):
+            raise InputError(f"{where}: cannot open as HDF5 {what} ({refusal[len(OPEN_FAILED):].strip()})")
+        line = refusal.strip().splitlines()[0] if refusal.strip() else \
+            f"{where}: libhdf5 failed parsing the file (exit {code}; damaged HDF5?); refused"
+        raise InputError(line)
 
 
 # -- opening ---------------------------------------------------------------------------------
@@ -161,12 +237,13 @@ def open_hdf5(path: str | Path, what: str = "data file", timeout: float | None =
 
     path = Path(path)
     where = str(path)
-    if not path.is_file():
+    if not path.exists():
         raise InputError(f"{where}: no such {what}")
+    regular_file(path, f"the {what}")  # a FIFO or device would block libhdf5's open
     key = _identity(path)
     if key not in _PROBED and not sealed(path):
         # one probe per file version and process (a run opens a file twice)
-        probe(path, TIMEOUT if timeout is None else timeout)
+        probe(path, TIMEOUT if timeout is None else timeout, what=what)
         _PROBED.add(key)
     try:
         f = h5py.File(path, "r")

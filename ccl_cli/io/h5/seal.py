@@ -11,11 +11,12 @@ from __future__ import annotations
 import contextlib
 import functools
 import hashlib
+import io
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from ccl_cli.io.atomic import atomic_path
+from ccl_cli.io.atomic import atomic_path, check_writable
 
 #: user-block size reserved in files ccl writes (HDF5 requires a power of two ≥ 512)
 USERBLOCK = 512
@@ -31,24 +32,28 @@ def _digest(path: Path) -> str:
     return h.hexdigest()
 
 
-def seal(path: str | Path) -> None:
-    """Write the content hash of ``path`` (created with ``userblock_size=USERBLOCK``)
-    into its user block."""
-    path = Path(path)
-    head = SEAL + _digest(path).encode() + b"\n"
-    with open(path, "r+b") as f:
-        f.write(head + b"\x00" * (USERBLOCK - len(head)))
-
-
 @contextlib.contextmanager
-def create_hdf5(path: str | Path, force: bool = False) -> Iterator[Any]:
-    """An ``h5py.File`` written atomically at ``path`` and sealed with its content hash."""
+def create_hdf5(path: str | Path, force: bool = False, sealed: bool = True) -> Iterator[Any]:
+    """An ``h5py.File`` written atomically at ``path`` and (``sealed``) carrying the sha256
+    of its content in the user block.
+
+    libhdf5 builds the file in memory; Python writes the bytes (:func:`ccl_cli.io.atomic.atomic_path`),
+    so a full disk or a file-size limit is one ``OSError`` there — one line, nothing left —
+    and never a write failure inside libhdf5, which leaves the library unable to close
+    its file (tracebacks at exit, a crash at interpreter shutdown).
+    """
     import h5py
 
-    with atomic_path(path, force=force) as tmp:
-        with h5py.File(tmp, "w", userblock_size=USERBLOCK) as f:
-            yield f
-        seal(tmp)
+    path = Path(path)
+    check_writable(path, force)
+    buffer = io.BytesIO()
+    with h5py.File(buffer, "w", userblock_size=USERBLOCK) as f:
+        yield f
+    image = buffer.getbuffer()
+    head = SEAL + hashlib.sha256(image[USERBLOCK:]).hexdigest().encode() + b"\n" if sealed else b""
+    with atomic_path(path, force=force) as tmp, open(tmp, "wb") as out:
+        out.write(head + b"\x00" * (USERBLOCK - len(head)))
+        out.write(image[USERBLOCK:])
 
 
 def sealed(path: str | Path) -> bool:

@@ -12,9 +12,15 @@ from typing import ClassVar
 import numpy as np
 
 from ccl_cli.errors import ConfigError
-from ccl_cli.learn.basis import BasisParams, make_basis
+from ccl_cli.learn.basis import Basis, BasisParams
 from ccl_cli.learn.constraint import rank as sel
-from ccl_cli.learn.constraint.angular import MAX_ITER, chunked_features, fit_sequence, rows_from_weights
+from ccl_cli.learn.constraint.angular import (
+    MAX_ITER,
+    REFINE_PASSES,
+    SEARCH_ROWS,
+    fit_sequence,
+    rows_from_weights,
+)
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.model_selection import Tunable
 from ccl_cli.learn.params import ITERATION_PARAMS, Interval, SeedParams, parameters
@@ -33,13 +39,20 @@ class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedPara
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
         "nmse_": "value", "weights_": "arrays", "basis_": "basis"}
     _parameter_constraints: ClassVar[dict[str, list]] = ANGLE_FIT_PARAMS
+    #: The search runs on at most SEARCH_ROWS rows: a candidate's fit on them is then its
+    #: subsample search alone, and the winner is refined on all rows (docs/measurements.md,
+    #: "Tuning": the same test errors at N = 1e5 as with 20000 rows, for half the time).
+    TUNE_MAX_ROWS = SEARCH_ROWS
     n_restarts: int = 3
     max_iter: int = MAX_ITER
     tol: float = 1e-9
 
-    def _learn_rows(self, B: np.ndarray, V: np.ndarray, Xs: np.ndarray, X: np.ndarray, U: np.ndarray,
-                    groups: np.ndarray | None) -> None:
-        """Fit the rows on features B (n, K), observations V (n, d) at states Xs (n, p);
+    def _learn_rows(self, basis: Basis, Xs: np.ndarray, V: np.ndarray, X: np.ndarray, U: np.ndarray,
+                    groups: np.ndarray | None, start: AngularConstraintMixin | None) -> None:
+        """Fit the rows on observations V (n, d) at states Xs (n, p) with the fitted ``basis``,
+        each row from ``start``'s weights when given (a fit of the same basis on other rows of
+        the data: run to convergence from a fit on more rows, a fold's; refined by at most
+        REFINE_PASSES passes from one on fewer rows, a search's subset);
         sets weights_, nmse_, n_constraints_, selection_. X (N, p), U (N, q), groups (N,):
         the data given to ``fit``, for the cross-validated choice of s."""
         d = V.shape[1]
@@ -50,8 +63,11 @@ class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedPara
         if rule == "fixed" and self.n_constraints > max_k:
             raise ConfigError(f"n_constraints must be between 1 and {max_k}")
         limit = self.n_constraints if rule == "fixed" else max_k
-        fits = fit_sequence(B, V, Xs, limit, self.n_restarts, self.seed, self.max_iter, self.tol,
-                            stop_original=(rule == "threshold"))
+        fits = fit_sequence(basis, Xs, V, limit, self.n_restarts, self.seed, self.max_iter, self.tol,
+                            stop_original=(rule == "threshold"),
+                            starts=None if start is None else start._row_weights,
+                            refine=REFINE_PASSES if start is not None and start._fit_rows < len(X) else None)
+        self._row_weights = [f.W for f in fits]
         nmse = [f.nmse for f in fits]
 
         def threshold() -> sel.Selection:
@@ -90,8 +106,9 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
         seed, tol, gap_floor, cv_folds.
         tune: choose the basis by cross-validation (:class:`ccl_cli.learn.model_selection.Tuned`;
             True by default, a dict ``{budget, grid, folds, max_rows}`` to adjust, False for
-            the fixed settings). Grid: the configured K centres, 9 centres, then K centres
-            twice as wide (σ² × 2), k-means-placed, in that order.
+            the fixed settings). Grid: the configured K centres, 9 centres, and 36 centres at ¼
+            of the default width, k-means-placed, run from the smallest up while a larger basis
+            helps (:func:`ccl_cli.learn.model_selection.search`).
 
     Attributes:
         basis_, weights_ (list of (q−k, K) arrays), n_constraints_, nmse_, selection_,
@@ -101,18 +118,21 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
     n_centres: int = 25
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
-        return [((self.n_centres, 9), (1.0,)), ((self.n_centres,), (2.0,))]
+        return [((self.n_centres, 9), (1.0,)), ((36,), (0.25,))]
 
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None
             ) -> StateDependentConstraint:
         """Learn Ã(x) from states X (N, p) and actions U (N, q); ``groups`` (N,):
         demonstration ids, for the folds of tuning and of the ``cv`` rule."""
-        X, U = self._prepare_fit(X, U)
-        if self._fit_tuned(X, U, groups=groups):
-            return self
-        self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
+        return self._fit(X, U, groups=groups)
+
+    def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                  basis: Basis | None = None, start: StateDependentConstraint | None = None
+                  ) -> StateDependentConstraint:
+        """The fit with a fitted ``basis`` (None: this learner's own), from ``start``'s rows."""
+        self.basis_ = self._fit_basis(X, U) if basis is None else basis
         self.n_action_ = U.shape[1]
-        self._learn_rows(chunked_features(self.basis_, X), U, X, X, U, groups)
+        self._learn_rows(self.basis_, X, U, X, U, groups, start)
         return self
 
     def projection_k(self, X: np.ndarray, k: int | None) -> np.ndarray:

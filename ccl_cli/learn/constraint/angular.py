@@ -28,7 +28,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ccl_cli.learn.angles import angles_of, frame, unit_vector, unit_vector_jacobian
-from ccl_cli.learn.linalg import kron_least_squares, row_chunks, total_variance
+from ccl_cli.learn.basis import Blocks, feature_blocks, feature_cache_bytes
+from ccl_cli.learn.linalg import WARM_TOL, kron_least_squares, lift_to_rows, row_chunks, total_variance
 
 if TYPE_CHECKING:
     from ccl_cli.learn.basis import Basis
@@ -55,15 +56,6 @@ class AngleFit:
     W: np.ndarray
     nmse: float
     cost: float
-
-
-def chunked_features(basis: Basis, X: np.ndarray) -> np.ndarray:
-    """β(X) (N, K) computed in :func:`~ccl_cli.learn.linalg.row_chunks` blocks (the per-row
-    transform on cache-sized blocks: ~3× faster than one (N, K) pass at N = 1e5)."""
-    out = np.empty((len(X), basis.n_features))
-    for rows in row_chunks(len(X)):
-        out[rows] = basis.transform(X[rows])
-    return out
 
 
 def _advance(Q: np.ndarray, k: int, theta: np.ndarray) -> np.ndarray:
@@ -190,62 +182,106 @@ def _search(B: np.ndarray, Z: np.ndarray, n_restarts: int, rng: np.random.Genera
     return W, cost, used + more
 
 
-def _fit_row(B: np.ndarray, Z: np.ndarray, n_restarts: int, rng: np.random.Generator,
-             max_iter: int, tol: float, X: np.ndarray | None = None,
-             search_rows: int | None = None) -> tuple[np.ndarray, float]:
-    """min_W Σ_n (a(W β_n)ᵀ z_n)² for Z (N, m), m ≥ 2 → (W (m−1, K), cost).
+def rotated(V: np.ndarray, B: np.ndarray, weights: list[np.ndarray]) -> np.ndarray:
+    """Observations V (c, d) in the frames of the rows already learnt (``weights``, k of
+    them, at features B (c, K)): z = [Q v]_{k:} → (c, d − k)."""
+    k, d = len(weights), V.shape[1]
+    if k == 0:
+        return V
+    Q = np.broadcast_to(np.eye(d), (len(V), d, d)).copy()
+    for j, W in enumerate(weights):
+        Q = _advance(Q, j, B @ W.T)
+    return np.einsum("nij,nj->ni", Q[:, k:, :], V)
 
-    Up to ``search_rows`` (default :data:`SEARCH_ROWS`) samples the starts are searched on
-    all of them; above it, on a seeded subsample of that many rows (local start, screening
-    and the run to convergence), and the winner is then refined by LM passes over all N
-    rows for at most :data:`REFINE_PASSES` passes — it starts next to the optimum (issue 10:
-    full-data passes only for the winning start)."""
-    n = B.shape[0]
-    limit = int(search_rows or SEARCH_ROWS)
-    if n <= limit:
-        W, cost, _ = _search(B, Z, n_restarts, rng, max_iter, tol, X)
+
+def _residual_in_frames(V: np.ndarray, weights: list[np.ndarray]):
+    """:func:`_residual` of the next row, its observations rotated block by block from V (N, d)
+    (no N × d × d stack of frames is kept)."""
+
+    def residual(W: np.ndarray, rows: slice, Bc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        Zc = rotated(V[rows], Bc, weights)
+        a, J = unit_vector_jacobian(Bc @ W.T)
+        return np.einsum("nj,nj->n", a, Zc), np.einsum("nji,nj->ni", J, Zc)
+
+    return residual
+
+
+def _fit_row(basis: Basis, blocks: Blocks, X: np.ndarray, V: np.ndarray, weights: list[np.ndarray],
+             n_restarts: int, rng: np.random.Generator, max_iter: int, tol: float, local: bool,
+             start: np.ndarray | None = None, refine: int | None = None, search_rows: int | None = None
+             ) -> tuple[np.ndarray, float]:
+    """min_W Σ_n (a(W β_n)ᵀ z_n)² for the next row → (W (m−1, K), cost), z_n = V's sample n
+    in the frames of the rows in ``weights`` (m = d − len(weights) ≥ 2).
+
+    From ``start`` (m−1, K): Levenberg–Marquardt on all N rows, to ``tol`` (at least
+    :data:`~ccl_cli.learn.linalg.WARM_TOL`) or ``max_iter`` passes — with ``refine``, at most
+    that many passes from ``start`` as it is (a fit on fewer rows, refined as a subsample
+    search's winner); without, from ``start`` seen through these rows
+    (:func:`~ccl_cli.learn.linalg.lift_to_rows`: a fit on more rows, a fold's start). Otherwise the seeded
+    starts (:func:`_search`) are searched on all rows up to ``search_rows`` (default
+    :data:`SEARCH_ROWS`) samples; above it, on a seeded subsample of that many rows (local
+    start, screening and the run to convergence), and the winner is then refined by LM
+    passes over all N rows for at most :data:`REFINE_PASSES` passes — it starts next to the
+    optimum (issue 10: full-data passes only for the winning start).
+    The features come in ``blocks`` (:func:`~ccl_cli.learn.basis.feature_blocks` of X)."""
+    n = len(V)
+    residual = _residual_in_frames(V, weights)
+    if start is not None:  # refine: from fewer rows, as is; else seen through these rows
+        passes = max_iter if refine is None else max(1, min(refine, max_iter))
+        W0 = start if refine is not None else lift_to_rows(start, blocks)
+        W, cost, _ = kron_least_squares(W0, blocks, residual, passes, max(tol, WARM_TOL), ANGLE_CUTOFF)
         return W, cost
-    idx = np.sort(rng.choice(n, limit, replace=False))
-    W, _, used = _search(B[idx], Z[idx], n_restarts, rng, max_iter, tol, None if X is None else X[idx])
-    blocks = [(rows, B[rows]) for rows in row_chunks(n)]
-    W, cost, _ = kron_least_squares(W, lambda: blocks, _residual(Z),
-                                    max(1, min(REFINE_PASSES, max_iter - used)), tol, ANGLE_CUTOFF)
+    limit = int(search_rows or SEARCH_ROWS)
+    idx = np.arange(n) if n <= limit else np.sort(rng.choice(n, limit, replace=False))
+    B = basis.transform(X[idx])
+    Z = rotated(V[idx], B, weights)
+    W, cost, used = _search(B, Z, n_restarts, rng, max_iter, tol, X[idx] if local else None)
+    if n <= limit:
+        return W, cost
+    W, cost, _ = kron_least_squares(W, blocks, residual, max(1, min(REFINE_PASSES, max_iter - used)), tol,
+                                    ANGLE_CUTOFF)
     return W, cost
 
 
 def fit_sequence(
-    B: np.ndarray,
+    basis: Basis,
+    X: np.ndarray,
     V: np.ndarray,
-    X: np.ndarray | None,
     max_k: int,
     n_restarts: int,
     seed: int,
     max_iter: int = MAX_ITER,
     tol: float = 1e-9,
     stop_original: bool = True,
+    local: bool = True,
+    starts: list[np.ndarray] | None = None,
+    refine: int | None = None,
 ) -> list[AngleFit]:
-    """Learn rows one at a time on features B (N, K) and observations V (N, d); the
-    states X (N, p) place the clusters of the local start (``None``: no local start).
+    """Learn rows one at a time on observations V (N, d) at states X (N, p) with the fitted
+    feature map ``basis``; the states also place the clusters of the local start (``local``).
+    ``starts``: weights to start row k from (a fit of the same basis on other rows of the same
+    data; ``refine``: at most this many passes from them); rows beyond them are searched.
 
     nmse_k = mean(r²) / Σ var(V) (ddof = 1). With ``stop_original`` the loop stops,
     keeping the earlier rows, once nmse_k exceeds both the best so far and 1e-3
     (the original rule); the rejected fit is still returned last so callers can
-    report it. Without it all ``max_k`` rows are learnt.
+    report it. Without it all ``max_k`` rows are learnt. Memory: the features are computed
+    in row blocks (kept only when small, :func:`~ccl_cli.learn.basis.feature_blocks`) and the
+    frames of earlier rows per block, so nothing of size N × K or N × d × d is kept.
     """
     rng = np.random.default_rng(seed)
-    n, d = V.shape
+    n = len(V)
     var = total_variance(V)
-    Q = np.broadcast_to(np.eye(d), (n, d, d)).copy()
+    blocks = feature_blocks(basis, X, cache_bytes=feature_cache_bytes(X, V))
     fits: list[AngleFit] = []
     best = np.inf
     for k in range(max_k):
-        Z = np.einsum("nij,nj->ni", Q[:, k:, :], V)
-        W, cost = _fit_row(B, Z, n_restarts, rng, max_iter, tol, X)
+        start = starts[k] if starts is not None and k < len(starts) else None
+        W, cost = _fit_row(basis, blocks, X, V, [f.W for f in fits], n_restarts, rng, max_iter, tol, local,
+                           start, refine)
         nmse = (cost / n) / var if var > 0 else np.inf
         fits.append(AngleFit(W, float(nmse), cost))
         if stop_original and k > 0 and nmse > best and nmse > 1e-3:
             break
         best = min(best, nmse)
-        if k + 1 < max_k:
-            Q = _advance(Q, k, B @ W.T)
     return fits

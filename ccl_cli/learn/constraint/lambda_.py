@@ -15,36 +15,46 @@ from typing import ClassVar
 import numpy as np
 
 from ccl_cli.errors import ConfigError, LearningError
-from ccl_cli.learn.basis import make_basis
+from ccl_cli.learn.basis import Basis, make_basis
 from ccl_cli.learn.constraint.alpha import AngularConstraintMixin
-from ccl_cli.learn.constraint.angular import chunked_features, rows_from_weights
+from ccl_cli.learn.constraint.angular import rows_from_weights
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.kinematics import ArmFeatures, ArmName
-from ccl_cli.learn.linalg import nullspace_projection
+from ccl_cli.learn.linalg import nullspace_projection, row_chunks
 from ccl_cli.learn.params import Fields, Options, parameters
 
 Features = Callable[[np.ndarray], np.ndarray]
 #: A built-in arm's Jacobian: its name, or {arm, rows} to keep some of its rows.
 _ARM = Options.of(ArmName)
+#: A robot's Jacobian rows: {robot: a URDF / MJCF path or {dh: [[a, d, alpha, theta0], ...], ...},
+#: frame, base, rows} (:func:`ccl_cli.learn.robots.robot_features`; ``urdf``: the stored form).
+ROBOT = Fields({"robot": [str, dict], "urdf": [str], "frame": [str, None], "base": [str, None],
+                "rows": [list, None], "kind": [str]})
 FEATURE_PARAMS: dict[str, list] = {
-    "features": [_ARM, Fields({"arm": [_ARM], "rows": [list, None]}), callable]}
+    "features": [_ARM, Fields({"arm": [_ARM], "rows": [list, None], "kind": [str]}), ROBOT, callable]}
 #: ‖Φu‖ below this carries no information about Λ.
 MIN_TASK_NORM = 1e-3
 
 
 def make_features(spec: ArmName | dict | Features) -> Features:
-    """Φ from a callable (X (N, p) → (N, r, q)) or a built-in arm: ``"arm2"``,
-    ``"arm7"``, or ``{"arm": "arm7", "rows": [0, 1, 2]}``."""
+    """Φ from a callable (X (N, p) → (N, r, q)), a built-in arm (``"arm2"``, ``"arm7"``, or
+    ``{"arm": "arm7", "rows": [0, 1, 2]}``) or a robot (``{"robot": "lwr.urdf", "frame":
+    "flange", "rows": [0, 1, 2]}``, also a DH table: ``{"robot": {"dh": [[a, d, α, θ0], ...]}}``)."""
     if callable(spec):
         return spec
     if isinstance(spec, str):
         spec = {"arm": spec}
+    if isinstance(spec, dict) and ("robot" in spec or "urdf" in spec):
+        from ccl_cli.learn.robots import robot_features
+
+        return robot_features(spec)
     if isinstance(spec, dict) and "arm" in spec:
         try:
             return ArmFeatures(spec["arm"], spec.get("rows"))
         except ValueError as exc:
             raise ConfigError(str(exc)) from exc
-    raise ConfigError(f"features must be a callable or a built-in arm (arm2, arm7), got {spec!r}")
+    raise ConfigError(f"features must be a callable, a built-in arm (arm2, arm7) or a robot ({{robot: "
+                      f"arm.urdf, frame: tool0, rows: [0, 1, 2]}}), got {spec!r}"[:300])
 
 
 @parameters
@@ -67,6 +77,7 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
     _fitted_attributes: ClassVar[dict[str, str]] = {
         **AngularConstraintMixin._fitted_attributes, "n_task_": "value", "n_dropped_": "value"}
     features: ArmName | dict | Features = "arm2"
+    BASIS_PARAMS = ("basis", "n_centres", "seed", "features")
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         k = int(self.n_centres)
@@ -76,22 +87,40 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
             ) -> KnownFeatureConstraint:
         """Learn Λ̃(x) from states X (N, p) and joint-space actions U (N, q); ``groups``
         (N,): demonstration ids, for the folds of tuning and of the ``cv`` rule."""
-        X, U = self._prepare_fit(X, U)
-        if self._fit_tuned(X, U, groups=groups):
-            return self
+        return self._fit(X, U, groups=groups)
+
+    def _task_actions(self, X: np.ndarray, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """v_n = Φ(x_n) u_n (N, r), computed in row blocks (Φ is (N, r, q)), and the mask of
+        the samples with ‖v_n‖ ≥ MIN_TASK_NORM (N,)."""
+        features = make_features(self.features)
+        V = None
+        for rows in row_chunks(len(X)):
+            Phi = features(X[rows])
+            if Phi.ndim != 3 or Phi.shape[0] != len(X[rows]) or Phi.shape[2] != U.shape[1]:
+                raise ConfigError(f"features must give (N, r, {U.shape[1]}) matrices, got {Phi.shape}")
+            V = np.empty((len(X), Phi.shape[1])) if V is None else V
+            V[rows] = np.einsum("nrq,nq->nr", Phi, U[rows])
+        return V, np.linalg.norm(V, axis=1) >= MIN_TASK_NORM
+
+    def _fit_basis(self, X: np.ndarray, U: np.ndarray) -> Basis:
+        """The feature map fitted on the states of the samples with ‖Φu‖ ≥ MIN_TASK_NORM."""
+        keep = self._task_actions(X, U)[1]
+        return make_basis(self.basis, self.n_centres, self.seed).fit(X[keep])
+
+    def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                  basis: Basis | None = None, start: KnownFeatureConstraint | None = None
+                  ) -> KnownFeatureConstraint:
+        """The fit with a fitted ``basis`` (None: this learner's own), from ``start``'s rows."""
         self.features_ = make_features(self.features)
-        Phi = self.features_(X)
-        if Phi.ndim != 3 or Phi.shape[0] != X.shape[0] or Phi.shape[2] != U.shape[1]:
-            raise ConfigError(f"features must give (N, r, {U.shape[1]}) matrices, got {Phi.shape}")
-        V = np.einsum("nrq,nq->nr", Phi, U)
-        keep = np.linalg.norm(V, axis=1) >= MIN_TASK_NORM
+        V, keep = self._task_actions(X, U)
         self.n_dropped_ = int((~keep).sum())
         if keep.sum() < 2:
             raise LearningError(f"only {int(keep.sum())} samples have ‖Φu‖ ≥ {MIN_TASK_NORM}")
         self.n_action_ = U.shape[1]
         self.n_task_ = V.shape[1]
-        self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X[keep])
-        self._learn_rows(chunked_features(self.basis_, X[keep]), V[keep], X[keep], X, U, groups)
+        Xk, Vk = (X, V) if self.n_dropped_ == 0 else (X[keep], V[keep])
+        self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(Xk) if basis is None else basis
+        self._learn_rows(self.basis_, Xk, Vk, X, U, groups, start)
         return self
 
     def projection_k(self, X: np.ndarray, k: int | None) -> np.ndarray:

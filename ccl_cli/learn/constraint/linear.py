@@ -19,13 +19,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from itertools import combinations_with_replacement
-from typing import ClassVar, get_args
+from typing import Any, ClassVar, get_args
 
 import numpy as np
 
-from ccl_cli.learn.basis import BasisParams, make_basis
+from ccl_cli.learn.basis import Basis, BasisParams, make_basis
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.constraint.lambda_ import ROBOT, make_features
 from ccl_cli.learn.linalg import nullspace_projection, row_chunks
 from ccl_cli.learn.model_selection import Tunable
 from ccl_cli.learn.params import Interval, Options, Regressors, SeedParams, TaskRegressors, Whiten, parameters
@@ -76,18 +77,19 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
     """
 
     _parameter_constraints: ClassVar[dict[str, list]] = {
-        "regressors": [Options.of(Regressors), callable], "degree": [Interval(int, 0, 10)],
+        "regressors": [Options.of(Regressors), ROBOT, callable], "degree": [Interval(int, 0, 10)],
         "task": [bool], "task_regressors": [Options.of(TaskRegressors)],
         "whiten": [Options.of(Whiten)], "reweight": [Interval(int, 0, 1000)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
         "W_": "array", "Wb_": "array", "singular_values_": "array", "scale_": "array", "basis_": "basis"}
-    regressors: Regressors | Callable[[np.ndarray], np.ndarray] = "polynomial"
+    regressors: Regressors | dict | Callable[[np.ndarray], np.ndarray] = "polynomial"
     degree: int = 1
     task: bool = False
     task_regressors: TaskRegressors = "constant"
     whiten: Whiten = "rms"
     reweight: int = 3
+    BASIS_PARAMS = ("basis", "n_centres", "seed", "regressors", "task", "task_regressors")
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         return [((self.n_centres, 16, 9, 25, 36), (1.0, 0.5))] if self.regressors == "rbf" else []
@@ -102,15 +104,26 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
             return polynomial_features(X, self.degree)
         return self.basis_.transform(X)
 
+    def _matrix_regressors(self) -> Any:
+        """Φ_A as a callable (N, p) → (N, m, q) for a callable or a robot's Jacobian rows
+        (``regressors: {robot: ..., rows: [...]}``: A(q) = W J(q)[rows]), else None."""
+        if callable(self.regressors):
+            return self.regressors
+        if isinstance(self.regressors, dict):
+            if getattr(self, "regressors_", None) is None:
+                self.regressors_ = make_features(self.regressors)
+            return self.regressors_
+        return None
+
     def _features(self, X: np.ndarray) -> np.ndarray | None:
         """f(x) (N, M) such that Φ_A(x) = f(x) ⊗ I_q; None for matrix regressors."""
-        return None if callable(self.regressors) else self._family(self.regressors, X)
+        return None if self._matrix_regressors() is not None else self._family(self.regressors, X)
 
     def _phi(self, X: np.ndarray) -> np.ndarray:
         """Φ_A(X): (N, m, q)."""
         f = self._features(X)
         if f is None:
-            return np.asarray(self.regressors(X), dtype=float)
+            return np.asarray(self._matrix_regressors()(X), dtype=float)
         q = self.n_action_
         return np.einsum("nk,ij->nkij", f, np.eye(q)).reshape(len(X), -1, q)
 
@@ -203,12 +216,23 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None) -> LinearConstraint:
         """Estimate W (and W_b) from states X (N, p) and actions U (N, q); ``groups`` (N,):
         demonstration ids, for the folds of tuning and of the ``cv`` rule."""
-        X, U = self._prepare_fit(X, U)
-        if self._fit_tuned(X, U, groups=groups):
-            return self
-        self.n_action_ = U.shape[1]
+        return self._fit(X, U, groups=groups)
+
+    def _fit_basis(self, X: np.ndarray, U: np.ndarray) -> Basis | None:
+        """The RBF feature map of ``rbf`` regressors (or task regressors) fitted on X; None
+        when no regressor family needs one."""
         if self.regressors == "rbf" or (self.task and self.task_regressors == "rbf"):
-            self.basis_ = make_basis(self.basis, self.n_centres, self.seed).fit(X)
+            return make_basis(self.basis, self.n_centres, self.seed).fit(X)
+        return None
+
+    def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                  basis: Basis | None = None, start: LinearConstraint | None = None) -> LinearConstraint:
+        """The closed-form estimate with a fitted ``basis`` (None: this learner's own);
+        ``start`` is not needed (nothing iterates)."""
+        self.n_action_ = U.shape[1]
+        basis = self._fit_basis(X, U) if basis is None else basis
+        if basis is not None:
+            self.basis_ = basis
         vals, vecs, scale, msq = self._solve(X, U, 1)
         d = vecs.shape[0]
         max_k = min(self.max_constraints or self.n_action_ - 1, d - 1)

@@ -1,0 +1,150 @@
+"""Scoring learnt models (ALGORITHMS.md §6): the numbers of every stage, of ``ccl evaluate``
+and of the evaluate stage come from these functions, so one model gets one set of numbers.
+
+Every number is an error of one model, named as in §6 (see docs/metrics.md), with its
+normaliser computed from the data actually used and labelled by it (``normaliser_of``) and,
+over several demonstrations or held-out time blocks, its standard error (``se``):
+
+* constraint (learn-a): ``NPOE`` of the observations it was learnt from (u, or the learnt
+  w̃ after a learn-v stage; minus the learnt task part Ã⁺b̃ when the model has one) and,
+  with ground truth, ``NPPE``;
+* null-space component (learn-v): ``NPE`` and, with ground truth, ``NUPE_w`` / ``NUPE_v``;
+* policy (learn-pi): with ground truth ``NUPE`` and ``NCPE``; with a learnt constraint
+  ``NCPE_obs`` (observations against Ñπ̃).
+
+``convention="original"`` switches to the original library's normalisers (NPPE and NPOE:
+var(π) for state-independent models, var of the true w for state-dependent ones; NPE:
+ddof = 0).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ccl_cli import metrics
+from ccl_cli.dataset import Demonstrations
+from ccl_cli.errors import InputError
+from ccl_cli.learn.constraint import NoConstraint, PerDemonstration, PerWindow, StateIndependentConstraint
+from ccl_cli.learn.constraint.base import projection_at
+from ccl_cli.learn.constraint.windows import refit_on_new_demos
+
+KINDS = {"learn-a": "constraint", "learn-v": "nullspace", "learn-pi": "policy"}
+
+
+def _dict(*items: metrics.Metric) -> dict[str, dict]:
+    return {m.name: m.as_dict() for m in items}
+
+
+def _base(model: Any) -> Any:
+    model = vars(model).get("model_", model)  # auto: the model it chose
+    return model.estimator if isinstance(model, PerDemonstration) else model
+
+
+def state_dependent(model: Any) -> bool:
+    """Whether a constraint model's A depends on x (everything but nhat, per window or none)."""
+    return not isinstance(_base(model), StateIndependentConstraint | PerWindow | NoConstraint)
+
+
+def projection_on(model: Any, d: Demonstrations, Y: np.ndarray, new_data: bool = False
+                  ) -> tuple[np.ndarray, str | None]:
+    """Ñ (N, q, q) of a constraint model on ``d``, and None — or, for a model fitted per window
+    or per demonstration on demonstrations it has not seen (any, with ``new_data``: a saved
+    model on a recording), Ñ of the same kind of model fitted on ``d``'s observations ``Y``
+    (N, q) and the sentence saying so."""
+    refit = refit_on_new_demos(model, d.X, Y, d.demo, d.t, always=new_data)
+    if refit is not None:
+        return projection_at(refit[0], d.X, d.demo, d.t), refit[1]
+    return projection_at(model, d.X, d.demo, d.t), None
+
+
+def _has_true_constraint(d: Demonstrations) -> bool:
+    return d.has_truth("pi") and (d.has_truth("N") or d.has_truth("A"))
+
+
+def task_part(model: Any, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray | None:
+    """The learnt task part ṽ = Ã⁺ b̃ (§1) of a constraint model with a task term: (N, q),
+    or ``None`` when the model has none (then ṽ = 0)."""
+    if isinstance(model, PerDemonstration):
+        if getattr(model.estimator, "task", False) is not True:
+            return None
+        demo = np.asarray(demo)
+        out = np.zeros((len(X), next(iter(model.models_.values())).n_action_))
+        for k in np.unique(demo):  # one small solve per demonstration, not per sample
+            m = demo == k
+            if int(k) not in model.models_:
+                raise InputError(f"demonstration {int(k)} was not seen when fitting this model")
+            out[m] = task_part(model.models_[int(k)], X[m])
+        return out
+    if getattr(model, "Wb_", None) is None:
+        return None
+    A = model.constraint(X)  # (N, s, q)
+    b = model.task_term(X)  # (N, s)
+    return np.einsum("nqs,ns->nq", np.linalg.pinv(A), b)
+
+
+def groups_of(d: Demonstrations) -> np.ndarray:
+    """Ids of the contiguous pieces of ``d`` that the spread of a figure is taken over: each
+    demonstration, and inside one, each run of samples without a time gap (the held-out time
+    blocks of a continuous recording; a gap is over 5 median sampling intervals): (N,)."""
+    n = d.n_samples
+    if n < 2:
+        return np.zeros(n, dtype=int)
+    dt = np.diff(d.t)
+    same = d.demo[1:] == d.demo[:-1]
+    step = np.median(dt[same & (dt > 0)]) if np.any(same & (dt > 0)) else 0.0
+    cut = ~same | (dt > 5 * step if step > 0 else dt < 0)
+    return np.r_[0, np.cumsum(cut)]
+
+
+def constraint_metrics(model: Any, d: Demonstrations, Y: np.ndarray, convention: str = "ccl",
+                       of: str = "u", new_data: bool = False) -> dict[str, dict]:
+    """NPOE of the observations ``Y`` (N, q) the model was learnt from (``of`` names them)
+    and, with ground truth π and N, NPPE; both under ``convention`` (``new_data``: see
+    :func:`projection_on`; its note goes into every entry)."""
+    N_est, note = projection_on(model, d, Y, new_data)
+    sd = state_dependent(model)
+    truth = _has_true_constraint(d)
+    Pi = d.truth["pi"] if truth else None
+    W = None
+    if truth and sd:
+        W = d.truth["w"] if d.has_truth("w") else np.einsum("nij,nj->ni", d.true_projection(), Pi)
+    groups = groups_of(d)
+    items = [metrics.npoe(N_est, Y, convention, Pi=None if sd else Pi, W=W,
+                          V_est=task_part(model, d.X, d.demo), of=of, groups=groups)]
+    if truth:
+        items.append(metrics.nppe(d.true_projection(), N_est, Pi, d.U, convention, state_dependent=sd,
+                                  groups=groups))
+    out = _dict(*items)
+    for entry in out.values() if note else ():
+        entry["note"] = note
+    return out
+
+
+def nullspace_metrics(w: np.ndarray, d: Demonstrations, convention: str = "ccl") -> dict[str, dict]:
+    """NPE of the learnt w̃ (N, q) and, with ground truth, NUPE of w and of v = u − w̃."""
+    groups = groups_of(d)
+    items = [metrics.npe(d.U, w, convention, groups)]
+    if d.has_truth("w"):
+        items.append(metrics.nupe(d.truth["w"], w, "NUPE_w", "w", groups))
+    if d.has_truth("v"):
+        items.append(metrics.nupe(d.truth["v"], d.U - w, "NUPE_v", "v", groups))
+    return _dict(*items)
+
+
+def policy_metrics(est: np.ndarray, d: Demonstrations, constraint: Any = None, Y: np.ndarray | None = None,
+                   of: str = "u") -> dict[str, dict]:
+    """With ground truth: NUPE and NCPE of π̃ (N, q). With a learnt ``constraint`` (and the
+    observations ``Y`` it was learnt from): NCPE_obs, the observations against Ñπ̃."""
+    items = []
+    groups = groups_of(d)
+    if d.has_truth("pi"):
+        items.append(metrics.nupe(d.truth["pi"], est, groups=groups))
+        if _has_true_constraint(d):
+            items.append(metrics.ncpe(d.true_projection(), d.truth["pi"], est, groups))
+    if constraint is not None:
+        Y = d.U if Y is None else Y
+        items.append(metrics.ncpe_observed(projection_on(constraint, d, Y)[0], Y, est,
+                                           task_part(constraint, d.X, d.demo), of, groups))
+    return _dict(*items)

@@ -1,0 +1,355 @@
+"""Bounded reads (issue 20): declared sizes checked before anything is allocated, only
+regular files opened, paths named by a bag stay in its folder, the HDF5 probe fails
+closed, and library exceptions met at their source. Every fixture is written at test
+time by the real writers (h5py, scipy.io.savemat, rosbags, mcap); a test that finishes
+proves that nothing blocked on a FIFO."""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import scipy.io
+import scipy.sparse
+import writers
+from tests_paths import cpu_seconds
+
+from ccl_cli import simulate as sim
+from ccl_cli.cli import main
+from ccl_cli.dataset import Demonstrations
+from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.io import limits, load_demonstrations, write_demonstrations
+from ccl_cli.io.h5 import probe as h5probe
+from ccl_cli.io.limits import check_claim, max_bytes
+
+JOINTS = {"topic": "/joint_states", "field": "position", "joints": writers.JOINTS[:3]}
+
+
+def refused(cfg: dict, match: str) -> str:
+    with pytest.raises(InputError, match=match) as info:
+        load_demonstrations(cfg)
+    assert "\n" not in info.value.message
+    return info.value.message
+
+
+# -- the cap -------------------------------------------------------------------------------------
+def test_cap_is_configurable_and_counts_bytes_exactly(monkeypatch):
+    monkeypatch.delenv("CCL_MAX_BYTES", raising=False)
+    assert max_bytes() == 2 << 30
+    monkeypatch.setenv("CCL_MAX_BYTES", "512M")
+    assert max_bytes() == 512 << 20
+    assert check_claim("f", "x", (1 << 20, 64)) == 512 << 20  # exactly the cap: allowed
+    with pytest.raises(InputError, match=r"x declares 1048577×64 \(512 MiB\), over the cap of 512 MiB"):
+        check_claim("f", "x", (1 << 20 | 1, 64))
+    with pytest.raises(InputError, match="far more than the file holds"):
+        check_claim("f", "x", (10_000_000, 2), 8, file_bytes=1000)  # 160 MB from 1 kB
+    monkeypatch.setenv("CCL_MAX_BYTES", "lots")
+    with pytest.raises(InputError, match="CCL_MAX_BYTES='lots'"):
+        max_bytes()
+
+
+def test_mat73_declaring_a_billion_doubles_is_refused_before_reading(tmp_path):
+    path = writers.write_mat73(tmp_path / "bomb.mat", {"U": [[1.0, 2.0]]})
+    with h5py.File(path, "a") as f:  # declared, never written: the file stays a few kB
+        ds = f.create_dataset("X", shape=(1_000_000_000, 1), dtype="f8", chunks=(1 << 16, 1))
+        ds.attrs["MATLAB_class"] = b"double"
+    assert path.stat().st_size < 20_000
+    t0 = cpu_seconds()
+    refused({"files": [str(path)], "state": {"variable": "X"}, "time": {"rate": 10}},
+            r"X: the variable declares 1000000000×1 \(7.45 GiB\), over the cap")
+    assert cpu_seconds() - t0 < 5  # nothing was allocated or read
+
+
+def test_mat73_cells_are_bounded_too(tmp_path):
+    arm = sim.arm7(seed=0, n_demos=2, n_steps=10)
+    path = writers.write_mat73(tmp_path / "c.mat", {"X": [arm.X[arm.demo == d].T for d in arm.demo_ids]})
+    with h5py.File(path, "a") as f:  # the second cell's target replaced by a bomb
+        target = f[f["X"][()].ravel()[1]].name
+        del f[target]
+        ds = f.create_dataset(target, shape=(400_000_000, 7), dtype="f8", chunks=(1 << 16, 7))
+        ds.attrs["MATLAB_class"] = b"double"
+    refused({"files": [str(path)], "state": {"variable": "X", "samples": "columns"}, "time": {"rate": 10}},
+            r"X\{2\}: the variable declares 400000000×7")
+
+
+def test_sparse_mat_reads_as_dense_and_a_huge_one_is_refused(tmp_path):
+    arm = sim.arm7(seed=1, n_demos=1, n_steps=30)
+    small = tmp_path / "small.mat"
+    scipy.io.savemat(small, {"X": scipy.sparse.csc_matrix(arm.X.T), "U": arm.U.T})
+    data = load_demonstrations({"files": [str(small)], "state": {"variable": "X", "samples": "columns"},
+                                "action": {"variable": "U", "samples": "columns"}, "time": {"rate": 10}})
+    np.testing.assert_array_equal(data.X, arm.X)
+    n = 1_000_000
+    huge = tmp_path / "huge.mat"
+    scipy.io.savemat(huge, {"X": scipy.sparse.csc_matrix((np.ones(3), ([0, 1, 2], [0, 1, 2])), shape=(n, n))})
+    refused({"files": [str(huge)], "state": {"variable": "X"}, "time": {"rate": 10}},
+            r"X: the sparse variable declares 1000000×1000000 \(7.28 TiB\)")
+    cell = tmp_path / "cell.mat"  # inside a cell: checked before toarray
+    m = scipy.sparse.csc_matrix((np.ones(1), ([0], [0])), shape=(100_000_000, 7))
+    scipy.io.savemat(cell, {"X": np.array([m], dtype=object).reshape(1, 1)})
+    refused({"files": [str(cell)], "state": {"variable": "X"}, "time": {"rate": 10}},
+            r"the sparse matrix declares 100000000×7")
+
+
+def test_foreign_hdf5_dataset_declaring_more_than_the_file_holds(tmp_path):
+    path = tmp_path / "f.h5"
+    with h5py.File(path, "w") as f:
+        f.create_dataset("x", shape=(10_000_000, 3), dtype="f4", chunks=(1 << 16, 3))
+        f["u"] = np.zeros((10, 3))
+    refused({"files": [str(path)], "format": "hdf5", "state": {"dataset": "x"}, "action": {"dataset": "u"},
+             "time": {"rate": 10}}, r"/x: the dataset declares 10000000×3 .*far more than the file holds")
+
+
+def test_csv_line_over_the_cap_is_refused_without_reading_it(tmp_path, monkeypatch):
+    monkeypatch.setenv("CCL_MAX_BYTES", "1M")
+    cfg = {"state": {"columns": ["x"]}, "time": {"rate": 10}}
+    good = tmp_path / "good.csv"
+    good.write_text("x\n" + "\n".join(f"{v:.6f}" for v in np.linspace(0, 1, 2000)) + "\n")
+    np.testing.assert_allclose(load_demonstrations({**cfg, "files": [str(good)]}).X[:, 0],
+                               np.linspace(0, 1, 2000), atol=1e-6)
+    one_line = tmp_path / "one.csv"
+    one_line.write_bytes(b"x," + b"1.0," * 300_000)  # 1.2 MB, no line end
+    refused({**cfg, "files": [str(one_line)]}, r"the text declares 1200002 bytes \(1.14 MiB\), over the cap")
+    monkeypatch.delenv("CCL_MAX_BYTES")
+    monkeypatch.setattr(limits, "MAX_LINE_BYTES", 1 << 20)  # lines of 1 MiB at most, files of 2 GiB
+    rows = "".join(f"{k} {k + 1} {k + 2}\n" for k in range(200_000))  # 3.9 MB of short lines
+    matrix = tmp_path / "m.txt"
+    matrix.write_text(rows)
+    data = load_demonstrations({"files": [str(matrix)], "state": {"columns": [0, 1, 2]},
+                                "time": {"rate": 10}})
+    np.testing.assert_array_equal(data.X[-1], [199_999, 200_000, 200_001])
+    long = tmp_path / "long.txt"
+    long.write_text(rows[:2_000_000] + "7 " * 600_000 + "\n" + rows[2_000_000:])
+    refused({"files": [str(long)], "state": {"columns": [0]}, "time": {"rate": 10}},
+            r"a line longer than 1048576 bytes starts at byte")
+    cr = tmp_path / "cr.csv"  # old Mac line ends are line ends
+    cr.write_bytes(b"x\r" + b"\r".join(b"%d" % i for i in range(200_000)) + b"\r")
+    assert load_demonstrations({**cfg, "files": [str(cr)]}).n_samples == 200_000
+
+
+# -- regular files only ---------------------------------------------------------------------------
+def fifo(path: Path) -> Path:
+    os.mkfifo(path)
+    return path
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".h5", ".mat", ".bag", ".mcap", ".txt"])
+def test_a_fifo_given_as_a_recording_is_refused(tmp_path, suffix):
+    refused({"files": [str(fifo(tmp_path / f"rec{suffix}"))]}, "is a FIFO, not a regular file")
+
+
+@pytest.mark.parametrize("fmt,state", [("csv", {"columns": ["x"]}), ("hdf5", None),
+                                       ("mat", {"variable": "X"}), ("mcap", {"topic": "/a"}),
+                                       ("bag", {"topic": "/a"})])
+def test_a_fifo_with_an_explicit_format_is_refused(tmp_path, fmt, state):
+    path = fifo(tmp_path / "rec.dat")
+    refused({"files": [str(path)], "format": fmt, "state": state, "time": {"rate": 10}}, "is a FIFO")
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_fifos_named_by_a_ros2_bag_are_refused(tmp_path, storage):
+    rec = writers.joint_recording(n=30)
+    bag = writers.write_ros2_bag(tmp_path / "bag", rec, storage)
+    store = next(p for p in bag.iterdir() if p.suffix in (".db3", ".mcap"))
+    store.unlink()
+    fifo(store)
+    refused({"files": [str(bag)], "state": JOINTS}, "a storage file of the bag is a FIFO")
+    meta = bag / "metadata.yaml"
+    meta.unlink()
+    fifo(meta)
+    refused({"files": [str(bag)], "state": JOINTS}, "metadata.yaml: .* is a FIFO")
+
+
+def test_fifo_config_and_model_are_one_line(capsys, tmp_path):
+    data = tmp_path / "toy.h5"
+    write_demonstrations(data, sim.toy2d(n_demos=3, n_steps=20, seed=0))
+    assert main(["learn-a", str(data), "-c", str(fifo(tmp_path / "c.yaml")), "-o", str(tmp_path / "o"),
+                 "-q"]) == 2
+    assert "c.yaml: the config is a FIFO" in capsys.readouterr().err
+    assert main(["predict", str(fifo(tmp_path / "m.h5")), str(data), "-o", str(tmp_path / "p.csv")]) == 2
+    assert "FIFO" in capsys.readouterr().err
+    with pytest.raises(ConfigError, match="manifest is a FIFO"):
+        from ccl_cli.app.batch import plan
+
+        plan(fifo(tmp_path / "m.yaml"))
+
+
+# -- paths named by a bag ------------------------------------------------------------------------
+def test_bag_storage_outside_its_folder_needs_allow_outside(tmp_path, caplog):
+    rec = writers.joint_recording(n=40)
+    elsewhere = writers.write_ros2_bag(tmp_path / "elsewhere", rec, "sqlite3")
+    reference = load_demonstrations({"files": [str(elsewhere)], "state": JOINTS})
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_bytes((elsewhere / "metadata.yaml").read_bytes())
+    store = next(p for p in elsewhere.iterdir() if p.suffix == ".db3")
+    (bag / store.name).symlink_to(store)  # a symlink inside the bag to a bag elsewhere
+    cfg = {"files": [str(bag)], "state": JOINTS}
+    refused(cfg, f"leads through a symlink to {store}, outside .*data.allow_outside: true allows it")
+    with caplog.at_level(logging.WARNING, logger="ccl"):
+        data = load_demonstrations({**cfg, "allow_outside": True})
+    np.testing.assert_array_equal(data.X, reference.X)
+    assert "outside the bag (followed" in caplog.text
+    text = (bag / "metadata.yaml").read_text().replace(f"- {store.name}", f"- ../elsewhere/{store.name}")
+    (bag / "metadata.yaml").write_text(text)
+    refused(cfg, rf"names '../elsewhere/{store.name}', which leads to {store}, outside")
+
+
+# -- the probe fails closed ----------------------------------------------------------------------
+def test_probe_refuses_a_file_whose_attribute_table_cannot_be_read(tmp_path, monkeypatch):
+    """libhdf5 failing while the probe iterates an attribute table (as on the damaged model
+    of issue 20): the file is refused, and the parent reads no attribute of it by name."""
+    path = tmp_path / "m.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs["format"] = "ccl-model"
+        f["x"] = np.ones(3)
+
+    def damaged(self):
+        raise OSError("Unable to iterate over attributes (bad local heap signature)")
+
+    read_by_name: list[str] = []
+    original = h5py.AttributeManager.__getitem__
+    monkeypatch.setattr(h5py.AttributeManager, "__iter__", damaged)  # the fork inherits it
+    monkeypatch.setattr(h5probe.threading, "active_count", lambda: 1)  # the fork, whatever ran before
+    monkeypatch.setattr(h5py.AttributeManager, "__getitem__",
+                        lambda self, key: read_by_name.append(key) or original(self, key))
+    with pytest.raises(InputError, match=r"failed parsing the file \(OSError: Unable to iterate") as info:
+        h5probe.open_hdf5(path, "model file")
+    assert "\n" not in info.value.message and read_by_name == []
+
+
+def test_damaged_model_is_refused_by_the_probe(capsys, tmp_path):
+    """Models damaged next to attribute names until libhdf5 fails iterating an attribute
+    table (the hang of issue 20: the probe let such files through): predict and inspect
+    refuse them in one line."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+    import hostile_bars
+
+    data = tmp_path / "toy.h5"
+    write_demonstrations(data, sim.toy2d(n_demos=4, n_steps=30, seed=0))
+    assert main(["learn-v", str(data), "-o", str(tmp_path / "v"), "-q", "--n-centres", "4",
+                 "--test-fraction", "0"]) == 0
+    found = hostile_bars.damaged_models(tmp_path, tmp_path / "v" / "model.h5", n=1, tries=400)
+    assert found, "the seeded search found no damaged attribute table"
+    t0 = cpu_seconds()
+    for argv in (["predict", found[0], data, "-o", tmp_path / "p.csv"], ["inspect", found[0]]):
+        capsys.readouterr()
+        assert main([str(a) for a in argv]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "failed parsing the file" in err and "refused" in err, err
+    assert cpu_seconds() - t0 < 10
+
+
+def test_probe_child_exit_without_a_message_is_a_refusal(tmp_path, monkeypatch):
+    path = tmp_path / "m.h5"
+    with h5py.File(path, "w") as f:
+        f["x"] = np.ones(3)
+    monkeypatch.setattr(h5probe, "_probe_child", lambda p, cpu_limit: os._exit(7))
+    monkeypatch.setattr(h5probe.threading, "active_count", lambda: 1)  # the fork, whatever ran before
+    with pytest.raises(InputError, match=r"failed parsing the file \(exit 7"):
+        h5probe.probe(path)
+
+
+def test_foreign_attributes_are_checked(tmp_path):
+    path = tmp_path / "f.h5"
+    with h5py.File(path, "w") as f:
+        f["x"] = np.ones((5, 2))
+        f["x"].attrs["names"] = np.array([b"a", b"\xff\xfe"])  # not UTF-8
+        f.attrs["format"] = np.array([1, 2])  # not a string
+    refused({"files": [str(path)], "format": "hdf5", "state": {"dataset": "x"}, "time": {"rate": 10}},
+            r"attribute 'names' must hold names")
+    refused({"files": [str(path)], "format": "hdf5"}, r"attribute 'format' must be a string")
+
+
+# -- JSON messages missing keys ------------------------------------------------------------------
+@pytest.mark.parametrize("key,match", [
+    ("name", r"a JointState needs name: a list of strings, got NoneType \(message 8\)"),
+    ("position", r"field 'position' not found in /joint_states .* \(message 8\)"),
+    ("header.stamp.sec", r"message 8 of /joint_states has no 'sec' \(header.stamp\)"),
+    ("header.stamp", r"message 8 of /joint_states has no 'stamp' \(header.stamp\)"),
+])
+def test_json_mcap_message_missing_a_key_is_one_line(tmp_path, key, match):
+    rec = writers.joint_recording(n=20)
+    msgs = [writers.msg_dict(rec, i) for i in range(20)]
+    *parents, last = key.split(".")
+    obj = msgs[7]
+    for p in parents:
+        obj = obj[p]
+    del obj[last]
+    path = writers.write_mcap_json(tmp_path / "r.mcap", rec, msgs)
+    refused({"files": [str(path)], "state": JOINTS}, match)
+    msgs = [writers.msg_dict(rec, i) for i in range(20)]
+    msgs[3]["velocity"] = {"a": 1}  # another type in a later message
+    path = writers.write_mcap_json(tmp_path / "v.mcap", rec, msgs)
+    refused({"files": [str(path)], "state": JOINTS, "action": {**JOINTS, "field": "velocity"}},
+            "velocity")
+
+
+# -- kinematic features ---------------------------------------------------------------------------
+def test_arm_features_on_data_of_another_width_is_one_line(capsys, tmp_path):
+    data = tmp_path / "three.h5"
+    arm = sim.arm7(seed=0, n_demos=2, n_steps=20)
+    write_demonstrations(data, Demonstrations(arm.X[:, :3], arm.U[:, :3], arm.demo, arm.t))
+    code = main(["learn-a", str(data), "--method", "lambda", "--features", "arm7", "-o", str(tmp_path / "o"),
+                 "-q", "--n-centres", "3"])
+    err = [ln for ln in capsys.readouterr().err.splitlines() if not ln.startswith("ccl: warning")]
+    assert code == 2 and len(err) == 1 and "features arm7 need the 7 joint angles of the arm per sample" in \
+        err[0] and "got 3 columns" in err[0], err
+
+
+def test_mat73_cells_that_are_not_references_or_loop_are_refused(tmp_path):
+    arm = sim.arm7(seed=0, n_demos=2, n_steps=10)
+    path = writers.write_mat73(tmp_path / "c.mat", {"X": [arm.X[arm.demo == d].T for d in arm.demo_ids]})
+    cfg = {"files": [str(path)], "state": {"variable": "X", "samples": "columns"}, "time": {"rate": 10}}
+    assert load_demonstrations(cfg).n_samples == 20  # as written
+    with h5py.File(path, "a") as f:  # the cell's references replaced by bytes
+        del f["X"]
+        f["X"] = np.zeros((2, 1), dtype=np.uint8)
+        f["X"].attrs["MATLAB_class"] = b"cell"
+    refused(cfg, "a cell must hold object references, got uint8")
+    with h5py.File(path, "a") as f:  # a cell whose only element is the cell itself
+        del f["X"]
+        ds = f.create_dataset("X", shape=(1, 1), dtype=h5py.ref_dtype)
+        ds.attrs["MATLAB_class"] = b"cell"
+        ds[0, 0] = ds.ref
+    refused(cfg, "nested deeper than 32 levels")
+
+
+def test_attribute_text_that_is_not_utf8_is_refused_in_plain_text(capsys, tmp_path):
+    """A MATLAB_class written as bytes that are not UTF-8 (h5py hands them back with
+    surrogate escapes): one line that any terminal can print."""
+    arm = sim.arm7(seed=0, n_demos=1, n_steps=10)
+    path = writers.write_mat73(tmp_path / "c.mat", {"X": arm.X.T})
+    with h5py.File(path, "a") as f:
+        f["X"].attrs["MATLAB_class"] = b"\xff\xfe"
+    code = main(["learn-a", str(path), "-o", str(tmp_path / "o"), "-c", str(_config(tmp_path)), "-q"])
+    err = capsys.readouterr().err
+    assert code == 2 and "MATLAB_class' must be" in err and err.count("\n") == 1, err
+    err.encode("utf-8")  # no lone surrogate left in the message
+
+
+def _config(tmp_path: Path) -> Path:
+    cfg = tmp_path / "mat.yaml"
+    cfg.write_text("data: {state: {variable: X, samples: columns}, time: {rate: 10}}\n"
+                   "learn-a: {method: nhat}\n")
+    return cfg
+
+
+def test_probe_memory_is_bounded(tmp_path, monkeypatch):
+    """What libhdf5 allocates while the probe parses a file is bounded (a damaged string or
+    attribute table can make it claim gigabytes): over the bound, the file is refused."""
+    path = tmp_path / "big.h5"
+    with h5py.File(path, "w") as f:
+        f["x"] = np.arange(5_000_000, dtype=np.float64)  # 40 MB, read by the probe
+    # a fresh interpreter (the probe's other path): no memory this process freed to reuse
+    monkeypatch.setattr(h5probe.threading, "active_count", lambda: 2)
+    monkeypatch.setenv("CCL_HDF5_MEMORY_MB", "20")
+    with pytest.raises(InputError, match="parsing the file needs more than 20 MiB of memory"):
+        h5probe.probe(path)
+    monkeypatch.setenv("CCL_HDF5_MEMORY_MB", "400")
+    h5probe.probe(path)  # within the bound: parsed
