@@ -111,6 +111,28 @@ def test_lambda_finds_both_rows_of_the_jacobian_constraint():
     assert row_of(model, "nhat")["k"] < 2  # a constant A does not explain the arm's motion
 
 
+@pytest.mark.parametrize("seed", [0, 5, 11])
+def test_lambda_default_rule_is_the_noise_test_on_its_rows(seed):
+    """Explicit ``method: lambda``: its default rule reads the noise of the trajectories (the
+    ratio rule finds both Jacobian rows in 3 of seeds 0–19, noise in 20: docs/auto.md)."""
+    from ccl_cli.learn.constraint import KnownFeatureConstraint
+    from ccl_cli.learn.constraint.base import fit_constraint
+    from ccl_cli.learn.constraint.noise_rank import Sample, row_evidence
+
+    d = sim.arm7(rows=(0, 1), constraint="jacobian", seed=seed)
+    features = {"arm": "arm7", "rows": [0, 1, 2]}
+    model = fit_constraint(KnownFeatureConstraint(features=features), d.X, d.U, d.demo, d.t, False)
+    assert model.n_constraints_ == 2 and model.selection_["rule"] == "noise"
+    # the figures it read: the motion along each learnt row against that row's noise, by hand
+    ev = row_evidence(d.U, model.constraint(d.X), d.demo, d.t, recorded=True)
+    assert np.allclose(model.selection_["values"], ev.ratio) and max(ev.ratio) < 10
+    assert np.abs(model.projection(d.X) - d.true_projection()).max() < 5e-2
+    # ratio (kept as an option) reads the nmse sequence instead
+    ratio = KnownFeatureConstraint(features=features, selection="ratio").fit(d.X, d.U, groups=d.demo)
+    assert ratio.selection_["rule"] == "ratio" and ratio.selection_["values"] == ratio.nmse_
+    assert Sample.of(d.X, d.U, None, d.t, {"window": 9}).derived == {"window": 9}  # X has q columns
+
+
 # -- the evidence, by hand -------------------------------------------------------------------------
 def test_nhat_held_out_rows_and_npoe_by_hand():
     """nhat's held-out NPOE in the table is the NPOE of the smallest eigenvector of each

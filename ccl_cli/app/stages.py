@@ -310,7 +310,7 @@ class Pipeline:
             return None
         source = opts.projections
         if source in ("learnt", "auto") and self.constraint is not None:
-            return self.constraint.projection(d.X, groups=d.demo)
+            return scoring.projection_on(self.constraint, d, d.U)[0]  # per stretch: fitted on d
         if source in ("true", "auto") and (d.has_truth("N") or d.has_truth("A")):
             return d.true_projection()
         raise ConfigError("pi-coupled needs projections: run learn-a first (projections: learnt) or "

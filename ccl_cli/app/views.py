@@ -228,7 +228,7 @@ def trajectory_normals(model: Any, d: Demonstrations, title: str, part: str) -> 
             if sel.any() and m.n_constraints_ == model.n_constraints_:
                 rows[sel] = m.constraint(d.X[at[sel]])
     else:
-        rows = model.constraint(d.X[at], groups=d.demo[at])
+        rows = constraint_at(model, d.X[at], d.demo[at], d.t[at])
     rows = rows / np.maximum(np.linalg.norm(rows, axis=-1, keepdims=True), 1e-300)
     ref = rows.mean(0)  # one sign for every arrow of a row: towards the row's mean direction
     rows = rows * np.sign(np.einsum("msq,sq->ms", rows, ref) + 1e-300)[..., None]

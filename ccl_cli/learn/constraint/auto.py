@@ -199,9 +199,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
             t = np.asarray(t, dtype=float)
             if t.shape != (n,):
                 raise InputError(f"t must hold one time per sample, ({n},), got {t.shape}")
-        derived = derivative if isinstance(derivative, dict) and t is not None and X.shape[1] == q else None
-        data = ev.Sample(X, U, np.zeros(n, np.int64) if groups is None else np.asarray(groups), t, derived,
-                         recorded=derivative is False)
+        data = ev.Sample.of(X, U, groups, t, derivative)
+        derived = data.derived
         self.n_action_ = q
         gap = self.gap if self.gap is not None else int(derived["window"]) if derived else RECORDED_GAP
         try:

@@ -20,25 +20,8 @@ from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.base import ConstraintModel, constraint_at, fit_constraint
 from ccl_cli.learn.linalg import nullspace_projection
 
-
-@dataclass
-class Sample:
-    """The data of one fit and how its actions were made: ``derived`` the readers'
-    {"window", "order"} (or None), ``recorded`` True when the actions are known to be recorded
-    (:func:`~ccl_cli.learn.constraint.noise_rank.row_evidence`)."""
-
-    X: np.ndarray
-    U: np.ndarray
-    groups: np.ndarray
-    t: np.ndarray | None
-    derived: dict | None
-    recorded: bool
-
-    def rows_evidence(self, rows: np.ndarray, pieces: np.ndarray) -> nr.RowEvidence:
-        """Energy, noise and share of U along per-sample ``rows`` (N, m, q); second differences
-        within each of the ``pieces`` (N,)."""
-        positions = self.X if self.X.shape[1] == self.U.shape[1] else None
-        return nr.row_evidence(self.U, rows, pieces, self.t, positions, self.derived, recorded=self.recorded)
+#: The data of one fit and how its actions were made (:class:`.noise_rank.Sample`).
+Sample = nr.Sample
 
 
 @dataclass

@@ -124,6 +124,38 @@ def row_evidence(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarra
     return RowEvidence(energy=energy, noise=noise, share=share, snr=float(snr))
 
 
+@dataclass
+class Sample:
+    """The data of one fit and how its actions were made: ``derived`` the readers'
+    {"window", "order"} (or None), ``recorded`` True when the actions are known to be recorded
+    (:func:`row_evidence`). X (N, p), U (N, q), groups (N,), t (N,) s or None."""
+
+    X: np.ndarray
+    U: np.ndarray
+    groups: np.ndarray
+    t: np.ndarray | None
+    derived: dict | None
+    recorded: bool
+
+    @classmethod
+    def of(cls, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None, t: np.ndarray | None,
+           derivative: dict | bool | None) -> Sample:
+        """From a learner's ``fit`` arguments: ``derivative`` the readers' {"window", "order"}
+        when U was derived from the positions X (used only with the times and when X has q
+        columns), False when recorded, None when not known."""
+        derived = derivative if isinstance(derivative, dict) and t is not None and X.shape[1] == U.shape[1] \
+            else None
+        return cls(X, U, np.zeros(len(U), np.int64) if groups is None else np.asarray(groups), t, derived,
+                   recorded=derivative is False)
+
+    def rows_evidence(self, rows: np.ndarray, pieces: np.ndarray | None = None) -> RowEvidence:
+        """Energy, noise and share of U along ``rows`` ((m, q) or per sample (N, m, q)); second
+        differences within each of the ``pieces`` (N,; None: the demonstrations)."""
+        positions = self.X if self.X.shape[1] == self.U.shape[1] else None
+        return row_evidence(self.U, rows, self.groups if pieces is None else pieces, self.t, positions,
+                            self.derived, recorded=self.recorded)
+
+
 def noise_rank(evidence: RowEvidence, max_k: int, margin: float = MARGIN, share: float = SHARE,
                ratio: float = RATIO, min_snr: float = MIN_SNR, share_rows: int | None = None
                ) -> Selection | None:
