@@ -279,7 +279,7 @@ def learn_a(
              "per_window (one constant A per time window; docs/methods.md).",
         show_default=_default(spec.DEFAULT_CONSTRAINT_METHOD))] = None,
     selection: Annotated[Selection | None, typer.Option(
-        help="How the number of constraints s is chosen.",
+        help="How the number of constraints s is chosen (lambda's default: noise).",
         show_default=_default(defaults.DEFAULT_RULE))] = None,
     n_constraints: Annotated[int | None, typer.Option(help="Fix the number of constraints s.",
                                                       show_default="chosen by --selection")] = None,
