@@ -1,6 +1,7 @@
 """learn-a's ``auto`` (issue 17) on the simulated recordings: the chosen model class, the number
 of constraints, the angle to the true constraint and the held-out NPOE, against today's default
-(nhat with the ``ratio`` rule; lambda's own default on the arm's Jacobian constraint).
+(nhat with the ``ratio`` rule; lambda with the ``ratio`` rule on the arm's Jacobian constraint,
+``lambda_jacobian``: the explicit method lambda with its new default rule, noise).
 
     python benchmarks/bench_auto.py [--seeds 20] [--only free_reach,flow2d,...] [--windows 2,3,4,6,8]
 
@@ -25,7 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from ccl_cli import simulate as sim  # noqa: E402
-from ccl_cli.app.evaluate import projection_on  # noqa: E402
+from ccl_cli.app.scoring import projection_on  # noqa: E402
 from ccl_cli.dataset import Demonstrations  # noqa: E402
 from ccl_cli.learn import model_selection as S  # noqa: E402
 from ccl_cli.learn.constraint import (  # noqa: E402
@@ -33,7 +34,7 @@ from ccl_cli.learn.constraint import (  # noqa: E402
     KnownFeatureConstraint,
     StateIndependentConstraint,
 )
-from ccl_cli.learn.constraint.base import constraint_at  # noqa: E402
+from ccl_cli.learn.constraint.base import constraint_at, fit_constraint  # noqa: E402
 from ccl_cli.metrics import subspace_angle  # noqa: E402
 
 ARM7_JACOBIAN = {"arm": "arm7", "rows": [0, 1, 2]}
@@ -63,6 +64,9 @@ SCENARIOS: dict[str, tuple[int, Callable[[int], Demonstrations], object, str]] =
     "tracker_tilt_steps": (1, lambda s: sim.tracker_tilt(mode="steps", seed=s), None, "heldout"),
     "arm7_2rows": (2, lambda s: sim.arm7(rows=(0, 1), seed=s), None, "N"),
     "arm7_jacobian": (2, lambda s: sim.arm7(rows=(0, 1), constraint="jacobian", seed=s), ARM7_JACOBIAN, "k"),
+    # explicit method: lambda (its default rule, noise, against ratio), not auto
+    "lambda_jacobian": (2, lambda s: sim.arm7(rows=(0, 1), constraint="jacobian", seed=s), ARM7_JACOBIAN,
+                        "lambda"),
 }
 
 
@@ -84,7 +88,8 @@ def mean_angle(model, d: Demonstrations) -> float | None:
 def before(d: Demonstrations, features) -> int:
     """Today's default: nhat with the ratio rule, or lambda's own default with features."""
     if features is not None:
-        return int(KnownFeatureConstraint(features=features).fit(d.X, d.U, groups=d.demo).n_constraints_)
+        return int(KnownFeatureConstraint(features=features, selection="ratio").fit(d.X, d.U, groups=d.demo)
+                   .n_constraints_)
     return int(StateIndependentConstraint().fit(d.X, d.U, groups=d.demo).n_constraints_)
 
 
@@ -98,6 +103,11 @@ def run_case(name: str, seed: int, window: float | None = None) -> dict:
         hold = S.holdout_split(d.demo, 0.3, seed)
         fit_on, test = d.subset(hold.train), d.subset(hold.test)
     kw = {} if window is None else {"window": window}
+    if check == "lambda":
+        t0 = time.process_time()
+        model = fit_constraint(KnownFeatureConstraint(features=features), d.X, d.U, d.demo, d.t, deriv)
+        return {**row, "cpu_s": round(time.process_time() - t0, 2), "k": model.n_constraints_,
+                "chosen": "lambda", "before_k": before(d, features)}
     t0 = time.process_time()
     model = AutoConstraint(features=features, **kw).fit(fit_on.X, fit_on.U, groups=fit_on.demo, t=fit_on.t,
                                                         derivative=deriv)

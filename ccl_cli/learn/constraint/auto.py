@@ -78,7 +78,13 @@ from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import evidence as ev
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint.alpha import StateDependentConstraint
-from ccl_cli.learn.constraint.base import ConstraintModel, constraint_at, fit_constraint, projection_at
+from ccl_cli.learn.constraint.base import (
+    ConstraintModel,
+    check_rows_asked,
+    constraint_at,
+    fit_constraint,
+    projection_at,
+)
 from ccl_cli.learn.constraint.lambda_ import FEATURE_PARAMS, KnownFeatureConstraint, make_features
 from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.nhat import StateIndependentConstraint
@@ -191,10 +197,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
         """
         X, U = self._prepare_fit(X, U)
         n, q = U.shape
-        if q < 2:
-            raise ConfigError("learning a constraint needs at least 2 action dimensions")
-        if self.n_constraints is not None and self.n_constraints > q - 1:
-            raise ConfigError(f"n_constraints must be between 0 and {q - 1}, got {self.n_constraints}")
+        check_rows_asked(q, self.n_constraints)
         if t is not None:
             t = np.asarray(t, dtype=float)
             if t.shape != (n,):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ccl_cli.errors import ConfigError
 from ccl_cli.learn.base import Estimator
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.linalg import nullspace_projection
@@ -35,6 +36,15 @@ class ConstraintModel(Estimator):
         """−NPOE of actions U (N, q) at states X (N, p) (§6): −mean ‖u − Ñ(x)u‖² / Σ var(u);
         higher is better, 0 when every action lies in the learnt null space."""
         return -npoe_error(self.projection(X, groups=groups), np.asarray(U, dtype=float))
+
+
+def check_rows_asked(q: int, n_constraints: int | None) -> None:
+    """ConfigError unless q ≥ 2 action dimensions and a fixed ``n_constraints`` is 0 … q − 1
+    (for the learners that may answer no constraint: auto, per window)."""
+    if q < 2:
+        raise ConfigError("learning a constraint needs at least 2 action dimensions")
+    if n_constraints is not None and n_constraints > q - 1:
+        raise ConfigError(f"n_constraints must be between 0 and {q - 1}, got {n_constraints}")
 
 
 def projection_at(model: ConstraintModel, X: np.ndarray, groups: np.ndarray | None = None,

@@ -32,12 +32,12 @@ from typing import ClassVar
 
 import numpy as np
 
-from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.errors import InputError
 from ccl_cli.learn.basis import cluster_sums
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import rank as sel
-from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.constraint.base import ConstraintModel, check_rows_asked
 from ccl_cli.learn.defaults import N_FOLDS, WINDOW_S
 from ccl_cli.learn.model_selection import inner_folds
 from ccl_cli.learn.params import Interval, parameters
@@ -124,10 +124,7 @@ class PerWindow(ConstraintModel):
         used for p and, for derived actions, as the positions."""
         X, U = self._prepare_fit(X, U)
         n, q = U.shape
-        if q < 2:
-            raise ConfigError("learning a constraint needs at least 2 action dimensions")
-        if self.n_constraints is not None and self.n_constraints > q - 1:
-            raise ConfigError(f"n_constraints must be between 0 and {q - 1}, got {self.n_constraints}")
+        check_rows_asked(q, self.n_constraints)
         seg, table = window_index(groups, t, self.window, n)
         rows = window_rows(U, seg, len(table), self.shrinkage)
         if self.n_constraints is not None:
@@ -173,11 +170,7 @@ class PerWindow(ConstraintModel):
         """s by the noise rule on every sample's window rows (segments as the demonstrations of
         the second differences), else the ratio rule on the mean squared action along each row."""
         q = U.shape[1]
-        along = rows[seg, : q - 1]
-        positions = X if X.shape[1] == q else None
-        derived = derivative if isinstance(derivative, dict) and t is not None and positions is not None \
-            else None
-        ev = nr.row_evidence(U, along, seg, t, positions, derived, recorded=derivative is False)
+        ev = nr.Sample.of(X, U, seg, t, derivative).rows_evidence(rows[seg, : q - 1])
         chosen = nr.noise_rank(ev, q - 1, share_rows=nr.SHARE_ROWS)
         if chosen is None:
             chosen = sel.ratio(ev.energy, q - 1, criterion="mean squared action along row k of each window")
