@@ -23,6 +23,7 @@ from ccl_cli.learn.constraint.angular import (
     rows_from_weights,
 )
 from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.linalg import row_chunks
 from ccl_cli.learn.model_selection import Tunable
 from ccl_cli.learn.params import ITERATION_PARAMS, Interval, SeedParams, parameters
 
@@ -80,7 +81,10 @@ class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedPara
 
         def noise() -> sel.Selection | None:  # the rows of every fit at every sample, (N, m, q)
             data = nr.Sample.of(X, U, groups, *getattr(self, "_timing", (None, None)))
-            return nr.noise_rank(data.rows_evidence(self._rows_at(basis, X, self._row_weights)), max_k)
+            rows = np.empty((len(X), len(self._row_weights), self.n_action_))
+            for chunk in row_chunks(len(X)):  # the features of a block of samples at a time
+                rows[chunk] = self._rows_at(basis, X[chunk], self._row_weights)
+            return nr.noise_rank(data.rows_evidence(rows), max_k)
 
         chosen = sel.choose(self, ratio_values=np.asarray(nmse), gap_values=np.append(nmse, 1.0),
                             max_k=max_k, fixed_max=max_k, criterion="nmse of row k", threshold=threshold,
