@@ -44,21 +44,12 @@ def emit(row: dict) -> None:
     print(json.dumps(row, default=float), flush=True)
 
 
-def phase_subset(d: Demonstrations, phase: str) -> Demonstrations:
-    """The samples of each demonstration inside its ``phase`` (metadata["phases"])."""
-    keep = np.zeros(d.n_samples, bool)
-    for i, p in enumerate(d.metadata["phases"]):
-        t0, t1 = p[phase]
-        keep |= (d.demo == i) & (d.t >= t0) & (d.t < t1)
-    return d.subset(keep)
-
-
 #: name → (true k, make(seed), features of lambda or None, what to check)
 SCENARIOS: dict[str, tuple[int, Callable[[int], Demonstrations], object, str]] = {
     "free_reach": (0, lambda s: sim.free_reach(seed=s), None, "k"),
     "flow2d": (0, lambda s: sim.flow2d(seed=s), None, "k"),
     "tracker_plane": (1, lambda s: sim.tracker_plane(duration=60.0, seed=s), None, "angle"),
-    "wipe_phase": (1, lambda s: phase_subset(sim.arm_wipe(n_demos=4, seed=s), "wipe"), None, "angle"),
+    "wipe_phase": (1, lambda s: sim.phase_subset(sim.arm_wipe(n_demos=4, seed=s), "wipe"), None, "angle"),
     "tracker_sphere": (1, lambda s: sim.tracker_sphere(duration=60.0, seed=s), None, "heldout"),
     "tracker_tilt": (1, lambda s: sim.tracker_tilt(seed=s), None, "heldout"),
     "tracker_tilt_steps": (1, lambda s: sim.tracker_tilt(mode="steps", seed=s), None, "heldout"),

@@ -56,10 +56,7 @@ def test_wiping_phase_of_the_arm_gives_the_table(tmp_path, capsys):
     """The wipe phases of arm_wipe (approach and retract cut off, as the phases say), written by
     ccl's own writer with how the velocities were derived."""
     d = sim.arm_wipe(n_demos=5, seed=3)
-    keep = np.zeros(d.n_samples, bool)
-    for i, phase in enumerate(d.metadata["phases"]):
-        keep |= (d.demo == i) & (d.t >= phase["wipe"][0]) & (d.t < phase["wipe"][1])
-    wipe = d.subset(keep)
+    wipe = sim.phase_subset(d, "wipe")
     path = tmp_path / "wipe.h5"
     provenance = {"simulate": "arm_wipe", "derivative": d.metadata["derivative"]}
     write_demonstrations(path, wipe, provenance=provenance)
