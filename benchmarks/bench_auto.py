@@ -160,7 +160,8 @@ def main() -> None:
                 vals = [r[key] for r in rows if r.get(key) is not None]
                 if vals:
                     summary[key] = [float(np.min(vals)), float(np.median(vals)), float(np.max(vals))]
-            pw = [r["candidate_npoe"].get("per_window") for r in rows if "per_window" in r["candidate_npoe"]]
+            pw = [r["candidate_npoe"]["per_window"] for r in rows
+                  if "per_window" in r.get("candidate_npoe", {})]
             if pw:
                 summary["per_window_npoe"] = [float(np.min(pw)), float(np.median(pw)), float(np.max(pw))]
             emit(summary)
