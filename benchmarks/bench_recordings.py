@@ -209,15 +209,6 @@ def nhat(d, derivative):
     return nhat_rules(d, derivative)
 
 
-def phase_subset(d: Demonstrations, phase: str) -> Demonstrations:
-    """The samples of each demonstration inside its ``phase`` (metadata["phases"])."""
-    keep = np.zeros(d.n_samples, bool)
-    for i, p in enumerate(d.metadata["phases"]):
-        t0, t1 = p[phase]
-        keep |= (d.demo == i) & (d.t >= t0) & (d.t < t1)
-    return d.subset(keep)
-
-
 def windows(d: Demonstrations, seconds: float) -> Demonstrations:
     """One demonstration per ``seconds`` window of a recording."""
     out = d.subset(np.arange(d.n_samples))
@@ -267,11 +258,11 @@ def rank_cases(quick: bool) -> list[tuple[str, int | None, Callable, Callable, b
          nhat, False),
         ("tracker_tilt whole", 1, lambda s: sim.tracker_tilt(seed=s), nhat, False),
         ("tracker_tilt 6-s windows", 1, lambda s: windows(sim.tracker_tilt(seed=s), 6.0), nhat, True),
-        ("arm_wipe wipe phase", 1, lambda s: phase_subset(sim.arm_wipe(n_demos=4, seed=s), "wipe"),
+        ("arm_wipe wipe phase", 1, lambda s: sim.phase_subset(sim.arm_wipe(n_demos=4, seed=s), "wipe"),
          nhat, False),
         ("arm_wipe whole (mixed)", None, lambda s: sim.arm_wipe(n_demos=4, seed=s), nhat, False),
         ("arm_wipe_joint wipe phase (lambda)", 1,
-         lambda s: phase_subset(sim.arm_wipe_joint(n_demos=4, seed=s), "wipe"),
+         lambda s: sim.phase_subset(sim.arm_wipe_joint(n_demos=4, seed=s), "wipe"),
          lam({"arm": "arm7", "rows": [0, 1, 2]}, 2), False),
         ("free_reach", 0, lambda s: sim.free_reach(seed=s), nhat, False),
         ("free_reach 1 mm", 0, lambda s: sim.free_reach(noise=1e-3, seed=s), nhat, False),

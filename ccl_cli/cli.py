@@ -306,11 +306,12 @@ def _learning_command(stage: str):
 @_learning_command("learn-a")
 def learn_a(
     method: Annotated[LearnAMethod | None, typer.Option(
-        help="nhat (constant A, closed form), alpha (state-dependent), lambda (known Φ), linear "
-             "(closed form, docs/methods.md).",
+        help="auto (model class and number of constraints, 0 included, by held-out evidence), nhat "
+             "(constant A, closed form), alpha (state-dependent), lambda (known Φ), linear (closed form), "
+             "per_window (one constant A per time window; docs/methods.md).",
         show_default=_default(spec.DEFAULT_CONSTRAINT_METHOD))] = None,
     selection: Annotated[Selection | None, typer.Option(
-        help="How the number of constraints s is chosen.",
+        help="How the number of constraints s is chosen (lambda's default: noise).",
         show_default=_default(defaults.DEFAULT_RULE))] = None,
     n_constraints: Annotated[int | None, typer.Option(help="Fix the number of constraints s.",
                                                       show_default="chosen by --selection")] = None,
@@ -398,6 +399,8 @@ def evaluate(
         for k, v in summary["metrics"].items():
             typer.echo(f"{k} = {v['value']:.6e}  (error {v['error']:.3e} / var of {v['normaliser_of']} "
                        f"{v['normaliser']:.3e})")
+        if summary.get("note"):
+            typer.echo(f"note: {summary['note']}", err=True)
 
 
 @app.command("predict")
@@ -420,6 +423,8 @@ def predict(
         _emit(summary, True)
     elif not quiet:
         typer.echo(f"wrote {out} ({dataset.n_samples} samples)", err=True)
+        if summary.get("note"):
+            typer.echo(f"note: {summary['note']}", err=True)
 
 
 # -- data commands --------------------------------------------------------------------------

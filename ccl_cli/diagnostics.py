@@ -104,6 +104,14 @@ def derivation(data: Demonstrations) -> tuple[bool | None, int, int]:
     return None, 9, 2
 
 
+def action_derivative(data: Demonstrations) -> dict | bool | None:
+    """How the actions were made, as the constraint learners take it (``derivative`` of
+    :class:`~ccl_cli.learn.constraint.AutoConstraint`): {"window", "order"} when derived from the
+    states, False when recorded, None when the metadata do not say."""
+    derived, window, order = derivation(data)
+    return {"window": window, "order": order} if derived else derived
+
+
 def noise_levels(data: Demonstrations) -> dict[str, Any]:
     """Estimated noise variances and SNRs of states and actions.
 
@@ -350,13 +358,14 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
     the noise level or a negligible share — or None when the data cannot tell (not a
     trajectory in time, or no motion)."""
     from ccl_cli.learn.constraint import noise_rank
+    from ccl_cli.learn.constraint.base import constraint_at
 
     if not getattr(model, "n_constraints_", 0):
         return None
     try:
-        rows = model.constraint(d.X, groups=d.demo)
+        rows = constraint_at(model, d.X, d.demo, d.t)
     except (InputError, NotImplementedError):
-        return None  # per-demonstration models: no rows on demonstrations they do not know
+        return None  # per-demonstration / per-window models: no rows on stretches they do not know
     derived, window, order = derivation(d)
     positions = derived and d.n_state == d.n_action
     ev = noise_rank.row_evidence(Y, rows, d.demo, d.t, d.X if positions else None,

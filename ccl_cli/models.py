@@ -40,9 +40,12 @@ from ccl_cli.io.h5.probe import open_hdf5
 from ccl_cli.io.h5.seal import create_hdf5
 from ccl_cli.learn.basis import basis_from_state
 from ccl_cli.learn.constraint import (
+    AutoConstraint,
     KnownFeatureConstraint,
     LinearConstraint,
+    NoConstraint,
     PerDemonstration,
+    PerWindow,
     StateDependentConstraint,
     StateIndependentConstraint,
 )
@@ -60,10 +63,14 @@ CLASSES: dict[str, tuple[str, type]] = {
     "alpha": ("constraint", StateDependentConstraint),
     "lambda": ("constraint", KnownFeatureConstraint),
     "linear": ("constraint", LinearConstraint),
+    "per_window": ("constraint", PerWindow),
+    "none": ("constraint", NoConstraint),
     "ncl": ("nullspace", NullSpaceComponent),
     "policy": ("policy", PolicyLearner),
 }
 def method_of(model: Any) -> str:
+    if isinstance(model, AutoConstraint):  # saved as the model it chose
+        return method_of(model.model_)
     for name, (_, cls) in CLASSES.items():
         if type(model) is cls:
             return name
@@ -137,6 +144,8 @@ def save_model(path: str | Path, model: Any, training: dict[str, Any] | None = N
                force: bool = False) -> Path:
     """Write ``model`` to ``path`` atomically."""
     method = method_of(model)
+    if isinstance(model, AutoConstraint):  # the chosen model, its selection_ the candidates table
+        model = model.model_
     path = Path(path)
     with create_hdf5(path, force=force) as f:
         f.attrs["format"] = FORMAT
@@ -425,6 +434,13 @@ def _check_shapes(model: Any, method: str, where: str) -> None:
             bad = "Wb_"
         elif not model.task:
             model.Wb_ = None
+    elif method == "per_window":
+        win = model.windows_
+        if win is None or win.ndim != 2 or win.shape[1] != 2 or not np.array_equal(win, np.round(win)):
+            bad = "windows_"
+        elif model.A_ is None or model.A_.shape != (len(win), s, q) or (model.window_ is not None and not (
+                isinstance(model.window_, int | float) and model.window_ > 0)):
+            bad = "A_"
     if bad:
         raise InputError(f"{where}: array {bad} has the wrong shape for a {method} model")
     if K is not None and hasattr(model.basis_, "centres_"):

@@ -35,9 +35,10 @@ from ccl_cli.learn.params import MAX_SEED, Fields, Interval, Options
 
 STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
 Convention = Literal["ccl", "original"]
-#: learn-a's ``method``: which constraint estimator (:data:`CONSTRAINT_METHODS`)
-ConstraintMethod = Literal["nhat", "alpha", "lambda", "linear"]
-DEFAULT_CONSTRAINT_METHOD = "nhat"
+#: learn-a's ``method``: which constraint estimator (:data:`CONSTRAINT_METHODS`); ``auto`` (the
+#: default) chooses the model class and the number of constraints, 0 included, by held-out evidence
+ConstraintMethod = Literal["auto", "nhat", "alpha", "lambda", "linear", "per_window"]
+DEFAULT_CONSTRAINT_METHOD = "auto"
 #: learn-pi's ``projections`` (pi-coupled): from the ground truth, a learn-a stage, or either
 Projections = Literal["auto", "learnt", "true"]
 #: which observations a stage learns from: u, the learnt w̃ of a learn-v stage, or w̃ when there is one
@@ -141,8 +142,10 @@ def _parameters(classes: Iterable[type], rename: dict[tuple[type, str], str] | N
 # -- stage sections -----------------------------------------------------------------------------
 def _stage_classes() -> dict[str, tuple[type, ...]]:
     from ccl_cli.learn.constraint import (
+        AutoConstraint,
         KnownFeatureConstraint,
         LinearConstraint,
+        PerWindow,
         StateDependentConstraint,
         StateIndependentConstraint,
     )
@@ -151,12 +154,13 @@ def _stage_classes() -> dict[str, tuple[type, ...]]:
 
     return {"learn-v": (NullSpaceComponent,), "learn-pi": (PolicyLearner,),
             "learn-a": (StateIndependentConstraint, StateDependentConstraint, KnownFeatureConstraint,
-                        LinearConstraint)}
+                        LinearConstraint, AutoConstraint, PerWindow)}
 
 
 #: learn-a ``method`` → the estimator class's name (the class itself: :func:`constraint_class`)
-CONSTRAINT_METHODS = {"nhat": "StateIndependentConstraint", "alpha": "StateDependentConstraint",
-                      "lambda": "KnownFeatureConstraint", "linear": "LinearConstraint"}
+CONSTRAINT_METHODS = {"auto": "AutoConstraint", "nhat": "StateIndependentConstraint",
+                      "alpha": "StateDependentConstraint", "lambda": "KnownFeatureConstraint",
+                      "linear": "LinearConstraint", "per_window": "PerWindow"}
 #: config keys that are not the estimator's own names: (method, config key) → parameter
 RENAMED = {("nhat", "variant"): "method"}
 

@@ -103,7 +103,7 @@ def test_every_parameter_is_declared_and_literal_choices_agree(cls):
     (lambda: StateDependentConstraint(n_centres=0),
      "StateDependentConstraint: parameter n_centres must be ≥ 1, got 0"),
     (lambda: StateIndependentConstraint(selection="ratoi"),
-     "StateIndependentConstraint: parameter selection must be one of cv, eigengap, ratio, threshold, "
+     "StateIndependentConstraint: parameter selection must be one of cv, eigengap, noise, ratio, threshold, "
      "got 'ratoi' (did you mean 'ratio'?)"),
     (lambda: PolicyLearner(tune={"bugdet": 5}),
      "PolicyLearner: parameter tune has an unknown key 'bugdet' (did you mean 'budget'?)"),

@@ -109,9 +109,9 @@ def test_default_rule_is_one_for_library_and_cli():
         options = C.from_mapping({"learn-a": {"method": method}}).spec.section("learn-a")
         assert options.selection is None
         assert "selection" not in options.estimator_params(StateDependentConstraint)
-    for cls in (StateIndependentConstraint, StateDependentConstraint, KnownFeatureConstraint,
-                LinearConstraint):
+    for cls in (StateIndependentConstraint, StateDependentConstraint, LinearConstraint):
         assert cls().selection == rank.DEFAULT_RULE
+    assert KnownFeatureConstraint().selection == "noise"  # lambda: the noise test on its rows (issue 17)
 
 
 def test_a_single_continuous_recording_gets_a_stated_block_split(tmp_path, capsys):

@@ -15,19 +15,11 @@ from ccl_cli.app.scoring import (
     constraint_metrics,
     nullspace_metrics,
     policy_metrics,
+    projection_on,
 )
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint import PerDemonstration
-
-
-def check_demos(model: Any, data: Demonstrations) -> None:
-    """A per-demonstration model can only score the demonstrations it was fitted on."""
-    if isinstance(model, PerDemonstration):
-        missing = set(int(k) for k in np.unique(data.demo)) - set(model.models_)
-        if missing:
-            raise InputError("this per-demonstration model does not know demonstrations "
-                             f"{sorted(missing)[:5]} of the data")
 
 
 def evaluate_model(model: Any, kind: str, data: Demonstrations, convention: str = "ccl") -> dict:
@@ -36,9 +28,8 @@ def evaluate_model(model: Any, kind: str, data: Demonstrations, convention: str 
     The same functions score the pipeline's stages, so a model scored on the same data
     and observations gets the same numbers here. A policy on data without ground truth
     has no metric (an empty dict)."""
-    if kind == "constraint":
-        check_demos(model, data)
-        return constraint_metrics(model, data, data.U, convention)
+    if kind == "constraint":  # a model per window or per demonstration: fitted on ``data`` (a note)
+        return constraint_metrics(model, data, data.U, convention, new_data=True)
     if kind == "nullspace":
         return nullspace_metrics(model.predict(data.X), data, convention)
     return policy_metrics(model.predict(data.X), data)
@@ -73,6 +64,9 @@ def evaluate_saved(model_path: Path, data: Demonstrations, convention: str = "cc
     check_dimensions(est, data)
     metrics = evaluate_model(est, info["kind"], data, convention)
     entry = {"method": info["method"], "kind": info["kind"], "convention": convention, "all": metrics}
+    note = next((m["note"] for m in metrics.values() if "note" in m), None)
+    if note:
+        entry["note"] = note
     views = []
     if figures:
         stage = {v: k for k, v in KINDS.items()}[info["kind"]]
@@ -83,15 +77,20 @@ def evaluate_saved(model_path: Path, data: Demonstrations, convention: str = "cc
     return {"status": "ok", "command": "evaluate", "model": str(model_path), "kind": info["kind"],
             "method": info["method"], "convention": convention, "metrics": metrics, "entry": entry,
             "samples": data.n_samples, "demos": data.n_demos, "inputs": data.metadata.get("files"),
-            "views": views}
+            "views": views, **({"note": note} if note else {})}
 
 
-def predict(model: Any, kind: str, data: Demonstrations) -> dict[str, np.ndarray]:
+def predict(model: Any, kind: str, data: Demonstrations, notes: list[str] | None = None
+            ) -> dict[str, np.ndarray]:
     """Predictions of a model on ``data``: x, u, t, demo and N (N, q, q) and w = N u for a
-    constraint; w and v = u − w for a null-space component; π for a policy."""
+    constraint; w and v = u − w for a null-space component; π for a policy. A model per window
+    or per demonstration is fitted on ``data`` first (it describes only its own recording), and
+    ``notes`` gets the sentence saying so."""
     outputs: dict[str, np.ndarray] = {"x": data.X, "u": data.U, "t": data.t, "demo": data.demo}
     if kind == "constraint":
-        N = model.projection(data.X, groups=data.demo)
+        N, note = projection_on(model, data, data.U, new_data=True)
+        if note and notes is not None:
+            notes.append(note)
         outputs["N"] = N
         outputs["w"] = np.einsum("nij,nj->ni", N, data.U)
     elif kind == "nullspace":
@@ -160,10 +159,11 @@ def predict_saved(model_path: Path, data: Demonstrations, out: Path, force: bool
         raise InputError(f"{out}: output must end in .h5 or .csv")
     est, info = load_model(model_path)
     check_dimensions(est, data)
-    outputs = predict(est, info["kind"], data)
+    notes: list[str] = []
+    outputs = predict(est, info["kind"], data, notes)
     write_predictions(out, outputs, model_path, info["method"], force, data)
     return {"status": "ok", "command": "predict", "out": str(out), "samples": data.n_samples,
-            "outputs": sorted(outputs)}
+            "outputs": sorted(outputs), **({"note": notes[0]} if notes else {})}
 
 
 def inspect_file(path: Path, options: Any = None, gap: float | None = None, base: Path | None = None,

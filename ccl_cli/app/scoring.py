@@ -26,7 +26,9 @@ import numpy as np
 from ccl_cli import metrics
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
-from ccl_cli.learn.constraint import PerDemonstration, StateIndependentConstraint
+from ccl_cli.learn.constraint import NoConstraint, PerDemonstration, PerWindow, StateIndependentConstraint
+from ccl_cli.learn.constraint.base import projection_at
+from ccl_cli.learn.constraint.windows import refit_on_new_demos
 
 KINDS = {"learn-a": "constraint", "learn-v": "nullspace", "learn-pi": "policy"}
 
@@ -36,12 +38,25 @@ def _dict(*items: metrics.Metric) -> dict[str, dict]:
 
 
 def _base(model: Any) -> Any:
+    model = vars(model).get("model_", model)  # auto: the model it chose
     return model.estimator if isinstance(model, PerDemonstration) else model
 
 
 def state_dependent(model: Any) -> bool:
-    """Whether a constraint model's A depends on x (everything but nhat)."""
-    return not isinstance(_base(model), StateIndependentConstraint)
+    """Whether a constraint model's A depends on x (everything but nhat, per window or none)."""
+    return not isinstance(_base(model), StateIndependentConstraint | PerWindow | NoConstraint)
+
+
+def projection_on(model: Any, d: Demonstrations, Y: np.ndarray, new_data: bool = False
+                  ) -> tuple[np.ndarray, str | None]:
+    """Ñ (N, q, q) of a constraint model on ``d``, and None — or, for a model fitted per window
+    or per demonstration on demonstrations it has not seen (any, with ``new_data``: a saved
+    model on a recording), Ñ of the same kind of model fitted on ``d``'s observations ``Y``
+    (N, q) and the sentence saying so."""
+    refit = refit_on_new_demos(model, d.X, Y, d.demo, d.t, always=new_data)
+    if refit is not None:
+        return projection_at(refit[0], d.X, d.demo, d.t), refit[1]
+    return projection_at(model, d.X, d.demo, d.t), None
 
 
 def _has_true_constraint(d: Demonstrations) -> bool:
@@ -84,10 +99,11 @@ def groups_of(d: Demonstrations) -> np.ndarray:
 
 
 def constraint_metrics(model: Any, d: Demonstrations, Y: np.ndarray, convention: str = "ccl",
-                       of: str = "u") -> dict[str, dict]:
+                       of: str = "u", new_data: bool = False) -> dict[str, dict]:
     """NPOE of the observations ``Y`` (N, q) the model was learnt from (``of`` names them)
-    and, with ground truth π and N, NPPE; both under ``convention``."""
-    N_est = model.projection(d.X, groups=d.demo)
+    and, with ground truth π and N, NPPE; both under ``convention`` (``new_data``: see
+    :func:`projection_on`; its note goes into every entry)."""
+    N_est, note = projection_on(model, d, Y, new_data)
     sd = state_dependent(model)
     truth = _has_true_constraint(d)
     Pi = d.truth["pi"] if truth else None
@@ -100,7 +116,10 @@ def constraint_metrics(model: Any, d: Demonstrations, Y: np.ndarray, convention:
     if truth:
         items.append(metrics.nppe(d.true_projection(), N_est, Pi, d.U, convention, state_dependent=sd,
                                   groups=groups))
-    return _dict(*items)
+    out = _dict(*items)
+    for entry in out.values() if note else ():
+        entry["note"] = note
+    return out
 
 
 def nullspace_metrics(w: np.ndarray, d: Demonstrations, convention: str = "ccl") -> dict[str, dict]:
@@ -126,6 +145,6 @@ def policy_metrics(est: np.ndarray, d: Demonstrations, constraint: Any = None, Y
             items.append(metrics.ncpe(d.true_projection(), d.truth["pi"], est, groups))
     if constraint is not None:
         Y = d.U if Y is None else Y
-        items.append(metrics.ncpe_observed(constraint.projection(d.X, groups=d.demo), Y, est,
+        items.append(metrics.ncpe_observed(projection_on(constraint, d, Y)[0], Y, est,
                                            task_part(constraint, d.X, d.demo), of, groups))
     return _dict(*items)

@@ -21,7 +21,8 @@ from ccl_cli.app.views import View, constant_rows, describe_constraint, stage_vi
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn import model_selection
-from ccl_cli.learn.constraint import PerDemonstration
+from ccl_cli.learn.constraint import PerDemonstration, PerWindow
+from ccl_cli.learn.constraint.base import fit_constraint
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
 from ccl_cli.spec import constraint_class
@@ -104,13 +105,16 @@ def split_data(data: Demonstrations, spec: Any, masks: dict[str, list[int]] | No
 
 def make_constraint(options: Any, seed: int):
     """The constraint estimator of a learn-a section (its ``method``, its parameters, one per
-    demonstration with ``per_demo``)."""
+    demonstration with ``per_demo``: for ``auto`` and ``per_window``, one constant constraint
+    per demonstration, :class:`~ccl_cli.learn.constraint.PerWindow` with no window)."""
+    if options.per_demo and options.method in ("auto", "per_window"):  # nhat per demonstration
+        return PerWindow(**{**options.estimator_params(PerWindow), "window": None})
     cls = constraint_class(options.method)
     params = options.estimator_params(cls)
     if options.method == "lambda" and "features" not in params:
         raise ConfigError("learn-a method lambda needs features (e.g. features: arm2, or "
                           "{arm: arm7, rows: [0, 1, 2]})")
-    model = cls(seed=seed, **params)
+    model = cls(**({"seed": seed} if "seed" in cls._param_names() else {}), **params)
     return PerDemonstration(model) if options.per_demo else model
 
 
@@ -233,8 +237,10 @@ class Pipeline:
             raise ConfigError(f"learn-a.n_constraints (--n-constraints) is {opts.n_constraints}, but "
                               f"{q}-dimensional actions allow 1 to {max(q - 1, 1)} constraints")
         model = make_constraint(opts, self.seed)
-        try:
-            model.fit(tr.X, self._target(on, "train", tr), groups=tr.demo)
+        target = self._target(on, "train", tr)
+        try:  # the learners that read the time structure (auto, per_window) get t and how u was made
+            fit_constraint(model, tr.X, target, tr.demo, tr.t,
+                           diagnostics.action_derivative(tr) if target is tr.U else False)
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             raise LearningError(f"learn-a failed: {exc}") from None
         return model
@@ -321,7 +327,7 @@ class Pipeline:
             return None
         source = opts.projections
         if source in ("learnt", "auto") and self.constraint is not None:
-            return self.constraint.projection(d.X, groups=d.demo)
+            return scoring.projection_on(self.constraint, d, d.U)[0]  # per stretch: fitted on d
         if source in ("true", "auto") and (d.has_truth("N") or d.has_truth("A")):
             return d.true_projection()
         raise ConfigError("pi-coupled needs projections: run learn-a first (projections: learnt) or "

@@ -22,6 +22,7 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.learn.constraint import PerDemonstration
+from ccl_cli.learn.constraint.base import constraint_at
 from ccl_cli.metrics import row_basis, subspace_angle
 
 GRID = 22  # points per axis of the grid a 2-D field is evaluated on
@@ -99,12 +100,14 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
         return {"per_demo_angle_deg": angles, "median_angle_deg": float(np.median(list(angles.values())))}
     try:
         i = int(np.argmin(np.sum((d.X - d.X.mean(0)) ** 2, axis=1)))
-        learnt = row_basis(model.constraint(d.X[i:i + 1])[0])
+        learnt = row_basis(constraint_at(model, d.X[i:i + 1], d.demo[i:i + 1], d.t[i:i + 1])[0])
     except (AttributeError, NotImplementedError):
         return None
+    if not len(learnt):
+        return None  # no constraint: nothing to draw (the selection says why)
     learnt = learnt * np.sign(learnt[np.arange(len(learnt)), np.argmax(np.abs(learnt), axis=1)])[:, None]
     out: dict[str, Any] = {"names": names, "rows": learnt.tolist(),
-                           "at": "constant" if getattr(model, "A_", None) is not None else
+                           "at": "constant" if np.ndim(getattr(model, "A_", None)) == 2 else
                            f"state of sample {i} (nearest the mean state)"}
     if d.has_truth("A"):
         true = row_basis(d.truth_per_sample("A")[i])
@@ -131,7 +134,7 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
     blocks, so titles say so; a per-demonstration constraint is shown on its ``train``
     demonstrations), with ``constraint`` the learnt constraint model of an earlier learn-a
     stage (for the predicted u = ṽ + Ñπ̃ of a policy)."""
-    from ccl_cli.app.scoring import task_part
+    from ccl_cli.app.scoring import projection_on, task_part
 
     model = result.model
     if model is None:
@@ -153,7 +156,7 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
     elif result.name == "learn-a":
         if isinstance(model, PerDemonstration) and not dpart.startswith("train"):
             d, dpart = train, "train" + suffix
-        N = model.projection(d.X, groups=d.demo)
+        N = projection_on(model, d, d.U)[0]
         v = task_part(model, d.X, d.demo)
         Y = d.U if v is None else d.U - v
         arrows = {"observed": ("observed u" if v is None else "u − its learnt task part Ã⁺b̃", Y),
@@ -165,7 +168,8 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
                       "learnt": ("Ñ π", np.einsum("nij,nj->ni", N, pi))}
         title_a = f"{title}: projection onto the learnt null space"
         if planar:
-            grid = None if isinstance(model, PerDemonstration) else field_on_grid(d, null_direction(model))
+            grid = None if isinstance(model, PerDemonstration) or model.needs_demo else field_on_grid(
+                d, null_direction(model))
             out.append(View("learn-a-field.png", "learn-a: learnt vs true projections", "field",
                             {"title": title_a, "d": d, "part": dpart, "arrows": arrows, "field": grid,
                              "field_label": "learnt null-space direction of Ñ(x) on a grid",
@@ -194,7 +198,7 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
         lines = dict(arrows)
         if constraint is not None and not isinstance(constraint, PerDemonstration):
             v = task_part(constraint, d.X, d.demo)
-            N = constraint.projection(d.X, groups=d.demo)
+            N = projection_on(constraint, d, d.U)[0]
             pred = np.einsum("nij,nj->ni", N, est) + (0 if v is None else v)
             lines["predicted"] = ("predicted u = Ñπ̃" if v is None else "predicted u = Ã⁺b̃ + Ñπ̃", pred)
         out += _field_and_time("learn-pi", f"{title}: null-space policy π", d, dpart, arrows, lines,
@@ -234,7 +238,7 @@ def trajectory_normals(model: Any, d: Demonstrations, title: str, part: str) -> 
             if sel.any() and m.n_constraints_ == model.n_constraints_:
                 rows[sel] = m.constraint(d.X[at[sel]])
     else:
-        rows = model.constraint(d.X[at], groups=d.demo[at])
+        rows = constraint_at(model, d.X[at], d.demo[at], d.t[at])
     rows = rows / np.maximum(np.linalg.norm(rows, axis=-1, keepdims=True), 1e-300)
     ref = rows.mean(0)  # one sign for every arrow of a row: towards the row's mean direction
     rows = rows * np.sign(np.einsum("msq,sq->ms", rows, ref) + 1e-300)[..., None]

@@ -8,7 +8,12 @@
   once in ``_parameter_constraints`` (format: :mod:`ccl_cli.learn.params`) and checked at
   the start of ``fit``.
 * ``fit(X, U, *, groups=None)`` returns ``self`` (``groups``: demonstration id per
-  sample); learnt attributes end in ``_``; ``n_features_in_`` is the state dimension p
+  sample). Learners that read the time structure (learn-a's ``auto``, the per-window
+  constraint) also take ``t`` (N,), the sample times in seconds, and ``derivative``, how U
+  was made (the readers' {"window", "order"} when derived from the states, False when
+  recorded, None when not known): ``fit(X, U, *, groups=None, t=None, derivative=None)``;
+  :func:`ccl_cli.learn.constraint.base.fit_constraint` passes them to those that take them.
+  Learnt attributes end in ``_``; ``n_features_in_`` is the state dimension p
   seen in ``fit`` and every prediction checks it. The learnt attributes a saved model
   holds are declared once in ``_fitted_attributes`` (read by :mod:`ccl_cli.models`).
 * ``score(X, U, ...)`` is minus the learner's own held-out consistency error (higher is

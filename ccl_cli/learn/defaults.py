@@ -26,6 +26,9 @@ DERIVATIVE_MAX_WINDOW = 101
 DEFAULT_RULE = "ratio"
 #: ``ratio`` rule: row k is a constraint while its residual is ≤ this multiple of row 1's.
 RATIO_FACTOR = 2.0
+#: Window length (s) of the per-window constraint (learn/constraint/windows.py) and of the
+#: per-window candidate of learn-a's ``auto`` (evidence: docs/auto.md).
+WINDOW_S = 4.0
 #: Hyperparameter tuning is on by default (learners' ``tune`` and the config agree).
 TUNE = True
 #: Model fits (candidates × folds) a learner's hyperparameter search may run (``tune:

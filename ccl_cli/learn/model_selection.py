@@ -99,6 +99,29 @@ def make_folds(groups: np.ndarray | None, n: int, n_folds: int = N_FOLDS, seed: 
                  f"time blocks, {gap} samples dropped from training at each boundary")
 
 
+def inner_folds(segments: np.ndarray, n_folds: int = N_FOLDS, gap: int = DEFAULT_GAP,
+                what: str = "segment") -> Folds:
+    """K folds of held-out blocks *inside* every segment (a time window of a demonstration, or
+    a whole demonstration): each segment's samples, in order, are cut into K contiguous
+    blocks, and fold j holds out block (j + segment number) mod K of every segment — so each
+    fold's held-out samples are spread over the recording — with the training samples within
+    ``gap`` of a held-out one dropped. For models fitted per segment, which can only be
+    tested on their own segments. ``segments`` (N,): segment number per sample, 0 … S−1."""
+    seg = np.asarray(segments).astype(np.int64)
+    n = len(seg)
+    order = np.argsort(seg, kind="stable")
+    counts = np.bincount(seg)
+    first = np.cumsum(counts) - counts
+    pos = np.empty(n, np.int64)
+    pos[order] = np.arange(n) - np.repeat(first, counts)
+    block = (pos * n_folds) // counts[seg]
+    fold = (block + seg) % n_folds
+    pairs = [(_guarded_train(n, np.flatnonzero(fold == j), gap), np.flatnonzero(fold == j))
+             for j in range(n_folds)]
+    return Folds(pairs, "inner blocks", f"{n_folds} folds of contiguous blocks held out inside every "
+                 f"{what} ({len(counts)}), {gap} samples dropped from training at each boundary")
+
+
 # -- cross-validation -----------------------------------------------------------------------
 @dataclass
 class CVResult:

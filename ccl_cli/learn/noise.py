@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ccl_cli.learn.defaults import DERIVATIVE_HALF_SPAN_S, DERIVATIVE_MAX_WINDOW
+
 #: Median of |z| for a standard normal z: σ = median|z·σ| / MAD_NORMAL.
 MAD_NORMAL = 0.6744897501960817
 
@@ -69,3 +71,11 @@ def derived_noise_var(X: np.ndarray, demo: np.ndarray, dt: float, window: int, o
     dimension, or along ``rows`` as in :func:`white_noise_var`) times Σc²."""
     gain = float((slope_filter(dt, window, order) ** 2).sum())
     return white_noise_var(X, demo, rows) * gain
+
+
+def default_window(dt: float, order: int = 2) -> int:
+    """The readers' default derivative window for stamps ``dt`` s apart: the odd number of
+    samples spanning ±DERIVATIVE_HALF_SPAN_S, at least order + 2, at most DERIVATIVE_MAX_WINDOW."""
+    half = int(round(DERIVATIVE_HALF_SPAN_S / dt)) if dt > 0 and np.isfinite(dt) else 0
+    lowest = order + 2 + (order + 3) % 2
+    return int(min(max(2 * half + 1, lowest), DERIVATIVE_MAX_WINDOW))

@@ -42,7 +42,7 @@ from ccl_cli.errors import ConfigError
 
 # -- the fixed choices of learner parameters: named here, without NumPy, so the command line
 # -- lists them in --help; the learners annotate their parameters with them
-SelectionRule = Literal["ratio", "threshold", "eigengap", "cv"]
+SelectionRule = Literal["ratio", "threshold", "eigengap", "cv", "noise"]
 PolicyMethod = Literal["pi", "pi-weighted", "pi-coupled", "lwpi", "dpl"]
 CutoffRule = Literal["relative", "absolute"]
 BasisKind = Literal["rbf", "linear"]

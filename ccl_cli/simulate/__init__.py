@@ -18,7 +18,7 @@ from ccl_cli.simulate.reference import (
     varying_constraint,
 )
 from ccl_cli.simulate.tracker import arm_at_rest, tracker_plane, tracker_sphere
-from ccl_cli.simulate.wipe import arm_wipe, arm_wipe_joint, wipe_log
+from ccl_cli.simulate.wipe import arm_wipe, arm_wipe_joint, phase_subset, wipe_log
 
 PROBLEMS = {
     "toy2d": toy2d,
@@ -37,5 +37,6 @@ PROBLEMS = {
 }
 
 __all__ = ["LINEAR_POLICY", "PROBLEMS", "arm7", "arm_at_rest", "arm_wipe", "arm_wipe_joint", "armesto_policy",
-           "flow2d", "free_reach", "toy2d", "toy_policy", "tracker_flips", "tracker_plane", "tracker_sphere",
-           "tracker_tilt", "two_link", "two_link_constraint", "varying_constraint", "wipe_log"]
+           "flow2d", "free_reach", "phase_subset", "toy2d", "toy_policy", "tracker_flips", "tracker_plane",
+           "tracker_sphere", "tracker_tilt", "two_link", "two_link_constraint", "varying_constraint",
+           "wipe_log"]

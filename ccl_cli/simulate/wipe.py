@@ -339,3 +339,13 @@ def arm_wipe_joint(n_demos: int = 8, rate: float = 200.0, noise: float = 2e-3, t
     N = np.where((log.phase == WIPE)[:, None, None], nullspace_projection(A), np.eye(7))
     return _wipe_data(log, log.q, log.dq, _split(N, log.dq_true), "joint", [f"q{i + 1}" for i in range(7)],
                       ["rad"] * 7, None)
+
+
+def phase_subset(d: Demonstrations, phase: str) -> Demonstrations:
+    """The samples of each demonstration of an :func:`arm_wipe` / :func:`arm_wipe_joint` recording
+    inside its ``phase`` ("approach", "wipe" or "retract"; ``metadata["phases"]``)."""
+    keep = np.zeros(d.n_samples, bool)
+    for i, p in enumerate(d.metadata["phases"]):
+        t0, t1 = p[phase]
+        keep |= (d.demo == i) & (d.t >= t0) & (d.t < t1)
+    return d.subset(keep)

@@ -13,6 +13,7 @@ import numpy as np
 
 from ccl_cli.errors import ConfigError
 from ccl_cli.learn.basis import Basis, BasisParams
+from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.angular import (
     MAX_ITER,
@@ -22,6 +23,7 @@ from ccl_cli.learn.constraint.angular import (
     rows_from_weights,
 )
 from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.linalg import row_chunks
 from ccl_cli.learn.model_selection import Tunable
 from ccl_cli.learn.params import ITERATION_PARAMS, Interval, SeedParams, parameters
 
@@ -77,15 +79,35 @@ class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedPara
                       if k < len(fits) else f"stopped at the maximum {k}")
             return sel.Selection("threshold", k, nmse, reason)
 
+        def noise() -> sel.Selection | None:  # the rows of every fit at every sample, (N, m, q)
+            data = nr.Sample.of(X, U, groups, *getattr(self, "_timing", (None, None)))
+            rows = np.empty((len(X), len(self._row_weights), self.n_action_))
+            for chunk in row_chunks(len(X)):  # the features of a block of samples at a time
+                rows[chunk] = self._rows_at(basis, X[chunk], self._row_weights)
+            return nr.noise_rank(data.rows_evidence(rows), max_k)
+
         chosen = sel.choose(self, ratio_values=np.asarray(nmse), gap_values=np.append(nmse, 1.0),
                             max_k=max_k, fixed_max=max_k, criterion="nmse of row k", threshold=threshold,
-                            X=X, U=U, groups=groups)
+                            X=X, U=U, groups=groups, noise=noise)
         if chosen.rule == "eigengap":
             chosen.values = nmse  # the appended 1.0 only closes the last gap
         self.n_constraints_ = chosen.n_constraints
         self.weights_ = [f.W for f in fits[: self.n_constraints_]]
         self.nmse_ = nmse
         self.selection_ = chosen.as_dict()
+
+    def _rows_at(self, basis: Basis, X: np.ndarray, weights: list[np.ndarray]) -> np.ndarray:
+        """The rows of angle ``weights`` at states X (N, p), in action space: (N, m, q)."""
+        return rows_from_weights(basis.transform(X), weights, self.n_action_)
+
+    def _fit_timed(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None, t: np.ndarray | None,
+                   derivative: dict | bool | None) -> AngularConstraintMixin:
+        """``_fit`` with the sample times and how U was made, for the ``noise`` rule."""
+        self._timing = (None if t is None else np.asarray(t, dtype=float), derivative)
+        try:
+            return self._fit(X, U, groups=groups)
+        finally:
+            del self._timing
 
 
 @parameters

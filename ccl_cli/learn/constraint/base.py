@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ccl_cli.errors import ConfigError
 from ccl_cli.learn.base import Estimator
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.linalg import nullspace_projection
@@ -19,6 +20,8 @@ class ConstraintModel(Estimator):
 
     #: True when the model needs the demonstration id of each sample to predict.
     needs_demo = False
+    #: True when it also needs each sample's time (``projection(X, groups=..., t=...)``).
+    needs_time = False
 
     def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
         """Ã(X): (N, p) → (N, s, q)."""
@@ -33,3 +36,40 @@ class ConstraintModel(Estimator):
         """−NPOE of actions U (N, q) at states X (N, p) (§6): −mean ‖u − Ñ(x)u‖² / Σ var(u);
         higher is better, 0 when every action lies in the learnt null space."""
         return -npoe_error(self.projection(X, groups=groups), np.asarray(U, dtype=float))
+
+
+def check_rows_asked(q: int, n_constraints: int | None) -> None:
+    """ConfigError unless q ≥ 2 action dimensions and a fixed ``n_constraints`` is 0 … q − 1
+    (for the learners that may answer no constraint: auto, per window)."""
+    if q < 2:
+        raise ConfigError("learning a constraint needs at least 2 action dimensions")
+    if n_constraints is not None and n_constraints > q - 1:
+        raise ConfigError(f"n_constraints must be between 0 and {q - 1}, got {n_constraints}")
+
+
+def projection_at(model: ConstraintModel, X: np.ndarray, groups: np.ndarray | None = None,
+                  t: np.ndarray | None = None) -> np.ndarray:
+    """Ñ of any constraint model at states X (N, p) of demonstrations ``groups`` at times ``t``
+    (N,) s: the times go only to models that use them (``needs_time``). → (N, q, q)."""
+    if getattr(model, "needs_time", False):
+        return model.projection(X, groups=groups, t=t)
+    return model.projection(X, groups=groups)
+
+
+def constraint_at(model: ConstraintModel, X: np.ndarray, groups: np.ndarray | None = None,
+                  t: np.ndarray | None = None) -> np.ndarray:
+    """Ã of any constraint model at X (N, p) as :func:`projection_at`: → (N, s, q)."""
+    if getattr(model, "needs_time", False):
+        return model.constraint(X, groups=groups, t=t)
+    return model.constraint(X, groups=groups)
+
+
+def fit_constraint(model: ConstraintModel, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None, derivative: dict | bool | None = None) -> ConstraintModel:
+    """``model.fit`` with the sample times ``t`` and how U was made (``derivative``) for the
+    models that read the time structure (auto, per window), the plain fit for the others."""
+    import inspect
+
+    takes = inspect.signature(model.fit).parameters
+    extra = {k: v for k, v in (("t", t), ("derivative", derivative)) if k in takes}
+    return model.fit(X, U, groups=groups, **extra)

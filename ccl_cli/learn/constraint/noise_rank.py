@@ -17,7 +17,10 @@ slightly, above a good sensor's noise — while a free direction carries a fair 
 motion). A further row k is one when f_k ≤ SHARE or r_k ≤ min(MARGIN, RATIO · max(r_1, 1)):
 as quiet as the first, so that a free direction that barely rises above heavy noise is not
 taken for a second constraint. s is the number of leading rows that are constraints,
-0 … m: "no constraint" is a legal answer.
+0 … m: "no constraint" is a legal answer. Learners that choose their rows per state or per
+stretch of time (learn-a's ``auto``, the per-window model) admit rows after the first by
+their noise ratio only (``share_rows``, SHARE_ROWS): such a learner can always find a direction
+that carries little of the motion (docs/auto.md).
 
 MARGIN, RATIO and SHARE were chosen on the simulated and reference problems
 (``benchmarks/bench_recordings.py --only rank``; docs/recordings.md).
@@ -35,7 +38,7 @@ import numpy as np
 
 from ccl_cli.learn.constraint.rank import Selection
 from ccl_cli.learn.linalg import unit_rows
-from ccl_cli.learn.noise import derived_noise_var, white_noise_var
+from ccl_cli.learn.noise import default_window, derived_noise_var, white_noise_var
 
 #: A row whose energy is at most MARGIN × its noise variance is at the noise level.
 MARGIN = 10.0
@@ -47,6 +50,10 @@ RATIO = 2.0
 #: Below this ratio of the actions' total variance to their noise the rule cannot judge.
 MIN_SNR = 3.0
 RULE = "noise"
+#: Rows that may be constraints by their share alone, for learners that choose their rows per
+#: state or per stretch (``share_rows`` of :func:`noise_rank`): the first — a contact that
+#: gives a little; a further row must be as quiet as the noise says.
+SHARE_ROWS = 1
 
 
 @dataclass
@@ -73,13 +80,18 @@ def _median_step(t: np.ndarray, demo: np.ndarray) -> float:
 
 
 def row_evidence(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarray,
-                 X: np.ndarray | None = None, derivative: dict | None = None) -> RowEvidence:
+                 X: np.ndarray | None = None, derivative: dict | None = None, *,
+                 recorded: bool = True) -> RowEvidence:
     """Energy, noise and share of the actions U (N, q) along candidate ``rows`` ((m, q) or
     (N, m, q)), demonstrations ``demo`` (N,) sampled at ``t`` (N,) s.
 
     ``derivative`` ({"window", "order"}) says U was derived from the positions X (N, q) by the
     readers' local polynomial: the noise is then the positions' along each row times the
-    filter's gain at the median interval; without it U is taken as recorded (white noise)."""
+    filter's gain at the median interval. Without it U is taken as recorded (white noise), or,
+    with ``recorded=False`` (how U was made is not known), the noise is the larger of U's own
+    white-noise estimate and the derived one with the readers' default filter at the data's
+    rate (when X has q columns): recorded actions then get their own noise, derived ones the
+    filtered positions' noise (which a white-noise estimate of smoothed velocities misses)."""
     U = np.asarray(U, dtype=float)
     rows = unit_rows(np.asarray(rows, dtype=float))
     demo = np.asarray(demo)
@@ -90,33 +102,78 @@ def row_evidence(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarra
     energy = (along**2).mean(0)
     total = float((U**2).sum(1).mean())
     share = energy / total if total > 0 else np.zeros_like(energy)
+    dt = _median_step(np.asarray(t, float), demo) if t is not None else 0.0
     if derivative is not None:
         if X is None or np.shape(X)[1] != U.shape[1]:
             raise ValueError("derived actions need the positions X they were derived from, (N, q)")
-        dt = _median_step(np.asarray(t, float), demo)
+        if not dt > 0:
+            raise ValueError("derived actions need the sample times t")
         window, order = int(derivative["window"]), int(derivative.get("order", 2))
         noise = derived_noise_var(X, demo, dt, window, order, rows)
         per_dim = derived_noise_var(X, demo, dt, window, order)
     else:
         noise = white_noise_var(U, demo, rows)
         per_dim = white_noise_var(U, demo)
+        if not recorded and X is not None and np.shape(X)[1] == U.shape[1] and dt > 0:
+            window = default_window(dt)
+            noise = np.maximum(noise, derived_noise_var(X, demo, dt, window, 2, rows))
+            per_dim = np.maximum(per_dim, derived_noise_var(X, demo, dt, window, 2))
     var = float(U.var(0, ddof=1).sum()) if len(U) > 1 else 0.0
     noise_total = float(per_dim.sum())
     snr = var / noise_total if noise_total > 0 else (np.inf if var > 0 else 0.0)
     return RowEvidence(energy=energy, noise=noise, share=share, snr=float(snr))
 
 
+@dataclass
+class Sample:
+    """The data of one fit and how its actions were made: ``derived`` the readers'
+    {"window", "order"} (or None), ``recorded`` True when the actions are known to be recorded
+    (:func:`row_evidence`). X (N, p), U (N, q), groups (N,), t (N,) s or None."""
+
+    X: np.ndarray
+    U: np.ndarray
+    groups: np.ndarray
+    t: np.ndarray | None
+    derived: dict | None
+    recorded: bool
+
+    @classmethod
+    def of(cls, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None, t: np.ndarray | None,
+           derivative: dict | bool | None) -> Sample:
+        """From a learner's ``fit`` arguments: ``derivative`` the readers' {"window", "order"}
+        when U was derived from the positions X (used only with the times and when X has q
+        columns), False when recorded, None when not known."""
+        derived = derivative if isinstance(derivative, dict) and t is not None and X.shape[1] == U.shape[1] \
+            else None
+        return cls(X, U, np.zeros(len(U), np.int64) if groups is None else np.asarray(groups), t, derived,
+                   recorded=derivative is False)
+
+    def rows_evidence(self, rows: np.ndarray, pieces: np.ndarray | None = None) -> RowEvidence:
+        """Energy, noise and share of U along ``rows`` ((m, q) or per sample (N, m, q)); second
+        differences within each of the ``pieces`` (N,; None: the demonstrations)."""
+        positions = self.X if self.X.shape[1] == self.U.shape[1] else None
+        return row_evidence(self.U, rows, self.groups if pieces is None else pieces, self.t, positions,
+                            self.derived, recorded=self.recorded)
+
+
 def noise_rank(evidence: RowEvidence, max_k: int, margin: float = MARGIN, share: float = SHARE,
-               ratio: float = RATIO, min_snr: float = MIN_SNR) -> Selection | None:
+               ratio: float = RATIO, min_snr: float = MIN_SNR, share_rows: int | None = None
+               ) -> Selection | None:
     """s = the number of leading rows k ≤ ``max_k`` that are constraints by the rule of the
     module docstring (0 … max_k); None when evidence.snr < ``min_snr`` (no judgement).
+    ``share_rows``: only the first this many rows may be constraints by their share alone (None:
+    every row) — a model that learns its rows per state or per stretch can always find a
+    direction carrying little of the motion, which its noise ratio then shows to be motion.
     ``values`` of the Selection: r_k = e_k/σ²_k."""
     if not evidence.snr >= min_snr:
         return None
     r = evidence.ratio
     limit = np.full(len(r), float(margin))
     limit[1:] = min(margin, ratio * max(float(r[0]) if len(r) else 1.0, 1.0))
-    quiet = (r <= limit) | (evidence.share <= share)
+    by_share = evidence.share <= share
+    if share_rows is not None:
+        by_share[share_rows:] = False
+    quiet = (r <= limit) | by_share
     m = min(int(max_k), len(quiet))
     k = int(np.argmin(np.r_[quiet[:m], False]))  # the first row that moves
     if k < m:

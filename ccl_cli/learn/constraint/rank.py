@@ -23,6 +23,12 @@ singular values of the scaled regressors); the rules read it:
 * ``cv`` — held-out NPOE by cross-validation (:func:`ccl_cli.learn.model_selection.cross_validate`):
   the held-out energy Δ_k removed by row k, kept while Δ_k is within one standard error
   (paired over folds) of RATIO_FACTOR · Δ_1;
+* ``noise`` (lambda's default) — the noise-aware test of
+  :mod:`ccl_cli.learn.constraint.noise_rank` on the learnt rows: row k is a constraint when the
+  motion along it is at the noise level the second differences of the trajectories show
+  (the sample times and how the actions were made, when ``fit`` is given them); on samples
+  that are not trajectories it cannot judge and ``ratio`` decides. An explicit learner keeps
+  at least one row (k = 0 is ``auto``'s answer);
 * ``fixed`` — the user's number.
 
 Chosen on evidence (``benchmarks/bench_rank.py``): see README "Number of constraints".
@@ -104,10 +110,11 @@ def rule_of(model: Any) -> str:
 
 def choose(model: Any, *, ratio_values: np.ndarray, gap_values: np.ndarray, max_k: int, fixed_max: int,
            criterion: str, threshold: Callable[[], Selection], X: np.ndarray, U: np.ndarray,
-           groups: np.ndarray | None) -> Selection:
+           groups: np.ndarray | None, noise: Callable[[], Selection | None] | None = None) -> Selection:
     """s by the learner's rule (:func:`rule_of`): ``fixed`` (1..fixed_max), ``threshold``
     (the learner's own, ``threshold()``), ``eigengap`` on ``gap_values``, ``ratio`` on
-    ``ratio_values`` (``criterion`` names them), ``cv`` by :func:`cross_validated` on X, U."""
+    ``ratio_values`` (``criterion`` names them), ``noise`` by ``noise()`` (None: it cannot
+    judge, or the learner has no such test: ``ratio``), ``cv`` by :func:`cross_validated` on X, U."""
     rule = rule_of(model)
     if rule == "fixed":
         return fixed(model.n_constraints, fixed_max)
@@ -115,6 +122,16 @@ def choose(model: Any, *, ratio_values: np.ndarray, gap_values: np.ndarray, max_
         return threshold()
     if rule == "eigengap":
         return gap(gap_values, model.gap_floor)
+    if rule == "noise":
+        chosen = noise() if noise is not None else None
+        if chosen is None:
+            chosen = ratio(ratio_values, max_k, model.gap_floor, criterion=criterion)
+            chosen.reason = ("the noise test cannot judge these samples (not trajectories in time, or "
+                             "this learner has none): " + chosen.reason)
+        elif chosen.n_constraints == 0:
+            chosen.n_constraints = 1
+            chosen.reason += "; one row kept (method auto may answer no constraint)"
+        return chosen
     if rule == "ratio":
         return ratio(ratio_values, max_k, model.gap_floor, criterion=criterion)
     return cross_validated(model, X, U, groups, max_k, model.cv_folds, model.seed)

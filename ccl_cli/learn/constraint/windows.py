@@ -1,0 +1,271 @@
+"""One constant constraint per time window of each demonstration ("per window", ALGORITHMS.md
+§3.1 on each window; issue 17).
+
+A constraint that changes over a recording (a board that tilts, a grip that changes) is nearly
+constant over a short enough window. The windows are fixed in time, not by the data: window j of
+demonstration d holds its samples with j·W ≤ t < (j + 1)·W (W = ``window`` s); ``window=None``
+makes one window of each demonstration ("per demonstration"). A subset of the samples (a
+training fold) therefore has the same windows as the whole recording.
+
+In window w the s rows are the eigenvectors with the smallest eigenvalues (§3.1) of
+
+    C_w = Σ_{n ∈ w} u_n u_nᵀ + ρ n_w C̄,        C̄ = (1/N) Σ_n u_n u_nᵀ (all windows),
+
+n_w the window's sample count, ρ = ``shrinkage``. The prior term decides what a window alone
+cannot: where the window's motion spans fewer than q − s directions (one straight stroke, a
+pause) its noise eigenvalues tie, and C̄ picks among them the direction all the data move
+least along; where the window's motion is clear, the term only adds ρ × the pooled
+second moment, which moves a row little.
+
+Prediction needs each sample's demonstration and time: a sample of a demonstration seen in
+``fit`` takes the rows of its window, or of the nearest fitted window of that demonstration
+(a held-out stretch that covers whole windows). A demonstration not seen in ``fit`` has no
+constraint here: fit a PerWindow on it (``ccl evaluate`` / ``ccl predict`` do, and say so).
+
+Shapes: X (N, p), U (N, q), groups (N,) demonstration ids, t (N,) seconds; ``A_`` (S, s, q)
+the rows of the S windows in ``windows_`` (S, 2): demonstration id, window index j.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from ccl_cli.errors import InputError
+from ccl_cli.learn.basis import cluster_sums
+from ccl_cli.learn.consistency import npoe_error
+from ccl_cli.learn.constraint import noise_rank as nr
+from ccl_cli.learn.constraint import rank as sel
+from ccl_cli.learn.constraint.base import ConstraintModel, check_rows_asked
+from ccl_cli.learn.defaults import N_FOLDS, WINDOW_S
+from ccl_cli.learn.model_selection import inner_folds
+from ccl_cli.learn.params import Interval, parameters
+
+#: ρ of the prior term: the weight of the pooled second moment in each window's.
+SHRINKAGE = 0.1
+#: Guard gap (samples) around held-out blocks of recorded actions (neighbours share no filter;
+#: two keep a second difference's samples apart); derived ones use the derivative window.
+RECORDED_GAP = 2
+#: Smallest held-out block inside a window (samples).
+MIN_BLOCK = 4
+
+
+def window_index(groups: np.ndarray | None, t: np.ndarray | None, window: float | None,
+                 n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(segment id per sample (n,), table (S, 2) of [demonstration id, window index j]) for
+    windows of ``window`` s fixed in time (j = ⌊t / window⌋), or one per demonstration when
+    ``window`` is None. Segment ids follow the table's rows (sorted by demonstration, then j)."""
+    demo = np.zeros(n, np.int64) if groups is None else np.asarray(groups).astype(np.int64)
+    if window is None:
+        j = np.zeros(n, np.int64)
+    else:
+        if t is None:
+            raise InputError("a per-window constraint needs the sample times t")
+        j = np.floor(np.asarray(t, float) / window).astype(np.int64)
+    table, seg = np.unique(np.stack([demo, j], 1), axis=0, return_inverse=True)
+    return seg.ravel(), table
+
+
+def window_rows(U: np.ndarray, seg: np.ndarray, n_seg: int, shrinkage: float) -> np.ndarray:
+    """Rows of every window in order of use (ascending eigenvalues of C_w, module docstring):
+    U (N, q), seg (N,) in 0..n_seg−1 → (n_seg, q, q)."""
+    q = U.shape[1]
+    C = cluster_sums((U[:, :, None] * U[:, None, :]).reshape(len(U), q * q), seg, n_seg)
+    counts = np.bincount(seg, minlength=n_seg)
+    pooled = U.T @ U / max(len(U), 1)
+    C = C.reshape(n_seg, q, q) + shrinkage * counts[:, None, None] * pooled[None]
+    _, vecs = np.linalg.eigh(C)
+    return np.transpose(vecs, (0, 2, 1))
+
+
+@parameters
+class PerWindow(ConstraintModel):
+    """A constant constraint (nhat) per window of ``window`` seconds of each demonstration.
+
+    Args:
+        window: window length in seconds (None: one window per demonstration).
+        n_constraints: rows per window, the same in every window (0 … q − 1); None: chosen
+            by the noise-aware rule (:mod:`~ccl_cli.learn.constraint.noise_rank`) on the
+            rows of all windows, else — when the samples are not trajectories it can judge —
+            by the ``ratio`` rule on the windows' mean eigenvalues.
+        shrinkage: ρ, the weight of the pooled second moment in each window's (module docstring).
+        heldout: also measure the held-out NPOE (``heldout_``): the same model fitted without
+            blocks held out inside every window (:func:`~ccl_cli.learn.model_selection.inner_folds`,
+            5 folds), scored on them — the held-out figure of a model that speaks only for the
+            windows it was fitted on.
+
+    Attributes:
+        A_ (S, s, q) rows per window, windows_ (S, 2) [demonstration id, window index],
+        n_constraints_, n_action_, selection_, n_features_in_, heldout_ ({error, mean, se,
+        per_fold, folds}, or None when not measured or the windows are too short).
+    """
+
+    needs_demo = True
+    needs_time = True
+    _parameter_constraints: ClassVar[dict[str, list]] = {
+        "window": [Interval(float, 0, None, closed="neither"), None],
+        "n_constraints": [Interval(int, 0, 100_000), None],
+        "shrinkage": [Interval(float, 0, None)], "heldout": [bool]}
+    _fitted_attributes: ClassVar[dict[str, str]] = {
+        "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
+        "window_": "value", "heldout_": "value", "A_": "array", "windows_": "array"}
+    window: float | None = WINDOW_S
+    n_constraints: int | None = None
+    shrinkage: float = SHRINKAGE
+    heldout: bool = True
+
+    def fit(self, X: np.ndarray | None, U: np.ndarray, *, groups: np.ndarray | None = None,
+            t: np.ndarray | None = None, derivative: dict | bool | None = None) -> PerWindow:
+        """Learn the rows of every window from U (N, q) with demonstration ids ``groups`` and
+        times ``t`` (N,) s. ``derivative`` says how U was made, for the noise of the rank rule
+        (as :meth:`AutoConstraint.fit <ccl_cli.learn.constraint.auto.AutoConstraint.fit>`: the
+        readers' {"window", "order"}, False when recorded, None when not known). X (N, p) is
+        used for p and, for derived actions, as the positions."""
+        X, U = self._prepare_fit(X, U)
+        n, q = U.shape
+        check_rows_asked(q, self.n_constraints)
+        seg, table = window_index(groups, t, self.window, n)
+        rows = window_rows(U, seg, len(table), self.shrinkage)
+        if self.n_constraints is not None:
+            chosen = sel.Selection("fixed", int(self.n_constraints), [],
+                                   f"fixed at {self.n_constraints} per window")
+        else:
+            chosen = self._rank(X, U, seg, rows, t, derivative)
+        self.n_constraints_ = int(chosen.n_constraints)
+        self.A_ = rows[:, : self.n_constraints_].copy()
+        self.windows_ = table
+        self.window_ = self.window
+        self.n_action_ = q
+        where = "demonstration" if self.window is None else f"{self.window:g}-s window"
+        self.selection_ = {**chosen.as_dict(), "windows": len(table), "per": where}
+        self.heldout_ = self._held_out(X, U, seg, groups, t, derivative) if self.heldout else None
+        return self
+
+    def _held_out(self, X: np.ndarray, U: np.ndarray, seg: np.ndarray, groups: np.ndarray | None,
+                  t: np.ndarray | None, derivative: dict | bool | None) -> dict | None:
+        """NPOE of blocks held out inside every window, the model refitted without them (the
+        same rows per window), mean and standard error over the folds; None when most windows
+        are too short for the blocks and their guard gaps."""
+        gap = int(derivative["window"]) if isinstance(derivative, dict) else RECORDED_GAP
+        counts = np.bincount(seg)
+        if (counts[seg] >= N_FOLDS * (2 * gap + MIN_BLOCK)).mean() < 0.5:
+            return None
+        folds = inner_folds(seg, N_FOLDS, gap, "demonstration" if self.window is None else "window")
+        twin = PerWindow(window=self.window, n_constraints=self.n_constraints_, shrinkage=self.shrinkage,
+                         heldout=False)
+        g = np.zeros(len(U), np.int64) if groups is None else np.asarray(groups)
+        errors = []
+        for train, test in folds.pairs:
+            twin.fit(X[train], U[train], groups=g[train], t=None if t is None else t[train])
+            N = twin.projection(X[test], groups=g[test], t=None if t is None else t[test])
+            errors.append(npoe_error(N, U[test]))
+        e = np.asarray(errors)
+        return {"error": "NPOE", "mean": float(e.mean()), "se": float(e.std(ddof=1) / np.sqrt(len(e))),
+                "per_fold": e.tolist(), "folds": folds.reason}
+
+    @staticmethod
+    def _rank(X: np.ndarray, U: np.ndarray, seg: np.ndarray, rows: np.ndarray, t: np.ndarray | None,
+              derivative: dict | bool | None) -> sel.Selection:
+        """s by the noise rule on every sample's window rows (segments as the demonstrations of
+        the second differences), else the ratio rule on the mean squared action along each row."""
+        q = U.shape[1]
+        ev = nr.Sample.of(X, U, seg, t, derivative).rows_evidence(rows[seg, : q - 1])
+        chosen = nr.noise_rank(ev, q - 1, share_rows=nr.SHARE_ROWS)
+        if chosen is None:
+            chosen = sel.ratio(ev.energy, q - 1, criterion="mean squared action along row k of each window")
+            chosen.reason = "the noise rule cannot judge these samples; " + chosen.reason
+        return chosen
+
+    # -- prediction ----------------------------------------------------------------------
+    def window_of(self, X: np.ndarray, groups: np.ndarray | None = None,
+                  t: np.ndarray | None = None) -> np.ndarray:
+        """Index (N,) into ``windows_`` of each sample: its own window, else the nearest fitted
+        window of its demonstration (InputError for a demonstration not seen in ``fit``)."""
+        self._check_fitted("A_")
+        X = self._check_states(X)
+        n = X.shape[0]
+        demos = self.windows_[:, 0]
+        if groups is None:
+            if len(np.unique(demos)) > 1:
+                raise InputError("a per-window constraint model needs the demonstration ids")
+            groups = np.full(n, demos[0])
+        groups = np.asarray(groups).astype(np.int64)
+        if self.window_ is not None and t is None:
+            raise InputError("a per-window constraint model needs the sample times t")
+        j = np.zeros(n) if self.window_ is None else np.asarray(t, float) / self.window_ - 0.5
+        out = np.empty(n, np.int64)
+        for d in np.unique(groups):  # a loop over demonstrations, not samples
+            mine = np.flatnonzero(demos == d)
+            if not len(mine):
+                raise InputError(f"demonstration {int(d)} was not seen when fitting this per-window model; "
+                                 "fit a PerWindow on the new data")
+            m = groups == d
+            centres = self.windows_[mine, 1].astype(float)
+            pos = np.clip(np.searchsorted(centres, j[m]), 1, max(len(mine) - 1, 1))
+            lo = mine[pos - 1]
+            hi = mine[np.minimum(pos, len(mine) - 1)]
+            nearer_hi = np.abs(self.windows_[hi, 1] - j[m]) < np.abs(self.windows_[lo, 1] - j[m])
+            out[m] = np.where(nearer_hi, hi, lo)
+        return out
+
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
+        """Ã of each sample's window: (N, s, q)."""
+        return self.A_[self.window_of(X, groups, t)]
+
+    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
+        """Ñ = I − ÃᵀÃ of each sample's window (orthonormal rows): (N, q, q)."""
+        A = self.constraint(X, groups=groups, t=t)
+        return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", A, A)
+
+    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+              t: np.ndarray | None = None) -> float:
+        """−NPOE of U (N, q) under each sample's window (see :class:`ConstraintModel`)."""
+        from ccl_cli.learn.consistency import npoe_error
+
+        return -npoe_error(self.projection(X, groups=groups, t=t), np.asarray(U, dtype=float))
+
+
+
+def fitted_per_stretch(model: ConstraintModel) -> ConstraintModel | None:
+    """The per-window or per-demonstration model inside ``model`` (itself, or the winner of an
+    :class:`~ccl_cli.learn.constraint.auto.AutoConstraint`), None for a global model."""
+    from ccl_cli.learn.constraint.per_demo import PerDemonstration
+
+    inner = vars(model).get("model_", model)
+    return inner if isinstance(inner, PerWindow | PerDemonstration) else None
+
+
+def refit_on_new_demos(model: ConstraintModel, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None,
+                       t: np.ndarray | None = None, always: bool = False
+                       ) -> tuple[ConstraintModel, str] | None:
+    """A model fitted per window or per demonstration has no constraint for a demonstration it
+    did not see. When ``groups`` (N,) holds such a demonstration — or ``always``, for data that
+    are not those the model was fitted on (a saved model on a recording: its demonstration ids
+    say nothing) — the same kind of model (the same window length and rows per window; per
+    demonstration, the same estimator) is fitted on these data, X (N, p), U (N, q), t (N,), and
+    returned with a sentence saying so (its errors are then training figures on these data);
+    None when every demonstration is known or ``model`` is global."""
+    from ccl_cli.learn.base import clone
+    from ccl_cli.learn.constraint.per_demo import PerDemonstration
+
+    local = fitted_per_stretch(model)
+    if local is None:
+        return None
+    known = set(local.models_) if isinstance(local, PerDemonstration) else set(
+        int(d) for d in np.unique(local.windows_[:, 0]))
+    ids = {0} if groups is None else {int(d) for d in np.unique(groups)}
+    if ids <= known and not always:
+        return None
+    if isinstance(local, PerDemonstration):
+        refit = PerDemonstration(clone(local.estimator)).fit(X, U, groups=groups)
+        what = "one constraint per demonstration"
+    else:
+        refit = PerWindow(window=local.window_, n_constraints=local.n_constraints_,
+                          shrinkage=local.shrinkage, heldout=False).fit(X, U, groups=groups, t=t)
+        what = ("one constraint per demonstration" if local.window_ is None else
+                f"one constraint per {local.window_:g}-s window") + f", {local.n_constraints_} row(s)"
+    return refit, (f"a model per stretch, fitted again on these data ({what}): it describes only the "
+                   "recordings it was fitted on, so its errors here are training figures")
