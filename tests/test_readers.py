@@ -487,3 +487,13 @@ def test_bad_data_options_are_one_line_naming_the_option(mapping, message):
     with pytest.raises(InputError) as info:
         DataOptions.from_mapping(mapping)
     assert info.value.message.startswith(message) and "\n" not in info.value.message
+
+
+def test_time_values_with_unicode_spaces_around_them():
+    """str.strip removes any Unicode space (\\x1f is one) where int() alone refused it: a
+    stamp padded so was an internal error (found by the CSV cell fuzz in CI)."""
+    from ccl_cli.io.formats.csv import parse_time_ns
+
+    got = parse_time_ns(["1700000000123456789", "1700000000133456789\x1f", " 1700000000143456789"], None, "x")
+    assert got.tolist() == [1700000000123456789, 1700000000133456789, 1700000000143456789]
+    assert parse_time_ns(["0.5", "1\x1f"], None, "x").tolist() == [500_000_000, 1_000_000_000]

@@ -114,8 +114,8 @@ def _ns(value: int, v: str, i: int, where: str) -> int:
 
 def _time_ns_per_value(column: Sequence[str], unit: str | None, where: str) -> np.ndarray:
     """:func:`parse_time_ns` one value at a time (any float syntax; exact errors)."""
-    if all(_INT.match(v) for v in column):
-        ints = [int(v) for v in column]
+    if all(_INT.match(v.strip()) for v in column):  # str.strip: any Unicode space around it
+        ints = [int(v.strip()) for v in column]
         if unit is None:
             unit = "ns" if max(map(abs, ints), default=0) >= 10**15 else "s"
         scale = UNIT_NS[unit]
@@ -132,7 +132,7 @@ def _time_ns_per_value(column: Sequence[str], unit: str | None, where: str) -> n
             frac = (m.group(3) + "0" * digits)[:digits] if digits else ""
             out[i] = _ns(sign * (whole * scale + (int(frac) if frac else 0)), v, i, where)
         elif _INT.match(v.strip()):
-            out[i] = _ns(int(v) * scale, v, i, where)
+            out[i] = _ns(int(v.strip()) * scale, v, i, where)
         else:
             try:
                 value = float(v) * scale
