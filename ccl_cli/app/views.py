@@ -67,13 +67,16 @@ def null_direction(model: Any):
 
 
 def constant_rows(model: Any, d: Demonstrations) -> np.ndarray | None:
-    """The rows (s, q) of a constant learnt constraint (a model with ``A_``), orthonormal;
-    None for state-dependent or per-demonstration models."""
-    if isinstance(model, PerDemonstration) or getattr(model, "A_", None) is None:
+    """The rows (s, q) of a constant learnt constraint (one ``A_`` of shape (s, q); for
+    ``method: auto``, of the model it chose), orthonormal; None for state-dependent,
+    per-demonstration and per-window models."""
+    chosen = getattr(model, "model_", model)
+    A = getattr(chosen, "A_", None)
+    if isinstance(chosen, PerDemonstration) or A is None or np.ndim(A) != 2:
         return None
-    if not getattr(model, "n_constraints_", 0):
+    if not getattr(chosen, "n_constraints_", 0):
         return np.zeros((0, d.n_action))
-    return row_basis(model.constraint(d.X[:1])[0])
+    return row_basis(np.asarray(A, dtype=float))
 
 
 def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
