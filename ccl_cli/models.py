@@ -463,12 +463,14 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
 
 def is_model_file(path: str | Path) -> bool:
     """Whether ``path`` is an HDF5 file whose ``format`` attribute says ccl model (a file
-    that is not HDF5 is not). A FIFO, device or folder is refused (InputError), never opened
-    to wait on."""
+    that is not HDF5 is not, nor is a folder such as a ROS 2 bag). A FIFO, device or socket
+    is refused (InputError), never opened to wait on."""
     from ccl_cli.io.limits import open_regular
     from ccl_cli.io.sniff import HDF5_MAGIC
 
     path = Path(path)
+    if path.is_dir():
+        return False
     with open_regular(path) as f:
         head = f.read(1024)
     if HDF5_MAGIC not in head:  # at 0, or behind the 512-byte user block ccl writes

@@ -6,6 +6,7 @@ proves that nothing blocked on a FIFO."""
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import sys
@@ -177,6 +178,21 @@ def test_fifo_config_and_model_are_one_line(capsys, tmp_path):
         from ccl_cli.app.batch import plan
 
         plan(fifo(tmp_path / "m.yaml"))
+
+
+def test_inspect_refuses_fifos_and_reads_bag_folders(capsys, tmp_path):
+    """``ccl inspect`` first asks whether its input is a model file: a FIFO (or a symlink to
+    one) is refused without being opened, a ROS 2 bag folder is not a model and is read."""
+    pipe = fifo(tmp_path / "m.h5")
+    (tmp_path / "link.h5").symlink_to(pipe)
+    for path in (pipe, tmp_path / "link.h5"):
+        assert main(["inspect", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "is a FIFO, not a regular file" in err
+    rec = writers.joint_recording(n=30)
+    bag = writers.write_ros2_bag(tmp_path / "bag", rec, "sqlite3")
+    assert main(["inspect", str(bag), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["topics"]["/joint_states"]["count"] == 30
 
 
 # -- paths named by a bag ------------------------------------------------------------------------
