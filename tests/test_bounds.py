@@ -9,9 +9,7 @@ from __future__ import annotations
 import json
 import logging
 import os
-import struct
 import sys
-import zlib
 from pathlib import Path
 
 import h5py
@@ -100,29 +98,6 @@ def test_sparse_mat_reads_as_dense_and_a_huge_one_is_refused(tmp_path):
             r"the sparse matrix declares 100000000×7")
 
 
-def _pad_compressed_variable(path: Path, name: str, extra: int) -> None:
-    """Append ``extra`` zero bytes to the data of variable ``name`` of a compressed v7 file
-    scipy wrote, keeping its declared shape: what a zlib bomb does (zeros inflate ~1000×)."""
-    raw = path.read_bytes()
-    out, pos = bytearray(raw[:128]), 128
-    while pos < len(raw):
-        mtype, nbytes = struct.unpack_from("<II", raw, pos)
-        element = raw[pos + 8:pos + 8 + nbytes]
-        pos += 8 + nbytes
-        inner = zlib.decompress(element)
-        if mat5_zlib._name(inner, "<") == name:
-            at = 8
-            for _ in range(3):  # array flags, dimensions, name: then the real part
-                _, _, at = mat5_zlib._element(inner, at, "<")
-            ptype, pbytes = struct.unpack_from("<II", inner, at)
-            inner = (struct.pack("<II", 14, len(inner) - 8 + extra) + inner[8:at]
-                     + struct.pack("<II", ptype, pbytes + extra) + inner[at + 8:at + 8 + pbytes]
-                     + bytes(extra) + inner[at + 8 + pbytes:])
-            element = zlib.compress(inner)
-        out += struct.pack("<II", mtype, len(element)) + element
-    path.write_bytes(bytes(out))
-
-
 def test_compressed_mat_variable_inflating_past_its_shape_is_refused(tmp_path, monkeypatch):
     """A v7 variable is a zlib stream: scipy inflates its data tags whatever the header
     declares. The stream is counted (in 1 MB pieces) against what the declared shape holds."""
@@ -133,7 +108,7 @@ def test_compressed_mat_variable_inflating_past_its_shape_is_refused(tmp_path, m
            "action": {"variable": "U", "samples": "columns"}, "time": {"rate": 10}}
     np.testing.assert_array_equal(load_demonstrations(cfg).X, arm.X)  # compressed files still read
     assert mat5_zlib.inflated_size(path, "X", 1 << 20) > arm.X.nbytes
-    _pad_compressed_variable(path, "X", 300 << 20)  # 300 MB of zeros behind a 7×40 header
+    writers.pad_compressed_mat(path, "X", 300 << 20)  # 300 MB of zeros behind a 7×40 header
     assert path.stat().st_size < 1 << 20
     assert mat5_zlib.inflated_size(path, "X", 1 << 20) > 1 << 20  # counted up to the limit only
     refused(cfg, r"z.mat: X: the compressed variable inflates to more than \d+ bytes, more than its "
