@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import logging
 import os
+import struct
+import subprocess
 import sys
 from pathlib import Path
 
@@ -25,7 +27,7 @@ from ccl_cli.cli import main
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.io import limits, load_demonstrations, write_demonstrations
-from ccl_cli.io.formats import mat5_zlib
+from ccl_cli.io.formats import mat5_elements
 from ccl_cli.io.h5 import probe as h5probe
 from ccl_cli.io.limits import check_claim, max_bytes
 
@@ -107,10 +109,10 @@ def test_compressed_mat_variable_inflating_past_its_shape_is_refused(tmp_path, m
     cfg = {"files": [str(path)], "state": {"variable": "X", "samples": "columns"},
            "action": {"variable": "U", "samples": "columns"}, "time": {"rate": 10}}
     np.testing.assert_array_equal(load_demonstrations(cfg).X, arm.X)  # compressed files still read
-    assert mat5_zlib.inflated_size(path, "X", 1 << 20) > arm.X.nbytes
+    assert mat5_elements.inflated_size(path, "X", 1 << 20) > arm.X.nbytes
     writers.pad_compressed_mat(path, "X", 300 << 20)  # 300 MB of zeros behind a 7×40 header
     assert path.stat().st_size < 1 << 20
-    assert mat5_zlib.inflated_size(path, "X", 1 << 20) > 1 << 20  # counted up to the limit only
+    assert mat5_elements.inflated_size(path, "X", 1 << 20) > 1 << 20  # counted up to the limit only
     refused(cfg, r"z.mat: X: the compressed variable inflates to more than \d+ bytes, more than its "
                  r"declared 7×40 can hold")
     struct_file = tmp_path / "s.mat"  # a struct's shape bounds nothing: the cap does
@@ -118,6 +120,40 @@ def test_compressed_mat_variable_inflating_past_its_shape_is_refused(tmp_path, m
     monkeypatch.setenv("CCL_MAX_BYTES", "1M")
     refused({"files": [str(struct_file)], "state": {"variable": "S.X"}, "time": {"rate": 10}},
             r"S: the compressed variable inflates to more than 1048576 bytes")
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_mat_element_walk_passes_what_scipy_writes(tmp_path, compressed):
+    """Every kind of variable scipy writes passes the element walk, compressed or not."""
+    values = {"d": np.arange(12.0).reshape(3, 4), "c": np.array([[1 + 2j, 3]]), "i": np.int16([[1, -2]]),
+              "b": np.array([[True, False]]), "s": "text é", "e": np.zeros((0, 3)),
+              "sp": scipy.sparse.csc_matrix(np.eye(4)), "cell": np.array([[np.ones(2), "a"]], dtype=object),
+              "st": {"a": np.ones((2, 2)), "b": {"c": np.arange(3.0)}}}
+    path = tmp_path / "all.mat"
+    scipy.io.savemat(path, values, do_compression=compressed)
+    for name, shape, cls in scipy.io.whosmat(path):
+        mat5_elements.check_variable(path, name, shape, cls in ("cell", "struct"), 1 << 30)
+
+
+@pytest.mark.parametrize("bad_type", [8, 10, 521])
+def test_mat_element_of_an_unknown_type_is_refused_not_a_crash(tmp_path, bad_type):
+    """One flipped byte in a data element's type made scipy's reader crash the process
+    (SIGSEGV); the element walk refuses it in one line (run in a child: a crash is a fail)."""
+    arm = sim.arm7(seed=3, n_demos=1, n_steps=20)
+    path = tmp_path / "t.mat"
+    scipy.io.savemat(path, {"X": arm.X.T, "U": arm.U.T})
+    raw = bytearray(path.read_bytes())
+    at = raw.index(struct.pack("<II", 9, arm.U.nbytes), raw.index(b"U\0\0\0"))  # U's real part
+    raw[at:at + 4] = struct.pack("<I", bad_type)
+    path.write_bytes(bytes(raw))
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("data: {state: {variable: X, samples: columns}, action: {variable: U, samples: columns}, "
+                   "time: {rate: 10}}\n")
+    proc = subprocess.run([sys.executable, "-m", "ccl_cli.cli", "inspect", str(path), "-c", str(cfg), "-q"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip() == (f"ccl: error: {path}: U: an element of type {bad_type}, which MATLAB "
+                                   "files do not have; refused before reading (a damaged file)")
 
 
 def test_foreign_hdf5_dataset_declaring_more_than_the_file_holds(tmp_path):

@@ -238,7 +238,7 @@ WRITERS = {
 def pad_compressed_mat(path: Path, name: str, extra: int) -> None:
     """Append ``extra`` zero bytes to the data of variable ``name`` of a compressed v7 file
     scipy wrote, keeping its declared shape: what a zlib bomb does (zeros deflate ~1000:1)."""
-    from ccl_cli.io.formats.mat5_zlib import _element, _name
+    from ccl_cli.io.formats.mat5_elements import _element, _name
 
     raw = path.read_bytes()
     out, pos = bytearray(raw[:128]), 128

@@ -31,7 +31,7 @@ import numpy as np
 
 from ccl_cli.errors import InputError
 from ccl_cli.io.arrays import Variable, as_numeric, assemble, named_parts, orient, split_by_index
-from ccl_cli.io.formats.mat5_zlib import check_inflated
+from ccl_cli.io.formats.mat5_elements import check_variable
 from ccl_cli.io.h5.access import attr_str, attr_value, error_text
 from ccl_cli.io.h5.listing import list_hdf5, truncate
 from ccl_cli.io.h5.probe import open_hdf5
@@ -78,7 +78,7 @@ class _V5:
         if cls in NUMERIC_CLASSES | {"char", "sparse"}:
             check_claim(f"{self.path}: {name}", f"the {cls} variable", shape, 8,
                         None if cls == "sparse" else os.path.getsize(self.path))
-        check_inflated(self.path, name, shape, cls in CONTAINERS, max_bytes())
+        check_variable(self.path, name, shape, cls in CONTAINERS, max_bytes())
 
         try:
             return loadmat(str(self.path), variable_names=[name], squeeze_me=False,
