@@ -69,6 +69,20 @@ def test_mat73_declaring_a_billion_doubles_is_refused_before_reading(tmp_path):
     assert cpu_seconds() - t0 < 5  # nothing was allocated or read
 
 
+def test_inspect_of_a_mat73_attribute_of_the_wrong_type_is_one_line(capsys, tmp_path):
+    """A refusal inside libhdf5's visit callback is returned, not raised through it (h5py
+    turned it into a SystemError: an internal error)."""
+    path = writers.write_mat73(tmp_path / "a.mat", {"X": np.eye(2), "U": np.ones((1, 2))})
+    assert main(["inspect", str(path), "--json"]) == 0
+    assert {e["path"]: e["class"] for e in json.loads(capsys.readouterr().out)["tree"]}["U"] == "double"
+    with h5py.File(path, "r+") as f:
+        f["U"].attrs["MATLAB_class"] = np.array([1, 2])
+    assert main(["inspect", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"ccl: error: {path}:/U: attribute 'MATLAB_class' must be a string, got an array int64 " \
+                  "(2,)\n"
+
+
 def test_mat73_cells_are_bounded_too(tmp_path):
     arm = sim.arm7(seed=0, n_demos=2, n_steps=10)
     path = writers.write_mat73(tmp_path / "c.mat", {"X": [arm.X[arm.demo == d].T for d in arm.demo_ids]})
