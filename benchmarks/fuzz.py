@@ -488,14 +488,20 @@ def json_messages(target: Path, rng: random.Random) -> str:
 
 def sparse_mat(target: Path, rng: random.Random) -> str:
     """The v5 .mat with X (or U) replaced: a sparse matrix (of the data's size, or declaring a
-    dense size of gigabytes), a cell of sparse matrices, or a struct."""
+    dense size of gigabytes), a cell of sparse matrices, a struct, or a compressed file whose
+    X or U inflates to 8 or 600 MB of zeros past its declared shape (a zlib bomb)."""
     import numpy as np
     import scipy.io
     import scipy.sparse
+    import writers
 
-    data = scipy.io.loadmat(target)
+    data = {k: v for k, v in scipy.io.loadmat(target).items() if not k.startswith("__")}
     name = rng.choice(["X", "U"])
-    kind = rng.choice(["sparse", "huge", "huge", "cell-huge", "struct", "int"])
+    kind = rng.choice(["sparse", "huge", "huge", "cell-huge", "struct", "int", "zlib", "zlib"])
+    if kind == "zlib":
+        scipy.io.savemat(target, data, do_compression=True)
+        writers.pad_compressed_mat(target, name, rng.choice([8 << 20, 600 << 20]))
+        return f"mat:zlib:{name}"
     if kind == "sparse":
         data[name] = scipy.sparse.csc_matrix(data[name])
     elif kind in ("huge", "cell-huge"):
@@ -506,7 +512,7 @@ def sparse_mat(target: Path, rng: random.Random) -> str:
         data[name] = {"a": data[name]}
     else:
         data[name] = data[name].astype(np.int64)
-    scipy.io.savemat(target, {k: v for k, v in data.items() if not k.startswith("__")})
+    scipy.io.savemat(target, data)
     return f"mat:{kind}:{name}"
 
 

@@ -3,11 +3,12 @@ command line in its own process, with its exit status, wall time, peak RSS, stde
 and what it left behind. Prints one JSON object.
 
 Cases: a 10-KB MATLAB v7.3 file declaring 10⁹ elements; a MATLAB v5 file holding a sparse
-10⁶×10⁶ matrix; a 2 GB CSV of one line; FIFOs given as .csv/.bag/.mat/.h5, as a bag's
-metadata.yaml and as the storage file (sqlite3, mcap) its metadata names; ``ccl batch -o``
-on a user's folder, and under a read-only parent (as an unprivileged user, via setpriv,
-when run as root); ``ulimit -f 8`` with learn-a and batch; damaged models (attribute tables
-damaged until libhdf5 fails iterating them) through predict and inspect.
+10⁶×10⁶ matrix; a compressed v7 file whose 7×40 variable inflates to 2 GB; a 2 GB CSV of
+one line; FIFOs given as .csv/.bag/.mat/.h5, as a bag's metadata.yaml and as the storage
+file (sqlite3, mcap) its metadata names; ``ccl batch -o`` on a user's folder, and under a
+read-only parent (as an unprivileged user, via setpriv, when run as root); ``ulimit -f 8``
+with learn-a and batch; damaged models (attribute tables damaged until libhdf5 fails
+iterating them) through predict and inspect.
 
 Every command runs as ``python -m ccl_cli.cli``, so ``PYTHONPATH=<a checkout>`` measures
 another version of ccl (the "before" of a change).
@@ -98,6 +99,23 @@ def mat5_sparse(root: Path) -> tuple[Path, Path]:
     path = root / "sparse.mat"
     scipy.io.savemat(path, {"X": x})
     cfg = _yaml(root / "mat5.yaml", {"data": {"state": {"variable": "X"}, "time": {"rate": 10}}, **STAGE})
+    return path, cfg
+
+
+def mat5_zlib(root: Path) -> tuple[Path, Path]:
+    """A compressed MATLAB v7 file of ~2 MB whose X declares 7×40 doubles and inflates to 2 GB
+    (zeros behind its data: a zlib bomb)."""
+    import scipy.io
+    import writers
+
+    from ccl_cli import simulate as sim
+
+    arm = sim.arm7(seed=0, n_demos=1, n_steps=40)
+    path = root / "zlib.mat"
+    scipy.io.savemat(path, {"X": arm.X.T}, do_compression=True)
+    writers.pad_compressed_mat(path, "X", 2 << 30)
+    cfg = _yaml(root / "mat5z.yaml", {"data": {"state": {"variable": "X", "samples": "columns"},
+                                               "time": {"rate": 10}}, **STAGE})
     return path, cfg
 
 
@@ -205,14 +223,12 @@ def measure(only: set[str] | None, gigabytes: float) -> dict[str, Any]:
     try:
         toy = root / "toy.h5"
         write_demonstrations(toy, sim.toy2d(n_demos=6, n_steps=40, seed=0))
-        if want("mat73_bomb"):
-            path, cfg = mat73_bomb(root)
-            results["mat73_bomb"] = {"file_bytes": path.stat().st_size,
-                                     **run(["learn-a", path, "-c", cfg, "-o", root / "o1", "-q"], root)}
-        if want("mat5_sparse"):
-            path, cfg = mat5_sparse(root)
-            results["mat5_sparse"] = {"file_bytes": path.stat().st_size,
-                                      **run(["learn-a", path, "-c", cfg, "-o", root / "o2", "-q"], root)}
+        for name, build in (("mat73_bomb", mat73_bomb), ("mat5_sparse", mat5_sparse),
+                            ("mat5_zlib", mat5_zlib)):
+            if want(name):
+                path, cfg = build(root)
+                results[name] = {"file_bytes": path.stat().st_size,
+                                 **run(["learn-a", path, "-c", cfg, "-o", root / f"o_{name}", "-q"], root)}
         if want("csv_one_line"):
             path, cfg = one_line_csv(root, gigabytes)
             results["csv_one_line"] = {"file_bytes": path.stat().st_size,

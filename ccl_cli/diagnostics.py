@@ -370,9 +370,11 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
     positions = derived and d.n_state == d.n_action
     ev = noise_rank.row_evidence(Y, rows, d.demo, d.t, d.X if positions else None,
                                  {"window": window, "order": order} if positions else None)
-    if ev.snr < noise_rank.MIN_SNR:
+    if not ev.snr >= noise_rank.MIN_SNR:  # also NaN: overflowing data tells nothing
         return None
     ratio = ev.energy / np.maximum(ev.noise, np.finfo(float).tiny)
+    if not (np.isfinite(ratio).all() and np.isfinite(ev.share).all()):
+        return None
     holds = (ratio <= noise_rank.MARGIN) | (ev.share <= noise_rank.SHARE)
     return {"ratio": ratio.tolist(), "share": ev.share.tolist(), "holds": bool(holds.all())}
 

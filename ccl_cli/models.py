@@ -479,8 +479,8 @@ def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
 
 def is_model_file(path: str | Path) -> bool:
     """Whether ``path`` is an HDF5 file whose ``format`` attribute says ccl model (a file
-    that is not HDF5 is not). A FIFO, device or folder is refused (InputError), never opened
-    to wait on."""
+    that is not HDF5 is not, nor is a folder such as a ROS 2 bag). A FIFO, device or socket
+    is refused (InputError), never opened to wait on."""
     from ccl_cli.io.limits import open_regular
     from ccl_cli.io.sniff import HDF5_MAGIC
 

@@ -6,8 +6,11 @@ proves that nothing blocked on a FIFO."""
 
 from __future__ import annotations
 
+import json
 import logging
 import os
+import struct
+import subprocess
 import sys
 from pathlib import Path
 
@@ -24,6 +27,7 @@ from ccl_cli.cli import main
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.io import limits, load_demonstrations, write_demonstrations
+from ccl_cli.io.formats import mat5_elements
 from ccl_cli.io.h5 import probe as h5probe
 from ccl_cli.io.limits import check_claim, max_bytes
 
@@ -65,6 +69,20 @@ def test_mat73_declaring_a_billion_doubles_is_refused_before_reading(tmp_path):
     assert cpu_seconds() - t0 < 5  # nothing was allocated or read
 
 
+def test_inspect_of_a_mat73_attribute_of_the_wrong_type_is_one_line(capsys, tmp_path):
+    """A refusal inside libhdf5's visit callback is returned, not raised through it (h5py
+    turned it into a SystemError: an internal error)."""
+    path = writers.write_mat73(tmp_path / "a.mat", {"X": np.eye(2), "U": np.ones((1, 2))})
+    assert main(["inspect", str(path), "--json"]) == 0
+    assert {e["path"]: e["class"] for e in json.loads(capsys.readouterr().out)["tree"]}["U"] == "double"
+    with h5py.File(path, "r+") as f:
+        f["U"].attrs["MATLAB_class"] = np.array([1, 2])
+    assert main(["inspect", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"ccl: error: {path}:/U: attribute 'MATLAB_class' must be a string, got an array int64 " \
+                  "(2,)\n"
+
+
 def test_mat73_cells_are_bounded_too(tmp_path):
     arm = sim.arm7(seed=0, n_demos=2, n_steps=10)
     path = writers.write_mat73(tmp_path / "c.mat", {"X": [arm.X[arm.demo == d].T for d in arm.demo_ids]})
@@ -94,6 +112,62 @@ def test_sparse_mat_reads_as_dense_and_a_huge_one_is_refused(tmp_path):
     scipy.io.savemat(cell, {"X": np.array([m], dtype=object).reshape(1, 1)})
     refused({"files": [str(cell)], "state": {"variable": "X"}, "time": {"rate": 10}},
             r"the sparse matrix declares 100000000×7")
+
+
+def test_compressed_mat_variable_inflating_past_its_shape_is_refused(tmp_path, monkeypatch):
+    """A v7 variable is a zlib stream: scipy inflates its data tags whatever the header
+    declares. The stream is counted (in 1 MB pieces) against what the declared shape holds."""
+    arm = sim.arm7(seed=2, n_demos=1, n_steps=40)
+    path = tmp_path / "z.mat"
+    scipy.io.savemat(path, {"X": arm.X.T, "U": arm.U.T}, do_compression=True)
+    cfg = {"files": [str(path)], "state": {"variable": "X", "samples": "columns"},
+           "action": {"variable": "U", "samples": "columns"}, "time": {"rate": 10}}
+    np.testing.assert_array_equal(load_demonstrations(cfg).X, arm.X)  # compressed files still read
+    assert mat5_elements.inflated_size(path, "X", 1 << 20) > arm.X.nbytes
+    writers.pad_compressed_mat(path, "X", 300 << 20)  # 300 MB of zeros behind a 7×40 header
+    assert path.stat().st_size < 1 << 20
+    assert mat5_elements.inflated_size(path, "X", 1 << 20) > 1 << 20  # counted up to the limit only
+    refused(cfg, r"z.mat: X: the compressed variable inflates to more than \d+ bytes, more than its "
+                 r"declared 7×40 can hold")
+    struct_file = tmp_path / "s.mat"  # a struct's shape bounds nothing: the cap does
+    scipy.io.savemat(struct_file, {"S": {"X": np.zeros((7, 40_000))}}, do_compression=True)
+    monkeypatch.setenv("CCL_MAX_BYTES", "1M")
+    refused({"files": [str(struct_file)], "state": {"variable": "S.X"}, "time": {"rate": 10}},
+            r"S: the compressed variable inflates to more than 1048576 bytes")
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_mat_element_walk_passes_what_scipy_writes(tmp_path, compressed):
+    """Every kind of variable scipy writes passes the element walk, compressed or not."""
+    values = {"d": np.arange(12.0).reshape(3, 4), "c": np.array([[1 + 2j, 3]]), "i": np.int16([[1, -2]]),
+              "b": np.array([[True, False]]), "s": "text é", "e": np.zeros((0, 3)),
+              "sp": scipy.sparse.csc_matrix(np.eye(4)), "cell": np.array([[np.ones(2), "a"]], dtype=object),
+              "st": {"a": np.ones((2, 2)), "b": {"c": np.arange(3.0)}}}
+    path = tmp_path / "all.mat"
+    scipy.io.savemat(path, values, do_compression=compressed)
+    for name, shape, cls in scipy.io.whosmat(path):
+        mat5_elements.check_variable(path, name, shape, cls in ("cell", "struct"), 1 << 30)
+
+
+@pytest.mark.parametrize("bad_type", [8, 10, 521])
+def test_mat_element_of_an_unknown_type_is_refused_not_a_crash(tmp_path, bad_type):
+    """One flipped byte in a data element's type made scipy's reader crash the process
+    (SIGSEGV); the element walk refuses it in one line (run in a child: a crash is a fail)."""
+    arm = sim.arm7(seed=3, n_demos=1, n_steps=20)
+    path = tmp_path / "t.mat"
+    scipy.io.savemat(path, {"X": arm.X.T, "U": arm.U.T})
+    raw = bytearray(path.read_bytes())
+    at = raw.index(struct.pack("<II", 9, arm.U.nbytes), raw.index(b"U\0\0\0"))  # U's real part
+    raw[at:at + 4] = struct.pack("<I", bad_type)
+    path.write_bytes(bytes(raw))
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("data: {state: {variable: X, samples: columns}, action: {variable: U, samples: columns}, "
+                   "time: {rate: 10}}\n")
+    proc = subprocess.run([sys.executable, "-m", "ccl_cli.cli", "inspect", str(path), "-c", str(cfg), "-q"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip() == (f"ccl: error: {path}: U: an element of type {bad_type}, which MATLAB "
+                                   "files do not have; refused before reading (a damaged file)")
 
 
 def test_foreign_hdf5_dataset_declaring_more_than_the_file_holds(tmp_path):
@@ -177,6 +251,21 @@ def test_fifo_config_and_model_are_one_line(capsys, tmp_path):
         from ccl_cli.app.batch import plan
 
         plan(fifo(tmp_path / "m.yaml"))
+
+
+def test_inspect_refuses_fifos_and_reads_bag_folders(capsys, tmp_path):
+    """``ccl inspect`` first asks whether its input is a model file: a FIFO (or a symlink to
+    one) is refused without being opened, a ROS 2 bag folder is not a model and is read."""
+    pipe = fifo(tmp_path / "m.h5")
+    (tmp_path / "link.h5").symlink_to(pipe)
+    for path in (pipe, tmp_path / "link.h5"):
+        assert main(["inspect", str(path)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "is a FIFO, not a regular file" in err
+    rec = writers.joint_recording(n=30)
+    bag = writers.write_ros2_bag(tmp_path / "bag", rec, "sqlite3")
+    assert main(["inspect", str(bag), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["topics"]["/joint_states"]["count"] == 30
 
 
 # -- paths named by a bag ------------------------------------------------------------------------

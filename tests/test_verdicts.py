@@ -44,6 +44,17 @@ def test_constraint_evidence_tells_a_quiet_row_from_a_moving_one():
     assert diagnostics.does_not_hold("learn-a", ev, "test data")[0]["code"] == "constraint_does_not_hold"
 
 
+
+def test_constraint_evidence_of_overflowing_data_tells_nothing():
+    """Observations whose squares overflow (a damaged file's 1e200s) give no evidence, not
+    rows judged on NaN (does_not_hold then found no moving row: StopIteration)."""
+    d = sim.tracker_plane(duration=30.0, seed=4)
+    model = StateIndependentConstraint(n_constraints=1).fit(d.X, d.U)
+    U = d.U.copy()
+    U[::7] = 1e200
+    with np.errstate(over="ignore", invalid="ignore"):
+        assert diagnostics.constraint_evidence(model, d, U) is None
+
 def run(capsys, tmp_path, data, stages: str, extra: str = "", *args) -> tuple[int, dict, dict, str]:
     path = write_demonstrations(tmp_path / "d.h5", data, force=True)
     cfg = tmp_path / "c.yaml"

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import csv
 import json
+import struct
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -246,3 +248,31 @@ WRITERS = {
     "mcap-ros1": lambda p, r: write_mcap_ros1(p / "rec.mcap", r),
     "mcap-json": lambda p, r: write_mcap_json(p / "rec.mcap", r),
 }
+
+
+def pad_compressed_mat(path: Path, name: str, extra: int) -> None:
+    """Append ``extra`` zero bytes to the data of variable ``name`` of a compressed v7 file
+    scipy wrote, keeping its declared shape: what a zlib bomb does (zeros deflate ~1000:1)."""
+    from ccl_cli.io.formats.mat5_elements import _element, _name
+
+    raw = path.read_bytes()
+    out, pos = bytearray(raw[:128]), 128
+    while pos < len(raw):
+        mtype, nbytes = struct.unpack_from("<II", raw, pos)
+        element = raw[pos + 8:pos + 8 + nbytes]
+        pos += 8 + nbytes
+        inner = zlib.decompress(element)
+        if _name(inner, "<") == name:
+            at = 8
+            for _ in range(3):  # array flags, dimensions, name: then the real part
+                _, _, at = _element(inner, at, "<")
+            ptype, pbytes = struct.unpack_from("<II", inner, at)
+            deflater, zeros = zlib.compressobj(), bytes(min(extra, 1 << 24))
+            element = deflater.compress(struct.pack("<II", 14, len(inner) - 8 + extra) + inner[8:at]
+                                        + struct.pack("<II", ptype, pbytes + extra)
+                                        + inner[at + 8:at + 8 + pbytes])
+            for start in range(0, extra, len(zeros)):  # never the whole padding in memory
+                element += deflater.compress(zeros[:extra - start])
+            element += deflater.compress(inner[at + 8 + pbytes:]) + deflater.flush()
+        out += struct.pack("<II", mtype, len(element)) + element
+    path.write_bytes(bytes(out))

@@ -31,10 +31,11 @@ import numpy as np
 
 from ccl_cli.errors import InputError
 from ccl_cli.io.arrays import Variable, as_numeric, assemble, cut_parts, named_parts, orient, split_by_index
+from ccl_cli.io.formats.mat5_elements import check_variable
 from ccl_cli.io.h5.access import attr_str, attr_value, error_text
 from ccl_cli.io.h5.listing import list_hdf5, truncate
 from ccl_cli.io.h5.probe import open_hdf5
-from ccl_cli.io.limits import check_claim
+from ccl_cli.io.limits import check_claim, max_bytes
 from ccl_cli.io.options import DataOptions, SignalOptions
 from ccl_cli.io.reader import ReaderBase, Recording
 from ccl_cli.io.segment import CUTS
@@ -78,6 +79,7 @@ class _V5:
         if cls in NUMERIC_CLASSES | {"char", "sparse"}:
             check_claim(f"{self.path}: {name}", f"the {cls} variable", shape, 8,
                         None if cls == "sparse" else os.path.getsize(self.path))
+        check_variable(self.path, name, shape, cls in CONTAINERS, max_bytes())
 
         try:
             return loadmat(str(self.path), variable_names=[name], squeeze_me=False,

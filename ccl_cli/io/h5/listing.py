@@ -40,8 +40,19 @@ def list_hdf5(path: str | Path, matlab: bool = False, limit: int = LIMIT) -> lis
     except OSError as exc:
         raise InputError(f"{path}: cannot open as HDF5 ({exc})") from None
     out: list[dict[str, Any]] = []
+    refused: list[InputError] = []
     with f:
-        def visit(name: str, link) -> None:
+        def visit(name: str, link) -> bool | None:
+            """One entry; a refusal stops the visit (returned, not raised: an exception
+            raised through libhdf5's callback surfaces as h5py's SystemError)."""
+            try:
+                add(name, link)
+            except InputError as exc:
+                refused.append(exc)
+                return True
+            return None
+
+        def add(name: str, link) -> None:
             if matlab and name.startswith("#"):
                 return
             entry: dict[str, Any] = {"path": name}
@@ -72,4 +83,6 @@ def list_hdf5(path: str | Path, matlab: bool = False, limit: int = LIMIT) -> lis
             f.visititems_links(visit)
         except (OSError, RuntimeError, KeyError) as exc:
             raise InputError(f"{path}: cannot read the HDF5 structure ({exc})") from None
+        if refused:
+            raise refused[0]
     return truncate(out, limit)
