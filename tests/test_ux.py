@@ -95,3 +95,41 @@ def test_inspect_names_storage_compression_and_encoding(tmp_path, capsys, contai
                 "ros2": ("ROS 2 bag (sqlite3", "none", "cdr"), "mcap": ("MCAP", "zstd", "cdr")}[container]
     assert info["storage"].startswith(expected[0])
     assert info["compression"] == expected[1] and info["encoding"] == expected[2]
+
+
+def _run_ccl(args: list[str], stderr_tty: bool) -> str:
+    """stderr of ``ccl ARGS`` written to a pipe, or to a pseudo-terminal."""
+    import os
+    import pty
+    import shutil
+    import subprocess
+
+    exe = shutil.which("ccl") or str(Path(__file__).resolve().parent.parent / ".venv" / "bin" / "ccl")
+    if not stderr_tty:
+        return subprocess.run([exe, *args], capture_output=True, text=True, check=True).stderr
+    master, slave = pty.openpty()
+    proc = subprocess.Popen([exe, *args], stdout=subprocess.DEVNULL, stderr=slave)
+    os.close(slave)
+    chunks = []
+    while True:
+        try:
+            data = os.read(master, 65536)
+        except OSError:  # the child closed the terminal
+            break
+        if not data:
+            break
+        chunks.append(data)
+    proc.wait()
+    os.close(master)
+    assert proc.returncode == 0
+    return b"".join(chunks).decode(errors="replace")
+
+
+def test_a_terminal_gets_the_progress_bar_and_a_pipe_gets_none(tmp_path):
+    args = ["run", str(CONFIGS / "toy2d_learn_v_then_a.yaml"), "-o", str(tmp_path / "r"), "--force"]
+    piped = _run_ccl(args, stderr_tty=False)
+    assert "━" not in piped and "\r" not in piped and "\x1b[" not in piped
+    assert "ccl: stage learn-v (ncl)" in piped  # one plain line per stage instead
+    shown = _run_ccl([*args[:3], str(tmp_path / "t"), "--force"], stderr_tty=True)
+    assert "━" in shown and "learn-v (ncl)" in shown
+    assert "ccl: stage learn-v" not in shown  # the bar names the stage; no log line under it
