@@ -442,3 +442,38 @@ def test_probe_memory_is_bounded(tmp_path, monkeypatch):
         h5probe.probe(path)
     monkeypatch.setenv("CCL_HDF5_MEMORY_MB", "400")
     h5probe.probe(path)  # within the bound: parsed
+
+
+def test_a_ros1_bag_whose_message_definition_does_not_parse_is_one_line(tmp_path, capsys):
+    """The numpy path decodes one message with the bag's own definition: a definition that
+    does not parse (a flipped byte in 'sensor_msgs') is the bag's fault, one line (it was
+    rosbags' TypesysError as an internal error; fuzz seed 9201)."""
+    from rosbags.rosbag1 import Writer
+    from writers import MSG, _msg, _typestore, joint_recording
+
+    from ccl_cli.cli import main
+
+    rec = joint_recording(n=50)
+    ts = _typestore(ros1=True)
+    good = ts.generate_msgdef(MSG, ros_version=1)
+    path = tmp_path / "a.bag"
+    with Writer(path) as writer:
+        conn = writer.add_connection("/joint_states", MSG, msgdef=good[0].replace("float64[] position",
+                                                                                 "float64[ position", 1),
+                                     md5sum=good[1])
+        for i in range(len(rec.t_ns)):
+            writer.write(conn, int(rec.log_ns[i]), ts.serialize_ros1(_msg(ts, rec, i), MSG))
+    assert main(["inspect", str(path), "--json"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot read the message definition of /joint_states" in err[0]
+
+
+def test_a_hostile_mix_with_damaged_mcap_message_indexes_has_no_internal_error():
+    """Message indexes pointing outside their chunk (case 6 of seed 9201: an IndexError in
+    the numpy path): the library decodes such a file, or refuses it in one line."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+    import fuzz
+
+    result = fuzz.fuzz(cases=8, seed=9201, timeout=20.0, mix="hostile")
+    assert {k: result["total"][k] for k in ("internal", "crash", "timeout")} == \
+        {"internal": 0, "crash": 0, "timeout": 0}, result["internal_groups"]

@@ -297,8 +297,9 @@ class BagReader(TopicReader):
             return None
         msgtype = normalize(conn.msgtype)
         store = get_typestore(Stores.EMPTY)
-        library_call(where, f"read the message definition of {conn.topic}", store.register,
-                     get_types_from_msg(conn.msgdef, msgtype))
+        what = f"read the message definition of {conn.topic}"
+        library_call(where, what, store.register, library_call(where, what, get_types_from_msg, conn.msgdef,
+                                                               msgtype))
         msg = library_call(where, f"decode {conn.topic}", store.deserialize_ros1, raw, msgtype)
         return head, raw, msg
 

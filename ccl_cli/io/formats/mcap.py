@@ -143,10 +143,13 @@ class McapReader(TopicReader):
                     buf = self._chunk(f, chunk_index)
                     entries = entries[np.argsort(entries[:, 1], kind="stable")]
                     starts = entries[:, 1].astype(np.int64)
+                    if not len(starts) or starts.min() < 0 or starts.max() + MESSAGE_PREFIX > buf.size:
+                        return None  # an index pointing outside its chunk: the library decodes (and judges)
                     if gathered is None:
                         gathered = self._first_fixed(f, reader, topic, buf, starts[0], extractors, total)
                         size = gathered.layout.size
-                    if not ((buf[starts] == MESSAGE_OPCODE).all()  # Message records of this channel
+                    if starts.max() + MESSAGE_PREFIX + size > buf.size or not (
+                            (buf[starts] == MESSAGE_OPCODE).all()  # Message records of this channel
                             and (read_uint(buf, starts + 9, 2) == cid).all()
                             and (read_uint(buf, starts + 1, 8) == size + MESSAGE_PREFIX - 9).all()):
                         return None
