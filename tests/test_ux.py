@@ -101,10 +101,9 @@ def _run_ccl(args: list[str], stderr_tty: bool) -> str:
     """stderr of ``ccl ARGS`` written to a pipe, or to a pseudo-terminal."""
     import os
     import pty
-    import shutil
     import subprocess
 
-    exe = shutil.which("ccl") or str(Path(__file__).resolve().parent.parent / ".venv" / "bin" / "ccl")
+    from tests_paths import CCL as exe
     if not stderr_tty:
         return subprocess.run([exe, *args], capture_output=True, text=True, check=True).stderr
     master, slave = pty.openpty()
