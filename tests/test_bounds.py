@@ -477,3 +477,33 @@ def test_a_hostile_mix_with_damaged_mcap_message_indexes_has_no_internal_error()
     result = fuzz.fuzz(cases=8, seed=9201, timeout=20.0, mix="hostile")
     assert {k: result["total"][k] for k in ("internal", "crash", "timeout")} == \
         {"internal": 0, "crash": 0, "timeout": 0}, result["internal_groups"]
+
+
+def test_an_mcap_chunk_index_pointing_outside_the_file_is_one_line(tmp_path, capsys):
+    """A damaged summary whose chunk index points past the end of the file (fuzz seed 9301:
+    seek() raised OSError EINVAL, an internal error)."""
+    import struct
+
+    from mcap.reader import make_reader
+    from writers import joint_recording, write_mcap_ros2
+
+    from ccl_cli.cli import main
+
+    path = write_mcap_ros2(tmp_path / "r.mcap", joint_recording(n=200))
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    start = summary.chunk_indexes[0].chunk_start_offset
+    data = bytearray(path.read_bytes())
+    record = data.rfind(b"\x08")  # the chunk index record: opcode, length, two times, then the offset
+    while record > 0 and struct.unpack_from("<Q", data, record + 25)[0] != start:
+        record = data.rfind(b"\x08", 0, record)
+    assert record > 0
+    struct.pack_into("<Q", data, record + 25, 2**53 + 34)
+    path.write_bytes(bytes(data))
+    assert main(["inspect", str(path), "--json"]) in (0, 2)
+    capsys.readouterr()
+    config = tmp_path / "c.yaml"
+    config.write_text("data: {state: {topic: /joint_states, field: position}, action: {derive: state}}\n")
+    assert main(["learn-a", str(path), "-c", str(config), "-o", str(tmp_path / "a"), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "outside the file" in err[0], err

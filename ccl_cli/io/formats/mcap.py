@@ -208,6 +208,8 @@ class McapReader(TopicReader):
     def _message_index(self, f, offset: int, cid: int) -> np.ndarray:
         """(n, 2) uint64 (log time, offset in the chunk) of one MessageIndex record."""
         where = str(self.path)
+        if not 0 <= offset <= os.path.getsize(where):
+            raise InputError(f"{where}: no message index at byte {offset} (outside the file; damaged file?)")
         f.seek(offset)
         head = f.read(15)
         if len(head) != 15 or head[0] != MESSAGE_INDEX_OPCODE or \
@@ -228,6 +230,9 @@ class McapReader(TopicReader):
 
         where = str(self.path)
         what = f"read the chunk at byte {index.chunk_start_offset}"
+        if not 0 <= index.chunk_start_offset <= os.path.getsize(where) - 9:
+            raise InputError(f"{where}: a chunk index points to byte {index.chunk_start_offset}, outside the "
+                             "file (damaged summary?)")
         f.seek(index.chunk_start_offset + 9)  # past the record's opcode and length
         chunk = library_call(where, what, Chunk.read, ReadDataStream(f))
         if chunk.uncompressed_size != index.uncompressed_size:  # the size checked is the size read
