@@ -288,7 +288,8 @@ def selection_figure(selection: dict[str, Any], q: int):
               if isinstance(v, list) and len(v) > 1 and all(isinstance(x, int | float) for x in v)}
     if not series:
         return None
-    fig, axes = subplots(1, len(series), figsize=(4.6 * len(series), 3.4), squeeze=False)
+    width = max(6.4, 4.6 * len(series))
+    fig, axes = subplots(1, len(series), figsize=(width, 3.6), squeeze=False)
     for ax, (key, v) in zip(axes[0], series.items(), strict=True):
         k = np.arange(1, len(v) + 1)
         ax.semilogy(k, np.maximum(v, 1e-300), "o-", color="0.3", lw=1)
@@ -301,12 +302,13 @@ def selection_figure(selection: dict[str, Any], q: int):
         meaning = selection.get("criterion") or {
             "cv": "cross-validated NPOE", "eigengap": "residual of candidate k",
             "threshold": "residual of candidate k"}.get(str(selection.get("rule")), key)
-        ax.set_ylabel(f"{meaning if key == 'values' else key} (log)")
-    title = wrap(f"How the number of constraints was chosen: rule {selection.get('rule')}") + "\n" + \
-        wrap(str(selection.get("reason", "")), 80)
+        ax.set_ylabel(wrap(f"{meaning if key == 'values' else key} (log)", 34), fontsize=8)
+    chars = int(12 * width)  # characters of a 9-pt title line across the figure
+    title = wrap(f"How the number of constraints was chosen: rule {selection.get('rule')}", chars) + "\n" + \
+        wrap(str(selection.get("reason", "")), chars)
     fig.suptitle(title, fontsize=9)
     top = 1 - (0.15 + 0.17 * (title.count("\n") + 1)) / fig.get_figheight()
-    fig.subplots_adjust(left=0.16 / len(series), right=0.97, top=top, bottom=0.3, wspace=0.35)
+    fig.subplots_adjust(left=0.9 / width, right=0.97, top=top, bottom=0.3, wspace=0.35)
     return fig
 
 
