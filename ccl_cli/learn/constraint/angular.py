@@ -104,7 +104,9 @@ def _local_start(B: np.ndarray, Z: np.ndarray, X: np.ndarray, rng: np.random.Gen
     cov = cluster_sums((Z[:, :, None] * Z[:, None, :]).reshape(n, m * m), label, k).reshape(k, m, m)
     vals, vecs = np.linalg.eigh(cov)
     dirs = vecs[:, :, 0]
-    conf = 1.0 - vals[:, 0] / np.maximum(vals[:, 1], np.finfo(float).tiny)
+    # a confidence in [0, 1]; a degenerate cluster (both eigenvalues ~0, the smaller one a
+    # rounding error below 0) would give ±huge values that overflow the products below
+    conf = np.clip(1.0 - vals[:, 0] / np.maximum(vals[:, 1], np.finfo(float).tiny), 0.0, 1.0)
     dist = pairwise_sqdist(centres, centres)
     h2 = np.median(np.sort(dist, axis=1)[:, 1]) if k > 1 else 1.0
     affinity = np.exp(-dist / (2.0 * max(h2, 1e-12)))
