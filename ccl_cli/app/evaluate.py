@@ -171,9 +171,11 @@ def inspect_file(path: Path, options: Any = None, gap: float | None = None, base
     """``ccl inspect``: what a model file holds (:func:`ccl_cli.models.describe_model`), or what
     a recording holds (:func:`ccl_cli.io.inspect_recording`). ``configured`` (a config was
     given): the recording is also read as learning reads it with ``options``, and
-    ``as_configured`` says what learning would get — demonstrations, samples each, names and
-    the reader's warnings — so that inspect and learn never disagree on the demonstrations."""
+    ``as_configured`` says what learning would get (:func:`ccl_cli.io.summary.summary`:
+    demonstrations, samples each, duration, names) and how the config cuts it, so that
+    inspect and learn never disagree on the demonstrations."""
     from ccl_cli.io import inspect_recording, read_dataset
+    from ccl_cli.io.summary import summary
     from ccl_cli.models import describe_model, is_model_file
 
     if is_model_file(path):
@@ -181,13 +183,7 @@ def inspect_file(path: Path, options: Any = None, gap: float | None = None, base
     info = inspect_recording(path, options, gap, base)
     if configured:
         data, _ = read_dataset(options, [path], base)
-        counts = np.bincount(np.unique(data.demo, return_inverse=True)[1])
-        info["as_configured"] = {
-            "demos": int(len(counts)), "samples": int(data.n_samples),
-            "samples_per_demo": counts.tolist(),
-            "seconds": round(float(sum(np.ptp(data.t[data.demo == d]) for d in np.unique(data.demo))), 3),
-            "state_names": list(data.state_names), "action_names": list(data.action_names),
-            "split": _split_words(options)}
+        info["as_configured"] = {**summary(data), "split": _split_words(options)}
     return info
 
 

@@ -121,7 +121,7 @@ def inspect_lines(info: dict[str, Any]) -> list[str]:
         each = c["samples_per_demo"]
         shown = ", ".join(map(str, each[:8])) + (", …" if len(each) > 8 else "")
         out.append(f"learning reads: {c['demos']} demonstration(s), {c['samples']} samples ({shown}), "
-                   f"{c['seconds']:.2f} s; {c['split']}")
+                   f"{c['duration_s']:.2f} s; {c['split']}")
         out.append(f"  state {', '.join(c['state_names'])}; action {', '.join(c['action_names'])}")
     for key in ("samples", "demos", "samples_per_demo", "state_names", "action_names", "truth", "masks"):
         if key in info and not (key == "demos" and "gap_s" in info):
