@@ -11,7 +11,7 @@ import pytest
 from ccl_cli import simulate as sim
 from ccl_cli.cli import main
 from ccl_cli.learn.consistency import npoe_error
-from ccl_cli.learn.constraint import PerDemonstration, StateIndependentConstraint
+from ccl_cli.learn.constraint import LinearConstraint, PerDemonstration, StateIndependentConstraint
 from ccl_cli.models import load_model, save_model
 
 
@@ -50,3 +50,17 @@ def test_the_stage_reports_the_heldout_blocks(tmp_path, capsys):
     row = f"| held-out blocks inside the training demonstrations (5 folds) | NPOE | {held['value']:.3e}"
     assert row in report
     assert np.isfinite(held["se"])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_task_part_is_taken_out_of_the_score_and_the_heldout_blocks(seed):
+    """u = A⁺b + Nπ: NPOE is of z = u − ṽ (eq. §6), so a model with a task term is judged on the
+    null-space consistency, not on the task part A⁺b it explains by design."""
+    data = sim.varying_constraint(seed=seed, task=True, noise=0.05)
+    model = PerDemonstration(LinearConstraint(regressors="identity", task=True, n_constraints=1))
+    model.fit(data.X, data.U, groups=data.demo)
+    floor = npoe_error(data.true_projection(), data.U - data.truth["v"], data.U)
+    without_task = npoe_error(model.projection(data.X, groups=data.demo), data.U)
+    assert without_task > 15 * floor  # the task part A⁺b counted as error
+    assert floor < -model.score(data.X, data.U, groups=data.demo) < 2 * floor
+    assert model.heldout_["mean"] < 5 * floor

@@ -25,7 +25,6 @@ import numpy as np
 
 from ccl_cli import metrics
 from ccl_cli.dataset import Demonstrations
-from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint import NoConstraint, PerDemonstration, PerWindow, StateIndependentConstraint
 from ccl_cli.learn.constraint.base import projection_at
 from ccl_cli.learn.constraint.windows import refit_on_new_demos
@@ -66,22 +65,8 @@ def _has_true_constraint(d: Demonstrations) -> bool:
 def task_part(model: Any, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray | None:
     """The learnt task part ṽ = Ã⁺ b̃ (§1) of a constraint model with a task term: (N, q),
     or ``None`` when the model has none (then ṽ = 0)."""
-    if isinstance(model, PerDemonstration):
-        if getattr(model.estimator, "task", False) is not True:
-            return None
-        demo = np.asarray(demo)
-        out = np.zeros((len(X), next(iter(model.models_.values())).n_action_))
-        for k in np.unique(demo):  # one small solve per demonstration, not per sample
-            m = demo == k
-            if int(k) not in model.models_:
-                raise InputError(f"demonstration {int(k)} was not seen when fitting this model")
-            out[m] = task_part(model.models_[int(k)], X[m])
-        return out
-    if getattr(model, "Wb_", None) is None:
-        return None
-    A = model.constraint(X)  # (N, s, q)
-    b = model.task_term(X)  # (N, s)
-    return np.einsum("nqs,ns->nq", np.linalg.pinv(A), b)
+    model = vars(model).get("model_", model)  # auto: the model it chose
+    return model.task_part(X, groups=demo) if hasattr(model, "task_part") else None
 
 
 def groups_of(d: Demonstrations) -> np.ndarray:

@@ -48,9 +48,10 @@ def action_variance(U: np.ndarray) -> float:
     return v if v > 0 else float(np.mean(np.sum(U**2, 1))) or 1.0
 
 
-def npoe_error(N: np.ndarray, U: np.ndarray) -> float:
-    """NPOE = mean ‖u − Ñu‖² / Σ var(u): N (N, q, q), U (N, q)."""
-    return mean_squared(projection_residual(N, U)) / action_variance(U)
+def npoe_error(N: np.ndarray, U: np.ndarray, normaliser: np.ndarray | None = None) -> float:
+    """NPOE = mean ‖u − Ñu‖² / Σ var(u): N (N, q, q), U (N, q); the variance of
+    ``normaliser`` (N, q) instead when given (U less a task part is normalised by u's)."""
+    return mean_squared(projection_residual(N, U)) / action_variance(U if normaliser is None else normaliser)
 
 
 def npe_error(W: np.ndarray, U: np.ndarray) -> float:

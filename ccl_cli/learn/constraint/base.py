@@ -32,10 +32,18 @@ class ConstraintModel(Estimator):
         self._check_fitted("n_constraints_")
         return nullspace_projection(self.constraint(X, groups=groups))
 
+    def task_part(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray | None:
+        """The learnt task part ṽ = Ã⁺b̃ (§1) at states X (N, p): (N, q); None for a model
+        without a task term (then ṽ = 0)."""
+        return None
+
     def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None) -> float:
-        """−NPOE of actions U (N, q) at states X (N, p) (§6): −mean ‖u − Ñ(x)u‖² / Σ var(u);
-        higher is better, 0 when every action lies in the learnt null space."""
-        return -npoe_error(self.projection(X, groups=groups), np.asarray(U, dtype=float))
+        """−NPOE of actions U (N, q) at states X (N, p) (§6): −mean ‖z − Ñ(x)z‖² / Σ var(u),
+        z = u − ṽ (the learnt task part, when the model has one); higher is better, 0 when every
+        action (less its task part) lies in the learnt null space."""
+        U = np.asarray(U, dtype=float)
+        V = self.task_part(X, groups=groups)
+        return -npoe_error(self.projection(X, groups=groups), U if V is None else U - V, U)
 
 
 def check_rows_asked(q: int, n_constraints: int | None) -> None:

@@ -274,6 +274,13 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
         """Ã(X) = W Φ_A(X): (N, s, q) (rows not normalised)."""
         return self._constraint(X)
 
+    def task_part(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray | None:
+        """ṽ = Ã⁺b̃ (§1): (N, p) → (N, q); None without a task term."""
+        self._check_fitted("W_")
+        if self.Wb_ is None:
+            return None
+        return np.einsum("nqs,ns->nq", np.linalg.pinv(self.constraint(X)), self.task_term(X))
+
     def task_term(self, X: np.ndarray) -> np.ndarray:
         """b̃(X) = W_b φ_b(X): (N, s); zeros without a task term."""
         self._check_fitted("W_")

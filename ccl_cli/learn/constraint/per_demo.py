@@ -9,7 +9,6 @@ import numpy as np
 
 from ccl_cli.errors import InputError
 from ccl_cli.learn.base import clone
-from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.defaults import N_FOLDS
 from ccl_cli.learn.model_selection import inner_folds
@@ -83,7 +82,7 @@ class PerDemonstration(ConstraintModel):
         for train, test in folds.pairs:  # a loop over the 5 folds
             twin = PerDemonstration(self.estimator, heldout=False)
             twin.fit(X[train], U[train], groups=groups[train])
-            errors.append(npoe_error(twin.projection(X[test], groups=groups[test]), U[test]))
+            errors.append(-twin.score(X[test], U[test], groups=groups[test]))
         e = np.asarray(errors)
         return {"error": "NPOE", "mean": float(e.mean()), "se": float(e.std(ddof=1) / np.sqrt(len(e))),
                 "per_fold": e.tolist(), "folds": folds.reason}
@@ -91,19 +90,39 @@ class PerDemonstration(ConstraintModel):
     def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
         """Ñ(X) of each sample's own demonstration: (N, p), groups (N,) → (N, q, q)."""
         self._check_fitted("models_")
+        q = next(iter(self.models_.values())).n_action_
+        out = np.empty((X.shape[0], q, q))
+        for d, rows in self._demo_rows(X, groups):  # a loop over demonstrations
+            out[rows] = self.models_[d].projection(X[rows])
+        return out
+
+    def _demo_rows(self, X: np.ndarray, groups: np.ndarray | None) -> list[tuple[int, np.ndarray]]:
+        """(demonstration id, its samples' mask) for each demonstration of ``groups`` (N,); one
+        demonstration when None and only one was fitted; InputError for one not seen in fit."""
+        self._check_fitted("models_")
         X = self._check_states(X)
         if groups is None:
             if len(self.models_) > 1:
                 raise InputError("a per-demonstration constraint model needs the demonstration ids")
             groups = np.full(len(X), next(iter(self.models_)))
         groups = np.asarray(groups)
-        q = next(iter(self.models_.values())).n_action_
-        out = np.empty((X.shape[0], q, q))
+        out = []
         for d in np.unique(groups):
             if int(d) not in self.models_:
                 raise InputError(f"demonstration {int(d)} was not seen when fitting this model")
-            m = groups == d
-            out[m] = self.models_[int(d)].projection(X[m])
+            out.append((int(d), groups == d))
+        return out
+
+    def task_part(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray | None:
+        """ṽ = Ã⁺b̃ of each sample's own demonstration: (N, p), groups (N,) → (N, q); None when
+        the estimator has no task term."""
+        self._check_fitted("models_")
+        first = next(iter(self.models_.values()))
+        if first.task_part(X[:1]) is None:
+            return None
+        out = np.zeros((len(X), first.n_action_))
+        for d, rows in self._demo_rows(X, groups):  # one small solve per demonstration
+            out[rows] = self.models_[d].task_part(X[rows])
         return out
 
     def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
