@@ -132,12 +132,13 @@ def _flip_errors(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ‖x_{n+1} + x̂_{n+1}‖, x̂_{n+1} = 2x_n − x_{n−1}, each (N − 2,); computed in blocks."""
     n = len(X)
     e_same, e_flip = np.empty(n - 2), np.empty(n - 2)
+    XT = X.T  # (d, N) view: a block's rows are the dimensions (sums over the short axis are slow)
     for s, e in _blocks(1, n - 1):
-        here, before, after = X[s:e], X[s - 1:e - 1], X[s + 1:e + 1]
+        here, before, after = XT[:, s:e], XT[:, s - 1:e - 1], XT[:, s + 1:e + 1]
         d2 = after - 2 * here + before
-        e_same[s - 1:e - 1] = np.sqrt((d2 * d2).sum(1))
+        e_same[s - 1:e - 1] = np.sqrt((d2 * d2).sum(0))
         jump = after + (2 * here - before)
-        e_flip[s - 1:e - 1] = np.sqrt((jump * jump).sum(1))
+        e_flip[s - 1:e - 1] = np.sqrt((jump * jump).sum(0))
     return e_same, e_flip
 
 
@@ -207,29 +208,40 @@ def _cubic_weights(t: np.ndarray, s: int, e: int) -> np.ndarray:
 
 def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """r_n = y_n − ŷ_n, ŷ_n the cubic through samples n ± 1, n ± 2 at their stamps, as R
-    (N, d) (0 where n is not tested), and ``tested`` (N,): the n whose four neighbours share
-    its demonstration and lie within SPIKE_SPAN periods of each other (not across a gap),
-    with finite weights. Computed in blocks."""
+    (d, N) (one row per dimension; 0 where n is not tested), and ``tested`` (N,): the n whose
+    four neighbours share its demonstration and lie within SPIKE_SPAN periods of each other
+    (not across a gap), with finite weights. Computed in blocks."""
     n, d = Y.shape
-    R = np.zeros((n, d))
+    R = np.zeros((d, n))
     tested = np.zeros(n, dtype=bool)
     if n < 5:
         return R, tested
     period, _ = _period(np.diff(t))
     tested[2:-2] = (demo[:-4] == demo[2:-2]) & (demo[4:] == demo[2:-2]) & \
         (t[4:] - t[:-4] <= SPIKE_SPAN * period)
+    YT = Y.T  # (d, N) view: each block's rows are the dimensions
     for s, e in _blocks(2, n - 2):
-        w = _cubic_weights(t, s, e)
-        ok = tested[s:e] & np.isfinite(w).all(1)
+        w = _cubic_weights(t, s, e).T
+        ok = tested[s:e] & np.isfinite(w).all(0)
         tested[s:e] = ok
-        fit = np.multiply(w[:, :1], Y[s + _STEPS[0]:e + _STEPS[0]])
+        fit = np.multiply(w[0], YT[:, s + _STEPS[0]:e + _STEPS[0]])
         term = np.empty_like(fit)
         for j in range(1, 4):
-            fit += np.multiply(w[:, j:j + 1], Y[s + _STEPS[j]:e + _STEPS[j]], out=term)
-        r = np.subtract(Y[s:e], fit, out=R[s:e])
+            fit += np.multiply(w[j], YT[:, s + _STEPS[j]:e + _STEPS[j]], out=term)
+        r = np.subtract(YT[:, s:e], fit, out=R[:, s:e])
         if not ok.all():
-            r[~ok] = 0.0
+            r[:, ~ok] = 0.0
     return R, tested
+
+
+def _first_argmax(size: np.ndarray, top: np.ndarray) -> np.ndarray:
+    """The first row of ``size`` (d, b) that reaches its column maximum ``top`` (b,), as
+    ``argmax(0)`` (a pass per row; argmax along the short axis is slow)."""
+    j = np.zeros(size.shape[1], dtype=np.intp)
+    for k in range(size.shape[0] - 1, 0, -1):  # a loop over dimensions, not samples
+        j[size[k] == top] = k
+    j[size[0] == top] = 0
+    return j
 
 
 def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -> Finding:
@@ -249,23 +261,22 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
     if not tested.any():
         return Finding("spike", np.zeros(n, dtype=bool), "dropped", {"max_z": 0.0})
     # robust σ per dimension: one partition of each dimension's tested residuals
-    sigma = np.array([np.median(np.abs(R[tested, j]), overwrite_input=True)
-                      for j in range(R.shape[1])]) / MAD_NORMAL
+    sigma = np.array([np.median(np.abs(row[tested]), overwrite_input=True) for row in R]) / MAD_NORMAL
     floor = 1e-12 * max(float(Y.max()), -float(Y.min()), 1.0)
-    R /= np.maximum(sigma, floor)  # z-scores, in place
+    R /= np.maximum(sigma, floor)[:, None]  # z-scores, in place
     score = np.empty(n)
     signed = np.zeros(n, dtype=bool)
     for s, e in _blocks(0, n):
-        Z = R[s:e]
+        Z = R[:, s:e]
         size = np.abs(Z)
-        score[s:e] = size.max(1)
-        j = size.argmax(1)  # the dimension of each sample's largest residual
-        rows = np.arange(s, e)
-        centre = Z[rows - s, j]
+        top = score[s:e] = size.max(0)
+        j = _first_argmax(size, top)  # the dimension of each sample's largest residual
+        cols = np.arange(s, e)
+        centre = Z[j, cols - s]
         # both neighbours' residuals in that dimension of the other sign, ≥ a third as large
         # (smooth motion leaves residuals of one sign on neighbouring samples)
-        before = np.where(rows > 0, R[np.maximum(rows - 1, 0), j], 0.0)
-        after = np.where(rows < n - 1, R[np.minimum(rows + 1, n - 1), j], 0.0)
+        before = np.where(cols > 0, R[j, np.maximum(cols - 1, 0)], 0.0)
+        after = np.where(cols < n - 1, R[j, np.minimum(cols + 1, n - 1)], 0.0)
         signed[s:e] = (before * centre < -(centre**2) / 3) & (after * centre < -(centre**2) / 3)
     peak = (score >= np.r_[0.0, score[:-1]]) & (score >= np.r_[score[1:], 0.0])
     mask = (score > z) & peak & signed
