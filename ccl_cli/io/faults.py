@@ -224,6 +224,7 @@ def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np
         w = _cubic_weights(t, s, e).T
         ok = tested[s:e] & np.isfinite(w).all(0)
         tested[s:e] = ok
+        w[:, ~ok] = 0.0  # untested: no inf × y
         fit = np.multiply(w[0], YT[:, s + _STEPS[0]:e + _STEPS[0]])
         term = np.empty_like(fit)
         for j in range(1, 4):
