@@ -235,16 +235,6 @@ def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np
     return R, tested
 
 
-def _first_argmax(size: np.ndarray, top: np.ndarray) -> np.ndarray:
-    """The first row of ``size`` (d, b) that reaches its column maximum ``top`` (b,), as
-    ``argmax(0)`` (a pass per row; argmax along the short axis is slow)."""
-    j = np.zeros(size.shape[1], dtype=np.intp)
-    for k in range(size.shape[0] - 1, 0, -1):  # a loop over dimensions, not samples
-        j[size[k] == top] = k
-    j[size[0] == top] = 0
-    return j
-
-
 def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -> Finding:
     """Isolated outliers in Y (N, d) (positions, or recorded actions) sampled at t (N,).
 
@@ -266,21 +256,19 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
     floor = 1e-12 * max(float(Y.max()), -float(Y.min()), 1.0)
     R /= np.maximum(sigma, floor)[:, None]  # z-scores, in place
     score = np.empty(n)
-    signed = np.zeros(n, dtype=bool)
     for s, e in _blocks(0, n):
-        Z = R[:, s:e]
-        size = np.abs(Z)
-        top = score[s:e] = size.max(0)
-        j = _first_argmax(size, top)  # the dimension of each sample's largest residual
-        cols = np.arange(s, e)
-        centre = Z[j, cols - s]
-        # both neighbours' residuals in that dimension of the other sign, ≥ a third as large
-        # (smooth motion leaves residuals of one sign on neighbouring samples)
-        before = np.where(cols > 0, R[j, np.maximum(cols - 1, 0)], 0.0)
-        after = np.where(cols < n - 1, R[j, np.minimum(cols + 1, n - 1)], 0.0)
-        signed[s:e] = (before * centre < -(centre**2) / 3) & (after * centre < -(centre**2) / 3)
+        score[s:e] = np.abs(R[:, s:e]).max(0)
     peak = (score >= np.r_[0.0, score[:-1]]) & (score >= np.r_[score[1:], 0.0])
-    mask = (score > z) & peak & signed
+    mask = (score > z) & peak
+    k = np.flatnonzero(mask)  # the few candidates: their sign test
+    Z = R[:, k]
+    j = np.abs(Z).argmax(0)  # the dimension of each candidate's largest residual
+    centre = Z[j, np.arange(len(k))]
+    # both neighbours' residuals in that dimension of the other sign, ≥ a third as large
+    # (smooth motion leaves residuals of one sign on neighbouring samples)
+    before = np.where(k > 0, R[j, np.maximum(k - 1, 0)], 0.0)
+    after = np.where(k < n - 1, R[j, np.minimum(k + 1, n - 1)], 0.0)
+    mask[k] = (before * centre < -(centre**2) / 3) & (after * centre < -(centre**2) / 3)
     return Finding("spike", mask, "dropped", {"max_z": float(score.max())})
 
 
