@@ -350,6 +350,30 @@ def test_file_hash_is_content_hash_and_follows_rewrites(tmp_path):
     assert file_hash(bag) == hashlib.sha256(parts).hexdigest()
 
 
+def test_digests_started_by_expand_files_are_the_files_sha256(tmp_path):
+    import hashlib
+    import os
+    from concurrent.futures import Future
+
+    from ccl_cli.io import expand_files, file_hash
+    from ccl_cli.io import files as files_module
+
+    big = tmp_path / "big.bin"
+    big.write_bytes(np.random.default_rng(0).bytes(3 * 2**20 + 17))  # more than one read block
+    small = tmp_path / "small.bin"
+    small.write_bytes(b"small")
+    paths = expand_files([str(tmp_path / "*.bin")])
+    assert paths == [big, small]
+    for p in paths:  # started in the background, waited for here
+        assert file_hash(p) == hashlib.sha256(p.read_bytes()).hexdigest()
+    assert files_module._started[files_module._key(big)][0] == os.getpid()
+    # a digest a parent process started never finishes in a forked child: not waited for
+    files_module._started[files_module._key(small)] = (-1, Future())
+    assert file_hash(small) == hashlib.sha256(b"small").hexdigest()
+    big.write_bytes(b"rewritten")  # a new key: a new digest
+    assert file_hash(big) == hashlib.sha256(b"rewritten").hexdigest()
+
+
 # -- CSV exports: time detection, raw rosbag→CSV (Trakstar), headerless matrices ---------------
 def _trakstar_rows(n=60, empty_header=False):
     """A raw rosbag→CSV export of a PoseStamped: log time in ns, and (optionally) the
