@@ -57,7 +57,7 @@ JITTER = 0.1
 CODES = ("constant_dimension", "no_motion", "noisy_actions", "few_demos", "short_demos",
          "low_rank_actions", "duplicate_stamps", "jittery_stamps", "hemisphere_flips", "spikes",
          "stamp_faults", "overfit", "no_better_than_baseline", "constraint_does_not_hold",
-         "constraint_varies", "not_identifiable")
+         "constraint_varies", "not_identifiable", "actions_near_faults")
 #: Sensor faults the readers found (:mod:`ccl_cli.io.faults`) → (warning code, what they are,
 #: the config key that keeps them); gaps are pauses or lost samples, stated in the report only.
 FAULTS = {"hemisphere_flip": ("hemisphere_flips", "hemisphere flip(s) of the tracker (positions "
@@ -66,7 +66,10 @@ FAULTS = {"hemisphere_flip": ("hemisphere_flips", "hemisphere flip(s) of the tra
           "duplicate_sample": ("stamp_faults", "duplicated sample(s)", "stamps: keep"),
           "bad_stamp": ("stamp_faults", "repeated or misplaced stamp(s)", "stamps: keep"),
           "backward_stamp": ("stamp_faults", "clock step(s) back", "stamps: keep"),
-          "clock_step": ("stamp_faults", "clock step(s) forward", "stamps: keep")}
+          "clock_step": ("stamp_faults", "clock step(s) forward", "stamps: keep"),
+          "action_near_fault": ("actions_near_faults", "stretch(es) of actions stored in the file within a "
+                                "derivative window of a repaired position (a derivative across the fault)",
+                                "flips: keep, spikes: keep")}
 
 
 def warning(code: str, message: str) -> dict[str, str]:

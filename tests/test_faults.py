@@ -201,6 +201,17 @@ def test_force_bias_is_reported_not_removed(bias):
         assert np.all(np.abs(value) < 4 * np.asarray(found.detail["standard_error"]))
 
 
+def test_a_step_is_no_spike():
+    """Demonstrations joined without ids (a jump that stays) are not spikes; a spike of the same
+    size in the same recording is."""
+    data = sim.tracker_plane(noise=1e-3, duration=20.0, seed=3)
+    X = data.X.copy()
+    X[400:] += [0.05, -0.04, 0.03]  # a 7-cm step
+    X[700] += [0.05, -0.04, 0.03]  # a 7-cm spike
+    found = faults.spikes(X, data.t, data.demo)
+    assert np.flatnonzero(found.mask).tolist() == [700]
+
+
 @pytest.mark.parametrize("flips", ["mirror", "keep"])
 def test_blocked_passes_find_what_one_block_finds_with_faults_on_block_edges(monkeypatch, flips):
     """A recording of several demonstrations, checked in one block and in blocks whose edges

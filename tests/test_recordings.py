@@ -141,7 +141,8 @@ def test_free_motion_has_no_constraint():
 def test_simulate_command_writes_the_new_problems(tmp_path, problem, args, kwargs):
     out = tmp_path / f"{problem}.h5"
     assert main(["simulate", problem, "-o", str(out), "--seed", "1", "-q", *args]) == 0
-    data = load_demonstrations({"files": [str(out)]})
+    keep = {"flips": "keep", "spikes": "keep", "stamps": "keep"}  # the recording as written, faults too
+    data = load_demonstrations({"files": [str(out)], "faults": keep})
     direct = sim.PROBLEMS[problem](seed=1, **kwargs)
     assert np.allclose(data.X, direct.X) and np.allclose(data.U, direct.U)
     assert np.allclose(data.true_projection(), direct.true_projection())

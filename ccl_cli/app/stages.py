@@ -23,6 +23,7 @@ from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn import model_selection
 from ccl_cli.learn.constraint import PerDemonstration, PerWindow
 from ccl_cli.learn.constraint.base import fit_constraint
+from ccl_cli.learn.constraint.windows import fitted_per_stretch
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
 from ccl_cli.spec import constraint_class
@@ -101,6 +102,18 @@ def split_data(data: Demonstrations, spec: Any, masks: dict[str, list[int]] | No
                            test.blocks)
     train, held = data.subset(hold.train), data.subset(hold.test)
     return Split(train, held if held.n_samples else None, hold.info)
+
+
+def _heldout_blocks(model: Any) -> dict[str, Any] | None:
+    """The held-out NPOE of a model fitted per demonstration or window — blocks held out inside
+    the demonstrations it was fitted on (its ``heldout_``) — as a metric entry; None for a global
+    model (its held-out figure is the test split's) or when none was measured."""
+    local = fitted_per_stretch(model)
+    h = getattr(local, "heldout_", None) if local is not None else None
+    if not h:
+        return None
+    return {"name": "NPOE", "value": h["mean"], "error": None, "normaliser": None, "normaliser_of": "u",
+            "se": h["se"], "n_groups": len(h["per_fold"]), "note": h["folds"]}
 
 
 def make_constraint(options: Any, seed: int):
@@ -286,16 +299,23 @@ class Pipeline:
         if getattr(model, "tuning_", None):
             result.info["tuning"] = model.tuning_
         result.info["constraint"] = describe_constraint(model, tr)
+        heldout = _heldout_blocks(model)
         if isinstance(model, PerDemonstration):
-            result.info["per_demo_note"] = ("One constraint per training demonstration: a held-out "
-                                            "demonstration has none, so there are no test metrics.")
+            result.info["per_demo_note"] = (
+                "One constraint per training demonstration: a held-out demonstration has none, so there "
+                "are no test metrics; " + ("the held-out figure is from blocks held out inside each "
+                                           "training demonstration." if heldout else
+                                           "the demonstrations are too short for held-out blocks inside "
+                                           "them, so every figure is a training figure."))
         targets = {part: self._target(on, part, d) for part, d in self.parts()}
         result.score = lambda part, d, convention: scoring.constraint_metrics(
             model, d, targets[part], convention, of="learnt w" if on == "w" else "u")
         self._score_parts(result)
+        if heldout is not None:
+            result.metrics["heldout_blocks"] = {"NPOE": heldout}
         part, d = self._held_out()
         checks = diagnostics.overfit("learn-a", "NPOE", result.metrics["train"]["NPOE"],
-                                     result.metrics.get("test", {}).get("NPOE"))
+                                     heldout or result.metrics.get("test", {}).get("NPOE"))
         if on == "u" and not isinstance(model, PerDemonstration):
             evidence = diagnostics.constraint_evidence(model, d, d.U)
             result.info["evidence"] = {"part": part, **evidence} if evidence else None

@@ -19,6 +19,7 @@ from ccl_cli.errors import InputError
 from ccl_cli.io.derivative import derive_actions
 from ccl_cli.io.options import UNIT_NS, DataOptions, DemoOptions, TimeOptions
 from ccl_cli.io.segment import CUTS, cut
+from ccl_cli.io.stored_faults import repair_recording
 from ccl_cli.io.task_space import to_task_space
 
 NAME_ATTRS = ("names", "column_names", "joint_names", "labels", "fields")
@@ -298,21 +299,25 @@ def assemble(parts: list[Part], options: DataOptions, where: str, state_names: l
         t = part.t[ok]
         if not np.isfinite(t).all():
             raise InputError(f"{here}: time contains NaN or inf")
-        bad = np.flatnonzero(np.diff(t) <= 0)
-        if len(bad):
-            k = int(bad[0]) + 1
-            raise InputError(f"{here}: time is not strictly increasing at sample {k} "
-                             f"({t[k - 1]!r} s then {t[k]!r} s)")
         Xs.append(part.X[ok])
         Us.append(part.U[ok] if part.U is not None else None)
         Ts.append(t)
         demo.append(np.full(int(ok.sum()), k))
     X, t, ids = np.concatenate(Xs), np.concatenate(Ts), np.concatenate(demo)
-    if q is None:
+    U = np.concatenate(Us) if q is not None else None
+    fixed = repair_recording(t, X, U, ids, options.faults)  # before actions are derived
+    if fixed is not None:
+        t, X, U, ids = fixed.t, fixed.X, fixed.U, ids[fixed.keep]
+        meta["faults"] = fixed.report
+    bad = np.flatnonzero((np.diff(t) <= 0) & (ids[1:] == ids[:-1]))
+    if len(bad):
+        k = int(bad[0]) + 1
+        first = int(np.argmax(ids == ids[k]))
+        raise InputError(f"{where}: {parts[ids[k]].label}: time is not strictly increasing at sample "
+                         f"{k - first} ({t[k - 1]!r} s then {t[k]!r} s)")
+    if U is None:
         U, meta["action"] = derive_actions(t, X, ids, options.action)
         action_names = [f"d{n}/dt" for n in state_names]
-    else:
-        U = np.concatenate(Us)
     if dropped:
         meta["dropped_nonfinite"] = dropped
     meta["demos"] = [part.label for part in parts]

@@ -40,6 +40,10 @@ FLIP_RATIO = 20.0
 #: among its neighbours' and has their opposite sign (thresholds of this module: measured by
 #: ``benchmarks/bench_recordings.py --only faults``).
 SPIKE_Z = 8.0
+#: A spike's two neighbours carry residuals alike (both −⅔ of it); a step's (a jump that stays,
+#: e.g. demonstrations joined without ids) differ threefold: the smaller is at least STEP_RATIO
+#: of the larger for a spike.
+STEP_RATIO = 0.5
 #: The five samples of a spike test span at most this many median periods.
 SPIKE_SPAN = 6.0
 #: Stamp intervals beyond GAP_PERIODS periods + GAP_JITTER robust spreads of the intervals
@@ -242,8 +246,9 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
     stamps; for white noise of std σ the residual has std ≈ 1.39σ, and smooth motion adds
     O(dt⁴)); a sample is a spike when its residual exceeds ``z`` robust standard deviations
     (median|r|/0.6745 over the recording, per dimension) in some dimension and is the largest
-    of its neighbours' (a spike δ leaves −⅔δ on each neighbour). Bursts of adjacent outliers are
-    found only in part. The first and last two samples of a demonstration are not tested.
+    of its neighbours' (a spike δ leaves −⅔δ on each neighbour, alike: a step leaves −½ and −⅙
+    of it, and is no spike). Bursts of adjacent outliers are found only in part. The first and
+    last two samples of a demonstration are not tested.
     ``detail`` gives the largest residual in robust standard deviations.
     """
     Y = np.asarray(Y, dtype=float)
@@ -268,7 +273,10 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
     # (smooth motion leaves residuals of one sign on neighbouring samples)
     before = np.where(k > 0, R[j, np.maximum(k - 1, 0)], 0.0)
     after = np.where(k < n - 1, R[j, np.minimum(k + 1, n - 1)], 0.0)
-    mask[k] = (before * centre < -(centre**2) / 3) & (after * centre < -(centre**2) / 3)
+    signed = (before * centre < -(centre**2) / 3) & (after * centre < -(centre**2) / 3)
+    # ... and alike (a spike leaves −⅔δ on both; a step S leaves −S/2 before it and −S/6 after)
+    small, large = np.minimum(np.abs(before), np.abs(after)), np.maximum(np.abs(before), np.abs(after))
+    mask[k] = signed & (small >= STEP_RATIO * large)
     return Finding("spike", mask, "dropped", {"max_z": float(score.max())})
 
 

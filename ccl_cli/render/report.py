@@ -30,14 +30,18 @@ HEADINGS = {"learn-v": "learn-v: null-space component w(x)", "learn-a": "learn-a
 OBSERVATIONS = {"u": "the observed actions u", "w": "the null-space component w̃ learnt by learn-v"}
 
 
+#: How report.md names the data a metric was computed on (metrics.json keys).
+PARTS = {"heldout_blocks": "held-out blocks inside the training demonstrations (5 folds)"}
+
+
 def metric_rows(entry: dict[str, Any]) -> list[str]:
     """A markdown table of an entry's metrics per split (empty list when there are none)."""
     rows = []
-    for part in ("train", "test", "all"):
+    for part in ("train", "heldout_blocks", "test", "all"):
         for name, m in (entry.get(part) or {}).items():
             spread = f" ± {m['se']:.1e} ({m['n_groups']} pieces)" if m.get("se") is not None else ""
-            rows.append(f"| {part} | {name} | {_fmt(m['value'])}{spread} | {_fmt(m['error'])} | "
-                        f"{_fmt(m['normaliser'])} (var of {m['normaliser_of']}) |")
+            rows.append(f"| {PARTS.get(part, part)} | {name} | {_fmt(m['value'])}{spread} | "
+                        f"{_fmt(m['error'])} | {_fmt(m['normaliser'])} (var of {m['normaliser_of']}) |")
     if not rows:
         return []
     return ["| data | metric | value (± SE over demonstrations or held-out blocks) | error (mean sq.) | "

@@ -49,6 +49,7 @@ from ccl_cli.io.options import DataOptions, StreamOptions
 from ccl_cli.io.reader import ReaderBase, Recording
 from ccl_cli.io.segment import CUTS, resegment
 from ccl_cli.io.sniff import MAT73_MAGIC, read_head
+from ccl_cli.io.stored_faults import repair_dataset
 from ccl_cli.io.summary import summary
 
 
@@ -219,6 +220,7 @@ class Hdf5Reader(ReaderBase):
                     f"time.rate, demos.group or demos.dataset); the file has: {_contents(f)}")
         data, info = read_demonstrations(self.path)
         data.metadata["format"] = "hdf5"
+        data = repair_dataset(data, self.options.faults)  # a file another tool wrote may hold them
         data, masks = resegment(data, self.options.demos, str(self.path), info["masks"])
         return Recording(data, info["time_origin_ns"], masks, info["provenance"])
 

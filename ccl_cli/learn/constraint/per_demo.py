@@ -9,7 +9,15 @@ import numpy as np
 
 from ccl_cli.errors import InputError
 from ccl_cli.learn.base import clone
+from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.defaults import N_FOLDS
+from ccl_cli.learn.model_selection import inner_folds
+
+#: Samples dropped from training at each held-out block's boundary when U was recorded (a
+#: derived U drops its derivative window), and the fewest samples of a held-out block.
+RECORDED_GAP = 2
+MIN_BLOCK = 4
 
 
 class PerDemonstration(ConstraintModel):
@@ -20,20 +28,32 @@ class PerDemonstration(ConstraintModel):
     each sample (one of those seen in ``fit``), except when a single demonstration was
     fitted.
 
+    ``heldout``: also measure the held-out NPOE (eq. 3.8) of such a model, which can only be
+    tested on its own demonstrations: K = 5 folds of contiguous blocks held out inside every
+    demonstration (:func:`~ccl_cli.learn.model_selection.inner_folds`; the training samples
+    within the derivative window of a held-out block dropped), each fold's model fitted per
+    demonstration on the rest.
+
     Attributes:
         models_: dict demo id → fitted estimator. n_constraints_: the most common count;
-        selection_, n_features_in_.
+        selection_, n_features_in_; heldout_ ({error, mean, se, per_fold, folds}, or None when
+        not measured or most demonstrations are too short for the blocks and their gaps).
     """
 
     needs_demo = True
-    _parameter_constraints: ClassVar[dict[str, list]] = {"estimator": [ConstraintModel]}
+    _parameter_constraints: ClassVar[dict[str, list]] = {"estimator": [ConstraintModel], "heldout": [bool]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
-        "n_features_in_": "value", "n_constraints_": "value", "selection_": "value", "models_": "models"}
+        "n_features_in_": "value", "n_constraints_": "value", "selection_": "value", "heldout_": "value",
+        "models_": "models"}
 
-    def __init__(self, estimator: ConstraintModel) -> None:  # the one positional parameter
+    def __init__(self, estimator: ConstraintModel, *, heldout: bool = True) -> None:
         self._store_params(locals())
 
-    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None) -> PerDemonstration:
+    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+            derivative: dict | bool | None = None) -> PerDemonstration:
+        """One copy of the estimator per demonstration of ``groups`` (N,) on X (N, p), U (N, q);
+        ``derivative`` says how U was made ({"window", "order"} when derived, else False or None),
+        for the guard gaps of the held-out blocks."""
         X, U = self._prepare_fit(X, U)
         groups = np.zeros(len(U), int) if groups is None else np.asarray(groups)
         self.models_: dict[int, Any] = {}
@@ -46,7 +66,27 @@ class PerDemonstration(ConstraintModel):
                            "n_constraints": self.n_constraints_,
                            "per_demo": {int(k): int(m.n_constraints_) for k, m in self.models_.items()},
                            "reason": "most common count over demonstrations"}
+        self.heldout_ = self._held_out(X, U, groups, derivative) if self.heldout else None
         return self
+
+    def _held_out(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray, derivative: dict | bool | None
+                  ) -> dict | None:
+        """NPOE of the blocks held out inside every demonstration, mean and standard error over
+        the folds; None when most demonstrations are too short for them."""
+        gap = int(derivative["window"]) if isinstance(derivative, dict) else RECORDED_GAP
+        seg = np.unique(groups, return_inverse=True)[1].ravel()
+        counts = np.bincount(seg)
+        if (counts[seg] >= N_FOLDS * (2 * gap + MIN_BLOCK)).mean() < 0.5:
+            return None
+        folds = inner_folds(seg, N_FOLDS, gap, "demonstration")
+        errors = []
+        for train, test in folds.pairs:  # a loop over the 5 folds
+            twin = PerDemonstration(self.estimator, heldout=False)
+            twin.fit(X[train], U[train], groups=groups[train])
+            errors.append(npoe_error(twin.projection(X[test], groups=groups[test]), U[test]))
+        e = np.asarray(errors)
+        return {"error": "NPOE", "mean": float(e.mean()), "se": float(e.std(ddof=1) / np.sqrt(len(e))),
+                "per_fold": e.tolist(), "folds": folds.reason}
 
     def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
         """Ñ(X) of each sample's own demonstration: (N, p), groups (N,) → (N, q, q)."""
