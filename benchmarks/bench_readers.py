@@ -18,15 +18,24 @@ velocities of the fixed-layout records at places computed beforehand (one fancy 
 per chunk, no checks); ``reader_seconds`` is ccl's reader (both streams),
 ``loader_seconds`` the whole loader (faults, alignment, demonstrations) and
 ``convert_seconds`` the ``ccl convert`` command, each with its ratio to the floor (the
-smaller of two floor runs, one before and one after).
+smaller of two floor runs, one before and one after). ``*_cpu_seconds`` and ``*_cpu_ratio``
+are the same in CPU seconds (the floor's in its process, convert's as the child's user +
+system time, start-up included): steadier than wall time on a loaded machine.
+``peak_ratio`` is the loader's peak traced memory over the arrays it returns. With
+``--before DIR`` (a source tree of ccl_cli, e.g. ``git archive main | tar -x -C DIR``) the
+loader, convert and peak memory of that tree are measured in the same run, interleaved,
+under ``before_*`` keys.
 
 Run:  python benchmarks/bench_readers.py [--n 1000000] [--containers ros1,mcap-ros2,...] [--floor]
+      [--path FILE] [--before DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -91,7 +100,7 @@ if mode == "floor":
     (_, p_at, _), (_, v_at, _) = layout.runs[:2]
     s_at = layout.stamp[0]
     total = sum(len(p[3]) for p in plan)
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     pos, vel, stamp = np.empty((total, 7)), np.empty((total, 7)), np.empty(total, np.int64)
     n = 0
     with open(path, "rb") as f:
@@ -109,7 +118,7 @@ if mode == "floor":
             st = rows[:, s_at:s_at + 8].copy().view("<u4").astype(np.int64)
             stamp[n:n + m] = st[:, 0] * 1_000_000_000 + st[:, 1]
             n += m
-    out = {{"seconds": time.perf_counter() - t, "n": n}}
+    out = {{"seconds": time.perf_counter() - t, "cpu": time.process_time() - cpu, "n": n}}
 elif mode == "reader":
     from ccl_cli.io.formats.bag import BagReader
     from ccl_cli.io.formats.mcap import McapReader
@@ -181,39 +190,64 @@ print(json.dumps(out))
 """
 
 
-def convert_seconds(path: Path, tmp: str) -> float:
-    """Wall seconds of ``ccl convert`` (a fresh process) on ``path``."""
+CCL = "import sys; from ccl_cli.cli import entry; sys.argv[0] = 'ccl'; sys.exit(entry())"
+
+
+def _child(src: Path | None) -> dict:
+    """subprocess.run arguments that import ccl_cli from the source tree ``src`` (None: this
+    one): its folder first on the path, and as the working folder (``-c`` puts that first)."""
+    return {} if src is None else {"env": {**os.environ, "PYTHONPATH": str(src)}, "cwd": str(src)}
+
+
+def convert_seconds(path: Path, tmp: str, src: Path | None = None) -> tuple[float, float]:
+    """Wall and CPU (user + system) seconds of ``ccl convert`` (a fresh process) on ``path``."""
     from writers import JOINTS
 
     cfg = Path(tmp) / "convert.yaml"
     cfg.write_text(json.dumps({"data": {
         "state": {"topic": "/joint_states", "field": "position", "joints": JOINTS},
         "action": {"topic": "/joint_states", "field": "velocity", "joints": JOINTS}}}))
-    t = time.perf_counter()
-    ccl = str(Path(sys.executable).parent / "ccl")
     out = str(Path(tmp) / "out.h5")
-    subprocess.run([ccl, "convert", str(path), "-c", str(cfg), "-q", "--force", "-o", out],
-                   check=True, capture_output=True)
-    return time.perf_counter() - t
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-c", CCL, "convert", str(path), "-c", str(cfg), "-q", "--force",
+                    "-o", out], check=True, capture_output=True, **_child(src))
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
-def floors(container: str, path: Path, tmp: str, n: int) -> dict:
-    """Reader, loader and ``ccl convert`` against the numpy decode floor (run back to back)."""
-    before = run("floor", container, path)["seconds"]
+def floors(container: str, path: Path, tmp: str, n: int, src: Path | None = None) -> dict:
+    """Reader, loader, ``ccl convert`` and the loader's peak memory against the numpy decode
+    floor (run back to back; with ``src``, that tree's loader, convert and peak interleaved)."""
+    first = run("floor", container, path)
     reader = run("reader", container, path)["seconds"]
-    loader = run("e2e", container, path)["seconds"]
-    convert = convert_seconds(path, tmp)
-    floor = min(before, run("floor", container, path)["seconds"])
-    return {"container": container, "N": n, "floor_seconds": round(floor, 3),
-            "reader_seconds": round(reader, 3), "reader_ratio": round(reader / floor, 2),
-            "loader_seconds": round(loader, 3), "loader_ratio": round(loader / floor, 2),
-            "convert_seconds": round(convert, 3), "convert_ratio": round(convert / floor, 2)}
+    out: dict = {}
+    for label, tree in (("", None), ("before_", src)) if src is not None else (("", None),):
+        loader = run("e2e", container, path, tree)["seconds"]
+        wall, cpu = convert_seconds(path, tmp, tree)
+        mem = run("mem", container, path, tree)
+        out[label] = (loader, wall, cpu, mem["peak"] / max(mem["arrays"], 1))
+    last = run("floor", container, path)
+    floor, floor_cpu = min(first["seconds"], last["seconds"]), min(first["cpu"], last["cpu"])
+    row = {"container": container, "N": n, "floor_seconds": round(floor, 3),
+           "floor_cpu_seconds": round(floor_cpu, 3),
+           "reader_seconds": round(reader, 3), "reader_ratio": round(reader / floor, 2)}
+    for label, (loader, wall, cpu, peak) in out.items():
+        row.update({f"{label}loader_seconds": round(loader, 3),
+                    f"{label}loader_ratio": round(loader / floor, 2),
+                    f"{label}convert_seconds": round(wall, 3),
+                    f"{label}convert_ratio": round(wall / floor, 2),
+                    f"{label}convert_cpu_seconds": round(cpu, 3),
+                    f"{label}convert_cpu_ratio": round(cpu / floor_cpu, 2),
+                    f"{label}peak_ratio": round(peak, 2)})
+    return row
 
 
-def run(mode: str, container: str, path: Path) -> dict:
+def run(mode: str, container: str, path: Path, src: Path | None = None) -> dict:
     code = CHILD.format(tests=str(HERE.parent / "tests"))
     out = subprocess.run([sys.executable, "-c", code, mode, container, str(path)], check=True,
-                         capture_output=True, text=True)
+                         capture_output=True, text=True, **_child(src))
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -225,6 +259,7 @@ def main() -> int:
     ap.add_argument("--containers", default=",".join(sorted(WRITERS)))
     ap.add_argument("--floor", action="store_true", help="reader, loader and convert against the floor")
     ap.add_argument("--path", type=Path, help="an existing file of N JointState (one container)")
+    ap.add_argument("--before", type=Path, help="a ccl_cli source tree measured beside this one (--floor)")
     args = ap.parse_args()
     rec = None if args.path else joint_recording(n=args.n, shuffle=False)
     for container in args.containers.split(","):
@@ -233,9 +268,7 @@ def main() -> int:
             path = args.path or WRITERS[container](Path(tmp), rec)
             write_s = time.perf_counter() - t
             if args.floor:
-                print(json.dumps({**floors(container, path, tmp, args.n),
-                                  "peak_ratio": round((m := run("mem", container, path))["peak"]
-                                                      / max(m["arrays"], 1), 2)}), flush=True)
+                print(json.dumps(floors(container, path, tmp, args.n, args.before)), flush=True)
                 continue
             split = run("split", container, path)
             e2e = run("e2e", container, path)

@@ -210,3 +210,30 @@ def test_a_step_is_no_spike():
     X[700] += [0.05, -0.04, 0.03]  # a 7-cm spike
     found = faults.spikes(X, data.t, data.demo)
     assert np.flatnonzero(found.mask).tolist() == [700]
+
+
+@pytest.mark.parametrize("flips", ["mirror", "keep"])
+def test_blocked_passes_find_what_one_block_finds_with_faults_on_block_edges(monkeypatch, flips):
+    """A recording of several demonstrations, checked in one block and in blocks whose edges
+    fall on the injected spikes and flip boundaries (and the samples around them)."""
+    data = sim.tracker_flips(n_spikes=4, stamp_faults=ALL_STAMP_FAULTS, noise=1e-3, rate=200.0,
+                             duration=60.0, seed=6)
+    demo = np.repeat(np.arange(3), [4000, 4000, len(data.t) - 8000])
+    truth = {f["kind"]: f["ranges"] for f in data.metadata["faults"]}
+    monkeypatch.setattr(faults, "BLOCK_ROWS", 10 * len(data.t))  # the whole recording at once
+    whole = faults.clean_positions(data.t, data.X, demo, flips=flips)
+    found = {f["kind"]: f["ranges"] for f in whole.report(data.t)}
+    assert found["spike"] == truth["spike"]
+    if flips == "mirror":
+        assert found["hemisphere_flip"] == truth["hemisphere_flip"]
+    in_actions = faults.spikes(data.U, data.t, demo)
+    edges = [a for a, _ in truth["spike"]] + [e for r in truth["hemisphere_flip"] for e in r]
+    sizes = {size for e in edges for size in (e - 3, e - 2, e - 1, e) if size > 0} | {997, 4096}
+    for size in sorted(sizes):
+        monkeypatch.setattr(faults, "BLOCK_ROWS", size)
+        blocked = faults.clean_positions(data.t, data.X, demo, flips=flips)
+        assert blocked.report(data.t) == whole.report(data.t), size
+        assert np.array_equal(blocked.X, whole.X) and np.array_equal(blocked.t, whole.t)
+        assert np.array_equal(blocked.keep, whole.keep)
+        again = faults.spikes(data.U, data.t, demo)
+        assert np.array_equal(again.mask, in_actions.mask) and again.detail == in_actions.detail

@@ -139,11 +139,25 @@ def test_canonical_hdf5_orders_demos_by_index_and_chunks_large_data(tmp_path):
             g.create_dataset("u", data=np.ones((3, 2)))
     data, _ = read_demonstrations(path)
     assert data.X[0, 0] == 0.0 and data.X[-1, 0] == 100.0
-    big = sim.toy2d(sampling="uniform", n_samples=120_001, n_demos=1)
+
+@pytest.mark.parametrize("compression", [None, "gzip", "lzf"])
+def test_canonical_hdf5_filters_of_large_data_read_back_exactly(tmp_path, monkeypatch, compression):
+    import h5py
+
+    from ccl_cli.io import canonical
+
+    monkeypatch.setattr(canonical, "COMPRESSION", compression)
+    big = sim.toy2d(sampling="uniform", n_samples=120_001, n_demos=2)
+    big.X[::7] += np.random.default_rng(0).normal(size=big.X[::7].shape)  # low bytes that do not deflate
     out = write_demonstrations(tmp_path / "big.h5", big)
-    with h5py.File(out) as f:
-        assert f["demos/x"].compression == "gzip"
-        assert f["demos/x"].chunks is not None
+    with h5py.File(out) as f:  # the stamps always deflated; states and actions as COMPRESSION says
+        assert f["demos/t"].compression == "gzip" and f["demos/t"].shuffle
+        assert f["demos/x"].compression == compression and f["demos/u"].compression == compression
+        assert (f["demos/x"].chunks is None) == (compression is None)
+        assert np.array_equal(f["demos/x"][()], big.X)  # plain h5py reads every filter back
+    back, _ = read_demonstrations(out)
+    for key in ("X", "U", "t", "demo"):
+        assert np.array_equal(getattr(back, key), getattr(big, key)), key
 
 
 def test_detect_format_by_content(tmp_path):
@@ -334,6 +348,30 @@ def test_file_hash_is_content_hash_and_follows_rewrites(tmp_path):
     bag = write_ros2_bag(tmp_path / "bagdir", joint_recording(n=5))
     parts = b"".join(p.read_bytes() for p in sorted(q for q in bag.rglob("*") if q.is_file()))
     assert file_hash(bag) == hashlib.sha256(parts).hexdigest()
+
+
+def test_digests_started_by_expand_files_are_the_files_sha256(tmp_path):
+    import hashlib
+    import os
+    from concurrent.futures import Future
+
+    from ccl_cli.io import expand_files, file_hash
+    from ccl_cli.io import files as files_module
+
+    big = tmp_path / "big.bin"
+    big.write_bytes(np.random.default_rng(0).bytes(3 * 2**20 + 17))  # more than one read block
+    small = tmp_path / "small.bin"
+    small.write_bytes(b"small")
+    paths = expand_files([str(tmp_path / "*.bin")])
+    assert paths == [big, small]
+    for p in paths:  # started in the background, waited for here
+        assert file_hash(p) == hashlib.sha256(p.read_bytes()).hexdigest()
+    assert files_module._started[files_module._key(big)][0] == os.getpid()
+    # a digest a parent process started never finishes in a forked child: not waited for
+    files_module._started[files_module._key(small)] = (-1, Future())
+    assert file_hash(small) == hashlib.sha256(b"small").hexdigest()
+    big.write_bytes(b"rewritten")  # a new key: a new digest
+    assert file_hash(big) == hashlib.sha256(b"rewritten").hexdigest()
 
 
 # -- CSV exports: time detection, raw rosbag→CSV (Trakstar), headerless matrices ---------------

@@ -147,3 +147,23 @@ def test_limit_cycle_trajectories_end_before_they_overflow():
         assert np.isfinite(d.U).all() and np.isfinite(d.X).all()
         assert np.abs(d.X).max() <= sim.reference.ESCAPE
         assert 300 < len(d.X) < 1000  # some trajectories escape, most run on
+
+
+@pytest.mark.parametrize(("window", "order", "chunk"),
+                         [(9, 2, 8192), (101, 2, 1000), (7, 3, 333), (3, 1, 50)])
+def test_the_local_polynomial_derivative_of_a_polynomial_is_exact_everywhere(window, order, chunk):
+    """A polynomial of the fit's degree on jittered stamps: its derivative at every sample —
+    centred windows, windows shifted at a demonstration's ends, demonstrations shorter than
+    the window, chunk edges."""
+    from ccl_cli.io.derivative import local_polynomial_derivative
+
+    rng = np.random.default_rng(window)
+    sizes = [3000, 40, order + 1, 2000]
+    demo = np.repeat(np.arange(len(sizes)), sizes)
+    t = np.cumsum(rng.uniform(0.8e-3, 1.2e-3, len(demo)))
+    tc = t - 2.5  # centred: the coefficients stay of order one
+    coef = rng.normal(size=(order + 1, 2))
+    Y = sum(coef[k] * tc[:, None] ** k for k in range(order + 1))
+    dY = sum(k * coef[k] * tc[:, None] ** (k - 1) for k in range(1, order + 1))
+    U = local_polynomial_derivative(t, Y, demo, window, order, chunk)
+    np.testing.assert_allclose(U, dY, rtol=0, atol=1e-6 * np.abs(dY).max())

@@ -22,8 +22,10 @@ Version 1 (read, and written with ``format_version=1``) keeps one group per demo
         truth/pi (n, q)  truth/w  truth/v  truth/b (n, s)
         truth/A (s, q) constant | (n, s, q);  truth/N (q, q) | (n, q, q)
 
-Its groups are ordered by their ``index`` attribute, never by name. Datasets of more than
-``CHUNK_ROWS`` rows are chunked and gzip-compressed. Writing is atomic, and the file
+Its groups are ordered by their ``index`` attribute, never by name. Stamps of more than
+``CHUNK_ROWS`` samples are chunked, byte-shuffled and gzip-compressed (HDF5's standard
+filters); states, actions and truth are stored as they are unless ``COMPRESSION`` names a
+filter (the size and time of each choice: docs/readers.md). Writing is atomic, and the file
 carries its content hash in the HDF5 user block (:mod:`ccl_cli.io.h5.seal`). Reading goes
 through :func:`~ccl_cli.io.h5.probe.open_hdf5` (no links or storage outside the file, no
 libhdf5 hang) and checks every attribute and dataset for type, shape and finiteness
@@ -60,17 +62,25 @@ FORMAT_VERSION = 2
 #: the versions this ccl reads
 READ_VERSIONS = (1, 2)
 CHUNK_ROWS = 100_000
+#: Filter of the state, action and truth datasets of more than CHUNK_ROWS rows: None, "gzip"
+#: (shuffle + deflate level 4: any HDF5 reader) or "lzf" (shuffle + LZF: h5py without plugins,
+#: not plain libhdf5 tools). Sensor noise leaves little to deflate in the low bytes of float64
+#: samples: None (see docs/readers.md). The stamps are always deflated.
+COMPRESSION: str | None = None
+_FILTERS = {None: {}, "gzip": {"compression": "gzip", "compression_opts": 4, "shuffle": True},
+            "lzf": {"compression": "lzf", "shuffle": True}}
 
 
 def _strings(values: list[str]) -> np.ndarray:
     return np.array([str(v) for v in values], dtype=object)
 
 
-def _dataset(group, name: str, data: np.ndarray) -> None:
+def _dataset(group, name: str, data: np.ndarray, compression: str | None = None) -> None:
+    """``data`` as dataset ``name`` of ``group``: chunked (CHUNK_ROWS rows) and filtered with
+    ``compression`` (a key of _FILTERS) when longer than CHUNK_ROWS, contiguous otherwise."""
     data = np.asarray(data)
-    if data.ndim >= 1 and data.shape[0] > CHUNK_ROWS:
-        group.create_dataset(name, data=data, chunks=(min(CHUNK_ROWS, data.shape[0]), *data.shape[1:]),
-                             compression="gzip", compression_opts=4, shuffle=True)
+    if compression is not None and data.ndim >= 1 and data.shape[0] > CHUNK_ROWS:
+        group.create_dataset(name, data=data, chunks=(CHUNK_ROWS, *data.shape[1:]), **_FILTERS[compression])
     else:
         group.create_dataset(name, data=data)
 
@@ -122,7 +132,8 @@ def _write_columns(demos, data: Demonstrations, time_origin_ns: int) -> dict[int
     rank = np.empty(len(ids), dtype=np.int64)
     rank[np.searchsorted(unique, ids)] = np.arange(len(ids))
     position = rank[inverse]  # each sample's demonstration, numbered in file order
-    order = np.argsort(position, kind="stable")  # samples grouped by demonstration
+    grouped = bool((position[1:] >= position[:-1]).all())  # already in file order: no copy
+    order = np.arange(len(position)) if grouped else np.argsort(position, kind="stable")
     counts = np.bincount(position, minlength=len(ids))
     offsets = np.r_[0, np.cumsum(counts)].astype(np.int64)
     names = [f"demo_{k:04d}" for k in range(len(ids))]
@@ -131,16 +142,16 @@ def _write_columns(demos, data: Demonstrations, time_origin_ns: int) -> dict[int
     t0 = data.t[order[offsets[:-1]]]
     demos.create_dataset("t0_ns", data=time_origin_ns + np.round(t0 * 1e9).astype(np.int64))
     demos.create_dataset("source", data=_strings(_sources(data)), dtype=h5py.string_dtype())
-    _write_samples(demos, data, order, collapse=False)
+    _write_samples(demos, data, slice(None) if grouped else order, collapse=False)
     return {int(d): name for d, name in zip(ids, names, strict=True)}
 
 
-def _write_samples(g, data: Demonstrations, rows: np.ndarray, collapse: bool) -> None:
-    """t, x, u and the truth of the samples ``rows`` (indices or a mask) into group ``g``;
+def _write_samples(g, data: Demonstrations, rows: np.ndarray | slice, collapse: bool) -> None:
+    """t, x, u and the truth of the samples ``rows`` (indices, a mask or a slice) into group ``g``;
     ``collapse``: A and N constant over these rows are stored once (version 1)."""
-    _dataset(g, "t", data.t[rows])
-    _dataset(g, "x", data.X[rows])
-    _dataset(g, "u", data.U[rows])
+    _dataset(g, "t", data.t[rows], "gzip")
+    _dataset(g, "x", data.X[rows], COMPRESSION)
+    _dataset(g, "u", data.U[rows], COMPRESSION)
     if not data.truth:
         return
     tg = g.create_group("truth")
@@ -150,7 +161,7 @@ def _write_samples(g, data: Demonstrations, rows: np.ndarray, collapse: bool) ->
         elif collapse and key in ("A", "N") and (value[rows] == value[rows][:1]).all():
             tg.create_dataset(key, data=value[rows][0])  # constant within the demonstration
         else:
-            _dataset(tg, key, value[rows])
+            _dataset(tg, key, value[rows], COMPRESSION)
 
 
 def _write_groups(demos, data: Demonstrations, time_origin_ns: int) -> dict[int, str]:

@@ -12,21 +12,25 @@ positions and stamps, before velocities are derived from them.
   free. Reported, never removed (what the sensor should read is not known).
 * :func:`clean_positions` — stamps, then flips, then spikes, as a reader would call them.
 
-Everything works on whole arrays (no loop over samples). Shapes: t (N,) s, X (N, d), demo
-(N,) ids of contiguous demonstrations. Each function returns :class:`Finding` s: the kind,
+Nothing loops over samples: the passes over positions run in blocks of BLOCK_ROWS samples
+(each with the neighbours its stencil reaches), so their temporaries are (BLOCK_ROWS, d)
+whatever N; what a check keeps of a whole recording is (N,) per sample, plus the residuals
+whose robust scale :func:`spikes` needs. Shapes: t (N,) s, X (N, d), demo (N,) ids of
+contiguous demonstrations. Each function returns :class:`Finding` s: the kind,
 the samples concerned (a mask, in the indices of the arrays it was given), what was done,
 and ``as_dict`` with count, [start, stop) index ranges and time ranges for the report.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError
-from ccl_cli.learn.noise import MAD_NORMAL, robust_std, second_differences, white_noise_var
+from ccl_cli.learn.noise import MAD_NORMAL, robust_std, white_noise_var
 
 #: A flip boundary: the jump ‖x_n − x̂_n‖ (x̂_n = 2x_{n−1} − x_{n−2}) exceeds FLIP_RATIO × (the
 #: mismatch of the mirrored sample, ‖x_n + x̂_n‖, + the median ‖Δ²x‖ of the recording).
@@ -58,6 +62,20 @@ BIAS_Z = 5.0
 FREE_EDGE_S = 0.5
 #: What :func:`clean_positions` does with hemisphere flips, and the action it reports.
 FLIP_ACTIONS = {"mirror": "mirrored", "drop": "dropped", "keep": "reported"}
+#: Samples per block of the passes over positions (a block's temporaries: BLOCK_ROWS × d).
+BLOCK_ROWS = 1 << 16
+
+
+def _blocks(start: int, stop: int) -> Iterator[tuple[int, int]]:
+    """[s, e) blocks of at most BLOCK_ROWS samples covering [start, stop)."""
+    for s in range(start, stop, BLOCK_ROWS):
+        yield s, min(s + BLOCK_ROWS, stop)
+
+
+def _count_runs(mask: np.ndarray) -> int:
+    """The number of runs of True in ``mask`` (N,): its rising edges."""
+    m = np.asarray(mask, dtype=bool)
+    return int(np.count_nonzero(m[:1]) + np.count_nonzero(m[1:] & ~m[:-1]))
 
 
 def runs(mask: np.ndarray) -> np.ndarray:
@@ -82,7 +100,7 @@ class Finding:
 
     def __post_init__(self) -> None:
         if self.count is None:
-            self.count = int(len(runs(self.mask)))
+            self.count = _count_runs(self.mask)
 
     def __bool__(self) -> bool:
         return bool(self.count)
@@ -113,6 +131,21 @@ def _per_demo_cumsum(values: np.ndarray, demo: np.ndarray) -> np.ndarray:
 
 
 # -- hemisphere flips --------------------------------------------------------------------
+def _flip_errors(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """At every centre n = 1 … N−2 of X (N, d): ‖Δ²x_n‖ = ‖x_{n+1} − x̂_{n+1}‖ and
+    ‖x_{n+1} + x̂_{n+1}‖, x̂_{n+1} = 2x_n − x_{n−1}, each (N − 2,); computed in blocks."""
+    n = len(X)
+    e_same, e_flip = np.empty(n - 2), np.empty(n - 2)
+    XT = X.T  # (d, N) view: a block's rows are the dimensions (sums over the short axis are slow)
+    for s, e in _blocks(1, n - 1):
+        here, before, after = XT[:, s:e], XT[:, s - 1:e - 1], XT[:, s + 1:e + 1]
+        d2 = after - 2 * here + before
+        e_same[s - 1:e - 1] = np.sqrt((d2 * d2).sum(0))
+        jump = after + (2 * here - before)
+        e_flip[s - 1:e - 1] = np.sqrt((jump * jump).sum(0))
+    return e_same, e_flip
+
+
 def hemisphere_flips(X: np.ndarray, demo: np.ndarray, ratio: float = FLIP_RATIO,
                      action: str = "mirrored") -> Finding:
     """Stretches of positions X (N, d) mirrored through the origin (the transmitter).
@@ -127,27 +160,31 @@ def hemisphere_flips(X: np.ndarray, demo: np.ndarray, ratio: float = FLIP_RATIO,
     the largest jump (m) at a boundary.
     """
     X = np.asarray(X, dtype=float)
+    demo = np.asarray(demo)
     n = len(X)
     mask = np.zeros(n, dtype=bool)
-    d2, centre = second_differences(X, demo)
-    if not len(centre):
-        return Finding("hemisphere_flip", mask, action, {"max_jump_m": 0.0})
-    # boundary between n − 1 and n, with n = centre + 1 (n − 2 = centre − 1 in the same demo)
-    nxt = centre + 1
-    pred = 2 * X[centre] - X[centre - 1]
-    e_same = np.linalg.norm(d2, axis=1)  # ‖x_n − x̂_n‖
-    e_flip = np.linalg.norm(X[nxt] + pred, axis=1)
+    none = Finding("hemisphere_flip", mask, action, {"max_jump_m": 0.0})
+    if n < 3:
+        return none
+    # centres n − 1 whose neighbours share their demonstration (the boundary is at n)
+    inside = (demo[2:] == demo[1:-1]) & (demo[1:-1] == demo[:-2])
+    if not inside.any():
+        return none
+    e_same, e_flip = _flip_errors(X)
+    if not inside.all():
+        e_same, e_flip = e_same[inside], e_flip[inside]
     scale = float(np.median(e_same))
     is_edge = e_same > ratio * (e_flip + scale)
+    if not is_edge.any():
+        return none
     boundary = np.zeros(n, dtype=np.int64)
-    boundary[nxt[is_edge]] = 1
+    boundary[np.flatnonzero(inside)[is_edge] + 2] = 1
     side = _per_demo_cumsum(boundary, demo) % 2  # 0: the hemisphere the demonstration starts in
     _, inverse = np.unique(demo, return_inverse=True)
     share = np.bincount(inverse, weights=side) / np.bincount(inverse)
     mirrored_side = (share > 0.5).astype(int)[inverse]  # the minority side is the mirrored one
     mask = side != mirrored_side
-    detail = {"max_jump_m": float(e_same[is_edge].max()) if is_edge.any() else 0.0}
-    return Finding("hemisphere_flip", mask, action, detail)
+    return Finding("hemisphere_flip", mask, action, {"max_jump_m": float(e_same[is_edge].max())})
 
 
 def unflip(X: np.ndarray, flips: Finding) -> np.ndarray:
@@ -156,31 +193,50 @@ def unflip(X: np.ndarray, flips: Finding) -> np.ndarray:
 
 
 # -- spikes --------------------------------------------------------------------------------
-def _cubic_residual(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """r_n = y_n − ŷ_n (M, d), ŷ_n the cubic through samples n ± 1, n ± 2 at their stamps
-    (Lagrange weights), for the n whose four neighbours share its demonstration and lie within
-    SPIKE_SPAN periods of each other (not across a gap); and those n."""
-    n = len(Y)
-    if n < 5:
-        return np.zeros((0, Y.shape[1])), np.zeros(0, dtype=int)
-    idx = np.arange(2, n - 2)
-    idx = idx[(demo[idx - 2] == demo[idx]) & (demo[idx + 2] == demo[idx])]
-    period, _ = _period(np.diff(t))
-    idx = idx[t[idx + 2] - t[idx - 2] <= SPIKE_SPAN * period]  # not across a gap
-    steps = (-2, -1, 1, 2)
-    tn = t[idx[:, None] + np.array(steps)] - t[idx][:, None]  # (M, 4) neighbours' stamps τ_j
-    w = np.empty_like(tn)
+#: The neighbours of a spike test, relative to the sample tested.
+_STEPS = (-2, -1, 1, 2)
+
+
+def _cubic_weights(t: np.ndarray, s: int, e: int) -> np.ndarray:
+    """Lagrange weights w (e − s, 4) of the cubic through samples n ± 1, n ± 2 evaluated at
+    t_n, for n in [s, e): w_j = Π_{m≠j} (0 − τ_m) / (τ_j − τ_m), τ_j = t_{n+step_j} − t_n
+    (inf or nan where two stamps coincide)."""
+    tn = [t[s + k:e + k] - t[s:e] for k in _STEPS]
+    w = np.empty((e - s, 4))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for j in range(4):  # w_j = Π_{m≠j} (0 − τ_m) / (τ_j − τ_m): four columns, not a loop over samples
-            others = [tn[:, m] for m in range(4) if m != j]
-            w[:, j] = -(others[0] * others[1] * others[2]) / \
-                ((tn[:, j] - others[0]) * (tn[:, j] - others[1]) * (tn[:, j] - others[2]))
-    ok = np.isfinite(w).all(1)
-    keep, w = idx[ok], w[ok]
-    fit = w[:, :1] * Y[keep + steps[0]]
-    for j in range(1, 4):
-        fit += w[:, j:j + 1] * Y[keep + steps[j]]
-    return Y[keep] - fit, keep
+        for j in range(4):  # four columns, not a loop over samples
+            o = [tn[m] for m in range(4) if m != j]
+            w[:, j] = -(o[0] * o[1] * o[2]) / ((tn[j] - o[0]) * (tn[j] - o[1]) * (tn[j] - o[2]))
+    return w
+
+
+def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """r_n = y_n − ŷ_n, ŷ_n the cubic through samples n ± 1, n ± 2 at their stamps, as R
+    (d, N) (one row per dimension; 0 where n is not tested), and ``tested`` (N,): the n whose
+    four neighbours share its demonstration and lie within SPIKE_SPAN periods of each other
+    (not across a gap), with finite weights. Computed in blocks."""
+    n, d = Y.shape
+    R = np.zeros((d, n))
+    tested = np.zeros(n, dtype=bool)
+    if n < 5:
+        return R, tested
+    period, _ = _period(np.diff(t))
+    tested[2:-2] = (demo[:-4] == demo[2:-2]) & (demo[4:] == demo[2:-2]) & \
+        (t[4:] - t[:-4] <= SPIKE_SPAN * period)
+    YT = Y.T  # (d, N) view: each block's rows are the dimensions
+    for s, e in _blocks(2, n - 2):
+        w = _cubic_weights(t, s, e).T
+        ok = tested[s:e] & np.isfinite(w).all(0)
+        tested[s:e] = ok
+        w[:, ~ok] = 0.0  # untested: no inf × y
+        fit = np.multiply(w[0], YT[:, s + _STEPS[0]:e + _STEPS[0]])
+        term = np.empty_like(fit)
+        for j in range(1, 4):
+            fit += np.multiply(w[j], YT[:, s + _STEPS[j]:e + _STEPS[j]], out=term)
+        r = np.subtract(YT[:, s:e], fit, out=R[:, s:e])
+        if not ok.all():
+            r[:, ~ok] = 0.0
+    return R, tested
 
 
 def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -> Finding:
@@ -197,27 +253,30 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
     """
     Y = np.asarray(Y, dtype=float)
     n = len(Y)
-    mask = np.zeros(n, dtype=bool)
-    r, idx = _cubic_residual(Y, np.asarray(t, float), demo)
-    if not len(idx):
-        return Finding("spike", mask, "dropped", {"max_z": 0.0})
-    sigma = robust_std(r)
-    floor = 1e-12 * max(float(np.abs(Y).max()), 1.0)
-    zr = np.zeros((n, Y.shape[1]))
-    zr[idx] = r / np.maximum(sigma, floor)
-    score = np.abs(zr).max(1)
+    R, tested = _cubic_residuals(Y, np.asarray(t, float), np.asarray(demo))
+    if not tested.any():
+        return Finding("spike", np.zeros(n, dtype=bool), "dropped", {"max_z": 0.0})
+    # robust σ per dimension: one partition of each dimension's tested residuals
+    sigma = np.array([np.median(np.abs(row[tested]), overwrite_input=True) for row in R]) / MAD_NORMAL
+    floor = 1e-12 * max(float(Y.max()), -float(Y.min()), 1.0)
+    R /= np.maximum(sigma, floor)[:, None]  # z-scores, in place
+    score = np.empty(n)
+    for s, e in _blocks(0, n):
+        score[s:e] = np.abs(R[:, s:e]).max(0)
     peak = (score >= np.r_[0.0, score[:-1]]) & (score >= np.r_[score[1:], 0.0])
-    # the signature of a spike: both neighbours' residuals of the other sign, ≥ a third as large
+    mask = (score > z) & peak
+    k = np.flatnonzero(mask)  # the few candidates: their sign test
+    Z = R[:, k]
+    j = np.abs(Z).argmax(0)  # the dimension of each candidate's largest residual
+    centre = Z[j, np.arange(len(k))]
+    # both neighbours' residuals in that dimension of the other sign, ≥ a third as large
     # (smooth motion leaves residuals of one sign on neighbouring samples)
-    j = np.abs(zr).argmax(1)
-    rows = np.arange(n)
-    centre = zr[rows, j]
-    before, after = np.r_[0.0, zr[rows[:-1], j[1:]]], np.r_[zr[rows[1:], j[:-1]], 0.0]
+    before = np.where(k > 0, R[j, np.maximum(k - 1, 0)], 0.0)
+    after = np.where(k < n - 1, R[j, np.minimum(k + 1, n - 1)], 0.0)
     signed = (before * centre < -(centre**2) / 3) & (after * centre < -(centre**2) / 3)
     # ... and alike (a spike leaves −⅔δ on both; a step S leaves −S/2 before it and −S/6 after)
     small, large = np.minimum(np.abs(before), np.abs(after)), np.maximum(np.abs(before), np.abs(after))
-    alike = small >= STEP_RATIO * large
-    mask = (score > z) & peak & signed & alike
+    mask[k] = signed & (small >= STEP_RATIO * large)
     return Finding("spike", mask, "dropped", {"max_z": float(score.max())})
 
 
@@ -227,8 +286,9 @@ def _period(dt: np.ndarray) -> tuple[float, float]:
     pos = dt[dt > 0]
     if not len(pos):
         return 0.0, 0.0
-    med = float(np.median(pos))
-    return med, float(np.median(np.abs(pos - med)) / MAD_NORMAL)
+    med = float(np.median(pos, overwrite_input=True))  # pos is a copy: partitioned in place
+    spread = np.abs(pos - med, out=pos)
+    return med, float(np.median(spread, overwrite_input=True) / MAD_NORMAL)
 
 
 def stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
@@ -249,14 +309,19 @@ def stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
       positions moved as in one period (the time did not pass): shifted like a backward step;
     * ``gap`` — such an interval the positions do not contradict (lost samples, a pause, or a
       sensor at rest, where nobody can tell): reported with the number of missing periods.
+
+    The per-sample work is on (N,) arrays; positions are compared only where a stamp repeats.
     """
     t = np.asarray(t, dtype=float)
     X = np.asarray(X, dtype=float)
+    demo = np.asarray(demo)
     n = len(t)
     same = np.r_[False, demo[1:] == demo[:-1]]  # n has a predecessor in its demonstration
     dt = np.r_[0.0, np.diff(t)]
     period, jitter = _period(dt[same])
-    keep = ~(same & (dt == 0) & np.r_[False, (X[1:] == X[:-1]).all(1)])
+    repeated = np.flatnonzero(same & (dt == 0))
+    keep = np.ones(n, dtype=bool)
+    keep[repeated[(X[repeated] == X[repeated - 1]).all(1)]] = False
     findings = [Finding("duplicate_sample", ~keep, "dropped")]
     t_new = t.copy()
     if period <= 0:
@@ -264,22 +329,25 @@ def stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
     limit = GAP_PERIODS * period + GAP_JITTER * jitter
     odd = same & keep & ((dt <= 0) | (dt > limit))
     # a single bad stamp: its neighbours' stamps are two periods apart
-    prev_i, next_i = np.maximum(np.arange(n) - 1, 0), np.minimum(np.arange(n) + 1, n - 1)
-    has_next = np.r_[demo[1:] == demo[:-1], False]
-    span = t[next_i] - t[prev_i]
-    bad = odd & has_next & (np.abs(span - 2 * period) <= 0.5 * period)
-    t_new[bad] = 0.5 * (t[prev_i] + t[next_i])[bad]
+    k = np.flatnonzero(odd)
+    has_next = (k < n - 1) & (demo[np.minimum(k + 1, n - 1)] == demo[k])
+    span = t[np.minimum(k + 1, n - 1)] - t[np.maximum(k - 1, 0)]
+    k_bad = k[has_next & (np.abs(span - 2 * period) <= 0.5 * period)]
+    bad = np.zeros(n, dtype=bool)
+    bad[k_bad] = True
+    t_new[k_bad] = 0.5 * (t[k_bad - 1] + t[np.minimum(k_bad + 1, n - 1)])
     after_bad = np.r_[False, bad[:-1]]  # the interval after a bad stamp is explained by it
     rest = odd & ~bad & ~after_bad
     back = rest & (dt <= 0)
     forward = rest & (dt > 0)
     step, missing = _clock_steps(t, X, demo, forward, period)
-    shift = np.where(back | step, period - dt, 0.0)
-    t_new += _per_demo_cumsum(shift, demo)
+    restamp = back | step
+    if restamp.any():
+        t_new += _per_demo_cumsum(np.where(restamp, period - dt, 0.0), demo)
     gaps = forward & ~step
     findings += [Finding("bad_stamp", bad, "restamped"), Finding("backward_stamp", back, "restamped"),
                  Finding("clock_step", step, "restamped"),
-                 Finding("gap", gaps, "reported", {"missing_periods": missing[gaps].tolist()})]
+                 Finding("gap", gaps, "reported", {"missing_periods": missing[~step[forward]].tolist()})]
     return [f for f in findings if f], t_new, keep
 
 
@@ -298,23 +366,25 @@ def _slope(t: np.ndarray, X: np.ndarray, idx: np.ndarray, valid: np.ndarray
 
 def _clock_steps(t: np.ndarray, X: np.ndarray, demo: np.ndarray, at: np.ndarray, period: float
                  ) -> tuple[np.ndarray, np.ndarray]:
-    """For the long intervals ending at samples ``at`` (N,) bool: which are clock steps (the
-    positions moved across the interval as in one period — displacement within MOTION_Z
-    noise plus half a period's motion of v·period — while the motion on either side, had the
-    interval's time passed, would have moved them by > MOTION_Z × noise), and the
-    number of periods the positions say passed (rounded, ≥ 1)."""
+    """For the long intervals ending at samples ``at`` (N,) bool: which are clock steps (N,)
+    bool (the positions moved across the interval as in one period — displacement within
+    MOTION_Z noise plus half a period's motion of v·period — while the motion on either
+    side, had the interval's time passed, would have moved them by > MOTION_Z × noise), and
+    for each of ``at``'s samples in order (K,) the number of periods the positions say
+    passed (rounded, ≥ 1) less one."""
     n = len(t)
     step = np.zeros(n, dtype=bool)
-    missing = np.zeros(n)
     k = np.flatnonzero(at)
     if not len(k):
-        return step, missing
-    lo, hi = _demo_bounds(demo)
+        return step, np.zeros(0)
+    starts = np.flatnonzero(np.r_[True, demo[1:] != demo[:-1]])
+    piece = np.searchsorted(starts, k, side="right") - 1
+    lo, hi = starts[piece], np.r_[starts[1:], n][piece]  # the demonstration of each k
     m = max(int(round(VELOCITY_SPAN_S / period)), 2)  # samples on each side
     before = k[:, None] - m + np.arange(m)  # k − m … k − 1
     after = k[:, None] + np.arange(m)  # k … k + m − 1
-    ok_before = before >= lo[k][:, None]
-    ok_after = after < hi[k][:, None]
+    ok_before = before >= lo[:, None]
+    ok_after = after < hi[:, None]
     v_left, s_left = _slope(t, X, np.clip(before, 0, n - 1), ok_before)
     v_right, s_right = _slope(t, X, np.clip(after, 0, n - 1), ok_after)
     v = 0.5 * (v_left + v_right)
@@ -332,7 +402,7 @@ def _clock_steps(t: np.ndarray, X: np.ndarray, demo: np.ndarray, at: np.ndarray,
     one_period = np.sqrt(((X[k] - X[k - 1] - v * period) ** 2).sum(1))
     fits = one_period <= MOTION_Z * np.sqrt(2) * sigma + 0.5 * speed * period
     step[k] = moving & fits & (np.abs(elapsed - period) < np.abs(elapsed - dt))
-    missing[k] = np.where(moving, np.maximum(np.round(elapsed / period), 1.0), np.round(dt / period)) - 1
+    missing = np.where(moving, np.maximum(np.round(elapsed / period), 1.0), np.round(dt / period)) - 1
     return step, missing
 
 
@@ -397,12 +467,19 @@ def run_edges(mask: np.ndarray, reach: int) -> np.ndarray:
     return near
 
 
-def _take(mask: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
-    return tuple(a[mask] for a in arrays)
+def _take(keep: np.ndarray, idx: np.ndarray | None, *arrays: np.ndarray
+          ) -> tuple[np.ndarray | None, ...]:
+    """The input indices (``idx`` None: all of them) and ``arrays`` of the samples ``keep``
+    (a mask); nothing is copied when every sample is kept."""
+    if keep.all():
+        return (idx, *arrays)
+    return (np.flatnonzero(keep) if idx is None else idx[keep], *(a[keep] for a in arrays))
 
 
-def _widen(mask: np.ndarray, where: np.ndarray, n: int) -> np.ndarray:
-    """A mask over ``n`` samples that is ``mask`` at the indices ``where``."""
+def _widen(mask: np.ndarray, where: np.ndarray | None, n: int) -> np.ndarray:
+    """A mask over ``n`` samples that is ``mask`` at the indices ``where`` (None: all)."""
+    if where is None:
+        return mask.copy()
     out = np.zeros(n, dtype=bool)
     out[where[mask]] = True
     return out
@@ -413,17 +490,17 @@ def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str =
     """Stamp faults (:func:`stamp_faults`), then hemisphere flips (``flips``: ``mirror`` them
     back, ``drop`` them, or ``keep`` them as they are), then spikes (dropped unless
     ``drop_spikes`` is False) on t (N,), X (N, d), demo (N,). Findings that were kept are
-    reported with action ``reported``."""
+    reported with action ``reported``. Arrays no check changed are returned as given."""
     if flips not in FLIP_ACTIONS:
         raise ConfigError(f"flips must be one of {', '.join(FLIP_ACTIONS)}, got {flips!r}")
     t, X, demo = np.asarray(t, float), np.asarray(X, float), np.asarray(demo)
     n = len(t)
-    idx = np.arange(n)
+    idx: np.ndarray | None = None  # the input index of every sample still in (None: all)
     findings: list[Finding] = []
     if stamps:
-        found, t_new, keep = stamp_faults(t, X, demo)
+        found, t, keep = stamp_faults(t, X, demo)
         findings += found
-        idx, t, X, demo = _take(keep, idx, t_new, X, demo)
+        idx, X, demo, t = _take(keep, idx, X, demo, t)
     flip = hemisphere_flips(X, demo)
     if flip:
         if flips == "mirror":
@@ -441,4 +518,5 @@ def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str =
         findings.append(Finding(spike.kind, _widen(spike.mask, idx, n), spike.action, spike.detail))
         if drop_spikes:
             idx, t, X, demo = _take(~spike.mask, idx, t, X, demo)
-    return Cleaned(t=t, X=X, demo=demo, keep=_widen(np.ones(len(idx), bool), idx, n), findings=findings)
+    keep = np.ones(n, dtype=bool) if idx is None else _widen(np.ones(len(idx), bool), idx, n)
+    return Cleaned(t=t, X=X, demo=demo, keep=keep, findings=findings)

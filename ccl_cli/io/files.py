@@ -1,10 +1,18 @@
-"""Input paths: globs to files, and content digests for provenance and batch keys."""
+"""Input paths: globs to files, and content digests for provenance and batch keys.
+
+Every caller of :func:`expand_files` then asks for the files' digests (a run's provenance,
+a batch job's content key), so expanding starts them on a background thread: the digest
+reads the file while the reader decodes it, and :func:`file_hash` waits for it.
+"""
 
 from __future__ import annotations
 
 import functools
 import glob
 import hashlib
+import os
+import threading
+from concurrent.futures import Future
 from pathlib import Path
 
 from ccl_cli.errors import InputError
@@ -33,7 +41,48 @@ def expand_files(files: list[str] | str, base: Path | None = None) -> list[Path]
             out.append(p)
     if not out:
         raise InputError("no input files")
+    _hash_in_background(out)
     return out
+
+
+Key = tuple[tuple[str, int, int], ...]
+#: digests started by :func:`_hash_in_background`: key → (the process that started it, its result)
+_started: dict[Key, tuple[int, Future]] = {}
+
+
+def _key(path: Path) -> Key:
+    """Every file of ``path`` (a file, or a bag directory's files in name order) with its
+    size and modification time."""
+    if not path.is_dir():
+        regular_file(path)  # a FIFO would block the read
+    paths = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    stats = [(p, p.stat()) for p in paths]
+    return tuple((str(p.resolve()), st.st_size, st.st_mtime_ns) for p, st in stats)
+
+
+def _hash_in_background(paths: list[Path]) -> None:
+    """Start the digests of ``paths`` on one daemon thread (hashlib and file reads release
+    the GIL); a path that cannot be keyed is left to :func:`file_hash` to refuse."""
+    keys = []
+    for path in paths:
+        try:
+            key = _key(Path(path))
+        except (InputError, OSError):
+            continue
+        if key not in _started:
+            _started[key] = (os.getpid(), Future())
+            keys.append(key)
+    if keys:
+        threading.Thread(target=_run, args=(keys,), daemon=True, name="ccl-sha256").start()
+
+
+def _run(keys: list[Key]) -> None:
+    for key in keys:
+        future = _started[key][1]
+        try:
+            future.set_result(_sha256_of(key))
+        except BaseException as exc:  # handed to the caller of file_hash
+            future.set_exception(exc)
 
 
 def file_hash(path: Path) -> str:
@@ -41,21 +90,23 @@ def file_hash(path: Path) -> str:
 
     Digests are remembered for the process, keyed on every file's path, size and
     modification time, so an unchanged input is read once however many callers ask
-    (a batch job's content key, then the run's provenance).
+    (a batch job's content key, then the run's provenance); one started by
+    :func:`expand_files` is waited for (in a forked child it is computed anew).
     """
-    path = Path(path)
-    if not path.is_dir():
-        regular_file(path)  # a FIFO would block the read
-    paths = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
-    stats = [(p, p.stat()) for p in paths]
-    return _sha256_of(tuple((str(p.resolve()), st.st_size, st.st_mtime_ns) for p, st in stats))
+    key = _key(Path(path))
+    started = _started.get(key)
+    if started is not None and started[0] == os.getpid():
+        return started[1].result()
+    return _sha256_of(key)
 
 
 @functools.lru_cache(maxsize=1024)
-def _sha256_of(key: tuple[tuple[str, int, int], ...]) -> str:
+def _sha256_of(key: Key) -> str:
     h = hashlib.sha256()
+    block = bytearray(1 << 20)
+    view = memoryview(block)
     for name, _, _ in key:
-        with open(name, "rb") as f:
-            for block in iter(lambda: f.read(1 << 20), b""):
-                h.update(block)
+        with open(name, "rb", buffering=0) as f:
+            while size := f.readinto(block):
+                h.update(view[:size])
     return h.hexdigest()

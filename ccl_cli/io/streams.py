@@ -146,7 +146,8 @@ def _clean(stream: Stream, selection: StreamOptions, nonfinite: str, options: Da
     (:func:`ccl_cli.io.faults.clean_positions`, the findings in ``stream.meta["faults"]``); the
     stamps must then increase strictly."""
     where = f"{stream.source} ({selection.describe()})"
-    stream.t_ns, stream.values = drop_nonfinite(stream.t_ns, stream.values, nonfinite, where)
+    if not np.isfinite(stream.values).all():  # one pass over the values; rows only when needed
+        stream.t_ns, stream.values = drop_nonfinite(stream.t_ns, stream.values, nonfinite, where)
     if len(stream.t_ns) == 0:
         raise InputError(f"{where}: no samples left")
     if options is not None and len(stream.t_ns) >= 5:

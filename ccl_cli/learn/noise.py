@@ -30,14 +30,20 @@ def second_differences(Y: np.ndarray, demo: np.ndarray) -> tuple[np.ndarray, np.
     Y = np.asarray(Y, dtype=float)
     if len(Y) < 3:
         return np.zeros((0, Y.shape[1])), np.zeros(0, dtype=int)
-    centre = np.flatnonzero((demo[2:] == demo[1:-1]) & (demo[1:-1] == demo[:-2])) + 1
-    return Y[centre + 1] - 2 * Y[centre] + Y[centre - 1], centre
+    inside = (demo[2:] == demo[1:-1]) & (demo[1:-1] == demo[:-2])
+    d2 = Y[2:] - 2 * Y[1:-1] + Y[:-2]  # slices: no gathered copies of Y
+    if inside.all():
+        return d2, np.arange(1, len(Y) - 1)
+    return d2[inside], np.flatnonzero(inside) + 1
 
 
 def robust_std(r: np.ndarray, axis: int = 0) -> np.ndarray:
     """σ̂ = median|r| / MAD_NORMAL of zero-mean residuals r along ``axis``."""
     if r.shape[axis] == 0:
         return np.zeros(np.delete(r.shape, axis))
+    if r.ndim == 2 and axis in (0, -2):  # one partition per column, of a contiguous copy
+        return np.array([np.median(np.abs(r[:, j]), overwrite_input=True)
+                         for j in range(r.shape[1])], dtype=float) / MAD_NORMAL
     return np.median(np.abs(r), axis=axis) / MAD_NORMAL
 
 
