@@ -185,5 +185,11 @@ def subspace_angle(A: np.ndarray, B: np.ndarray) -> float:
     Qa, Qb = row_basis(A), row_basis(B)
     if not len(Qa) or not len(Qb):
         return float("nan")
-    cos = np.linalg.svd(Qa @ Qb.T, compute_uv=False)
+    small, large = (Qa, Qb) if len(Qa) <= len(Qb) else (Qb, Qa)
+    # sin of the largest angle: what of the smaller span lies outside the larger (exact near 0,
+    # where arccos of the cosines loses half the digits); the cosines near 90°
+    sin = float(np.linalg.svd(small - (small @ large.T) @ large, compute_uv=False).max())
+    if sin < np.sqrt(0.5):
+        return float(np.degrees(np.arcsin(sin)))
+    cos = np.linalg.svd(small @ large.T, compute_uv=False)
     return float(np.degrees(np.arccos(np.clip(cos.min(), -1.0, 1.0))))

@@ -63,8 +63,11 @@ def local_polynomial_derivative(t: np.ndarray, Y: np.ndarray, demo: np.ndarray, 
     """dY/dt by a degree-``order`` polynomial fitted to ``window`` neighbouring samples
     (centred; shifted at the ends of each demonstration), on the real timestamps.
 
-    t (N,) seconds, Y (N, d), demo (N,) → (N, d). Samples are solved as batches of small
-    least-squares problems, ``chunk`` at a time (memory O(chunk · window · order)).
+    t (N,) seconds, Y (N, d), demo (N,) → (N, d). Each sample's slope filter c (window,)
+    — row 1 of the least-squares solution (VᵀV)⁻¹Vᵀ, V the (window, order+1) Vandermonde
+    matrix of its neighbours' stamps relative to its own, scaled to [−1, 1] — is solved for
+    ``chunk`` samples at a time (memory O(chunk · window · order)); dY/dt_n = Σ_j c_j y_{n+j}
+    is summed over the window's offsets (a pass per offset, not a gather of every window).
     """
     n = len(t)
     if isinstance(order, bool) or not isinstance(order, int | np.integer) or order < 1:
@@ -83,17 +86,50 @@ def local_polynomial_derivative(t: np.ndarray, Y: np.ndarray, demo: np.ndarray, 
                          f"needs at least {order + 1}")
     w = np.minimum(window, sizes)  # per-sample window (short demos use all their samples)
     start = np.clip(np.arange(n) - w // 2, lo, hi - w)
-    powers = np.arange(order + 1)
     out = np.empty((n, Y.shape[1]))
     for s in range(0, n, chunk):  # chunks of samples, each a batch
-        r = slice(s, min(s + chunk, n))
-        wr = w[r]
-        offsets = np.arange(int(wr.max()))
-        idx = np.minimum(start[r, None] + offsets[None, :], hi[r, None] - 1)
-        valid = offsets[None, :] < wr[:, None]
-        tau = (t[idx] - t[r, None]) * valid
-        scale = np.maximum(np.abs(tau).max(1, keepdims=True), 1e-12)
-        V = (tau / scale)[:, :, None] ** powers[None, None, :] * valid[:, :, None]
-        coef = np.linalg.pinv(V) @ (Y[idx] * valid[:, :, None])  # (c, order+1, d)
-        out[r] = coef[:, 1, :] / scale
+        e = min(s + chunk, n)
+        width = int(w[s:e].max())
+        idx = np.minimum(start[s:e, None] + np.arange(width), hi[s:e, None] - 1)
+        valid = np.arange(width) < w[s:e, None]
+        c = _slope_filters(t, idx, valid, np.arange(s, e), order)
+        # centred full windows read Y at one shift per offset; the others gather their window
+        centred = (start[s:e] == np.arange(s, e) - width // 2) & (w[s:e] == width)
+        if centred.any():
+            a, b = s + int(np.argmax(centred)), e - int(np.argmax(centred[::-1]))
+            acc = np.zeros((b - a, Y.shape[1]))
+            first = a - width // 2
+            taps = np.ascontiguousarray(c[a - s:b - s].T)[:, :, None]  # (W, b − a, 1)
+            for k in range(width):  # a loop over the window's offsets, not samples
+                acc += taps[k] * Y[first + k:first + k + b - a]
+            out[a:b] = acc
+        rest = np.flatnonzero(~centred)
+        if len(rest):
+            out[s + rest] = np.einsum("mw,mwd->md", c[rest] * valid[rest], Y[idx[rest]])
     return out
+
+
+def _slope_filters(t: np.ndarray, idx: np.ndarray, valid: np.ndarray, at: np.ndarray, order: int
+                   ) -> np.ndarray:
+    """The slope filters c (M, W) of the samples ``at`` (M,) over their neighbours idx (M, W)
+    where valid: c = row 1 of pinv(V)/scale, V_jk = (τ_j/scale)^k valid_j, τ_j = t_idx − t_at,
+    scale = max|τ|. Solved by the normal equations VᵀV g = e₁ (VᵀV_ik = Σ_j u_j^(i+k), the
+    moments of u = τ/scale), by pinv where VᵀV is singular."""
+    tau = (t[idx] - t[at, None]) * valid
+    scale = np.maximum(np.abs(tau).max(1, keepdims=True), 1e-12)
+    u = tau / scale
+    powers = [valid.astype(float)]  # valid · u^k, k = 0 … 2·order
+    for _ in range(2 * order):
+        powers.append(powers[-1] * u)
+    moments = np.stack([p.sum(1) for p in powers], 1)  # (M, 2·order + 1)
+    k = np.arange(order + 1)
+    e1 = np.zeros((len(u), order + 1, 1))
+    e1[:, 1] = 1.0
+    try:
+        g = np.linalg.solve(moments[:, k[:, None] + k[None, :]], e1)[..., 0]  # row 1 of (VᵀV)⁻¹
+    except np.linalg.LinAlgError:  # a window with fewer distinct stamps than order + 1
+        return np.linalg.pinv(np.stack(powers[:order + 1], 2))[:, 1, :] / scale
+    c = g[:, :1] * powers[0]
+    for j in range(1, order + 1):
+        c += g[:, j:j + 1] * powers[j]
+    return c / scale
