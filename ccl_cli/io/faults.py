@@ -137,12 +137,13 @@ def _flip_errors(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n = len(X)
     e_same, e_flip = np.empty(n - 2), np.empty(n - 2)
     XT = X.T  # (d, N) view: a block's rows are the dimensions (sums over the short axis are slow)
-    for s, e in _blocks(1, n - 1):
-        here, before, after = XT[:, s:e], XT[:, s - 1:e - 1], XT[:, s + 1:e + 1]
-        d2 = after - 2 * here + before
-        e_same[s - 1:e - 1] = np.sqrt((d2 * d2).sum(0))
-        jump = after + (2 * here - before)
-        e_flip[s - 1:e - 1] = np.sqrt((jump * jump).sum(0))
+    with np.errstate(over="ignore", invalid="ignore"):  # values near the float limit: inf or nan, no flip
+        for s, e in _blocks(1, n - 1):
+            here, before, after = XT[:, s:e], XT[:, s - 1:e - 1], XT[:, s + 1:e + 1]
+            d2 = after - 2 * here + before
+            e_same[s - 1:e - 1] = np.sqrt((d2 * d2).sum(0))
+            jump = after + (2 * here - before)
+            e_flip[s - 1:e - 1] = np.sqrt((jump * jump).sum(0))
     return e_same, e_flip
 
 

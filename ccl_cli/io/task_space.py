@@ -17,13 +17,15 @@ number of columns.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.io.options import ForwardKinematicsOptions, StreamOptions
-from ccl_cli.learn.robots import Chain, load_robot, match_joints, quaternions
+
+if TYPE_CHECKING:  # the robot models load on first use: reading a log without kinematics skips them
+    from ccl_cli.learn.robots import Chain
 
 POSITION_NAMES = ["x", "y", "z"]
 QUATERNION_NAMES = ["qw", "qx", "qy", "qz"]
@@ -51,6 +53,8 @@ class JointMap:
         pose = self.chain.forward(Q[:, self.index])
         if not self.options.orientation:
             return pose.position
+        from ccl_cli.learn.robots import quaternions
+
         return np.hstack([pose.position, continuous(quaternions(pose.rotation))])
 
     def velocity(self, Q: np.ndarray, dQ: np.ndarray) -> np.ndarray:
@@ -88,6 +92,8 @@ def log_joint_names(selection: StreamOptions, names: list[str]) -> list[str]:
 
 
 def _chain(options: ForwardKinematicsOptions, where: str) -> Chain:
+    from ccl_cli.learn.robots import load_robot
+
     try:
         return load_robot(options.robot, options.frame, options.base)
     except (ConfigError, InputError) as exc:
@@ -106,6 +112,8 @@ def joint_map(options: ForwardKinematicsOptions, log_names: list[str] | None, n_
                              f"{chain.describe()} has {chain.n_joints} ({', '.join(chain.joint_names)})")
         return JointMap(chain, np.arange(n_columns), options)
     try:
+        from ccl_cli.learn.robots import match_joints
+
         index = match_joints(log_names, chain.joint_names, what=chain.describe())
     except InputError as exc:
         raise InputError(f"{where}: state.forward_kinematics: {exc}") from None
