@@ -659,7 +659,26 @@ def entry() -> None:
     except KeyboardInterrupt:
         typer.echo("ccl: interrupted; no partial outputs were left", err=True)
         code = 130
-    sys.exit(code)
+    _leave(code)
+
+
+def _leave(code: int) -> None:
+    """End the ``ccl`` process with ``code`` once the command is done and its outputs are
+    closed: the exit handlers run (logging, multiprocessing, finalizers) and the standard
+    streams are flushed, then the process ends without the interpreter freeing, one by one,
+    every object matplotlib, numpy and the data left (5 % of a small run's CPU)."""
+    import atexit
+
+    run_handlers = getattr(atexit, "_run_exitfuncs", None)
+    if run_handlers is None:  # not CPython: the ordinary exit
+        sys.exit(code)
+    run_handlers()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe (ccl ... | head): nothing more to say
+            pass
+    os._exit(code)
 
 
 if __name__ == "__main__":

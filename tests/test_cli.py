@@ -449,3 +449,27 @@ def test_matplotlib_font_cache_message_never_reaches_the_user(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "fontManager" not in proc.stderr and "Matplotlib" not in proc.stderr
     assert (tmp_path / "c" / "ccl" / "matplotlib").is_dir()
+
+
+def test_the_script_ends_with_its_exit_code_and_everything_it_printed(tmp_path):
+    """entry() leaves through the exit handlers and flushed streams without tearing down
+    the interpreter: a --json summary read through a pipe is whole, the output folder
+    complete, an error still one line with its exit code."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # stdout block-buffered
+    out = tmp_path / "r"
+    proc = subprocess.run([CCL, "run", str(CONFIGS / "toy2d_learn_pi.yaml"), "-o", str(out), "--json"],
+                          capture_output=True, text=True, env=env)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["status"] == "ok" and summary["outdir"] == str(out)
+    assert {"config.yaml", "metrics.json", "models", "plots", "report.md", "run.json"} <= \
+        {p.name for p in out.iterdir()}
+    assert len(list((out / "plots").glob("*.png"))) == 5
+    assert json.loads((out / "run.json").read_text())["command"] == "run"
+    bad = subprocess.run([CCL, "run", str(tmp_path / "missing.yaml"), "--json"], capture_output=True,
+                         text=True, env=env)
+    assert bad.returncode == 2
+    assert bad.stderr.strip().splitlines() == [f"ccl: error: {tmp_path / 'missing.yaml'}: no such file"]
+    assert json.loads(bad.stdout)["exit_code"] == 2
