@@ -666,11 +666,14 @@ def _leave(code: int) -> None:
     """End the ``ccl`` process with ``code`` once the command is done and its outputs are
     closed: the exit handlers run (logging, multiprocessing, finalizers) and the standard
     streams are flushed, then the process ends without the interpreter freeing, one by one,
-    every object matplotlib, numpy and the data left (5 % of a small run's CPU)."""
+    every object matplotlib, numpy and the data left (5 % of a small run's CPU). With a
+    thread still running (a worker pool's), or outside CPython, the ordinary exit."""
     import atexit
+    import threading
 
     run_handlers = getattr(atexit, "_run_exitfuncs", None)
-    if run_handlers is None:  # not CPython: the ordinary exit
+    others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon]
+    if run_handlers is None or others:
         sys.exit(code)
     run_handlers()
     for stream in (sys.stdout, sys.stderr):
