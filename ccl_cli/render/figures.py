@@ -304,6 +304,8 @@ def field_figure(title: str, d: Demonstrations, part: str, arrows: dict[str, tup
     ax.set_xlabel(names[0])
     ax.set_ylabel(names[1])
     ax.set_aspect("equal", adjustable="datalim")
+    for ax in axes[0]:
+        ax.locator_params(nbins=6)  # fewer ticks than matplotlib's up to 9 (each a few artists)
     fig.suptitle(f"{title}\non {describe_data(part, d)}", fontsize=10)
     fig.legend(*ax.get_legend_handles_labels(), loc="lower center", ncol=len(arrows), fontsize=8,
                frameon=False)
