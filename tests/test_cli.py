@@ -473,3 +473,25 @@ def test_the_script_ends_with_its_exit_code_and_everything_it_printed(tmp_path):
     assert bad.returncode == 2
     assert bad.stderr.strip().splitlines() == [f"ccl: error: {tmp_path / 'missing.yaml'}: no such file"]
     assert json.loads(bad.stdout)["exit_code"] == 2
+
+
+@pytest.mark.parametrize("args", [["run", "--help"], ["learn-a", "--help"], ["batch", "--help"],
+                                  ["run", "--bogus"], ["evaluate"]])
+def test_a_command_run_alone_says_what_the_whole_app_says(capsys, args):
+    """main() builds only the invoked command (cli._app_for): its help and its usage errors
+    are those of the app holding every command."""
+    from ccl_cli.cli import _app_for, app
+
+    assert len(_app_for(args).registered_commands) == 1
+    code = main(args)
+    alone = capsys.readouterr()
+    try:
+        whole = app(args=args, prog_name="ccl", standalone_mode=False)
+    except Exception as exc:  # noqa: BLE001 - the usage error main() turned into one line
+        whole = exc
+    full = capsys.readouterr()
+    if args[-1] == "--help":
+        assert code == 0 and alone.out == full.out and "Usage: ccl " + args[0] in alone.out
+    else:
+        assert code == 2 and f"ccl {args[0]}" in alone.err
+        assert str(getattr(whole, "message", whole)) in alone.err
