@@ -411,11 +411,10 @@ def constraint_figure(info: dict[str, Any], method: str):
         x = np.arange(len(ang))
         bars(ax, x, list(ang.values()), 0.8, "tab:red")
         ax.set_xticks(x, [str(k) for k in ang], fontsize=6, rotation=90)
-        ax.set_xlim(-0.6, len(ang) - 0.4)
         ax.set_xlabel("training demonstration")
         ax.set_ylabel("angle learnt vs true [deg]")
-        ax.set_title(f"Learnt constraint of each training demonstration ({method}) against the true one;\n"
-                     f"median angle {info['median_angle_deg']:.2g}°", fontsize=9, y=1.0)
+        ax.set_title(wrap(f"Learnt constraint of each training demonstration ({method}) against the true "
+                          f"one; median angle {info['median_angle_deg']:.2g}°", 80), fontsize=9, y=1.0)
         fig.subplots_adjust(left=0.11, right=0.98, top=0.84, bottom=0.2)
         return fig
     rows = np.asarray(info["rows"])
