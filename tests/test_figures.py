@@ -113,6 +113,9 @@ def test_matplotlib_import_shortcut_is_undone_after_the_import():
         pass
 
     assert "linewidth" in str(Later.set.__doc__)
+    from matplotlib.artist import kwdoc
+
+    assert "linewidth" in kwdoc(Line2D)  # matplotlib's own property table, restored
 
 
 def test_the_toy_run_draws_its_five_figures(tmp_path):
