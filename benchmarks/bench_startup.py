@@ -15,8 +15,9 @@ same run (issue 19's bar: ≤ 10×, wall and CPU). One JSON object per line:
   process: imports, reading, stages, matplotlib's import, each figure.
 
 The package's modules are compiled to bytecode first (``compileall``), as installing it does:
-an environment with ``PYTHONDONTWRITEBYTECODE=1`` would otherwise compile every module from
-source in every run (``--source`` measures that; "bytecode" says which was measured).
+an environment with ``PYTHONDONTWRITEBYTECODE=1`` and no cache would otherwise compile every
+module from source in every run (``--source`` removes the caches and measures that;
+"bytecode" says which was measured).
 
 Run:  python benchmarks/bench_startup.py [--repeats 9] [--without-plots] [--phases]
       [--config configs/toy2d_learn_pi.yaml]
@@ -114,13 +115,18 @@ def main() -> int:
                     help="also time the run with output.plots: false")
     ap.add_argument("--phases", action="store_true", help="also time the run's phases in one process")
     ap.add_argument("--source", action="store_true",
-                    help="do not compile the package to bytecode first (measure compiling from source)")
+                    help="remove the package's bytecode caches first instead (with "
+                         "PYTHONDONTWRITEBYTECODE=1: every run compiles from source)")
     args = ap.parse_args()
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    if not args.source:
+    if args.source:  # no cached bytecode: with PYTHONDONTWRITEBYTECODE=1 every run compiles
+        for cache in (ROOT / "ccl_cli").rglob("__pycache__"):
+            shutil.rmtree(cache, ignore_errors=True)
+        bytecode = "source" if env.get("PYTHONDONTWRITEBYTECODE") else "compiled by the warm-up run"
+    else:
         compileall.compile_dir(ROOT / "ccl_cli", quiet=1)
-    bytecode = "source" if args.source else "compiled"
+        bytecode = "compiled"
     ccl = shutil.which("ccl") or ""
     tmp = Path(tempfile.mkdtemp(prefix="ccl-bench-startup-"))
     try:

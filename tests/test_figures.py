@@ -132,3 +132,14 @@ def test_the_toy_run_draws_its_five_figures(tmp_path):
             im.load()
             assert im.size[0] > 300 and im.size[1] > 200
             assert len(np.unique(np.asarray(im).reshape(-1, 3), axis=0)) > 20  # drawn, not blank
+
+
+def test_a_second_drawing_process_only_when_a_core_is_idle(monkeypatch):
+    monkeypatch.setattr(figures.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(figures.os, "getloadavg", lambda: (0.4, 0.0, 0.0))
+    assert figures.idle_workers() == 2
+    monkeypatch.setattr(figures.os, "getloadavg", lambda: (1.6, 0.0, 0.0))
+    assert figures.idle_workers() == 1
+    monkeypatch.setattr(figures.os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    monkeypatch.setattr(figures.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    assert figures.idle_workers() == 1

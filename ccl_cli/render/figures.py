@@ -515,7 +515,7 @@ def idle_workers() -> int:
         cores = os.cpu_count() or 1
     try:
         load = os.getloadavg()[0]
-    except OSError:
+    except (AttributeError, OSError):  # no load average (Windows: no fork either)
         load = 0.0
     return 2 if cores >= 2 and load <= cores - 1 else 1
 
