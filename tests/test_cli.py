@@ -449,3 +449,49 @@ def test_matplotlib_font_cache_message_never_reaches_the_user(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert "fontManager" not in proc.stderr and "Matplotlib" not in proc.stderr
     assert (tmp_path / "c" / "ccl" / "matplotlib").is_dir()
+
+
+def test_the_script_ends_with_its_exit_code_and_everything_it_printed(tmp_path):
+    """entry() leaves through the exit handlers and flushed streams without tearing down
+    the interpreter: a --json summary read through a pipe is whole, the output folder
+    complete, an error still one line with its exit code."""
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # stdout block-buffered
+    out = tmp_path / "r"
+    proc = subprocess.run([CCL, "run", str(CONFIGS / "toy2d_learn_pi.yaml"), "-o", str(out), "--json"],
+                          capture_output=True, text=True, env=env)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["outdir"] == str(out) and summary["stages"].keys() == {"learn-a", "learn-pi", "evaluate"}
+    assert {"config.yaml", "metrics.json", "models", "plots", "report.md", "run.json"} <= \
+        {p.name for p in out.iterdir()}
+    assert len(list((out / "plots").glob("*.png"))) == 5
+    assert json.loads((out / "run.json").read_text())["command"] == "run"
+    bad = subprocess.run([CCL, "run", str(tmp_path / "missing.yaml"), "--json"], capture_output=True,
+                         text=True, env=env)
+    assert bad.returncode == 2
+    assert bad.stderr.strip().splitlines() == [f"ccl: error: {tmp_path / 'missing.yaml'}: no such file"]
+    assert json.loads(bad.stdout)["exit_code"] == 2
+
+
+@pytest.mark.parametrize("args", [["run", "--help"], ["learn-a", "--help"], ["batch", "--help"],
+                                  ["run", "--bogus"], ["evaluate"]])
+def test_a_command_run_alone_says_what_the_whole_app_says(capsys, args):
+    """main() builds only the invoked command (cli._app_for): its help and its usage errors
+    are those of the app holding every command."""
+    from ccl_cli.cli import _app_for, app
+
+    assert len(_app_for(args).registered_commands) == 1
+    code = main(args)
+    alone = capsys.readouterr()
+    try:
+        whole = app(args=args, prog_name="ccl", standalone_mode=False)
+    except Exception as exc:  # noqa: BLE001 - the usage error main() turned into one line
+        whole = exc
+    full = capsys.readouterr()
+    if args[-1] == "--help":
+        assert code == 0 and alone.out == full.out and "Usage: ccl " + args[0] in alone.out
+    else:
+        assert code == 2 and f"ccl {args[0]}" in alone.err
+        assert str(getattr(whole, "message", whole)) in alone.err

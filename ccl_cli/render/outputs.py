@@ -49,13 +49,14 @@ def write_run(result: RunResult, outdir: Path, force: bool = False, plot_workers
               extra_files: dict[str, Any] | None = None) -> dict[str, Any]:
     """Write every output of ``result`` into ``outdir`` atomically; returns the run's
     summary with ``outdir`` filled in. The figures are drawn by ``plot_workers`` processes
-    (default: 2 on a machine with two or more cores; ``ccl batch`` passes 1, its jobs
-    already fill the cores). ``extra_files`` (name → JSON value) go into the folder too."""
+    (default: :func:`~ccl_cli.render.figures.idle_workers`, 2 when a second core is idle;
+    ``ccl batch`` passes 1, its jobs already fill the cores). ``extra_files`` (name → JSON
+    value) go into the folder too."""
     import yaml
 
     from ccl_cli.io.atomic import atomic_dir
     from ccl_cli.models import save_model
-    from ccl_cli.render.figures import draw_views
+    from ccl_cli.render.figures import draw_views, idle_workers
     from ccl_cli.render.report import markdown
 
     models = [r for r in result.results if r.model is not None]
@@ -67,7 +68,7 @@ def write_run(result: RunResult, outdir: Path, force: bool = False, plot_workers
                                                                result.metrics.get(r.name)))
         plot_seconds: dict[str, float] = {}
         if plot_workers is None:
-            plot_workers = 2 if (os.cpu_count() or 1) >= 2 else 1
+            plot_workers = idle_workers()
         plots = draw_views(tmp, result.views, plot_seconds, plot_workers, result.cfg.spec.output.format) \
             if result.views else []
         write_json(tmp / "metrics.json", result.metrics)

@@ -1,0 +1,145 @@
+"""The figures' drawing helpers: the PNG writer against Pillow's reader and matplotlib's own
+PNG, bars and streamline heads against the geometry they stand for, and matplotlib's import
+left as it was found."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from ccl_cli.render import figures
+from ccl_cli.render.png import png_bytes, write_png
+
+
+@pytest.mark.parametrize("channels", [3, 4])
+def test_png_round_trips_through_pillow(tmp_path, channels):
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 256, (37, 53, channels), dtype=np.uint8)
+    path = tmp_path / "x.png"
+    path.write_bytes(png_bytes(image, dpi=90))
+    with Image.open(path) as im:
+        assert im.mode == ("RGB" if channels == 3 else "RGBA")
+        assert np.array_equal(np.asarray(im), image)
+        assert im.info["dpi"] == pytest.approx((90, 90), abs=0.01)
+
+
+def test_an_opaque_canvas_is_written_as_rgb_and_a_transparent_one_keeps_its_alpha(tmp_path):
+    rgba = np.full((4, 5, 4), 255, dtype=np.uint8)
+    rgba[1, 2] = (10, 20, 30, 255)
+    write_png(tmp_path / "opaque.png", rgba, 72)
+    rgba[0, 0, 3] = 7
+    write_png(tmp_path / "alpha.png", rgba, 72)
+    with Image.open(tmp_path / "opaque.png") as im:
+        assert im.mode == "RGB" and np.array_equal(np.asarray(im), rgba[..., :3])
+    with Image.open(tmp_path / "alpha.png") as im:
+        assert im.mode == "RGBA" and np.array_equal(np.asarray(im), rgba)
+
+
+def test_save_figure_writes_the_pixels_matplotlib_writes(tmp_path):
+    import matplotlib
+
+    fig, ax = figures.subplots(figsize=(3, 2))
+    x = np.linspace(0, 1, 50)
+    ax.plot(x, np.sin(6 * x), label="sin")
+    ax.set_title("a title", y=1.0)
+    ax.legend()
+    figures.save_figure(fig, tmp_path / "ours.png")
+    with matplotlib.rc_context(figures.RC):
+        fig.savefig(tmp_path / "theirs.png", dpi=figures.DPI)
+    with Image.open(tmp_path / "ours.png") as ours, Image.open(tmp_path / "theirs.png") as theirs:
+        assert ours.size == theirs.size == (round(3 * figures.DPI), round(2 * figures.DPI))
+        assert np.array_equal(np.asarray(ours.convert("RGB")), np.asarray(theirs.convert("RGB")))
+
+
+def test_halfway_along_a_polyline_by_arc_length():
+    line = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 3.0]])  # length 4: halfway is 1 up the second leg
+    point, direction = figures.halfway(line)
+    assert point == pytest.approx([1.0, 1.0])
+    assert direction == pytest.approx([0.0, 1.0])
+    point, direction = figures.halfway(np.array([[2.0, 2.0], [0.0, 0.0]]))
+    assert point == pytest.approx([1.0, 1.0])
+    assert direction == pytest.approx([-np.sqrt(0.5), -np.sqrt(0.5)])
+
+
+def test_bars_cover_what_ax_bar_covers():
+    x, h = np.array([0.0, 1.0, 2.0, 3.0]), np.array([0.5, -1.0, 2.0, 0.0])
+    fig, (ax1, ax2) = figures.subplots(1, 2, figsize=(4, 2))
+    ours = figures.bars(ax1, x, h, 0.6, "tab:red")
+    theirs = ax2.bar(x, h, 0.6)
+    for path, rect in zip(ours.get_paths(), theirs.patches, strict=True):
+        v = path.vertices[:4]
+        assert v[:, 0].min() == pytest.approx(rect.get_x())
+        assert v[:, 0].max() == pytest.approx(rect.get_x() + 0.6)
+        assert sorted([v[:, 1].min(), v[:, 1].max()]) == pytest.approx(sorted([0.0, rect.get_height()]))
+    assert ax1.get_ylim() == pytest.approx(ax2.get_ylim())
+    assert ax1.get_xlim() == pytest.approx(ax2.get_xlim())
+
+
+def test_one_head_per_streamline_on_the_field_figure():
+    g = np.linspace(-1, 1, 22)
+    G1, G2 = np.meshgrid(g, g)
+    F = np.column_stack([-G2.ravel() - 0.3 * G1.ravel(), G1.ravel() - 0.3 * G2.ravel()])  # a spiral
+    fig, ax = figures.subplots(figsize=(4, 4))
+    figures.streamlines(ax, G1, G2, F)
+    from matplotlib.collections import LineCollection
+    from matplotlib.quiver import Quiver
+
+    lines = [c for c in ax.collections if isinstance(c, LineCollection)]
+    heads = [c for c in ax.collections if isinstance(c, Quiver)]
+    assert len(lines) == 1 and len(heads) == 1 and len(ax.patches) == 0
+    assert len(heads[0].U) == len(lines[0].get_segments()) > 10
+    # each head points along the field at its position (the field is smooth: nearest grid point)
+    P = heads[0].get_offsets()
+    grid = np.column_stack([G1.ravel(), G2.ravel()])
+    nearest = np.argmin(((P[:, None, :] - grid[None]) ** 2).sum(-1), axis=1)
+    D = np.column_stack([heads[0].U, heads[0].V])
+    cos = np.sum(D * F[nearest], axis=1) / np.linalg.norm(F[nearest], axis=1)
+    assert np.all(cos > 0.9)
+
+
+def test_matplotlib_import_shortcut_is_undone_after_the_import():
+    figures._import_matplotlib()
+    from matplotlib.artist import Artist
+    from matplotlib.lines import Line2D
+
+    assert Artist.__dict__["_update_set_signature_and_docstring"].__func__.__name__ == \
+        "_update_set_signature_and_docstring"
+    line = Line2D([0, 1], [0, 1])
+    line.set(color="tab:red", linewidth=3)  # set() of a class defined during the import still works
+    assert line.get_linewidth() == 3
+
+    class Later(Line2D):  # a class defined afterwards gets matplotlib's generated set() again
+        pass
+
+    assert "linewidth" in str(Later.set.__doc__)
+    from matplotlib.artist import kwdoc
+
+    assert "linewidth" in kwdoc(Line2D)  # matplotlib's own property table, restored
+
+
+def test_the_toy_run_draws_its_five_figures(tmp_path):
+    from ccl_cli.cli import main
+
+    root = Path(__file__).resolve().parent.parent
+    config = root / "configs" / "toy2d_learn_pi.yaml"
+    assert main(["run", str(config), "--out", str(tmp_path / "o"), "-q"]) == 0
+    names = sorted(p.name for p in (tmp_path / "o" / "plots").iterdir())
+    assert names == ["learn-a-constraint.png", "learn-a-field.png", "learn-a-selection.png",
+                     "learn-pi-field.png", "learn-pi-time.png"]
+    for name in names:
+        with Image.open(tmp_path / "o" / "plots" / name) as im:
+            im.load()
+            assert im.size[0] > 300 and im.size[1] > 200
+            assert len(np.unique(np.asarray(im).reshape(-1, 3), axis=0)) > 20  # drawn, not blank
+
+
+def test_a_second_drawing_process_only_when_a_core_is_idle(monkeypatch):
+    monkeypatch.setattr(figures.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(figures.os, "getloadavg", lambda: (0.4, 0.0, 0.0))
+    assert figures.idle_workers() == 2
+    monkeypatch.setattr(figures.os, "getloadavg", lambda: (1.6, 0.0, 0.0))
+    assert figures.idle_workers() == 1
+    monkeypatch.setattr(figures.os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    monkeypatch.setattr(figures.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    assert figures.idle_workers() == 1
