@@ -14,7 +14,6 @@ by an optional fixed ``tip`` transform (4, 4), e.g. a flange or tool offset.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
@@ -90,6 +89,8 @@ def chain_urdf(chain: Chain, robot: str = "robot") -> str:
     inertia is written, so the file describes kinematics only. A revolute joint without
     finite limits is written as ``continuous``.
     """
+    from xml.sax.saxutils import quoteattr  # imports urllib, http and ssl: only when a chain is written
+
     lines = ['<?xml version="1.0"?>', f"<robot name={quoteattr(robot)}>",
              f"  <link name={quoteattr(chain.base)}/>"]
     parent = chain.base
