@@ -183,31 +183,7 @@ class PerWindow(ConstraintModel):
         """Index (N,) into ``windows_`` of each sample: its own window, else the nearest fitted
         window of its demonstration (InputError for a demonstration not seen in ``fit``)."""
         self._check_fitted("A_")
-        X = self._check_states(X)
-        n = X.shape[0]
-        demos = self.windows_[:, 0]
-        if groups is None:
-            if len(np.unique(demos)) > 1:
-                raise InputError("a per-window constraint model needs the demonstration ids")
-            groups = np.full(n, demos[0])
-        groups = np.asarray(groups).astype(np.int64)
-        if self.window_ is not None and t is None:
-            raise InputError("a per-window constraint model needs the sample times t")
-        j = np.zeros(n) if self.window_ is None else np.asarray(t, float) / self.window_ - 0.5
-        out = np.empty(n, np.int64)
-        for d in np.unique(groups):  # a loop over demonstrations, not samples
-            mine = np.flatnonzero(demos == d)
-            if not len(mine):
-                raise InputError(f"demonstration {int(d)} was not seen when fitting this per-window model; "
-                                 "fit a PerWindow on the new data")
-            m = groups == d
-            centres = self.windows_[mine, 1].astype(float)
-            pos = np.clip(np.searchsorted(centres, j[m]), 1, max(len(mine) - 1, 1))
-            lo = mine[pos - 1]
-            hi = mine[np.minimum(pos, len(mine) - 1)]
-            nearer_hi = np.abs(self.windows_[hi, 1] - j[m]) < np.abs(self.windows_[lo, 1] - j[m])
-            out[m] = np.where(nearer_hi, hi, lo)
-        return out
+        return nearest_window(self.windows_, self.window_, len(self._check_states(X)), groups, t)
 
     def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
                    t: np.ndarray | None = None) -> np.ndarray:
@@ -227,6 +203,36 @@ class PerWindow(ConstraintModel):
 
         return -npoe_error(self.projection(X, groups=groups, t=t), np.asarray(U, dtype=float))
 
+
+def nearest_window(table: np.ndarray, window: float | None, n: int, groups: np.ndarray | None,
+                   t: np.ndarray | None, what: str = "per-window") -> np.ndarray:
+    """Index (n,) into ``table`` (S, 2) [demonstration id, window index j] of windows of
+    ``window`` s (None: one per demonstration) of each sample of demonstrations ``groups`` (n,)
+    at times ``t`` (n,): its own window, else the nearest one of its demonstration in the table
+    (InputError for a demonstration not in it)."""
+    demos = table[:, 0]
+    if groups is None:
+        if len(np.unique(demos)) > 1:
+            raise InputError(f"a {what} constraint model needs the demonstration ids")
+        groups = np.full(n, demos[0])
+    groups = np.asarray(groups).astype(np.int64)
+    if window is not None and t is None:
+        raise InputError(f"a {what} constraint model needs the sample times t")
+    j = np.zeros(n) if window is None else np.asarray(t, float) / window - 0.5
+    out = np.empty(n, np.int64)
+    for d in np.unique(groups):  # a loop over demonstrations, not samples
+        mine = np.flatnonzero(demos == d)
+        if not len(mine):
+            raise InputError(f"demonstration {int(d)} was not seen when fitting this {what} model; "
+                             "fit it on the new data")
+        m = groups == d
+        centres = table[mine, 1].astype(float)
+        pos = np.clip(np.searchsorted(centres, j[m]), 1, max(len(mine) - 1, 1))
+        lo = mine[pos - 1]
+        hi = mine[np.minimum(pos, len(mine) - 1)]
+        nearer_hi = np.abs(table[hi, 1] - j[m]) < np.abs(table[lo, 1] - j[m])
+        out[m] = np.where(nearer_hi, hi, lo)
+    return out
 
 
 def fitted_per_stretch(model: ConstraintModel) -> ConstraintModel | None:
