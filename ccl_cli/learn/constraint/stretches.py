@@ -55,11 +55,13 @@ from typing import ClassVar
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.learn import model_selection as ms
 from ccl_cli.learn.basis import cluster_sums
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.constraint.windows import nearest_window, window_index
+from ccl_cli.learn.linalg import nullspace_projection
 from ccl_cli.learn.params import Interval, parameters
 
 #: Block length (s) over which a stretch is judged.
@@ -238,12 +240,12 @@ class ConstraintInStretches(ConstraintModel):
         X, U = self._check_states(X), np.asarray(U, dtype=float)
         if t is None:
             raise InputError("a constraint in stretches needs the sample times t")
-        data = nr.Sample.of(X, U, groups, np.asarray(t, float), derivative)
-        blocks = blocks_of(data, self.block)
+        blocks, holds = label_blocks(nr.Sample.of(X, U, groups, np.asarray(t, float), derivative),
+                                     self.A_, self.block)
         out = ConstraintInStretches(block=self.block, n_constraints=self.n_constraints)
         out.A_, out.n_action_, out.n_constraints_ = self.A_, self.n_action_, self.n_constraints_
         out.n_features_in_ = self.n_features_in_
-        out._label(blocks, quiet(blocks, self.A_, _noise(data, self.A_)) & blocks.moving)
+        out._label(blocks, holds)
         out.selection_ = {**self.selection_, "reason": out.summary() + " (rows learnt before; stretches "
                           "classified on these data)"}
         out.heldout_ = None
@@ -303,3 +305,67 @@ def describe(k: int, share: float, runs: list[list[float]], most: int = 4) -> st
     more = f", … ({len(runs) - most} more)" if len(runs) > most else ""
     return (f"k = {k} in {100 * share:.0f} % of the moving time: {', '.join(parts)}{more}; "
             "free motion elsewhere")
+
+
+def label_blocks(data: nr.Sample, rows: np.ndarray, block: float) -> tuple[Blocks, np.ndarray]:
+    """The blocks of ``data`` and whether the rows (s, q) are quiet in each moving one (B,)."""
+    blocks = blocks_of(data, block)
+    return blocks, quiet(blocks, rows, _noise(data, rows)) & blocks.moving
+
+
+@dataclass
+class HeldOut:
+    """The held-out evidence of the model in stretches (:func:`held_out`) for its k rows (k = 0:
+    none holds): per sample its rows (N, k, q) — zeros where the held-out blocks do not hold —
+    the share of the held-out moving time where they hold, the noise evidence on the held-out
+    samples it claims, NPOE per fold, and the reason in words."""
+
+    k: int
+    rows: np.ndarray
+    share: float
+    evidence: nr.RowEvidence | None
+    errors: np.ndarray
+    reason: str
+
+
+def held_out(data: nr.Sample, folds: ms.Folds, m: int, block: float = BLOCK_S) -> HeldOut:
+    """k = the most rows s ≤ m such that the model with s rows, fitted on every training fold,
+    holds in at least MIN_SHARE of the held-out moving time — its held-out blocks classified
+    by the motion along its rows — and the noise rule (:mod:`.noise_rank`) on the held-out
+    samples it claims finds all s rows quiet. Per fold NPOE of the held-out samples with
+    Ñ = I − RᵀR where the rows hold, I elsewhere."""
+    X, U, g, t = data.X, data.U, data.groups, data.t
+    n, q = U.shape
+    piece = np.zeros(n, np.int64)
+    for j, (_, test) in enumerate(folds.pairs):
+        piece[test] = j
+    piece = np.cumsum(np.r_[True, (piece[1:] != piece[:-1]) | (g[1:] != g[:-1])])
+    found = HeldOut(0, np.zeros((n, 0, q)), 0.0, None, np.zeros(len(folds.pairs)), "")
+    for s in range(1, m + 1):
+        rows, holds, moving = np.zeros((n, s, q)), np.zeros(n, bool), np.zeros(n, bool)
+        errors = []
+        for train, test in folds.pairs:
+            model = ConstraintInStretches(block=block, n_constraints=s).fit(
+                X[train], U[train], groups=g[train], t=t[train], derivative=data.derivative)
+            sub = nr.Sample(X[test], U[test], piece[test], t[test], data.derived, data.recorded)
+            blocks, on = label_blocks(sub, model.A_, block)
+            holds[test] = fill_still(on, blocks.moving, blocks.demo)[blocks.seg]
+            moving[test] = blocks.moving[blocks.seg]
+            rows[test] = np.where(holds[test, None, None], model.A_[None], 0.0)
+            errors.append(npoe_error(nullspace_projection(rows[test]), U[test]))
+        share = float((holds & moving).sum() / max(moving.sum(), 1))
+        run = np.cumsum(np.r_[True, (piece[1:] != piece[:-1]) | (holds[1:] != holds[:-1])])
+        claimed = nr.Sample(X[holds], U[holds], run[holds], t[holds], data.derived, data.recorded)
+        evidence = claimed.rows_evidence(rows[holds]) if holds.sum() > 3 else None
+        chosen = None if evidence is None else nr.noise_rank(evidence, s, share_rows=nr.SHARE_ROWS)
+        k = 0 if chosen is None else chosen.n_constraints
+        ok = share >= MIN_SHARE and k >= s
+        why = (f"{s} row(s) learnt on the training folds hold in {100 * share:.0f} % of the held-out moving "
+               f"time (at least {100 * MIN_SHARE:.0f} % needed)"
+               + ("" if chosen is None else f"; on the held-out samples they claim: {chosen.reason}"))
+        if not ok:
+            if s == 1:
+                found = HeldOut(0, rows, share, evidence, np.asarray(errors), "no constraint: " + why)
+            break
+        found = HeldOut(s, rows, share, evidence, np.asarray(errors), why)
+    return found
