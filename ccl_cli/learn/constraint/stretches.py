@@ -60,7 +60,7 @@ from ccl_cli.learn.basis import cluster_sums
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint.base import ConstraintModel
-from ccl_cli.learn.constraint.windows import nearest_window, window_index
+from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
 from ccl_cli.learn.linalg import nullspace_projection
 from ccl_cli.learn.params import Interval, parameters
 
