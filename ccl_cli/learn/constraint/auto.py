@@ -389,7 +389,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
         """The winner with k rows fitted on all the data (k = 0: :class:`NoConstraint`)."""
         if winner is None or k == 0:
             return NoConstraint().fit(data.X, data.U, groups=data.groups)
-        return fit_constraint(winner.candidate.make(k), data.X, data.U, data.groups, data.t, data.derivative)
+        how = data.derivative if winner.candidate.name == "stretches" else None  # its noise needs it
+        return fit_constraint(winner.candidate.make(k), data.X, data.U, data.groups, data.t, how)
 
     def _fit_without_cv(self, data: ev.Sample, why: str) -> None:
         """Too few samples to cross-validate: nhat, its rank by the noise rule on its own rows
