@@ -8,9 +8,9 @@ stretches where a common set of s rows is quiet and fits the rows on those stret
 
 Blocks: block b of demonstration d holds its samples with j·B ≤ t < (j + 1)·B (B = ``block``
 s, j the block index), as the windows of :class:`~.windows.PerWindow`. With C_b the mean
-second moment of the actions in block b (q, q), n_b its sample count and σ²(a) the noise
-variance of aᵀu (:mod:`.noise_rank`: second differences, through the derivative filter when
-the velocities were derived):
+second moment of the actions in block b (q, q), n_b its sample count and σ²(a) = aᵀΣa the
+noise variance of aᵀu (Σ from :mod:`.noise_rank`'s robust estimates — second differences,
+through the derivative filter when the velocities were derived — :func:`noise_covariance`):
 
 * block b *moves* when tr C_b > MARGIN · Σ_i σ²(e_i) (its motion is above the noise);
 * rows R (s, q), orthonormal, are *quiet* in block b when for every row r_k
@@ -82,7 +82,8 @@ MARGIN = nr.MARGIN
 class Blocks:
     """Per block: mean second moment ``C`` (B, q, q), sample count ``n`` (B,), ``moving`` (B,),
     ``demo`` (B,); ``seg`` (N,) each sample's block; ``table`` (B, 2) [demo, j]; ``typical``
-    m̄, the median of tr C_b over the moving blocks."""
+    m̄, the median of tr C_b over the moving blocks; ``noise`` Σ (q, q) the actions' noise
+    covariance (:func:`noise_covariance`)."""
 
     C: np.ndarray
     n: np.ndarray
@@ -91,6 +92,7 @@ class Blocks:
     seg: np.ndarray
     table: np.ndarray
     typical: float
+    noise: np.ndarray
 
 
 def blocks_of(data: nr.Sample, block: float) -> Blocks:
@@ -102,28 +104,37 @@ def blocks_of(data: nr.Sample, block: float) -> Blocks:
     n = np.bincount(seg, minlength=n_blocks)
     sums = cluster_sums((U[:, :, None] * U[:, None, :]).reshape(len(U), q * q), seg, n_blocks)
     C = sums.reshape(n_blocks, q, q) / np.maximum(n, 1)[:, None, None]
-    noise = float(data.rows_evidence(np.eye(q)).noise.sum())
+    noise = noise_covariance(data)
     total = np.trace(C, axis1=1, axis2=2)
-    moving = total > MARGIN * noise
+    moving = total > MARGIN * np.trace(noise)
     typical = float(np.median(total[moving])) if moving.any() else 0.0
-    return Blocks(C, n, moving, table[:, 0], seg, table, typical)
+    return Blocks(C, n, moving, table[:, 0], seg, table, typical, noise)
 
 
-def quiet(blocks: Blocks, rows: np.ndarray, noise: np.ndarray) -> np.ndarray:
-    """Whether rows (s, q) — or candidate row sets (c, s, q) with noise (c, s) — are quiet in
-    each block: (B,) or (c, B) (module docstring)."""
+def noise_covariance(data: nr.Sample) -> np.ndarray:
+    """Σ (q, q), the noise covariance of the actions, from the robust noise variances
+    (:mod:`.noise_rank`) along the axes e_i and their diagonals (e_i + e_j)/√2: for Gaussian
+    noise σ²(a) = aᵀΣa, so Σ_ij = σ²((e_i + e_j)/√2) − (Σ_ii + Σ_jj)/2 — q(q + 1)/2 robust
+    estimates in place of one per candidate row."""
+    q = data.U.shape[1]
+    i, j = np.triu_indices(q, 1)
+    diag = np.zeros((len(i), q))
+    diag[np.arange(len(i)), i] = diag[np.arange(len(i)), j] = np.sqrt(0.5)
+    var = data.rows_evidence(np.r_[np.eye(q), diag]).noise
+    S = np.diag(var[:q])
+    S[i, j] = S[j, i] = var[q:] - (var[i] + var[j]) / 2
+    return S
+
+
+def quiet(blocks: Blocks, rows: np.ndarray) -> np.ndarray:
+    """Whether unit rows (s, q) — or candidate row sets (c, s, q) — are quiet in each block:
+    (B,) or (c, B) (module docstring; σ²(r) = rᵀΣr)."""
     R = rows[None] if rows.ndim == 2 else rows
-    sig = np.atleast_2d(noise)
+    sig = np.einsum("ckq,qr,ckr->ck", R, blocks.noise, R)
     energy = np.einsum("ckq,bqr,ckr->cbk", R, blocks.C, R)
     ok = (energy <= MARGIN * sig[:, None, :]) | (energy <= SHARE_BLOCK * blocks.typical)
     out = ok.all(-1)
     return out[0] if rows.ndim == 2 else out
-
-
-def _noise(data: nr.Sample, rows: np.ndarray) -> np.ndarray:
-    """σ² along rows (..., s, q) → (..., s)."""
-    flat = rows.reshape(-1, rows.shape[-1])
-    return data.rows_evidence(flat).noise.reshape(rows.shape[:-1])
 
 
 def fill_still(holds: np.ndarray, moving: np.ndarray, demo: np.ndarray) -> np.ndarray:
@@ -140,7 +151,7 @@ def fill_still(holds: np.ndarray, moving: np.ndarray, demo: np.ndarray) -> np.nd
     return np.where(moving, holds, np.where(src >= 0, holds[np.clip(src, 0, B - 1)], False))
 
 
-def common_rows(data: nr.Sample, blocks: Blocks, s: int) -> tuple[np.ndarray, np.ndarray] | None:
+def common_rows(blocks: Blocks, s: int) -> tuple[np.ndarray, np.ndarray] | None:
     """Rows R (s, q) quiet in the largest share of the moving time and the moving blocks where
     they are quiet (B,) (module docstring); None when no block moves."""
     idx = np.flatnonzero(blocks.moving)
@@ -148,13 +159,13 @@ def common_rows(data: nr.Sample, blocks: Blocks, s: int) -> tuple[np.ndarray, np
         return None
     C, w = blocks.C, blocks.n * blocks.moving
     own = np.transpose(np.linalg.eigh(C[idx])[1][:, :, :s], (0, 2, 1))  # (M, s, q) each block's own rows
-    share = quiet(blocks, own, _noise(data, own)) @ w
+    share = quiet(blocks, own) @ w
     rows = own[int(np.argmax(share))]
-    holds = quiet(blocks, rows, _noise(data, rows)) & blocks.moving
+    holds = quiet(blocks, rows) & blocks.moving
     for _ in range(ITERATIONS):
         pooled = np.einsum("b,bqr->qr", w * holds, C)
         rows = np.linalg.eigh(pooled)[1][:, :s].T
-        again = quiet(blocks, rows, _noise(data, rows)) & blocks.moving
+        again = quiet(blocks, rows) & blocks.moving
         if np.array_equal(again, holds):
             break
         holds = again
@@ -207,7 +218,7 @@ class ConstraintInStretches(ConstraintModel):
         sizes = [self.n_constraints] if self.n_constraints is not None else range(1, q)
         found = None
         for s in sizes:  # the most rows that hold in a sizeable share (at least one)
-            got = common_rows(data, blocks, s)
+            got = common_rows(blocks, s)
             if got is None:
                 raise InputError("no block of the recording moves above the noise: no stretch to judge")
             share = _share(got[1], blocks)
@@ -310,7 +321,7 @@ def describe(k: int, share: float, runs: list[list[float]], most: int = 4) -> st
 def label_blocks(data: nr.Sample, rows: np.ndarray, block: float) -> tuple[Blocks, np.ndarray]:
     """The blocks of ``data`` and whether the rows (s, q) are quiet in each moving one (B,)."""
     blocks = blocks_of(data, block)
-    return blocks, quiet(blocks, rows, _noise(data, rows)) & blocks.moving
+    return blocks, quiet(blocks, rows) & blocks.moving
 
 
 @dataclass
