@@ -104,7 +104,9 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
         return {"per_demo_angle_deg": angles, "median_angle_deg": float(np.median(list(angles.values())))}
     try:
         i = int(np.argmin(np.sum((d.X - d.X.mean(0)) ** 2, axis=1)))
-        learnt = row_basis(constraint_at(model, d.X[i:i + 1], d.demo[i:i + 1], d.t[i:i + 1])[0])
+        A = getattr(model, "A_", None)  # constant rows (also those of a constraint in stretches)
+        learnt = row_basis(A if np.ndim(A) == 2 else
+                           constraint_at(model, d.X[i:i + 1], d.demo[i:i + 1], d.t[i:i + 1])[0])
     except (AttributeError, NotImplementedError):
         return None
     if not len(learnt):
