@@ -59,7 +59,7 @@ from ccl_cli.learn import model_selection as ms
 from ccl_cli.learn.basis import cluster_sums
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
-from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.constraint.base import TimedConstraint
 from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
 from ccl_cli.learn.linalg import nullspace_projection
 from ccl_cli.learn.params import Interval, parameters
@@ -173,7 +173,7 @@ def common_rows(blocks: Blocks, s: int) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 @parameters
-class ConstraintInStretches(ConstraintModel):
+class ConstraintInStretches(TimedConstraint):
     """s constant rows that hold in the stretches of the recording where the motion along them
     is quiet, no constraint elsewhere (module docstring).
 
@@ -189,8 +189,6 @@ class ConstraintInStretches(ConstraintModel):
         heldout_ (set by learn-a's ``auto``: {error, mean, se, per_fold, folds}, else None).
     """
 
-    needs_demo = True
-    needs_time = True
     _parameter_constraints: ClassVar[dict[str, list]] = {
         "block": [Interval(float, 0, None, closed="neither")],
         "n_constraints": [Interval(int, 1, 100_000), None]}
@@ -273,20 +271,10 @@ class ConstraintInStretches(ConstraintModel):
 
     def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
                    t: np.ndarray | None = None) -> np.ndarray:
-        """Ã: the rows where the constraint holds, rows of zeros elsewhere: (N, s, q)."""
+        """Ã: the rows where the constraint holds, rows of zeros elsewhere (so Ñ = I − RᵀR
+        there and I elsewhere): (N, s, q)."""
         on = self.holds(X, groups, t)
         return np.where(on[:, None, None], self.A_[None], 0.0)
-
-    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
-                   t: np.ndarray | None = None) -> np.ndarray:
-        """Ñ = I − RᵀR where the constraint holds, I elsewhere: (N, q, q)."""
-        A = self.constraint(X, groups=groups, t=t)
-        return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", A, A)
-
-    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-              t: np.ndarray | None = None) -> float:
-        """−NPOE of U (N, q) (see :class:`ConstraintModel`)."""
-        return -npoe_error(self.projection(X, groups=groups, t=t), np.asarray(U, dtype=float))
 
     def summary(self) -> str:
         """Where the constraint holds, in words."""

@@ -36,7 +36,7 @@ from ccl_cli.learn.basis import cluster_sums
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import rank as sel
-from ccl_cli.learn.constraint.base import ConstraintModel, check_rows_asked
+from ccl_cli.learn.constraint.base import ConstraintModel, TimedConstraint, check_rows_asked
 from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
 from ccl_cli.learn.defaults import N_FOLDS, WINDOW_S
 from ccl_cli.learn.model_selection import inner_folds
@@ -64,7 +64,7 @@ def window_rows(U: np.ndarray, seg: np.ndarray, n_seg: int, shrinkage: float) ->
 
 
 @parameters
-class PerWindow(ConstraintModel):
+class PerWindow(TimedConstraint):
     """A constant constraint (nhat) per window of ``window`` seconds of each demonstration.
 
     Args:
@@ -85,8 +85,6 @@ class PerWindow(ConstraintModel):
         per_fold, folds}, or None when not measured or the windows are too short).
     """
 
-    needs_demo = True
-    needs_time = True
     _parameter_constraints: ClassVar[dict[str, list]] = {
         "window": [Interval(float, 0, None, closed="neither"), None],
         "n_constraints": [Interval(int, 0, 100_000), None],
@@ -173,20 +171,6 @@ class PerWindow(ConstraintModel):
                    t: np.ndarray | None = None) -> np.ndarray:
         """Ã of each sample's window: (N, s, q)."""
         return self.A_[self.window_of(X, groups, t)]
-
-    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
-                   t: np.ndarray | None = None) -> np.ndarray:
-        """Ñ = I − ÃᵀÃ of each sample's window (orthonormal rows): (N, q, q)."""
-        A = self.constraint(X, groups=groups, t=t)
-        return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", A, A)
-
-    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-              t: np.ndarray | None = None) -> float:
-        """−NPOE of U (N, q) under each sample's window (see :class:`ConstraintModel`)."""
-        from ccl_cli.learn.consistency import npoe_error
-
-        return -npoe_error(self.projection(X, groups=groups, t=t), np.asarray(U, dtype=float))
-
 
 
 def fitted_per_stretch(model: ConstraintModel) -> ConstraintModel | None:
