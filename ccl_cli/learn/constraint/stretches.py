@@ -72,7 +72,7 @@ BLOCK_S = 0.5
 SHARE_BLOCK = 1e-3
 #: Smallest share of the held-out moving time in which the rows must be quiet for the
 #: constraint to be claimed (chosen on the simulations: docs/auto.md).
-MIN_SHARE = 0.4
+MIN_SHARE = 0.5
 #: Updates of the rows and the quiet blocks.
 ITERATIONS = 5
 MARGIN = nr.MARGIN
