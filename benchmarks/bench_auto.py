@@ -58,6 +58,11 @@ SCENARIOS: dict[str, tuple[int, Callable[[int], Demonstrations], object, str]] =
     "tracker_sphere": (1, lambda s: sim.tracker_sphere(duration=60.0, seed=s), None, "heldout"),
     "tracker_tilt": (1, lambda s: sim.tracker_tilt(seed=s), None, "heldout"),
     "tracker_tilt_steps": (1, lambda s: sim.tracker_tilt(mode="steps", seed=s), None, "heldout"),
+    # steps every 5 s / 7 s: not aligned with the windows of 2, 3, 4 or 6 s (the window study)
+    "tracker_tilt_steps5": (1, lambda s: sim.tracker_tilt(mode="steps", window_s=5.0, seed=s), None,
+                            "heldout"),
+    "tracker_tilt_steps7": (1, lambda s: sim.tracker_tilt(mode="steps", window_s=7.0, seed=s), None,
+                            "heldout"),
     "arm7_2rows": (2, lambda s: sim.arm7(rows=(0, 1), seed=s), None, "N"),
     "arm7_jacobian": (2, lambda s: sim.arm7(rows=(0, 1), constraint="jacobian", seed=s), ARM7_JACOBIAN, "k"),
     # explicit method: lambda (its default rule, noise, against ratio), not auto
