@@ -13,6 +13,9 @@ Candidates, simplest first — the order in which the one-standard-error rule pr
                 states of at most MAX_RBF_STATES dimensions)
 ``lambda``      A(x) = Λ(x)Φ(x), when features Φ are given (§3.3)
 ``linear``      A(x) = W Φ_A(x), when regressors are given (§3.5)
+``stretches``   one constant A in the stretches where it holds, none elsewhere
+                (:class:`~.stretches.ConstraintInStretches`; tried only when no candidate
+                above finds a constraint on held-out data)
 ==============  ===========================================================================
 
 The order is that of how far a model's claim reaches beyond the samples it was fitted on:
@@ -49,6 +52,13 @@ Evidence, from one cross-validation
    since each removes k* directions. The simplest whose mean exceeds the best's by at most
    one standard error of their per-fold differences (a paired comparison) wins. For k* = 0
    that is ``none``.
+
+4. *A constraint in stretches.* When every candidate above says k = 0 — a whole wiping
+   recording moves along the table's normal during approach and retract — ``stretches`` asks
+   whether rows learnt on the training folds are quiet in at least
+   :data:`~.stretches.MIN_SHARE` of the held-out moving time, the noise rule agreeing on the
+   held-out samples it claims (:func:`~.stretches.held_out`). If so it wins with its rank;
+   Ñ = I − RᵀR where it holds, I elsewhere.
 
 Why not held-out NPOE across ranks: Ñ = I has NPOE 0, so NPOE alone always prefers fewer
 constraints; and a flexible model can lower the NPOE of one row by turning it towards
