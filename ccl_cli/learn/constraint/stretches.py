@@ -23,8 +23,9 @@ through the derivative filter when the velocities were derived — :func:`noise_
                                                sensor's noise, and far below the strokes);
 
 * the rows are the s eigenvectors with the smallest eigenvalues of Σ_{b quiet} n_b C_b (§3.1
-  on the quiet blocks); they start from the moving block whose own s smallest eigenvectors are
-  quiet in the largest share of the moving time, and the rows and the quiet blocks are then
+  on the quiet blocks); they start from the moving block (of at most MAX_STARTS, spread
+  evenly) whose own s smallest eigenvectors are quiet in the largest share of the moving
+  time, and the rows and the quiet blocks are then
   updated in turn (at most ITERATIONS times);
 * a block that does not move takes the label of the nearest moving block before it in its
   demonstration (else after it): at rest every direction is quiet, which says nothing.
@@ -75,6 +76,9 @@ SHARE_BLOCK = 1e-3
 MIN_SHARE = 0.5
 #: Updates of the rows and the quiet blocks.
 ITERATIONS = 5
+#: At most this many moving blocks (evenly spread over the recording) offer their own rows as
+#: the start: the (starts × blocks) energies stay small on hour-long recordings.
+MAX_STARTS = 256
 MARGIN = nr.MARGIN
 
 
@@ -158,7 +162,8 @@ def common_rows(blocks: Blocks, s: int) -> tuple[np.ndarray, np.ndarray] | None:
     if not len(idx):
         return None
     C, w = blocks.C, blocks.n * blocks.moving
-    own = np.transpose(np.linalg.eigh(C[idx])[1][:, :, :s], (0, 2, 1))  # (M, s, q) each block's own rows
+    starts = idx[np.unique(np.linspace(0, len(idx) - 1, min(len(idx), MAX_STARTS)).astype(int))]
+    own = np.transpose(np.linalg.eigh(C[starts])[1][:, :, :s], (0, 2, 1))  # (M, s, q) their own rows
     share = quiet(blocks, own) @ w
     rows = own[int(np.argmax(share))]
     holds = quiet(blocks, rows) & blocks.moving
