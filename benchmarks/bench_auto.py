@@ -50,9 +50,19 @@ SCENARIOS: dict[str, tuple[int, Callable[[int], Demonstrations], object, str]] =
     "flow2d": (0, lambda s: sim.flow2d(seed=s), None, "k"),
     "tracker_plane": (1, lambda s: sim.tracker_plane(duration=60.0, seed=s), None, "angle"),
     "wipe_phase": (1, lambda s: sim.phase_subset(sim.arm_wipe(n_demos=4, seed=s), "wipe"), None, "angle"),
+    # whole recordings: approach (free), wipe (on the plane), retract (free)
+    "wipe_whole": (1, lambda s: sim.arm_wipe(seed=s), None, "angle"),
+    "wipe_whole_50hz": (1, lambda s: sim.arm_wipe(rate=50.0, seed=s), None, "angle"),
+    "wipe_whole_1khz": (1, lambda s: sim.arm_wipe(rate=1000.0, seed=s), None, "angle"),
+    "wipe_whole_bias": (1, lambda s: sim.arm_wipe(offset=0.01, drift=2e-4, seed=s), None, "angle"),
     "tracker_sphere": (1, lambda s: sim.tracker_sphere(duration=60.0, seed=s), None, "heldout"),
     "tracker_tilt": (1, lambda s: sim.tracker_tilt(seed=s), None, "heldout"),
     "tracker_tilt_steps": (1, lambda s: sim.tracker_tilt(mode="steps", seed=s), None, "heldout"),
+    # steps every 5 s / 7 s: not aligned with the windows of 2, 3, 4 or 6 s (the window study)
+    "tracker_tilt_steps5": (1, lambda s: sim.tracker_tilt(mode="steps", window_s=5.0, seed=s), None,
+                            "heldout"),
+    "tracker_tilt_steps7": (1, lambda s: sim.tracker_tilt(mode="steps", window_s=7.0, seed=s), None,
+                            "heldout"),
     "arm7_2rows": (2, lambda s: sim.arm7(rows=(0, 1), seed=s), None, "N"),
     "arm7_jacobian": (2, lambda s: sim.arm7(rows=(0, 1), constraint="jacobian", seed=s), ARM7_JACOBIAN, "k"),
     # explicit method: lambda (its default rule, noise, against ratio), not auto
@@ -73,7 +83,15 @@ def mean_angle(model, d: Demonstrations) -> float | None:
     rows = constraint_at(model, d.X[idx], d.demo[idx], d.t[idx])
     if rows.shape[1] == 0:
         return None
-    return float(np.median([subspace_angle(rows[j], true_rows(d, i)) for j, i in enumerate(idx)]))
+    held = np.abs(rows).sum((1, 2)) > 0  # a constraint in stretches: where it holds
+    return float(np.median([subspace_angle(rows[j], true_rows(d, i)) for j, i in enumerate(idx) if held[j]]))
+
+
+def true_share(d: Demonstrations) -> float | None:
+    """Share of the samples in the wipe phase (arm_wipe recordings)."""
+    if "phases" not in d.metadata:
+        return None
+    return float(sim.phase_subset(d, "wipe").n_samples / d.n_samples)
 
 
 def before(d: Demonstrations, features) -> int:
@@ -112,6 +130,11 @@ def run_case(name: str, seed: int, window: float | None = None) -> dict:
                              if v["heldout_error"] is not None}
     if check in ("angle", "heldout") and model.n_constraints_:
         row["angle_deg"] = mean_angle(model, d)
+    if "time_share" in cands.get("stretches", {}):
+        row["stretches_heldout_share"] = cands["stretches"]["time_share"]
+    if sel["chosen"] == "stretches":
+        row["share"] = model.model_.share_
+        row["true_share"] = true_share(d)
     if test is not None:  # as ccl scores a held-out part: a model per stretch is fitted on it (said so)
         N, note = projection_on(model, test, test.U)
         row["refitted_on_test"] = note is not None
@@ -156,7 +179,8 @@ def main() -> None:
                        "before_k": dict(sorted(Counter(r["before_k"] for r in rows).items())),
                        "chosen": dict(Counter(r["chosen"] for r in rows)),
                        "cpu_s_median": float(np.median([r["cpu_s"] for r in rows]))}
-            for key in ("angle_deg", "heldout_npoe", "max_abs_N_err"):
+            for key in ("angle_deg", "heldout_npoe", "max_abs_N_err", "share",
+                        "stretches_heldout_share"):
                 vals = [r[key] for r in rows if r.get(key) is not None]
                 if vals:
                     summary[key] = [float(np.min(vals)), float(np.median(vals)), float(np.max(vals))]
@@ -165,8 +189,10 @@ def main() -> None:
             if pw:
                 summary["per_window_npoe"] = [float(np.min(pw)), float(np.median(pw)), float(np.max(pw))]
             emit(summary)
-            extra = "  ".join(f"{k} {v[0]:.3g}/{v[1]:.3g}/{v[2]:.3g}" for k, v in summary.items()
-                              if k in ("angle_deg", "heldout_npoe", "max_abs_N_err", "per_window_npoe"))
+            shown = ("angle_deg", "heldout_npoe", "max_abs_N_err", "per_window_npoe", "share",
+                     "stretches_heldout_share")
+            extra = "  ".join(f"{k} {v[0]:.3g}/{v[1]:.3g}/{v[2]:.3g}"
+                              for k, v in summary.items() if k in shown)
             label = name if window is None else f"{name} W={window:g}s"
             title = "auto: runs passing the bar; k (after) vs today's default (before); min/median/max"
             tables[title].append(

@@ -41,6 +41,7 @@ from ccl_cli.io.h5.seal import create_hdf5
 from ccl_cli.learn.basis import basis_from_state
 from ccl_cli.learn.constraint import (
     AutoConstraint,
+    ConstraintInStretches,
     KnownFeatureConstraint,
     LinearConstraint,
     NoConstraint,
@@ -64,6 +65,7 @@ CLASSES: dict[str, tuple[str, type]] = {
     "lambda": ("constraint", KnownFeatureConstraint),
     "linear": ("constraint", LinearConstraint),
     "per_window": ("constraint", PerWindow),
+    "stretches": ("constraint", ConstraintInStretches),
     "none": ("constraint", NoConstraint),
     "ncl": ("nullspace", NullSpaceComponent),
     "policy": ("policy", PolicyLearner),
@@ -440,6 +442,13 @@ def _check_shapes(model: Any, method: str, where: str) -> None:
             bad = "windows_"
         elif model.A_ is None or model.A_.shape != (len(win), s, q) or (model.window_ is not None and not (
                 isinstance(model.window_, int | float) and model.window_ > 0)):
+            bad = "A_"
+    elif method == "stretches":
+        blocks = model.blocks_
+        if blocks is None or blocks.ndim != 2 or blocks.shape[1] != 3 or \
+                not np.array_equal(blocks, np.round(blocks)) or not np.isin(blocks[:, 2], (0, 1)).all():
+            bad = "blocks_"
+        elif model.A_ is None or s < 1 or model.A_.shape != (s, q):
             bad = "A_"
     if bad:
         raise InputError(f"{where}: array {bad} has the wrong shape for a {method} model")

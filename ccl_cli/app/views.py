@@ -23,6 +23,7 @@ import numpy as np
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.learn.constraint import PerDemonstration
 from ccl_cli.learn.constraint.base import constraint_at
+from ccl_cli.learn.constraint.windows import refit_on_new_demos
 from ccl_cli.metrics import row_basis, subspace_angle
 
 GRID = 22  # points per axis of the grid a 2-D field is evaluated on
@@ -103,7 +104,9 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
         return {"per_demo_angle_deg": angles, "median_angle_deg": float(np.median(list(angles.values())))}
     try:
         i = int(np.argmin(np.sum((d.X - d.X.mean(0)) ** 2, axis=1)))
-        learnt = row_basis(constraint_at(model, d.X[i:i + 1], d.demo[i:i + 1], d.t[i:i + 1])[0])
+        A = getattr(model, "A_", None)  # constant rows (also those of a constraint in stretches)
+        learnt = row_basis(A if np.ndim(A) == 2 else
+                           constraint_at(model, d.X[i:i + 1], d.demo[i:i + 1], d.t[i:i + 1])[0])
     except (AttributeError, NotImplementedError):
         return None
     if not len(learnt):
@@ -240,8 +243,9 @@ def trajectory_normals(model: Any, d: Demonstrations, title: str, part: str) -> 
             sel = d.demo[at] == k
             if sel.any() and m.n_constraints_ == model.n_constraints_:
                 rows[sel] = m.constraint(d.X[at[sel]])
-    else:
-        rows = constraint_at(model, d.X[at], d.demo[at], d.t[at])
+    else:  # a model per stretch on demonstrations it did not see: as projection_on does
+        refit = refit_on_new_demos(model, d.X, d.U, d.demo, d.t)
+        rows = constraint_at(model if refit is None else refit[0], d.X[at], d.demo[at], d.t[at])
     rows = rows / np.maximum(np.linalg.norm(rows, axis=-1, keepdims=True), 1e-300)
     ref = rows.mean(0)  # one sign for every arrow of a row: towards the row's mean direction
     rows = rows * np.sign(np.einsum("msq,sq->ms", rows, ref) + 1e-300)[..., None]

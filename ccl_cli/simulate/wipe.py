@@ -309,10 +309,15 @@ def _split(N: np.ndarray, velocity: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def arm_wipe(n_demos: int = 8, rate: float = 200.0, noise: float = 2e-5, tilt_deg: float = 10.0,
-             compliance: float = 1e-4, seed: int = 0) -> Demonstrations:
+             compliance: float = 1e-4, offset: float = 0.0, drift: float = 0.0, seed: int = 0
+             ) -> Demonstrations:
     """Task space of :func:`wipe_log`: X the measured end-effector positions (N, 3) (FK of the
     measured joints plus white noise of std ``noise`` m), U their velocities derived as the
     readers do (N, 3).
+
+    Sensor bias: the positions are off by ``offset`` m (a constant, seeded direction: a
+    calibration error) plus ``drift`` m/s × t along another seeded direction (a position sensor
+    that drifts), so the derived velocities carry a constant bias of ``drift`` m/s.
 
     Truth: N = I − nnᵀ while wiping and I in approach and retract (N, 3, 3); of the noise-free
     end-effector velocity u, w = π = N u and v = u − w (the pressing motion along n while
@@ -320,10 +325,18 @@ def arm_wipe(n_demos: int = 8, rate: float = 200.0, noise: float = 2e-5, tilt_de
     ``metadata["phases"]`` gives each demonstration's phase times, ``metadata["normal"]`` n."""
     log = wipe_log(n_demos=n_demos, rate=rate, ee_noise=noise, tilt_deg=tilt_deg, compliance=compliance,
                    seed=seed)
-    U, deriv = derive(log.t, log.ee, log.demo, rate)
+    ee = log.ee
+    if offset or drift:
+        way = unit_rows(np.random.default_rng([seed, 1]).normal(size=(2, 3)))
+        ee = ee + offset * way[0] + drift * log.t[:, None] * way[1]
+    U, deriv = derive(log.t, ee, log.demo, rate)
     wiping = (log.phase == WIPE)[:, None, None]
     N = np.where(wiping, np.eye(3) - np.outer(log.normal, log.normal), np.eye(3))
-    return _wipe_data(log, log.ee, U, _split(N, log.ee_vel), "task", ["x", "y", "z"], ["m"] * 3, deriv)
+    d = _wipe_data(log, ee, U, _split(N, log.ee_vel), "task", ["x", "y", "z"], ["m"] * 3, deriv)
+    if offset or drift:
+        d.metadata["position_bias"] = {"offset_m": offset, "offset_direction": way[0].tolist(),
+                                       "drift_m_s": drift, "drift_direction": way[1].tolist()}
+    return d
 
 
 def arm_wipe_joint(n_demos: int = 8, rate: float = 200.0, noise: float = 2e-3, tilt_deg: float = 10.0,

@@ -8,10 +8,12 @@ from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.nhat import StateIndependentConstraint
 from ccl_cli.learn.constraint.none import NoConstraint
 from ccl_cli.learn.constraint.per_demo import PerDemonstration
+from ccl_cli.learn.constraint.stretches import ConstraintInStretches
 from ccl_cli.learn.constraint.windows import PerWindow
 
 __all__ = [
     "AutoConstraint",
+    "ConstraintInStretches",
     "ConstraintModel",
     "KnownFeatureConstraint",
     "LinearConstraint",

@@ -13,6 +13,9 @@ Candidates, simplest first — the order in which the one-standard-error rule pr
                 states of at most MAX_RBF_STATES dimensions)
 ``lambda``      A(x) = Λ(x)Φ(x), when features Φ are given (§3.3)
 ``linear``      A(x) = W Φ_A(x), when regressors are given (§3.5)
+``stretches``   one constant A in the stretches where it holds, none elsewhere
+                (:class:`~.stretches.ConstraintInStretches`; tried only when no candidate
+                above finds a constraint on held-out data)
 ==============  ===========================================================================
 
 The order is that of how far a model's claim reaches beyond the samples it was fitted on:
@@ -49,6 +52,13 @@ Evidence, from one cross-validation
    since each removes k* directions. The simplest whose mean exceeds the best's by at most
    one standard error of their per-fold differences (a paired comparison) wins. For k* = 0
    that is ``none``.
+
+4. *A constraint in stretches.* When every candidate above says k = 0 — a whole wiping
+   recording moves along the table's normal during approach and retract — ``stretches`` asks
+   whether rows learnt on the training folds are quiet in at least
+   :data:`~.stretches.MIN_SHARE` of the held-out moving time, the noise rule agreeing on the
+   held-out samples it claims (:func:`~.stretches.held_out`). If so it wins with its rank;
+   Ñ = I − RᵀR where it holds, I elsewhere.
 
 Why not held-out NPOE across ranks: Ñ = I has NPOE 0, so NPOE alone always prefers fewer
 constraints; and a flexible model can lower the NPOE of one row by turning it towards
@@ -89,12 +99,15 @@ from ccl_cli.learn.constraint.lambda_ import FEATURE_PARAMS, KnownFeatureConstra
 from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.nhat import StateIndependentConstraint
 from ccl_cli.learn.constraint.none import NO_CONSTRAINT, NoConstraint
+from ccl_cli.learn.constraint.stretches import BLOCK_S, MIN_SHARE, ConstraintInStretches
+from ccl_cli.learn.constraint.stretches import held_out as stretches_held_out
 from ccl_cli.learn.constraint.windows import MIN_BLOCK, RECORDED_GAP, PerWindow, window_index
 from ccl_cli.learn.defaults import N_FOLDS, WINDOW_S
 from ccl_cli.learn.params import Interval, Options, Regressors, SeedParams, parameters
 
 #: Every candidate, simplest first (module docstring).
-CANDIDATES = ("none", "nhat", "per_demo", "per_window", "alpha_linear", "alpha", "lambda", "linear")
+CANDIDATES = ("none", "nhat", "per_demo", "per_window", "alpha_linear", "alpha", "lambda", "linear",
+              "stretches")
 #: The RBF alpha candidate is tried up to this state dimension: its 25 centres cover no more
 #: (beyond it: alpha with linear angles, or lambda with the arm's own features).
 MAX_RBF_STATES = 3
@@ -228,7 +241,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
         seed = int(self.seed)
         out: list[ev.Candidate] = []
         skipped: list[dict[str, Any]] = []
-        for name in sorted(set(names) - {"none"}, key=CANDIDATES.index):
+        for name in sorted(set(names) - {"none", "stretches"}, key=CANDIDATES.index):
             if name == "nhat":
                 out.append(ev.Candidate(name, "one constant A (nhat)", lambda k: StateIndependentConstraint(
                     n_constraints=max(k, 1), seed=seed), m))
@@ -304,7 +317,38 @@ class AutoConstraint(ConstraintModel, SeedParams):
                 cheap_k = max(cheap_k, item.k)
             tried.append(item)
         ev.cap_local(tried)
+        if self.candidates is None or "stretches" in self.candidates:
+            found = self._stretches(data, folds, tried)
+            (tried if isinstance(found, ev.Tried) else skipped).append(found)
         return tried, skipped
+
+    def _stretches(self, data: ev.Sample, folds: ms.Folds, tried: list[ev.Tried]
+                   ) -> ev.Tried | dict[str, Any]:
+        """The constraint in stretches (:mod:`.stretches`), tried when no other candidate finds a
+        constraint on held-out data: its rank and held-out NPOE from
+        :func:`~ccl_cli.learn.constraint.stretches.held_out` on the global folds."""
+        name = "stretches"
+        k_other = max([c.k for c in tried if c.k is not None], default=0)
+        if k_other > 0:
+            return ev.not_tried(name, f"{k_other} constraint(s) hold on held-out data all along")
+        if self.n_constraints is not None:
+            return ev.not_tried(name, "n_constraints is fixed")
+        if data.t is None:
+            return ev.not_tried(name, "needs the sample times")
+        q = data.U.shape[1]
+        m = min(self.max_constraints or q - 1, q - 1)
+        cand = ev.Candidate(name, "one constant A in the stretches where it holds, none elsewhere",
+                            lambda k: ConstraintInStretches(block=BLOCK_S, n_constraints=max(k, 1)), m)
+        item = ev.Tried(cand, folds)
+        try:
+            found = stretches_held_out(data, folds, m)
+        except (LearningError, InputError, np.linalg.LinAlgError, FloatingPointError) as exc:
+            item.k, item.note = None, f"failed: {getattr(exc, 'message', None) or exc}"
+            return item
+        item.rows, item.k, item.evidence, item.rank_reason = found.rows, found.k, found.evidence, found.reason
+        item.errors, item.scored_on = found.errors, folds
+        item.extra = {"time_share": found.share, "min_time_share": MIN_SHARE}
+        return item
 
     def _choose(self, data: ev.Sample, tried: list[ev.Tried], skipped: list[dict[str, Any]]) -> None:
         """k*, the winner by the one-SE rule among the candidates of rank k*, its refit on all
@@ -319,7 +363,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
         local = [c for c in top if c.candidate.segments is not None]
         common = local[-1].folds if local else None  # the finest stretches: blocks inside them
         for c in top:
-            ev.score(c, k_star, data, common)
+            if c.candidate.name != "stretches":  # scored on its own folds by stretches.held_out
+                ev.score(c, k_star, data, common)
         winner = best = None
         if k_star > 0 and top:
             best = min(top, key=lambda c: c.mean)
@@ -335,10 +380,13 @@ class AutoConstraint(ConstraintModel, SeedParams):
         reason = (NO_CONSTRAINT + " (held out, every candidate)" if winner is None else
                   f"{k_star} constraint(s) hold on held-out data; {label} is the simplest model of that rank "
                   "within one SE of the best held-out NPOE")
+        if isinstance(self.model_, ConstraintInStretches):
+            reason = (f"no constraint holds over the whole recording; {k_star} constraint(s) hold in "
+                      f"stretches on held-out data ({winner.rank_reason}): {self.model_.summary()}")
         self.heldout_ = None if winner is None else {
             "error": "NPOE", "mean": winner.mean, "se": winner.se, "per_fold": winner.errors.tolist(),
             "folds": winner.scored_on.reason}
-        if isinstance(self.model_, PerWindow):
+        if isinstance(self.model_, PerWindow | ConstraintInStretches):
             self.model_.heldout_ = self.heldout_
         values = [] if winner is None else [float(v) for v in winner.evidence.ratio]
         self.selection_ = {"rule": "auto", "n_constraints": int(k_star), "model": label, "reason": reason,
@@ -351,7 +399,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
         """The winner with k rows fitted on all the data (k = 0: :class:`NoConstraint`)."""
         if winner is None or k == 0:
             return NoConstraint().fit(data.X, data.U, groups=data.groups)
-        return fit_constraint(winner.candidate.make(k), data.X, data.U, data.groups, data.t)
+        how = data.derivative if winner.candidate.name == "stretches" else None  # its noise needs it
+        return fit_constraint(winner.candidate.make(k), data.X, data.U, data.groups, data.t, how)
 
     def _fit_without_cv(self, data: ev.Sample, why: str) -> None:
         """Too few samples to cross-validate: nhat, its rank by the noise rule on its own rows

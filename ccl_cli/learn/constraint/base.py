@@ -46,6 +46,30 @@ class ConstraintModel(Estimator):
         return -npoe_error(self.projection(X, groups=groups), U if V is None else U - V, U)
 
 
+class TimedConstraint(ConstraintModel):
+    """A constraint whose orthonormal rows depend on each sample's demonstration and time (one
+    constant A per window, or in the stretches where it holds): :meth:`constraint` takes
+    ``groups`` and ``t`` (N,)."""
+
+    needs_demo = True
+    needs_time = True
+
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
+        raise NotImplementedError
+
+    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
+        """Ñ = I − ÃᵀÃ of each sample (orthonormal rows, or rows of zeros): (N, q, q)."""
+        A = self.constraint(X, groups=groups, t=t)
+        return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", A, A)
+
+    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+              t: np.ndarray | None = None) -> float:
+        """−NPOE of U (N, q) (see :class:`ConstraintModel`)."""
+        return -npoe_error(self.projection(X, groups=groups, t=t), np.asarray(U, dtype=float))
+
+
 def check_rows_asked(q: int, n_constraints: int | None) -> None:
     """ConfigError unless q ≥ 2 action dimensions and a fixed ``n_constraints`` is 0 … q − 1
     (for the learners that may answer no constraint: auto, per window)."""

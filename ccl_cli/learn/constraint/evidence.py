@@ -8,7 +8,7 @@ first m rows of the model fitted without each sample, at that sample.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -59,6 +59,7 @@ class Tried:
     errors: np.ndarray | None = None
     scored_on: ms.Folds | None = None
     note: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)  # further entries of its table row
 
     @property
     def mean(self) -> float:
@@ -78,7 +79,7 @@ class Tried:
                 "share": None if ev is None else [float(v) for v in ev.share],
                 "folds": self.folds.reason, "rank_reason": self.rank_reason,
                 "scored_on": None if self.scored_on is None else self.scored_on.reason, "chosen": chosen,
-                "reason": reason}
+                "reason": reason, **self.extra}
 
 
 def not_tried(name: str, why: str) -> dict[str, Any]:

@@ -148,6 +148,11 @@ class Sample:
         return cls(X, U, np.zeros(len(U), np.int64) if groups is None else np.asarray(groups), t, derived,
                    recorded=derivative is False)
 
+    @property
+    def derivative(self) -> dict | bool | None:
+        """How the actions were made, as a learner's ``fit`` takes it (:meth:`of`)."""
+        return self.derived if self.derived else (False if self.recorded else None)
+
     def rows_evidence(self, rows: np.ndarray, pieces: np.ndarray | None = None) -> RowEvidence:
         """Energy, noise and share of U along ``rows`` ((m, q) or per sample (N, m, q)); second
         differences within each of the ``pieces`` (N,; None: the demonstrations)."""

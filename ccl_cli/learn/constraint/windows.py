@@ -32,12 +32,12 @@ from typing import ClassVar
 
 import numpy as np
 
-from ccl_cli.errors import InputError
 from ccl_cli.learn.basis import cluster_sums
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import rank as sel
-from ccl_cli.learn.constraint.base import ConstraintModel, check_rows_asked
+from ccl_cli.learn.constraint.base import ConstraintModel, TimedConstraint, check_rows_asked
+from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
 from ccl_cli.learn.defaults import N_FOLDS, WINDOW_S
 from ccl_cli.learn.model_selection import inner_folds
 from ccl_cli.learn.params import Interval, parameters
@@ -49,22 +49,6 @@ SHRINKAGE = 0.1
 RECORDED_GAP = 2
 #: Smallest held-out block inside a window (samples).
 MIN_BLOCK = 4
-
-
-def window_index(groups: np.ndarray | None, t: np.ndarray | None, window: float | None,
-                 n: int) -> tuple[np.ndarray, np.ndarray]:
-    """(segment id per sample (n,), table (S, 2) of [demonstration id, window index j]) for
-    windows of ``window`` s fixed in time (j = ⌊t / window⌋), or one per demonstration when
-    ``window`` is None. Segment ids follow the table's rows (sorted by demonstration, then j)."""
-    demo = np.zeros(n, np.int64) if groups is None else np.asarray(groups).astype(np.int64)
-    if window is None:
-        j = np.zeros(n, np.int64)
-    else:
-        if t is None:
-            raise InputError("a per-window constraint needs the sample times t")
-        j = np.floor(np.asarray(t, float) / window).astype(np.int64)
-    table, seg = np.unique(np.stack([demo, j], 1), axis=0, return_inverse=True)
-    return seg.ravel(), table
 
 
 def window_rows(U: np.ndarray, seg: np.ndarray, n_seg: int, shrinkage: float) -> np.ndarray:
@@ -80,7 +64,7 @@ def window_rows(U: np.ndarray, seg: np.ndarray, n_seg: int, shrinkage: float) ->
 
 
 @parameters
-class PerWindow(ConstraintModel):
+class PerWindow(TimedConstraint):
     """A constant constraint (nhat) per window of ``window`` seconds of each demonstration.
 
     Args:
@@ -101,8 +85,6 @@ class PerWindow(ConstraintModel):
         per_fold, folds}, or None when not measured or the windows are too short).
     """
 
-    needs_demo = True
-    needs_time = True
     _parameter_constraints: ClassVar[dict[str, list]] = {
         "window": [Interval(float, 0, None, closed="neither"), None],
         "n_constraints": [Interval(int, 0, 100_000), None],
@@ -183,82 +165,55 @@ class PerWindow(ConstraintModel):
         """Index (N,) into ``windows_`` of each sample: its own window, else the nearest fitted
         window of its demonstration (InputError for a demonstration not seen in ``fit``)."""
         self._check_fitted("A_")
-        X = self._check_states(X)
-        n = X.shape[0]
-        demos = self.windows_[:, 0]
-        if groups is None:
-            if len(np.unique(demos)) > 1:
-                raise InputError("a per-window constraint model needs the demonstration ids")
-            groups = np.full(n, demos[0])
-        groups = np.asarray(groups).astype(np.int64)
-        if self.window_ is not None and t is None:
-            raise InputError("a per-window constraint model needs the sample times t")
-        j = np.zeros(n) if self.window_ is None else np.asarray(t, float) / self.window_ - 0.5
-        out = np.empty(n, np.int64)
-        for d in np.unique(groups):  # a loop over demonstrations, not samples
-            mine = np.flatnonzero(demos == d)
-            if not len(mine):
-                raise InputError(f"demonstration {int(d)} was not seen when fitting this per-window model; "
-                                 "fit a PerWindow on the new data")
-            m = groups == d
-            centres = self.windows_[mine, 1].astype(float)
-            pos = np.clip(np.searchsorted(centres, j[m]), 1, max(len(mine) - 1, 1))
-            lo = mine[pos - 1]
-            hi = mine[np.minimum(pos, len(mine) - 1)]
-            nearer_hi = np.abs(self.windows_[hi, 1] - j[m]) < np.abs(self.windows_[lo, 1] - j[m])
-            out[m] = np.where(nearer_hi, hi, lo)
-        return out
+        return nearest_window(self.windows_, self.window_, len(self._check_states(X)), groups, t)
 
     def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
                    t: np.ndarray | None = None) -> np.ndarray:
         """Ã of each sample's window: (N, s, q)."""
         return self.A_[self.window_of(X, groups, t)]
 
-    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
-                   t: np.ndarray | None = None) -> np.ndarray:
-        """Ñ = I − ÃᵀÃ of each sample's window (orthonormal rows): (N, q, q)."""
-        A = self.constraint(X, groups=groups, t=t)
-        return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", A, A)
-
-    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-              t: np.ndarray | None = None) -> float:
-        """−NPOE of U (N, q) under each sample's window (see :class:`ConstraintModel`)."""
-        from ccl_cli.learn.consistency import npoe_error
-
-        return -npoe_error(self.projection(X, groups=groups, t=t), np.asarray(U, dtype=float))
-
-
 
 def fitted_per_stretch(model: ConstraintModel) -> ConstraintModel | None:
-    """The per-window or per-demonstration model inside ``model`` (itself, or the winner of an
-    :class:`~ccl_cli.learn.constraint.auto.AutoConstraint`), None for a global model."""
+    """The per-window, per-demonstration or in-stretches model inside ``model`` (itself, or the
+    winner of an :class:`~ccl_cli.learn.constraint.auto.AutoConstraint`), None for a global
+    model."""
     from ccl_cli.learn.constraint.per_demo import PerDemonstration
+    from ccl_cli.learn.constraint.stretches import ConstraintInStretches
 
     inner = vars(model).get("model_", model)
-    return inner if isinstance(inner, PerWindow | PerDemonstration) else None
+    return inner if isinstance(inner, PerWindow | PerDemonstration | ConstraintInStretches) else None
 
 
 def refit_on_new_demos(model: ConstraintModel, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None,
                        t: np.ndarray | None = None, always: bool = False
                        ) -> tuple[ConstraintModel, str] | None:
     """A model fitted per window or per demonstration has no constraint for a demonstration it
-    did not see. When ``groups`` (N,) holds such a demonstration — or ``always``, for data that
-    are not those the model was fitted on (a saved model on a recording: its demonstration ids
-    say nothing) — the same kind of model (the same window length and rows per window; per
-    demonstration, the same estimator) is fitted on these data, X (N, p), U (N, q), t (N,), and
-    returned with a sentence saying so (its errors are then training figures on these data);
-    None when every demonstration is known or ``model`` is global."""
+    did not see (a constraint in stretches: no label for its stretches). When ``groups`` (N,)
+    holds such a demonstration — or ``always``, for data that are not those the model was
+    fitted on (a saved model on a recording: its demonstration ids say nothing) — the same kind
+    of model (the same window length and rows per window; per demonstration, the same
+    estimator) is fitted on these data, X (N, p), U (N, q), t (N,), and returned with a
+    sentence saying so (its errors are then training figures on these data) — for a constraint
+    in stretches, the same rows with the stretches of these data classified by the motion
+    along them (:meth:`~.stretches.ConstraintInStretches.classify`); None when every
+    demonstration is known or ``model`` is global."""
     from ccl_cli.learn.base import clone
     from ccl_cli.learn.constraint.per_demo import PerDemonstration
+    from ccl_cli.learn.constraint.stretches import ConstraintInStretches
 
     local = fitted_per_stretch(model)
     if local is None:
         return None
+    table = local.blocks_ if isinstance(local, ConstraintInStretches) else getattr(local, "windows_", None)
     known = set(local.models_) if isinstance(local, PerDemonstration) else set(
-        int(d) for d in np.unique(local.windows_[:, 0]))
+        int(d) for d in np.unique(table[:, 0]))
     ids = {0} if groups is None else {int(d) for d in np.unique(groups)}
     if ids <= known and not always:
         return None
+    if isinstance(local, ConstraintInStretches):
+        refit = local.classify(X, U, groups=groups, t=t)
+        return refit, (f"a constraint that holds in stretches: its {local.n_constraints_} learnt row(s) on "
+                       "these data, holding where the motion along them is quiet — " + refit.summary())
     if isinstance(local, PerDemonstration):
         refit = PerDemonstration(clone(local.estimator)).fit(X, U, groups=groups)
         what = "one constraint per demonstration"

@@ -1,0 +1,177 @@
+"""A constraint that holds in some stretches of a recording only (ccl_cli/learn/constraint/
+stretches.py) and learn-a's ``auto`` choosing it on whole wiping recordings — approach (free),
+wipe (on a tilted table), retract (free) — against the simulation's ground truth; free motion
+keeps k = 0. The many-seed bars are in benchmarks/bench_auto.py (wipe_whole*, free_reach, flow2d)."""
+
+import h5py
+import numpy as np
+import pytest
+
+from ccl_cli import simulate as sim
+from ccl_cli.app.scoring import projection_on
+from ccl_cli.errors import InputError
+from ccl_cli.learn.constraint import AutoConstraint, ConstraintInStretches
+from ccl_cli.learn.constraint import noise_rank as nr
+from ccl_cli.learn.constraint import stretches as st
+from ccl_cli.metrics import subspace_angle
+from ccl_cli.models import load_model, save_model
+
+
+def fit_auto(d, **kw) -> AutoConstraint:
+    derivative = d.metadata.get("derivative", False)
+    return AutoConstraint(**kw).fit(d.X, d.U, groups=d.demo, t=d.t, derivative=derivative)
+
+
+def row_of(model: AutoConstraint, name: str) -> dict:
+    return next(r for r in model.selection_["candidates"] if r["class"] == name)
+
+
+def wiping(d) -> np.ndarray:
+    """True where a sample of an arm_wipe recording is in its wipe phase."""
+    return np.abs(d.true_projection() - np.eye(3)).max((1, 2)) > 0
+
+
+@pytest.fixture(scope="module")
+def wipe():
+    return sim.arm_wipe(n_demos=6, seed=1)
+
+
+@pytest.fixture(scope="module")
+def wipe_model(wipe):
+    return fit_auto(wipe)
+
+
+def test_whole_wipe_recording_gets_the_table_in_its_stretches(wipe, wipe_model):
+    model = wipe_model
+    assert model.n_constraints_ == 1 and model.selection_["chosen"] == "stretches"
+    inner = model.model_
+    assert isinstance(inner, ConstraintInStretches)
+    assert subspace_angle(inner.A_, np.atleast_2d(wipe.metadata["normal"])) < 1.5
+    # every global candidate says k = 0 on held-out data: the approach and retract move along n
+    for name in ("nhat", "alpha_linear"):
+        assert row_of(model, name)["k"] == 0
+    row = row_of(model, "stretches")
+    assert row["chosen"] and row["time_share"] >= st.MIN_SHARE
+    # where it holds: the wipe phase, against the truth sample by sample
+    on = inner.holds(wipe.X, wipe.demo, wipe.t)
+    truth = wiping(wipe)
+    assert (on == truth).mean() > 0.9
+    assert abs(inner.share_ - truth.mean()) < 0.1
+    # Ñ = I − nnᵀ where it holds, I elsewhere: the true projection almost everywhere
+    N = model.projection(wipe.X, groups=wipe.demo, t=wipe.t)
+    assert (np.abs(N - wipe.true_projection()).max((1, 2)) < 0.05).mean() > 0.9
+    assert np.allclose(N[~on], np.eye(3))
+    # the words say where: "k = 1 in 7x % of the moving time: demo 0 1.5–..."
+    assert "k = 1 in" in model.selection_["reason"] and "free motion elsewhere" in model.selection_["reason"]
+    assert model.heldout_ is not None and model.heldout_["mean"] < 1e-3
+
+
+@pytest.mark.parametrize("rate", [50.0, 1000.0])
+def test_whole_wipe_at_other_rates(rate):
+    d = sim.arm_wipe(n_demos=5, rate=rate, seed=2)
+    model = fit_auto(d)
+    assert model.n_constraints_ == 1 and model.selection_["chosen"] == "stretches"
+    assert subspace_angle(model.model_.A_, np.atleast_2d(d.metadata["normal"])) < 1.5
+
+
+def test_whole_wipe_with_a_biased_and_drifting_position_sensor():
+    d = sim.arm_wipe(n_demos=5, offset=0.01, drift=2e-4, seed=4)
+    assert d.metadata["position_bias"]["drift_m_s"] == 2e-4
+    model = fit_auto(d)
+    assert model.n_constraints_ == 1 and model.selection_["chosen"] == "stretches"
+    assert subspace_angle(model.model_.A_, np.atleast_2d(d.metadata["normal"])) < 1.5
+
+
+@pytest.mark.parametrize("make", [lambda s: sim.free_reach(seed=s), lambda s: sim.flow2d(seed=s)],
+                         ids=["free_reach", "flow2d"])
+@pytest.mark.parametrize("seed", [5, 6])
+def test_free_motion_gets_no_constraint_from_lucky_stretches(make, seed):
+    d = make(seed)
+    model = fit_auto(d)
+    assert model.n_constraints_ == 0 and model.selection_["chosen"] == "none"
+    row = row_of(model, "stretches")
+    assert row["k"] == 0 and row["time_share"] < st.MIN_SHARE
+    # on its own training data a row quiet in some stretches exists, in far fewer than the table's
+    inner = ConstraintInStretches(n_constraints=1).fit(d.X, d.U, groups=d.demo, t=d.t,
+                                                       derivative=d.metadata["derivative"])
+    assert 0 < inner.share_ < st.MIN_SHARE
+
+
+def test_a_constraint_holding_all_along_keeps_its_global_model():
+    model = fit_auto(sim.tracker_plane(duration=40.0, seed=5))
+    assert model.selection_["chosen"] == "nhat"
+    assert row_of(model, "stretches")["reason"].startswith("not tried: 1 constraint(s) hold")
+
+
+def test_saved_model_loads_and_classifies_new_demonstrations_of_the_same_table(tmp_path):
+    d = sim.arm_wipe(n_demos=8, seed=0)
+    train, new = d.subset(d.demo < 6), d.subset(d.demo >= 6)
+    model = fit_auto(train)
+    path = save_model(tmp_path / "m.h5", model)
+    loaded, _ = load_model(path)
+    assert isinstance(loaded, ConstraintInStretches)
+    assert np.array_equal(loaded.A_, model.model_.A_) and loaded.stretches_ == model.model_.stretches_
+    assert np.array_equal(loaded.projection(train.X, groups=train.demo, t=train.t),
+                          model.projection(train.X, groups=train.demo, t=train.t))
+    with pytest.raises(InputError, match="not seen"):
+        loaded.projection(new.X, groups=new.demo, t=new.t)
+    # new recordings: the same row, their own stretches classified by the motion along it (said so)
+    N, note = projection_on(loaded, new, new.U, new_data=True)
+    assert "holds in stretches" in note and "free motion elsewhere" in note
+    assert (np.abs(N - new.true_projection()).max((1, 2)) < 0.05).mean() > 0.9
+
+
+def test_damaged_blocks_are_refused(tmp_path, wipe_model):
+    path = save_model(tmp_path / "m.h5", wipe_model)
+    with h5py.File(path, "r+") as f:
+        blocks = f["arrays/blocks_"][()]
+        blocks[0, 2] = 2
+        del f["arrays/blocks_"]
+        f["arrays"].create_dataset("blocks_", data=blocks)
+    with pytest.raises(InputError, match="blocks_"):
+        load_model(path)
+
+
+def test_fill_still_and_stretch_ranges_by_hand():
+    holds = np.array([False, True, False, False, True, True, False])
+    moving = np.array([True, True, False, True, True, False, False])
+    demo = np.array([0, 0, 0, 0, 1, 1, 1])
+    # block 2 (still) takes block 1's label; blocks 5, 6 (still) take block 4's; block 3 moves
+    assert fill_list(holds, moving, demo) == [False, True, True, False, True, True, True]
+    table = np.array([[0, 0, 0], [0, 1, 1], [0, 2, 1], [0, 3, 0], [1, 0, 1], [1, 1, 1], [1, 3, 1]])
+    assert st.stretches(table, 0.5) == [[0, 0.5, 1.5], [1, 0.0, 1.0], [1, 1.5, 2.0]]
+    # a demonstration whose first blocks are still takes its first moving block's label
+    assert fill_list(np.array([False, True]), np.array([False, True]), np.array([0, 0])) == [True, True]
+
+
+def fill_list(holds, moving, demo) -> list[bool]:
+    return [bool(v) for v in st.fill_still(holds, moving, demo)]
+
+
+def test_quiet_rule_by_hand():
+    C = np.zeros((3, 2, 2))
+    C[0] = np.diag([1.0, 1e-6])  # moves along x, along y at the noise level
+    C[1] = np.diag([1.0, 5e-4])  # along y: far above the noise, 5e-4 of the typical motion
+    C[2] = np.diag([1.0, 0.01])  # along y: a share of the motion
+    blocks = st.Blocks(C, np.ones(3, int), np.ones(3, bool), np.zeros(3, int), np.zeros(3, int),
+                       np.zeros((3, 2)), typical=1.0, noise=np.diag([1e-7, 1e-6]))
+    assert st.quiet(blocks, np.array([[0.0, 1.0]])).tolist() == [True, True, False]
+    assert st.quiet(blocks, np.array([[1.0, 0.0]])).tolist() == [False, False, False]
+    # with 10× the noise along y, block 2's motion along y (0.01 = 10 σ²) is at the noise level
+    blocks.noise = np.diag([1e-7, 1e-3])
+    assert st.quiet(blocks, np.array([[0.0, 1.0]])).tolist() == [True, True, True]
+
+
+def test_noise_covariance_of_correlated_white_noise_by_hand():
+    rng = np.random.default_rng(0)
+    L = np.array([[1.0, 0.0, 0.0], [0.5, 1.0, 0.0], [0.0, -0.3, 0.5]]) * 1e-3
+    U = rng.normal(size=(40_000, 3)) @ L.T  # recorded actions: white noise of covariance L Lᵀ
+    data = nr.Sample.of(np.zeros((len(U), 1)), U, None, np.arange(len(U)) * 0.01, False)
+    S = st.noise_covariance(data)
+    assert np.allclose(S, L @ L.T, atol=0.05 * 1e-6)
+
+
+def test_needs_the_sample_times():
+    d = sim.arm_wipe(n_demos=2, seed=0)
+    with pytest.raises(InputError, match="sample times"):
+        ConstraintInStretches().fit(d.X, d.U, groups=d.demo)
