@@ -688,13 +688,15 @@ def _leave(code: int) -> None:
     closed: the exit handlers run (logging, multiprocessing, finalizers) and the standard
     streams are flushed, then the process ends without the interpreter freeing, one by one,
     every object matplotlib, numpy and the data left (5 % of a small run's CPU). With a
-    thread still running (a worker pool's), or outside CPython, the ordinary exit."""
+    thread still running (a worker pool's), under a profiler or tracer (``python -m cProfile``
+    writes its output after the command returns), or outside CPython, the ordinary exit."""
     import atexit
     import threading
 
     run_handlers = getattr(atexit, "_run_exitfuncs", None)
     others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon]
-    if run_handlers is None or others:
+    watched = sys.getprofile() is not None or sys.gettrace() is not None
+    if run_handlers is None or others or watched:
         sys.exit(code)
     run_handlers()
     for stream in (sys.stdout, sys.stderr):
