@@ -21,7 +21,7 @@ from ccl_cli.app.views import View, constant_rows, describe_constraint, stage_vi
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn import model_selection
-from ccl_cli.learn.constraint import PerDemonstration, PerWindow
+from ccl_cli.learn.constraint import ConstraintInStretches, PerDemonstration, PerWindow
 from ccl_cli.learn.constraint.base import fit_constraint
 from ccl_cli.learn.constraint.windows import fitted_per_stretch
 from ccl_cli.learn.nullspace import NullSpaceComponent
@@ -322,7 +322,13 @@ class Pipeline:
             checks += diagnostics.does_not_hold("learn-a", evidence, f"{part} data")
         rows = constant_rows(model, tr)
         if rows is not None:
-            self.warnings += diagnostics.emit(diagnostics.constraint_varies("learn-a", rows, tr, target))
+            chosen = getattr(model, "model_", model)
+            if isinstance(chosen, ConstraintInStretches):  # judged where it claims to hold, not in free air
+                inside = chosen.holds(tr.X, tr.demo, tr.t)
+                self.warnings += diagnostics.emit(diagnostics.constraint_varies(
+                    "learn-a", rows, tr.subset(inside), target[inside]))
+            else:
+                self.warnings += diagnostics.emit(diagnostics.constraint_varies("learn-a", rows, tr, target))
         self._judge(result, checks)
         return result
 
