@@ -65,9 +65,10 @@ output: {plots: false}
 
 def timed_batch(jobs, out: Path, workers: int | None, scheduler: str | None = None) -> tuple[float, list]:
     from ccl_cli.app.batch import run_batch
+    from ccl_cli.render.outputs import write_run
 
     t = time.perf_counter()
-    results = run_batch(jobs, out, workers=workers, scheduler=scheduler, force=True)
+    results = run_batch(jobs, out, write_run, workers=workers, scheduler=scheduler, force=True)
     seconds = time.perf_counter() - t
     assert all(r.status == "ok" for r in results), [r.error for r in results if r.status != "ok"]
     return seconds, results
