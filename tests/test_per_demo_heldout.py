@@ -64,3 +64,16 @@ def test_a_task_part_is_taken_out_of_the_score_and_the_heldout_blocks(seed):
     assert without_task > 15 * floor  # the task part A⁺b counted as error
     assert floor < -model.score(data.X, data.U, groups=data.demo) < 2 * floor
     assert model.heldout_["mean"] < 5 * floor
+
+
+def test_the_summary_shows_the_heldout_blocks(tmp_path, capsys):
+    path = tmp_path / "vc.h5"
+    assert main(["simulate", "varying_constraint", "--noise", "0.05", "-o", str(path), "-q"]) == 0
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("learn-a: {method: nhat, per_demo: true, n_constraints: 1}\n")
+    capsys.readouterr()
+    assert main(["learn-a", str(path), "-c", str(cfg), "-o", str(tmp_path / "out"), "--json"]) == 0
+    captured = capsys.readouterr()
+    held = json.loads(captured.out)["stages"]["learn-a"]["heldout_blocks"]["NPOE"]
+    saved = json.loads((tmp_path / "out" / "metrics.json").read_text())["learn-a"]["heldout_blocks"]
+    assert held == saved["NPOE"]["value"]

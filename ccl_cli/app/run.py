@@ -114,11 +114,12 @@ def stage_metrics(results) -> dict[str, Any]:
 
 def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
     """metrics.json → {stage: {method, n_constraints, train: {name: value}, test: {...},
-    baseline: {method, train, test}}} (the baseline only where a stage has one)."""
+    heldout_blocks: {...} (a model per demonstration or window), baseline: {method, train,
+    test}}} (the baseline only where a stage has one)."""
     def one(e: dict[str, Any]) -> dict[str, Any]:
         out = {k: v for k, v in e.items() if k in ("method", "n_constraints", "status")}
         out.update({split: {m: v["value"] for m, v in e.get(split, {}).items()}
-                    for split in ("train", "test") if split in e})
+                    for split in ("train", "heldout_blocks", "test") if split in e})
         if isinstance(e.get("baseline"), dict):
             out["baseline"] = one(e["baseline"])
         return out

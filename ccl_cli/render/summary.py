@@ -25,7 +25,7 @@ def _flat(res: JobResult) -> dict[str, Any]:
             methods.append(f"{stage}:{entry['method']}")
         if "n_constraints" in entry:
             counts.append(str(entry["n_constraints"]))
-        for split in ("train", "test"):
+        for split in ("train", "heldout_blocks", "test"):
             for name, value in (entry.get(split) or {}).items():
                 row[f"{stage}.{split}.{name}"] = value
     row["method"] = " ".join(methods)

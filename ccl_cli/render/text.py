@@ -28,9 +28,9 @@ def summary_lines(summary: dict[str, Any], quiet: bool = False) -> list[str]:
         parts = [label] + ([entry["status"]] if entry.get("status") else [])
         if "n_constraints" in entry:
             parts.append(f"s={entry['n_constraints']}")
-        for split in ("train", "test"):
+        for split in ("train", "heldout_blocks", "test"):
             for name, value in (entry.get(split) or {}).items():
-                parts.append(f"{split} {name}={value:.3e}")
+                parts.append(f"{split.replace('heldout_blocks', 'held-out blocks')} {name}={value:.3e}")
         return "  ".join(parts)
 
     for stage, entry in (summary.get("stages") or {}).items():
