@@ -16,10 +16,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 from bench_tuning import original_row  # noqa: E402
 
 ROWS = [("attractor", 500, 0.0, "pi"), ("limit_cycle", 500, 0.0, "pi"), ("limit_cycle", 500, 0.0, "lwpi"),
-        ("limit_cycle", 500, 0.01, "lwpi"), ("arm", 40, 0.0, "pi")]
+        ("limit_cycle", 500, 0.01, "lwpi"), ("arm", 40, 0.0, "pi"),
+        # noisy rows fixed by grid centres for pi on 2-D states and lwpi's default width held back
+        ("arm", 40, 0.01, "pi"), ("arm", 80, 0.01, "lwpi")]
 
 
 @pytest.mark.parametrize("problem,size,noise,method", ROWS, ids=["-".join(map(str, r)) for r in ROWS])
 def test_the_defaults_are_no_worse_than_the_original_settings(problem, size, noise, method):
-    row = original_row(problem, size, noise, method, range(3))
+    row = original_row(problem, size, noise, method, range(5 if noise else 3))  # noisy rows: the table's 5
     assert 0 < row["default"] <= row["original"] and not row["exact"], row

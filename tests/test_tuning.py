@@ -71,7 +71,8 @@ def test_tune_false_is_todays_fixed_behaviour_and_the_report_shows_the_curve(tmp
     tuned = PolicyLearner(method="pi", n_centres=25, tune={"budget": 1.0}).fit(
         data.X, data.U, groups=data.demo)
     assert tuned.n_centres == 25  # constructor parameters are never changed by fit
-    assert tuned.tuning_["grid"]["basis"][0] == {"kind": "rbf", "n_centres": 25, "centres": "kmeans"}
+    # the configured size first; pi on 2-D states searches centres on a grid (policy.GRID_DIMS)
+    assert tuned.tuning_["grid"]["basis"][0] == {"kind": "rbf", "n_centres": 25, "centres": "grid"}
     assert tuned.tuning_["budget"] == 1.0
 
     h5 = tmp_path / "lc.h5"

@@ -356,13 +356,26 @@ def _improves(errors: np.ndarray, best: np.ndarray, larger: bool, gain: float = 
     return bool(diff.mean() < -max(STOP_SE * se, gain * float(best.mean())))
 
 
+#: In ``TUNE_CONSERVATIVE``: the width factor of an RBF basis candidate (its ``sigma2``), whose
+#: first value is the default rule's width (ALGORITHMS.md §2).
+WIDTH = "width"
+
+
 def _held_back(best: int, rows: list[dict[str, Any]], errors: list[np.ndarray], grid: dict[str, list[Any]],
                conservative: tuple[str, ...]) -> int:
     """The winner, moved back along each ``conservative`` parameter (its values in the grid's
-    order, the first the most regularising): to the earliest value whose candidate (the same
-    otherwise) the winner does not beat by :data:`STOP_SE` and :data:`CONSERVATIVE_GAIN`
-    (:func:`_improves`)."""
+    order, the first the most regularising; :data:`WIDTH`: the basis with the default width):
+    to the earliest value whose candidate (the same otherwise) the winner does not beat by
+    :data:`STOP_SE` and :data:`CONSERVATIVE_GAIN` (:func:`_improves`)."""
     for key in conservative:
+        if key == WIDTH:  # an RBF width factor: the default rule's width (no sigma2) is the first value
+            basis = rows[best]["params"].get("basis")
+            if isinstance(basis, dict) and "sigma2" in basis:
+                plain = {**rows[best]["params"], "basis": {k: v for k, v in basis.items() if k != "sigma2"}}
+                rival = next((i for i, r in enumerate(rows) if r["params"] == plain), None)
+                if rival is not None and not _improves(errors[best], errors[rival], True, CONSERVATIVE_GAIN):
+                    best = rival
+            continue
         if key not in grid:
             continue
         order = grid[key]

@@ -33,7 +33,7 @@ from ccl_cli.learn.basis import Basis, BasisParams, RBFBasis
 from ccl_cli.learn.consistency import inconsistency_error
 from ccl_cli.learn.defaults import POLICY_METHOD
 from ccl_cli.learn.linalg import eigen_solve, kron_rows, row_chunks
-from ccl_cli.learn.model_selection import Folds, Tunable, basis_grid
+from ccl_cli.learn.model_selection import WIDTH, Folds, Tunable, basis_grid
 from ccl_cli.learn.params import CutoffRule, Interval, Options, SeedParams, parameters
 from ccl_cli.learn.params import PolicyMethod as Method
 
@@ -45,6 +45,7 @@ CUTOFFS = (1e-9, 1e-12)
 #: states between the demonstrations (docs/measurements.md, the original's table; measured for pi:
 #: lwpi's narrow local models lost on noise-free limit cycles with them).
 GRID_DIMS = 2
+GRID_METHODS = ("pi",)
 
 
 @parameters
@@ -82,12 +83,18 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
     #: Fits of the default search at most: its grid, (5 sizes × 3 widths) × 3 cut-offs × 3 folds.
     TUNE_BUDGET = 400
     #: The cut-off leaves the configured one only on clear held-out evidence (noise-free data).
-    TUNE_CONSERVATIVE = ("cutoff",)
+
     method: Method = POLICY_METHOD
     cutoff: float = 1e-6
     min_norm: float = 1e-6
     chunk_size: int | None = None
     cutoff_rule: CutoffRule = "relative"
+
+    @property
+    def TUNE_CONSERVATIVE(self) -> tuple[str, ...]:  # noqa: N802 - the search's class-level name
+        """The cut-off leaves its configured value, and lwpi's width the default rule's, only for
+        a clear held-out gain (:data:`~ccl_cli.learn.model_selection.CONSERVATIVE_GAIN`)."""
+        return ("cutoff", WIDTH) if self.method == "lwpi" else ("cutoff",)
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         if self.method == "lwpi":
@@ -100,7 +107,7 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         (noise-free data want the small ones, noisy data the configured one; candidates differing
         only in the cut-off share their normal equations)."""
         grid = super()._tune_grid(X, U)
-        if grid and self.method == "pi" and np.shape(X)[1] <= GRID_DIMS:  # centres on a grid over the box
+        if grid and self.method in GRID_METHODS and np.shape(X)[1] <= GRID_DIMS:  # centres on a grid
             grid["basis"] = [spec for sizes, widths in self._basis_candidates()
                              for spec in basis_grid(X, sizes, widths, self.seed, centres="grid")]
         if grid and self.cutoff_rule == "relative" and self.method != "lwpi":
