@@ -26,7 +26,7 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.io.derivative import default_window
-from ccl_cli.io.faults import Cleaned, Finding, clean_positions, runs
+from ccl_cli.io.faults import Cleaned, Finding, clean_positions, run_edges, runs
 from ccl_cli.io.options import FaultOptions
 
 #: The fewest samples the fault checks look at (the spike test's stencil).
@@ -84,24 +84,15 @@ def _reach(t: np.ndarray, demo: np.ndarray) -> int:
 
 
 def _near_repairs(findings: list[Finding], t: np.ndarray, demo: np.ndarray) -> np.ndarray:
-    """Samples (N,) within :func:`_reach` of a flip's end or of a dropped spike (mirrored or
-    dropped: faults kept as recorded change nothing)."""
-    events = np.zeros(len(t), dtype=bool)
-    for f in findings:
-        if f.action == "reported":
-            continue
-        if f.kind == "hemisphere_flip":
-            r = runs(f.mask)
-            events[r[:, 0]] = True  # the first flipped sample and the one before it
-            events[np.maximum(r[:, 0] - 1, 0)] = True
-            events[r[:, 1] - 1] = True  # the last flipped sample and the one after it
-            events[np.minimum(r[:, 1], len(t) - 1)] = True
-        elif f.kind == "spike":
-            events |= f.mask
-    if not events.any():
-        return events
+    """Samples (N,) within :func:`_reach` of a flip's ends (the last sample before the jump and
+    the first after it) or of a dropped spike (mirrored or dropped: faults kept as recorded
+    change nothing)."""
+    near = np.zeros(len(t), dtype=bool)
     reach = _reach(t, demo)
-    return np.convolve(events.astype(np.int8), np.ones(2 * reach + 1, np.int8), mode="same") > 0
+    for f in findings:  # a loop over the kinds of fault
+        if f.action != "reported" and f.kind in ("hemisphere_flip", "spike"):
+            near |= run_edges(f.mask, reach + 1 if f.kind == "hemisphere_flip" else reach)
+    return near
 
 
 def _mirror_followers(U: np.ndarray, X: np.ndarray, t: np.ndarray, demo: np.ndarray,

@@ -143,14 +143,14 @@ def _clean(stream: Stream, selection: StreamOptions, nonfinite: str, options: Da
            ) -> Stream:
     """Non-finite samples dropped (or refused), then — for the state (``options`` given) — its
     sensor faults found and handled as ``options.faults`` says
-    (:func:`ccl_cli.io.faults.clean_positions`, the findings in ``stream.meta["faults"]``); the
+    (:func:`ccl_cli.io.stored_faults.check_positions`, the findings in ``stream.meta["faults"]``); the
     stamps must then increase strictly."""
     where = f"{stream.source} ({selection.describe()})"
     if not np.isfinite(stream.values).all():  # one pass over the values; rows only when needed
         stream.t_ns, stream.values = drop_nonfinite(stream.t_ns, stream.values, nonfinite, where)
     if len(stream.t_ns) == 0:
         raise InputError(f"{where}: no samples left")
-    if options is not None and len(stream.t_ns) >= 5:
+    if options is not None:
         stream = _repair_faults(stream, options.faults, options.demos, where)
     check_increasing(stream.t_ns, where)
     return stream
@@ -166,7 +166,7 @@ def _repair_faults(stream: Stream, options: FaultOptions, demos: DemoOptions, wh
     spikes dropped — as ``options`` says; the findings, with counts, sample and time ranges
     (seconds from the first sample), in ``meta["faults"]``. Each demonstration the ``demos``
     options cut (e.g. on pauses) is searched on its own: a cut is never taken for a fault."""
-    from ccl_cli.io.faults import clean_positions
+    from ccl_cli.io.stored_faults import check_positions
 
     t0 = stream.t_ns[0]
     t_s = (stream.t_ns - t0) / 1e9
@@ -175,9 +175,8 @@ def _repair_faults(stream: Stream, options: FaultOptions, demos: DemoOptions, wh
         phases["ranges"] = None
     cuts = demos.model_copy(update=phases)  # faults are searched per demonstration, not per phase
     pieces = segment_ids(np.maximum.accumulate(t_s), cuts, where)
-    cleaned = clean_positions(t_s, stream.values, pieces, flips=options.flips,
-                              drop_spikes=options.spikes == "drop", stamps=options.stamps == "repair")
-    if not cleaned.findings:
+    cleaned = check_positions(t_s, stream.values, pieces, options)
+    if cleaned is None:
         return stream
     kept = stream.t_ns[cleaned.keep]
     moved = cleaned.t != t_s[cleaned.keep]
