@@ -99,6 +99,13 @@ def make_folds(groups: np.ndarray | None, n: int, n_folds: int = N_FOLDS, seed: 
                  f"time blocks, {gap} samples dropped from training at each boundary")
 
 
+#: Guard gap (samples) around held-out blocks of recorded actions (neighbours share no filter;
+#: two keep a second difference's samples apart); derived ones use the derivative window.
+RECORDED_GAP = 2
+#: Smallest held-out block inside a segment (samples).
+MIN_BLOCK = 4
+
+
 def inner_folds(segments: np.ndarray, n_folds: int = N_FOLDS, gap: int = DEFAULT_GAP,
                 what: str = "segment") -> Folds:
     """K folds of held-out blocks *inside* every segment (a time window of a demonstration, or
@@ -120,6 +127,26 @@ def inner_folds(segments: np.ndarray, n_folds: int = N_FOLDS, gap: int = DEFAULT
              for j in range(n_folds)]
     return Folds(pairs, "inner blocks", f"{n_folds} folds of contiguous blocks held out inside every "
                  f"{what} ({len(counts)}), {gap} samples dropped from training at each boundary")
+
+
+def inner_heldout(segments: np.ndarray, derivative: dict | bool | None,
+                  error_of: Callable[[np.ndarray, np.ndarray], float], what: str = "segment"
+                  ) -> dict[str, Any] | None:
+    """The held-out NPOE of a model fitted per segment (a demonstration or a window), which can
+    be tested only on its own segments: :data:`N_FOLDS` :func:`inner_folds` of ``segments`` (N,)
+    with the guard gap of how U was made (``derivative``: its window when derived, else
+    :data:`RECORDED_GAP`); ``error_of(train, test)`` fits on the rows ``train`` and returns the
+    error on the rows ``test``. {error, mean, se, per_fold, folds}, or None when most segments
+    are too short for the blocks and their gaps."""
+    gap = int(derivative["window"]) if isinstance(derivative, dict) else RECORDED_GAP
+    seg = np.asarray(segments)
+    counts = np.bincount(seg)
+    if (counts[seg] >= N_FOLDS * (2 * gap + MIN_BLOCK)).mean() < 0.5:
+        return None
+    folds = inner_folds(seg, N_FOLDS, gap, what)
+    e = np.array([error_of(train, test) for train, test in folds.pairs])  # a loop over the folds
+    return {"error": "NPOE", "mean": float(e.mean()), "se": float(e.std(ddof=1) / np.sqrt(len(e))),
+            "per_fold": e.tolist(), "folds": folds.reason}
 
 
 # -- cross-validation -----------------------------------------------------------------------

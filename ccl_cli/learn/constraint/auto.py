@@ -101,7 +101,7 @@ from ccl_cli.learn.constraint.nhat import StateIndependentConstraint
 from ccl_cli.learn.constraint.none import NO_CONSTRAINT, NoConstraint
 from ccl_cli.learn.constraint.stretches import BLOCK_S, MIN_SHARE, ConstraintInStretches
 from ccl_cli.learn.constraint.stretches import held_out as stretches_held_out
-from ccl_cli.learn.constraint.windows import MIN_BLOCK, RECORDED_GAP, PerWindow, window_index
+from ccl_cli.learn.constraint.windows import PerWindow, window_index
 from ccl_cli.learn.defaults import N_FOLDS, WINDOW_S
 from ccl_cli.learn.params import Interval, Options, Regressors, SeedParams, parameters
 
@@ -130,7 +130,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
         cv_folds: folds of the cross-validation.
         gap: samples dropped from training at each held-out boundary (None: the derivative
             window when the actions were derived, else
-            :data:`~ccl_cli.learn.constraint.windows.RECORDED_GAP`).
+            :data:`~ccl_cli.learn.model_selection.RECORDED_GAP`).
         seed: of the folds and of every candidate.
 
     Attributes:
@@ -218,7 +218,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
         data = ev.Sample.of(X, U, groups, t, derivative)
         derived = data.derived
         self.n_action_ = q
-        gap = self.gap if self.gap is not None else int(derived["window"]) if derived else RECORDED_GAP
+        gap = self.gap if self.gap is not None else int(derived["window"]) if derived else ms.RECORDED_GAP
         try:
             folds = ms.make_folds(data.groups, n, self.cv_folds, self.seed, gap)
         except InputError as exc:
@@ -283,7 +283,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
             return ev.not_tried(name, "one demonstration in one stretch: the same as nhat")
         if len(table) == n_demos and name == "per_window":
             return ev.not_tried(name, f"every demonstration fits in one {what}: the same as per_demo")
-        need = self.cv_folds * (2 * gap + MIN_BLOCK)
+        need = self.cv_folds * (2 * gap + ms.MIN_BLOCK)
         counts = np.bincount(seg)
         if (counts[seg] >= need).mean() < 0.5:
             return ev.not_tried(name, f"most {what}s hold fewer than {need} samples, too few for "

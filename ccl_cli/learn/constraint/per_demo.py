@@ -10,13 +10,7 @@ import numpy as np
 from ccl_cli.errors import InputError
 from ccl_cli.learn.base import clone
 from ccl_cli.learn.constraint.base import ConstraintModel
-from ccl_cli.learn.defaults import N_FOLDS
-from ccl_cli.learn.model_selection import inner_folds
-
-#: Samples dropped from training at each held-out block's boundary when U was recorded (a
-#: derived U drops its derivative window), and the fewest samples of a held-out block.
-RECORDED_GAP = 2
-MIN_BLOCK = 4
+from ccl_cli.learn.model_selection import inner_heldout
 
 
 class PerDemonstration(ConstraintModel):
@@ -72,20 +66,14 @@ class PerDemonstration(ConstraintModel):
                   ) -> dict | None:
         """NPOE of the blocks held out inside every demonstration, mean and standard error over
         the folds; None when most demonstrations are too short for them."""
-        gap = int(derivative["window"]) if isinstance(derivative, dict) else RECORDED_GAP
-        seg = np.unique(groups, return_inverse=True)[1].ravel()
-        counts = np.bincount(seg)
-        if (counts[seg] >= N_FOLDS * (2 * gap + MIN_BLOCK)).mean() < 0.5:
-            return None
-        folds = inner_folds(seg, N_FOLDS, gap, "demonstration")
-        errors = []
-        for train, test in folds.pairs:  # a loop over the 5 folds
-            twin = PerDemonstration(self.estimator, heldout=False)
+        twin = PerDemonstration(self.estimator, heldout=False)
+
+        def error_of(train: np.ndarray, test: np.ndarray) -> float:
             twin.fit(X[train], U[train], groups=groups[train])
-            errors.append(-twin.score(X[test], U[test], groups=groups[test]))
-        e = np.asarray(errors)
-        return {"error": "NPOE", "mean": float(e.mean()), "se": float(e.std(ddof=1) / np.sqrt(len(e))),
-                "per_fold": e.tolist(), "folds": folds.reason}
+            return -twin.score(X[test], U[test], groups=groups[test])
+
+        return inner_heldout(np.unique(groups, return_inverse=True)[1].ravel(), derivative, error_of,
+                             "demonstration")
 
     def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
         """Ñ(X) of each sample's own demonstration: (N, p), groups (N,) → (N, q, q)."""

@@ -38,17 +38,12 @@ from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.base import ConstraintModel, TimedConstraint, check_rows_asked
 from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
-from ccl_cli.learn.defaults import N_FOLDS, WINDOW_S
-from ccl_cli.learn.model_selection import inner_folds
+from ccl_cli.learn.defaults import WINDOW_S
+from ccl_cli.learn.model_selection import inner_heldout
 from ccl_cli.learn.params import Interval, parameters
 
 #: ρ of the prior term: the weight of the pooled second moment in each window's.
 SHRINKAGE = 0.1
-#: Guard gap (samples) around held-out blocks of recorded actions (neighbours share no filter;
-#: two keep a second difference's samples apart); derived ones use the derivative window.
-RECORDED_GAP = 2
-#: Smallest held-out block inside a window (samples).
-MIN_BLOCK = 4
 
 
 def window_rows(U: np.ndarray, seg: np.ndarray, n_seg: int, shrinkage: float) -> np.ndarray:
@@ -129,22 +124,16 @@ class PerWindow(TimedConstraint):
         """NPOE of blocks held out inside every window, the model refitted without them (the
         same rows per window), mean and standard error over the folds; None when most windows
         are too short for the blocks and their guard gaps."""
-        gap = int(derivative["window"]) if isinstance(derivative, dict) else RECORDED_GAP
-        counts = np.bincount(seg)
-        if (counts[seg] >= N_FOLDS * (2 * gap + MIN_BLOCK)).mean() < 0.5:
-            return None
-        folds = inner_folds(seg, N_FOLDS, gap, "demonstration" if self.window is None else "window")
         twin = PerWindow(window=self.window, n_constraints=self.n_constraints_, shrinkage=self.shrinkage,
                          heldout=False)
         g = np.zeros(len(U), np.int64) if groups is None else np.asarray(groups)
-        errors = []
-        for train, test in folds.pairs:
+
+        def error_of(train: np.ndarray, test: np.ndarray) -> float:
             twin.fit(X[train], U[train], groups=g[train], t=None if t is None else t[train])
-            N = twin.projection(X[test], groups=g[test], t=None if t is None else t[test])
-            errors.append(npoe_error(N, U[test]))
-        e = np.asarray(errors)
-        return {"error": "NPOE", "mean": float(e.mean()), "se": float(e.std(ddof=1) / np.sqrt(len(e))),
-                "per_fold": e.tolist(), "folds": folds.reason}
+            return npoe_error(twin.projection(X[test], groups=g[test], t=None if t is None else t[test]),
+                              U[test])
+
+        return inner_heldout(seg, derivative, error_of, "demonstration" if self.window is None else "window")
 
     @staticmethod
     def _rank(X: np.ndarray, U: np.ndarray, seg: np.ndarray, rows: np.ndarray, t: np.ndarray | None,
