@@ -24,6 +24,11 @@ from ccl_cli.learn.consistency import apply_projection as _apply
 from ccl_cli.learn.consistency import mean_squared, projection_residual, self_projection_residual
 from ccl_cli.learn.linalg import total_variance
 
+#: The data a stage's metrics are computed on, in the order summaries show them (metrics.json
+#: keys): the training part, blocks held out inside it (a model per demonstration or window),
+#: the held-out test part.
+SPLITS = ("train", "heldout_blocks", "test")
+
 CONVENTIONS = ("ccl", "original")
 
 

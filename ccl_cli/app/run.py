@@ -18,6 +18,7 @@ from ccl_cli.app.views import View
 from ccl_cli.config import Config
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.learn import blas
+from ccl_cli.metrics import SPLITS
 
 if TYPE_CHECKING:
     from ccl_cli.app.stages import StageProgress
@@ -119,7 +120,7 @@ def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
     def one(e: dict[str, Any]) -> dict[str, Any]:
         out = {k: v for k, v in e.items() if k in ("method", "n_constraints", "status")}
         out.update({split: {m: v["value"] for m, v in e.get(split, {}).items()}
-                    for split in ("train", "heldout_blocks", "test") if split in e})
+                    for split in SPLITS if split in e})
         if isinstance(e.get("baseline"), dict):
             out["baseline"] = one(e["baseline"])
         return out

@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from ccl_cli.metrics import SPLITS
+
 #: Why an iterative fit stopped (``stop_reason_``), in words.
 STOPS = {
     "cost": "a relative cost decrease below tol",
@@ -37,7 +39,7 @@ PARTS = {"heldout_blocks": "held-out blocks inside the training demonstrations (
 def metric_rows(entry: dict[str, Any]) -> list[str]:
     """A markdown table of an entry's metrics per split (empty list when there are none)."""
     rows = []
-    for part in ("train", "heldout_blocks", "test", "all"):
+    for part in (*SPLITS, "all"):
         for name, m in (entry.get(part) or {}).items():
             spread = f" ± {m['se']:.1e} ({m['n_groups']} pieces)" if m.get("se") is not None else ""
             rows.append(f"| {PARTS.get(part, part)} | {name} | {_fmt(m['value'])}{spread} | "

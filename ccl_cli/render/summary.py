@@ -14,6 +14,7 @@ from typing import Any
 
 from ccl_cli.app.batch import JobResult
 from ccl_cli.errors import OutputError
+from ccl_cli.metrics import SPLITS
 
 
 def _flat(res: JobResult) -> dict[str, Any]:
@@ -25,7 +26,7 @@ def _flat(res: JobResult) -> dict[str, Any]:
             methods.append(f"{stage}:{entry['method']}")
         if "n_constraints" in entry:
             counts.append(str(entry["n_constraints"]))
-        for split in ("train", "heldout_blocks", "test"):
+        for split in SPLITS:
             for name, value in (entry.get(split) or {}).items():
                 row[f"{stage}.{split}.{name}"] = value
     row["method"] = " ".join(methods)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from typing import Any
 
+from ccl_cli.metrics import SPLITS
+
 
 def json_line(summary: dict[str, Any]) -> str:
     """One machine-readable object on one line (``--json``)."""
@@ -28,7 +30,7 @@ def summary_lines(summary: dict[str, Any], quiet: bool = False) -> list[str]:
         parts = [label] + ([entry["status"]] if entry.get("status") else [])
         if "n_constraints" in entry:
             parts.append(f"s={entry['n_constraints']}")
-        for split in ("train", "heldout_blocks", "test"):
+        for split in SPLITS:
             for name, value in (entry.get(split) or {}).items():
                 parts.append(f"{split.replace('heldout_blocks', 'held-out blocks')} {name}={value:.3e}")
         return "  ".join(parts)
