@@ -74,6 +74,8 @@ def test_the_summary_shows_the_heldout_blocks(tmp_path, capsys):
     capsys.readouterr()
     assert main(["learn-a", str(path), "-c", str(cfg), "-o", str(tmp_path / "out"), "--json"]) == 0
     captured = capsys.readouterr()
-    held = json.loads(captured.out)["stages"]["learn-a"]["heldout_blocks"]["NPOE"]
+    summary = json.loads(captured.out)
+    held = summary["stages"]["learn-a"]["heldout_blocks"]["NPOE"]
+    assert summary["verdict"] == "ok: every stage's held-out evidence supports it"  # the blocks are held out
     saved = json.loads((tmp_path / "out" / "metrics.json").read_text())["learn-a"]["heldout_blocks"]
     assert held == saved["NPOE"]["value"]

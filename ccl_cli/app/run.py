@@ -96,7 +96,7 @@ def verdict(results) -> str:
     """One sentence: the run's status and, when a stage is not ok, what is wrong."""
     poor = [c["message"] for r in results if r.status != "ok" for c in r.checks]
     if not poor:
-        held = "held-out " if any("test" in r.metrics for r in results) else ""
+        held = "held-out " if any(split in r.metrics for r in results for split in SPLITS[1:]) else ""
         return f"ok: every stage's {held}evidence supports it"
     more = f" (+{len(poor) - 3} more)" if len(poor) > 3 else ""
     return f"{overall_status(results)}: " + "; ".join(poor[:3]) + more
