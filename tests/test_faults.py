@@ -6,7 +6,7 @@ import pytest
 
 from ccl_cli import simulate as sim
 from ccl_cli.errors import ConfigError
-from ccl_cli.io import faults
+from ccl_cli.io import blockwise, faults
 from ccl_cli.learn.constraint import StateIndependentConstraint
 from ccl_cli.simulate.recordings import TRACKER_ORIGIN, derive
 
@@ -214,13 +214,15 @@ def test_a_step_is_no_spike():
 
 @pytest.mark.parametrize("flips", ["mirror", "keep"])
 def test_blocked_passes_find_what_one_block_finds_with_faults_on_block_edges(monkeypatch, flips):
-    """A recording of several demonstrations, checked in one block and in blocks whose edges
-    fall on the injected spikes and flip boundaries (and the samples around them)."""
+    """A recording of several demonstrations, checked in one block on one thread and in
+    blocks (on two threads) whose edges fall on the injected spikes and flip boundaries (and
+    the samples around them): the same findings and repairs, bit for bit."""
     data = sim.tracker_flips(n_spikes=4, stamp_faults=ALL_STAMP_FAULTS, noise=1e-3, rate=200.0,
                              duration=60.0, seed=6)
     demo = np.repeat(np.arange(3), [4000, 4000, len(data.t) - 8000])
     truth = {f["kind"]: f["ranges"] for f in data.metadata["faults"]}
-    monkeypatch.setattr(faults, "BLOCK_ROWS", 10 * len(data.t))  # the whole recording at once
+    monkeypatch.setattr(blockwise, "BLOCK_ROWS", 10 * len(data.t))  # the whole recording at once
+    monkeypatch.setattr(blockwise, "cores", lambda: 1)
     whole = faults.clean_positions(data.t, data.X, demo, flips=flips)
     found = {f["kind"]: f["ranges"] for f in whole.report(data.t)}
     assert found["spike"] == truth["spike"]
@@ -229,11 +231,39 @@ def test_blocked_passes_find_what_one_block_finds_with_faults_on_block_edges(mon
     in_actions = faults.spikes(data.U, data.t, demo)
     edges = [a for a, _ in truth["spike"]] + [e for r in truth["hemisphere_flip"] for e in r]
     sizes = {size for e in edges for size in (e - 3, e - 2, e - 1, e) if size > 0} | {997, 4096}
+    monkeypatch.setattr(blockwise, "cores", lambda: 2)
     for size in sorted(sizes):
-        monkeypatch.setattr(faults, "BLOCK_ROWS", size)
+        monkeypatch.setattr(blockwise, "BLOCK_ROWS", size)
         blocked = faults.clean_positions(data.t, data.X, demo, flips=flips)
         assert blocked.report(data.t) == whole.report(data.t), size
         assert np.array_equal(blocked.X, whole.X) and np.array_equal(blocked.t, whole.t)
         assert np.array_equal(blocked.keep, whole.keep)
         again = faults.spikes(data.U, data.t, demo)
         assert np.array_equal(again.mask, in_actions.mask) and again.detail == in_actions.detail
+
+
+def test_block_passes_use_the_cores_a_batch_worker_was_given(monkeypatch):
+    """A batch shares the cores between its workers through OMP_NUM_THREADS (and the like):
+    the block passes take no more threads than that, and at least one."""
+    monkeypatch.setattr(blockwise.os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
+    for var in blockwise.THREAD_VARS:
+        monkeypatch.delenv(var, raising=False)
+    assert blockwise.cores() == 4
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "2")
+    assert blockwise.cores() == 2
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    assert blockwise.cores() == 1
+    monkeypatch.setenv("OMP_NUM_THREADS", "16")  # never more than the machine gives
+    assert blockwise.cores() == 4
+    monkeypatch.setenv("OMP_NUM_THREADS", "x")  # not a count: the next variable
+    assert blockwise.cores() == 2
+
+
+def test_each_block_raises_what_a_block_raised():
+    def work(s, e):
+        if s <= 5 < e:
+            raise ValueError(f"block {s}")
+
+    with pytest.raises(ValueError, match="block 4"):
+        blockwise.each_block(work, 0, 12, rows=4)
+    assert blockwise.blocks(2, 11, rows=4) == [(2, 6), (6, 10), (10, 11)]

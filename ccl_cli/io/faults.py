@@ -12,24 +12,24 @@ positions and stamps, before velocities are derived from them.
   free. Reported, never removed (what the sensor should read is not known).
 * :func:`clean_positions` — stamps, then flips, then spikes, as a reader would call them.
 
-Nothing loops over samples: the passes over positions run in blocks of BLOCK_ROWS samples
-(each with the neighbours its stencil reaches), so their temporaries are (BLOCK_ROWS, d)
-whatever N; what a check keeps of a whole recording is (N,) per sample, plus the residuals
-whose robust scale :func:`spikes` needs. Shapes: t (N,) s, X (N, d), demo (N,) ids of
-contiguous demonstrations. Each function returns :class:`Finding` s: the kind,
+Nothing loops over samples: the passes over positions run in blocks of samples (each with
+the neighbours its stencil reaches), spread over the cores (:mod:`ccl_cli.io.blockwise`), so
+their temporaries are (BLOCK_ROWS, d) whatever N; what a check keeps of a whole recording is
+(N,) per sample, plus the residuals whose robust scale :func:`spikes` needs. Shapes: t (N,) s,
+X (N, d), demo (N,) ids of contiguous demonstrations. Each function returns :class:`Finding` s: the kind,
 the samples concerned (a mask, in the indices of the arrays it was given), what was done,
 and ``as_dict`` with count, [start, stop) index ranges and time ranges for the report.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError
+from ccl_cli.io.blockwise import each_block
 from ccl_cli.learn.noise import MAD_NORMAL, robust_std, white_noise_var
 
 #: A flip boundary: the jump ‖x_n − x̂_n‖ (x̂_n = 2x_{n−1} − x_{n−2}) exceeds FLIP_RATIO × (the
@@ -62,16 +62,6 @@ BIAS_Z = 5.0
 FREE_EDGE_S = 0.5
 #: What :func:`clean_positions` does with hemisphere flips, and the action it reports.
 FLIP_ACTIONS = {"mirror": "mirrored", "drop": "dropped", "keep": "reported"}
-#: Samples per block of the passes over positions (a block's temporaries: BLOCK_ROWS × d).
-BLOCK_ROWS = 1 << 16
-
-
-def _blocks(start: int, stop: int) -> Iterator[tuple[int, int]]:
-    """[s, e) blocks of at most BLOCK_ROWS samples covering [start, stop)."""
-    for s in range(start, stop, BLOCK_ROWS):
-        yield s, min(s + BLOCK_ROWS, stop)
-
-
 def _count_runs(mask: np.ndarray) -> int:
     """The number of runs of True in ``mask`` (N,): its rising edges."""
     m = np.asarray(mask, dtype=bool)
@@ -137,13 +127,16 @@ def _flip_errors(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n = len(X)
     e_same, e_flip = np.empty(n - 2), np.empty(n - 2)
     XT = X.T  # (d, N) view: a block's rows are the dimensions (sums over the short axis are slow)
-    with np.errstate(over="ignore", invalid="ignore"):  # values near the float limit: inf or nan, no flip
-        for s, e in _blocks(1, n - 1):
+
+    def block(s: int, e: int) -> None:
+        with np.errstate(over="ignore", invalid="ignore"):  # values near the float limit: inf or nan, no flip
             here, before, after = XT[:, s:e], XT[:, s - 1:e - 1], XT[:, s + 1:e + 1]
             d2 = after - 2 * here + before
             e_same[s - 1:e - 1] = np.sqrt((d2 * d2).sum(0))
             jump = after + (2 * here - before)
             e_flip[s - 1:e - 1] = np.sqrt((jump * jump).sum(0))
+
+    each_block(block, 1, n - 1)
     return e_same, e_flip
 
 
@@ -225,7 +218,8 @@ def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np
     tested[2:-2] = (demo[:-4] == demo[2:-2]) & (demo[4:] == demo[2:-2]) & \
         (t[4:] - t[:-4] <= SPIKE_SPAN * period)
     YT = Y.T  # (d, N) view: each block's rows are the dimensions
-    for s, e in _blocks(2, n - 2):
+
+    def block(s: int, e: int) -> None:
         w = _cubic_weights(t, s, e).T
         ok = tested[s:e] & np.isfinite(w).all(0)
         tested[s:e] = ok
@@ -237,6 +231,8 @@ def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np
         r = np.subtract(YT[:, s:e], fit, out=R[:, s:e])
         if not ok.all():
             r[:, ~ok] = 0.0
+
+    each_block(block, 2, n - 2)
     return R, tested
 
 
@@ -257,13 +253,23 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
     R, tested = _cubic_residuals(Y, np.asarray(t, float), np.asarray(demo))
     if not tested.any():
         return Finding("spike", np.zeros(n, dtype=bool), "dropped", {"max_z": 0.0})
-    # robust σ per dimension: one partition of each dimension's tested residuals
-    sigma = np.array([np.median(np.abs(row[tested]), overwrite_input=True) for row in R]) / MAD_NORMAL
-    floor = 1e-12 * max(float(Y.max()), -float(Y.min()), 1.0)
-    R /= np.maximum(sigma, floor)[:, None]  # z-scores, in place
+    # robust σ per dimension: one partition of each dimension's tested residuals (a dimension
+    # per thread)
+    sigma = np.empty(len(R))
+
+    def spread(s: int, e: int) -> None:
+        sigma[s:e] = [np.median(np.abs(row[tested]), overwrite_input=True) for row in R[s:e]]
+
+    each_block(spread, 0, len(R), rows=1)
+    scale = np.maximum(sigma / MAD_NORMAL, 1e-12 * max(float(Y.max()), -float(Y.min()), 1.0))
     score = np.empty(n)
-    for s, e in _blocks(0, n):
-        score[s:e] = np.abs(R[:, s:e]).max(0)
+
+    def z_scores(s: int, e: int) -> None:
+        block = R[:, s:e]
+        block /= scale[:, None]  # z-scores, in place
+        score[s:e] = np.abs(block).max(0)
+
+    each_block(z_scores, 0, n)
     peak = (score >= np.r_[0.0, score[:-1]]) & (score >= np.r_[score[1:], 0.0])
     mask = (score > z) & peak
     k = np.flatnonzero(mask)  # the few candidates: their sign test

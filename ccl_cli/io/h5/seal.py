@@ -12,6 +12,7 @@ import contextlib
 import functools
 import hashlib
 import io
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -49,11 +50,19 @@ def create_hdf5(path: str | Path, force: bool = False, sealed: bool = True) -> I
     buffer = io.BytesIO()
     with h5py.File(buffer, "w", userblock_size=USERBLOCK) as f:
         yield f
-    image = buffer.getbuffer()
-    head = SEAL + hashlib.sha256(image[USERBLOCK:]).hexdigest().encode() + b"\n" if sealed else b""
+    content = buffer.getbuffer()[USERBLOCK:]
+    digest: list[str] = []
+    hashing = threading.Thread(target=lambda: digest.append(hashlib.sha256(content).hexdigest()),
+                               name="ccl-seal", daemon=True)
+    if sealed:  # hashed while it is written (both release the GIL)
+        hashing.start()
     with atomic_path(path, force=force) as tmp, open(tmp, "wb") as out:
-        out.write(head + b"\x00" * (USERBLOCK - len(head)))
-        out.write(image[USERBLOCK:])
+        out.write(bytes(USERBLOCK))
+        out.write(content)
+        if sealed:
+            hashing.join()
+            out.seek(0)
+            out.write(SEAL + digest[0].encode() + b"\n")
 
 
 def sealed(path: str | Path) -> bool:
