@@ -29,11 +29,15 @@ def window_index(groups: np.ndarray | None, t: np.ndarray | None, window: float 
 
 def nearest_window(table: np.ndarray, window: float | None, n: int, groups: np.ndarray | None,
                    t: np.ndarray | None, what: str = "per-window") -> np.ndarray:
-    """Index (n,) into ``table`` (S, 2) [demonstration id, window index j] of windows of
-    ``window`` s (None: one per demonstration) of each sample of demonstrations ``groups`` (n,)
-    at times ``t`` (n,): its own window, else the nearest one of its demonstration in the table
-    (InputError for a demonstration not in it)."""
+    """Index (n,) into ``table`` of the window of each sample of demonstrations ``groups`` (n,)
+    at times ``t`` (n,). ``table`` is (S, 2) [demonstration id, window index j] of windows of
+    ``window`` s (None: one per demonstration), or (S, 3) [demonstration id, first window, end
+    window) of runs of consecutive windows (segments), sorted by demonstration, then time. A
+    sample takes the row that holds its window j = ⌊t / window⌋, else the nearest row of its
+    demonstration, counted in windows (InputError for a demonstration not in the table)."""
     demos = table[:, 0]
+    first = table[:, 1]
+    end = table[:, 2] if table.shape[1] == 3 else first + 1
     if groups is None:
         if len(np.unique(demos)) > 1:
             raise InputError(f"a {what} constraint model needs the demonstration ids")
@@ -41,7 +45,7 @@ def nearest_window(table: np.ndarray, window: float | None, n: int, groups: np.n
     groups = np.asarray(groups).astype(np.int64)
     if window is not None and t is None:
         raise InputError(f"a {what} constraint model needs the sample times t")
-    j = np.zeros(n) if window is None else np.asarray(t, float) / window - 0.5
+    j = np.zeros(n, np.int64) if window is None else np.floor(np.asarray(t, float) / window).astype(np.int64)
     out = np.empty(n, np.int64)
     for d in np.unique(groups):  # a loop over demonstrations, not samples
         mine = np.flatnonzero(demos == d)
@@ -49,10 +53,9 @@ def nearest_window(table: np.ndarray, window: float | None, n: int, groups: np.n
             raise InputError(f"demonstration {int(d)} was not seen when fitting this {what} model; "
                              "fit it on the new data")
         m = groups == d
-        centres = table[mine, 1].astype(float)
-        pos = np.clip(np.searchsorted(centres, j[m]), 1, max(len(mine) - 1, 1))
-        lo = mine[pos - 1]
-        hi = mine[np.minimum(pos, len(mine) - 1)]
-        nearer_hi = np.abs(table[hi, 1] - j[m]) < np.abs(table[lo, 1] - j[m])
-        out[m] = np.where(nearer_hi, hi, lo)
+        after = np.minimum(np.searchsorted(end[mine], j[m], side="right"), len(mine) - 1)  # first end > j
+        before = np.maximum(after - 1, 0)
+        to_after = np.maximum(first[mine][after] - j[m], 0)  # 0 inside the row
+        to_before = np.maximum(j[m] - (end[mine][before] - 1), 0)
+        out[m] = mine[np.where(to_after <= to_before, after, before)]
     return out

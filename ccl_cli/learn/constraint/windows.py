@@ -32,6 +32,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ccl_cli.learn.base import clone
 from ccl_cli.learn.basis import cluster_sums
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
@@ -102,7 +103,7 @@ class PerWindow(TimedConstraint):
         X, U = self._prepare_fit(X, U)
         n, q = U.shape
         check_rows_asked(q, self.n_constraints)
-        seg, table = window_index(groups, t, self.window, n)
+        seg, table = self._windows(U, groups, t)
         rows = window_rows(U, seg, len(table), self.shrinkage)
         if self.n_constraints is not None:
             chosen = sel.Selection("fixed", int(self.n_constraints), [],
@@ -114,18 +115,33 @@ class PerWindow(TimedConstraint):
         self.windows_ = table
         self.window_ = self.window
         self.n_action_ = q
-        where = "demonstration" if self.window is None else f"{self.window:g}-s window"
-        self.selection_ = {**chosen.as_dict(), "windows": len(table), "per": where}
+        self.selection_ = {**chosen.as_dict(), "windows": len(table), "per": self.per}
         self.heldout_ = self._held_out(X, U, seg, groups, t, derivative) if self.heldout else None
         return self
+
+    @property
+    def per(self) -> str:
+        """What one window is, in words ("4-s window", "demonstration")."""
+        return "demonstration" if self.window is None else f"{self.window:g}-s window"
+
+    def _windows(self, U: np.ndarray, groups: np.ndarray | None, t: np.ndarray | None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """(window of each sample (N,), table of the windows): fixed in time
+        (:func:`~.timeblocks.window_index`)."""
+        return window_index(groups, t, self.window, len(U))
+
+    def same_kind(self) -> PerWindow:
+        """An unfitted model of the same kind with this one's rows per window (fixed) and no
+        held-out figure: what the held-out blocks and a new recording are fitted with."""
+        self._check_fitted("A_")
+        return clone(self).set_params(n_constraints=self.n_constraints_, heldout=False)
 
     def _held_out(self, X: np.ndarray, U: np.ndarray, seg: np.ndarray, groups: np.ndarray | None,
                   t: np.ndarray | None, derivative: dict | bool | None) -> dict | None:
         """NPOE of blocks held out inside every window, the model refitted without them (the
         same rows per window), mean and standard error over the folds; None when most windows
         are too short for the blocks and their guard gaps."""
-        twin = PerWindow(window=self.window, n_constraints=self.n_constraints_, shrinkage=self.shrinkage,
-                         heldout=False)
+        twin = self.same_kind()
         g = np.zeros(len(U), np.int64) if groups is None else np.asarray(groups)
 
         def error_of(train: np.ndarray, test: np.ndarray) -> float:
@@ -207,9 +223,7 @@ def refit_on_new_demos(model: ConstraintModel, X: np.ndarray, U: np.ndarray, gro
         refit = PerDemonstration(clone(local.estimator)).fit(X, U, groups=groups)
         what = "one constraint per demonstration"
     else:
-        refit = PerWindow(window=local.window_, n_constraints=local.n_constraints_,
-                          shrinkage=local.shrinkage, heldout=False).fit(X, U, groups=groups, t=t)
-        what = ("one constraint per demonstration" if local.window_ is None else
-                f"one constraint per {local.window_:g}-s window") + f", {local.n_constraints_} row(s)"
+        refit = local.same_kind().fit(X, U, groups=groups, t=t)
+        what = f"one constraint per {local.per}, {local.n_constraints_} row(s)"
     return refit, (f"a model per stretch, fitted again on these data ({what}): it describes only the "
                    "recordings it was fitted on, so its errors here are training figures")
