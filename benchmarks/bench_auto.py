@@ -149,7 +149,8 @@ def passes(row: dict) -> bool:
     if check == "angle":
         return row.get("angle_deg") is not None and row["angle_deg"] <= 1.5
     if check == "heldout":
-        return row["chosen"] in ("per_window", "alpha_linear", "alpha") and row["heldout_npoe"] < 0.03
+        local = ("per_window", "per_segment", "alpha_linear", "alpha")
+        return row["chosen"] in local and row["heldout_npoe"] < 0.03
     if check == "N":
         return row["max_abs_N_err"] <= 1e-2
     return True

@@ -313,7 +313,8 @@ def learn_a(
     method: Annotated[LearnAMethod | None, typer.Option(
         help="auto (model class and number of constraints, 0 included, by held-out evidence), nhat "
              "(constant A, closed form), alpha (state-dependent), lambda (known Φ), linear (closed form), "
-             "per_window (one constant A per time window; docs/methods.md).",
+             "per_window (one constant A per time window), per_segment (one constant A per segment, cut "
+             "where it changes; docs/methods.md).",
         show_default=_default(spec.DEFAULT_CONSTRAINT_METHOD))] = None,
     selection: Annotated[Selection | None, typer.Option(
         help="How the number of constraints s is chosen (lambda's default: noise).",

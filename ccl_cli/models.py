@@ -46,6 +46,7 @@ from ccl_cli.learn.constraint import (
     LinearConstraint,
     NoConstraint,
     PerDemonstration,
+    PerSegment,
     PerWindow,
     StateDependentConstraint,
     StateIndependentConstraint,
@@ -65,6 +66,7 @@ CLASSES: dict[str, tuple[str, type]] = {
     "lambda": ("constraint", KnownFeatureConstraint),
     "linear": ("constraint", LinearConstraint),
     "per_window": ("constraint", PerWindow),
+    "per_segment": ("constraint", PerSegment),
     "stretches": ("constraint", ConstraintInStretches),
     "none": ("constraint", NoConstraint),
     "ncl": ("nullspace", NullSpaceComponent),
@@ -436,9 +438,11 @@ def _check_shapes(model: Any, method: str, where: str) -> None:
             bad = "Wb_"
         elif not model.task:
             model.Wb_ = None
-    elif method == "per_window":
+    elif method in ("per_window", "per_segment"):
         win = model.windows_
-        if win is None or win.ndim != 2 or win.shape[1] != 2 or not np.array_equal(win, np.round(win)):
+        width = 2 if method == "per_window" else 3  # [demo, j] or [demo, first block, end block)
+        if win is None or win.ndim != 2 or win.shape[1] != width or not np.array_equal(win, np.round(win)) \
+                or (width == 3 and not (win[:, 2] > win[:, 1]).all()):
             bad = "windows_"
         elif model.A_ is None or model.A_.shape != (len(win), s, q) or (model.window_ is not None and not (
                 isinstance(model.window_, int | float) and model.window_ > 0)):

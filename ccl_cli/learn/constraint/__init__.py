@@ -8,6 +8,7 @@ from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.nhat import StateIndependentConstraint
 from ccl_cli.learn.constraint.none import NoConstraint
 from ccl_cli.learn.constraint.per_demo import PerDemonstration
+from ccl_cli.learn.constraint.segments import PerSegment
 from ccl_cli.learn.constraint.stretches import ConstraintInStretches
 from ccl_cli.learn.constraint.windows import PerWindow
 
@@ -19,6 +20,7 @@ __all__ = [
     "LinearConstraint",
     "NoConstraint",
     "PerDemonstration",
+    "PerSegment",
     "PerWindow",
     "StateDependentConstraint",
     "StateIndependentConstraint",

@@ -7,6 +7,8 @@ Candidates, simplest first — the order in which the one-standard-error rule pr
 ``none``        Ñ = I: no constraint (k = 0)
 ``nhat``        one constant A for all the data (§3.1)
 ``per_demo``    one constant A per demonstration (:class:`~.windows.PerWindow`, window None)
+``per_segment`` one constant A per segment of each demonstration, cut where it changes
+                (:class:`~.segments.PerSegment`)
 ``per_window``  one constant A per W-s window of each demonstration (PerWindow)
 ``alpha_linear`` A(x) whose angles are linear in x (§3.2, linear basis)
 ``alpha``       A(x) whose angles are linear in alpha's RBF features (§3.2, 25 centres;
@@ -99,6 +101,7 @@ from ccl_cli.learn.constraint.lambda_ import FEATURE_PARAMS, KnownFeatureConstra
 from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.nhat import StateIndependentConstraint
 from ccl_cli.learn.constraint.none import NO_CONSTRAINT, NoConstraint
+from ccl_cli.learn.constraint.segments import PerSegment
 from ccl_cli.learn.constraint.stretches import BLOCK_S, MIN_SHARE, ConstraintInStretches
 from ccl_cli.learn.constraint.stretches import held_out as stretches_held_out
 from ccl_cli.learn.constraint.windows import PerWindow, window_index
@@ -106,13 +109,13 @@ from ccl_cli.learn.defaults import N_FOLDS, WINDOW_S
 from ccl_cli.learn.params import Interval, Options, Regressors, SeedParams, parameters
 
 #: Every candidate, simplest first (module docstring).
-CANDIDATES = ("none", "nhat", "per_demo", "per_window", "alpha_linear", "alpha", "lambda", "linear",
-              "stretches")
+CANDIDATES = ("none", "nhat", "per_demo", "per_segment", "per_window", "alpha_linear", "alpha", "lambda",
+              "linear", "stretches")
 #: The RBF alpha candidate is tried up to this state dimension: its 25 centres cover no more
 #: (beyond it: alpha with linear angles, or lambda with the arm's own features).
 MAX_RBF_STATES = 3
 #: The candidates whose rank bounds the rows the costly alpha fits need (one more than theirs).
-_CHEAP = ("nhat", "per_demo", "per_window")
+_CHEAP = ("nhat", "per_demo", "per_window", "per_segment")
 
 
 @parameters
@@ -245,7 +248,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
             if name == "nhat":
                 out.append(ev.Candidate(name, "one constant A (nhat)", lambda k: StateIndependentConstraint(
                     n_constraints=max(k, 1), seed=seed), m))
-            elif name in ("per_demo", "per_window"):
+            elif name in ("per_demo", "per_window", "per_segment"):
                 found = self._per_stretch(name, data, gap, m)
                 (out if isinstance(found, ev.Candidate) else skipped).append(found)
             elif name == "alpha" and p > MAX_RBF_STATES:
@@ -288,6 +291,9 @@ class AutoConstraint(ConstraintModel, SeedParams):
         if (counts[seg] >= need).mean() < 0.5:
             return ev.not_tried(name, f"most {what}s hold fewer than {need} samples, too few for "
                                 f"{self.cv_folds} held-out blocks inside each with guard gaps of {gap}")
+        if name == "per_segment":  # tested on the same blocks as per_window, for a paired comparison
+            return ev.Candidate(name, "one constant A per segment, cut where it changes",
+                                lambda k: PerSegment(n_constraints=k, heldout=False), m, seg, what)
         label = "one constant A per demonstration" if window is None else f"one constant A per {what}"
         return ev.Candidate(name, label, lambda k: PerWindow(window=window, n_constraints=k, heldout=False),
                             m, seg, what)

@@ -1,0 +1,150 @@
+"""One constant constraint per segment of each demonstration, the segments cut where the
+constraint changes ("per segment", ALGORITHMS.md §3.1 on each segment; issue 17).
+
+A surface that tilts in steps (a board moved between strokes, a fixture re-clamped) holds a
+constant constraint between its moves. Windows fixed in time (:class:`~.windows.PerWindow`)
+straddle the moves; here the boundaries follow the data. Each demonstration is cut into blocks
+of ``block`` s (j = ⌊t / block⌋); a segment is a run of consecutive blocks [i, j), at most
+``window`` s long, with the second moment
+
+    C_ij = Σ_{n ∈ blocks i … j−1} u_n u_nᵀ + ρ n_ij C̄      (as PerWindow's, ρ = ``shrinkage``)
+
+and the cost λ₁(C_ij), its smallest eigenvalue: the motion along the segment's quietest
+direction. The segments minimise
+
+    Σ_segments λ₁(C_ij) + β · (number of segments),      β = ``penalty`` · (q − 1) · σ̂² · ln n_d
+
+(optimal partitioning, solved exactly by dynamic programming over the blocks, Jackson et al.
+2005), n_d the demonstration's samples and σ̂² the noise of the motion along a quiet direction:
+the median over blocks of λ₁(S_b + ρ n_b C̄) / n_b. A cut is made where one more segment removes
+more than β of motion along the quietest direction, as the Bayesian information criterion
+would for a unit normal (q − 1 parameters) in noise of variance σ̂² (``penalty`` = 1).
+
+The rows of each segment and their number are then PerWindow's (smallest eigenvectors of C,
+the noise rule on every sample's rows). Prediction: a sample takes the rows of the segment of
+its demonstration that holds its block, or of the nearest segment (a held-out stretch between
+segments); a demonstration not seen in ``fit`` has none (fit again on it, as ``ccl evaluate``
+/ ``ccl predict`` do).
+
+Shapes: U (N, q), groups (N,), t (N,) s; ``windows_`` (S, 3) [demonstration id, first block,
+end block) of the S segments, ``A_`` (S, s, q).
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from ccl_cli.learn.basis import cluster_sums
+from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
+from ccl_cli.learn.constraint.windows import PerWindow
+from ccl_cli.learn.params import Interval, parameters
+
+#: Block length (s): the resolution of the cuts.
+BLOCK_S = 0.5
+#: The longest segment (s): bounds the dynamic programme's work (blocks × window / block).
+MAX_SEGMENT_S = 30.0
+#: β in units of the information criterion's (module docstring).
+PENALTY = 1.0
+#: Blocks with fewer samples do not enter the noise estimate σ̂².
+MIN_BLOCK_SAMPLES = 3
+
+
+def quietest_motion(C: np.ndarray) -> np.ndarray:
+    """λ₁ of each symmetric (..., q, q): the second moment along its quietest direction."""
+    return np.linalg.eigvalsh(C)[..., 0]
+
+
+def cut(S: np.ndarray, counts: np.ndarray, prior: np.ndarray, beta: float, longest: int
+        ) -> list[tuple[int, int]]:
+    """The segments [i, j) of blocks 0 … B−1 minimising Σ λ₁(C_ij) + β per segment, each at most
+    ``longest`` blocks (module docstring). S (B, q, q) the blocks' Σ u uᵀ, counts (B,), prior
+    (q, q) = ρ C̄. Dynamic programming: best[j] = min_i best[i] + λ₁(C_ij) + β — a loop over
+    the blocks, each step one batched eigvalsh of its ≤ ``longest`` candidate segments."""
+    B = len(S)
+    P = np.concatenate([np.zeros((1, *S.shape[1:])), np.cumsum(S, 0)])
+    M = np.r_[0.0, np.cumsum(counts)]
+    best = np.zeros(B + 1)
+    start = np.zeros(B + 1, np.int64)
+    for j in range(1, B + 1):  # a loop over blocks, not samples
+        i = np.arange(max(0, j - longest), j)
+        C = P[j] - P[i] + (M[j] - M[i])[:, None, None] * prior
+        total = best[i] + quietest_motion(C) + beta
+        k = int(np.argmin(total))
+        best[j], start[j] = total[k], i[k]
+    spans = []
+    j = B
+    while j > 0:
+        spans.append((int(start[j]), j))
+        j = int(start[j])
+    return spans[::-1]
+
+
+@parameters
+class PerSegment(PerWindow):
+    """A constant constraint (nhat) per segment of each demonstration, cut where it changes.
+
+    Args:
+        window: the longest segment (s).
+        block: block length (s), the resolution of the cuts.
+        penalty: β in units of the information criterion's (module docstring); larger: fewer cuts.
+        n_constraints, shrinkage, heldout: as :class:`~.windows.PerWindow`'s (held-out blocks
+            inside every segment, the segments cut again on each training fold).
+
+    Attributes:
+        A_ (S, s, q), windows_ (S, 3) [demonstration id, first block, end block), window_ (the
+        block length), n_constraints_, n_action_, selection_, n_features_in_, heldout_.
+    """
+
+    _parameter_constraints: ClassVar[dict[str, list]] = {
+        **PerWindow._parameter_constraints,
+        "window": [Interval(float, 0, None, closed="neither")],
+        "block": [Interval(float, 0, None, closed="neither")],
+        "penalty": [Interval(float, 0, None)]}
+    window: float = MAX_SEGMENT_S
+    block: float = BLOCK_S
+    penalty: float = PENALTY
+
+    @property
+    def per(self) -> str:
+        return "segment (cut where the constraint changes)"
+
+    def _windows(self, U: np.ndarray, groups: np.ndarray | None, t: np.ndarray | None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """(segment of each sample (N,), table (S, 3) [demonstration id, first block, end
+        block)) by :func:`cut` on each demonstration's blocks."""
+        blk, blocks = window_index(groups, t, self.block, len(U))
+        q = U.shape[1]
+        S = cluster_sums((U[:, :, None] * U[:, None, :]).reshape(len(U), q * q), blk, len(blocks))
+        S = S.reshape(-1, q, q)
+        counts = np.bincount(blk, minlength=len(blocks)).astype(float)
+        prior = self.shrinkage * (U.T @ U) / max(len(U), 1)
+        enough = counts >= MIN_BLOCK_SAMPLES
+        own = quietest_motion(S[enough] + counts[enough, None, None] * prior) / counts[enough]
+        sigma2 = float(np.median(own)) if len(own) else 0.0
+        longest = max(1, int(np.floor(self.window / self.block + 1e-9)))
+        table, of_block = [], np.empty(len(blocks), np.int64)
+        for d in np.unique(blocks[:, 0]):  # a loop over demonstrations, not samples
+            mine = np.flatnonzero(blocks[:, 0] == d)  # in time order (the table is sorted)
+            beta = self.penalty * (q - 1) * sigma2 * np.log(max(counts[mine].sum(), 2.0))
+            for i, j in cut(S[mine], counts[mine], prior, beta, longest):
+                of_block[mine[i:j]] = len(table)
+                table.append((int(d), int(blocks[mine[i], 1]), int(blocks[mine[j - 1], 1]) + 1))
+        return of_block[blk], np.asarray(table, np.int64).reshape(-1, 3)
+
+    def fit(self, X: np.ndarray | None, U: np.ndarray, *, groups: np.ndarray | None = None,
+            t: np.ndarray | None = None, derivative: dict | bool | None = None) -> PerSegment:
+        """As :meth:`PerWindow.fit <ccl_cli.learn.constraint.windows.PerWindow.fit>`, the windows
+        being the segments (module docstring)."""
+        super().fit(X, U, groups=groups, t=t, derivative=derivative)
+        self.window_ = self.block
+        return self
+
+    def window_of(self, X: np.ndarray, groups: np.ndarray | None = None,
+                  t: np.ndarray | None = None) -> np.ndarray:
+        """Index (N,) into ``windows_`` of each sample: the segment of its demonstration that
+        holds its block, else the nearest one (InputError for a demonstration not seen)."""
+        self._check_fitted("A_")
+        return nearest_window(self.windows_, self.window_, len(self._check_states(X)), groups, t,
+                              "per-segment")
