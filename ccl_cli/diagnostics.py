@@ -359,16 +359,25 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
     against their noise (:func:`ccl_cli.learn.constraint.noise_rank.row_evidence`): per row
     ``ratio`` (energy / noise) and ``share`` (of all the motion), and ``holds`` — every row at
     the noise level or a negligible share — or None when the data cannot tell (not a
-    trajectory in time, or no motion)."""
+    trajectory in time, or no motion).
+
+    A model per stretch (per window, segment or demonstration, or in stretches) speaks only for
+    the stretches it was fitted on: on other data its rows would be a neighbouring stretch's.
+    It is fitted again on ``d`` (the same kind and rows per stretch, as ``ccl evaluate`` does)
+    and the evidence says so (``refitted``): whether k rows per stretch hold on these data."""
     from ccl_cli.learn.constraint import noise_rank
     from ccl_cli.learn.constraint.base import constraint_at
+    from ccl_cli.learn.constraint.windows import fitted_per_stretch, refit_on_new_demos
 
     if not getattr(model, "n_constraints_", 0):
         return None
+    refitted = fitted_per_stretch(model) is not None
     try:
+        if refitted:
+            model = refit_on_new_demos(model, d.X, Y, d.demo, d.t, always=True)[0]
         rows = constraint_at(model, d.X, d.demo, d.t)
     except (InputError, NotImplementedError):
-        return None  # per-demonstration / per-window models: no rows on stretches they do not know
+        return None  # no rows on these data
     derived, window, order = derivation(d)
     positions = derived and d.n_state == d.n_action
     ev = noise_rank.row_evidence(Y, rows, d.demo, d.t, d.X if positions else None,
@@ -379,7 +388,8 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
     if not (np.isfinite(ratio).all() and np.isfinite(ev.share).all()):
         return None
     holds = (ratio <= noise_rank.MARGIN) | (ev.share <= noise_rank.SHARE)
-    return {"ratio": ratio.tolist(), "share": ev.share.tolist(), "holds": bool(holds.all())}
+    return {"ratio": ratio.tolist(), "share": ev.share.tolist(), "holds": bool(holds.all()),
+            "refitted": refitted}
 
 
 def does_not_hold(stage: str, evidence: dict[str, Any] | None, where: str) -> list[dict[str, str]]:

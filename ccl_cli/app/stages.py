@@ -271,7 +271,8 @@ class Pipeline:
             why = ("no constraint row of u to test" if evidence is None and not model.n_constraints_ else
                    "the data cannot tell the noise of u" if evidence is None else
                    f"it holds on the {part} u at the noise level (motion along its rows "
-                   f"{max(evidence['ratio']):.3g}× their noise)")
+                   f"{max(evidence['ratio']):.3g}× their noise"
+                   + ("; a model per stretch, fitted again there" if evidence["refitted"] else "") + ")")
             return model, "u", f"learnt from u: {why}, so no task part is needed for it"
         if learn_v is not None and learn_v.status != "ok":
             return model, "u", ("learnt from u: learn-v did not generalise, so its w̃ is not used (the "
