@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.formats.bag1 import BagIndex, read_chunk, read_index
+from ccl_cli.io.formats.bag1 import BagIndex, in_order, read_chunk, read_index
 from ccl_cli.io.layouts import NotFixed, fixed_topic, read_uint
 from ccl_cli.io.library_errors import library_call, library_iter
 from ccl_cli.io.limits import inside, open_regular, regular_file
@@ -241,9 +241,11 @@ class BagReader(TopicReader):
         if entries is None or not entries.size or not conns[0].msgdef:
             return None
         conn = conns[0]
-        by_chunk = entries[np.lexsort((entries[:, 2], entries[:, 1]))]
-        numbers = np.unique(by_chunk[:, 1])
-        bounds = np.searchsorted(by_chunk[:, 1], np.append(numbers, numbers[-1] + 1))
+        by_chunk = entries  # in file order: chunk, then place in the chunk
+        if not in_order(entries[:, 1:]):
+            by_chunk = entries[np.lexsort((entries[:, 2], entries[:, 1]))]
+        bounds = np.r_[0, np.flatnonzero(np.diff(by_chunk[:, 1])) + 1, len(by_chunk)]
+        numbers = by_chunk[bounds[:-1], 1]
         try:
             first = self._first_message(f, index, conn, entries[0])
             if first is None:
