@@ -129,31 +129,16 @@ def _block(f: IO[bytes], start: int, stop: int, what: str, where: str, size: int
     return _Records(io.BytesIO(raw), where, len(raw))
 
 
-def _entries(raw: np.ndarray, chunk: np.ndarray) -> np.ndarray:
-    """(n, 3) int64 entries (log time ns, chunk number, offset; column-major) from the (n, 3)
-    uint32 index data (sec, nsec, offset) and the chunk of each, in the order rosbags reads:
-    log time, then chunk, then place in the chunk (sorted only when they are not already)."""
-    columns = np.empty((3, len(raw)), dtype=np.int64)
-    np.multiply(raw[:, 0], 1_000_000_000, out=columns[0], dtype=np.int64)
-    columns[0] += raw[:, 1]
-    columns[1] = chunk
-    columns[2] = raw[:, 2]
-    entries = columns.T
-    if not in_order(entries):
-        entries = entries[np.lexsort((entries[:, 2], entries[:, 1], entries[:, 0]))]
-    return entries
-
-
 def in_order(keys: np.ndarray) -> bool:
     """Whether the rows of the (n, k) integer ``keys`` are in lexicographic order (equal rows
-    allowed): a pass over the first column, the next ones only where it ties."""
-    pairs = np.arange(len(keys) - 1)  # row i against row i + 1
+    allowed): a pass over the first column, the next ones only while some rows tie."""
+    undecided = None  # rows equal to their successor in every column so far
     for col in keys.T:
-        step = col[pairs + 1] - col[pairs] if len(pairs) < len(keys) - 1 else np.diff(col)
-        if bool((step < 0).any()):
+        step = np.diff(col)
+        if bool((step < 0 if undecided is None else undecided & (step < 0)).any()):
             return False
-        pairs = pairs[step == 0]
-        if not len(pairs):
+        undecided = step == 0 if undecided is None else undecided & (step == 0)
+        if not undecided.any():
             return True
     return True
 
@@ -198,9 +183,9 @@ def read_index(path: Path) -> BagIndex:
                 if conn not in totals:
                     raise InputError(f"{where}: a chunk holds connection {conn}, not in the index")
                 totals[conn] += count
-        check_claim(where, "the index entries", sum(totals.values()) * 12, 1, size)
-        raw = {conn: np.empty((n, 3), dtype="<u4") for conn, n in totals.items()}
-        chunk_of = {conn: np.empty(n, dtype=np.int64) for conn, n in totals.items()}
+        check_claim(where, "the index entries", sum(totals.values()) * 24, 1, size)
+        # per connection, column-major: log time (ns), chunk number, offset in the chunk
+        columns = {conn: np.empty((3, n), dtype=np.int64) for conn, n in totals.items()}
         filled = dict.fromkeys(totals, 0)
         ends = sorted({pos for pos, _ in infos} | {index_pos})
         chunks: list[Chunk] = []
@@ -219,12 +204,19 @@ def read_index(path: Path) -> BagIndex:
                 if n != 12 * count or count != counts.get(conn) or at < 0:
                     raise InputError(f"{where}: an index data record disagrees with its chunk info "
                                      "(damaged bag?)")
-                raw[conn][at:at + count] = np.frombuffer(block.exact(n, "an index data record"),
-                                                         dtype="<u4").reshape(-1, 3)
-                chunk_of[conn][at:at + count] = number
+                raw = np.frombuffer(block.exact(n, "an index data record"), dtype="<u4").reshape(-1, 3)
+                out = columns[conn][:, at:at + count]
+                np.multiply(raw[:, 0], 1_000_000_000, out=out[0], dtype=np.int64)  # sec, nsec
+                out[0] += raw[:, 1]
+                out[1] = number
+                out[2] = raw[:, 2]
                 filled[conn] = at + count
         index = BagIndex(connections, chunks)
-        index.entries = {conn: _entries(raw[conn], chunk_of[conn]) for conn in totals}
+        for conn, both in columns.items():
+            entries = both.T  # in file order; rosbags reads in log time, then chunk, then place
+            if not in_order(entries):
+                entries = entries[np.lexsort((entries[:, 2], entries[:, 1], entries[:, 0]))]
+            index.entries[conn] = entries
         return index
 
 
