@@ -253,8 +253,9 @@ class McapReader(TopicReader):
                 or size < 0 or len(raw) != size:
             raise NotFixed("the index does not point at a Message record of the topic")
         schema = summary.schemas.get(channel.schema_id)
-        decode = next((d for d in (factory.decoder_for(channel.message_encoding, schema)
-                                   for factory in _decoders()) if d is not None), None)
+        what = f"read the schema of {topic}"
+        decode = next((d for d in (library_call(where, what, factory.decoder_for, channel.message_encoding,
+                                                schema) for factory in _decoders()) if d is not None), None)
         if decode is None:
             raise NotFixed(f"no decoder for {topic}")
         decoded = library_call(where, f"decode {topic}", decode, raw)
