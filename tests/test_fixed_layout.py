@@ -380,3 +380,55 @@ def test_in_order_is_lexicographic_order():
     for _ in range(500):
         keys = rng.integers(0, 3, size=(rng.integers(0, 7), 3))
         assert in_order(keys) == (sorted(map(tuple, keys)) == list(map(tuple, keys)))
+
+
+@pytest.mark.parametrize("container", ["ros1", "mcap-cdr"])
+def test_messages_written_out_of_log_time_order_equal_the_message_path(tmp_path, container, gathered,
+                                                                       monkeypatch):
+    """Log times that go back now and then, and repeat: the index is not in file order, so
+    the entries are sorted (ROS 1: log time, chunk, offset; MCAP: offsets per chunk)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    n, kind, msgtype = 3000, "PoseStamped", "geometry_msgs/msg/PoseStamped"
+    ts = get_typestore(Stores.ROS1_NOETIC if container == "ros1" else Stores.ROS2_HUMBLE)
+    msgs, vals = _messages(ts, kind, n, np.random.default_rng(8))
+    log = 10**9 + np.arange(n) * 10**6
+    log[10::10], log[11::10] = log[11::10].copy(), log[10::10].copy()  # pairs swapped
+    log[25::50] = log[24::50]  # and ties
+    log[-2:] = log[-1], log[-2]  # the last message written is not the last in time
+    if container == "ros1":
+        from rosbags.rosbag1 import Writer
+
+        path = tmp_path / "x.bag"
+        w = Writer(path)
+        w.chunk_threshold = 1 << 14
+        with w:
+            conn = w.add_connection("/x", msgtype, typestore=ts)
+            for t, m in zip(log.tolist(), msgs, strict=True):
+                w.write(conn, t, ts.serialize_ros1(m, msgtype))
+    else:
+        from mcap.writer import Writer
+
+        path = tmp_path / "x.mcap"
+        with open(path, "wb") as f:
+            w = Writer(f, chunk_size=1 << 14)
+            w.start(profile="ros2", library="tests")
+            cid = w.register_channel("/x", "cdr", w.register_schema(
+                msgtype, "ros2msg", ts.generate_msgdef(msgtype, ros_version=2)[0].encode()))
+            for t, m in zip(log.tolist(), msgs, strict=True):
+                w.add_message(cid, t, bytes(ts.serialize_cdr(m, msgtype)), t)
+            w.finish()
+    reader_cls = BagReader if container == "ros1" else McapReader
+    options = DataOptions.model_validate({"state": {"topic": "/x", "field": "pose.position"}})
+    sel = [StreamOptions.model_validate({"topic": "/x", "field": "pose.position", "stamp": "log"})]
+    (fast,) = reader_cls(path, options).streams(sel)
+    assert gathered == ["/x"]
+    order = np.argsort(log, kind="stable")  # log-time order, ties in the order written
+    np.testing.assert_array_equal(fast.t_ns, log[order])
+    np.testing.assert_array_equal(fast.values, vals[order, :3])
+    listing = reader_cls(path, options).listing()  # from the index (ROS 1) or the summary
+    assert (listing["start_ns"], listing["end_ns"]) == (log.min(), log.max())
+    monkeypatch.setattr(layouts, "WALKS", {})
+    (slow,) = reader_cls(path, options).streams(sel)
+    np.testing.assert_array_equal(fast.values, slow.values)
+    np.testing.assert_array_equal(fast.t_ns, slow.t_ns)
