@@ -279,7 +279,7 @@ class FixedTopic:
         if n == 0:
             raise InputError(f"{self.where}: topic {self.topic} has no messages")
         logs = self.logs[:n]
-        order = None if bool((np.diff(logs) >= 0).all()) else np.argsort(logs, kind="stable")
+        order = None if bool((logs[1:] >= logs[:-1]).all()) else np.argsort(logs, kind="stable")
         header = self.stamps[:n] if self.stamps is not None else None
         use_header = header is not None and bool(header.any())
         out = []

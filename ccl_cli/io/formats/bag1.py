@@ -134,10 +134,11 @@ def in_order(keys: np.ndarray) -> bool:
     allowed): a pass over the first column, the next ones only while some rows tie."""
     undecided = None  # rows equal to their successor in every column so far
     for col in keys.T:
-        step = np.diff(col)
-        if bool((step < 0 if undecided is None else undecided & (step < 0)).any()):
+        back = col[1:] < col[:-1]  # compared in place: no (n - 1,) int64 differences
+        if bool((back if undecided is None else undecided & back).any()):
             return False
-        undecided = step == 0 if undecided is None else undecided & (step == 0)
+        same = col[1:] == col[:-1]
+        undecided = same if undecided is None else undecided & same
         if not undecided.any():
             return True
     return True
