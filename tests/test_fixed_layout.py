@@ -274,3 +274,161 @@ def test_terminal_bar_stands_aside_while_another_display_is_live():
             assert advance is progress._ignore
     finally:
         progress.live(-1)
+
+
+# -- topics interleaved in the chunks: records not back to back, gathered one by one ----------
+def _write_interleaved(tmp_path: Path, container: str, n: int) -> tuple[Path, dict[str, np.ndarray]]:
+    """PoseStamped on /x and WrenchStamped on /y, one message of each in turn, in chunks of
+    about 16 kB; returns the numbers written per topic."""
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC if container == "ros1" else Stores.ROS2_HUMBLE)
+    rng = np.random.default_rng(11)
+    topics = {"/x": "PoseStamped", "/y": "WrenchStamped"}
+    written = {t: _messages(ts, kind, n, rng) for t, kind in topics.items()}
+    types = {t: f"geometry_msgs/msg/{kind}" for t, kind in topics.items()}
+    if container == "ros1":
+        from rosbags.rosbag1 import Writer
+
+        path = tmp_path / "two.bag"
+        w = Writer(path)
+        w.chunk_threshold = 1 << 14
+        with w:
+            conns = {t: w.add_connection(t, types[t], typestore=ts) for t in topics}
+            for i in range(n):
+                for k, t in enumerate(topics):
+                    data = ts.serialize_ros1(written[t][0][i], types[t])
+                    w.write(conns[t], 10**9 + 2 * i * 10**6 + k, data)
+    else:
+        from mcap.writer import Writer
+
+        path = tmp_path / "two.mcap"
+        with open(path, "wb") as f:
+            w = Writer(f, chunk_size=1 << 14)
+            w.start(profile="ros2", library="tests")
+            schemas = {t: w.register_schema(types[t], "ros2msg",
+                                            ts.generate_msgdef(types[t], ros_version=2)[0].encode())
+                       for t in topics}
+            cids = {t: w.register_channel(t, "cdr", schemas[t]) for t in topics}
+            for i in range(n):
+                for k, t in enumerate(topics):
+                    stamp = 10**9 + 2 * i * 10**6 + k
+                    w.add_message(cids[t], stamp, bytes(ts.serialize_cdr(written[t][0][i], types[t])), stamp)
+            w.finish()
+    return path, {t: vals for t, (_, vals) in written.items()}
+
+
+@pytest.mark.parametrize("container", ["ros1", "mcap-cdr"])
+def test_interleaved_topics_equal_the_message_path(tmp_path, container, gathered, monkeypatch):
+    path, vals = _write_interleaved(tmp_path, container, 2500)
+    reader_cls = BagReader if container == "ros1" else McapReader
+    options = DataOptions.model_validate({"state": {"topic": "/x", "field": "pose.position"}})
+    sel = [StreamOptions.model_validate({"topic": t, "field": f}) for t, f in
+           (("/x", "pose.position"), ("/y", "wrench.torque"), ("/x", "pose.orientation"))]
+    fast = reader_cls(path, options).streams(sel)
+    assert sorted(gathered) == ["/x", "/y"]  # both topics on the NumPy path
+    np.testing.assert_array_equal(fast[0].values, vals["/x"][:, :3])
+    np.testing.assert_array_equal(fast[1].values, vals["/y"][:, 3:6])
+    np.testing.assert_array_equal(fast[2].values, vals["/x"][:, 3:7])
+    monkeypatch.setattr(layouts, "WALKS", {})
+    slow = reader_cls(path, options).streams(sel)
+    for a, b in zip(fast, slow, strict=True):
+        np.testing.assert_array_equal(a.values, b.values)
+        np.testing.assert_array_equal(a.t_ns, b.t_ns)
+        assert a.meta == b.meta
+
+
+def test_bag_index_equals_rosbags_index(tmp_path):
+    from rosbags.rosbag1 import Reader
+
+    from ccl_cli.io.formats.bag1 import read_index
+
+    path, _ = _write_interleaved(tmp_path, "ros1", 1500)
+    index = read_index(path)
+    with Reader(path) as r:
+        chunk_pos = sorted({e.chunk_pos for entries in r.indexes.values() for e in entries})
+        assert len(index.chunks) == len(chunk_pos) > 10
+        for conn in r.connections:
+            theirs = np.array([(e.time, chunk_pos.index(e.chunk_pos), e.offset) for e in r.indexes[conn.id]])
+            np.testing.assert_array_equal(index.entries[conn.id], theirs)
+
+
+def test_a_bag_index_disagreeing_with_its_chunk_info_is_refused_and_read_by_rosbags(tmp_path, gathered):
+    from ccl_cli.errors import InputError
+    from ccl_cli.io.formats.bag1 import read_index
+
+    rec = joint_recording(n=3000, seed=2)
+    path = WRITERS["ros1"](tmp_path, rec)
+    raw = bytearray(path.read_bytes())
+    # the index ends with the last chunk's info record, whose data ends with (conn, count)
+    conn, count = np.frombuffer(bytes(raw[-8:]), dtype="<u4").tolist()
+    assert conn == 0 and 0 < count <= 3000
+    raw[-4:] = (count + 1).to_bytes(4, "little")
+    path.write_bytes(bytes(raw))
+    with pytest.raises(InputError, match="disagrees with its chunk info"):
+        read_index(path)
+    options = DataOptions.model_validate({"state": {"topic": "/joint_states", "field": "position"}})
+    (stream,) = BagReader(path, options).streams([options.state])
+    assert gathered == []  # rosbags' reader, which uses the index data records
+    np.testing.assert_array_equal(stream.values, rec.position)
+
+
+def test_in_order_is_lexicographic_order():
+    from ccl_cli.io.formats.bag1 import in_order
+
+    rng = np.random.default_rng(4)
+    for _ in range(500):
+        keys = rng.integers(0, 3, size=(rng.integers(0, 7), 3))
+        assert in_order(keys) == (sorted(map(tuple, keys)) == list(map(tuple, keys)))
+
+
+@pytest.mark.parametrize("container", ["ros1", "mcap-cdr"])
+def test_messages_written_out_of_log_time_order_equal_the_message_path(tmp_path, container, gathered,
+                                                                       monkeypatch):
+    """Log times that go back now and then, and repeat: the index is not in file order, so
+    the entries are sorted (ROS 1: log time, chunk, offset; MCAP: offsets per chunk)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    n, kind, msgtype = 3000, "PoseStamped", "geometry_msgs/msg/PoseStamped"
+    ts = get_typestore(Stores.ROS1_NOETIC if container == "ros1" else Stores.ROS2_HUMBLE)
+    msgs, vals = _messages(ts, kind, n, np.random.default_rng(8))
+    log = 10**9 + np.arange(n) * 10**6
+    log[10::10], log[11::10] = log[11::10].copy(), log[10::10].copy()  # pairs swapped
+    log[25::50] = log[24::50]  # and ties
+    log[-2:] = log[-1], log[-2]  # the last message written is not the last in time
+    if container == "ros1":
+        from rosbags.rosbag1 import Writer
+
+        path = tmp_path / "x.bag"
+        w = Writer(path)
+        w.chunk_threshold = 1 << 14
+        with w:
+            conn = w.add_connection("/x", msgtype, typestore=ts)
+            for t, m in zip(log.tolist(), msgs, strict=True):
+                w.write(conn, t, ts.serialize_ros1(m, msgtype))
+    else:
+        from mcap.writer import Writer
+
+        path = tmp_path / "x.mcap"
+        with open(path, "wb") as f:
+            w = Writer(f, chunk_size=1 << 14)
+            w.start(profile="ros2", library="tests")
+            cid = w.register_channel("/x", "cdr", w.register_schema(
+                msgtype, "ros2msg", ts.generate_msgdef(msgtype, ros_version=2)[0].encode()))
+            for t, m in zip(log.tolist(), msgs, strict=True):
+                w.add_message(cid, t, bytes(ts.serialize_cdr(m, msgtype)), t)
+            w.finish()
+    reader_cls = BagReader if container == "ros1" else McapReader
+    options = DataOptions.model_validate({"state": {"topic": "/x", "field": "pose.position"}})
+    sel = [StreamOptions.model_validate({"topic": "/x", "field": "pose.position", "stamp": "log"})]
+    (fast,) = reader_cls(path, options).streams(sel)
+    assert gathered == ["/x"]
+    order = np.argsort(log, kind="stable")  # log-time order, ties in the order written
+    np.testing.assert_array_equal(fast.t_ns, log[order])
+    np.testing.assert_array_equal(fast.values, vals[order, :3])
+    listing = reader_cls(path, options).listing()  # from the index (ROS 1) or the summary
+    assert (listing["start_ns"], listing["end_ns"]) == (log.min(), log.max())
+    monkeypatch.setattr(layouts, "WALKS", {})
+    (slow,) = reader_cls(path, options).streams(sel)
+    np.testing.assert_array_equal(fast.values, slow.values)
+    np.testing.assert_array_equal(fast.t_ns, slow.t_ns)

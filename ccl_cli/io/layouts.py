@@ -4,10 +4,12 @@ A topic whose messages all serialise to the same bytes except their numbers (a
 JointState with the same joint names and counts in every message, a PoseStamped with
 the same ``frame_id``, …) is a table of fixed-size records: :func:`layout_of` walks the
 first message once and finds where each float64 field and the header stamp lie;
-:class:`FixedTopic` then gathers those columns from every chunk at once (one fancy index
-per chunk) and checks, per chunk, that every byte outside the numbers and stamps equals
-the first message's. A message that differs (names changing, differing joint counts,
-another ``frame_id`` length) raises :class:`NotFixed` and the caller falls back to the
+:class:`FixedTopic` then reads the records of a chunk as one (n, record size) byte table
+(a view of the chunk when they lie back to back, else one fancy index), checks that every
+byte outside the numbers and stamps equals the first record's (compared as 8-byte words)
+and copies the number columns straight into arrays allocated once from the index's
+count. A message that differs (names changing, differing joint counts, another
+``frame_id`` length) raises :class:`NotFixed` and the caller falls back to the
 libraries' decoders. Serialisations: ROS 1 (``ros1``) and little-endian CDR (``cdr``).
 
 Supported types (the part after the package): JointState, PoseStamped, TwistStamped,
@@ -175,20 +177,44 @@ def read_uint(buf: np.ndarray, at: np.ndarray, width: int) -> np.ndarray:
     return gather_rows(buf, at, width).view(f"<u{width}")[:, 0]
 
 
-def _floats(rows: np.ndarray, runs: list[tuple[int, int]]) -> np.ndarray:
-    """(n, sum of counts) float64 from the byte runs of ``rows``."""
-    parts = [rows[:, o:o + 8 * k] for o, k in runs]
-    block = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=1)
-    return np.ascontiguousarray(block).view("<f8").astype(np.float64, copy=False)
+def record_rows(buf: np.ndarray, starts: np.ndarray, size: int) -> np.ndarray:
+    """(n, size) uint8 rows of the records at ``starts`` (increasing) in ``buf``: a view of
+    ``buf`` when the records lie back to back (one topic per chunk), else a gathered copy."""
+    n = starts.size
+    first = int(starts[0]) if n else 0
+    if n and first >= 0 and first + n * size <= buf.size and \
+            (n == 1 or bool((np.diff(starts) == size).all())):
+        return buf[first:first + n * size].reshape(n, size)
+    return gather_rows(buf, starts, size)
+
+
+def _words(a: int, b: int) -> list[tuple[int, int]]:
+    """The bytes [a, b) as little-endian words (offset, width), widest first: 8-byte words
+    from ``a`` and, for a remainder, one word ending at ``b`` (overlapping the one before
+    it, never leaving [a, b))."""
+    width = next(w for w in (8, 4, 2, 1) if w <= b - a)
+    out = [(o, width) for o in range(a, b - width + 1, width)]
+    if (b - a) % width:
+        out.append((b - width, width))
+    return out
+
+
+def _float_runs(offsets: np.ndarray) -> list[tuple[int, int, int]]:
+    """Byte offsets of float64 columns grouped into (byte offset, count, first column) runs
+    of adjacent numbers, each copied with one strided view."""
+    if not offsets.size:
+        return []
+    breaks = np.flatnonzero(np.diff(offsets) != 8) + 1
+    edges = np.r_[0, breaks, offsets.size]
+    return [(int(offsets[lo]), int(hi - lo), int(lo)) for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
 
 
 @dataclass
 class Selection:
-    """One stream of a fixed topic: its float64 runs, the joint columns to keep (None:
-    all, in order), the column names and whether it is stamped by ``header.stamp``."""
+    """One stream of a fixed topic: byte offsets (in the message) of its float64 columns in
+    output order, the column names and whether it is stamped by ``header.stamp``."""
 
-    runs: list[tuple[int, int]]
-    index: np.ndarray | None
+    offsets: np.ndarray
     names: list[str]
     header: bool
     field: str
@@ -197,40 +223,52 @@ class Selection:
 class FixedTopic:
     """The streams of one topic gathered chunk by chunk into arrays allocated once.
 
-    ``first``: the first message's bytes, which every later message must equal outside
-    the numbers and stamps; ``total``: the number of messages (from the index)."""
+    A record is ``head`` (the container's bytes before the message: record header, log
+    time, …; ``head_varying`` marks those that may differ) followed by the message. Every
+    record must equal the first (``head`` + ``first``) outside the numbers, stamps and
+    varying head bytes. ``total``: the number of messages (from the index)."""
 
-    def __init__(self, topic: str, where: str, layout: Layout, first: bytes,
-                 selections: list[Selection], total: int) -> None:
+    def __init__(self, topic: str, where: str, layout: Layout, first: bytes, selections: list[Selection],
+                 total: int, head: bytes = b"", head_varying: np.ndarray | None = None) -> None:
         self.topic, self.where, self.layout = topic, where, layout
-        edges = np.flatnonzero(np.diff(np.r_[0, (~layout.varying).astype(np.int8), 0]))
-        self.fixed = list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))  # [start, stop)
-        self.first = np.frombuffer(first, dtype=np.uint8)
+        self.record = np.frombuffer(head + first, dtype=np.uint8)
+        self.size = self.record.size
+        skip = len(head)
+        varying = np.r_[np.zeros(skip, bool) if head_varying is None else head_varying, layout.varying]
+        edges = np.flatnonzero(np.diff(np.r_[0, (~varying).astype(np.int8), 0]))
+        #: the fixed bytes as words (offset, width, the first record's word there): compared
+        #: one column at a time, n elements a call (a row at a time costs a call per record)
+        self.checks = [(o, w, int.from_bytes(self.record[o:o + w].tobytes(), "little"))
+                       for a, b in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True)
+                       for o, w in _words(a, b)]
         self.selections = selections
-        self.values = [np.empty((total, sum(k for _, k in s.runs))) for s in selections]
+        self.copies = [_float_runs(skip + s.offsets) for s in selections]
+        self.values = [np.empty((total, s.offsets.size)) for s in selections]
+        self.stamp = None if layout.stamp is None else skip + layout.stamp[0]
         self.stamps = np.zeros(total, dtype=np.int64) if layout.stamp is not None else None
         self.logs = np.empty(total, dtype=np.int64)
         self.n = 0
 
     def add(self, buf: np.ndarray, starts: np.ndarray, log_ns: np.ndarray) -> None:
-        """Messages of one chunk: ``buf`` (uint8), where each message's bytes start, and
+        """Records of one chunk: ``buf`` (uint8), where each record starts (increasing) and
         their log times (ns). :class:`NotFixed` when one is laid out unlike the first."""
         n = starts.size
         if n == 0:
             return
         if self.n + n > self.logs.size:
             raise NotFixed("more messages than the index counts")
-        rows = gather_rows(buf, starts, self.layout.size)
-        if not all((rows[:, a:b] == self.first[a:b]).all() for a, b in self.fixed):
-            raise NotFixed("a message's non-numeric bytes differ from the first's")
+        rows = record_rows(buf, starts, self.size)
+        for o, w, first in self.checks:
+            if not (rows[:, o:o + w].view(f"<u{w}")[:, 0] == first).all():
+                raise NotFixed("a record's non-numeric bytes differ from the first's")
         span = slice(self.n, self.n + n)
-        for sel, out in zip(self.selections, self.values, strict=True):
-            out[span] = _floats(rows, sel.runs)
+        for copies, out in zip(self.copies, self.values, strict=True):
+            for o, k, col in copies:
+                out[span, col:col + k] = rows[:, o:o + 8 * k].view("<f8")
         if self.stamps is not None:
-            s, ns = self.layout.stamp
-            sec = rows[:, s:s + 4].copy().view("<u4")[:, 0].astype(np.int64)
-            nsec = rows[:, ns:ns + 4].copy().view("<u4")[:, 0].astype(np.int64)
-            self.stamps[span] = sec * 1_000_000_000 + nsec
+            sec_nsec = rows[:, self.stamp:self.stamp + 8].view("<u4")
+            np.multiply(sec_nsec[:, 0], 1_000_000_000, out=self.stamps[span], dtype=np.int64)
+            self.stamps[span] += sec_nsec[:, 1]
         self.logs[span] = log_ns
         self.n += n
 
@@ -241,14 +279,12 @@ class FixedTopic:
         if n == 0:
             raise InputError(f"{self.where}: topic {self.topic} has no messages")
         logs = self.logs[:n]
-        order = None if bool((np.diff(logs) >= 0).all()) else np.argsort(logs, kind="stable")
+        order = None if bool((logs[1:] >= logs[:-1]).all()) else np.argsort(logs, kind="stable")
         header = self.stamps[:n] if self.stamps is not None else None
         use_header = header is not None and bool(header.any())
         out = []
         for sel, values in zip(self.selections, self.values, strict=True):
             values = values[:n]
-            if sel.index is not None:
-                values = values[:, sel.index]
             if order is not None:
                 values = values[order]
             stamp = header if use_header and sel.header else logs
@@ -259,24 +295,26 @@ class FixedTopic:
 
 
 def fixed_topic(topic: str, kind: str, cdr: bool, first_raw: bytes, first_msg: object,
-                extractors: list, total: int, where: str) -> FixedTopic:
+                extractors: list, total: int, where: str, head: bytes = b"",
+                head_varying: np.ndarray | None = None) -> FixedTopic:
     """A :class:`FixedTopic` for ``extractors`` (:class:`~ccl_cli.io.messages.FieldExtractor`
     of one topic), set up from its first message: ``first_raw`` (serialised) and
-    ``first_msg`` (decoded by the library). The extractors check the decoded message as
+    ``first_msg`` (decoded by the library); ``head``/``head_varying``: the container's bytes
+    before each message (:class:`FixedTopic`). The extractors check the decoded message as
     on the message-by-message path (precise errors for a wrong field or joint); the
     gathered numbers of the first message must equal the library's, else
     :class:`NotFixed`."""
     layout = layout_of(kind, first_raw, cdr)
+    message = np.frombuffer(first_raw, dtype=np.uint8)
     selections = []
     for ex in extractors:
         expected = np.asarray(ex.values(first_msg), dtype=float).ravel()
-        runs = layout.columns(ex.field)
-        joints = ex.spec.joints is not None and ex.kind == "JointState"
-        index = ex._joint_index if joints and not ex._joint_identity else None
-        selections.append(Selection(runs, index, list(ex.names or []), ex.spec.stamp == "header", ex.field))
-        row = _floats(np.frombuffer(first_raw, dtype=np.uint8)[None, :], runs)[0]
-        got = row[index] if index is not None else row
+        offsets = np.concatenate([o + 8 * np.arange(k) for o, k in layout.columns(ex.field)])
+        if ex.spec.joints is not None and ex.kind == "JointState" and not ex._joint_identity:
+            offsets = offsets[ex._joint_index]  # the wanted joints, in the wanted order
+        got = message[offsets[:, None] + np.arange(8)].view("<f8")[:, 0]
         if got.shape != expected.shape or not np.array_equal(got, expected, equal_nan=True) \
                 or got.size != len(ex.names or []):
             raise NotFixed(f"{ex.field}: the gathered numbers differ from the library's")
-    return FixedTopic(topic, where, layout, first_raw, selections, total)
+        selections.append(Selection(offsets, list(ex.names or []), ex.spec.stamp == "header", ex.field))
+    return FixedTopic(topic, where, layout, first_raw, selections, total, head, head_varying)

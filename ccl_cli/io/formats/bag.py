@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.formats.bag1 import BagIndex, read_chunk, read_index
-from ccl_cli.io.layouts import NotFixed, fixed_topic, gather_rows, read_uint
+from ccl_cli.io.formats.bag1 import BagIndex, in_order, read_chunk, read_index
+from ccl_cli.io.layouts import NotFixed, fixed_topic, read_uint
 from ccl_cli.io.library_errors import library_call, library_iter
 from ccl_cli.io.limits import inside, open_regular, regular_file
 from ccl_cli.io.messages import TopicReader, finish_topics, read_topics, short_type
@@ -241,36 +241,30 @@ class BagReader(TopicReader):
         if entries is None or not entries.size or not conns[0].msgdef:
             return None
         conn = conns[0]
-        by_chunk = entries[np.lexsort((entries[:, 2], entries[:, 1]))]
-        numbers = np.unique(by_chunk[:, 1])
-        bounds = np.searchsorted(by_chunk[:, 1], np.append(numbers, numbers[-1] + 1))
+        by_chunk = entries  # in file order: chunk, then place in the chunk
+        if not in_order(entries[:, 1:]):
+            by_chunk = entries[np.lexsort((entries[:, 2], entries[:, 1]))]
+        bounds = np.r_[0, np.flatnonzero(np.diff(by_chunk[:, 1])) + 1, len(by_chunk)]
+        numbers = by_chunk[bounds[:-1], 1]
         try:
             first = self._first_message(f, index, conn, entries[0])
             if first is None:
                 return None
             head, raw, msg = first
-            gathered = fixed_topic(topic, short_type(conn.msgtype), False, raw, msg, extractors,
-                                   len(entries), where)
-            varying = np.zeros(len(head), dtype=bool)
             at = head.find(b"time=")
             if at < 0 or head.find(b"op=\x02") < 0:
                 return None
-            varying[at + 5:at + 13] = True
-            fixed_head = np.frombuffer(head, dtype=np.uint8)[~varying]
+            # a record: header length, header (its time varies), data length, then the message
+            record_head = len(head).to_bytes(4, "little") + head + len(raw).to_bytes(4, "little")
+            varying = np.zeros(len(record_head), dtype=bool)
+            varying[4 + at + 5:4 + at + 13] = True
+            gathered = fixed_topic(topic, short_type(conn.msgtype), False, raw, msg, extractors,
+                                   len(entries), where, record_head, varying)
             total = sum(index.chunks[int(k)].size for k in numbers)
             with progress_of(f"reading {topic}", total) as advance:
                 for k, lo, hi in zip(numbers, bounds[:-1], bounds[1:], strict=True):
                     chunk = index.chunks[int(k)]
-                    buf = read_chunk(f, chunk, where)
-                    starts = by_chunk[lo:hi, 2]
-                    # every record: the first's header length, header (but its time) and data length
-                    if not (read_uint(buf, starts, 4) == len(head)).all():
-                        return None
-                    heads = gather_rows(buf, starts + 4, len(head))
-                    if not (heads[:, ~varying] == fixed_head).all() or \
-                            not (read_uint(buf, starts + 4 + len(head), 4) == len(raw)).all():
-                        return None
-                    gathered.add(buf, starts + 8 + len(head), by_chunk[lo:hi, 0])
+                    gathered.add(read_chunk(f, chunk, where), by_chunk[lo:hi, 2], by_chunk[lo:hi, 0])
                     advance(chunk.size)
         except NotFixed:
             return None

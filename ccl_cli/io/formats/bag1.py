@@ -11,6 +11,8 @@ for anything this does not read.
 
 from __future__ import annotations
 
+import bisect
+import io
 import os
 import struct
 from dataclasses import dataclass, field
@@ -24,6 +26,10 @@ from ccl_cli.io.limits import check_claim, open_regular
 
 MAGIC = b"#ROSBAG V2.0\n"
 OP_MSG, OP_BAG_HEADER, OP_INDEX, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
+#: reads up to this size are not checked against the size cap first
+SMALL_READ = 1 << 16
+#: bytes read at a chunk's position for its record header (names, compression, sizes)
+HEAD_READ = 4096
 
 
 @dataclass
@@ -57,14 +63,15 @@ class BagIndex:
 
 
 class _Records:
-    """Bounded reads of the bag's records."""
+    """Bounded reads of the bag's records from ``f`` (the bag, or a block of it in memory)
+    of ``size`` bytes."""
 
-    def __init__(self, f: IO[bytes], where: str) -> None:
-        self.f, self.where = f, where
-        self.size = os.fstat(f.fileno()).st_size
+    def __init__(self, f: IO[bytes], where: str, size: int) -> None:
+        self.f, self.where, self.size = f, where, size
 
     def exact(self, n: int, what: str) -> bytes:
-        check_claim(self.where, what, n, 1, self.size)
+        if n > SMALL_READ:
+            check_claim(self.where, what, n, 1, self.size)
         raw = self.f.read(n)
         if len(raw) != n:
             raise InputError(f"{self.where}: {what} is truncated (damaged bag?)")
@@ -114,20 +121,49 @@ def _data_fields(raw: bytes) -> dict[str, str]:
     return out
 
 
+def _block(f: IO[bytes], start: int, stop: int, what: str, where: str, size: int) -> _Records:
+    """The bytes [start, stop) of the bag, read at once, as records read from memory."""
+    check_claim(where, what, max(stop - start, 0), 1, size)
+    f.seek(start)
+    raw = f.read(max(stop - start, 0))
+    return _Records(io.BytesIO(raw), where, len(raw))
+
+
+def in_order(keys: np.ndarray) -> bool:
+    """Whether the rows of the (n, k) integer ``keys`` are in lexicographic order (equal rows
+    allowed): a pass over the first column, the next ones only while some rows tie."""
+    undecided = None  # rows equal to their successor in every column so far
+    for col in keys.T:
+        back = col[1:] < col[:-1]  # compared in place: no (n - 1,) int64 differences
+        if bool((back if undecided is None else undecided & back).any()):
+            return False
+        same = col[1:] == col[:-1]
+        undecided = same if undecided is None else undecided & same
+        if not undecided.any():
+            return True
+    return True
+
+
 def read_index(path: Path) -> BagIndex:
-    """The index of the ROS 1 bag at ``path``; InputError for what is not a readable bag 2.0."""
+    """The index of the ROS 1 bag at ``path``; InputError for what is not a readable bag 2.0.
+
+    The index section (connection and chunk-info records) is read in one piece; per chunk,
+    its record header and the index data records after its data are read in one piece
+    each, their (sec, nsec, offset) entries copied into arrays allocated once from the
+    chunk-info counts."""
     where = str(path)
     with open_regular(path, "the bag") as f:
         if f.read(len(MAGIC)) != MAGIC:
             raise InputError(f"{where}: not a ROS 1 bag of format 2.0")
-        rec = _Records(f, where)
+        size = os.fstat(f.fileno()).st_size
+        rec = _Records(f, where, size)
         head, _ = rec.record(OP_BAG_HEADER, "the bag header")
         index_pos = _int(head, "index_pos", "<Q", where)
         n_conn = _int(head, "conn_count", "<I", where)
         n_chunks = _int(head, "chunk_count", "<I", where)
-        if index_pos == 0 or index_pos >= rec.size:
+        if index_pos == 0 or index_pos >= size:
             raise InputError(f"{where}: the bag is not indexed (reindex it with rosbag reindex)")
-        f.seek(index_pos)
+        rec = _block(f, index_pos, size, "the bag's index", where, size)
         connections = []
         for _ in range(n_conn):
             fields, n = rec.record(OP_CONNECTION, "a connection record")
@@ -135,36 +171,53 @@ def read_index(path: Path) -> BagIndex:
             connections.append(Connection(_int(fields, "conn", "<I", where),
                                           fields.get("topic", b"").decode("utf-8", "replace"),
                                           data.get("type", ""), data.get("message_definition", "")))
-        infos = []
+        infos = []  # per chunk: its position and {connection: message count}
         for _ in range(n_chunks):
             fields, n = rec.record(OP_CHUNK_INFO, "a chunk info record")
-            rec.exact(n, "a chunk info record")
-            infos.append((_int(fields, "chunk_pos", "<Q", where), _int(fields, "count", "<I", where)))
+            counts = np.frombuffer(rec.exact(n, "a chunk info record"), dtype="<u4")
+            if counts.size != 2 * _int(fields, "count", "<I", where):
+                raise InputError(f"{where}: a chunk info record is truncated (damaged bag?)")
+            infos.append((_int(fields, "chunk_pos", "<Q", where), dict(counts.reshape(-1, 2).tolist())))
+        totals: dict[int, int] = {c.id: 0 for c in connections}
+        for _, counts in infos:
+            for conn, count in counts.items():
+                if conn not in totals:
+                    raise InputError(f"{where}: a chunk holds connection {conn}, not in the index")
+                totals[conn] += count
+        check_claim(where, "the index entries", sum(totals.values()) * 24, 1, size)
+        # per connection, column-major: log time (ns), chunk number, offset in the chunk
+        columns = {conn: np.empty((3, n), dtype=np.int64) for conn, n in totals.items()}
+        filled = dict.fromkeys(totals, 0)
+        ends = sorted({pos for pos, _ in infos} | {index_pos})
         chunks: list[Chunk] = []
-        parts: dict[int, list[np.ndarray]] = {}
-        for number, (pos, n_conns) in enumerate(infos):
-            f.seek(pos)
-            fields, n = rec.record(OP_CHUNK, "a chunk")
-            chunks.append(Chunk(f.tell(), n, fields.get("compression", b"").decode("latin-1"),
+        for number, (pos, counts) in enumerate(infos):
+            top = _block(f, pos, min(pos + HEAD_READ, size), "a chunk", where, size)
+            fields, n = top.record(OP_CHUNK, "a chunk")
+            data_pos = pos + top.f.tell()
+            chunks.append(Chunk(data_pos, n, fields.get("compression", b"").decode("latin-1"),
                                 _int(fields, "size", "<I", where)))
-            f.seek(n, os.SEEK_CUR)
-            for _ in range(n_conns):
-                fields, n = rec.record(OP_INDEX, "an index data record")
-                raw = np.frombuffer(rec.exact(n, "an index data record"), dtype="<u4")
-                if raw.size % 3:
-                    raise InputError(f"{where}: an index data record is truncated (damaged bag?)")
-                raw = raw.reshape(-1, 3).astype(np.int64)
-                entries = np.empty_like(raw)
-                entries[:, 0] = raw[:, 0] * 1_000_000_000 + raw[:, 1]
-                entries[:, 1] = number
-                entries[:, 2] = raw[:, 2]
-                parts.setdefault(_int(fields, "conn", "<I", where), []).append(entries)
+            stop = ends[bisect.bisect_right(ends, pos)] if pos < index_pos else size
+            block = _block(f, data_pos + n, stop, "the index data of a chunk", where, size)
+            for _ in counts:
+                fields, n = block.record(OP_INDEX, "an index data record")
+                conn, count = _int(fields, "conn", "<I", where), _int(fields, "count", "<I", where)
+                at = filled.get(conn, -1)
+                if n != 12 * count or count != counts.get(conn) or at < 0:
+                    raise InputError(f"{where}: an index data record disagrees with its chunk info "
+                                     "(damaged bag?)")
+                raw = np.frombuffer(block.exact(n, "an index data record"), dtype="<u4").reshape(-1, 3)
+                out = columns[conn][:, at:at + count]
+                np.multiply(raw[:, 0], 1_000_000_000, out=out[0], dtype=np.int64)  # sec, nsec
+                out[0] += raw[:, 1]
+                out[1] = number
+                out[2] = raw[:, 2]
+                filled[conn] = at + count
         index = BagIndex(connections, chunks)
-        index.entries = {c.id: np.zeros((0, 3), dtype=np.int64) for c in connections}
-        for conn, blocks in parts.items():
-            entries = np.concatenate(blocks)
-            # the order rosbags reads in: log time, then chunk, then place in the chunk
-            index.entries[conn] = entries[np.lexsort((entries[:, 2], entries[:, 1], entries[:, 0]))]
+        for conn, both in columns.items():
+            entries = both.T  # in file order; rosbags reads in log time, then chunk, then place
+            if not in_order(entries):
+                entries = entries[np.lexsort((entries[:, 2], entries[:, 1], entries[:, 0]))]
+            index.entries[conn] = entries
         return index
 
 

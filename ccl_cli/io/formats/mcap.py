@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.layouts import FixedTopic, NotFixed, fixed_topic, read_uint
+from ccl_cli.io.layouts import FixedTopic, NotFixed, fixed_topic
 from ccl_cli.io.library_errors import library_call, library_iter
 from ccl_cli.io.limits import check_claim, open_regular
 from ccl_cli.io.messages import TopicReader, finish_topics, read_topics, short_type
@@ -101,7 +101,7 @@ class McapReader(TopicReader):
             collectors, slots = read_topics(selections, msgtypes, where)
             done: dict[str, list[Stream]] = {}
             for topic, collector in collectors.items():
-                fast = self._fixed(f, reader, summary, topic, collector.extractors)
+                fast = self._fixed(f, summary, topic, collector.extractors)
                 if fast is not None:
                     done[topic] = fast
             collectors = {t: c for t, c in collectors.items() if t not in done}
@@ -119,7 +119,7 @@ class McapReader(TopicReader):
                     collectors[channel.topic].add(decoded, message.log_time)
             return finish_topics(collectors, slots, done)
 
-    def _fixed(self, f, reader, summary, topic: str, extractors: list) -> list[Stream] | None:
+    def _fixed(self, f, summary, topic: str, extractors: list) -> list[Stream] | None:
         """The streams of ``topic`` gathered with NumPy from the chunks (:mod:`ccl_cli.io.layouts`),
         or None when its messages are not all laid out alike (or not indexed): the caller
         decodes them message by message."""
@@ -141,19 +141,16 @@ class McapReader(TopicReader):
             with progress_of(f"reading {topic}", sum(c.uncompressed_size for c in chunks)) as advance:
                 for chunk_index, entries in zip(chunks, indexes, strict=True):
                     buf = self._chunk(f, chunk_index)
-                    entries = entries[np.argsort(entries[:, 1], kind="stable")]
                     starts = entries[:, 1].astype(np.int64)
-                    if not len(starts) or starts.min() < 0 or starts.max() + MESSAGE_PREFIX > buf.size:
-                        return None  # an index pointing outside its chunk: the library decodes (and judges)
+                    if not len(starts):
+                        continue
+                    if not bool((np.diff(starts) > 0).all()):
+                        order = np.argsort(starts, kind="stable")
+                        starts, entries = starts[order], entries[order]
                     if gathered is None:
-                        gathered = self._first_fixed(f, reader, topic, buf, starts[0], extractors, total)
-                        size = gathered.layout.size
-                    if starts.max() + MESSAGE_PREFIX + size > buf.size or not (
-                            (buf[starts] == MESSAGE_OPCODE).all()  # Message records of this channel
-                            and (read_uint(buf, starts + 9, 2) == cid).all()
-                            and (read_uint(buf, starts + 1, 8) == size + MESSAGE_PREFIX - 9).all()):
-                        return None
-                    gathered.add(buf, starts + MESSAGE_PREFIX, entries[:, 0].astype(np.int64))
+                        gathered = self._first_fixed(summary, channels[0], buf, int(starts[0]), extractors,
+                                                     total)
+                    gathered.add(buf, starts, entries[:, 0].astype(np.int64))
                     advance(chunk_index.uncompressed_size)
         except NotFixed:
             return None
@@ -241,21 +238,32 @@ class McapReader(TopicReader):
         stream, size = library_call(where, what, get_chunk_data_stream, chunk)
         return np.frombuffer(library_call(where, what, stream.read, size), dtype=np.uint8)
 
-    def _first_fixed(self, f, reader, topic: str, buf: np.ndarray, start: int, extractors: list,
+    def _first_fixed(self, summary, channel, buf: np.ndarray, start: int, extractors: list,
                      total: int) -> FixedTopic:
-        """The :class:`FixedTopic` of ``topic`` from its first message (at ``start`` in ``buf``),
-        decoded once by mcap's decoders for the extractors' checks."""
-        where = str(self.path)
-        size = int(read_uint(buf, np.array([start + 1]), 8)[0]) - (MESSAGE_PREFIX - 9)
-        raw = bytes(buf[start + MESSAGE_PREFIX:start + MESSAGE_PREFIX + size])
-        f.seek(0)
-        decoded = next(library_iter(where, f"decode {topic}",
-                                    reader.iter_decoded_messages(topics=[topic])), None)
-        if decoded is None or bytes(decoded[2].data) != raw:
-            raise NotFixed("the first message in the index is not the first the library reads")
-        kind = short_type(decoded[0].name if decoded[0] else "")
-        return fixed_topic(topic, kind, decoded[1].message_encoding == "cdr", raw, decoded[3], extractors,
-                           total, where)
+        """The :class:`FixedTopic` of ``channel``'s topic from the Message record at ``start``
+        in ``buf``, decoded by mcap's decoders for the extractors' checks. Every record must
+        equal it but for its sequence number, log and publish times and numbers."""
+        where, topic = str(self.path), channel.topic
+        if start < 0 or start + MESSAGE_PREFIX > buf.size:
+            raise NotFixed("an index points outside its chunk")
+        prefix = bytes(buf[start:start + MESSAGE_PREFIX])
+        size = int.from_bytes(prefix[1:9], "little") - (MESSAGE_PREFIX - 9)
+        raw = bytes(buf[start + MESSAGE_PREFIX:start + MESSAGE_PREFIX + max(size, 0)])
+        if prefix[0] != MESSAGE_OPCODE or int.from_bytes(prefix[9:11], "little") != channel.id \
+                or size < 0 or len(raw) != size:
+            raise NotFixed("the index does not point at a Message record of the topic")
+        schema = summary.schemas.get(channel.schema_id)
+        what = f"read the schema of {topic}"
+        decode = next((d for d in (library_call(where, what, factory.decoder_for, channel.message_encoding,
+                                                schema) for factory in _decoders()) if d is not None), None)
+        if decode is None:
+            raise NotFixed(f"no decoder for {topic}")
+        decoded = library_call(where, f"decode {topic}", decode, raw)
+        varying = np.zeros(MESSAGE_PREFIX, dtype=bool)
+        varying[11:] = True  # sequence, log time, publish time
+        kind = short_type(schema.name if schema else "")
+        return fixed_topic(topic, kind, channel.message_encoding == "cdr", raw, decoded, extractors, total,
+                           where, prefix, varying)
 
     def _first_decoded(self, f, topic: str, as_json: bool | None = None) -> Any:
         """The first message of ``topic`` in log-time order, decoded (JSON by the standard
