@@ -46,6 +46,11 @@ CUTOFFS = (1e-9, 1e-12)
 #: lwpi's narrow local models lost on noise-free limit cycles with them).
 GRID_DIMS = 2
 GRID_METHODS = ("pi",)
+#: lwpi's search also tries ``min_norm`` = f · rms‖u‖ for these f (besides the configured value): a
+#: sample whose ‖u‖ is at the noise level has a random direction û, yet the inconsistency error
+#: (§5) gives it full weight (docs/measurements.md, "lwpi: samples at the noise level").
+NOISE_FRACTIONS = (0.03, 0.1, 0.3)
+NOISE_METHODS = ("lwpi",)
 
 
 @parameters
@@ -92,9 +97,10 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
 
     @property
     def TUNE_CONSERVATIVE(self) -> tuple[str, ...]:  # noqa: N802 - the search's class-level name
-        """The cut-off leaves its configured value, and lwpi's width the default rule's, only for
-        a clear held-out gain (:data:`~ccl_cli.learn.model_selection.CONSERVATIVE_GAIN`)."""
-        return ("cutoff", WIDTH) if self.method == "lwpi" else ("cutoff",)
+        """The cut-off leaves its configured value, and lwpi's width the default rule's and its
+        ``min_norm`` the configured one, only for a clear held-out gain
+        (:data:`~ccl_cli.learn.model_selection.CONSERVATIVE_GAIN`)."""
+        return ("cutoff", WIDTH, "min_norm") if self.method == "lwpi" else ("cutoff",)
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         if self.method == "lwpi":
@@ -112,6 +118,9 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
                              for spec in basis_grid(X, sizes, widths, self.seed, centres="grid")]
         if grid and self.cutoff_rule == "relative" and self.method != "lwpi":
             grid["cutoff"] = list(dict.fromkeys([float(self.cutoff), *CUTOFFS]))
+        if grid and self.method in NOISE_METHODS:
+            floors = [f * rms_norm(U) for f in NOISE_FRACTIONS]
+            grid["min_norm"] = [float(self.min_norm), *(m for m in floors if m > self.min_norm)]
         return grid
 
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
@@ -153,6 +162,9 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         systems = shared[key]
         q, p = U.shape[1], X.shape[1]
         models = [self._copy(p)._finish(basis, M, r, n, q, eig) for M, r, n, eig in systems]
+        if self.method in NOISE_METHODS:  # every candidate scored on the same held-out samples
+            for model in models[1:]:
+                model._score_floor = NOISE_FRACTIONS[-1] * rms_norm(U)
         return models[0], models[1:]
 
     def _fold_equations(self, basis: Basis, X: np.ndarray, U: np.ndarray, P: np.ndarray | None,
@@ -307,8 +319,16 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         """Minus the normalised inconsistency error (§5) of π̃ on actions U (N, q) at states
         X (N, p): −mean ‖u − ûûᵀπ̃(x)‖² / Σ var(u) (pi-weighted: terms weighted by ‖u‖²);
         pi-coupled with ``projections`` Ñ (N, q, q): −mean ‖u − Ñπ̃(x)‖² / Σ var(u). Higher is better."""
-        P = self.predict(X)
         U = np.asarray(U, dtype=float)
         if self.method == "pi-coupled":
-            return -inconsistency_error(P, U, projections)
-        return -inconsistency_error(P, U, weighted=self.method == "pi-weighted")
+            return -inconsistency_error(self.predict(X), U, projections)
+        floor = getattr(self, "_score_floor", 0.0)  # the folds of a search with min_norm candidates
+        keep = np.linalg.norm(U, axis=1) > floor
+        if floor and keep.sum() >= 2:
+            X, U = np.asarray(X)[keep], U[keep]
+        return -inconsistency_error(self.predict(X), U, weighted=self.method == "pi-weighted")
+
+
+def rms_norm(U: np.ndarray) -> float:
+    """The root mean square of the action norms, sqrt(mean_n ‖u_n‖²), of U (N, q)."""
+    return float(np.sqrt(np.mean(np.sum(np.square(U), axis=1))))
