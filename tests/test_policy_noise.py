@@ -76,3 +76,16 @@ def test_the_shared_sums_give_the_fit_of_its_own_rows():
     assert chosen["min_norm"] > 1e-6
     again = PolicyLearner(method="lwpi", tune=False, seed=2, **chosen).fit(train.X, train.U)
     np.testing.assert_allclose(model.predict(test.X), again.predict(test.X), rtol=1e-8, atol=1e-10)
+
+
+def test_the_search_scores_the_same_without_the_kept_features(monkeypatch):
+    """Above the feature-cache bytes the search computes β per block: the same held-out errors."""
+    import ccl_cli.learn.policy as policy
+
+    train, _ = arm(0.01, seed=3)
+    kept = PolicyLearner(method="lwpi", seed=3).fit(train.X, train.U, groups=train.demo).tuning_
+    monkeypatch.setattr(policy, "feature_cache_bytes", lambda *arrays: 0)
+    blocks = PolicyLearner(method="lwpi", seed=3).fit(train.X, train.U, groups=train.demo).tuning_
+    assert blocks["chosen"] == kept["chosen"] and len(blocks["scores"]) == len(kept["scores"])
+    np.testing.assert_allclose([r["mean"] for r in blocks["scores"]], [r["mean"] for r in kept["scores"]],
+                               rtol=1e-9)

@@ -14,7 +14,8 @@ each is solved in closed form (batched over samples, no iteration):
   error with weights β_c(x_n); π̃(x) = Σ_c β_c(x) W_cᵀ φ(x) / Σ_c β_c(x).
 * ``dpl`` — direct regression of u on β(x): the biased baseline.
 
-Samples with ‖u_n‖ below ``min_norm`` carry no direction and are dropped.
+Samples with ‖u_n‖ below ``min_norm`` carry no direction and are dropped (lwpi's search also
+tries floors at the noise level, :data:`NOISE_FRACTIONS`).
 
 Scale: every normal matrix is summed over blocks of ``chunk_size`` rows (default 8192)
 with BLAS-shaped products, so temporaries are O(chunk · K q) whatever N (no N × K
@@ -49,6 +50,8 @@ GRID_METHODS = ("pi",)
 #: lwpi's search also tries ``min_norm`` = f · rms‖u‖ for these f (besides the configured value): a
 #: sample whose ‖u‖ is at the noise level has a random direction û, yet the inconsistency error
 #: (§5) gives it full weight (docs/measurements.md, "lwpi: samples at the noise level").
+#: Every candidate is scored on the held-out samples with ‖u‖ above the largest floor (the same
+#: samples whatever it drops). The methods whose search does this:
 NOISE_FRACTIONS = (0.1, 0.3)
 NOISE_METHODS = ("lwpi",)
 
@@ -72,7 +75,8 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
             True by default, a dict ``{budget, grid, folds, max_rows}`` to adjust, False for
             the fixed settings). Grid: K ∈ {n_centres, 16, 25, 49, 100} × σ² factors {1, ½, ¼}
             × cut-offs {cutoff, 1e-9, 1e-12} (relative rule); for lwpi K ∈ {n_centres, 9, 16,
-            25, 49, 100} × {1, ¼, 0.1, 0.03, 0.01}; the search runs from the smallest basis up
+            25, 49, 100} × {1, ¼, 0.1, 0.03, 0.01} × min_norm {min_norm, 0.1, 0.3 of rms‖u‖}
+            (:data:`NOISE_FRACTIONS`); the search runs from the smallest basis up
             (:func:`ccl_cli.learn.model_selection.search`).
 
     Attributes:
@@ -85,7 +89,8 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         "cutoff_rule": [Options.of(CutoffRule)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_action_": "value", "n_used_": "value", "W_": "array", "basis_": "basis"}
-    #: Fits of the default search at most: its grid, (5 sizes × 3 widths) × 3 cut-offs × 3 folds.
+    #: Fits of the default search at most: its grid, (5 sizes × 3 widths) × 3 cut-offs × 3 folds
+    #: (lwpi: (6 sizes × 5 widths) × 3 min_norm × 3 folds = 270).
     TUNE_BUDGET = 400
     #: The cut-off leaves the configured one only on clear held-out evidence (noise-free data).
 
@@ -186,24 +191,29 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
                          folds: Folds, *, shared: dict[Any, Any] | None = None,
                          projections: np.ndarray | None = None) -> np.ndarray:
         """−score of each fold's model on its test rows (n_folds,), from the features the search
-        keeps (:meth:`_search_features`). For a method of :data:`NOISE_METHODS` the test rows with
-        ‖u‖ ≤ ``NOISE_FRACTIONS[-1]`` · rms‖u‖ (of all the search's rows: the same for every
-        candidate, whatever its ``min_norm``) are left out: their û is noise."""
-        held = (shared or {}).get("policy features")
-        if self.method == "pi-coupled" or held is None or held[0] is not models[0].basis_:
+        keeps (:meth:`_search_features`; else computed per block). For a method of
+        :data:`NOISE_METHODS` the test rows with ‖u‖ ≤ ``NOISE_FRACTIONS[-1]`` · rms‖u‖ (of all
+        the search's rows: the same for every candidate, whatever its ``min_norm``) are left
+        out: their û is noise."""
+        if self.method == "pi-coupled":
             return held_out_errors(models, X, U, groups, folds, projections=projections)
-        kept = shared.get("policy held-out") if shared is not None else None
-        if kept is None or kept[0] is not held[0]:  # the test rows of each fold, with their features
+        shared = {} if shared is None else shared
+        basis = models[0].basis_
+        kept = shared.get("policy held-out")
+        if kept is None or kept[0] is not basis:  # the test rows of each fold, with their features
             scored = np.ones(len(U), bool)
             if self.method in NOISE_METHODS:
                 scored = np.linalg.norm(U, axis=1) > NOISE_FRACTIONS[-1] * rms_norm(U)
             rows = [test[scored[test]] if scored[test].sum() >= 2 else test for _, test in folds.pairs]
-            kept = (held[0], [(held[1][i], X[i], U[i]) for i in rows])
-            if shared is not None:
-                shared["policy held-out"] = kept
+            held = shared.get("policy features")
+            B = held[1] if held is not None and held[0] is basis else None
+            kept = (basis, [(None if B is None else B[i], X[i], U[i]) for i in rows])
+            shared["policy held-out"] = kept
         weighted = self.method == "pi-weighted"
-        return np.array([inconsistency_error(model._predict_features(B, Xt), Ut, weighted=weighted)
-                         for model, (B, Xt, Ut) in zip(models, kept[1], strict=True)])
+        predicted = [model.predict(Xt) if Bt is None else model._predict_features(Bt, Xt)
+                     for model, (Bt, Xt, _) in zip(models, kept[1], strict=True)]
+        return np.array([inconsistency_error(P, Ut, weighted=weighted)
+                         for P, (_, _, Ut) in zip(predicted, kept[1], strict=True)])
 
     def _fold_equations(self, basis: Basis, X: np.ndarray, U: np.ndarray, P: np.ndarray | None,
                         usable: np.ndarray, folds: Folds, features: np.ndarray | None = None,
