@@ -116,9 +116,9 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         """The basis grid (pi on states of ≤ GRID_DIMS dimensions: centres on a grid) and, with the
         relative rule and a method with one global system, the cut-offs {configured, 1e-9, 1e-12}
         (noise-free data want the small ones, noisy data the configured one; candidates differing
-        only in the cut-off share their normal equations). lwpi (:data:`NOISE_METHODS`): then the
-        bases with the default width again with ``min_norm`` = f · rms‖u‖, f in
-        :data:`NOISE_FRACTIONS` (they share the features of their basis)."""
+        only in the cut-off share their normal equations). lwpi (:data:`NOISE_METHODS`): × ``min_norm``
+        {configured, f · rms‖u‖ for f in :data:`NOISE_FRACTIONS`} (candidates on one basis share
+        its features, and a larger ``min_norm`` the sums of the one before)."""
         grid = super()._tune_grid(X, U)
         if grid and self.method in GRID_METHODS and np.shape(X)[1] <= GRID_DIMS:  # centres on a grid
             grid["basis"] = [spec for sizes, widths in self._basis_candidates()
