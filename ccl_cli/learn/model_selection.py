@@ -372,15 +372,20 @@ STOP_GAIN = 0.01
 CONSERVATIVE_GAIN = 0.1
 
 
+#: Normalised held-out errors below this are rounding (the fit reproduces the held-out data; a
+#: relative residual of 1e-10): a larger basis never beats another by less.
+ROUNDING = 1e-20
+
+
 def _improves(errors: np.ndarray, best: np.ndarray, larger: bool, gain: float = STOP_GAIN) -> bool:
     """Whether fold errors ``errors`` beat ``best`` (n_folds,): a lower mean; for a larger basis
-    than the best's, lower by more than STOP_SE standard errors of the paired difference and
-    by more than ``gain`` of the best mean."""
+    than the best's, lower by more than STOP_SE standard errors of the paired difference, by
+    more than ``gain`` of the best mean and by more than :data:`ROUNDING`."""
     diff = errors - best
     if not larger:
         return bool(diff.mean() < 0)
     se = diff.std(ddof=1) / np.sqrt(len(diff)) if len(diff) > 1 else 0.0
-    return bool(diff.mean() < -max(STOP_SE * se, gain * float(best.mean())))
+    return bool(diff.mean() < -max(STOP_SE * se, gain * float(best.mean()), ROUNDING))
 
 
 #: In ``TUNE_CONSERVATIVE``: the width factor of an RBF basis candidate (its ``sigma2``), whose
@@ -509,7 +514,10 @@ def search(
                         bases[key] = candidate._fit_basis(*(basis_data or (X, U)))
                     basis = bases[key]
                 full, models = candidate_models(candidate, X, U, groups, folds, basis, shared, **fit_kw)
-                errors = held_out_errors(models, X, U, groups, folds, **fit_kw)
+                if isinstance(candidate, Tunable):
+                    errors = candidate._held_out_errors(models, X, U, groups, folds, shared=shared, **fit_kw)
+                else:
+                    errors = held_out_errors(models, X, U, groups, folds, **fit_kw)
             except (InputError, LearningError, np.linalg.LinAlgError) as exc:
                 ran.append((params, np.full(per_candidate, np.nan)))
                 first_failure = first_failure or f"{params}: {exc}"
@@ -751,6 +759,12 @@ class Tunable:
                                   **take_rows(fit_kw, train))
                   for train, _ in folds.pairs]
         return full, models
+
+    def _held_out_errors(self, models: list[Any], X: np.ndarray, U: np.ndarray, groups: np.ndarray,
+                         folds: Folds, *, shared: dict[Any, Any] | None = None, **fit_kw: Any) -> np.ndarray:
+        """The held-out errors of this candidate's fold ``models`` (n_folds,): :func:`held_out_errors`
+        (a learner may use what its :meth:`_cv_models` kept in ``shared``)."""
+        return held_out_errors(models, X, U, groups, folds, **fit_kw)
 
     def _fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None, **fit_kw: Any) -> Any:
         """The body of every learner's ``fit``: check the parameters and the data, then search

@@ -14,7 +14,8 @@ each is solved in closed form (batched over samples, no iteration):
   error with weights β_c(x_n); π̃(x) = Σ_c β_c(x) W_cᵀ φ(x) / Σ_c β_c(x).
 * ``dpl`` — direct regression of u on β(x): the biased baseline.
 
-Samples with ‖u_n‖ below ``min_norm`` carry no direction and are dropped.
+Samples with ‖u_n‖ below ``min_norm`` carry no direction and are dropped (lwpi's search also
+tries floors at the noise level, :data:`NOISE_FRACTIONS`).
 
 Scale: every normal matrix is summed over blocks of ``chunk_size`` rows (default 8192)
 with BLAS-shaped products, so temporaries are O(chunk · K q) whatever N (no N × K
@@ -29,11 +30,11 @@ import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn.base import Estimator, clone
-from ccl_cli.learn.basis import Basis, BasisParams, RBFBasis
+from ccl_cli.learn.basis import Basis, BasisParams, RBFBasis, feature_cache_bytes
 from ccl_cli.learn.consistency import inconsistency_error
 from ccl_cli.learn.defaults import POLICY_METHOD
 from ccl_cli.learn.linalg import eigen_solve, kron_rows, row_chunks
-from ccl_cli.learn.model_selection import WIDTH, Folds, Tunable, basis_grid
+from ccl_cli.learn.model_selection import WIDTH, Folds, Tunable, basis_grid, held_out_errors
 from ccl_cli.learn.params import CutoffRule, Interval, Options, SeedParams, parameters
 from ccl_cli.learn.params import PolicyMethod as Method
 
@@ -46,6 +47,13 @@ CUTOFFS = (1e-9, 1e-12)
 #: lwpi's narrow local models lost on noise-free limit cycles with them).
 GRID_DIMS = 2
 GRID_METHODS = ("pi",)
+#: lwpi's search also tries ``min_norm`` = f · rms‖u‖ for these f (besides the configured value): a
+#: sample whose ‖u‖ is at the noise level has a random direction û, yet the inconsistency error
+#: (§5) gives it full weight (docs/measurements.md, "lwpi: samples at the noise level").
+#: Every candidate is scored on the held-out samples with ‖u‖ above the largest floor (the same
+#: samples whatever it drops). The methods whose search does this:
+NOISE_FRACTIONS = (0.1, 0.3)
+NOISE_METHODS = ("lwpi",)
 
 
 @parameters
@@ -67,7 +75,8 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
             True by default, a dict ``{budget, grid, folds, max_rows}`` to adjust, False for
             the fixed settings). Grid: K ∈ {n_centres, 16, 25, 49, 100} × σ² factors {1, ½, ¼}
             × cut-offs {cutoff, 1e-9, 1e-12} (relative rule); for lwpi K ∈ {n_centres, 9, 16,
-            25, 49, 100} × {1, ¼, 0.1, 0.03, 0.01}; the search runs from the smallest basis up
+            25, 49, 100} × {1, ¼, 0.1, 0.03, 0.01} × min_norm {min_norm, 0.1, 0.3 of rms‖u‖}
+            (:data:`NOISE_FRACTIONS`); the search runs from the smallest basis up
             (:func:`ccl_cli.learn.model_selection.search`).
 
     Attributes:
@@ -80,7 +89,8 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         "cutoff_rule": [Options.of(CutoffRule)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_action_": "value", "n_used_": "value", "W_": "array", "basis_": "basis"}
-    #: Fits of the default search at most: its grid, (5 sizes × 3 widths) × 3 cut-offs × 3 folds.
+    #: Fits of the default search at most: its grid, (5 sizes × 3 widths) × 3 cut-offs × 3 folds
+    #: (lwpi: (6 sizes × 5 widths) × 3 min_norm × 3 folds = 270).
     TUNE_BUDGET = 400
     #: The cut-off leaves the configured one only on clear held-out evidence (noise-free data).
 
@@ -92,9 +102,10 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
 
     @property
     def TUNE_CONSERVATIVE(self) -> tuple[str, ...]:  # noqa: N802 - the search's class-level name
-        """The cut-off leaves its configured value, and lwpi's width the default rule's, only for
-        a clear held-out gain (:data:`~ccl_cli.learn.model_selection.CONSERVATIVE_GAIN`)."""
-        return ("cutoff", WIDTH) if self.method == "lwpi" else ("cutoff",)
+        """The cut-off leaves its configured value, and lwpi's width the default rule's and its
+        ``min_norm`` the configured one, only for a clear held-out gain
+        (:data:`~ccl_cli.learn.model_selection.CONSERVATIVE_GAIN`)."""
+        return ("cutoff", WIDTH, "min_norm") if self.method == "lwpi" else ("cutoff",)
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         if self.method == "lwpi":
@@ -105,13 +116,18 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         """The basis grid (pi on states of ≤ GRID_DIMS dimensions: centres on a grid) and, with the
         relative rule and a method with one global system, the cut-offs {configured, 1e-9, 1e-12}
         (noise-free data want the small ones, noisy data the configured one; candidates differing
-        only in the cut-off share their normal equations)."""
+        only in the cut-off share their normal equations). lwpi (:data:`NOISE_METHODS`): × ``min_norm``
+        {configured, f · rms‖u‖ for f in :data:`NOISE_FRACTIONS`} (candidates on one basis share
+        its features, and a larger ``min_norm`` the sums of the one before)."""
         grid = super()._tune_grid(X, U)
         if grid and self.method in GRID_METHODS and np.shape(X)[1] <= GRID_DIMS:  # centres on a grid
             grid["basis"] = [spec for sizes, widths in self._basis_candidates()
                              for spec in basis_grid(X, sizes, widths, self.seed, centres="grid")]
         if grid and self.cutoff_rule == "relative" and self.method != "lwpi":
             grid["cutoff"] = list(dict.fromkeys([float(self.cutoff), *CUTOFFS]))
+        if grid and self.method in NOISE_METHODS:
+            floors = [m for m in (f * rms_norm(U) for f in NOISE_FRACTIONS) if m > self.min_norm]
+            grid["min_norm"] = [float(self.min_norm), *floors]
         return grid
 
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
@@ -142,38 +158,97 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         summed once, and a fold's training equations are the total minus them (a downdate)
         — the fits the folds would give, for the cost of one fit. The equations and their
         eigen-decompositions are kept in ``shared`` (the search's store) for its other
-        candidates on the same basis: other cut-offs cost no pass and no decomposition."""
+        candidates on the same basis: other cut-offs cost no pass and no decomposition; the
+        features β(X) of the basis too (:meth:`_search_features`): other ``min_norm`` values
+        cost no transform."""
         basis = self._checked_basis(X, U, basis)
         P = self._checked_projections(projections, U)
         usable = self._usable(U)
         key = ("policy normal equations", id(basis), self.method, float(self.min_norm))
         shared = {} if shared is None else shared
         if key not in shared:
-            shared[key] = self._fold_equations(basis, X, U, P, usable, folds)
+            B = self._search_features(basis, X, U, shared)
+            shared[key] = self._fold_equations(basis, X, U, P, usable, folds, B, shared)
         systems = shared[key]
         q, p = U.shape[1], X.shape[1]
         models = [self._copy(p)._finish(basis, M, r, n, q, eig) for M, r, n, eig in systems]
         return models[0], models[1:]
 
+    def _search_features(self, basis: Basis, X: np.ndarray, U: np.ndarray, shared: dict[Any, Any]
+                         ) -> np.ndarray | None:
+        """β(X) (N, K) of the search's states on ``basis``, kept in ``shared`` for the candidates
+        that follow on the same basis (only the latest basis's, and only when N K floats fit in
+        :func:`~ccl_cli.learn.basis.feature_cache_bytes` of X, U; else None: computed per block)."""
+        held = shared.get("policy features")
+        if held is not None and held[0] is basis:
+            return held[1]
+        if len(X) * basis.n_features * 8 > feature_cache_bytes(X, U):
+            return None
+        shared["policy features"] = (basis, basis.transform(X))
+        return shared["policy features"][1]
+
+    def _held_out_errors(self, models: list[PolicyLearner], X: np.ndarray, U: np.ndarray, groups: np.ndarray,
+                         folds: Folds, *, shared: dict[Any, Any] | None = None,
+                         projections: np.ndarray | None = None) -> np.ndarray:
+        """−score of each fold's model on its test rows (n_folds,), from the features the search
+        keeps (:meth:`_search_features`; else computed per block). For a method of
+        :data:`NOISE_METHODS` the test rows with ‖u‖ ≤ ``NOISE_FRACTIONS[-1]`` · rms‖u‖ (of all
+        the search's rows: the same for every candidate, whatever its ``min_norm``) are left
+        out: their û is noise."""
+        if self.method == "pi-coupled":
+            return held_out_errors(models, X, U, groups, folds, projections=projections)
+        shared = {} if shared is None else shared
+        basis = models[0].basis_
+        kept = shared.get("policy held-out")
+        if kept is None or kept[0] is not basis:  # the test rows of each fold, with their features
+            scored = np.ones(len(U), bool)
+            if self.method in NOISE_METHODS:
+                scored = np.linalg.norm(U, axis=1) > NOISE_FRACTIONS[-1] * rms_norm(U)
+            rows = [test[scored[test]] if scored[test].sum() >= 2 else test for _, test in folds.pairs]
+            held = shared.get("policy features")
+            B = held[1] if held is not None and held[0] is basis else None
+            kept = (basis, [(None if B is None else B[i], X[i], U[i]) for i in rows])
+            shared["policy held-out"] = kept
+        weighted = self.method == "pi-weighted"
+        predicted = [model.predict(Xt) if Bt is None else model._predict_features(Bt, Xt)
+                     for model, (Bt, Xt, _) in zip(models, kept[1], strict=True)]
+        return np.array([inconsistency_error(P, Ut, weighted=weighted)
+                         for P, (_, _, Ut) in zip(predicted, kept[1], strict=True)])
+
     def _fold_equations(self, basis: Basis, X: np.ndarray, U: np.ndarray, P: np.ndarray | None,
-                        usable: np.ndarray, folds: Folds) -> list[tuple]:
+                        usable: np.ndarray, folds: Folds, features: np.ndarray | None = None,
+                        shared: dict[Any, Any] | None = None) -> list[tuple]:
         """(M, r, samples used, eigen-decomposition of M) of all rows, then of each training
-        fold, from one pass (see :meth:`_cv_models`)."""
+        fold, from one pass (see :meth:`_cv_models`; ``features``: β(X) (N, K) when known).
+        The sums of each test fold, of the rows in none and of each guard gap are kept in
+        ``shared`` for the next candidate on this basis: when it uses a subset of these rows (a
+        larger ``min_norm``) its sums are these minus those of the rows it drops."""
         n = len(U)
         in_test = np.zeros(n, bool)
-        sets = []
         for _, test in folds.pairs:
             in_test[test] = True
-            sets.append(test[usable[test]])
-        rest = np.flatnonzero(usable & ~in_test)
         gaps = []
         for train, test in folds.pairs:  # rows neither trained on nor tested (guard gaps)
             out = np.ones(n, bool)
             out[train] = False
             out[test] = False
-            gaps.append(np.flatnonzero(out & usable))
-        sums = self._normal_equations(basis, X, U, P, [*sets, rest, *gaps])
-        k = len(sets)
+            gaps.append(out)
+
+        def index_sets(rows: np.ndarray) -> list[np.ndarray]:
+            """Of the rows marked in ``rows`` (N,): each test fold's, those in none, each gap's."""
+            return [*(test[rows[test]] for _, test in folds.pairs), np.flatnonzero(rows & ~in_test),
+                    *(np.flatnonzero(gap & rows) for gap in gaps)]
+
+        key = ("policy sums", id(basis), self.method)
+        prior = (shared or {}).get(key)
+        if prior is not None and not (usable & ~prior[0]).any():  # fewer rows than the last candidate
+            less = self._normal_equations(basis, X, U, P, index_sets(prior[0] & ~usable), features)
+            sums = [(M - m, r - v) for (M, r), (m, v) in zip(prior[1], less, strict=True)]
+        else:
+            sums = self._normal_equations(basis, X, U, P, index_sets(usable), features)
+        if shared is not None:
+            shared[key] = (usable, sums)
+        k = len(folds.pairs)
         M = sum(m for m, _ in sums[: k + 1])
         r = sum(v for _, v in sums[: k + 1])
         systems = [(M, r, int(usable.sum()))]
@@ -220,9 +295,11 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         return np.ones(len(U), bool)
 
     def _normal_equations(self, basis: Basis, X: np.ndarray, U: np.ndarray, P: np.ndarray | None,
-                          index_sets: list[np.ndarray | None]) -> list[tuple[np.ndarray, np.ndarray]]:
+                          index_sets: list[np.ndarray | None], features: np.ndarray | None = None
+                          ) -> list[tuple[np.ndarray, np.ndarray]]:
         """The normal equations (M, r) of each set of rows (an index array, or None: all),
-        summed over blocks of ``chunk_size`` rows. Shapes: dpl M (K, K), r (K, q); lwpi
+        summed over blocks of ``chunk_size`` rows (``features``: β(X) (N, K) when known, else
+        computed per block). Shapes: dpl M (K, K), r (K, q); lwpi
         M (K, D, D), r (K, D) with D = (p + 1) q; else M (K q, K q), r (K q,)."""
         K, q, d = basis.n_features, U.shape[1], X.shape[1] + 1
         out = []
@@ -236,16 +313,17 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
                 M, r = np.zeros((K * q, K * q)), np.zeros(K * q)
             for block in row_chunks(n, self.chunk_size):
                 rows = block if idx is None else idx[block]
-                Mb, rb = self._block_equations(basis, X[rows], U[rows], None if P is None else P[rows])
+                B = basis.transform(X[rows]) if features is None else features[rows]
+                Mb, rb = self._block_equations(B, X[rows], U[rows], None if P is None else P[rows])
                 M += Mb
                 r += rb
             out.append((M, r))
         return out
 
-    def _block_equations(self, basis: Basis, X: np.ndarray, U: np.ndarray, P: np.ndarray | None
+    def _block_equations(self, B: np.ndarray, X: np.ndarray, U: np.ndarray, P: np.ndarray | None
                          ) -> tuple[np.ndarray, np.ndarray]:
-        """The normal equations of one block of samples X (c, p), U (c, q) (P (c, q, q))."""
-        B = basis.transform(X)
+        """The normal equations of one block of samples X (c, p), U (c, q) (P (c, q, q)) with
+        features B = β(X) (c, K)."""
         if self.method == "dpl":
             return B.T @ B, B.T @ U
         norm = np.linalg.norm(U, axis=1)
@@ -293,14 +371,17 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         X = self._check_states(X)
         out = np.empty((len(X), self.n_action_))
         for rows in row_chunks(len(X), self.chunk_size):
-            B = self.basis_.transform(X[rows])
-            if self.method == "lwpi":  # Σ_c β_c W_cᵀ φ (β rows sum to 1)
-                phi = np.hstack([X[rows], np.ones((len(B), 1))])
-                local = (B @ self.W_.reshape(len(self.W_), -1)).reshape(len(B), phi.shape[1], -1)
-                out[rows] = np.einsum("ni,niq->nq", phi, local)
-            else:
-                out[rows] = B @ self.W_
+            out[rows] = self._predict_features(self.basis_.transform(X[rows]), X[rows])
         return out
+
+    def _predict_features(self, B: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """π̃ at states X (c, p) with features B = β(X) (c, K) → (c, q): lwpi Σ_c β_c W_cᵀ φ
+        (β rows sum to 1), else Wᵀ β."""
+        if self.method != "lwpi":
+            return B @ self.W_
+        phi = np.hstack([X, np.ones((len(B), 1))])
+        local = (B @ self.W_.reshape(len(self.W_), -1)).reshape(len(B), phi.shape[1], -1)
+        return np.einsum("ni,niq->nq", phi, local)
 
     def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
               projections: np.ndarray | None = None) -> float:
@@ -312,3 +393,8 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         if self.method == "pi-coupled":
             return -inconsistency_error(P, U, projections)
         return -inconsistency_error(P, U, weighted=self.method == "pi-weighted")
+
+
+def rms_norm(U: np.ndarray) -> float:
+    """The root mean square of the action norms, sqrt(mean_n ‖u_n‖²), of U (N, q)."""
+    return float(np.sqrt(np.mean(np.sum(np.square(U), axis=1))))
