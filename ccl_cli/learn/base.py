@@ -31,6 +31,7 @@ skipped ``fit``.
 from __future__ import annotations
 
 import copy
+import functools
 import inspect
 from types import SimpleNamespace
 from typing import Any, ClassVar
@@ -58,6 +59,18 @@ def check_xu(X: np.ndarray, U: np.ndarray, min_samples: int = 2) -> tuple[np.nda
     return X, U
 
 
+@functools.cache
+def _init_parameters(cls: type) -> tuple[str, ...]:
+    """The names of the constructor parameters of ``cls``, sorted (read once per class: a
+    search clones its learner for every candidate and fold)."""
+    init = cls.__init__
+    if init is object.__init__:
+        return ()
+    params = inspect.signature(init).parameters.values()
+    return tuple(sorted(p.name for p in params if p.name != "self"
+                        and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)))
+
+
 class Estimator:
     """Base of every learner: parameters from the constructor signature."""
 
@@ -78,12 +91,7 @@ class Estimator:
 
     @classmethod
     def _param_names(cls) -> list[str]:
-        init = cls.__init__
-        if init is object.__init__:
-            return []
-        params = inspect.signature(init).parameters.values()
-        return sorted(p.name for p in params if p.name != "self"
-                      and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD))
+        return list(_init_parameters(cls))
 
     def _store_params(self, values: dict[str, Any]) -> None:
         """Store the constructor's arguments unchanged under their own names (call with

@@ -50,9 +50,10 @@ GRID_METHODS = ("pi",)
 #: lwpi's search also tries ``min_norm`` = f · rms‖u‖ for these f (besides the configured value): a
 #: sample whose ‖u‖ is at the noise level has a random direction û, yet the inconsistency error
 #: (§5) gives it full weight (docs/measurements.md, "lwpi: samples at the noise level").
-#: Every candidate is scored on the held-out samples with ‖u‖ above the largest floor (the same
-#: samples whatever it drops). The methods whose search does this:
-NOISE_FRACTIONS = (0.1, 0.3)
+NOISE_FRACTIONS = (0.3,)
+#: Every candidate is scored on the held-out samples with ‖u‖ above SCORED_FRACTION · rms‖u‖
+#: (the same samples whatever it drops). The methods whose search does this: NOISE_METHODS.
+SCORED_FRACTION = 0.3
 NOISE_METHODS = ("lwpi",)
 
 
@@ -192,7 +193,7 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
                          projections: np.ndarray | None = None) -> np.ndarray:
         """−score of each fold's model on its test rows (n_folds,), from the features the search
         keeps (:meth:`_search_features`; else computed per block). For a method of
-        :data:`NOISE_METHODS` the test rows with ‖u‖ ≤ ``NOISE_FRACTIONS[-1]`` · rms‖u‖ (of all
+        :data:`NOISE_METHODS` the test rows with ‖u‖ ≤ :data:`SCORED_FRACTION` · rms‖u‖ (of all
         the search's rows: the same for every candidate, whatever its ``min_norm``) are left
         out: their û is noise."""
         if self.method == "pi-coupled":
@@ -203,7 +204,7 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         if kept is None or kept[0] is not basis:  # the test rows of each fold, with their features
             scored = np.ones(len(U), bool)
             if self.method in NOISE_METHODS:
-                scored = np.linalg.norm(U, axis=1) > NOISE_FRACTIONS[-1] * rms_norm(U)
+                scored = np.linalg.norm(U, axis=1) > SCORED_FRACTION * rms_norm(U)
             rows = [test[scored[test]] if scored[test].sum() >= 2 else test for _, test in folds.pairs]
             held = shared.get("policy features")
             B = held[1] if held is not None and held[0] is basis else None
