@@ -76,6 +76,8 @@ def test_auto_takes_the_segments_on_a_board_tilting_in_steps():
     d = sim.tracker_tilt(mode="steps", seed=1)
     model = AutoConstraint().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.metadata.get("derivative"))
     assert model.selection_["chosen"] == "per_segment" and model.n_constraints_ == 1
+    said = model.selection_["reason"]  # where the cuts are, in words
+    assert f"{len(model.model_.windows_)} segment(s); demo 0 cut at " in said and " 6.0, " in said
     assert np.median(angles_deg(model, d)) < 2.0
     rows = {r["class"]: r for r in model.selection_["candidates"]}
     assert rows["per_segment"]["heldout_error"] < rows["per_window"]["heldout_error"]

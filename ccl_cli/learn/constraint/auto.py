@@ -389,6 +389,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
         if isinstance(self.model_, ConstraintInStretches):
             reason = (f"no constraint holds over the whole recording; {k_star} constraint(s) hold in "
                       f"stretches on held-out data ({winner.rank_reason}): {self.model_.summary()}")
+        elif isinstance(self.model_, PerSegment):
+            reason += f" ({self.model_.summary()})"
         self.heldout_ = None if winner is None else {
             "error": "NPOE", "mean": winner.mean, "se": winner.se, "per_fold": winner.errors.tolist(),
             "folds": winner.scored_on.reason}

@@ -139,7 +139,19 @@ class PerSegment(PerWindow):
         being the segments (module docstring)."""
         super().fit(X, U, groups=groups, t=t, derivative=derivative)
         self.window_ = self.block
+        self.selection_["segments"] = self.summary()
         return self
+
+    def summary(self, most: int = 8) -> str:
+        """Where the cuts are, in words: "18 segments; demo 0 cut at 6.0, 12.0, … s"."""
+        self._check_fitted("A_")
+        parts = []
+        for d in np.unique(self.windows_[:, 0]):
+            first = self.windows_[self.windows_[:, 0] == d, 1][1:] * self.window_
+            shown = ", ".join(f"{c:.1f}" for c in first[:most]) + (", …" if len(first) > most else "")
+            parts.append(f"demo {int(d)} " + (f"cut at {shown} s" if len(first) else "not cut"))
+        return f"{len(self.windows_)} segment(s); " + "; ".join(parts[:most]) + (
+            f"; … ({len(parts) - most} more demonstrations)" if len(parts) > most else "")
 
     def window_of(self, X: np.ndarray, groups: np.ndarray | None = None,
                   t: np.ndarray | None = None) -> np.ndarray:
