@@ -256,7 +256,7 @@ def test_per_window_rank_by_the_noise_rule():
 # -- saving, loading, using on new recordings ------------------------------------------------------------
 def test_auto_saves_the_model_it_chose_with_its_table(tmp_path):
     d = sim.tracker_tilt(seed=1, duration=30.0)
-    model = fit_auto(d)
+    model = fit_auto(d, candidates=["none", "nhat", "per_window"])  # per_segment: test_segments.py
     path = save_model(tmp_path / "m.h5", model)
     again, info = load_model(path)
     assert info["method"] == "per_window" and type(again) is PerWindow
