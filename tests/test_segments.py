@@ -117,3 +117,29 @@ def test_a_damaged_segment_table_is_refused(tmp_path):
         f["arrays/windows_"][...] = table
     with pytest.raises(InputError, match="windows_"):
         load_model(tmp_path / "m.h5")
+
+
+def test_the_report_lists_each_segment_with_its_row_and_angle(tmp_path, capsys):
+    """ccl learn-a --method per_segment on a recording of a board tilting in steps: report.md
+    tabulates the segments (times, row 1, angle to the true normal), metrics.json too."""
+    import json
+
+    from ccl_cli.cli import main
+    from ccl_cli.io.canonical import write_demonstrations
+
+    d = sim.tracker_tilt(mode="steps", seed=1)
+    write_demonstrations(tmp_path / "tilt.h5", d)
+    assert main(["learn-a", str(tmp_path / "tilt.h5"), "--method", "per_segment", "-o", str(tmp_path / "a"),
+                 "-q"]) == 0
+    capsys.readouterr()
+    report = (tmp_path / "a" / "report.md").read_text()
+    assert "Row 1 of each segment (cut where the constraint changes)" in report
+    assert "| demo | from (s) | to (s) | dx/dt | dy/dt | dz/dt | angle to truth |" in report
+    shown = json.loads((tmp_path / "a" / "metrics.json").read_text())["learn-a"]["constraint"]["stretches"]
+    model, _ = load_model(tmp_path / "a" / "model.h5")
+    assert shown["count"] == len(model.windows_) and 1 <= len(shown["shown"]) <= 12
+    first = shown["shown"][0]
+    assert first["start_s"] == 0.0 and first["end_s"] == model.windows_[0, 2] * model.block
+    assert f"| 0 | 0.0 | {first['end_s']:.1f} | " in report
+    # the stretches' angles to the truth: most segments within a few degrees of the board
+    assert np.median([s["angle_deg"] for s in shown["shown"]]) < 5.0

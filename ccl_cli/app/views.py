@@ -23,7 +23,7 @@ import numpy as np
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.learn.constraint import PerDemonstration
 from ccl_cli.learn.constraint.base import constraint_at
-from ccl_cli.learn.constraint.windows import refit_on_new_demos
+from ccl_cli.learn.constraint.windows import PerWindow, fitted_per_stretch, refit_on_new_demos
 from ccl_cli.metrics import row_basis, subspace_angle
 
 GRID = 22  # points per axis of the grid a 2-D field is evaluated on
@@ -122,7 +122,34 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
         out["angle_deg"] = subspace_angle(learnt, true)
     if d.n_action == 3 and len(learnt) == 1:
         out["plane_normal"] = learnt[0].tolist()
+    local = fitted_per_stretch(model)
+    if isinstance(local, PerWindow) and local.window_ is not None:
+        out["per"], out["stretches"] = local.per, stretch_rows(local, d)
     return out
+
+
+#: Stretches of a per-window / per-segment model listed in the report (the first ones).
+SHOWN_STRETCHES = 12
+
+
+def stretch_rows(model: PerWindow, d: Demonstrations) -> dict[str, Any]:
+    """The first :data:`SHOWN_STRETCHES` windows or segments of ``model``: demonstration,
+    start and end (s), their first row (sign fixed as above) and, with ground truth, the angle
+    to the true rows at the sample nearest the stretch's middle; and how many there are."""
+    spans = model.spans()
+    rows = []
+    for (demo, start, end), A in zip(spans[:SHOWN_STRETCHES], model.A_[:SHOWN_STRETCHES], strict=False):
+        if not len(A):
+            continue
+        row = A[0] * np.sign(A[0][np.argmax(np.abs(A[0]))])
+        item: dict[str, Any] = {"demo": int(demo), "start_s": float(start), "end_s": float(end),
+                                "row": row.tolist()}
+        mine = np.flatnonzero(d.demo == demo)
+        if d.has_truth("A") and len(mine):
+            i = mine[np.argmin(np.abs(d.t[mine] - (start + end) / 2))]
+            item["angle_deg"] = subspace_angle(A, d.truth_per_sample("A")[i])
+        rows.append(item)
+    return {"count": int(len(spans)), "shown": rows}
 
 
 def short_names(names: list[str]) -> list[str]:

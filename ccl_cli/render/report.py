@@ -128,7 +128,27 @@ def constraint_lines(info: dict[str, Any]) -> list[str]:
     elif "angle_deg" in info:
         out += [f"Largest principal angle between the learnt and true row spaces: {info['angle_deg']:.3g}°.",
                 ""]
-    return out
+    return out + stretch_lines(info)
+
+
+def stretch_lines(info: dict[str, Any]) -> list[str]:
+    """The first row of each window / segment of a per-stretch model (``describe_constraint``'s
+    ``stretches``) as a markdown table."""
+    found = info.get("stretches")
+    if not found or not found["shown"]:
+        return []
+    shown, names = found["shown"], info["names"]
+    truth = all("angle_deg" in s for s in shown)
+    more = f" (the first {len(shown)} of {found['count']})" if found["count"] > len(shown) else ""
+    out = [f"Row 1 of each {info.get('per', 'stretch')}{more}:", "",
+           "| demo | from (s) | to (s) | " + " | ".join(names) + (" | angle to truth |" if truth else " |"),
+           "|---" * (len(names) + 3 + truth) + "|"]
+    for s in shown:
+        cells = [str(s["demo"]), f"{s['start_s']:.1f}", f"{s['end_s']:.1f}", *(f"{v:+.3f}" for v in s["row"])]
+        if truth:
+            cells.append(f"{s['angle_deg']:.2f}°")
+        out.append("| " + " | ".join(cells) + " |")
+    return [*out, ""]
 
 
 # -- sections of report.md ------------------------------------------------------------------

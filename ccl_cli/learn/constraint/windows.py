@@ -164,6 +164,16 @@ class PerWindow(TimedConstraint):
             chosen.reason = "the noise rule cannot judge these samples; " + chosen.reason
         return chosen
 
+    def spans(self) -> np.ndarray:
+        """[demonstration id, start s, end s] of every window in ``windows_``: (S, 3) (one per
+        demonstration without a window: its own times are not kept, start 0, end inf)."""
+        self._check_fitted("A_")
+        table = self.windows_.astype(float)
+        if self.window_ is None:
+            return np.column_stack([table[:, 0], np.zeros(len(table)), np.full(len(table), np.inf)])
+        end = table[:, 2] if table.shape[1] == 3 else table[:, 1] + 1
+        return np.column_stack([table[:, 0], table[:, 1] * self.window_, end * self.window_])
+
     # -- prediction ----------------------------------------------------------------------
     def window_of(self, X: np.ndarray, groups: np.ndarray | None = None,
                   t: np.ndarray | None = None) -> np.ndarray:
