@@ -90,3 +90,15 @@ def test_the_search_scores_the_same_without_the_kept_features(monkeypatch):
     assert blocks["chosen"] == kept["chosen"] and len(blocks["scores"]) == len(kept["scores"])
     np.testing.assert_allclose([r["mean"] for r in blocks["scores"]], [r["mean"] for r in kept["scores"]],
                                rtol=1e-9)
+
+
+def test_the_report_says_which_held_out_samples_scored_the_candidates():
+    from ccl_cli.render.report import tuning_markdown
+
+    train, _ = arm(0.01)
+    lwpi = PolicyLearner(method="lwpi", seed=0).fit(train.X, train.U, groups=train.demo)
+    text = "\n".join(tuning_markdown("learn-pi", lwpi.tuning_))
+    assert f"Held-out errors on the held-out samples with ‖u‖ > {SCORED_FRACTION:g} · rms‖u‖" in text
+    pi = PolicyLearner(method="pi", seed=0).fit(train.X, train.U, groups=train.demo)
+    assert "scored_on" not in pi.tuning_
+    assert "Held-out errors on" not in "\n".join(tuning_markdown("learn-pi", pi.tuning_))

@@ -136,7 +136,11 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         """Fit on states X (N, p), actions U (N, q); ``pi-coupled`` needs ``projections``
         Ñ_n (N, q, q) (true, or from a learnt constraint model). ``groups`` (N,):
         demonstration ids, only for the folds of tuning."""
-        return self._fit(X, U, groups=groups, projections=projections)
+        self._fit(X, U, groups=groups, projections=projections)
+        if self.tuning_ and self.tuning_.get("chosen") is not None and self.method in NOISE_METHODS:
+            self.tuning_["scored_on"] = (f"held-out samples with ‖u‖ > {SCORED_FRACTION:g} · rms‖u‖ (below "
+                                         "it the direction of u is noise), the same for every candidate")
+        return self
 
     def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
                   basis: Basis | None = None, start: PolicyLearner | None = None,

@@ -181,6 +181,7 @@ def tuning_markdown(stage: str, tuning: dict[str, Any] | None) -> list[str]:
              + (f", {tuning['skipped']} candidates skipped" if tuning.get("skipped") else "") + ")", "",
              *([tuning["subset"][0].upper() + tuning["subset"][1:] + "; the chosen setting was then "
                 "fitted on all of them.", ""] if tuning.get("subset") else []),
+             *([f"Held-out errors on the {tuning['scored_on']}.", ""] if tuning.get("scored_on") else []),
              "| candidate | held-out error | SE |", "|---|---|---|"]
     for r in tuning["scores"]:
         mark = " **←**" if r["params"] == tuning["chosen"] else ""
