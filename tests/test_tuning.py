@@ -238,7 +238,7 @@ def test_large_data_is_tuned_on_a_seeded_subset_and_the_winner_fitted_on_all():
     model = PolicyLearner(method="pi", tune={"max_rows": 400}).fit(data.X, data.U, groups=data.demo)
     assert "of 1000 samples" in model.tuning_["subset"]
     assert model.basis_.n_features == model.tuning_["chosen"]["basis"]["n_centres"]
-    full = PolicyLearner(method="pi", tune=False, basis=model.tuning_["chosen"]["basis"]).fit(data.X, data.U)
+    full = PolicyLearner(method="pi", tune=False, **model.tuning_["chosen"]).fit(data.X, data.U)
     np.testing.assert_allclose(model.W_, full.W_)  # the winner is fitted on all samples
 
 

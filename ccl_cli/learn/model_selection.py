@@ -631,6 +631,8 @@ class Tuned(Estimator):
                 self.tuning_, self.cv_results_ = found.info, found.cv_results
                 if subset is not None:
                     self.tuning_["subset"] = subset_note
+                if getattr(est, "tune_scored_on", None):  # a learner that scores a part of the rows
+                    self.tuning_["scored_on"] = est.tune_scored_on
             chosen = found.chosen if found is not None else {}
             winner = clone(est).set_params(**chosen)
             if found is not None and found.full is not None and subset is None:

@@ -54,7 +54,7 @@ NOISE_FRACTIONS = (0.3,)
 #: Every candidate is scored on the held-out samples with ‖u‖ above SCORED_FRACTION · rms‖u‖
 #: (the same samples whatever it drops). The methods whose search does this: NOISE_METHODS.
 SCORED_FRACTION = 0.3
-NOISE_METHODS = ("lwpi",)
+NOISE_METHODS = ("pi", "lwpi")
 
 
 @parameters
@@ -103,10 +103,11 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
 
     @property
     def TUNE_CONSERVATIVE(self) -> tuple[str, ...]:  # noqa: N802 - the search's class-level name
-        """The cut-off leaves its configured value, and lwpi's width the default rule's and its
-        ``min_norm`` the configured one, only for a clear held-out gain
+        """The cut-off leaves its configured value, lwpi's width the default rule's and ``min_norm``
+        (:data:`NOISE_METHODS`) the configured one only for a clear held-out gain
         (:data:`~ccl_cli.learn.model_selection.CONSERVATIVE_GAIN`)."""
-        return ("cutoff", WIDTH, "min_norm") if self.method == "lwpi" else ("cutoff",)
+        floor = ("min_norm",) if self.method in NOISE_METHODS else ()
+        return ("cutoff", WIDTH, *floor) if self.method == "lwpi" else ("cutoff", *floor)
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         if self.method == "lwpi":
@@ -136,11 +137,16 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         """Fit on states X (N, p), actions U (N, q); ``pi-coupled`` needs ``projections``
         Ñ_n (N, q, q) (true, or from a learnt constraint model). ``groups`` (N,):
         demonstration ids, only for the folds of tuning."""
-        self._fit(X, U, groups=groups, projections=projections)
-        if self.tuning_ and self.tuning_.get("chosen") is not None and self.method in NOISE_METHODS:
-            self.tuning_["scored_on"] = (f"held-out samples with ‖u‖ > {SCORED_FRACTION:g} · rms‖u‖ (below "
-                                         "it the direction of u is noise), the same for every candidate")
-        return self
+        return self._fit(X, U, groups=groups, projections=projections)
+
+    @property
+    def tune_scored_on(self) -> str | None:
+        """Which held-out samples score the search's candidates, when not all (the search's
+        ``tuning_["scored_on"]``)."""
+        if self.method not in NOISE_METHODS:
+            return None
+        return (f"held-out samples with ‖u‖ > {SCORED_FRACTION:g} · rms‖u‖ (below it the direction of u "
+                "is noise), the same for every candidate")
 
     def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
                   basis: Basis | None = None, start: PolicyLearner | None = None,
