@@ -42,3 +42,37 @@ def test_stage_rule_and_run_json_record_the_choice(tmp_path, capsys):
     run = json.loads((tmp_path / "a" / "run.json").read_text())
     assert run["blas"]["threads"] == 1  # a few thousand samples: single-threaded
     assert blas.current() == before  # and the process's own setting is back
+
+
+def test_a_nested_block_of_the_same_count_scans_nothing_unless_a_module_was_imported(monkeypatch):
+    """A search runs each fit in its own threads(1) block inside the stage's: the inner blocks do
+    not scan the loaded libraries again — but do after an import (it may have loaded a BLAS)."""
+    import sys
+
+    import threadpoolctl
+
+    if not blas.controllable():
+        pytest.skip("no BLAS to control")
+    scans = []
+    real = threadpoolctl.ThreadpoolController.__init__
+
+    def counting(self, *args, **kwargs):
+        scans.append(1)
+        real(self, *args, **kwargs)
+
+    before = blas.current()
+    monkeypatch.setattr(threadpoolctl.ThreadpoolController, "__init__", counting)
+    with blas.threads(1):
+        for _ in range(5):
+            with blas.threads(1) as n:
+                assert n == 1
+        assert len(scans) == 1
+        with blas.threads(2):  # another count: limited, then restored
+            assert len(scans) == 2
+        monkeypatch.setitem(sys.modules, "ccl_test_fake_module", object())  # an import happened
+        with blas.threads(1):
+            assert len(scans) == 3  # scanned again, and the libraries found limited ...
+        with blas.threads(1):
+            assert len(scans) == 3  # ... for the rest of the enclosing block
+        assert blas.current() == 1
+    assert blas.current() == before

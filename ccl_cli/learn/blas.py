@@ -15,7 +15,10 @@ be controlled nothing changes and :func:`threads` yields None.
 from __future__ import annotations
 
 import contextlib
+import contextvars
+import sys
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 #: Stages on fewer training samples than this run with one BLAS thread.
 SMALL_SAMPLES = 20_000
@@ -38,21 +41,52 @@ def current() -> int | None:
     return int(pools[0]["num_threads"]) if pools else None
 
 
+@dataclass
+class _Limit:
+    """The limit an enclosing :func:`threads` block of this thread (or task) set: its count, the
+    number of modules loaded when it last scanned the libraries, and the limits to undo."""
+
+    n: int
+    modules: int
+    undo: contextlib.ExitStack
+
+
+_IN_FORCE: contextvars.ContextVar[_Limit | None] = contextvars.ContextVar("ccl_blas_threads", default=None)
+
+
 @contextlib.contextmanager
 def threads(n: int | None) -> Iterator[int | None]:
     """Run the block with ``n`` BLAS threads (None: unchanged); yields the threads in force
-    (None when the BLAS cannot be controlled). The previous counts are restored after."""
+    (None when the BLAS cannot be controlled). The previous counts are restored after.
+
+    Inside a block that already set ``n`` nothing is scanned again (a search runs hundreds of
+    fits, each in its own block) — unless a module was imported since, which may have loaded
+    another BLAS: that one is then limited too, until the enclosing block ends."""
     if n is None:
         yield current()
         return
     from threadpoolctl import ThreadpoolController
 
+    outer = _IN_FORCE.get()
+    if outer is not None and outer.n == int(n):
+        if outer.modules != len(sys.modules):
+            pools = ThreadpoolController().select(user_api="blas")
+            if pools:
+                outer.undo.enter_context(pools.limit(limits=int(n)))
+            outer.modules = len(sys.modules)
+        yield n
+        return
     pools = ThreadpoolController().select(user_api="blas")  # one scan of the loaded libraries
     if not pools:
         yield None
         return
-    with pools.limit(limits=int(n)):
-        yield n
+    with contextlib.ExitStack() as undo:
+        undo.enter_context(pools.limit(limits=int(n)))
+        token = _IN_FORCE.set(_Limit(int(n), len(sys.modules), undo))
+        try:
+            yield n
+        finally:
+            _IN_FORCE.reset(token)
 
 
 def stage_threads(n_samples: int) -> int | None:
