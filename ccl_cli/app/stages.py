@@ -323,13 +323,11 @@ class Pipeline:
             checks += diagnostics.does_not_hold("learn-a", evidence, f"{part} data")
         rows = constant_rows(model, tr)
         if rows is not None:
-            chosen = getattr(model, "model_", model)
+            chosen, judged = getattr(model, "model_", model), (tr, target)
             if isinstance(chosen, ConstraintInStretches):  # judged where it claims to hold, not in free air
                 inside = chosen.holds(tr.X, tr.demo, tr.t)
-                self.warnings += diagnostics.emit(diagnostics.constraint_varies(
-                    "learn-a", rows, tr.subset(inside), target[inside]))
-            else:
-                self.warnings += diagnostics.emit(diagnostics.constraint_varies("learn-a", rows, tr, target))
+                judged = (tr.subset(inside), target[inside])
+            self.warnings += diagnostics.emit(diagnostics.constraint_varies("learn-a", rows, *judged))
         self._judge(result, checks)
         return result
 

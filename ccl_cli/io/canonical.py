@@ -22,10 +22,10 @@ Version 1 (read, and written with ``format_version=1``) keeps one group per demo
         truth/pi (n, q)  truth/w  truth/v  truth/b (n, s)
         truth/A (s, q) constant | (n, s, q);  truth/N (q, q) | (n, q, q)
 
-Its groups are ordered by their ``index`` attribute, never by name. Stamps of more than
-``CHUNK_ROWS`` samples are chunked, byte-shuffled and gzip-compressed (HDF5's standard
-filters); states, actions and truth are stored as they are unless ``COMPRESSION`` names a
-filter (the size and time of each choice: docs/readers.md). Writing is atomic, and the file
+Its groups are ordered by their ``index`` attribute, never by name. Stamps, states, actions
+and truth are stored as they are unless ``COMPRESSION`` names a filter (then datasets of more
+than ``CHUNK_ROWS`` samples are chunked and filtered; the size and time of each choice:
+docs/readers.md). Writing is atomic, and the file
 carries its content hash in the HDF5 user block (:mod:`ccl_cli.io.h5.seal`). Reading goes
 through :func:`~ccl_cli.io.h5.probe.open_hdf5` (no links or storage outside the file, no
 libhdf5 hang) and checks every attribute and dataset for type, shape and finiteness

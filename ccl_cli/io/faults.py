@@ -62,6 +62,8 @@ BIAS_Z = 5.0
 FREE_EDGE_S = 0.5
 #: What :func:`clean_positions` does with hemisphere flips, and the action it reports.
 FLIP_ACTIONS = {"mirror": "mirrored", "drop": "dropped", "keep": "reported"}
+
+
 def _count_runs(mask: np.ndarray) -> int:
     """The number of runs of True in ``mask`` (N,): its rising edges."""
     m = np.asarray(mask, dtype=bool)

@@ -69,6 +69,12 @@ def cluster_sums(X: np.ndarray, label: np.ndarray, k: int) -> np.ndarray:
     return np.stack([np.bincount(label, weights=X[:, j], minlength=k) for j in range(X.shape[1])], 1)
 
 
+def cluster_moments(Y: np.ndarray, label: np.ndarray, k: int) -> np.ndarray:
+    """Σ y yᵀ of the rows of Y (N, q) per label in 0..k−1 → (k, q, q)."""
+    q = Y.shape[1]
+    return cluster_sums((Y[:, :, None] * Y[:, None, :]).reshape(len(Y), q * q), label, k).reshape(k, q, q)
+
+
 #: The last k-means results, by a digest of the data and the settings (a search fits the
 #: same centres for every width of a basis size, and its winner on all rows again).
 _KMEANS_CACHE: OrderedDict[tuple, np.ndarray] = OrderedDict()

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from ccl_cli.learn.defaults import N_FOLDS
 from ccl_cli.metrics import SPLITS
 
 #: Why an iterative fit stopped (``stop_reason_``), in words.
@@ -33,7 +34,7 @@ OBSERVATIONS = {"u": "the observed actions u", "w": "the null-space component wÌ
 
 
 #: How report.md names the data a metric was computed on (metrics.json keys).
-PARTS = {"heldout_blocks": "held-out blocks inside the training demonstrations (5 folds)"}
+PARTS = {"heldout_blocks": f"held-out blocks inside the training demonstrations ({N_FOLDS} folds)"}
 
 
 def metric_rows(entry: dict[str, Any]) -> list[str]:

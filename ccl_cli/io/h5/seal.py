@@ -53,13 +53,13 @@ def create_hdf5(path: str | Path, force: bool = False, sealed: bool = True) -> I
     content = buffer.getbuffer()[USERBLOCK:]
     digest: list[str] = []
     hashing = threading.Thread(target=lambda: digest.append(hashlib.sha256(content).hexdigest()),
-                               name="ccl-seal", daemon=True)
-    if sealed:  # hashed while it is written (both release the GIL)
+                               name="ccl-seal", daemon=True) if sealed else None
+    if hashing is not None:  # hashed while it is written (both release the GIL)
         hashing.start()
     with atomic_path(path, force=force) as tmp, open(tmp, "wb") as out:
         out.write(bytes(USERBLOCK))
         out.write(content)
-        if sealed:
+        if hashing is not None:
             hashing.join()
             out.seek(0)
             out.write(SEAL + digest[0].encode() + b"\n")

@@ -94,14 +94,14 @@ def _local_start(B: np.ndarray, Z: np.ndarray, X: np.ndarray, rng: np.random.Gen
     unwrapped around its circular mean, and the per-sample angles of each sample's
     cluster are lifted into the features by ridge regression.
     """
-    from ccl_cli.learn.basis import cluster_sums, kmeans_centres, pairwise_sqdist
+    from ccl_cli.learn.basis import cluster_moments, kmeans_centres, pairwise_sqdist
 
     n, m = Z.shape
     k = int(min(n_clusters, max(1, n // (4 * m))))
     centres = kmeans_centres(X, k, seed=int(rng.integers(2**31)))
     label = np.concatenate([pairwise_sqdist(X[rows], centres).argmin(1)
                             for rows in row_chunks(n)])
-    cov = cluster_sums((Z[:, :, None] * Z[:, None, :]).reshape(n, m * m), label, k).reshape(k, m, m)
+    cov = cluster_moments(Z, label, k)
     vals, vecs = np.linalg.eigh(cov)
     dirs = vecs[:, :, 0]
     # a confidence in [0, 1]; a degenerate cluster (both eigenvalues ~0, the smaller one a

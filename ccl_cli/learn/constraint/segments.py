@@ -39,9 +39,8 @@ from typing import ClassVar
 
 import numpy as np
 
-from ccl_cli.learn.basis import cluster_sums
 from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
-from ccl_cli.learn.constraint.windows import PerWindow
+from ccl_cli.learn.constraint.windows import PerWindow, window_moments
 from ccl_cli.learn.params import Interval, parameters
 
 #: Block length (s): the resolution of the cuts.
@@ -123,16 +122,18 @@ class PerSegment(PerWindow):
     def per(self) -> str:
         return "segment (cut where the constraint changes)"
 
+    @property
+    def _unit(self) -> float:
+        """The table counts blocks: ``window_`` is the block length."""
+        return self.block
+
     def _windows(self, U: np.ndarray, groups: np.ndarray | None, t: np.ndarray | None
                  ) -> tuple[np.ndarray, np.ndarray]:
         """(segment of each sample (N,), table (S, 3) [demonstration id, first block, end
         block)) by :func:`cut` on each demonstration's blocks."""
         blk, blocks = window_index(groups, t, self.block, len(U))
-        q = U.shape[1]
-        S = cluster_sums((U[:, :, None] * U[:, None, :]).reshape(len(U), q * q), blk, len(blocks))
-        S = S.reshape(-1, q, q)
-        counts = np.bincount(blk, minlength=len(blocks)).astype(float)
-        prior = self.shrinkage * (U.T @ U) / max(len(U), 1)
+        S, counts, pooled = window_moments(U, blk, len(blocks))
+        counts, prior = counts.astype(float), self.shrinkage * pooled
         price = split_price(S + counts[:, None, None] * prior, blocks[:, 0])
         longest = max(1, int(np.floor(self.window / self.block + 1e-9)))
         table, of_block = [], np.empty(len(blocks), np.int64)
@@ -149,7 +150,6 @@ class PerSegment(PerWindow):
         """As :meth:`PerWindow.fit <ccl_cli.learn.constraint.windows.PerWindow.fit>`, the windows
         being the segments (module docstring)."""
         super().fit(X, U, groups=groups, t=t, derivative=derivative)
-        self.window_ = self.block
         self.selection_["segments"] = self.summary()
         return self
 

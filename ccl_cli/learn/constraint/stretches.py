@@ -57,7 +57,7 @@ import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.learn import model_selection as ms
-from ccl_cli.learn.basis import cluster_sums
+from ccl_cli.learn.basis import cluster_moments
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint.base import TimedConstraint
@@ -102,12 +102,10 @@ class Blocks:
 def blocks_of(data: nr.Sample, block: float) -> Blocks:
     """The blocks of ``data`` (module docstring), which moving."""
     U = data.U
-    q = U.shape[1]
     seg, table = window_index(data.groups, data.t, block, len(U))
     n_blocks = len(table)
     n = np.bincount(seg, minlength=n_blocks)
-    sums = cluster_sums((U[:, :, None] * U[:, None, :]).reshape(len(U), q * q), seg, n_blocks)
-    C = sums.reshape(n_blocks, q, q) / np.maximum(n, 1)[:, None, None]
+    C = cluster_moments(U, seg, n_blocks) / np.maximum(n, 1)[:, None, None]
     noise = noise_covariance(data)
     total = np.trace(C, axis1=1, axis2=2)
     moving = total > MARGIN * np.trace(noise)

@@ -27,6 +27,13 @@ def window_index(groups: np.ndarray | None, t: np.ndarray | None, window: float 
     table, seg = np.unique(np.stack([demo, j], 1), axis=0, return_inverse=True)
     return seg.ravel(), table
 
+
+def window_ends(table: np.ndarray) -> np.ndarray:
+    """The end (exclusive, in windows) of each row of a table (S, 2) [demonstration id, j] — j + 1
+    — or (S, 3) [demonstration id, first window, end window)."""
+    return table[:, 2] if table.shape[1] == 3 else table[:, 1] + 1
+
+
 def nearest_window(table: np.ndarray, window: float | None, n: int, groups: np.ndarray | None,
                    t: np.ndarray | None, what: str = "per-window") -> np.ndarray:
     """Index (n,) into ``table`` of the window of each sample of demonstrations ``groups`` (n,)
@@ -37,7 +44,7 @@ def nearest_window(table: np.ndarray, window: float | None, n: int, groups: np.n
     demonstration, counted in windows (InputError for a demonstration not in the table)."""
     demos = table[:, 0]
     first = table[:, 1]
-    end = table[:, 2] if table.shape[1] == 3 else first + 1
+    end = window_ends(table)
     if groups is None:
         if len(np.unique(demos)) > 1:
             raise InputError(f"a {what} constraint model needs the demonstration ids")

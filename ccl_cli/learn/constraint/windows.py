@@ -33,12 +33,12 @@ from typing import ClassVar
 import numpy as np
 
 from ccl_cli.learn.base import clone
-from ccl_cli.learn.basis import cluster_sums
+from ccl_cli.learn.basis import cluster_moments
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.base import ConstraintModel, TimedConstraint, check_rows_asked
-from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
+from ccl_cli.learn.constraint.timeblocks import nearest_window, window_ends, window_index
 from ccl_cli.learn.defaults import WINDOW_S
 from ccl_cli.learn.model_selection import inner_heldout
 from ccl_cli.learn.params import Interval, parameters
@@ -47,15 +47,18 @@ from ccl_cli.learn.params import Interval, parameters
 SHRINKAGE = 0.1
 
 
+def window_moments(U: np.ndarray, seg: np.ndarray, n_seg: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The parts of C_w (module docstring) of every window: Σ_{n ∈ w} u_n u_nᵀ (n_seg, q, q),
+    the sample counts n_w (n_seg,) and the pooled second moment C̄ (q, q); U (N, q), seg (N,)
+    in 0..n_seg−1."""
+    return cluster_moments(U, seg, n_seg), np.bincount(seg, minlength=n_seg), U.T @ U / max(len(U), 1)
+
+
 def window_rows(U: np.ndarray, seg: np.ndarray, n_seg: int, shrinkage: float) -> np.ndarray:
     """Rows of every window in order of use (ascending eigenvalues of C_w, module docstring):
     U (N, q), seg (N,) in 0..n_seg−1 → (n_seg, q, q)."""
-    q = U.shape[1]
-    C = cluster_sums((U[:, :, None] * U[:, None, :]).reshape(len(U), q * q), seg, n_seg)
-    counts = np.bincount(seg, minlength=n_seg)
-    pooled = U.T @ U / max(len(U), 1)
-    C = C.reshape(n_seg, q, q) + shrinkage * counts[:, None, None] * pooled[None]
-    _, vecs = np.linalg.eigh(C)
+    S, counts, pooled = window_moments(U, seg, n_seg)
+    _, vecs = np.linalg.eigh(S + shrinkage * counts[:, None, None] * pooled[None])
     return np.transpose(vecs, (0, 2, 1))
 
 
@@ -113,7 +116,7 @@ class PerWindow(TimedConstraint):
         self.n_constraints_ = int(chosen.n_constraints)
         self.A_ = rows[:, : self.n_constraints_].copy()
         self.windows_ = table
-        self.window_ = self.window
+        self.window_ = self._unit
         self.n_action_ = q
         self.selection_ = {**chosen.as_dict(), "windows": len(table), "per": self.per}
         self.heldout_ = self._held_out(X, U, seg, groups, t, derivative) if self.heldout else None
@@ -123,6 +126,11 @@ class PerWindow(TimedConstraint):
     def per(self) -> str:
         """What one window is, in words ("4-s window", "demonstration")."""
         return "demonstration" if self.window is None else f"{self.window:g}-s window"
+
+    @property
+    def _unit(self) -> float | None:
+        """The length (s) of one step of the table's window index (``window_``): the window."""
+        return self.window
 
     def _windows(self, U: np.ndarray, groups: np.ndarray | None, t: np.ndarray | None
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -171,8 +179,7 @@ class PerWindow(TimedConstraint):
         table = self.windows_.astype(float)
         if self.window_ is None:
             return np.column_stack([table[:, 0], np.zeros(len(table)), np.full(len(table), np.inf)])
-        end = table[:, 2] if table.shape[1] == 3 else table[:, 1] + 1
-        return np.column_stack([table[:, 0], table[:, 1] * self.window_, end * self.window_])
+        return np.column_stack([table[:, 0], table[:, 1] * self.window_, window_ends(table) * self.window_])
 
     # -- prediction ----------------------------------------------------------------------
     def window_of(self, X: np.ndarray, groups: np.ndarray | None = None,
@@ -212,7 +219,6 @@ def refit_on_new_demos(model: ConstraintModel, X: np.ndarray, U: np.ndarray, gro
     in stretches, the same rows with the stretches of these data classified by the motion
     along them (:meth:`~.stretches.ConstraintInStretches.classify`); None when every
     demonstration is known or ``model`` is global."""
-    from ccl_cli.learn.base import clone
     from ccl_cli.learn.constraint.per_demo import PerDemonstration
     from ccl_cli.learn.constraint.stretches import ConstraintInStretches
 
