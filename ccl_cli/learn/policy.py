@@ -14,8 +14,8 @@ each is solved in closed form (batched over samples, no iteration):
   error with weights β_c(x_n); π̃(x) = Σ_c β_c(x) W_cᵀ φ(x) / Σ_c β_c(x).
 * ``dpl`` — direct regression of u on β(x): the biased baseline.
 
-Samples with ‖u_n‖ below ``min_norm`` carry no direction and are dropped (the searches of pi
-and lwpi also try floors at the noise level, :data:`NOISE_FRACTIONS`).
+Samples with ‖u_n‖ below ``min_norm`` carry no direction and are dropped (lwpi's search also
+tries floors at the noise level, :data:`NOISE_FRACTIONS`).
 
 Scale: every normal matrix is summed over blocks of ``chunk_size`` rows (default 8192)
 with BLAS-shaped products, so temporaries are O(chunk · K q) whatever N (no N × K
@@ -54,7 +54,10 @@ NOISE_FRACTIONS = (0.3,)
 #: Every candidate is scored on the held-out samples with ‖u‖ above SCORED_FRACTION · rms‖u‖
 #: (the same samples whatever it drops). The methods whose search does this: NOISE_METHODS.
 SCORED_FRACTION = 0.3
-NOISE_METHODS = ("pi", "lwpi")
+#: Not pi: on a learnt w̃ in a one-dimensional null space (learn-v, then learn-pi) a small ‖w̃‖ is
+#: signal (π nearly along the constraint), not a random direction, and dropping it cost pi's
+#: held-out NCPE up to 12× (docs/measurements.md).
+NOISE_METHODS = ("lwpi",)
 
 
 @parameters
@@ -76,9 +79,8 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
             True by default, a dict ``{budget, grid, folds, max_rows}`` to adjust, False for
             the fixed settings). Grid: K ∈ {n_centres, 16, 25, 49, 100} × σ² factors {1, ½, ¼}
             × cut-offs {cutoff, 1e-9, 1e-12} (relative rule); for lwpi K ∈ {n_centres, 9, 16,
-            25, 49, 100} × {1, ¼, 0.1, 0.03, 0.01}; pi and lwpi (:data:`NOISE_METHODS`) also ×
-            min_norm {min_norm, 0.3 rms‖u‖} (:data:`NOISE_FRACTIONS`); the search runs from the
-            smallest basis up
+            25, 49, 100} × {1, ¼, 0.1, 0.03, 0.01} × min_norm {min_norm, 0.3 rms‖u‖}
+            (:data:`NOISE_FRACTIONS`); the search runs from the smallest basis up
             (:func:`ccl_cli.learn.model_selection.search`).
 
     Attributes:
@@ -91,8 +93,8 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         "cutoff_rule": [Options.of(CutoffRule)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_action_": "value", "n_used_": "value", "W_": "array", "basis_": "basis"}
-    #: Fits of the default search at most: pi (5 sizes × 3 widths) × 3 cut-offs × 2 min_norm × 3
-    #: folds = 270; lwpi (6 sizes × 5 widths) × 2 min_norm × 3 folds = 180.
+    #: Fits of the default search at most: pi (5 sizes × 3 widths) × 3 cut-offs × 3 folds = 135;
+    #: lwpi (6 sizes × 5 widths) × 2 min_norm × 3 folds = 180.
     TUNE_BUDGET = 400
     method: Method = POLICY_METHOD
     cutoff: float = 1e-6
@@ -117,7 +119,7 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         """The basis grid (pi on states of ≤ GRID_DIMS dimensions: centres on a grid) and, with the
         relative rule and a method with one global system, the cut-offs {configured, 1e-9, 1e-12}
         (noise-free data want the small ones, noisy data the configured one; candidates differing
-        only in the cut-off share their normal equations). pi and lwpi (:data:`NOISE_METHODS`):
+        only in the cut-off share their normal equations). lwpi (:data:`NOISE_METHODS`):
         × ``min_norm`` {configured, f · rms‖u‖ for f in :data:`NOISE_FRACTIONS`} (candidates on
         one basis share its features, and a larger ``min_norm`` the sums of the one before)."""
         grid = super()._tune_grid(X, U)
