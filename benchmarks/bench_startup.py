@@ -90,7 +90,7 @@ with blas.threads(blas.stage_threads(data.n_samples)):  # as run_to_dir does
     p = Pipeline(cfg.spec, data, masks)
     p.run(cfg.stages())
 t_stages = now()
-from ccl_cli.render.figures import draw_views
+from ccl_cli.render.drawing import draw_views
 out = Path(sys.argv[2]); out.mkdir(parents=True, exist_ok=True)
 seconds = {}
 t_p0 = now()

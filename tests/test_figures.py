@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from ccl_cli.render import figures
+from ccl_cli.render import drawing, figures
 
 
 def test_an_opaque_figure_is_written_as_rgb_and_a_transparent_one_keeps_its_alpha(tmp_path):
@@ -122,11 +122,78 @@ def test_the_toy_run_draws_its_five_figures(tmp_path):
 
 
 def test_a_second_drawing_process_only_when_a_core_is_idle(monkeypatch):
-    monkeypatch.setattr(figures.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
-    monkeypatch.setattr(figures.os, "getloadavg", lambda: (0.4, 0.0, 0.0))
-    assert figures.idle_workers() == 2
-    monkeypatch.setattr(figures.os, "getloadavg", lambda: (1.6, 0.0, 0.0))
-    assert figures.idle_workers() == 1
-    monkeypatch.setattr(figures.os, "sched_getaffinity", lambda pid: {0}, raising=False)
-    monkeypatch.setattr(figures.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
-    assert figures.idle_workers() == 1
+    monkeypatch.setattr(drawing.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(drawing.os, "getloadavg", lambda: (0.4, 0.0, 0.0))
+    assert drawing.idle_workers() == 2
+    monkeypatch.setattr(drawing.os, "getloadavg", lambda: (1.6, 0.0, 0.0))
+    assert drawing.idle_workers() == 1
+    monkeypatch.setattr(drawing.os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    monkeypatch.setattr(drawing.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    assert drawing.idle_workers() == 1
+
+
+def test_the_drawer_draws_each_stage_while_the_next_runs_and_its_files_are_ccls(tmp_path, monkeypatch):
+    """A drawer started before the run gets learn-a's figures as soon as learn-a ends (before
+    learn-pi has run) and draws the same bytes ccl draws itself; it ends when stopped."""
+    import multiprocessing
+
+    from ccl_cli.app import stages
+    from ccl_cli.app.run import execute
+    from ccl_cli.config import load
+
+    root = Path(__file__).resolve().parent.parent
+    monkeypatch.chdir(root)
+    cfg = load(root / "configs" / "toy2d_learn_pi.yaml")
+    seen: list[tuple[list[str], list[str]]] = []  # (figures handed over, stages run by then)
+    ran: list[str] = []
+    learn_pi = stages.Pipeline._learn_pi
+
+    def tracked(self, opts):
+        ran.append("learn-pi")
+        return learn_pi(self, opts)
+
+    monkeypatch.setattr(stages.Pipeline, "_learn_pi", tracked)
+    drawer = drawing.start_drawer()
+    assert drawer is not None and drawer.running
+    try:
+        def on_views(views):
+            seen.append(([v.name for v in views], list(ran)))
+            drawing.submit_views(views)
+
+        result = execute("run", cfg, None, on_views=on_views)
+        (tmp_path / "a").mkdir()
+        by_drawer = drawing.draw_views(tmp_path / "a", result.views, workers=2)
+    finally:
+        drawing.stop_drawer()
+    assert multiprocessing.active_children() == []
+    assert seen[0] == (["learn-a-field.png", "learn-a-selection.png", "learn-a-constraint.png"], [])
+    assert seen[1][1] == ["learn-pi"]
+    (tmp_path / "b").mkdir()
+    by_ccl = drawing.draw_views(tmp_path / "b", result.views)  # no drawer: drawn here
+    assert by_drawer == by_ccl and len(by_ccl) == 5
+    for _, rel in by_ccl:
+        assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes()
+
+
+def test_a_drawer_that_died_leaves_the_figures_to_ccl(tmp_path, capfd):
+    import os
+    import signal
+
+    from ccl_cli.app.views import View
+
+    views = [View(f"f{k}.png", f"figure {k}", "selection",
+                  {"selection": {"n_constraints": k % 3, "NPOE": [3.0, 1.0, 2.0 + k]}, "q": 3})
+             for k in range(3)]
+    drawer = drawing.start_drawer()
+    try:
+        drawing.submit_views(views[:1])
+        os.kill(drawer._process.pid, signal.SIGKILL)
+        drawer._process.join()
+        drawn = drawing.draw_views(tmp_path, views)
+    finally:
+        drawing.stop_drawer()
+    assert [rel for _, rel in drawn] == ["plots/f0.png", "plots/f1.png", "plots/f2.png"]
+    for _, rel in drawn:
+        with Image.open(tmp_path / rel) as im:
+            assert im.size[0] > 100
+    assert "Traceback" not in capfd.readouterr().err

@@ -9,6 +9,7 @@ renderers' job (:mod:`ccl_cli.render.outputs`); nothing here formats or draws.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -58,10 +59,12 @@ class RunResult:
 
 
 def execute(command: str, cfg: Config, files, stages: list[tuple[str, Any]] | None = None,
-            progress: StageProgress | None = None, views: bool | None = None) -> RunResult:
+            progress: StageProgress | None = None, views: bool | None = None,
+            on_views: Callable[[list[View]], None] | None = None) -> RunResult:
     """Read the data, run the ``stages`` ((name, options) pairs; default: the config's
     ``stages``, shown by ``progress``) and collect the results; with ``views``
-    (default: the config's ``output.plots``) also the figures' data."""
+    (default: the config's ``output.plots``) also the figures' data, each stage's handed to
+    ``on_views`` (if given) as soon as they are final (e.g. to draw them meanwhile)."""
     from ccl_cli.app.stages import Pipeline
 
     t0 = time.perf_counter()
@@ -73,8 +76,9 @@ def execute(command: str, cfg: Config, files, stages: list[tuple[str, Any]] | No
     with blas.threads(blas.stage_threads(data.n_samples)) as blas_threads:
         stages = stages if stages is not None else cfg.stages()
         pipeline = Pipeline(cfg.spec, data, masks)
-        pipeline.run(stages, progress=progress)
-        shown = pipeline.views() if (views if views is not None else cfg.spec.output.plots) else []
+        wanted = views if views is not None else cfg.spec.output.plots
+        pipeline.run(stages, progress=progress, on_views=on_views if wanted else None)
+        shown = pipeline.views() if wanted else []
     metrics = stage_metrics(pipeline.results)
     seconds = time.perf_counter() - t0
     summary = {"status": overall_status(pipeline.results), "verdict": verdict(pipeline.results),

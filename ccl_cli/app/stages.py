@@ -43,8 +43,9 @@ class StageResult:
     #: (part, data, convention) → metrics of this model; the stage and the evaluate stage
     #: both call it, so one model gets one set of numbers wherever it is reported.
     score: Callable[[str, Demonstrations, str], dict] | None = None
-    #: the figures of this stage (:meth:`Pipeline.views`), drawn by ccl_cli.render.figures
-    views: list[View] = field(default_factory=list)
+    #: the figures of this stage (:meth:`Pipeline.stage_views`; None: not computed yet), drawn
+    #: by ccl_cli.render
+    views: list[View] | None = None
     #: the verdict: ``ok`` when the held-out evidence is, ``poor`` when a check fired
     #: (:mod:`ccl_cli.diagnostics`: overfit, no_better_than_baseline, constraint_does_not_hold)
     status: str = "ok"
@@ -191,11 +192,15 @@ class Pipeline:
         return self.parts()[-1]
 
     # -- stages -------------------------------------------------------------------------
-    def run(self, stages: list[tuple[str, Any]], progress: StageProgress | None = None) -> list[StageResult]:
+    def run(self, stages: list[tuple[str, Any]], progress: StageProgress | None = None,
+            on_views: Callable[[list[View]], None] | None = None) -> list[StageResult]:
         """Run ``stages`` — (name, options: the stage's section of the run spec) pairs — in
         order; ``progress.start(label)`` before each and ``progress.advance()`` after it
-        (without a progress display, each stage is one INFO log line)."""
-        for name, opts in stages:
+        (without a progress display, each stage is one INFO log line). ``on_views`` (if given)
+        receives each stage's figures as soon as no later stage can change them (a policy's
+        depend on the constraint of a learn-a stage, which may come later)."""
+        names = [name for name, _ in stages]
+        for i, (name, opts) in enumerate(stages):
             t0 = time.perf_counter()
             label = f"{name} ({self._describe(name, opts)})"
             if progress is None:
@@ -205,6 +210,8 @@ class Pipeline:
             result = getattr(self, "_" + name.replace("-", "_"))(opts)
             result.seconds = time.perf_counter() - t0
             self.results.append(result)
+            if on_views is not None and not (name == "learn-pi" and "learn-a" in names[i + 1:]):
+                on_views(self.stage_views(result))
             if progress is not None:
                 progress.advance()
         return self.results
@@ -419,14 +426,17 @@ class Pipeline:
                                                  "the dpl baseline (u regressed on the features)")
         return checks
 
-    def views(self) -> list[View]:
-        """Compute every stage's figures (:func:`~ccl_cli.app.views.stage_views`) on the
+    def stage_views(self, result: StageResult) -> list[View]:
+        """Compute the figures of one stage (:func:`~ccl_cli.app.views.stage_views`) on the
         held-out data (the training data when there is none) into ``result.views``."""
         part, shown = self.parts()[-1]
         blocks = self.split_info.get("kind") == "blocks"
-        for r in self.results:
-            r.views = stage_views(r, shown, part, self.split.train, blocks, self.constraint)
-        return [v for r in self.results for v in r.views]
+        result.views = stage_views(result, shown, part, self.split.train, blocks, self.constraint)
+        return result.views
+
+    def views(self) -> list[View]:
+        """Every stage's figures, those not computed yet computed now."""
+        return [v for r in self.results for v in (r.views if r.views is not None else self.stage_views(r))]
 
     def _evaluate(self, opts: Any) -> StageResult:
         """Every learnt model of the earlier stages on train and test, under this stage's

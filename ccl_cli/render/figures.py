@@ -29,9 +29,8 @@ import os
 import threading
 import time
 from collections.abc import Callable
-from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -157,11 +156,12 @@ def subplots(nrows: int = 1, ncols: int = 1, *, figsize: tuple[float, float], **
 PNG_LEVEL = 3
 
 
-def save_figure(fig, path: Path, dpi: float = DPI, fmt: str | None = None) -> None:
-    """Write ``fig`` to ``path`` as ``fmt`` (default: the format its suffix names): PNG
-    (drawn once by the Agg canvas at ``dpi``; its pixels written by Pillow, RGB when every pixel
-    is opaque), or vector SVG / PDF for a paper. A staging path (``x.png.tmp``) passes the final
-    name's format. (``savefig`` would draw the figure a second time to write a PNG.)"""
+def save_figure(fig, path: Path | BinaryIO, dpi: float = DPI, fmt: str | None = None) -> None:
+    """Write ``fig`` to ``path`` (or an open binary file) as ``fmt`` (default: the format the
+    path's suffix names): PNG (drawn once by the Agg canvas at ``dpi``; its pixels written by
+    Pillow, RGB when every pixel is opaque), or vector SVG / PDF for a paper. A staging path
+    (``x.png.tmp``) passes the final name's format. (``savefig`` would draw the figure a second
+    time to write a PNG.)"""
     import matplotlib
 
     fmt = fmt or Path(path).suffix.lstrip(".").lower() or "png"
@@ -470,16 +470,19 @@ def constraint_figure(info: dict[str, Any], method: str):
 
 
 # -- the report's plots --------------------------------------------------------------------
-def _draw(make: Callable[[], Any], path: Path) -> float | None:
-    """Make one figure and write it to ``path``: its seconds, or None when there is nothing
-    to draw (``make`` returned None)."""
+def _draw(make: Callable[[], Any], fmt: str) -> tuple[float, bytes] | None:
+    """Make one figure and encode it as a ``fmt`` file: (seconds, the file's bytes), or None
+    when there is nothing to draw (``make`` returned None)."""
+    import io
+
     t0 = time.perf_counter()
     with _collector_paused():
         fig = make()
         if fig is None:
             return None
-        save_figure(fig, path)
-    return time.perf_counter() - t0
+        out = io.BytesIO()
+        save_figure(fig, out, fmt=fmt)
+    return time.perf_counter() - t0, out.getvalue()
 
 
 @contextlib.contextmanager
@@ -499,97 +502,8 @@ def _collector_paused():
             gc.enable()
 
 
-def _draw_in_child(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path, send: Any) -> None:
-    """A drawing process's work: draw ``jobs``, send {name: seconds or None} and end. It dies
-    with its parent; any failure ends it without a word (the parent redraws what is missing)."""
-    from ccl_cli.lifeline import die_with_parent
-
-    try:
-        die_with_parent()
-        send.send({name: _draw(make, pdir / name) for name, _, make in jobs})
-    except BaseException:  # noqa: BLE001 - the parent redraws whatever the child did not
-        pass
-    finally:
-        send.close()
-
-
-def idle_workers() -> int:
-    """How many processes should draw a run's figures: 2 when this process may use two or
-    more cores and the 1-minute load leaves one of them idle, else 1. On a busy machine a
-    second process gains no time and costs CPU (forking, its copy-on-write pages, its own
-    font set-up: a small run's CPU 3 % higher at load 6 on 2 cores); the files are the same."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # no affinity API (macOS)
-        cores = os.cpu_count() or 1
-    try:
-        load = os.getloadavg()[0]
-    except (AttributeError, OSError):  # no load average (Windows: no fork either)
-        load = 0.0
-    return 2 if cores >= 2 and load <= cores - 1 else 1
-
-
-def render(jobs: list[tuple[str, str, Callable[[], Any]]], pdir: Path, workers: int = 1
-           ) -> dict[str, float | None]:
-    """Draw every (file name, caption, make) job into ``pdir``; with ``workers`` ≥ 2 (and
-    fork) every other job is drawn meanwhile by a forked process (``multiprocessing``'s fork
-    context: it starts with the figures' data in memory, nothing is pickled) — the figures
-    are independent, and drawing them is most of a small run's time. Returns {name: seconds,
-    or None for a job with nothing to draw}. A child that fails costs only time: the parent
-    then draws its jobs too, so the files are the same either way."""
-    import multiprocessing
-    import warnings
-
-    theirs = jobs[1::2] if workers > 1 and len(jobs) > 1 and \
-        "fork" in multiprocessing.get_all_start_methods() else []
-    child = receive = None
-    if theirs:
-        ctx = multiprocessing.get_context("fork")
-        receive, send = ctx.Pipe(duplex=False)
-        child = ctx.Process(target=_draw_in_child, args=(theirs, pdir, send), daemon=True)
-        try:
-            with warnings.catch_warnings():  # 3.12+: fork() beside the BLAS's own (idle) threads
-                warnings.simplefilter("ignore", DeprecationWarning)
-                child.start()
-        except OSError:
-            child, theirs = None, []
-        send.close()
-    mine = jobs[0::2] if theirs else jobs
-    done = {name: _draw(make, pdir / name) for name, _, make in mine}
-    got: dict[str, float | None] = {}
-    if child is not None:
-        try:
-            got = receive.recv()
-        except (EOFError, OSError):
-            got = {}  # the child failed: its figures are drawn here
-        child.join()
-    for name, _, make in theirs:
-        done[name] = got[name] if name in got else _draw(make, pdir / name)
-    return done
-
-
 #: the drawing function of each kind of :class:`~ccl_cli.app.views.View`
 DRAW: dict[str, Callable[..., Any]] = {}
-
-
-def draw_views(outdir: Path, views: list[Any], seconds: dict[str, float] | None = None,
-               workers: int = 1, fmt: str = "png") -> list[tuple[str, str]]:
-    """Draw every figure of a run (:class:`~ccl_cli.app.views.View` data) into
-    ``outdir/plots`` as ``fmt`` files (png, svg or pdf); returns (caption, relative path)
-    pairs, captions starting with the stage name. ``seconds`` (if given) receives the time of
-    each figure (drawing and writing; file name → s) and of matplotlib's import."""
-    pdir = outdir / "plots"
-    pdir.mkdir(exist_ok=True)
-    t0 = time.perf_counter()
-    _import_matplotlib()
-    if seconds is not None:
-        seconds["matplotlib import"] = time.perf_counter() - t0
-    jobs = [(str(Path(v.name).with_suffix(f".{fmt}")), v.caption, partial(DRAW[v.kind], **v.args))
-            for v in views]
-    drawn = render(jobs, pdir, workers)
-    if seconds is not None:
-        seconds.update({name: s for name, s in drawn.items() if s is not None})
-    return [(caption, f"plots/{name}") for name, caption, _ in jobs if drawn.get(name) is not None]
 
 
 def trajectory_figure(title: str, d: Demonstrations, part: str, at: np.ndarray, learnt: np.ndarray,

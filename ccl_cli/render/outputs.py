@@ -49,14 +49,14 @@ def write_run(result: RunResult, outdir: Path, force: bool = False, plot_workers
               extra_files: dict[str, Any] | None = None) -> dict[str, Any]:
     """Write every output of ``result`` into ``outdir`` atomically; returns the run's
     summary with ``outdir`` filled in. The figures are drawn by ``plot_workers`` processes
-    (default: :func:`~ccl_cli.render.figures.idle_workers`, 2 when a second core is idle;
+    (default: :func:`~ccl_cli.render.drawing.idle_workers`, 2 when a second core is idle;
     ``ccl batch`` passes 1, its jobs already fill the cores). ``extra_files`` (name → JSON
     value) go into the folder too."""
     import yaml
 
     from ccl_cli.io.atomic import atomic_dir
     from ccl_cli.models import save_model
-    from ccl_cli.render.figures import draw_views, idle_workers
+    from ccl_cli.render.drawing import draw_views, idle_workers
     from ccl_cli.render.report import markdown
 
     models = [r for r in result.results if r.model is not None]
@@ -86,7 +86,7 @@ def write_evaluation(summary: dict[str, Any], out: Path, force: bool = False, fm
     (:func:`ccl_cli.app.evaluate.evaluate_saved`'s summary), atomically."""
     from ccl_cli.app.provenance import versions
     from ccl_cli.io.atomic import atomic_dir
-    from ccl_cli.render.figures import draw_views
+    from ccl_cli.render.drawing import draw_views
     from ccl_cli.render.report import metric_rows
 
     with atomic_dir(out, force=force) as tmp:
