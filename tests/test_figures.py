@@ -153,6 +153,9 @@ def test_the_drawer_draws_each_stage_while_the_next_runs_and_its_files_are_ccls(
         return learn_pi(self, opts)
 
     monkeypatch.setattr(stages.Pipeline, "_learn_pi", tracked)
+    monkeypatch.setattr(drawing, "idle_workers", lambda: 1)
+    assert drawing.start_drawer() is None  # a busy machine: ccl draws itself
+    monkeypatch.setattr(drawing, "idle_workers", lambda: 2)
     drawer = drawing.start_drawer()
     assert drawer is not None and drawer.running
     try:
@@ -175,7 +178,7 @@ def test_the_drawer_draws_each_stage_while_the_next_runs_and_its_files_are_ccls(
         assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes()
 
 
-def test_a_drawer_that_died_leaves_the_figures_to_ccl(tmp_path, capfd):
+def test_a_drawer_that_died_leaves_the_figures_to_ccl(tmp_path, capfd, monkeypatch):
     import os
     import signal
 
@@ -184,6 +187,7 @@ def test_a_drawer_that_died_leaves_the_figures_to_ccl(tmp_path, capfd):
     views = [View(f"f{k}.png", f"figure {k}", "selection",
                   {"selection": {"n_constraints": k % 3, "NPOE": [3.0, 1.0, 2.0 + k]}, "q": 3})
              for k in range(3)]
+    monkeypatch.setattr(drawing, "idle_workers", lambda: 2)
     drawer = drawing.start_drawer()
     try:
         drawing.submit_views(views[:1])

@@ -232,10 +232,12 @@ _drawer: Drawer | None = None
 
 
 def start_drawer() -> Drawer | None:
-    """Start this process's drawer (once), where processes can be forked; None elsewhere."""
+    """Start this process's drawer (once), where processes can be forked and a core is idle
+    (:func:`idle_workers`: on a busy machine a second process gains no time and costs CPU);
+    None when there is none."""
     global _drawer
     ctx = _fork_context()
-    if _drawer is None and ctx is not None:
+    if _drawer is None and ctx is not None and idle_workers() >= 2:
         _drawer = Drawer(ctx)
     return _drawer if _drawer is not None and _drawer.running else None
 
