@@ -143,6 +143,13 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
         return H
 
     # -- fitting ----------------------------------------------------------------------
+    @property
+    def _reweight_steps(self) -> int:
+        """The reweighting steps that change anything: none with identity regressors, where
+        Ã_n = W for every sample, so the weights are equal and, normalised to mean 1, leave S
+        as it is."""
+        return 0 if isinstance(self.regressors, str) and self.regressors == "identity" else self.reweight
+
     def _solve(self, X: np.ndarray, U: np.ndarray, k: int = 1
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """Generalised eigenvectors of (S, T), ascending: (vals, vecs (d, d), scale, msq).
@@ -177,8 +184,9 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
         else:
             scale = np.ones(d)
         msq = float(np.sum(colsq / scale**2) / n)
+        steps = self._reweight_steps
         W = None
-        for step in range(self.reweight + 1):
+        for step in range(steps + 1):
             S, T, wsum = np.zeros((d, d)), None, 0.0
             for i, rows in enumerate(chunks):
                 Hs = rows_of(i, rows) / scale
@@ -207,7 +215,7 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
                 vals, vecs = eigh(S, Tf)
             else:
                 vals, vecs = np.linalg.eigh(S)
-            if step == self.reweight:
+            if step == steps:
                 break
             m = self._phi(X[:1]).shape[1]
             W = (vecs[:, :k] / scale[:, None]).T[:, :m]
@@ -251,7 +259,7 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
                             threshold=threshold, X=X, U=U, groups=groups)
         self.n_constraints_ = chosen.n_constraints
         self.selection_ = chosen.as_dict()
-        if self.reweight and self.n_constraints_ > 1:
+        if self._reweight_steps and self.n_constraints_ > 1:
             vals, vecs, scale, _ = self._solve(X, U, self.n_constraints_)
         self.singular_values_ = np.sqrt(vals)
         self.scale_ = scale
