@@ -201,3 +201,20 @@ def test_a_drawer_that_died_leaves_the_figures_to_ccl(tmp_path, capfd, monkeypat
         with Image.open(tmp_path / rel) as im:
             assert im.size[0] > 100
     assert "Traceback" not in capfd.readouterr().err
+
+
+def test_figures_too_large_to_send_are_drawn_by_ccl(tmp_path, monkeypatch):
+    from ccl_cli.app.views import View
+
+    monkeypatch.setattr(drawing, "idle_workers", lambda: 2)
+    monkeypatch.setattr(drawing, "MAX_MESSAGE", 1000)
+    big = View("big.png", "big", "selection", {"selection": {"n_constraints": 1, "NPOE": list(range(3000))},
+                                                 "q": 3})
+    drawer = drawing.start_drawer()
+    try:
+        drawing.submit_views([big])
+        assert not drawer.running  # closed rather than sent
+        drawn = drawing.draw_views(tmp_path, [big])
+    finally:
+        drawing.stop_drawer()
+    assert drawn == [("big", "plots/big.png")] and (tmp_path / "plots" / "big.png").stat().st_size > 1000

@@ -172,20 +172,37 @@ class Drawer:
         return answer
 
     def _call(self, message: tuple) -> Any:
-        """Send ``message``; for a collect, the answer. A drawer that cannot take it is closed."""
+        """Send ``message``; for a collect, the answer. A drawer that cannot take it — it died,
+        the data do not pickle, or they are larger than :data:`MAX_MESSAGE` — is closed."""
+        import pickle
+
         try:
-            self._conn.send(message)
+            data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+            if len(data) > MAX_MESSAGE:
+                raise ValueError("figures' data too large to send")
+            self._conn.send_bytes(data)
             return self._conn.recv() if message[0] == "collect" else None
-        except Exception:  # noqa: BLE001 - a dead drawer or unpicklable data: ccl draws instead
+        except Exception:  # noqa: BLE001 - see above: ccl draws instead
             self.close()
             return None
 
     def close(self) -> None:
-        """End the drawer (it sees the closed pipe and exits)."""
+        """End the drawer: an idle one sees the closed pipe and exits; one still drawing (ccl
+        stops on an error, or draws itself) is killed — it writes no file, and its second
+        drawing process dies with it."""
         if self.running:
             self.running = False
             self._conn.close()
-            self._process.join(timeout=5)
+            self._process.join(timeout=0.05)
+            if self._process.is_alive():
+                self._process.kill()
+                self._process.join()
+
+
+#: The largest message sent to a drawer (bytes, pickled): a large recording's figures are drawn
+#: at the end by ccl itself, from memory it already holds (a copy through a pipe would cost
+#: more time and memory than the drawer saves).
+MAX_MESSAGE = 16 * 2**20
 
 
 def _serve(conn: Any, parents_end: Any) -> None:
