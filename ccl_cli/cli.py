@@ -570,9 +570,11 @@ def batch(
         start_workers(workers, (write_run.__module__,))  # the workers' imports overlap the planning
     jobs, manifest_out = plan(manifest, files, str(config) if config else None, allow_outside)
     outdir = out or manifest_out or Path("runs") / "batch"
-    from ccl_cli.render.figures import preload_in_background
+    plots = any(job.plots for job in jobs)  # summary.png only when a job draws figures
+    if plots:
+        from ccl_cli.render.figures import preload_in_background
 
-    preload_in_background()  # matplotlib for summary.png, imported while this process waits on the jobs
+        preload_in_background()  # matplotlib for summary.png, imported while this process waits on the jobs
     bar = _bar("jobs", len(jobs), quiet)
     try:
         results = run_batch(jobs, outdir, write_run, workers, scheduler, force,
@@ -580,7 +582,7 @@ def batch(
     finally:
         if bar:
             bar.stop()
-    summary = write_summary(outdir, results, time.perf_counter() - t0)
+    summary = write_summary(outdir, results, time.perf_counter() - t0, plots=plots)
     summary["outdir"] = str(outdir)
     if json_out:
         _emit({k: v for k, v in summary.items() if k != "results"}, True)

@@ -77,7 +77,7 @@ def test_local_batch_reports_failures_and_matches_ccl_run(capsys, recordings, tm
     rows = (out / "summary.csv").read_text().splitlines()
     assert len(rows) == N_GOOD + 3 and rows[0].startswith("job,files,method,n_constraints,status,seconds")
     assert "## Failures" in (out / "summary.md").read_text()
-    assert (out / "summary.png").stat().st_size > 1000
+    assert not (out / "summary.png").exists()  # output.plots is false: no job draws figures
     # the same per-file metrics as ccl run on each file alone
     per_job = job_metrics(out)
     for i in (0, 7, 19):
@@ -319,3 +319,25 @@ def test_summary_figure_names_each_job_without_its_key_hash():
     assert _short("toy2d_ncl_h5-67f8dc25") == "toy2d_ncl_h5"
     assert _short("a_very_long_recording_name_of_a_kuka_log_bag-0123abcd") == "a_very_long_recording_n…"
     assert _short("plain-name") == "plain-name"
+
+
+def test_summary_figure_is_drawn_when_a_job_draws_figures(capsys, recordings, tmp_path):
+    """summary.png: one panel per held-out metric, 80 dpi, as wide as the jobs need; drawn
+    only when a job's config draws figures (an earlier one is removed when not)."""
+    from PIL import Image
+
+    from ccl_cli.app.batch import JobResult
+    from ccl_cli.render.summary import write_summary
+
+    out = tmp_path / "fig"
+    code, summary, err = batch(capsys, "--files", recordings / "rec_0*.h5", "-c",
+                               recordings / "pipeline.yaml", "-o", out, "-j", 1)
+    assert code == 0, err
+    results = [JobResult(**r) for r in summary_results(out)]
+    metrics = {k for r in results for k, v in r.stages["learn-a"]["test"].items() if v > 0}
+    write_summary(out, results, 1.0, plots=True)
+    with Image.open(out / "summary.png") as png:
+        assert png.size == (max(6, 0.25 * 10 + 3) * 80, round(2.2 * len(metrics) * 80))
+    assert "(summary.png)" in (out / "summary.md").read_text()
+    write_summary(out, results, 1.0, plots=False)
+    assert not (out / "summary.png").exists() and "summary.png" not in (out / "summary.md").read_text()

@@ -50,6 +50,8 @@ class Job:
     config_path: str | None
     config: dict[str, Any]
     key: str = ""
+    #: the config's ``output.plots``: the job draws figures
+    plots: bool = True
 
 
 @dataclass
@@ -66,10 +68,16 @@ class JobResult:
 
 
 # -- planning ------------------------------------------------------------------------------
-def _resolve_config(path: str | None, overrides: list[dict], base: Path) -> config.Config:
+def _resolve_config(path: str | None, overrides: list[dict], base: Path,
+                    loaded: dict[str | None, config.Config]) -> config.Config:
     """The config file of a rule (relative to the manifest) with the overrides merged in,
-    validated (errors name the file and line of a key of the file)."""
-    cfg = config.load(base / path if path and not Path(path).is_absolute() else path)
+    validated (errors name the file and line of a key of the file). ``loaded`` holds the
+    files read so far: each is read once per plan."""
+    if path not in loaded:
+        loaded[path] = config.load(base / path if path and not Path(path).is_absolute() else path)
+    cfg = loaded[path]
+    if not any(overrides):
+        return cfg
     merged = cfg.raw
     for over in overrides:
         merged = config.deep_merge(merged, over or {})
@@ -142,6 +150,9 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
                  for k, v in per_file.items()]
     jobs: list[Job] = []
     seen: set[str] = set()
+    loaded: dict[str | None, config.Config] = {}
+    #: (config file, overrides) → its validated config: jobs that share both share it
+    resolved: dict[str, config.Config] = {}
     for i, rule in enumerate(rules):
         _check_rule(rule, f"{where}jobs[{i}]")
         matched = _resolved(expand_files(rule["files"], base), base, named, allow_outside)
@@ -149,16 +160,21 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
             _inside(base, Path(rule["config"]), named, allow_outside, f"jobs[{i}].config")
         groups = [matched] if rule.get("group") else [[f] for f in matched]
         for group in groups:
-            extra = [v for paths, v in file_over if any(p in group for p in paths)]
-            try:
-                cfg = _resolve_config(rule.get("config"), [rule.get("overrides") or {}, *extra], base)
-            except CCLError as exc:
-                raise ConfigError(f"{where}jobs[{i}]: {exc.message}") from None
-            try:
-                cfg.stages()
-            except ConfigError as exc:
-                raise ConfigError(f"{where}jobs[{i}] ({group[0]}): {exc.message}") from None
-            job = Job(_job_id(group), group, str(rule.get("config")), cfg.raw)
+            overrides = [rule.get("overrides") or {}, *(v for paths, v in file_over
+                                                          if any(p in group for p in paths))]
+            same = json.dumps([rule.get("config"), overrides], sort_keys=True, default=str)
+            cfg = resolved.get(same)
+            if cfg is None:
+                try:
+                    cfg = _resolve_config(rule.get("config"), overrides, base, loaded)
+                except CCLError as exc:
+                    raise ConfigError(f"{where}jobs[{i}]: {exc.message}") from None
+                try:
+                    cfg.stages()
+                except ConfigError as exc:
+                    raise ConfigError(f"{where}jobs[{i}] ({group[0]}): {exc.message}") from None
+                resolved[same] = cfg
+            job = Job(_job_id(group), group, str(rule.get("config")), cfg.raw, plots=cfg.spec.output.plots)
             if job.job_id in seen:
                 raise ConfigError(f"{group[0]} is matched by more than one rule")
             seen.add(job.job_id)
