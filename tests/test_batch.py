@@ -341,3 +341,36 @@ def test_summary_figure_is_drawn_when_a_job_draws_figures(capsys, recordings, tm
     assert "(summary.png)" in (out / "summary.md").read_text()
     write_summary(out, results, 1.0, plots=False)
     assert not (out / "summary.png").exists() and "summary.png" not in (out / "summary.md").read_text()
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_ctrl_c_of_a_running_batch_leaves_no_temporary_and_no_process(recordings, tmp_path):
+    """SIGINT while two workers write job folders (figures on: each job takes a while):
+    exit 130 with one line, no temporary folder, no process left; a rerun resumes."""
+    cfg = tmp_path / "plots.yaml"
+    cfg.write_text(CONFIG.replace("plots: false", "plots: true"))
+    out = tmp_path / "interrupted"
+    args = [CCL, "batch", "--files", str(recordings / "rec_0*.h5"), "-c", str(cfg), "-o", str(out), "-j", "2",
+            "-q"]
+    proc = subprocess.Popen(args, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    jobs = out / "jobs"
+    deadline = time.time() + 120
+    while time.time() < deadline and (not jobs.exists() or len([p for p in jobs.iterdir()
+                                                                  if not p.name.startswith(".")]) < 2):
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert [ln for ln in err.splitlines() if ln.startswith("ccl: ") and "warning" not in ln] == \
+        ["ccl: interrupted; no partial outputs were left"]
+    assert [p.name for p in jobs.iterdir() if p.name.startswith(".")] == []
+    deadline = time.time() + 15
+    while time.time() < deadline and _session(proc.pid):
+        time.sleep(0.1)
+    assert _session(proc.pid) == []
+    finished = [p for p in jobs.iterdir()]
+    assert 2 <= len(finished) < 10 and all((p / "job.json").exists() for p in finished)
+    again = subprocess.run([*args, "--json"], capture_output=True, text=True, timeout=600)
+    summary = json.loads(again.stdout)
+    assert again.returncode == 0
+    assert summary["skipped"] == len(finished) and summary["ok"] == 10 - len(finished)

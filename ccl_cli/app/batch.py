@@ -426,9 +426,14 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
 
 def _kill_workers() -> None:
     """SIGKILL the local pool's worker processes (their partial job folders are temporaries):
-    every live child process of ccl is one of them (``multiprocessing.active_children``)."""
+    every live child process of ccl is one of them (``multiprocessing.active_children``).
+    Returns once they are gone: a worker still finishing a system call could otherwise
+    create a temporary after the caller removed them."""
     import multiprocessing
 
-    for proc in multiprocessing.active_children():
+    workers = multiprocessing.active_children()
+    for proc in workers:
         with contextlib.suppress(OSError):
             proc.kill()
+    for proc in workers:
+        proc.join(timeout=5)
