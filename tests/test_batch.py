@@ -197,9 +197,10 @@ def test_sigkill_of_a_two_worker_batch_leaves_no_process(recordings, tmp_path):
             "-o", str(out), "-j", "2", "-q"]
     proc = subprocess.Popen(args, stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.time() + 120
-    while time.time() < deadline and len(_session(proc.pid)) < 5:  # ccl, tracker, server, 2 workers
+    # ccl and 2 workers forked from it (or from a fork server: then also the server and a tracker)
+    while time.time() < deadline and len(_session(proc.pid)) < 3:
         time.sleep(0.05)
-    assert len(_session(proc.pid)) >= 5, _session(proc.pid)
+    assert len(_session(proc.pid)) >= 3, _session(proc.pid)
     os.kill(proc.pid, signal.SIGKILL)  # ccl alone: its children must follow
     proc.wait()
     deadline = time.time() + 15
