@@ -375,3 +375,19 @@ def test_ctrl_c_of_a_running_batch_leaves_no_temporary_and_no_process(recordings
     summary = json.loads(again.stdout)
     assert again.returncode == 0
     assert summary["skipped"] == len(finished) and summary["ok"] == 10 - len(finished)
+
+
+def test_forked_workers_get_their_share_of_the_blas_threads():
+    """Workers forked from ccl run cores / workers BLAS threads each (as the fork server's
+    environment gave them), whatever ccl's own BLAS started with."""
+    code = ("from ccl_cli.app.batch import can_fork, fork_workers\nfrom ccl_cli.learn import blas\n"
+            "assert can_fork()\npool = fork_workers(2)\n"
+            "print(sorted({pool.submit(blas.current).result() for _ in range(6)}))\npool.shutdown()\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                                            "MKL_NUM_THREADS")}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    from ccl_cli.learn import blas
+
+    if blas.controllable():
+        assert json.loads(proc.stdout) == [max(1, (os.cpu_count() or 1) // 2)]
