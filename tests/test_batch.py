@@ -107,6 +107,22 @@ def test_dask_cluster_gives_the_same_metrics(capsys, recordings, tmp_path):
     assert all(values(a[k]) == values(b[k]) for k in a)
 
 
+def test_fork_server_workers_give_the_same_metrics(capsys, recordings, tmp_path, monkeypatch):
+    """Where workers may not fork from ccl (another thread runs, or not Linux) they fork
+    from a fork server: the same jobs, the same numbers."""
+    import ccl_cli.app.batch as batch_module
+
+    forked, served = tmp_path / "forked", tmp_path / "served"
+    args = ["--files", recordings / "rec_0*.h5", "-c", recordings / "pipeline.yaml", "-j", 2]
+    code, summary, err = batch(capsys, *args, "-o", forked)
+    assert code == 0 and summary["ok"] == 10, err
+    monkeypatch.setattr(batch_module, "can_fork", lambda: False)
+    code, summary, err = batch(capsys, *args, "-o", served)
+    assert code == 0 and summary["ok"] == 10, err
+    a, b = job_metrics(forked), job_metrics(served)
+    assert a.keys() == b.keys() and all(values(a[k]) == values(b[k]) for k in a)
+
+
 def test_bad_scheduler_and_manifest_are_usage_errors(capsys, recordings, tmp_path):
     code, _, err = batch(capsys, "--files", recordings / "rec_00.h5", "-c", recordings / "pipeline.yaml",
                          "-o", tmp_path / "x", "--scheduler", "tcp://127.0.0.1:9")
