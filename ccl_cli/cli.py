@@ -571,13 +571,15 @@ def batch(
         start_workers(workers, (write_run.__module__,))  # the fork server's imports overlap the planning
     jobs, manifest_out = plan(manifest, files, str(config) if config else None, allow_outside)
     outdir = out or manifest_out or Path("runs") / "batch"
-    # workers forked once the plan holds, before this process starts any thread
-    pool = fork_workers(workers, (write_run.__module__,)) if fork else None
     plots = any(job.plots for job in jobs)  # summary.png only when a job draws figures
     if plots:
         from ccl_cli.render.figures import preload_in_background
 
-        preload_in_background()  # matplotlib for summary.png, imported while this process waits on the jobs
+        loading = preload_in_background()  # matplotlib for summary.png (and the jobs' figures)
+        if fork:  # imported once here, not again in each worker
+            loading.join()
+    # workers forked once the plan holds, before this process starts any other thread
+    pool = fork_workers(workers, (write_run.__module__,)) if fork else None
     bar = _bar("jobs", len(jobs), quiet)
     try:
         results = run_batch(jobs, outdir, write_run, workers, scheduler, force,
