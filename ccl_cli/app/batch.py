@@ -337,7 +337,7 @@ def _check_reachable(address: str) -> None:
 #: modules every worker starts with, imported once (by the fork server, or by this process
 #: before its workers fork; the command line adds the module of its writer)
 PRELOAD = ["ccl_cli.lifeline", "ccl_cli.app.run", "ccl_cli.app.stages", "ccl_cli.models", "ccl_cli.io",
-           "ccl_cli.io.canonical", "ccl_cli.learn.blas"]
+           "ccl_cli.io.canonical", "ccl_cli.learn.blas", "h5py", "numpy.ma", "numpy.random"]
 #: the variables that set the BLAS threads of a process started after them
 BLAS_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
