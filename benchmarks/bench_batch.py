@@ -9,7 +9,7 @@
   is also shown on its own (it grows with the file: 9 HDF5 datasets per demonstration).
 * {"measure": "cli", "seconds_1_job", "seconds", "seconds_per_job", "marginal_per_job_s"}:
   ``ccl batch -j 1`` in a fresh process on 1 and on N trivial 5-demonstration jobs (the
-  fixed cost: imports, fork server, summary; the marginal cost of one more job).
+  fixed cost: imports, starting the workers, summary; the marginal cost of one more job).
 * {"measure": "speedup", "jobs", "job_s_median" (at -j 1), "job_s_median_j2", "seconds_j1",
   "seconds_j2", "speedup_2_over_1", "blas_threads", "load"}: jobs of >= 0.5 s each (ncl,
   64 centres, 100 demonstrations) at ``-j 1`` then ``-j 2``, each in a fresh process as
@@ -30,7 +30,9 @@
   run back to back.
 
 ``load`` is the 1-minute load average before/after each measurement, and ``cpus`` the
-cores: on a shared machine a busy neighbour takes cores from ``-j 2``.
+cores: on a shared machine a busy neighbour takes cores from ``-j 2``. The package's modules
+are compiled to bytecode first, as installing it does (with ``PYTHONDONTWRITEBYTECODE=1`` and
+no cache, the command (and a fork server) would compile every module they import in every run).
 
 Run:  python benchmarks/bench_batch.py [--jobs 24] [--long-jobs 8] [--dask] [--open] [--small 40]
 """
@@ -38,6 +40,7 @@ Run:  python benchmarks/bench_batch.py [--jobs 24] [--long-jobs 8] [--dask] [--o
 from __future__ import annotations
 
 import argparse
+import compileall
 import json
 import os
 import shutil
@@ -64,11 +67,14 @@ output: {plots: false}
 
 
 def timed_batch(jobs, out: Path, workers: int | None, scheduler: str | None = None) -> tuple[float, list]:
-    from ccl_cli.app.batch import run_batch
+    """``jobs`` run as ``ccl batch`` runs them: local workers forked from this process where it
+    may fork (else from the fork server), or on the Dask cluster at ``scheduler``."""
+    from ccl_cli.app.batch import can_fork, fork_workers, run_batch
     from ccl_cli.render.outputs import write_run
 
     t = time.perf_counter()
-    results = run_batch(jobs, out, write_run, workers=workers, scheduler=scheduler, force=True)
+    pool = fork_workers(workers, (write_run.__module__,)) if scheduler is None and can_fork() else None
+    results = run_batch(jobs, out, write_run, workers=workers, scheduler=scheduler, force=True, pool=pool)
     seconds = time.perf_counter() - t
     assert all(r.status == "ok" for r in results), [r.error for r in results if r.status != "ok"]
     return seconds, results
@@ -144,7 +150,7 @@ from bench_batch import timed_batch
 from ccl_cli.app.batch import plan
 root, workers = Path(sys.argv[1]), int(sys.argv[2])
 warm, _ = plan(files=[str(root / "warm" / "w*.h5")], config=str(root / "trivial.yaml"))
-timed_batch(warm, root / f"out-warm-j{workers}", workers)  # fork server and workers started
+timed_batch(warm, root / f"out-warm-j{workers}", workers)  # every module imported, files cached
 jobs, _ = plan(files=[str(root / "long" / "l*.h5")], config=str(root / "long.yaml"))
 seconds, results = timed_batch(jobs, root / f"out-long-j{workers}", workers)
 print(json.dumps({"seconds": round(seconds, 3), "job_s_sum": round(sum(r.seconds for r in results), 3),
@@ -154,8 +160,8 @@ print(json.dumps({"seconds": round(seconds, 3), "job_s_sum": round(sum(r.seconds
 
 def fresh_process(root: Path, workers: int, blas_threads: int) -> dict[str, float]:
     """The long jobs at ``-j workers`` in a new process (as ``ccl batch`` runs them: the
-    workers' BLAS threads are set when the fork server starts: ``blas_threads``, or with 0
-    ccl's default of cores / workers), timed after a warm-up batch started the fork server."""
+    workers' BLAS threads follow the environment: ``blas_threads``, or with 0 ccl's default
+    of cores / workers), timed after a warm-up batch."""
     env = dict(os.environ)
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         if blas_threads:
@@ -191,6 +197,7 @@ def main() -> int:
     ap.add_argument("--small", type=int, default=0, help="ccl batch of this many small jobs, -j 1 and -j 2")
     ap.add_argument("--only-new", action="store_true", help="only --open and --small")
     args = ap.parse_args()
+    compileall.compile_dir(Path(__file__).resolve().parents[1] / "ccl_cli", quiet=1)
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         (root / "trivial.yaml").write_text(TRIVIAL)
@@ -202,7 +209,7 @@ def main() -> int:
         if args.only_new:
             return 0
         warm, _ = plan(files=recordings(root / "warm", 2, 5, "w"), config=str(root / "trivial.yaml"))
-        timed_batch(warm, root / "out-warm", 1)  # the fork server starts once per process
+        timed_batch(warm, root / "out-warm", 1)  # every module imported, files cached
         for demos in (5, 50):
             jobs, _ = plan(files=recordings(root / f"d{demos}", args.jobs, demos, "r"),
                            config=str(root / "trivial.yaml"))
@@ -219,7 +226,7 @@ def main() -> int:
                               "overhead_per_job_s": round((seconds - fit) / n, 4),
                               "overhead_beyond_read_per_job_s": round((seconds - fit - read) / n, 4),
                               "load": [before, load()], "cpus": os.cpu_count()}), flush=True)
-        # the command as a user runs it: a fresh process per batch (imports, fork server, summary)
+        # the command as a user runs it: a fresh process per batch (imports, workers' start, summary)
         cli = {}
         for n, files in ((1, str(root / "d5" / "r000.h5")), (args.jobs, str(root / "d5" / "r*.h5"))):
             t = time.perf_counter()

@@ -569,7 +569,7 @@ def batch(
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> int:
     """Run a pipeline per recording (or group) in parallel; resumable; summary.csv/.md/.png."""
-    from ccl_cli.app.batch import plan, run_batch, start_workers
+    from ccl_cli.app.batch import can_fork, fork_workers, plan, run_batch, start_workers
     from ccl_cli.render.outputs import write_run
     from ccl_cli.render.summary import write_summary
 
@@ -577,21 +577,28 @@ def batch(
     t0 = time.perf_counter()
     if manifest is None and files and config is None:
         raise ConfigError("batch --files needs --config/-c: a pipeline YAML with a stages: list")
-    if scheduler is None:
-        start_workers(workers, (write_run.__module__,))  # the workers' imports overlap the planning
+    fork = scheduler is None and can_fork()
+    if scheduler is None and not fork:
+        start_workers(workers, (write_run.__module__,))  # the fork server's imports overlap the planning
     jobs, manifest_out = plan(manifest, files, str(config) if config else None, allow_outside)
     outdir = out or manifest_out or Path("runs") / "batch"
-    from ccl_cli.render.figures import preload_in_background
+    plots = any(job.plots for job in jobs)  # summary.png only when a job draws figures
+    if plots:
+        from ccl_cli.render.figures import preload_in_background
 
-    preload_in_background()  # matplotlib for summary.png, imported while this process waits on the jobs
+        loading = preload_in_background()  # matplotlib for summary.png (and the jobs' figures)
+        if fork:  # imported once here, not again in each worker
+            loading.join()
+    # workers forked once the plan holds, before this process starts any other thread
+    pool = fork_workers(workers, (write_run.__module__,)) if fork else None
     bar = _bar("jobs", len(jobs), quiet)
     try:
         results = run_batch(jobs, outdir, write_run, workers, scheduler, force,
-                            progress=bar.advance if bar else None)
+                            progress=bar.advance if bar else None, pool=pool)
     finally:
         if bar:
             bar.stop()
-    summary = write_summary(outdir, results, time.perf_counter() - t0)
+    summary = write_summary(outdir, results, time.perf_counter() - t0, plots=plots)
     summary["outdir"] = str(outdir)
     if json_out:
         _emit({k: v for k, v in summary.items() if k != "results"}, True)

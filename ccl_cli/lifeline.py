@@ -1,11 +1,12 @@
 """Child processes die with ccl, even when ccl is killed with SIGKILL.
 
-Local ``ccl batch`` workers fork from a fork server that ccl starts. On Linux each
-link of that chain asks the kernel for a parent-death signal (``prctl(PR_SET_PDEATHSIG,
-SIGKILL)``): the fork server dies with ccl, the workers die with the fork server. The
-fork server imports this module (``set_forkserver_preload``) and recognises itself by
-``CCL_BATCH_PARENT`` naming its parent; the workers call :func:`worker_init`. Elsewhere
-(other systems) this is a no-op and workers end when their queue closes.
+Local ``ccl batch`` workers fork from ccl itself on Linux (while ccl runs no other
+thread), else from a fork server that ccl starts. On Linux each link of that chain asks
+the kernel for a parent-death signal (``prctl(PR_SET_PDEATHSIG, SIGKILL)``): the workers
+die with ccl, or with the fork server, which dies with ccl. The fork server imports this
+module (``set_forkserver_preload``) and recognises itself by ``CCL_BATCH_PARENT`` naming
+its parent; the workers call :func:`worker_init`. Elsewhere (other systems) this is a
+no-op and workers end when their queue closes.
 """
 
 from __future__ import annotations

@@ -26,6 +26,7 @@ import hashlib
 import json
 import logging
 import os
+import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import Executor, as_completed
@@ -50,6 +51,8 @@ class Job:
     config_path: str | None
     config: dict[str, Any]
     key: str = ""
+    #: the config's ``output.plots``: the job draws figures
+    plots: bool = True
 
 
 @dataclass
@@ -66,10 +69,16 @@ class JobResult:
 
 
 # -- planning ------------------------------------------------------------------------------
-def _resolve_config(path: str | None, overrides: list[dict], base: Path) -> config.Config:
+def _resolve_config(path: str | None, overrides: list[dict], base: Path,
+                    loaded: dict[str | None, config.Config]) -> config.Config:
     """The config file of a rule (relative to the manifest) with the overrides merged in,
-    validated (errors name the file and line of a key of the file)."""
-    cfg = config.load(base / path if path and not Path(path).is_absolute() else path)
+    validated (errors name the file and line of a key of the file). ``loaded`` holds the
+    files read so far: each is read once per plan."""
+    if path not in loaded:
+        loaded[path] = config.load(base / path if path and not Path(path).is_absolute() else path)
+    cfg = loaded[path]
+    if not any(overrides):
+        return cfg
     merged = cfg.raw
     for over in overrides:
         merged = config.deep_merge(merged, over or {})
@@ -142,6 +151,9 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
                  for k, v in per_file.items()]
     jobs: list[Job] = []
     seen: set[str] = set()
+    loaded: dict[str | None, config.Config] = {}
+    #: (config file, overrides) → its validated config: jobs that share both share it
+    resolved: dict[str, config.Config] = {}
     for i, rule in enumerate(rules):
         _check_rule(rule, f"{where}jobs[{i}]")
         matched = _resolved(expand_files(rule["files"], base), base, named, allow_outside)
@@ -149,16 +161,21 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
             _inside(base, Path(rule["config"]), named, allow_outside, f"jobs[{i}].config")
         groups = [matched] if rule.get("group") else [[f] for f in matched]
         for group in groups:
-            extra = [v for paths, v in file_over if any(p in group for p in paths)]
-            try:
-                cfg = _resolve_config(rule.get("config"), [rule.get("overrides") or {}, *extra], base)
-            except CCLError as exc:
-                raise ConfigError(f"{where}jobs[{i}]: {exc.message}") from None
-            try:
-                cfg.stages()
-            except ConfigError as exc:
-                raise ConfigError(f"{where}jobs[{i}] ({group[0]}): {exc.message}") from None
-            job = Job(_job_id(group), group, str(rule.get("config")), cfg.raw)
+            overrides = [rule.get("overrides") or {}, *(v for paths, v in file_over
+                                                          if any(p in group for p in paths))]
+            same = json.dumps([rule.get("config"), overrides], sort_keys=True, default=str)
+            cfg = resolved.get(same)
+            if cfg is None:
+                try:
+                    cfg = _resolve_config(rule.get("config"), overrides, base, loaded)
+                except CCLError as exc:
+                    raise ConfigError(f"{where}jobs[{i}]: {exc.message}") from None
+                try:
+                    cfg.stages()
+                except ConfigError as exc:
+                    raise ConfigError(f"{where}jobs[{i}] ({group[0]}): {exc.message}") from None
+                resolved[same] = cfg
+            job = Job(_job_id(group), group, str(rule.get("config")), cfg.raw, plots=cfg.spec.output.plots)
             if job.job_id in seen:
                 raise ConfigError(f"{group[0]} is matched by more than one rule")
             seen.add(job.job_id)
@@ -277,7 +294,8 @@ def _ignore_file_size_signal() -> None:
 
 def make_executor(workers: int | None, scheduler: str | None,
                   preload: tuple[str, ...] = ()) -> tuple[Executor, Any]:
-    """A process pool, or the executor of a dask.distributed client at ``scheduler``."""
+    """A process pool (workers from the fork server), or the executor of a dask.distributed
+    client at ``scheduler``."""
     if scheduler:
         try:
             from distributed import Client
@@ -316,10 +334,23 @@ def _check_reachable(address: str) -> None:
         raise ConfigError(f"cannot connect to the Dask scheduler at {address} ({reason})") from None
 
 
-#: modules the fork server imports once, so that every worker starts with them (the command
-#: line adds the module of its writer)
+#: modules every worker starts with, imported once (by the fork server, or by this process
+#: before its workers fork; the command line adds the module of its writer)
 PRELOAD = ["ccl_cli.lifeline", "ccl_cli.app.run", "ccl_cli.app.stages", "ccl_cli.models", "ccl_cli.io",
-           "ccl_cli.io.canonical", "ccl_cli.learn.blas"]
+           "ccl_cli.io.canonical", "ccl_cli.learn.blas", "h5py", "numpy.ma", "numpy.random"]
+#: the variables that set the BLAS threads of a process started after them
+BLAS_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _blas_threads(n: int) -> int | None:
+    """BLAS threads of each of ``n`` local workers: cores / n, in the environment of the
+    processes started from now on where the user set none (returned; None when the user
+    set one: this process's BLAS, and a forked worker's, then already follow it)."""
+    threads = max(1, (os.cpu_count() or 1) // n)
+    chosen = not any(var in os.environ for var in BLAS_VARS)
+    for var in BLAS_VARS:
+        os.environ.setdefault(var, str(threads))  # workers share the cores, not oversubscribe them
+    return threads if chosen else None
 
 
 def local_context(n: int, preload: tuple[str, ...] = ()):
@@ -331,9 +362,7 @@ def local_context(n: int, preload: tuple[str, ...] = ()):
 
     from ccl_cli.lifeline import PARENT_ENV
 
-    threads = str(max(1, (os.cpu_count() or 1) // n))
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, threads)  # workers share the cores, not oversubscribe them
+    _blas_threads(n)
     os.environ[PARENT_ENV] = str(os.getpid())  # the fork server dies with this process
     if "forkserver" not in get_all_start_methods():
         return get_context("spawn")
@@ -354,11 +383,63 @@ def start_workers(workers: int | None, preload: tuple[str, ...] = ()) -> None:
         forkserver.ensure_running()
 
 
+def can_fork() -> bool:
+    """True when local workers may fork from this process (:func:`fork_workers`): on Linux,
+    while no other Python thread runs here (a lock another thread holds at the fork stays
+    held in the child). The BLAS's own threads are no obstacle: OpenBLAS stops them around
+    a fork."""
+    import multiprocessing
+    import threading
+
+    return sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods() \
+        and threading.active_count() == 1
+
+
+def fork_workers(workers: int | None, preload: tuple[str, ...] = ()) -> Executor:
+    """The local pool of ``workers`` processes (default: one per core) forked from this
+    process now, once it has imported :data:`PRELOAD` and ``preload``: the workers start
+    with everything this process loaded (the fork server would import it all again in a
+    new interpreter first: 0.3 s). Call it before any other thread starts
+    (:func:`can_fork`); :func:`run_batch` takes the pool as ``pool``."""
+    import importlib
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    for module in (*PRELOAD, *preload):
+        importlib.import_module(module)
+    n = workers or os.cpu_count() or 1
+    pool = ProcessPoolExecutor(max_workers=n, mp_context=get_context("fork"), initializer=_forked_init,
+                               initargs=(os.getpid(), _blas_threads(n)))
+    pool.submit(int)  # forks every worker now, before this process starts a thread
+    return pool
+
+
+def _forked_init(parent: int, blas_threads: int | None) -> None:
+    """Initializer of a worker forked from ``ccl`` (pid ``parent``): die with it
+    (:func:`~ccl_cli.lifeline.worker_init`), the BLAS threads a fork server's worker would
+    have (``blas_threads``; None: as inherited), and no progress bar or log handler of the
+    command line's (a worker's warnings go to stderr as they do from the fork server's)."""
+    from ccl_cli import progress
+    from ccl_cli.lifeline import worker_init
+
+    worker_init(parent)
+    progress.install(None)
+    for handler in logging.root.handlers[:]:
+        logging.root.removeHandler(handler)
+    logging.root.setLevel(logging.WARNING)
+    if blas_threads is not None:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=blas_threads, user_api="blas")  # for the worker's lifetime
+
+
 def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = None,
-              scheduler: str | None = None, force: bool = False, progress=None) -> list[JobResult]:
+              scheduler: str | None = None, force: bool = False, progress=None,
+              pool: Executor | None = None) -> list[JobResult]:
     """Run ``jobs`` into ``out/jobs/`` over ``workers`` local processes (or the Dask cluster at
     ``scheduler``), each job's folder written by ``write`` (see :func:`run_job`); results in
-    the jobs' order. ``progress(result)`` is called as each job ends.
+    the jobs' order. ``progress(result)`` is called as each job ends. ``pool``: local workers
+    already started (:func:`fork_workers`), shut down here whatever happens.
 
     ``out`` must be new, empty, or a batch folder ccl made (:func:`~ccl_cli.io.atomic.claim_folder`):
     a user's folder is refused untouched. A job whose folder cannot be written (a full disk,
@@ -366,18 +447,26 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
     is removed (:func:`~ccl_cli.io.atomic.release_folder`)."""
     from ccl_cli.io.atomic import claim_folder, clean_stale, release_folder
 
-    claim_folder(out, earlier=written_by_earlier_batch)
+    try:
+        claim_folder(out, earlier=written_by_earlier_batch)
+    except BaseException:
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
+        raise
     jobs_dir = out / "jobs"
     try:
         jobs_dir.mkdir(exist_ok=True)
     except OSError as exc:
+        if pool is not None:
+            pool.shutdown(wait=False, cancel_futures=True)
         release_folder(out)
         raise OutputError(f"{jobs_dir}: cannot write the output ({exc.strerror}); nothing was written") \
             from None
     removed = clean_stale(jobs_dir, every=True)
     if removed:
         log.info("removed %d unfinished job folder(s) of an interrupted batch", removed)
-    executor, client = make_executor(workers, scheduler, (write.__module__,))
+    executor, client = (pool, None) if pool is not None else \
+        make_executor(workers, scheduler, (write.__module__,))
     results: list[JobResult] = []
     try:
         futures = {executor.submit(run_job, job, str(jobs_dir.resolve()), force, write): job for job in jobs}
@@ -410,9 +499,14 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
 
 def _kill_workers() -> None:
     """SIGKILL the local pool's worker processes (their partial job folders are temporaries):
-    every live child process of ccl is one of them (``multiprocessing.active_children``)."""
+    every live child process of ccl is one of them (``multiprocessing.active_children``).
+    Returns once they are gone: a worker still finishing a system call could otherwise
+    create a temporary after the caller removed them."""
     import multiprocessing
 
-    for proc in multiprocessing.active_children():
+    workers = multiprocessing.active_children()
+    for proc in workers:
         with contextlib.suppress(OSError):
             proc.kill()
+    for proc in workers:
+        proc.join(timeout=5)

@@ -16,6 +16,8 @@ from ccl_cli.app.batch import JobResult
 from ccl_cli.errors import OutputError
 from ccl_cli.metrics import SPLITS
 
+DPI = 80  # summary.png's resolution
+
 
 def _flat(res: JobResult) -> dict[str, Any]:
     row: dict[str, Any] = {"job": res.job_id, "files": ";".join(res.files), "status": res.status,
@@ -34,20 +36,21 @@ def _flat(res: JobResult) -> dict[str, Any]:
     return row
 
 
-def write_summary(out: Path, results: list[JobResult], seconds: float) -> dict[str, Any]:
-    """summary.csv, summary.md, summary.json and summary.png under ``out``, staged together:
-    all of them replace the previous ones, or (a full disk, a file-size limit) none does and
+def write_summary(out: Path, results: list[JobResult], seconds: float, plots: bool = True) -> dict[str, Any]:
+    """summary.csv, summary.md, summary.json and (``plots``: when a job draws figures)
+    summary.png under ``out``, staged together: all of them replace the previous ones (a
+    summary.png not drawn now is removed), or (a full disk, a file-size limit) none does and
     an :class:`~ccl_cli.errors.OutputError` says so; what the batch left empty goes too."""
     from ccl_cli.io.atomic import release_folder
 
     try:
-        return _write_summary(out, results, seconds)
+        return _write_summary(out, results, seconds, plots)
     except BaseException as exc:
         release_folder(out, fault=isinstance(exc, OutputError))
         raise
 
 
-def _write_summary(out: Path, results: list[JobResult], seconds: float) -> dict[str, Any]:
+def _write_summary(out: Path, results: list[JobResult], seconds: float, plots: bool) -> dict[str, Any]:
     from ccl_cli.io.atomic import atomic_path
 
     rows = [_flat(r) for r in results]
@@ -80,10 +83,13 @@ def _write_summary(out: Path, results: list[JobResult], seconds: float) -> dict[
             w.writeheader()
             for r in rows:
                 w.writerow({k: r.get(k, "") for k in w.fieldnames})
-        if _plot(stage, rows, shown):
+        drawn = plots and _plot(stage, rows, shown)
+        if drawn:
             lines += ["", "![metrics across jobs](summary.png)"]
         stage("summary.md").write_text("\n".join(lines) + "\n")
         stage("summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    if not drawn:  # an earlier run's figure would show other results
+        (out / "summary.png").unlink(missing_ok=True)
     return summary
 
 
@@ -95,7 +101,14 @@ def _short(name: str, width: int = 24) -> str:
 
 def _plot(stage: Callable[[str], Path], rows: list[dict], columns: list[str]) -> bool:
     """One panel per metric: its value per job, coloured by method (log scale), saved to
-    ``stage("summary.png")``; False when there is nothing to plot."""
+    ``stage("summary.png")``; False when there is nothing to plot.
+
+    Drawn from few artists (with 40 jobs, 0.24 → 0.07 s; docs/measurements.md): a job is a
+    light vertical line (one collection per panel) named under the last panel by a plain
+    text, not a tick (five artists, built on every panel); values are labelled in plain
+    text (``2e-03``: matplotlib's default ``2 × 10⁻³`` is typeset by its TeX parser), the
+    units between decades only where a panel spans at most two; the layout is fitted at the
+    resolution the figure is drawn at, so the text is measured once."""
     cols = [c for c in columns if any(isinstance(r.get(c), float) and r[c] > 0 for r in rows)][:6]
     if not cols:
         return False
@@ -103,11 +116,14 @@ def _plot(stage: Callable[[str], Path], rows: list[dict], columns: list[str]) ->
 
     fig, axes = subplots(len(cols), 1, figsize=(max(6, 0.25 * len(rows) + 3), 2.2 * len(cols)),
                          squeeze=False)  # Agg, no pyplot; a per-user font cache
+    fig.set_dpi(DPI)
     import matplotlib
+    from matplotlib.ticker import LogFormatter, NullLocator
 
     methods = sorted({r["method"] for r in rows if r["status"] != "failed"})
     tab10 = matplotlib.colormaps["tab10"]
     colours = {m: tab10(i % 10) for i, m in enumerate(methods)}
+    jobs = range(len(rows))
     for ax, col in zip(axes[:, 0], cols, strict=True):
         for m in methods:
             pts = [(i, r[col]) for i, r in enumerate(rows)
@@ -115,15 +131,22 @@ def _plot(stage: Callable[[str], Path], rows: list[dict], columns: list[str]) ->
             if pts:
                 ax.scatter(*zip(*pts, strict=True), color=colours[m], label=m, s=18)
         ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(LogFormatter())
+        ax.yaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False))
+        values = [r[col] for r in rows if isinstance(r.get(col), float) and r[col] > 0]
+        if max(values) > 100 * min(values):
+            ax.yaxis.set_minor_locator(NullLocator())
         ax.set_ylabel(col, fontsize=7)
-        ax.set_xticks(range(len(rows)))  # one tick per job, named below
-        ax.set_xticklabels([] if ax is not axes[-1, 0] else [_short(r["job"]) for r in rows],
-                           rotation=60 if len(rows) > 3 else 0, ha="right" if len(rows) > 3 else "center",
-                           fontsize=6)
+        ax.set_xticks([])
+        ax.vlines(jobs, 0, 1, transform=ax.get_xaxis_transform(), colors="0.85", lw=0.6, zorder=0)
         ax.set_xlim(-0.5, len(rows) - 0.5)
-        ax.grid(axis="x", alpha=0.2)
-    axes[-1, 0].set_xlabel("job")
+    last = axes[-1, 0]
+    slanted = len(rows) > 3
+    for i, r in zip(jobs, rows, strict=True):  # the job's name under its line
+        last.text(i, -0.03, _short(r["job"]), transform=last.get_xaxis_transform(), fontsize=6,
+                  rotation=60 if slanted else 0, rotation_mode="anchor", va="top",
+                  ha="right" if slanted else "center")
     axes[0, 0].legend(fontsize=6, loc="best")
     fig.tight_layout()
-    save_figure(fig, stage("summary.png"), dpi=80, fmt="png")
+    save_figure(fig, stage("summary.png"), dpi=DPI, fmt="png")
     return True
