@@ -122,21 +122,30 @@ def _per_demo_cumsum(values: np.ndarray, demo: np.ndarray) -> np.ndarray:
     return total - np.r_[0, total][start]
 
 
+def _rows(X: np.ndarray, s: int, e: int) -> np.ndarray:
+    """Samples [s, e) of X (N, d) as a contiguous (d, e − s) block: one copy, after which every
+    operation runs along the samples (a transposed view steps over d values per element)."""
+    return np.ascontiguousarray(X[s:e].T)
+
+
 # -- hemisphere flips --------------------------------------------------------------------
 def _flip_errors(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """At every centre n = 1 … N−2 of X (N, d): ‖Δ²x_n‖ = ‖x_{n+1} − x̂_{n+1}‖ and
     ‖x_{n+1} + x̂_{n+1}‖, x̂_{n+1} = 2x_n − x_{n−1}, each (N − 2,); computed in blocks."""
     n = len(X)
     e_same, e_flip = np.empty(n - 2), np.empty(n - 2)
-    XT = X.T  # (d, N) view: a block's rows are the dimensions (sums over the short axis are slow)
 
     def block(s: int, e: int) -> None:
+        rows = _rows(X, s - 1, e + 1)
+        before, here, after = rows[:, :-2], rows[:, 1:-1], rows[:, 2:]
         with np.errstate(over="ignore", invalid="ignore"):  # values near the float limit: inf or nan, no flip
-            here, before, after = XT[:, s:e], XT[:, s - 1:e - 1], XT[:, s + 1:e + 1]
-            d2 = after - 2 * here + before
-            e_same[s - 1:e - 1] = np.sqrt((d2 * d2).sum(0))
-            jump = after + (2 * here - before)
-            e_flip[s - 1:e - 1] = np.sqrt((jump * jump).sum(0))
+            twice = 2 * here
+            d2 = np.subtract(after, twice)
+            d2 += before
+            np.sqrt(np.multiply(d2, d2, out=d2).sum(0), out=e_same[s - 1:e - 1])  # rows summed in order
+            twice -= before  # x̂ (the prediction), in place
+            twice += after  # x_{n+1} + x̂
+            np.sqrt(np.multiply(twice, twice, out=twice).sum(0), out=e_flip[s - 1:e - 1])
 
     each_block(block, 1, n - 1)
     return e_same, e_flip
@@ -194,15 +203,15 @@ _STEPS = (-2, -1, 1, 2)
 
 
 def _cubic_weights(t: np.ndarray, s: int, e: int) -> np.ndarray:
-    """Lagrange weights w (e − s, 4) of the cubic through samples n ± 1, n ± 2 evaluated at
+    """Lagrange weights w (4, e − s) of the cubic through samples n ± 1, n ± 2 evaluated at
     t_n, for n in [s, e): w_j = Π_{m≠j} (0 − τ_m) / (τ_j − τ_m), τ_j = t_{n+step_j} − t_n
     (inf or nan where two stamps coincide)."""
     tn = [t[s + k:e + k] - t[s:e] for k in _STEPS]
-    w = np.empty((e - s, 4))
+    w = np.empty((4, e - s))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for j in range(4):  # four columns, not a loop over samples
+        for j in range(4):  # four rows, not a loop over samples
             o = [tn[m] for m in range(4) if m != j]
-            w[:, j] = -(o[0] * o[1] * o[2]) / ((tn[j] - o[0]) * (tn[j] - o[1]) * (tn[j] - o[2]))
+            w[j] = -(o[0] * o[1] * o[2]) / ((tn[j] - o[0]) * (tn[j] - o[1]) * (tn[j] - o[2]))
     return w
 
 
@@ -219,18 +228,19 @@ def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np
     period, _ = _period(np.diff(t))
     tested[2:-2] = (demo[:-4] == demo[2:-2]) & (demo[4:] == demo[2:-2]) & \
         (t[4:] - t[:-4] <= SPIKE_SPAN * period)
-    YT = Y.T  # (d, N) view: each block's rows are the dimensions
 
     def block(s: int, e: int) -> None:
-        w = _cubic_weights(t, s, e).T
+        w = _cubic_weights(t, s, e)
         ok = tested[s:e] & np.isfinite(w).all(0)
         tested[s:e] = ok
         w[:, ~ok] = 0.0  # untested: no inf × y
-        fit = np.multiply(w[0], YT[:, s + _STEPS[0]:e + _STEPS[0]])
+        rows = _rows(Y, s - 2, e + 2)  # samples s − 2 … e + 1: the neighbour at step k is rows[:, 2 + k:]
+        b = e - s
+        fit = np.multiply(w[0], rows[:, 2 + _STEPS[0]:2 + _STEPS[0] + b])
         term = np.empty_like(fit)
         for j in range(1, 4):
-            fit += np.multiply(w[j], YT[:, s + _STEPS[j]:e + _STEPS[j]], out=term)
-        r = np.subtract(YT[:, s:e], fit, out=R[:, s:e])
+            fit += np.multiply(w[j], rows[:, 2 + _STEPS[j]:2 + _STEPS[j] + b], out=term)
+        r = np.subtract(rows[:, 2:2 + b], fit, out=R[:, s:e])
         if not ok.all():
             r[:, ~ok] = 0.0
 
@@ -258,9 +268,12 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
     # robust σ per dimension: one partition of each dimension's tested residuals (a dimension
     # per thread)
     sigma = np.empty(len(R))
+    inner = slice(2, n - 2)  # the samples tested when no demonstration edge or gap interrupts
+    where = inner if bool(tested[inner].all()) and not tested[:2].any() and not tested[n - 2:].any() \
+        else tested  # the same residuals, without the masked copy
 
     def spread(s: int, e: int) -> None:
-        sigma[s:e] = [np.median(np.abs(row[tested]), overwrite_input=True) for row in R[s:e]]
+        sigma[s:e] = [np.median(np.abs(row[where]), overwrite_input=True) for row in R[s:e]]
 
     each_block(spread, 0, len(R), rows=1)
     scale = np.maximum(sigma / MAD_NORMAL, 1e-12 * max(float(Y.max()), -float(Y.min()), 1.0))
