@@ -530,9 +530,12 @@ def convert(
 ) -> None:
     """Convert recordings (CSV, bags, MCAP) into the canonical ccl-demonstrations HDF5."""
     from ccl_cli.io import read_dataset, write_demonstrations
-    from ccl_cli.io.files import refuse_configs
+    from ccl_cli.io.canonical import preload_h5py
+    from ccl_cli.io.files import refuse_configs, start_digests
 
     _logging(quiet)
+    start_digests(data)  # the inputs' sha256 (provenance) and h5py's import, while the config is read
+    preload_h5py()
     cfg = _config(config, {})
     refuse_configs(data)  # as the learning commands' read_data, without importing the app layer
     dataset, _ = read_dataset(cfg.spec.data, data, cfg.base)
