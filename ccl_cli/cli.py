@@ -534,9 +534,9 @@ def convert(
     from ccl_cli.io.files import refuse_configs, start_digests
 
     _logging(quiet)
-    start_digests(data)  # the inputs' sha256 (provenance) and h5py's import, while the config is read
-    preload_h5py()
+    start_digests(data)  # the inputs' sha256 (provenance), read while the config is validated
     cfg = _config(config, {})
+    preload_h5py()  # imported while the recording is read (NumPy releases the GIL; the config does not)
     refuse_configs(data)  # as the learning commands' read_data, without importing the app layer
     dataset, _ = read_dataset(cfg.spec.data, data, cfg.base)
     write_demonstrations(out, dataset, time_origin_ns=int(dataset.metadata.get("time_origin_ns", 0)),
