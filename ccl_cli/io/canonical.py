@@ -56,7 +56,7 @@ from ccl_cli.io.h5.access import (
     strings,
 )
 from ccl_cli.io.h5.probe import open_hdf5
-from ccl_cli.io.h5.seal import create_hdf5
+from ccl_cli.io.h5.seal import create_hdf5, large_dataset
 
 FORMAT = "ccl-demonstrations"
 FORMAT_VERSION = 2
@@ -100,7 +100,7 @@ def _dataset(group, name: str, data: np.ndarray, compression: str | None = None)
     if compression is not None and data.ndim >= 1 and data.shape[0] > CHUNK_ROWS:
         group.create_dataset(name, data=data, chunks=(CHUNK_ROWS, *data.shape[1:]), **_FILTERS[compression])
     else:
-        group.create_dataset(name, data=data)
+        large_dataset(group, name, data)
 
 
 def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns: int = 0,
