@@ -13,8 +13,9 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 
-#: Samples per block (a block's temporaries: BLOCK_ROWS × d float64).
-BLOCK_ROWS = 1 << 16
+#: Samples per block (a block's temporaries: BLOCK_ROWS × d float64, for d ≤ 8 within a
+#: core's L2 cache; the fault passes of 10⁶ 7-D samples: docs/measurements.md).
+BLOCK_ROWS = 1 << 13
 #: Variables a batch sets to share the cores between its workers (the first one set counts).
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
