@@ -227,16 +227,19 @@ def _cubic_weights(t: np.ndarray, s: int, e: int) -> np.ndarray:
     return w
 
 
-def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, float]:
     """r_n = y_n − ŷ_n, ŷ_n the cubic through samples n ± 1, n ± 2 at their stamps, as R
-    (d, N) (one row per dimension; 0 where n is not tested), and ``tested`` (N,): the n whose
+    (d, N) (one row per dimension; 0 where n is not tested), ``tested`` (N,): the n whose
     four neighbours share its demonstration and lie within SPIKE_SPAN periods of each other
-    (not across a gap), with finite weights. Computed in blocks."""
+    (not across a gap), with finite weights, and max |Y| (NaN if Y holds one; 0 for N < 5).
+    Computed in blocks."""
     n, d = Y.shape
     R = np.zeros((d, n))
     tested = np.zeros(n, dtype=bool)
     if n < 5:
-        return R, tested
+        return R, tested, 0.0
+    extremes: dict[int, tuple[float, float]] = {}  # per block: max and min of its rows
     period, _ = _period(np.diff(t))
     tested[2:-2] = (demo[:-4] == demo[2:-2]) & (demo[4:] == demo[2:-2]) & \
         (t[4:] - t[:-4] <= SPIKE_SPAN * period)
@@ -247,6 +250,7 @@ def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np
         tested[s:e] = ok
         w[:, ~ok] = 0.0  # untested: no inf × y
         rows = _rows(Y, s - 2, e + 2)  # samples s − 2 … e + 1: the neighbour at step k is rows[:, 2 + k:]
+        extremes[s] = (rows.max(), rows.min())  # the blocks' rows cover every sample
         b = e - s
         fit = np.multiply(w[0], rows[:, 2 + _STEPS[0]:2 + _STEPS[0] + b])
         term = np.empty_like(fit)
@@ -257,7 +261,8 @@ def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np
             r[:, ~ok] = 0.0
 
     each_block(block, 2, n - 2)
-    return R, tested
+    top, bottom = np.array(list(extremes.values())).T
+    return R, tested, max(float(top.max()), -float(bottom.min()))
 
 
 def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -> Finding:
@@ -274,7 +279,7 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
     """
     Y = np.asarray(Y, dtype=float)
     n = len(Y)
-    R, tested = _cubic_residuals(Y, np.asarray(t, float), np.asarray(demo))
+    R, tested, extent = _cubic_residuals(Y, np.asarray(t, float), np.asarray(demo))
     if not tested.any():
         return Finding("spike", np.zeros(n, dtype=bool), "dropped", {"max_z": 0.0})
     # robust σ per dimension: one partition of each dimension's tested residuals (a dimension
@@ -288,7 +293,7 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
         sigma[s:e] = [_median(np.abs(row[where])) for row in R[s:e]]
 
     each_block(spread, 0, len(R), rows=1)
-    scale = np.maximum(sigma / MAD_NORMAL, 1e-12 * max(float(Y.max()), -float(Y.min()), 1.0))
+    scale = np.maximum(sigma / MAD_NORMAL, 1e-12 * max(extent, 1.0))
     score = np.empty(n)
 
     def z_scores(s: int, e: int) -> None:
@@ -297,8 +302,10 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
         score[s:e] = np.abs(block).max(0)
 
     each_block(z_scores, 0, n)
-    peak = (score >= np.r_[0.0, score[:-1]]) & (score >= np.r_[score[1:], 0.0])
-    mask = (score > z) & peak
+    mask = score > z  # ... and a peak: at least its neighbours' scores (0 beyond the ends)
+    mask[1:] &= score[1:] >= score[:-1]
+    mask[:-1] &= score[:-1] >= score[1:]
+    mask[[0, -1]] &= score[[0, -1]] >= 0.0
     k = np.flatnonzero(mask)  # the few candidates: their sign test
     Z = R[:, k]
     j = np.abs(Z).argmax(0)  # the dimension of each candidate's largest residual
