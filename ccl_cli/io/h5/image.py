@@ -37,6 +37,7 @@ class Image(io.RawIOBase):
         self.arrays: list[tuple[int, np.ndarray]] = []
         self.size = 0
         self.pos = 0
+        self.last = 0  # the stretch written last
 
     # -- the file object libhdf5 writes through --------------------------------------------------
     def readable(self) -> bool:
@@ -70,11 +71,15 @@ class Image(io.RawIOBase):
 
     def write(self, data: Any) -> int:
         view = memoryview(data).cast("B")
-        n = len(view)
-        if n:
-            self._put(self.pos, view)
-            self.pos += n
-            self.size = max(self.size, self.pos)
+        n, at = len(view), self.pos
+        k = self.last  # most writes rewrite or extend the stretch written last: no search
+        if k < len(self.starts) and self.starts[k] <= at <= self.starts[k] + len(self.parts[k]) and \
+                (k + 1 == len(self.starts) or at + n < self.starts[k + 1]):
+            self.parts[k][at - self.starts[k]:at - self.starts[k] + n] = view
+        elif n:
+            self._put(at, view)
+        self.pos = at + n
+        self.size = max(self.size, self.pos)
         return n
 
     def readinto(self, buffer: Any) -> int:
@@ -93,25 +98,36 @@ class Image(io.RawIOBase):
         return n
 
     def _put(self, at: int, view: memoryview) -> None:
-        """Bytes ``view`` at offset ``at``: into the stretch they fall in or extend, else a new
-        one; stretches they overlap or touch are merged into one."""
+        """Bytes ``view`` at offset ``at``: into the stretch they start in or at the end of,
+        else a new one, when they reach no further stretch (libhdf5 rewrites a block in place,
+        appends, or fills a gap: then the stretches either side join); stretches they overlap
+        are merged into one (rare)."""
         end = at + len(view)
         k = bisect.bisect_right(self.starts, at) - 1
-        if k >= 0 and at <= self.starts[k] + len(self.parts[k]) and \
-                (k + 1 == len(self.starts) or end < self.starts[k + 1]):
-            start, part = self.starts[k], self.parts[k]  # within or at the end of stretch k
-            part[at - start:end - start] = view
+        if k + 1 == len(self.starts) or end <= self.starts[k + 1]:  # reaches no later stretch
+            if k >= 0 and at <= self.starts[k] + len(self.parts[k]):
+                start = self.starts[k]
+                self.parts[k][at - start:end - start] = view  # within stretch k, or extending it
+            else:
+                k += 1
+                self.starts.insert(k, at)
+                self.parts.insert(k, bytearray(view))
+            if k + 1 < len(self.starts) and self.starts[k] + len(self.parts[k]) == self.starts[k + 1]:
+                self.parts[k] += self.parts.pop(k + 1)  # a gap filled: one stretch again
+                del self.starts[k + 1]
+            self.last = k
             return
-        first = k if k >= 0 and at <= self.starts[k] + len(self.parts[k]) else k + 1
-        last = bisect.bisect_right(self.starts, end) - 1  # the last stretch starting at or before end
-        lo = min(at, self.starts[first]) if first <= last else at
-        hi = max([end, *(self.starts[j] + len(self.parts[j]) for j in range(first, last + 1))])
+        first = k if k >= 0 and at < self.starts[k] + len(self.parts[k]) else k + 1
+        last = bisect.bisect_left(self.starts, end) - 1  # the last stretch starting before end
+        lo = min(at, self.starts[first])
+        hi = max(end, self.starts[last] + len(self.parts[last]))
         merged = bytearray(hi - lo)
         for j in range(first, last + 1):
             merged[self.starts[j] - lo:self.starts[j] - lo + len(self.parts[j])] = self.parts[j]
         merged[at - lo:end - lo] = view
         self.starts[first:last + 1] = [lo]
         self.parts[first:last + 1] = [merged]
+        self.last = first
 
     # -- large datasets ---------------------------------------------------------------------------
     def dataset(self, group: Any, name: str, data: np.ndarray) -> None:

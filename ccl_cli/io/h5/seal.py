@@ -85,8 +85,8 @@ def large_dataset(group: Any, name: str, data: np.ndarray) -> None:
     """``data`` as dataset ``name`` of ``group``; in a file :func:`create_hdf5` builds, an array
     of :data:`~ccl_cli.io.h5.image.DIRECT_BYTES` or more is written from its own memory when
     the file is (it must not change until then), not copied into the file's image first."""
-    image = _BUILDING.get(group.file.filename)
-    if image is not None and direct(data):
+    image = _BUILDING.get(group.file.filename) if _BUILDING and direct(data) else None
+    if image is not None:
         image.dataset(group, name, data)
     else:
         group.create_dataset(name, data=data)
