@@ -81,11 +81,12 @@ def test_large_datasets_are_written_from_their_arrays(tmp_path, monkeypatch):
         assert np.array_equal(f["demos/x"][()], arrays["x"])
 
 
-@pytest.mark.parametrize("dtype", [">f8", "f4"])
+@pytest.mark.parametrize("dtype", [">f8", "f4", "bool"])
 def test_other_arrays_go_through_libhdf5(tmp_path, monkeypatch, dtype):
-    """Non-native byte order or small arrays: written by libhdf5 as before."""
-    monkeypatch.setattr(image_module, "DIRECT_BYTES", 4096 if dtype == ">f8" else 10**9)
-    value = np.arange(5000, dtype=dtype)
+    """Non-native byte order, booleans (an HDF5 enumeration) or small arrays: written by
+    libhdf5 as before."""
+    monkeypatch.setattr(image_module, "DIRECT_BYTES", 10**9 if dtype == "f4" else 4096)
+    value = np.arange(5000).astype(dtype) if dtype != "bool" else np.arange(5000) % 3 == 0
     with create_hdf5(tmp_path / "f.h5") as f:
         large_dataset(f, "v", value)
     with h5py.File(tmp_path / "f.h5", "r") as f:

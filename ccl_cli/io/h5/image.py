@@ -167,7 +167,7 @@ def _zeros(n: int) -> Iterator[bytes]:
 
 
 def direct(data: np.ndarray) -> bool:
-    """Whether ``data`` is written from its array (:meth:`Image.dataset`): a numeric array of
-    at least :data:`DIRECT_BYTES`."""
-    return data.ndim >= 1 and data.nbytes >= DIRECT_BYTES and data.dtype.kind in "fiub" and \
+    """Whether ``data`` is written from its array (:meth:`Image.dataset`): an array of native
+    integers or floats (whose bytes HDF5 stores as they are) of at least :data:`DIRECT_BYTES`."""
+    return data.ndim >= 1 and data.nbytes >= DIRECT_BYTES and data.dtype.kind in "fiu" and \
         data.dtype.isnative
