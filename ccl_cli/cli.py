@@ -530,13 +530,10 @@ def convert(
 ) -> None:
     """Convert recordings (CSV, bags, MCAP) into the canonical ccl-demonstrations HDF5."""
     from ccl_cli.io import read_dataset, write_demonstrations
-    from ccl_cli.io.canonical import preload_h5py
-    from ccl_cli.io.files import refuse_configs, start_digests
+    from ccl_cli.io.files import refuse_configs
 
     _logging(quiet)
-    start_digests(data)  # the inputs' sha256 (provenance), read while the config is validated
     cfg = _config(config, {})
-    preload_h5py()  # imported while the recording is read (NumPy releases the GIL; the config does not)
     refuse_configs(data)  # as the learning commands' read_data, without importing the app layer
     dataset, _ = read_dataset(cfg.spec.data, data, cfg.base)
     write_demonstrations(out, dataset, time_origin_ns=int(dataset.metadata.get("time_origin_ns", 0)),

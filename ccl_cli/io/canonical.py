@@ -35,7 +35,6 @@ libhdf5 hang) and checks every attribute and dataset for type, shape and finiten
 from __future__ import annotations
 
 import json
-import threading
 from pathlib import Path
 from typing import Any
 
@@ -71,22 +70,6 @@ CHUNK_ROWS = 100_000
 COMPRESSION: str | None = None
 _FILTERS = {None: {}, "gzip": {"compression": "gzip", "compression_opts": 4, "shuffle": True},
             "lzf": {"compression": "lzf", "shuffle": True}}
-
-
-def preload_h5py() -> threading.Thread:
-    """Import h5py on a daemon thread, for a command that writes a canonical file after a long
-    read (NumPy releases the GIL, so the import proceeds meanwhile); a failed import is left to
-    the later, foreground import to report."""
-
-    def load() -> None:
-        try:
-            import h5py  # noqa: F401
-        except ImportError:
-            return
-
-    thread = threading.Thread(target=load, name="ccl-preload-h5py", daemon=True)
-    thread.start()
-    return thread
 
 
 def _strings(values: list[str]) -> np.ndarray:

@@ -69,13 +69,6 @@ def _key(path: Path) -> Key:
     return tuple((str(p.resolve()), st.st_size, st.st_mtime_ns) for p, st in stats)
 
 
-def start_digests(files: list[Path] | list[str]) -> None:
-    """Start the digests of ``files`` (paths as given, no globs) on a background thread, for a
-    command that reads them after other work (validating its config); a path that cannot be
-    keyed is skipped silently: expanding the files later explains."""
-    _hash_in_background([Path(f) for f in files])
-
-
 def _hash_in_background(paths: list[Path]) -> None:
     """Start the digests of ``paths`` on one daemon thread (hashlib and file reads release
     the GIL); a path that cannot be keyed is left to :func:`file_hash` to refuse."""
