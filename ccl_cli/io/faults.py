@@ -227,20 +227,21 @@ def _cubic_weights(t: np.ndarray, s: int, e: int) -> np.ndarray:
     return w
 
 
-def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray
+def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, period: float | None = None
                      ) -> tuple[np.ndarray, np.ndarray, float]:
     """r_n = y_n − ŷ_n, ŷ_n the cubic through samples n ± 1, n ± 2 at their stamps, as R
     (d, N) (one row per dimension; 0 where n is not tested), ``tested`` (N,): the n whose
     four neighbours share its demonstration and lie within SPIKE_SPAN periods of each other
     (not across a gap), with finite weights, and max |Y| (NaN if Y holds one; 0 for N < 5).
-    Computed in blocks."""
+    ``period``: the median positive interval of t, when the caller has it. Computed in blocks."""
     n, d = Y.shape
     R = np.zeros((d, n))
     tested = np.zeros(n, dtype=bool)
     if n < 5:
         return R, tested, 0.0
     extremes: dict[int, tuple[float, float]] = {}  # per block: max and min of its rows
-    period, _ = _period(np.diff(t))
+    if period is None:
+        period, _ = _period(np.diff(t))
     tested[2:-2] = (demo[:-4] == demo[2:-2]) & (demo[4:] == demo[2:-2]) & \
         (t[4:] - t[:-4] <= SPIKE_SPAN * period)
 
@@ -265,7 +266,8 @@ def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray
     return R, tested, max(float(top.max()), -float(bottom.min()))
 
 
-def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -> Finding:
+def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z, *,
+           period: float | None = None) -> Finding:
     """Isolated outliers in Y (N, d) (positions, or recorded actions) sampled at t (N,).
 
     Each sample is compared with the cubic through its two neighbours on each side (at their
@@ -275,11 +277,12 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
     of its neighbours' (a spike δ leaves −⅔δ on each neighbour, alike: a step leaves −½ and −⅙
     of it, and is no spike). Bursts of adjacent outliers are found only in part. The first and
     last two samples of a demonstration are not tested.
-    ``detail`` gives the largest residual in robust standard deviations.
+    ``detail`` gives the largest residual in robust standard deviations. ``period``: the
+    median positive interval of t, when the caller has it (else computed here).
     """
     Y = np.asarray(Y, dtype=float)
     n = len(Y)
-    R, tested, extent = _cubic_residuals(Y, np.asarray(t, float), np.asarray(demo))
+    R, tested, extent = _cubic_residuals(Y, np.asarray(t, float), np.asarray(demo), period)
     if not tested.any():
         return Finding("spike", np.zeros(n, dtype=bool), "dropped", {"max_z": 0.0})
     # robust σ per dimension: one partition of each dimension's tested residuals (a dimension
@@ -353,6 +356,12 @@ def stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
 
     The per-sample work is on (N,) arrays; positions are compared only where a stamp repeats.
     """
+    return _stamp_faults(t, X, demo)[:3]
+
+
+def _stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
+                  ) -> tuple[list[Finding], np.ndarray, np.ndarray, float]:
+    """:func:`stamp_faults`, and the period P it measured (0 when no interval is positive)."""
     t = np.asarray(t, dtype=float)
     X = np.asarray(X, dtype=float)
     demo = np.asarray(demo)
@@ -366,7 +375,7 @@ def stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
     findings = [Finding("duplicate_sample", ~keep, "dropped")]
     t_new = t.copy()
     if period <= 0:
-        return findings, t_new, keep
+        return findings, t_new, keep, period
     limit = GAP_PERIODS * period + GAP_JITTER * jitter
     odd = same & keep & ((dt <= 0) | (dt > limit))
     # a single bad stamp: its neighbours' stamps are two periods apart
@@ -389,7 +398,7 @@ def stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
     findings += [Finding("bad_stamp", bad, "restamped"), Finding("backward_stamp", back, "restamped"),
                  Finding("clock_step", step, "restamped"),
                  Finding("gap", gaps, "reported", {"missing_periods": missing[~step[forward]].tolist()})]
-    return [f for f in findings if f], t_new, keep
+    return [f for f in findings if f], t_new, keep, period
 
 
 def _slope(t: np.ndarray, X: np.ndarray, idx: np.ndarray, valid: np.ndarray
@@ -538,10 +547,13 @@ def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str =
     n = len(t)
     idx: np.ndarray | None = None  # the input index of every sample still in (None: all)
     findings: list[Finding] = []
+    period = None  # the stamps' period, when spikes sees the same intervals (else measured there)
     if stamps:
-        found, t, keep = stamp_faults(t, X, demo)
+        found, t, keep, measured = _stamp_faults(t, X, demo)
         findings += found
         idx, X, demo, t = _take(keep, idx, X, demo, t)
+        if not found and bool((demo[1:] == demo[:-1]).all()):
+            period = measured  # the stamps unchanged, no demonstration edge: the same median
     flip = hemisphere_flips(X, demo)
     if flip:
         if flips == "mirror":
@@ -550,7 +562,8 @@ def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str =
         findings.append(Finding(flip.kind, _widen(flip.mask, idx, n), flip.action, flip.detail))
         if flips == "drop":
             idx, t, X, demo = _take(~flip.mask, idx, t, X, demo)
-    spike = spikes(X, t, demo)
+            period = None
+    spike = spikes(X, t, demo, period=period)
     if flip and flips == "keep":  # the jumps of flips left in place are no spikes
         edges = run_edges(flip.mask, 3)
         spike = Finding(spike.kind, spike.mask & ~edges, spike.action, spike.detail)
