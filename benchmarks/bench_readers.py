@@ -24,10 +24,12 @@ system time, start-up included): steadier than wall time on a loaded machine.
 ``peak_ratio`` is the loader's peak traced memory over the arrays it returns. With
 ``--before DIR`` (a source tree of ccl_cli, e.g. ``git archive main | tar -x -C DIR``) the
 loader, convert and peak memory of that tree are measured in the same run, interleaved,
-under ``before_*`` keys.
+under ``before_*`` keys. With ``--compiled`` both trees are byte-compiled first: this VM sets
+PYTHONDONTWRITEBYTECODE and the work trees hold no ``__pycache__``, so by default every
+``ccl convert`` start compiles ccl_cli's sources (0.07–0.1 s), which an installed package does not.
 
 Run:  python benchmarks/bench_readers.py [--n 1000000] [--containers ros1,mcap-ros2,...] [--floor]
-      [--path FILE] [--before DIR]
+      [--path FILE] [--before DIR] [--compiled]
 """
 
 from __future__ import annotations
@@ -217,7 +219,8 @@ def convert_seconds(path: Path, tmp: str, src: Path | None = None) -> tuple[floa
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
-def floors(container: str, path: Path, tmp: str, n: int, src: Path | None = None) -> dict:
+def floors(container: str, path: Path, tmp: str, n: int, src: Path | None = None,
+           compiled: bool = False) -> dict:
     """Reader, loader, ``ccl convert`` and the loader's peak memory against the numpy decode
     floor (run back to back; with ``src``, that tree's loader, convert and peak interleaved)."""
     first = run("floor", container, path)
@@ -230,7 +233,7 @@ def floors(container: str, path: Path, tmp: str, n: int, src: Path | None = None
         out[label] = (loader, wall, cpu, mem["peak"] / max(mem["arrays"], 1))
     last = run("floor", container, path)
     floor, floor_cpu = min(first["seconds"], last["seconds"]), min(first["cpu"], last["cpu"])
-    row = {"container": container, "N": n, "floor_seconds": round(floor, 3),
+    row = {"container": container, "N": n, "compiled": compiled, "floor_seconds": round(floor, 3),
            "floor_cpu_seconds": round(floor_cpu, 3),
            "reader_seconds": round(reader, 3), "reader_ratio": round(reader / floor, 2)}
     for label, (loader, wall, cpu, peak) in out.items():
@@ -260,7 +263,14 @@ def main() -> int:
     ap.add_argument("--floor", action="store_true", help="reader, loader and convert against the floor")
     ap.add_argument("--path", type=Path, help="an existing file of N JointState (one container)")
     ap.add_argument("--before", type=Path, help="a ccl_cli source tree measured beside this one (--floor)")
+    ap.add_argument("--compiled", action="store_true",
+                    help="byte-compile the measured trees first, as an installed package is (with "
+                         "PYTHONDONTWRITEBYTECODE set and no __pycache__, every start compiles ccl_cli)")
     args = ap.parse_args()
+    if args.compiled:
+        for tree in (HERE.parent, args.before):
+            if tree is not None:
+                subprocess.run([sys.executable, "-m", "compileall", "-q", str(tree / "ccl_cli")], check=True)
     rec = None if args.path else joint_recording(n=args.n, shuffle=False)
     for container in args.containers.split(","):
         with tempfile.TemporaryDirectory() as tmp:
@@ -268,7 +278,8 @@ def main() -> int:
             path = args.path or WRITERS[container](Path(tmp), rec)
             write_s = time.perf_counter() - t
             if args.floor:
-                print(json.dumps(floors(container, path, tmp, args.n, args.before)), flush=True)
+                row = floors(container, path, tmp, args.n, args.before, args.compiled)
+                print(json.dumps(row), flush=True)
                 continue
             split = run("split", container, path)
             e2e = run("e2e", container, path)

@@ -540,12 +540,13 @@ def convert(
                                                 help="2: columnar; 1: a group per demonstration.")] = 2,
 ) -> None:
     """Convert recordings (CSV, bags, MCAP) into the canonical ccl-demonstrations HDF5."""
-    from ccl_cli.app.run import read_data
-    from ccl_cli.io import write_demonstrations
+    from ccl_cli.io import read_dataset, write_demonstrations
+    from ccl_cli.io.files import refuse_configs
 
     _logging(quiet)
     cfg = _config(config, {})
-    dataset, _ = read_data(cfg, data)
+    refuse_configs(data)  # as the learning commands' read_data, without importing the app layer
+    dataset, _ = read_dataset(cfg.spec.data, data, cfg.base)
     write_demonstrations(out, dataset, time_origin_ns=int(dataset.metadata.get("time_origin_ns", 0)),
                          provenance={"converted_from": dataset.metadata.get("files"),
                                      "data_config": cfg.raw.get("data")}, force=force,

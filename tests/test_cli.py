@@ -430,6 +430,17 @@ def test_quiet_prints_nothing_on_success(capsys, tmp_path):
         assert out == "" and err == "", (args, out, err)
 
 
+def test_a_config_given_as_the_recording_is_refused_by_convert_as_by_learning(capsys, tmp_path):
+    """convert reads without the app layer: a YAML file among the recordings is the same one
+    line as for the learning commands, and nothing is written."""
+    for command in ("convert", "learn-a"):
+        out = tmp_path / f"{command}.out"
+        code, _, err = run_main(capsys, command, CONFIGS / "arm7.yaml", "-o", out)
+        assert code == 2 and err.count("\n") == 1, err
+        assert "arm7.yaml: a YAML file is a config, not a recording" in err
+        assert not out.exists()
+
+
 def test_batch_validates_the_whole_plan_before_any_job(capsys, tmp_path):
     code, _, err = run_main(capsys, "batch", "--files", str(SAMPLES / "*.h5"), "-o", tmp_path / "b")
     assert code == 2 and "--config" in err and err.count("\n") == 1

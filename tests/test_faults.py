@@ -267,3 +267,20 @@ def test_each_block_raises_what_a_block_raised():
     with pytest.raises(ValueError, match="block 4"):
         blockwise.each_block(work, 0, 12, rows=4)
     assert blockwise.blocks(2, 11, rows=4) == [(2, 6), (6, 10), (10, 11)]
+
+
+def test_median_is_numpys():
+    """faults._median (no numpy.ma import) gives np.median's value, NaN included, for odd and
+    even counts and values spread over many orders of magnitude."""
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 3, 4, 7, 10, 1001, 4096):
+        for trial in range(12):
+            values = rng.standard_normal(n) * 10.0 ** rng.uniform(-200, 200, n)
+            if trial % 4 == 1:
+                values[rng.integers(n)] = np.nan
+            if trial % 4 == 2:
+                values[rng.integers(n)] = -np.inf
+            want = np.median(values)
+            got = faults._median(values.copy())
+            assert isinstance(got, float)
+            assert (np.isnan(want) and np.isnan(got)) or got == want, (n, trial)

@@ -13,8 +13,9 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 
-#: Samples per block (a block's temporaries: BLOCK_ROWS × d float64).
-BLOCK_ROWS = 1 << 16
+#: Samples per block (a block's temporaries: BLOCK_ROWS × d float64, for d ≤ 8 within a
+#: core's L2 cache; the fault passes of 10⁶ 7-D samples: docs/measurements.md).
+BLOCK_ROWS = 1 << 13
 #: Variables a batch sets to share the cores between its workers (the first one set counts).
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
@@ -41,8 +42,10 @@ def cores() -> int:
 
 def each_block(work: Callable[[int, int], None], start: int, stop: int, rows: int | None = None) -> None:
     """Call ``work(s, e)`` on every block of [start, stop) (:func:`blocks`): on :func:`cores`
-    threads when there is more than one block. ``work`` writes its results into slices [s, e)
-    of arrays made beforehand; an exception in any block is raised here."""
+    threads when there is more than one block, each taking every so many blocks in one task
+    (a task per block cost more than the threads gained at 8,192 rows). ``work`` writes its
+    results into slices [s, e) of arrays made beforehand; an exception in any block is raised
+    here."""
     spans = blocks(start, stop, rows)
     threads = min(cores(), len(spans))
     if threads <= 1:
@@ -51,6 +54,10 @@ def each_block(work: Callable[[int, int], None], start: int, stop: int, rows: in
         return
     from concurrent.futures import ThreadPoolExecutor
 
+    def share(k: int) -> None:  # every threads-th block from the k-th: one task per thread
+        for s, e in spans[k::threads]:
+            work(s, e)
+
     with ThreadPoolExecutor(threads, thread_name_prefix="ccl-block") as pool:
-        for future in [pool.submit(work, s, e) for s, e in spans]:
+        for future in [pool.submit(share, k) for k in range(threads)]:
             future.result()

@@ -55,7 +55,7 @@ from ccl_cli.io.h5.access import (
     strings,
 )
 from ccl_cli.io.h5.probe import open_hdf5
-from ccl_cli.io.h5.seal import create_hdf5
+from ccl_cli.io.h5.seal import create_hdf5, large_dataset
 
 FORMAT = "ccl-demonstrations"
 FORMAT_VERSION = 2
@@ -83,7 +83,7 @@ def _dataset(group, name: str, data: np.ndarray, compression: str | None = None)
     if compression is not None and data.ndim >= 1 and data.shape[0] > CHUNK_ROWS:
         group.create_dataset(name, data=data, chunks=(CHUNK_ROWS, *data.shape[1:]), **_FILTERS[compression])
     else:
-        group.create_dataset(name, data=data)
+        large_dataset(group, name, data)
 
 
 def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns: int = 0,
@@ -120,30 +120,43 @@ def write_demonstrations(path: str | Path, data: Demonstrations, time_origin_ns:
     return path
 
 
-def _sources(data: Demonstrations) -> list[str]:
-    return [str(data.metadata.get("sources", {}).get(str(int(d)), "")) for d in data.demo_ids]
+def _sources(data: Demonstrations, ids: np.ndarray | None = None) -> list[str]:
+    ids = data.demo_ids if ids is None else ids
+    return [str(data.metadata.get("sources", {}).get(str(int(d)), "")) for d in ids]
+
+
+def _file_order(demo: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | slice]:
+    """The demonstration ids (D,) in order of first appearance, the offsets (D+1,) of their
+    samples once grouped in that order, and the rows that group them (a slice when the
+    samples are grouped already)."""
+    n = len(demo)
+    if n and bool((demo[1:] >= demo[:-1]).all()):  # ids non-decreasing (every reader's): no sort
+        starts = np.flatnonzero(np.r_[True, demo[1:] != demo[:-1]])
+        return demo[starts], np.r_[starts, n].astype(np.int64), slice(None)
+    _, first = np.unique(demo, return_index=True)
+    ids = demo[np.sort(first)]  # as Demonstrations.demo_ids
+    unique, inverse = np.unique(demo, return_inverse=True)
+    rank = np.empty(len(ids), dtype=np.int64)
+    rank[np.searchsorted(unique, ids)] = np.arange(len(ids))
+    position = rank[inverse]  # each sample's demonstration, numbered in file order
+    grouped = bool((position[1:] >= position[:-1]).all())  # already in file order: no copy
+    counts = np.bincount(position, minlength=len(ids))
+    offsets = np.r_[0, np.cumsum(counts)].astype(np.int64)
+    return ids, offsets, slice(None) if grouped else np.argsort(position, kind="stable")
 
 
 def _write_columns(demos, data: Demonstrations, time_origin_ns: int) -> dict[int, str]:
     """Version 2: the demonstrations in file order, one dataset per field, cut by offsets."""
     import h5py
 
-    ids = data.demo_ids  # in order of first appearance, as version 1 numbers them
-    unique, inverse = np.unique(data.demo, return_inverse=True)
-    rank = np.empty(len(ids), dtype=np.int64)
-    rank[np.searchsorted(unique, ids)] = np.arange(len(ids))
-    position = rank[inverse]  # each sample's demonstration, numbered in file order
-    grouped = bool((position[1:] >= position[:-1]).all())  # already in file order: no copy
-    order = np.arange(len(position)) if grouped else np.argsort(position, kind="stable")
-    counts = np.bincount(position, minlength=len(ids))
-    offsets = np.r_[0, np.cumsum(counts)].astype(np.int64)
+    ids, offsets, rows = _file_order(data.demo)
     names = [f"demo_{k:04d}" for k in range(len(ids))]
     demos.create_dataset("offsets", data=offsets)
     demos.create_dataset("name", data=_strings(names), dtype=h5py.string_dtype())
-    t0 = data.t[order[offsets[:-1]]]
+    t0 = data.t[rows][offsets[:-1]]
     demos.create_dataset("t0_ns", data=time_origin_ns + np.round(t0 * 1e9).astype(np.int64))
-    demos.create_dataset("source", data=_strings(_sources(data)), dtype=h5py.string_dtype())
-    _write_samples(demos, data, slice(None) if grouped else order, collapse=False)
+    demos.create_dataset("source", data=_strings(_sources(data, ids)), dtype=h5py.string_dtype())
+    _write_samples(demos, data, rows, collapse=False)
     return {int(d): name for d, name in zip(ids, names, strict=True)}
 
 

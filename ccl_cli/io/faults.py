@@ -64,6 +64,18 @@ FREE_EDGE_S = 0.5
 FLIP_ACTIONS = {"mirror": "mirrored", "drop": "dropped", "keep": "reported"}
 
 
+def _median(values: np.ndarray) -> float:
+    """``np.median`` of the 1-D float array ``values`` (n ≥ 1), partitioned in place: the same
+    partition and mean of the middle one or two, NaN when one is NaN; without the masked-array
+    module ``np.median`` imports to check for NaN (15 ms of a short command's start)."""
+    n = values.size
+    middle = [n // 2 - 1, n // 2] if n % 2 == 0 else [n // 2]
+    values.partition([*middle, -1])  # the last place: the largest value, NaN if there is one
+    if np.isnan(values[-1]):
+        return float("nan")
+    return float(np.mean(values[middle[0]:middle[-1] + 1]))
+
+
 def _count_runs(mask: np.ndarray) -> int:
     """The number of runs of True in ``mask`` (N,): its rising edges."""
     m = np.asarray(mask, dtype=bool)
@@ -122,21 +134,30 @@ def _per_demo_cumsum(values: np.ndarray, demo: np.ndarray) -> np.ndarray:
     return total - np.r_[0, total][start]
 
 
+def _rows(X: np.ndarray, s: int, e: int) -> np.ndarray:
+    """Samples [s, e) of X (N, d) as a contiguous (d, e − s) block: one copy, after which every
+    operation runs along the samples (a transposed view steps over d values per element)."""
+    return np.ascontiguousarray(X[s:e].T)
+
+
 # -- hemisphere flips --------------------------------------------------------------------
 def _flip_errors(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """At every centre n = 1 … N−2 of X (N, d): ‖Δ²x_n‖ = ‖x_{n+1} − x̂_{n+1}‖ and
     ‖x_{n+1} + x̂_{n+1}‖, x̂_{n+1} = 2x_n − x_{n−1}, each (N − 2,); computed in blocks."""
     n = len(X)
     e_same, e_flip = np.empty(n - 2), np.empty(n - 2)
-    XT = X.T  # (d, N) view: a block's rows are the dimensions (sums over the short axis are slow)
 
     def block(s: int, e: int) -> None:
+        rows = _rows(X, s - 1, e + 1)
+        before, here, after = rows[:, :-2], rows[:, 1:-1], rows[:, 2:]
         with np.errstate(over="ignore", invalid="ignore"):  # values near the float limit: inf or nan, no flip
-            here, before, after = XT[:, s:e], XT[:, s - 1:e - 1], XT[:, s + 1:e + 1]
-            d2 = after - 2 * here + before
-            e_same[s - 1:e - 1] = np.sqrt((d2 * d2).sum(0))
-            jump = after + (2 * here - before)
-            e_flip[s - 1:e - 1] = np.sqrt((jump * jump).sum(0))
+            twice = 2 * here
+            d2 = np.subtract(after, twice)
+            d2 += before
+            np.sqrt(np.multiply(d2, d2, out=d2).sum(0), out=e_same[s - 1:e - 1])  # rows summed in order
+            twice -= before  # x̂ (the prediction), in place
+            twice += after  # x_{n+1} + x̂
+            np.sqrt(np.multiply(twice, twice, out=twice).sum(0), out=e_flip[s - 1:e - 1])
 
     each_block(block, 1, n - 1)
     return e_same, e_flip
@@ -169,7 +190,7 @@ def hemisphere_flips(X: np.ndarray, demo: np.ndarray, ratio: float = FLIP_RATIO,
     e_same, e_flip = _flip_errors(X)
     if not inside.all():
         e_same, e_flip = e_same[inside], e_flip[inside]
-    scale = float(np.median(e_same))
+    scale = _median(e_same.copy())
     is_edge = e_same > ratio * (e_flip + scale)
     if not is_edge.any():
         return none
@@ -194,51 +215,59 @@ _STEPS = (-2, -1, 1, 2)
 
 
 def _cubic_weights(t: np.ndarray, s: int, e: int) -> np.ndarray:
-    """Lagrange weights w (e − s, 4) of the cubic through samples n ± 1, n ± 2 evaluated at
+    """Lagrange weights w (4, e − s) of the cubic through samples n ± 1, n ± 2 evaluated at
     t_n, for n in [s, e): w_j = Π_{m≠j} (0 − τ_m) / (τ_j − τ_m), τ_j = t_{n+step_j} − t_n
     (inf or nan where two stamps coincide)."""
     tn = [t[s + k:e + k] - t[s:e] for k in _STEPS]
-    w = np.empty((e - s, 4))
+    w = np.empty((4, e - s))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for j in range(4):  # four columns, not a loop over samples
+        for j in range(4):  # four rows, not a loop over samples
             o = [tn[m] for m in range(4) if m != j]
-            w[:, j] = -(o[0] * o[1] * o[2]) / ((tn[j] - o[0]) * (tn[j] - o[1]) * (tn[j] - o[2]))
+            w[j] = -(o[0] * o[1] * o[2]) / ((tn[j] - o[0]) * (tn[j] - o[1]) * (tn[j] - o[2]))
     return w
 
 
-def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, period: float | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, float]:
     """r_n = y_n − ŷ_n, ŷ_n the cubic through samples n ± 1, n ± 2 at their stamps, as R
-    (d, N) (one row per dimension; 0 where n is not tested), and ``tested`` (N,): the n whose
+    (d, N) (one row per dimension; 0 where n is not tested), ``tested`` (N,): the n whose
     four neighbours share its demonstration and lie within SPIKE_SPAN periods of each other
-    (not across a gap), with finite weights. Computed in blocks."""
+    (not across a gap), with finite weights, and max |Y| (NaN if Y holds one; 0 for N < 5).
+    ``period``: the median positive interval of t, when the caller has it. Computed in blocks."""
     n, d = Y.shape
     R = np.zeros((d, n))
     tested = np.zeros(n, dtype=bool)
     if n < 5:
-        return R, tested
-    period, _ = _period(np.diff(t))
+        return R, tested, 0.0
+    extremes: dict[int, tuple[float, float]] = {}  # per block: max and min of its rows
+    if period is None:
+        period, _ = _period(np.diff(t))
     tested[2:-2] = (demo[:-4] == demo[2:-2]) & (demo[4:] == demo[2:-2]) & \
         (t[4:] - t[:-4] <= SPIKE_SPAN * period)
-    YT = Y.T  # (d, N) view: each block's rows are the dimensions
 
     def block(s: int, e: int) -> None:
-        w = _cubic_weights(t, s, e).T
+        w = _cubic_weights(t, s, e)
         ok = tested[s:e] & np.isfinite(w).all(0)
         tested[s:e] = ok
         w[:, ~ok] = 0.0  # untested: no inf × y
-        fit = np.multiply(w[0], YT[:, s + _STEPS[0]:e + _STEPS[0]])
+        rows = _rows(Y, s - 2, e + 2)  # samples s − 2 … e + 1: the neighbour at step k is rows[:, 2 + k:]
+        extremes[s] = (rows.max(), rows.min())  # the blocks' rows cover every sample
+        b = e - s
+        fit = np.multiply(w[0], rows[:, 2 + _STEPS[0]:2 + _STEPS[0] + b])
         term = np.empty_like(fit)
         for j in range(1, 4):
-            fit += np.multiply(w[j], YT[:, s + _STEPS[j]:e + _STEPS[j]], out=term)
-        r = np.subtract(YT[:, s:e], fit, out=R[:, s:e])
+            fit += np.multiply(w[j], rows[:, 2 + _STEPS[j]:2 + _STEPS[j] + b], out=term)
+        r = np.subtract(rows[:, 2:2 + b], fit, out=R[:, s:e])
         if not ok.all():
             r[:, ~ok] = 0.0
 
     each_block(block, 2, n - 2)
-    return R, tested
+    top, bottom = np.array(list(extremes.values())).T
+    return R, tested, max(float(top.max()), -float(bottom.min()))
 
 
-def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -> Finding:
+def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z, *,
+           period: float | None = None) -> Finding:
     """Isolated outliers in Y (N, d) (positions, or recorded actions) sampled at t (N,).
 
     Each sample is compared with the cubic through its two neighbours on each side (at their
@@ -248,22 +277,26 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
     of its neighbours' (a spike δ leaves −⅔δ on each neighbour, alike: a step leaves −½ and −⅙
     of it, and is no spike). Bursts of adjacent outliers are found only in part. The first and
     last two samples of a demonstration are not tested.
-    ``detail`` gives the largest residual in robust standard deviations.
+    ``detail`` gives the largest residual in robust standard deviations. ``period``: the
+    median positive interval of t, when the caller has it (else computed here).
     """
     Y = np.asarray(Y, dtype=float)
     n = len(Y)
-    R, tested = _cubic_residuals(Y, np.asarray(t, float), np.asarray(demo))
+    R, tested, extent = _cubic_residuals(Y, np.asarray(t, float), np.asarray(demo), period)
     if not tested.any():
         return Finding("spike", np.zeros(n, dtype=bool), "dropped", {"max_z": 0.0})
     # robust σ per dimension: one partition of each dimension's tested residuals (a dimension
     # per thread)
     sigma = np.empty(len(R))
+    inner = slice(2, n - 2)  # the samples tested when no demonstration edge or gap interrupts
+    where = inner if bool(tested[inner].all()) and not tested[:2].any() and not tested[n - 2:].any() \
+        else tested  # the same residuals, without the masked copy
 
     def spread(s: int, e: int) -> None:
-        sigma[s:e] = [np.median(np.abs(row[tested]), overwrite_input=True) for row in R[s:e]]
+        sigma[s:e] = [_median(np.abs(row[where])) for row in R[s:e]]
 
     each_block(spread, 0, len(R), rows=1)
-    scale = np.maximum(sigma / MAD_NORMAL, 1e-12 * max(float(Y.max()), -float(Y.min()), 1.0))
+    scale = np.maximum(sigma / MAD_NORMAL, 1e-12 * max(extent, 1.0))
     score = np.empty(n)
 
     def z_scores(s: int, e: int) -> None:
@@ -272,8 +305,10 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z) -
         score[s:e] = np.abs(block).max(0)
 
     each_block(z_scores, 0, n)
-    peak = (score >= np.r_[0.0, score[:-1]]) & (score >= np.r_[score[1:], 0.0])
-    mask = (score > z) & peak
+    mask = score > z  # ... and a peak: at least its neighbours' scores (0 beyond the ends)
+    mask[1:] &= score[1:] >= score[:-1]
+    mask[:-1] &= score[:-1] >= score[1:]
+    mask[[0, -1]] &= score[[0, -1]] >= 0.0
     k = np.flatnonzero(mask)  # the few candidates: their sign test
     Z = R[:, k]
     j = np.abs(Z).argmax(0)  # the dimension of each candidate's largest residual
@@ -295,9 +330,9 @@ def _period(dt: np.ndarray) -> tuple[float, float]:
     pos = dt[dt > 0]
     if not len(pos):
         return 0.0, 0.0
-    med = float(np.median(pos, overwrite_input=True))  # pos is a copy: partitioned in place
+    med = _median(pos)  # pos is a copy: partitioned in place
     spread = np.abs(pos - med, out=pos)
-    return med, float(np.median(spread, overwrite_input=True) / MAD_NORMAL)
+    return med, _median(spread) / MAD_NORMAL
 
 
 def stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
@@ -321,6 +356,12 @@ def stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
 
     The per-sample work is on (N,) arrays; positions are compared only where a stamp repeats.
     """
+    return _stamp_faults(t, X, demo)[:3]
+
+
+def _stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
+                  ) -> tuple[list[Finding], np.ndarray, np.ndarray, float]:
+    """:func:`stamp_faults`, and the period P it measured (0 when no interval is positive)."""
     t = np.asarray(t, dtype=float)
     X = np.asarray(X, dtype=float)
     demo = np.asarray(demo)
@@ -334,7 +375,7 @@ def stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
     findings = [Finding("duplicate_sample", ~keep, "dropped")]
     t_new = t.copy()
     if period <= 0:
-        return findings, t_new, keep
+        return findings, t_new, keep, period
     limit = GAP_PERIODS * period + GAP_JITTER * jitter
     odd = same & keep & ((dt <= 0) | (dt > limit))
     # a single bad stamp: its neighbours' stamps are two periods apart
@@ -357,7 +398,7 @@ def stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
     findings += [Finding("bad_stamp", bad, "restamped"), Finding("backward_stamp", back, "restamped"),
                  Finding("clock_step", step, "restamped"),
                  Finding("gap", gaps, "reported", {"missing_periods": missing[~step[forward]].tolist()})]
-    return [f for f in findings if f], t_new, keep
+    return [f for f in findings if f], t_new, keep, period
 
 
 def _slope(t: np.ndarray, X: np.ndarray, idx: np.ndarray, valid: np.ndarray
@@ -506,10 +547,13 @@ def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str =
     n = len(t)
     idx: np.ndarray | None = None  # the input index of every sample still in (None: all)
     findings: list[Finding] = []
+    period = None  # the stamps' period, when spikes sees the same intervals (else measured there)
     if stamps:
-        found, t, keep = stamp_faults(t, X, demo)
+        found, t, keep, measured = _stamp_faults(t, X, demo)
         findings += found
         idx, X, demo, t = _take(keep, idx, X, demo, t)
+        if not found and bool((demo[1:] == demo[:-1]).all()):
+            period = measured  # the stamps unchanged, no demonstration edge: the same median
     flip = hemisphere_flips(X, demo)
     if flip:
         if flips == "mirror":
@@ -518,7 +562,8 @@ def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str =
         findings.append(Finding(flip.kind, _widen(flip.mask, idx, n), flip.action, flip.detail))
         if flips == "drop":
             idx, t, X, demo = _take(~flip.mask, idx, t, X, demo)
-    spike = spikes(X, t, demo)
+            period = None
+    spike = spikes(X, t, demo, period=period)
     if flip and flips == "keep":  # the jumps of flips left in place are no spikes
         edges = run_edges(flip.mask, 3)
         spike = Finding(spike.kind, spike.mask & ~edges, spike.action, spike.detail)

@@ -19,6 +19,15 @@ from ccl_cli.errors import InputError
 from ccl_cli.io.limits import regular_file
 
 
+def refuse_configs(files: list[Path] | list[str] | None) -> None:
+    """Refuse a YAML file given as a recording (other than a ROS 2 bag's metadata.yaml): it is
+    a config, passed with -c/--config."""
+    for f in files or []:
+        if Path(f).suffix.lower() in (".yaml", ".yml") and Path(f).name != "metadata.yaml":
+            raise InputError(f"{f}: a YAML file is a config, not a recording: pass it with -c/--config "
+                             "(or to ccl run), and the recordings as the data")
+
+
 def expand_files(files: list[str] | str, base: Path | None = None) -> list[Path]:
     """Paths and globs → existing paths, in the order given (globs sorted)."""
     if isinstance(files, str | Path):

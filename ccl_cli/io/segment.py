@@ -83,7 +83,8 @@ def cut(t_s: np.ndarray, demos: DemoOptions | Mapping[str, Any] | None, where: s
         if passes is None or len(passes) != n:
             raise InputError(f"{where}: demos.where needs its signal at every state sample")
         ids = np.where(passes, ids, -1)
-    ids = _runs(ids)
+    if demos.given() & {"ranges", "split_on_gap", "where"}:
+        ids = _runs(ids)  # else ids are all 0: one run, numbered 0 already
     if demos.min_duration is not None:
         ids = _at_least(t_s, ids, float(demos.min_duration))
     if demos.window is not None:

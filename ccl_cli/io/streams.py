@@ -125,12 +125,14 @@ class StreamReader(ReaderBase):
             passes[inside] = signal.passes(values)
         demo = segment_ids(t_s, o.demos, str(self.path), passes)
         keep = demo >= 0
+        t = t_s  # seconds from the first sample kept
         if not keep.all():  # samples outside every demos.range
             t_ns, t_s, X, demo = t_ns[keep], t_s[keep], X[keep], demo[keep]
             U = U[keep] if U is not None else None
+            t = (t_ns - t_ns[0]) / 1e9
         if U is None:
             U, meta["action"] = derive_actions(t_s, X, demo, o.action)
-        data = Demonstrations(X=X, U=U, demo=demo, t=(t_ns - t_ns[0]) / 1e9,
+        data = Demonstrations(X=X, U=U, demo=demo, t=t,
                               state_names=state_names, action_names=action_names, state_units=units,
                               action_units=[f"{u}/s" for u in units] if units else None, metadata=meta)
         return Recording(data, int(t_ns[0]))

@@ -11,17 +11,21 @@ from __future__ import annotations
 import contextlib
 import functools
 import hashlib
-import io
 import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ccl_cli.io.atomic import atomic_path, check_writable
+from ccl_cli.io.h5.image import Image, direct
 
 #: user-block size reserved in files ccl writes (HDF5 requires a power of two ≥ 512)
 USERBLOCK = 512
 SEAL = b"\x00ccl-sha256:"
+#: the images of the files :func:`create_hdf5` is building, by the name h5py gives each
+_BUILDING: dict[str, Image] = {}
 
 
 def _digest(path: Path) -> str:
@@ -38,31 +42,54 @@ def create_hdf5(path: str | Path, force: bool = False, sealed: bool = True) -> I
     """An ``h5py.File`` written atomically at ``path`` and (``sealed``) carrying the sha256
     of its content in the user block.
 
-    libhdf5 builds the file in memory; Python writes the bytes (:func:`ccl_cli.io.atomic.atomic_path`),
-    so a full disk or a file-size limit is one ``OSError`` there — one line, nothing left —
-    and never a write failure inside libhdf5, which leaves the library unable to close
-    its file (tracebacks at exit, a crash at interpreter shutdown).
+    libhdf5 builds the file in memory (an :class:`~ccl_cli.io.h5.image.Image`; large datasets
+    made with :func:`large_dataset` keep only their arrays); Python writes the bytes
+    (:func:`ccl_cli.io.atomic.atomic_path`), so a full disk or a file-size limit is one
+    ``OSError`` there — one line, nothing left — and never a write failure inside libhdf5,
+    which leaves the library unable to close its file (tracebacks at exit, a crash at
+    interpreter shutdown).
     """
     import h5py
 
     path = Path(path)
     check_writable(path, force)
-    buffer = io.BytesIO()
-    with h5py.File(buffer, "w", userblock_size=USERBLOCK) as f:
-        yield f
-    content = buffer.getbuffer()[USERBLOCK:]
+    image = Image()
+    with h5py.File(image, "w", userblock_size=USERBLOCK) as f:
+        _BUILDING[f.filename] = image
+        try:
+            yield f
+        finally:
+            del _BUILDING[f.filename]
     digest: list[str] = []
-    hashing = threading.Thread(target=lambda: digest.append(hashlib.sha256(content).hexdigest()),
-                               name="ccl-seal", daemon=True) if sealed else None
+
+    def content_hash() -> None:
+        h = hashlib.sha256()
+        for piece in image.pieces(USERBLOCK):
+            h.update(piece)
+        digest.append(h.hexdigest())
+
+    hashing = threading.Thread(target=content_hash, name="ccl-seal", daemon=True) if sealed else None
     if hashing is not None:  # hashed while it is written (both release the GIL)
         hashing.start()
     with atomic_path(path, force=force) as tmp, open(tmp, "wb") as out:
         out.write(bytes(USERBLOCK))
-        out.write(content)
+        for piece in image.pieces(USERBLOCK):
+            out.write(piece)
         if hashing is not None:
             hashing.join()
             out.seek(0)
             out.write(SEAL + digest[0].encode() + b"\n")
+
+
+def large_dataset(group: Any, name: str, data: np.ndarray) -> None:
+    """``data`` as dataset ``name`` of ``group``; in a file :func:`create_hdf5` builds, an array
+    of :data:`~ccl_cli.io.h5.image.DIRECT_BYTES` or more is written from its own memory when
+    the file is (it must not change until then), not copied into the file's image first."""
+    image = _BUILDING.get(group.file.filename) if _BUILDING and direct(data) else None
+    if image is not None:
+        image.dataset(group, name, data)
+    else:
+        group.create_dataset(name, data=data)
 
 
 def sealed(path: str | Path) -> bool:
