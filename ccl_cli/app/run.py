@@ -28,13 +28,10 @@ if TYPE_CHECKING:
 def read_data(cfg: Config, files: list[Path] | list[str] | None):
     """The dataset and its train/test masks (canonical HDF5 may carry them): ``files``, else
     the config's ``data.files`` (relative to the config's folder)."""
-    from ccl_cli.errors import InputError
     from ccl_cli.io import read_dataset
+    from ccl_cli.io.files import refuse_configs
 
-    for f in files or []:
-        if Path(f).suffix.lower() in (".yaml", ".yml") and Path(f).name != "metadata.yaml":
-            raise InputError(f"{f}: a YAML file is a config, not a recording: pass it with -c/--config "
-                             "(or to ccl run), and the recordings as the data")
+    refuse_configs(files)
     return read_dataset(cfg.spec.data, files, cfg.base)
 
 
