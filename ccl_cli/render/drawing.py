@@ -146,11 +146,15 @@ class Drawer:
     when ccl closes its pipe (:meth:`close`)."""
 
     def __init__(self, ctx: Any) -> None:
-        self._conn, theirs = ctx.Pipe(duplex=True)
+        requests, self._send = ctx.Pipe(duplex=False)  # ccl → drawer
+        self._answers, answer = ctx.Pipe(duplex=False)  # drawer → ccl
+        _widen(self._send)
         # not a daemon: multiprocessing lets only those fork a second drawing process
-        self._process = ctx.Process(target=_serve, args=(theirs, self._conn), name="ccl-drawer")
+        self._process = ctx.Process(target=_serve, args=(requests, answer, (self._send, self._answers)),
+                                    name="ccl-drawer")
         self.running = _start(self._process)
-        theirs.close()
+        requests.close()
+        answer.close()
         self._sent: set[str] = set()
 
     def submit(self, specs: list[Spec], fmt: str) -> None:
@@ -180,8 +184,8 @@ class Drawer:
             data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
             if len(data) > MAX_MESSAGE:
                 raise ValueError("figures' data too large to send")
-            self._conn.send_bytes(data)
-            return self._conn.recv() if message[0] == "collect" else None
+            self._send.send_bytes(data)
+            return self._answers.recv() if message[0] == "collect" else None
         except Exception:  # noqa: BLE001 - see above: ccl draws instead
             self.close()
             return None
@@ -192,7 +196,8 @@ class Drawer:
         drawing process dies with it."""
         if self.running:
             self.running = False
-            self._conn.close()
+            self._send.close()
+            self._answers.close()
             self._process.join(timeout=0.05)
             if self._process.is_alive():
                 self._process.kill()
@@ -205,17 +210,39 @@ class Drawer:
 MAX_MESSAGE = 16 * 2**20
 
 
-def _serve(conn: Any, parents_end: Any) -> None:
-    """The drawer's life: die with ccl, import matplotlib, then serve ("draw", specs, fmt) —
-    draw them and keep them — and ("collect", specs, fmt, workers) — draw these too, answer
-    (import seconds, every figure kept) — until ccl closes the pipe (the copy of ccl's end that
-    the fork left here is closed first, or that would never happen). Any failure ends it
-    without a word: ccl then draws the figures itself and reports a failure once."""
+def _widen(conn: Any) -> None:
+    """Let the pipe behind ``conn`` hold :data:`PIPE_BYTES` (Linux): handing a stage's figures
+    to a drawer still importing matplotlib then does not wait for it. Elsewhere, or when the
+    system refuses, the pipe stays as it is (a larger message waits)."""
+    import fcntl
+
+    try:
+        fcntl.fcntl(conn.fileno(), fcntl.F_SETPIPE_SZ, PIPE_BYTES)
+    except (AttributeError, OSError):
+        pass
+
+
+#: The drawer's request pipe size: the figures' data of a stage of a small run are ~0.1 MiB.
+PIPE_BYTES = 2**20
+
+
+def _serve(requests: Any, answer: Any, parents_ends: tuple[Any, ...]) -> None:
+    """The drawer's life: die with ccl, import matplotlib, then take ("draw", specs, fmt) —
+    figures drawn one at a time, in order, and kept — and ("collect", specs, fmt, workers):
+    what is still waiting and these drawn by ``workers`` processes, then the answer
+    (import seconds, every figure kept); until ccl closes the pipe. Between two figures a
+    waiting request is read first, so the last figures, with ccl waiting, are drawn in
+    parallel. (The copies of ccl's ends that the fork left here are closed first, or the pipe
+    would never close.) Any failure ends it without a word: ccl then draws the figures itself
+    and reports a failure once."""
+    import gc
     import signal
 
     from ccl_cli.lifeline import die_with_parent
 
-    parents_end.close()
+    for end in parents_ends:
+        end.close()
+    gc.freeze()  # ccl's objects, inherited: not traversed (nor copied) by this process's collections
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     die_with_parent()
     try:
@@ -226,23 +253,27 @@ def _serve(conn: Any, parents_end: Any) -> None:
 
         imported = time.perf_counter() - t0
         kept: Drawn = {}
+        waiting: list[tuple[Spec, str]] = []  # (figure, format) in the order sent
         while True:
+            if waiting and not requests.poll():
+                (name, kind, args), fmt = waiting.pop(0)
+                kept[name] = _draw(partial(DRAW[kind], **args), fmt)
+                continue
             try:
-                message = conn.recv()
+                message = requests.recv()
             except EOFError:
                 return
-            if message[0] == "draw":
-                _, specs, fmt = message
-                kept.update(render(jobs_of(specs), fmt))
-            else:
-                _, specs, fmt, workers = message
-                kept.update(render(jobs_of(specs), fmt, workers))
-                conn.send((imported, kept))
-                kept = {}
+            kind, specs, fmt, *workers = message
+            waiting += [(spec, fmt) for spec in specs]
+            if kind == "collect":  # what is still waiting, by `workers` processes
+                for each in dict.fromkeys(f for _, f in waiting):
+                    kept.update(render(jobs_of([s for s, f in waiting if f == each]), each, *workers))
+                answer.send((imported, kept))
+                kept, waiting = {}, []
     except BaseException:  # noqa: BLE001 - see above
         pass
     finally:
-        conn.close()
+        answer.close()
 
 
 _drawer: Drawer | None = None
