@@ -386,7 +386,7 @@ def _stage_row(out: Path, stage: str, summary: dict, normal_of: Callable | None,
     if metrics.exists():
         m = json.loads(metrics.read_text()).get(stage, {})
         row["on"] = m.get("on")
-        rows = m.get("constraint", {}).get("rows")
+        rows = (m.get("constraint") or {}).get("rows")
         if normal_of is not None and rows is not None:
             row["angle_deg"] = normal_angle(np.asarray(rows), normal_of(d))
     return row
