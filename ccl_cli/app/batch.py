@@ -36,6 +36,7 @@ from typing import Any
 
 from ccl_cli import __version__, config
 from ccl_cli.errors import CCLError, ConfigError, OutputError
+from ccl_cli.learn.blas import THREAD_VARS
 
 log = logging.getLogger("ccl")
 #: writes one job's folder: (RunResult, outdir, *, force, plot_workers, extra_files) → summary
@@ -338,8 +339,6 @@ def _check_reachable(address: str) -> None:
 #: before its workers fork; the command line adds the module of its writer)
 PRELOAD = ["ccl_cli.lifeline", "ccl_cli.app.run", "ccl_cli.app.stages", "ccl_cli.models", "ccl_cli.io",
            "ccl_cli.io.canonical", "ccl_cli.learn.blas", "h5py", "numpy.ma", "numpy.random"]
-#: the variables that set the BLAS threads of a process started after them
-BLAS_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def _blas_threads(n: int) -> int | None:
@@ -347,8 +346,8 @@ def _blas_threads(n: int) -> int | None:
     processes started from now on where the user set none (returned; None when the user
     set one: this process's BLAS, and a forked worker's, then already follow it)."""
     threads = max(1, (os.cpu_count() or 1) // n)
-    chosen = not any(var in os.environ for var in BLAS_VARS)
-    for var in BLAS_VARS:
+    chosen = not any(var in os.environ for var in THREAD_VARS)
+    for var in THREAD_VARS:
         os.environ.setdefault(var, str(threads))  # workers share the cores, not oversubscribe them
     return threads if chosen else None
 

@@ -13,13 +13,11 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 
+from ccl_cli.learn.blas import THREAD_VARS, affinity_cores
+
 #: Samples per block (a block's temporaries: BLOCK_ROWS × d float64, for d ≤ 8 within a
 #: core's L2 cache; the fault passes of 10⁶ 7-D samples: docs/measurements.md).
 BLOCK_ROWS = 1 << 13
-#: Variables a batch sets to share the cores between its workers (the first one set counts).
-THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-
-
 def blocks(start: int, stop: int, rows: int | None = None) -> list[tuple[int, int]]:
     """[s, e) blocks of at most ``rows`` (None: :data:`BLOCK_ROWS`) samples covering [start, stop)."""
     rows = rows or BLOCK_ROWS
@@ -28,16 +26,13 @@ def blocks(start: int, stop: int, rows: int | None = None) -> list[tuple[int, in
 
 def cores() -> int:
     """The cores this process may use (its CPU affinity), at most the thread count a batch
-    gave each worker (:data:`THREAD_VARS`)."""
-    try:
-        n = len(os.sched_getaffinity(0))
-    except AttributeError:  # no affinity on this platform
-        n = os.cpu_count() or 1
+    gave each worker (:data:`~ccl_cli.learn.blas.THREAD_VARS`, the first one set)."""
+    n = affinity_cores()
     for var in THREAD_VARS:
         value = os.environ.get(var, "")
         if value.isdigit() and int(value) > 0:
             return max(1, min(n, int(value)))
-    return max(1, n)
+    return n
 
 
 def each_block(work: Callable[[int, int], None], start: int, stop: int, rows: int | None = None) -> None:

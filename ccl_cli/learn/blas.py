@@ -16,12 +16,25 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import os
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 
 #: Stages on fewer training samples than this run with one BLAS thread.
 SMALL_SAMPLES = 20_000
+#: The variables that set the BLAS (and OpenMP) threads of a process started after them
+#: (``ccl batch`` sets them to share the cores between its workers).
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def affinity_cores() -> int:
+    """The cores this process may run on: its CPU affinity (all cores where there is no
+    affinity API, e.g. macOS)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return os.cpu_count() or 1
 
 
 def _blas_pools() -> list[dict]:

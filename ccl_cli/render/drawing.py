@@ -22,6 +22,7 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+from ccl_cli.learn.blas import affinity_cores
 from ccl_cli.render.figures import DRAW, _draw, _import_matplotlib
 
 Job = tuple[str, Callable[[], Any]]  # (file name, make: () -> a figure, or None: nothing to draw)
@@ -34,10 +35,7 @@ def idle_workers() -> int:
     more cores and the 1-minute load leaves one of them idle, else 1. On a busy machine a
     second process gains no time and costs CPU (forking, its copy-on-write pages, its own
     font set-up: a small run's CPU 3 % higher at load 6 on 2 cores); the files are the same."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # no affinity API (macOS)
-        cores = os.cpu_count() or 1
+    cores = affinity_cores()
     try:
         load = os.getloadavg()[0]
     except (AttributeError, OSError):  # no load average (Windows: no fork either)
