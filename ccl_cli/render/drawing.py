@@ -34,7 +34,7 @@ def idle_workers() -> int:
     """How many processes should draw a run's figures: 2 when this process may use two or
     more cores and the 1-minute load leaves one of them idle, else 1. On a busy machine a
     second process gains no time and costs CPU (forking, its copy-on-write pages, its own
-    font set-up: a small run's CPU 3 % higher at load 6 on 2 cores); the files are the same."""
+    font set-up; docs/measurements.md, "Small runs"); the files are the same."""
     cores = affinity_cores()
     try:
         load = os.getloadavg()[0]
@@ -254,8 +254,8 @@ def _serve(requests: Any, answer: Any, parents_ends: tuple[Any, ...]) -> None:
         waiting: list[tuple[Spec, str]] = []  # (figure, format) in the order sent
         while True:
             if waiting and not requests.poll():
-                (name, kind, args), fmt = waiting.pop(0)
-                kept[name] = _draw(partial(DRAW[kind], **args), fmt)
+                spec, fmt = waiting.pop(0)
+                kept.update(render(jobs_of([spec]), fmt))
                 continue
             try:
                 message = requests.recv()

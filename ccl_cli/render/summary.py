@@ -103,7 +103,7 @@ def _plot(stage: Callable[[str], Path], rows: list[dict], columns: list[str]) ->
     """One panel per metric: its value per job, coloured by method (log scale), saved to
     ``stage("summary.png")``; False when there is nothing to plot.
 
-    Drawn from few artists (with 40 jobs, 0.24 → 0.07 s; docs/measurements.md): a job is a
+    Drawn from few artists (docs/measurements.md, "ccl batch: the fixed cost"): a job is a
     light vertical line (one collection per panel) named under the last panel by a plain
     text, not a tick (five artists, built on every panel); values are labelled in plain
     text (``2e-03``: matplotlib's default ``2 × 10⁻³`` is typeset by its TeX parser), the
