@@ -1,0 +1,256 @@
+"""How many constraints the states' own geometry shows (DESIGN.md "Evidence for a constraint").
+
+When the action is the derivative of the state, constraint-consistent motion keeps each
+demonstration on a manifold — a line along a slide, a circle about a hinge, a plane or a curved
+surface under a finger — and the manifold shows in the positions themselves, with no
+differentiation. :func:`decide` looks for it with :class:`~.manifold.ManifoldConstraint`:
+
+*Held-out drift.* A model of k level functions is fitted without a demonstration (or without a
+block of one recording) and its levels h_j are read along the samples held out: along a true
+constraint they stay constant, whatever the motion along the free directions. The drift of row
+j is RMS(h_j − mean) / RMS(x − mean) over the held-out stretches — a ratio of lengths, so the
+same at any rate, length unit or frame. Compliance, tremor and filtering move h only a little
+and do not accumulate; a free direction carries the motion.
+
+*The shape over a demonstration and agreement with the others* (a single smooth trajectory is
+locally a curve, whatever the constraint):
+
+==================  =====================================================================
+rail (k = q − 1)    every held-out demonstration on a line or circle of the family fitted to
+                    the others, each at its own offset (``linear``, ``sphere``; conics too in
+                    2-D), drift ≤ :data:`RAIL`; or one circle per demonstration (3-D) whose
+                    axes agree within :data:`AXIS_DEG` and radii within :data:`RADIUS_SPREAD`
+surface (k < q − 1) demonstrations that come back over their own ground (:func:`revisits`)
+                    and stay within :data:`SURFACE` of a surface (also per demonstration, and
+                    ``quadric``); without such returns, a plane or sphere (not a quadric: a
+                    quadric bends through any bundle of curves) within :data:`THIN`
+==================  =====================================================================
+
+k is the largest rank some model reaches (q − 1 first); among the models of that rank the
+simplest (global before per demonstration; linear, sphere, quadric) whose worst drift is within
+:data:`PARSIMONY` × the best one's wins. k = 0 when none does: the states show no constraint
+(the velocities may still show one).
+
+The thresholds were set on real recordings (docs/auto.md): hinges and drawers drift 0.5–3 %,
+tracker surfaces 10–16 %, a robot's wipes 11 %, free reaching ≥ 10 % with no returns.
+
+Shapes: X (N, q) positions, groups (N,) demonstration ids (samples of one are contiguous).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ccl_cli.learn.constraint.manifold import BASES, ManifoldConstraint, within_covariance
+
+#: Largest drift of a rail (k = q − 1).
+RAIL = 0.04
+#: Largest drift of a surface shown by demonstrations that come back over their ground.
+SURFACE = 0.2
+#: Largest drift of a plane or sphere shown by single passes.
+THIN = 0.05
+#: A demonstration comes back over its ground when at least REVISIT_SHARE of its samples have two
+#: other passes of it within REVISIT_RADIUS × its spread; surfaces may be judged per
+#: demonstration and by a quadric when at least half of the demonstrations do.
+REVISIT_RADIUS = 0.3
+REVISIT_SHARE = 0.25
+#: Circles fitted one per demonstration agree: axes within AXIS_DEG, radii within ± RADIUS_SPREAD.
+AXIS_DEG = 10.0
+RADIUS_SPREAD = 0.1
+#: A more complex model wins only by more than this factor of drift.
+PARSIMONY = 2.0
+#: Held-out folds: one demonstration each up to this many, else this many folds of whole demonstrations;
+#: one demonstration: BLOCKS contiguous blocks with GAP_SHARE of the recording dropped at each boundary.
+MAX_FOLDS = 12
+BLOCKS = 5
+GAP_SHARE = 0.01
+#: At most this many query samples per demonstration in :func:`revisits` (work bounded at any N).
+REVISIT_QUERIES = 400
+
+
+@dataclass
+class Tried:
+    """One model of the states' manifold: its rank k, ``scope`` ("global": one family over all the
+    demonstrations, each at its own offset; "per_demo": one per demonstration), basis, the held-out
+    drift of each row, whether it holds and why."""
+
+    k: int
+    scope: str
+    basis: str
+    drift: np.ndarray
+    limit: float
+    holds: bool
+    why: str
+
+    @property
+    def worst(self) -> float:
+        return float(np.max(self.drift)) if len(self.drift) else 0.0
+
+    def row(self, chosen: bool) -> dict[str, Any]:
+        return {"k": self.k, "scope": self.scope, "basis": self.basis,
+                "drift": [float(v) for v in self.drift], "limit": self.limit, "holds": self.holds,
+                "chosen": chosen, "reason": self.why}
+
+
+@dataclass
+class Geometry:
+    """What :func:`decide` found: ``k`` (0: no constraint in the states), the winner (None for 0),
+    every model tried, each demonstration's share of samples with returns, and a sentence."""
+
+    k: int
+    winner: Tried | None
+    tried: list[Tried] = field(default_factory=list)
+    revisits: dict[int, float] = field(default_factory=dict)
+    reason: str = ""
+
+    def evidence(self, k: int) -> Tried | None:
+        """The best model of rank k (the winner at the chosen k), or None."""
+        at = [t for t in self.tried if t.k == k]
+        return min(at, key=lambda t: t.worst) if at else None
+
+
+def demo_order(X: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """The demonstration ids sorted by the distance of their centroid from the centroid of all
+    the states (ties by size): an order that does not depend on the files' order, the frame or
+    the unit, for assigning demonstrations to folds."""
+    ids, inverse, counts = np.unique(groups, return_inverse=True, return_counts=True)
+    sums = np.zeros((len(ids), X.shape[1]))
+    np.add.at(sums, inverse, X)
+    dist = np.linalg.norm(sums / counts[:, None] - X.mean(0), axis=1)
+    return ids[np.lexsort((counts, dist))]
+
+
+def folds(X: np.ndarray, groups: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Train/test index pairs: whole demonstrations held out (one each up to MAX_FOLDS of them),
+    or — one demonstration — BLOCKS contiguous blocks with guard gaps."""
+    n = len(X)
+    ids = demo_order(X, groups)
+    if len(ids) >= 3:
+        parts = [ids[j::MAX_FOLDS] for j in range(min(MAX_FOLDS, len(ids)))]
+        return [(np.flatnonzero(~np.isin(groups, p)), np.flatnonzero(np.isin(groups, p))) for p in parts]
+    gap = int(np.ceil(GAP_SHARE * n))
+    out = []
+    for block in np.array_split(np.arange(n), BLOCKS):
+        keep = np.ones(n, bool)
+        keep[max(block[0] - gap, 0): block[-1] + gap + 1] = False
+        out.append((np.flatnonzero(keep), block))
+    return out
+
+
+def _stretches(index: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """An id per sample of ``index`` (sorted) for each contiguous run within one demonstration."""
+    breaks = (np.diff(index) != 1) | (groups[index][1:] != groups[index][:-1])
+    return np.cumsum(np.r_[True, breaks])
+
+
+def drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int) -> np.ndarray:
+    """Held-out drift of the first k level functions of ``basis`` (module docstring): (k,)."""
+    q = X.shape[1]
+    H = np.zeros((len(X), k))
+    piece = np.zeros(len(X), np.int64)
+    for j, (train, test) in enumerate(folds(X, groups)):
+        model = ManifoldConstraint(basis=basis, n_constraints=k).fit(
+            X[train], np.zeros((len(train), q)), groups=_stretches(train, groups))
+        H[test] = model.levels(X[test], k)
+        piece[test] = j
+    pieces = np.cumsum(np.r_[True, (piece[1:] != piece[:-1]) | (groups[1:] != groups[:-1])])
+    spread = within_covariance(X, pieces).trace()
+    var = np.diag(within_covariance(H, pieces))
+    return np.sqrt(var / spread) if spread > 0 else np.full(k, np.inf)
+
+
+def revisits(P: np.ndarray) -> float:
+    """The share of a demonstration's samples P (n, q) whose neighbourhood (REVISIT_RADIUS × its RMS
+    spread) holds at least two other passes of it (runs of consecutive samples)."""
+    from scipy.spatial import cKDTree
+
+    spread = float(np.sqrt(((P - P.mean(0)) ** 2).sum(1).mean()))
+    if len(P) < 3 or not spread > 0:
+        return 0.0
+    step = max(1, len(P) // REVISIT_QUERIES)
+    queries = np.arange(0, len(P), step)
+    near = cKDTree(P).query_ball_point(P[queries], REVISIT_RADIUS * spread, return_sorted=True)
+    counts = np.array([np.count_nonzero(np.diff(nb) != 1) for nb in near])  # bounded: ≤ REVISIT_QUERIES
+    return float(np.mean(counts >= 2))
+
+
+def circle(P: np.ndarray) -> tuple[np.ndarray, float]:
+    """The axis (unit, (3,)) and radius of the circle fitted to the points P (n, 3): the plane by
+    SVD, then an algebraic circle fit in it."""
+    c0 = P.mean(0)
+    e1, e2, axis = np.linalg.svd(P - c0, full_matrices=False)[2]
+    Q = np.c_[(P - c0) @ e1, (P - c0) @ e2]
+    sol = np.linalg.lstsq(np.c_[2 * Q, np.ones(len(Q))], (Q**2).sum(1), rcond=None)[0]
+    return axis, float(np.sqrt(max(sol[2] + sol[0] ** 2 + sol[1] ** 2, 0.0)))
+
+
+def circles_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
+    """Whether the circles fitted one per demonstration share their axis (within AXIS_DEG) and
+    radius (within ± RADIUS_SPREAD of the median), and a phrase saying how far they are apart."""
+    fits = [circle(X[groups == d]) for d in np.unique(groups)]
+    axes = np.array([a for a, _ in fits])
+    radii = np.array([r for _, r in fits])
+    ref = np.linalg.svd(axes, full_matrices=False)[2][0]
+    spread_deg = float(np.degrees(np.arccos(np.clip(np.abs(axes @ ref), 0.0, 1.0))).max())
+    med = float(np.median(radii))
+    rel = float(np.abs(radii - med).max() / med) if med > 0 else np.inf
+    ok = spread_deg <= AXIS_DEG and rel <= RADIUS_SPREAD
+    return ok, f"axes within {spread_deg:.1f}°, radii within ±{100 * rel:.0f} % of {med:.3g}"
+
+
+def _per_demo_drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int, which: np.ndarray
+                    ) -> np.ndarray:
+    """Median over the demonstrations ``which`` of each one's own held-out drift (blocks): (k,)."""
+    values = [drift(X[groups == d], np.zeros(int(np.sum(groups == d)), np.int64), basis, k) for d in which]
+    return np.median(values, axis=0)
+
+
+def decide(X: np.ndarray, groups: np.ndarray | None = None) -> Geometry:
+    """The number of constraints the positions X (N, q) of demonstrations ``groups`` show, and the
+    model that shows it (module docstring)."""
+    X = np.asarray(X, dtype=float)
+    q = X.shape[1]
+    groups = np.zeros(len(X), np.int64) if groups is None else np.asarray(groups)
+    ids = np.unique(groups)
+    back = {int(d): revisits(X[groups == d]) for d in ids}
+    returning = np.array([d for d in ids if back[int(d)] >= REVISIT_SHARE])
+    surfaces_return = len(returning) >= max(1, len(ids) / 2)
+    tried: list[Tried] = []
+    for k in range(q - 1, 0, -1):
+        rail = k == q - 1
+        for basis in BASES:
+            if basis == "quadric" and rail and q > 2:
+                continue  # a pair of quadrics bends through any bundle of similar curves
+            if basis == "quadric" and not rail and not surfaces_return:
+                continue
+            if rail:
+                limit, why = RAIL, "a line or circle family, each demonstration at its own offset"
+            elif surfaces_return:
+                limit, why = SURFACE, "a surface the demonstrations come back over"
+            else:
+                limit, why = THIN, "a plane or sphere shown by single passes"
+            d = drift(X, groups, basis, k)
+            tried.append(Tried(k, "global", basis, d, limit, bool(d.max() <= limit), why))
+        if rail and q == 3 and len(ids) > 1:
+            agree, how = circles_agree(X, groups)
+            d = _per_demo_drift(X, groups, "sphere", k, ids)
+            tried.append(Tried(k, "per_demo", "sphere", d, RAIL, bool(agree and d.max() <= RAIL),
+                               f"one circle per demonstration ({how})"))
+        if not rail and len(returning) and surfaces_return and len(ids) > 1:
+            for basis in BASES:
+                d = _per_demo_drift(X, groups, basis, k, returning)
+                tried.append(Tried(k, "per_demo", basis, d, SURFACE, bool(d.max() <= SURFACE),
+                                   "one surface per demonstration that comes back over its ground"))
+        holding = [t for t in tried if t.k == k and t.holds]
+        if holding:
+            best = min(holding, key=lambda t: t.worst)
+            winner = next(t for t in holding if t.worst <= PARSIMONY * best.worst)
+            reason = (f"the states stay on a manifold of {q - k} dimension(s): {winner.why}, "
+                      f"{winner.basis} ({winner.scope.replace('_', ' ')}), held-out drift "
+                      f"{winner.worst:.3g} ≤ {winner.limit:g}")
+            return Geometry(k, winner, tried, back, reason)
+    return Geometry(0, None, tried, back, "the states show no constraint: no line, circle or surface "
+                    "holds the held-out demonstrations")
