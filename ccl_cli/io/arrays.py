@@ -316,7 +316,8 @@ def assemble(parts: list[Part], options: DataOptions, where: str, state_names: l
         raise InputError(f"{where}: {parts[ids[k]].label}: time is not strictly increasing at sample "
                          f"{k - first} ({t[k - 1]!r} s then {t[k]!r} s)")
     if U is None:
-        U, meta["action"] = derive_actions(t, X, ids, options.action)
+        paced = str(meta.get("time", "")).startswith("rate")  # stamps from an assumed rate
+        U, meta["action"] = derive_actions(t, X, ids, options.action, paced=paced)
         action_names = [f"d{n}/dt" for n in state_names]
     if dropped:
         meta["dropped_nonfinite"] = dropped
