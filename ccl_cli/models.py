@@ -44,6 +44,7 @@ from ccl_cli.learn.constraint import (
     ConstraintInStretches,
     KnownFeatureConstraint,
     LinearConstraint,
+    ManifoldConstraint,
     NoConstraint,
     PerDemonstration,
     PerSegment,
@@ -68,6 +69,7 @@ CLASSES: dict[str, tuple[str, type]] = {
     "per_window": ("constraint", PerWindow),
     "per_segment": ("constraint", PerSegment),
     "stretches": ("constraint", ConstraintInStretches),
+    "manifold": ("constraint", ManifoldConstraint),
     "none": ("constraint", NoConstraint),
     "ncl": ("nullspace", NullSpaceComponent),
     "policy": ("policy", PolicyLearner),
@@ -404,7 +406,9 @@ def _check_shapes(model: Any, method: str, where: str) -> None:
     if needs_basis and K is None:
         raise InputError(f"{where}: a {method} model needs a /basis group")
     bad = None
-    if method == "nhat" and (model.A_ is None or model.A_.shape != (s, q)):
+    if method == "manifold":
+        bad = model.check_shapes()
+    elif method == "nhat" and (model.A_ is None or model.A_.shape != (s, q)):
         bad = "A_"
     elif method == "ncl" and (model.W_ is None or model.W_.shape != (q, K)):
         bad = "W_"

@@ -28,7 +28,8 @@ surface (k < q − 1) demonstrations that come back over their own ground (:func
 
 k is the largest rank some model reaches (q − 1 first); among the models of that rank the
 simplest (global before per demonstration; linear, sphere, quadric) whose worst drift is within
-:data:`PARSIMONY` × the best one's wins. k = 0 when none does: the states show no constraint
+:data:`PARSIMONY` × the best one's wins — judged by the same measure, and even if it misses the
+limit itself: the evidence sets k, parsimony the shape (a tilting table is still a plane). k = 0 when none does: the states show no constraint
 (the velocities may still show one).
 
 The thresholds were set on real recordings (docs/auto.md): hinges and drawers drift 0.5–3 %,
@@ -52,6 +53,8 @@ RAIL = 0.04
 SURFACE = 0.2
 #: Largest drift of a plane or sphere shown by single passes.
 THIN = 0.05
+#: Largest residual of the line or circle fitted to each demonstration (q ≤ 3), over its spread.
+RAIL_FIT = 0.05
 #: A demonstration comes back over its ground when at least REVISIT_SHARE of its samples have two
 #: other passes of it within REVISIT_RADIUS × its spread; surfaces may be judged per
 #: demonstration and by a quadric when at least half of the demonstrations do.
@@ -187,20 +190,6 @@ def circle(P: np.ndarray) -> tuple[np.ndarray, float]:
     return axis, float(np.sqrt(max(sol[2] + sol[0] ** 2 + sol[1] ** 2, 0.0)))
 
 
-def circles_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
-    """Whether the circles fitted one per demonstration share their axis (within AXIS_DEG) and
-    radius (within ± RADIUS_SPREAD of the median), and a phrase saying how far they are apart."""
-    fits = [circle(X[groups == d]) for d in np.unique(groups)]
-    axes = np.array([a for a, _ in fits])
-    radii = np.array([r for _, r in fits])
-    ref = np.linalg.svd(axes, full_matrices=False)[2][0]
-    spread_deg = float(np.degrees(np.arccos(np.clip(np.abs(axes @ ref), 0.0, 1.0))).max())
-    med = float(np.median(radii))
-    rel = float(np.abs(radii - med).max() / med) if med > 0 else np.inf
-    ok = spread_deg <= AXIS_DEG and rel <= RADIUS_SPREAD
-    return ok, f"axes within {spread_deg:.1f}°, radii within ±{100 * rel:.0f} % of {med:.3g}"
-
-
 def _per_demo_drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int, which: np.ndarray
                     ) -> np.ndarray:
     """Median over the demonstrations ``which`` of each one's own held-out drift (blocks): (k,)."""
@@ -208,9 +197,63 @@ def _per_demo_drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int, which
     return np.median(values, axis=0)
 
 
-def decide(X: np.ndarray, groups: np.ndarray | None = None) -> Geometry:
+def shape_residual(P: np.ndarray, k: int, basis: str = "sphere") -> np.ndarray:
+    """How far one demonstration P (n, q) is from the circle (``sphere``) or line (``linear``)
+    fitted to it: the RMS of the first k level functions fitted to it alone, over its RMS
+    spread: (k,). A circle or a line has a handful of parameters, so the fit to a few hundred
+    samples is judged on those samples."""
+    model = ManifoldConstraint(basis=basis, n_constraints=k).fit(P, np.zeros_like(P))
+    spread = float(np.sqrt(((P - P.mean(0)) ** 2).sum(1).mean()))
+    H = model.levels(P, k)
+    return np.sqrt(((H - H.mean(0)) ** 2).mean(0)) / spread if spread > 0 else np.full(k, np.inf)
+
+
+def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
+    """Whether the curves of the demonstrations agree: circles with one axis (within AXIS_DEG) and
+    radius (within ± RADIUS_SPREAD of the median), or lines with one direction (within AXIS_DEG),
+    and a phrase saying how far apart they are. One demonstration agrees with itself."""
+    ids = np.unique(groups)
+    if len(ids) == 1:
+        return True, "one demonstration"
+    q = X.shape[1]
+    directions, axes, radii, straight = [], [], [], []
+    for d in ids:
+        P = X[groups == d]
+        c0 = P.mean(0)
+        V = np.linalg.svd(P - c0, full_matrices=False)[2]
+        directions.append(V[0])
+        straight.append(bool(shape_residual(P, q - 1, "linear").max() <= RAIL_FIT))
+        if q == 3:
+            axis, r = circle(P)
+            axes.append(axis)
+        else:
+            Q = (P - c0) @ V[:2].T
+            sol = np.linalg.lstsq(np.c_[2 * Q, np.ones(len(Q))], (Q**2).sum(1), rcond=None)[0]
+            r = float(np.sqrt(max(sol[2] + sol[0] ** 2 + sol[1] ** 2, 0.0)))
+        radii.append(r)
+    if all(straight):
+        D = np.array(directions)
+        ref = np.linalg.svd(D, full_matrices=False)[2][0]
+        deg = float(np.degrees(np.arccos(np.clip(np.abs(D @ ref), 0.0, 1.0))).max())
+        return deg <= AXIS_DEG, f"lines within {deg:.1f}° of one direction"
+    if any(straight):
+        return False, "lines in some demonstrations, arcs in others"
+    r = np.array(radii)
+    med = float(np.median(r))
+    rel = float(np.abs(r - med).max() / med) if med > 0 else np.inf
+    deg = 0.0
+    if axes:
+        A = np.array(axes)
+        ref = np.linalg.svd(A, full_matrices=False)[2][0]
+        deg = float(np.degrees(np.arccos(np.clip(np.abs(A @ ref), 0.0, 1.0))).max())
+    ok = deg <= AXIS_DEG and rel <= RADIUS_SPREAD
+    return ok, f"circles with axes within {deg:.1f}°, radii within ±{100 * rel:.0f} % of {med:.3g}"
+
+
+def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None = None,
+           max_k: int | None = None) -> Geometry:
     """The number of constraints the positions X (N, q) of demonstrations ``groups`` show, and the
-    model that shows it (module docstring)."""
+    model that shows it (module docstring); ``only_k``: judge that rank alone; ``max_k``: at most."""
     X = np.asarray(X, dtype=float)
     q = X.shape[1]
     groups = np.zeros(len(X), np.int64) if groups is None else np.asarray(groups)
@@ -218,39 +261,73 @@ def decide(X: np.ndarray, groups: np.ndarray | None = None) -> Geometry:
     back = {int(d): revisits(X[groups == d]) for d in ids}
     returning = np.array([d for d in ids if back[int(d)] >= REVISIT_SHARE])
     surfaces_return = len(returning) >= max(1, len(ids) / 2)
+    quadrics = q <= 3
     tried: list[Tried] = []
-    for k in range(q - 1, 0, -1):
+    top = min(q - 1, max_k if max_k is not None else q - 1)
+    for k in ([only_k] if only_k is not None else range(top, 0, -1)):
         rail = k == q - 1
         for basis in BASES:
-            if basis == "quadric" and rail and q > 2:
+            if basis == "quadric" and (not quadrics or (rail and q > 2) or
+                                       (not rail and not surfaces_return)):
                 continue  # a pair of quadrics bends through any bundle of similar curves
-            if basis == "quadric" and not rail and not surfaces_return:
-                continue
             if rail:
-                limit, why = RAIL, "a line or circle family, each demonstration at its own offset"
+                limit, why = RAIL, "a family of lines or circles, each demonstration at its own offset"
             elif surfaces_return:
                 limit, why = SURFACE, "a surface the demonstrations come back over"
             else:
                 limit, why = THIN, "a plane or sphere shown by single passes"
             d = drift(X, groups, basis, k)
             tried.append(Tried(k, "global", basis, d, limit, bool(d.max() <= limit), why))
-        if rail and q == 3 and len(ids) > 1:
-            agree, how = circles_agree(X, groups)
-            d = _per_demo_drift(X, groups, "sphere", k, ids)
-            tried.append(Tried(k, "per_demo", "sphere", d, RAIL, bool(agree and d.max() <= RAIL),
-                               f"one circle per demonstration ({how})"))
+        if rail and q <= 3:
+            fits = np.array([shape_residual(X[groups == d], k) for d in ids])
+            agree, how = shapes_agree(X, groups)
+            worst = fits.max(axis=0)
+            holds = bool(agree and worst.max() <= RAIL_FIT)
+            tried.append(Tried(k, "per_demo", "sphere", worst, RAIL_FIT, holds,
+                               f"a line or circle in every demonstration ({how})"))
         if not rail and len(returning) and surfaces_return and len(ids) > 1:
-            for basis in BASES:
+            for basis in BASES[: 3 if quadrics else 2]:
                 d = _per_demo_drift(X, groups, basis, k, returning)
                 tried.append(Tried(k, "per_demo", basis, d, SURFACE, bool(d.max() <= SURFACE),
                                    "one surface per demonstration that comes back over its ground"))
         holding = [t for t in tried if t.k == k and t.holds]
-        if holding:
+        if holding:  # k from the best evidence; the model: the simplest within PARSIMONY × its drift
             best = min(holding, key=lambda t: t.worst)
-            winner = next(t for t in holding if t.worst <= PARSIMONY * best.worst)
+            winner = next(t for t in tried if t.k == k and t.worst <= PARSIMONY * best.worst
+                          and (t.holds or t.limit == best.limit))
             reason = (f"the states stay on a manifold of {q - k} dimension(s): {winner.why}, "
-                      f"{winner.basis} ({winner.scope.replace('_', ' ')}), held-out drift "
+                      f"{winner.basis} ({winner.scope.replace('_', ' ')}), "
+                      f"{'residual' if winner.limit == RAIL_FIT else 'held-out drift'} "
                       f"{winner.worst:.3g} ≤ {winner.limit:g}")
             return Geometry(k, winner, tried, back, reason)
     return Geometry(0, None, tried, back, "the states show no constraint: no line, circle or surface "
                     "holds the held-out demonstrations")
+
+
+#: The actions are the states' derivative when finite differences of the states leave at most
+#: this share of the actions' mean square unexplained.
+KINEMATIC_RESIDUAL = 0.3
+
+
+def kinematic(X: np.ndarray, U: np.ndarray, groups: np.ndarray, t: np.ndarray | None,
+              derivative: dict | bool | None = None) -> tuple[bool, str]:
+    """Whether the actions U (N, q) are the time derivative of the states X (N, q) — derived from
+    them by the readers (``derivative``), or recorded and matching the states' central
+    differences on the stamps t (N,) to within KINEMATIC_RESIDUAL of their mean square — and a
+    phrase saying why."""
+    if X.shape[1] != U.shape[1]:
+        return False, f"states ({X.shape[1]}) and actions ({U.shape[1]}) differ in dimension"
+    if isinstance(derivative, dict):
+        return True, "the actions were derived from the states"
+    if t is None:
+        return False, "no sample times to differentiate the states on"
+    inside = np.flatnonzero((groups[2:] == groups[:-2]) & (t[2:] > t[:-2])) + 1
+    if len(inside) < 3:
+        return False, "too few samples to differentiate the states"
+    dXdt = (X[inside + 1] - X[inside - 1]) / (t[inside + 1] - t[inside - 1])[:, None]
+    total = float((U[inside] ** 2).sum())
+    share = float(((dXdt - U[inside]) ** 2).sum() / total) if total > 0 else np.inf
+    if share <= KINEMATIC_RESIDUAL:
+        return True, (f"the actions match the states' differences ({100 * share:.1f} % of their mean "
+                      "square apart)")
+    return False, f"the actions are not the states' derivative ({100 * min(share, 9.99):.0f} % apart)"

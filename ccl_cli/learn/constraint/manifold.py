@@ -141,6 +141,19 @@ class ManifoldConstraint(ConstraintModel):
                                         "RMS spread of the states"}
         return self
 
+    def check_shapes(self) -> str | None:
+        """The name of the first learnt array whose shape disagrees with the basis and q (a saved
+        model being loaded), or None."""
+        q = self.n_action_
+        F = n_features(self.basis, q)
+        for name, want in (("weights_", (F, F)), ("variation_", (F,)), ("centre_", (q,))):
+            value = getattr(self, name, None)
+            if value is None or np.shape(value) != want:
+                return name
+        if not (isinstance(self.scale_, float | int) and self.scale_ > 0):
+            return "scale_"
+        return None if 1 <= self.n_constraints_ < q else "n_constraints_"
+
     def _scaled(self, X: np.ndarray) -> np.ndarray:
         return (X - self.centre_) / self.scale_
 
