@@ -7,6 +7,7 @@ Ground truth, when known (simulation), lives in ``truth``; learners never read i
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -16,6 +17,73 @@ from ccl_cli.errors import InputError
 
 #: Ground-truth keys and their per-sample shapes (s = number of constraints).
 TRUTH_KEYS = ("pi", "w", "v", "b", "A", "N")
+#: The readers' local polynomial where a source does not say (the filter assumed when it is not
+#: known how the actions were made): its window (samples) and order.
+DEFAULT_WINDOW = 9
+DEFAULT_ORDER = 2
+
+
+@dataclass(frozen=True)
+class Derivative:
+    """How the actions U were made from the states X — a fact of the data, set by the reader
+    or simulator that made them.
+
+    Attributes:
+        derived: True when U = dX/dt by the readers' local polynomial
+            (:mod:`ccl_cli.io.derivative`), False when the actions were recorded (or are a
+            model's output), None when nothing says.
+        window, order: the polynomial's samples and degree (:data:`DEFAULT_WINDOW`,
+            :data:`DEFAULT_ORDER` where the source does not say).
+        rule: why that window, in words ("" when not said).
+    """
+
+    derived: bool | None = None
+    window: int = DEFAULT_WINDOW
+    order: int = DEFAULT_ORDER
+    rule: str = ""
+
+    @classmethod
+    def of(cls, value: HowMade) -> Derivative:
+        """The value a learner's ``derivative`` argument takes: a Derivative; the readers'
+        ``{"window", "order"}`` (derived); False (recorded); None (not known)."""
+        if isinstance(value, Derivative):
+            return value
+        if isinstance(value, Mapping):
+            return cls(True, int(value.get("window") or DEFAULT_WINDOW),
+                       int(value.get("order") or DEFAULT_ORDER), str(value.get("window_rule") or ""))
+        if value is None or value is False:
+            return cls(None if value is None else False)
+        raise InputError(f"derivative must say how the actions were made (a Derivative, "
+                         f"{{window, order}}, False or None), got {value!r}"[:200])
+
+    @classmethod
+    def from_record(cls, record: Any) -> Derivative | None:
+        """From a record a source stored (a reader's ``{"derived", "window", "order", ...}``, a
+        simulator's ``{"window", "order"}``, a recorded stream's description): derived when it
+        names a window or says derived, else recorded; None when ``record`` is no mapping."""
+        if not isinstance(record, Mapping):
+            return None
+        if "derived" in record or "window" in record:
+            return cls.of(record)
+        return cls(False)
+
+    @property
+    def known(self) -> bool:
+        return self.derived is not None
+
+    def gain(self, dt: float) -> float:
+        """Σc² of the polynomial's slope filter c (1/s) on stamps ``dt`` s apart: the variance
+        of a derived velocity per unit variance of white position noise."""
+        from ccl_cli.learn.noise import slope_filter
+
+        return float((slope_filter(dt, self.window, self.order) ** 2).sum())
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"derived": self.derived, "window": self.window, "order": self.order, "rule": self.rule}
+
+
+#: What a learner's ``derivative`` argument takes (:meth:`Derivative.of`).
+HowMade = Derivative | Mapping[str, Any] | bool | None
 
 
 @dataclass
@@ -33,6 +101,7 @@ class Demonstrations:
         state_names, action_names: length p and q.
         state_units, action_units: length p and q (free text, may be empty).
         metadata: JSON-serialisable provenance (source files, topics, ...).
+        derivative: how U was made (:class:`Derivative`; not known by default).
     """
 
     X: np.ndarray
@@ -45,6 +114,7 @@ class Demonstrations:
     state_units: list[str] | None = None
     action_units: list[str] | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
+    derivative: Derivative = field(default_factory=Derivative)
 
     def __post_init__(self) -> None:
         self.X = np.asarray(self.X, dtype=float)
@@ -196,6 +266,7 @@ class Demonstrations:
             state_units=first.state_units,
             action_units=first.action_units,
             metadata={"parts": [p.metadata for p in parts]},
+            derivative=next((p.derivative for p in parts if p.derivative.known), Derivative()),
         )
 
     def check_finite(self) -> None:

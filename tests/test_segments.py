@@ -10,7 +10,6 @@ from ccl_cli import simulate as sim
 from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint import AutoConstraint, PerSegment, PerWindow, StateIndependentConstraint
 from ccl_cli.learn.constraint.segments import cut, quietest_motion
-from ccl_cli.learn.constraint.windows import refit_on_new_demos
 from ccl_cli.metrics import subspace_angle
 from ccl_cli.models import load_model, save_model
 
@@ -101,8 +100,10 @@ def test_saved_and_loaded_it_predicts_the_same_and_refits_on_a_new_recording(tmp
     other = replace(other, demo=other.demo + 7)  # a demonstration the model has not seen
     with pytest.raises(InputError, match="not seen"):
         back.projection(other.X, groups=other.demo, t=other.t)
-    refit, note = refit_on_new_demos(back, other.X, other.U, other.demo, other.t)
+    applied = back.applies_to(other.X, other.U, groups=other.demo, t=other.t, new_recording=False)
+    refit, note = applied.model, applied.note
     assert type(refit) is PerSegment and "segment" in note and refit.n_constraints_ == back.n_constraints_
+    assert applied.rule.rule == "rows fitted per stretch" and "k" in applied.rule.keeps
     assert np.median(angles_deg(refit, other)) < 3.0
 
 

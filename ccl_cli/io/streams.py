@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, Derivative
 from ccl_cli.errors import InputError
 from ccl_cli.io.derivative import derive_actions
 from ccl_cli.io.options import DataOptions, DemoOptions, FaultOptions, StreamOptions
@@ -106,6 +106,7 @@ class StreamReader(ReaderBase):
             action_names = action.names
             meta["action"] = {**action.meta, "aligned": "linear interpolation onto state stamps",
                               "dropped_outside_span": dropped}
+            how = Derivative(False)  # recorded
         else:
             action_names = [f"d{n}/dt" for n in state.names]
         state_names, units = state.names, None
@@ -132,9 +133,11 @@ class StreamReader(ReaderBase):
             t = (t_ns - t_ns[0]) / 1e9
         if U is None:
             U, meta["action"] = derive_actions(t_s, X, demo, o.action)
+            how = Derivative.from_record(meta["action"])
         data = Demonstrations(X=X, U=U, demo=demo, t=t,
                               state_names=state_names, action_names=action_names, state_units=units,
-                              action_units=[f"{u}/s" for u in units] if units else None, metadata=meta)
+                              action_units=[f"{u}/s" for u in units] if units else None, metadata=meta,
+                              derivative=how)
         return Recording(data, int(t_ns[0]))
 
     def inspect(self, gap: float | None = None) -> dict[str, Any]:

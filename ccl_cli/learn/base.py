@@ -8,14 +8,13 @@
   once in ``_parameter_constraints`` (format: :mod:`ccl_cli.learn.params`) and checked at
   the start of ``fit``.
 * ``fit(X, U, *, groups=None)`` returns ``self`` (``groups``: demonstration id per
-  sample). Learners that read the time structure (learn-a's ``auto``, the per-window
-  constraint) also take ``t`` (N,), the sample times in seconds, and ``derivative``, how U
-  was made (the readers' {"window", "order"} when derived from the states, False when
-  recorded, None when not known): ``fit(X, U, *, groups=None, t=None, derivative=None)``;
-  :func:`ccl_cli.learn.constraint.base.fit_constraint` passes them to those that take them.
-  Learnt attributes end in ``_``; ``n_features_in_`` is the state dimension p
-  seen in ``fit`` and every prediction checks it. The learnt attributes a saved model
-  holds are declared once in ``_fitted_attributes`` (read by :mod:`ccl_cli.models`).
+  sample). Every constraint learner takes one signature (:mod:`ccl_cli.learn.constraint.base`):
+  ``fit(X, U, *, groups=None, t=None, derivative=None)`` — ``t`` (N,) the sample times in
+  seconds, ``derivative`` how U was made (:class:`~ccl_cli.dataset.Derivative`); a learner
+  that does not read one of them ignores it. Learnt attributes end in ``_``;
+  ``n_features_in_`` is the state dimension p seen in ``fit`` and every prediction checks it.
+  The learnt attributes a saved model holds are declared once in ``_fitted_attributes``
+  (read by :mod:`ccl_cli.models`).
 * ``score(X, U, ...)`` is minus the learner's own held-out consistency error (higher is
   better), so scikit-learn's ``GridSearchCV`` and ``cross_validate`` work unchanged.
 * Asking a learner for a prediction before ``fit`` raises :class:`NotFittedError`.
@@ -154,6 +153,40 @@ class Estimator:
             want = f"p = {p} state dimensions" if p is not None else "states as an (N, p) array"
             raise InputError(f"the model expects {want}, got {got}")
         return X
+
+    # -- what a loaded model is checked with (ccl_cli.models) ---------------------------------
+    @property
+    def chosen_(self) -> Estimator:
+        """The fitted model that answers for this one: itself (a learner that chooses among
+        models — learn-a's ``auto``, :class:`~ccl_cli.learn.model_selection.Tuned` — gives the
+        one it chose; a model file holds that one)."""
+        return self
+
+    def check_shapes(self) -> None:
+        """InputError (naming the learnt array) unless the learnt arrays fit together: what a
+        model read from a file is checked with before it predicts. Each learner checks its
+        own arrays and then calls this, which checks that a fitted RBF basis gives finite
+        features."""
+        basis = vars(self).get("basis_")
+        if basis is not None and hasattr(basis, "centres_") and \
+                not np.isfinite(basis.transform(basis.centres_[:1])).all():
+            raise InputError("the basis gives non-finite features")
+
+    def _shape_error(self, name: str) -> InputError:
+        return InputError(f"array {name} has the wrong shape for a {type(self).__name__}")
+
+    def _basis_width(self) -> int:
+        """K, the features of the fitted basis (InputError when the model holds none)."""
+        basis = vars(self).get("basis_")
+        if basis is None:
+            raise InputError(f"a {type(self).__name__} needs a basis (a /basis group)")
+        return int(basis.n_features)
+
+    def implied_n_features(self) -> int | None:
+        """The state dimension p that what the model holds implies (its fitted basis), None when
+        nothing does: a file that does not record ``n_features_in_`` is read with it."""
+        basis = vars(self).get("basis_")
+        return None if basis is None else basis.n_state
 
     def _check_fitted(self, *attrs: str) -> None:
         """Raise :class:`NotFittedError` unless every learnt attribute in ``attrs`` exists."""

@@ -29,6 +29,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from ccl_cli.dataset import Derivative, HowMade
 from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn import blas
 from ccl_cli.learn.base import Estimator, check_xu, clone
@@ -129,7 +130,7 @@ def inner_folds(segments: np.ndarray, n_folds: int = N_FOLDS, gap: int = DEFAULT
                  f"{what} ({len(counts)}), {gap} samples dropped from training at each boundary")
 
 
-def inner_heldout(segments: np.ndarray, derivative: dict | bool | None,
+def inner_heldout(segments: np.ndarray, derivative: HowMade,
                   error_of: Callable[[np.ndarray, np.ndarray], float], what: str = "segment"
                   ) -> dict[str, Any] | None:
     """The held-out NPOE of a model fitted per segment (a demonstration or a window), which can
@@ -138,7 +139,8 @@ def inner_heldout(segments: np.ndarray, derivative: dict | bool | None,
     :data:`RECORDED_GAP`); ``error_of(train, test)`` fits on the rows ``train`` and returns the
     error on the rows ``test``. {error, mean, se, per_fold, folds}, or None when most segments
     are too short for the blocks and their gaps."""
-    gap = int(derivative["window"]) if isinstance(derivative, dict) else RECORDED_GAP
+    how = Derivative.of(derivative)
+    gap = int(how.window) if how.derived else RECORDED_GAP
     seg = np.asarray(segments)
     counts = np.bincount(seg)
     if (counts[seg] >= N_FOLDS * (2 * gap + MIN_BLOCK)).mean() < 0.5:
@@ -662,13 +664,20 @@ class Tuned(Estimator):
         """The winner's prediction (w̃ or π̃): (N, p) → (N, q)."""
         return self._best().predict(X)
 
-    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
-        """The winner's Ñ(X): (N, p) → (N, q, q)."""
-        return self._best().projection(X, groups=groups)
+    @property
+    def chosen_(self) -> Any:
+        """The winner, fitted on all the data."""
+        return self._best()
 
-    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
+        """The winner's Ñ(X): (N, p) → (N, q, q)."""
+        return self._best().projection(X, groups=groups, t=t)
+
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
         """The winner's Ã(X): (N, p) → (N, s, q)."""
-        return self._best().constraint(X, groups=groups)
+        return self._best().constraint(X, groups=groups, t=t)
 
     def score(self, X: np.ndarray, U: np.ndarray, **kw: Any) -> float:
         """The winner's score (minus its own consistency error; higher is better)."""

@@ -292,3 +292,10 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
         """−NPE of actions U (N, q) at states X (N, p) (§6): −mean ‖P̃u − w̃‖² / Σ var(u),
         P̃ = w̃w̃ᵀ/‖w̃‖²; higher is better."""
         return -npe_error(self.predict(X), np.asarray(U, dtype=float))
+
+    def check_shapes(self) -> None:
+        """W_ (q, K), K the basis's features."""
+        K = self._basis_width()
+        if self.W_ is None or self.W_.shape != (self.n_action_, K):
+            raise self._shape_error("W_")
+        super().check_shapes()

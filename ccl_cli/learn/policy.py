@@ -407,6 +407,15 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         return -inconsistency_error(P, U, weighted=self.method == "pi-weighted")
 
 
+    def check_shapes(self) -> None:
+        """W_ (K, q), or (K, p + 1, q) for lwpi, with the basis's K and p."""
+        K = self._basis_width()
+        want = (K, self.basis_.n_state + 1, self.n_action_) if self.method == "lwpi" else (K, self.n_action_)
+        if self.W_ is None or self.W_.shape != want:
+            raise self._shape_error("W_")
+        super().check_shapes()
+
+
 def rms_norm(U: np.ndarray) -> float:
     """The root mean square of the action norms, sqrt(mean_n ‖u_n‖²), of U (N, q)."""
     return float(np.sqrt(np.mean(np.sum(np.square(U), axis=1))))
