@@ -149,7 +149,7 @@ def test_nhat_held_out_rows_and_npoe_by_hand():
     training fold's Σ u uᵀ on its test fold (folds of make_folds), averaged over folds."""
     d = sim.tracker_plane(duration=30.0, seed=1)
     model = fit_auto(d, candidates=["none", "nhat"])
-    folds = S.make_folds(d.demo, d.n_samples, 5, 0, d.metadata["derivative"]["window"])
+    folds = S.make_folds(d.demo, d.n_samples, 5, 0, d.derivative.window)
     errors = []
     for train, test in folds.pairs:
         a = np.linalg.eigh(d.U[train].T @ d.U[train])[1][:, 0]
@@ -232,11 +232,11 @@ def test_per_window_rows_are_each_windows_eigenvectors_without_shrinkage():
 
 def test_per_window_held_out_figure_is_its_own_refit_by_hand():
     d = sim.tracker_tilt(seed=3, duration=30.0)
-    deriv = d.metadata["derivative"]
+    deriv = d.derivative
     model = PerWindow(n_constraints=1).fit(d.X, d.U, groups=d.demo, t=d.t, derivative=deriv)
     seg, _ = window_index(d.demo, d.t, 4.0, d.n_samples)
     errors = []
-    for train, test in S.inner_folds(seg, 5, d.metadata["derivative"]["window"]).pairs:
+    for train, test in S.inner_folds(seg, 5, d.derivative.window).pairs:
         twin = PerWindow(n_constraints=1, heldout=False).fit(d.X[train], d.U[train], groups=d.demo[train],
                                                              t=d.t[train])
         errors.append(npoe_error(twin.projection(d.X[test], groups=d.demo[test], t=d.t[test]), d.U[test]))
@@ -245,11 +245,11 @@ def test_per_window_held_out_figure_is_its_own_refit_by_hand():
 
 def test_per_window_rank_by_the_noise_rule():
     d = sim.tracker_tilt(seed=4)
-    assert PerWindow().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.metadata["derivative"]
+    assert PerWindow().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.derivative
                            ).n_constraints_ == 1
     free = sim.free_reach(seed=1)
     assert PerWindow().fit(free.X, free.U, groups=free.demo, t=free.t,
-                           derivative=free.metadata["derivative"]).n_constraints_ == 0
+                           derivative=free.derivative).n_constraints_ == 0
 
 
 # -- saving, loading, using on new recordings ------------------------------------------------------------
@@ -334,7 +334,7 @@ def test_unknown_provenance_takes_the_larger_noise_estimate():
 
     d = sim.tracker_plane(duration=30.0, seed=0)
     rows = np.linalg.eigh(d.U.T @ d.U)[1].T[:2]
-    told = nr.row_evidence(d.U, rows, d.demo, d.t, d.X, d.metadata["derivative"])
+    told = nr.row_evidence(d.U, rows, d.demo, d.t, d.X, d.derivative)
     recorded = nr.row_evidence(d.U, rows, d.demo, d.t, d.X)
     unknown = nr.row_evidence(d.U, rows, d.demo, d.t, d.X, recorded=False)
     assert np.allclose(unknown.noise, told.noise, rtol=1e-12)

@@ -78,7 +78,7 @@ def test_a_constant_plane_keeps_its_normal():
 
 def test_auto_takes_the_segments_on_a_board_tilting_in_steps():
     d = sim.tracker_tilt(mode="steps", seed=1)
-    model = AutoConstraint().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.metadata.get("derivative"))
+    model = AutoConstraint().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.derivative)
     assert model.selection_["chosen"] == "per_segment" and model.n_constraints_ == 1
     said = model.selection_["reason"]  # where the cuts are, in words
     first = model.model_.windows_[1, 1] * model.model_.block
@@ -90,7 +90,7 @@ def test_auto_takes_the_segments_on_a_board_tilting_in_steps():
 
 def test_saved_and_loaded_it_predicts_the_same_and_refits_on_a_new_recording(tmp_path):
     d = sim.tracker_tilt(mode="steps", seed=2)
-    model = PerSegment().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.metadata.get("derivative"))
+    model = PerSegment().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.derivative)
     save_model(tmp_path / "m.h5", model)
     back, _ = load_model(tmp_path / "m.h5")
     assert type(back) is PerSegment

@@ -93,7 +93,7 @@ def test_free_motion_gets_no_constraint_from_lucky_stretches(make, seed):
     assert row["k"] == 0 and row["time_share"] < st.MIN_SHARE
     # on its own training data a row quiet in some stretches exists, in far fewer than the table's
     inner = ConstraintInStretches(n_constraints=1).fit(d.X, d.U, groups=d.demo, t=d.t,
-                                                       derivative=d.metadata["derivative"])
+                                                       derivative=d.derivative)
     assert 0 < inner.share_ < st.MIN_SHARE
 
 

@@ -194,6 +194,6 @@ def noise_rank(evidence: RowEvidence, max_k: int, margin: float = MARGIN, share:
 
 
 def choose(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarray, max_k: int,
-           X: np.ndarray | None = None, derivative: dict | None = None) -> Selection | None:
+           X: np.ndarray | None = None, derivative: HowMade = None) -> Selection | None:
     """:func:`row_evidence` then :func:`noise_rank` with the default thresholds."""
     return noise_rank(row_evidence(U, rows, demo, t, X, derivative), max_k)
