@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -86,6 +86,85 @@ class Derivative:
 HowMade = Derivative | Mapping[str, Any] | bool | None
 
 
+@dataclass(frozen=True, eq=False)
+class Repair:
+    """What sensor-fault repair (:mod:`ccl_cli.io.faults`) did to each sample it saw — the
+    samples of the recording(s) as read, in order, before any was dropped — and why.
+
+    Attributes:
+        done: (M,) index into :data:`ACTIONS` — ``kept`` (as recorded), ``mirrored`` (a
+            hemisphere flip mirrored back), ``restamped`` (its stamp repaired) or ``dropped``.
+        why: (M,) index into ``faults``: the kind of fault behind it (``faults[0]`` is "":
+            none found; a kept sample with a fault was found faulty and kept as recorded).
+        faults: the kinds of fault named in ``why``.
+        row: (M,) the row of X/U the sample is, −1 when it is not in the data (dropped by the
+            repair, or left out afterwards: outside every demonstration, a held-out part, ...).
+    """
+
+    ACTIONS: ClassVar[tuple[str, ...]] = ("kept", "mirrored", "restamped", "dropped")
+
+    done: np.ndarray
+    why: np.ndarray
+    faults: tuple[str, ...]
+    row: np.ndarray
+
+    @classmethod
+    def untouched(cls, n: int) -> Repair:
+        """n samples checked and kept as recorded, row i the i-th."""
+        return cls(np.zeros(n, np.uint8), np.zeros(n, np.uint8), ("",), np.arange(n, dtype=np.int64))
+
+    def actions(self) -> np.ndarray:
+        """(M,) what was done to each sample, in words."""
+        return np.asarray(self.ACTIONS)[self.done]
+
+    def reasons(self) -> np.ndarray:
+        """(M,) the fault behind it ("" where none was found)."""
+        return np.asarray(self.faults)[self.why]
+
+    def of_rows(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(what was done, why) for each of the ``n`` rows of the data, in words: (n,) each
+        (a row no repaired sample became — data that were not checked — is ``kept``, "")."""
+        done, why = np.full(n, "kept", dtype=object), np.full(n, "", dtype=object)
+        on = self.row >= 0
+        done[self.row[on]], why[self.row[on]] = self.actions()[on], self.reasons()[on]
+        return done, why
+
+    def after(self, kept: np.ndarray, n: int) -> Repair:
+        """The record once the data's ``n`` rows are cut to ``kept`` (a mask (n,) or row indices,
+        in the new order): each sample's row where it went, −1 where it left."""
+        new_of_old = np.full(n + 1, -1, dtype=np.int64)  # entry n: the −1 of samples already out
+        idx = np.flatnonzero(kept) if np.asarray(kept).dtype == bool else np.asarray(kept, dtype=np.int64)
+        new_of_old[idx] = np.arange(len(idx))
+        return replace(self, row=new_of_old[np.where(self.row >= 0, self.row, n)])
+
+    @staticmethod
+    def join(parts: list[tuple[Repair | None, int]]) -> Repair | None:
+        """One record of datasets joined in order: (record or None — not checked: its rows kept —
+        and its row count) each; None when no part holds one."""
+        if all(r is None for r, _ in parts):
+            return None
+        faults = tuple(dict.fromkeys(k for r, _ in parts if r is not None for k in r.faults))
+        if "" not in faults:
+            faults = ("", *faults)
+        done, why, row, offset = [], [], [], 0
+        for r, n in parts:
+            r = r if r is not None else Repair.untouched(n)
+            code = np.array([faults.index(k) for k in r.faults], dtype=np.uint8)
+            done.append(r.done)
+            why.append(code[r.why])
+            row.append(np.where(r.row >= 0, r.row + offset, -1))
+            offset += n
+        return Repair(np.concatenate(done), np.concatenate(why), faults, np.concatenate(row))
+
+    def counts(self) -> dict[str, dict[str, int]]:
+        """action → fault → number of samples (faults "" : none found)."""
+        out: dict[str, dict[str, int]] = {}
+        pairs, n = np.unique(np.stack([self.done, self.why], 1), axis=0, return_counts=True)
+        for (a, w), k in zip(pairs, n, strict=True):
+            out.setdefault(self.ACTIONS[a], {})[self.faults[w]] = int(k)
+        return out
+
+
 @dataclass
 class Demonstrations:
     """Observed states and actions grouped into demonstrations.
@@ -102,6 +181,8 @@ class Demonstrations:
         state_units, action_units: length p and q (free text, may be empty).
         metadata: JSON-serialisable provenance (source files, topics, ...).
         derivative: how U was made (:class:`Derivative`; not known by default).
+        repair: what sensor-fault repair did to each sample it saw (:class:`Repair`; None
+            when no check ran).
     """
 
     X: np.ndarray
@@ -115,6 +196,7 @@ class Demonstrations:
     action_units: list[str] | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
     derivative: Derivative = field(default_factory=Derivative)
+    repair: Repair | None = None
 
     def __post_init__(self) -> None:
         self.X = np.asarray(self.X, dtype=float)
@@ -206,8 +288,9 @@ class Demonstrations:
                 truth[key] = value[idx]
             else:
                 truth[key] = value
+        repair = None if self.repair is None else self.repair.after(idx, n)
         return replace(self, X=self.X[idx], U=self.U[idx], demo=self.demo[idx], t=self.t[idx],
-                       truth=truth, metadata=dict(self.metadata))
+                       truth=truth, metadata=dict(self.metadata), repair=repair)
 
     def select_demos(self, ids: np.ndarray | list[int]) -> Demonstrations:
         return self.subset(np.isin(self.demo, np.asarray(ids)))
@@ -267,6 +350,7 @@ class Demonstrations:
             action_units=first.action_units,
             metadata={"parts": [p.metadata for p in parts]},
             derivative=next((p.derivative for p in parts if p.derivative.known), Derivative()),
+            repair=Repair.join([(p.repair, p.n_samples) for p in parts]),
         )
 
     def check_finite(self) -> None:
