@@ -32,7 +32,8 @@ def test_recorded_actions_are_said_so_and_the_learners_forms_are_read(tmp_path):
     rec = sim.tracker_plane(duration=10.0, seed=1)
     path = tmp_path / "xu.csv"
     np.savetxt(path, np.c_[rec.t, rec.X, rec.U], delimiter=",", header="t,x,y,z,u,v,w", comments="")
-    columns = {"time": {"column": "t"}, "state": {"columns": ["x", "y", "z"]}, "action": {"columns": ["u", "v", "w"]}}
+    columns = {"time": {"column": "t"}, "state": {"columns": ["x", "y", "z"]},
+               "action": {"columns": ["u", "v", "w"]}}
     data = load_demonstrations({"files": [str(path)], **columns})
     assert data.derivative == Derivative(False) and data.derivative.known
     assert Derivative.of(False) == Derivative(False) and Derivative.of(None) == Derivative()
