@@ -17,6 +17,15 @@
   (read by :mod:`ccl_cli.models`).
 * ``score(X, U, ...)`` is minus the learner's own held-out consistency error (higher is
   better), so scikit-learn's ``GridSearchCV`` and ``cross_validate`` work unchanged.
+* Metadata routing: the keyword-only arguments of ``fit`` and ``score`` beside X and U —
+  ``groups``, ``t`` (every learner takes them; one that does not read them says so),
+  ``derivative``, a pi-coupled policy's ``projections`` — are per-sample data of the
+  recording, so every learner *requests* them by default: with
+  ``sklearn.set_config(enable_metadata_routing=True)``, ``GridSearchCV(...).fit(X, U,
+  groups=..., t=...)`` and ``cross_validate(..., params={...})`` give each fold's fit and
+  score its part. ``set_fit_request`` / ``set_score_request`` change a request (``False``: not
+  passed, a string: an alias), as on scikit-learn's own estimators. scikit-learn is imported
+  only by :meth:`Estimator.get_metadata_routing`, which only scikit-learn calls.
 * Asking a learner for a prediction before ``fit`` raises :class:`NotFittedError`.
 
 :class:`NotFittedError` is a :class:`~ccl_cli.errors.LearningError` (exit code 1): a
@@ -37,12 +46,20 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ccl_cli.errors import InputError, LearningError
+from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn.params import validate_params
 
 
 class NotFittedError(LearningError):
     """A learner was asked for a prediction before ``fit``."""
+
+
+class Requests(dict):
+    """A learner's changed metadata requests: method → {metadata: request}. scikit-learn's
+    ``clone`` copies it with the learner (it calls ``__sklearn_clone__``), as :func:`clone` does."""
+
+    def __sklearn_clone__(self) -> Requests:
+        return copy.deepcopy(self)
 
 
 def check_xu(X: np.ndarray, U: np.ndarray, min_samples: int = 2) -> tuple[np.ndarray, np.ndarray]:
@@ -199,6 +216,45 @@ class Estimator:
             if name.endswith("_") and not name.startswith("_"):
                 setattr(self, name, value)
 
+    # -- scikit-learn's metadata routing ------------------------------------------------------
+    def _metadata(self, method: str) -> tuple[str, ...]:
+        """The metadata ``method`` (``fit`` or ``score``) takes: its keyword-only parameters."""
+        params = inspect.signature(getattr(type(self), method)).parameters.values()
+        return tuple(p.name for p in params if p.kind is p.KEYWORD_ONLY)
+
+    def _set_request(self, method: str, requests: dict[str, bool | str | None]) -> Estimator:
+        known = self._metadata(method)
+        for name in requests:
+            if name not in known:
+                raise ConfigError(f"{type(self).__name__}.{method} takes no {name!r} "
+                                  f"(it takes: {', '.join(known)})")
+        table = Requests(vars(self).get("_metadata_request", {}))
+        table[method] = {**table.get(method, {}), **requests}
+        self._metadata_request = table  # cloned with the learner (here and by scikit-learn)
+        return self
+
+    def set_fit_request(self, **requests: bool | str | None) -> Estimator:
+        """Which metadata scikit-learn routes to ``fit`` (True by default; False, None or an
+        alias): ``est.set_fit_request(t=False)``."""
+        return self._set_request("fit", requests)
+
+    def set_score_request(self, **requests: bool | str | None) -> Estimator:
+        """Which metadata scikit-learn routes to ``score`` (as :meth:`set_fit_request`)."""
+        return self._set_request("score", requests)
+
+    def get_metadata_routing(self) -> Any:
+        """scikit-learn's ``MetadataRequest`` of this learner: ``fit`` and ``score`` request their
+        metadata (:meth:`_metadata`) unless :meth:`set_fit_request` / :meth:`set_score_request`
+        said otherwise. Only scikit-learn calls it, so only then is scikit-learn imported."""
+        from sklearn.utils.metadata_routing import MetadataRequest
+
+        request = MetadataRequest(owner=type(self).__name__)
+        chosen = vars(self).get("_metadata_request", {})
+        for method in ("fit", "score"):
+            for name in self._metadata(method):
+                getattr(request, method).add_request(param=name, alias=chosen.get(method, {}).get(name, True))
+        return request
+
     def __sklearn_tags__(self) -> SimpleNamespace:
         """The description scikit-learn's meta-estimators read (GridSearchCV, clone checks):
         a 2-D numeric input, a multi-output target, fitting required. Plain attributes —
@@ -236,4 +292,7 @@ def clone(estimator: Any) -> Any:
     if not hasattr(estimator, "get_params") or isinstance(estimator, type):
         return copy.deepcopy(estimator)
     params = estimator.get_params(deep=False)
-    return type(estimator)(**{k: clone(v) for k, v in params.items()})
+    out = type(estimator)(**{k: clone(v) for k, v in params.items()})
+    if "_metadata_request" in vars(estimator):  # its metadata requests go with it
+        out._metadata_request = copy.deepcopy(estimator._metadata_request)
+    return out

@@ -189,10 +189,18 @@ class ConstraintModel(Estimator):
               t: np.ndarray | None = None) -> float:
         """−NPOE of actions U (N, q) at states X (N, p) (§6): −mean ‖z − Ñ(x)z‖² / Σ var(u),
         z = u − ṽ (the learnt task part, when the model has one); higher is better, 0 when every
-        action (less its task part) lies in the learnt null space."""
+        action (less its task part) lies in the learnt null space.
+
+        Scored as the model applies to these data (:meth:`applies_to`, a part of the recordings
+        it was fitted on): a demonstration it has seen takes its fitted rows, one it has not the
+        rows its stated rule gives — a global model's own; for a model per stretch, rows fitted
+        on that demonstration with k fixed, so the score there is a training figure (a held-out
+        one needs blocks held out inside its stretches, as ``heldout_`` and learn-a's ``auto``
+        measure it)."""
+        model = self.applies_to(X, U, groups=groups, t=t, new_recording=False).model
         U = np.asarray(U, dtype=float)
-        V = self.task_part(X, groups=groups, t=t)
-        return -npoe_error(self.projection(X, groups=groups, t=t), U if V is None else U - V, U)
+        V = model.task_part(X, groups=groups, t=t)
+        return -npoe_error(model.projection(X, groups=groups, t=t), U if V is None else U - V, U)
 
 
 @dataclass(frozen=True)

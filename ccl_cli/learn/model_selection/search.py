@@ -37,7 +37,17 @@ class Searchable:
     fitted basis for the candidates with equal basis settings (:meth:`_basis_key`,
     :meth:`_fit_basis`), the models of one candidate's cross-validation (:meth:`_cv_models`),
     their held-out errors (:meth:`_held_out_errors`) and a fit given a basis and a start
-    (:meth:`_fit_given`). Any other learner is cloned and fitted per fold."""
+    (:meth:`_fit_given`). These parts read, of the arguments of ``fit`` beside ``groups``,
+    only those in :attr:`FIT_DATA` (:meth:`_fit_data`). Any other learner is cloned and
+    fitted per fold."""
+
+    #: The arguments of ``fit`` beside ``groups`` the fit in parts reads (e.g. ``projections``).
+    FIT_DATA: ClassVar[tuple[str, ...]] = ()
+
+    def _fit_data(self, fit_kw: dict[str, Any]) -> dict[str, Any]:
+        """Of ``fit_kw``, those :attr:`FIT_DATA` names (``t`` and ``derivative``, which every learner
+        takes, are not read by a search's fits)."""
+        return {k: v for k, v in fit_kw.items() if k in self.FIT_DATA}
 
     def _basis_key(self) -> tuple:
         raise NotImplementedError
@@ -71,7 +81,8 @@ def candidate_models(estimator: Any, X: np.ndarray, U: np.ndarray, groups: np.nd
     to use (Searchable learners only; None: fitted on X); ``shared``: a store the search keeps for
     its candidates on the same data and folds (e.g. normal equations of a basis)."""
     if isinstance(estimator, Searchable):
-        return estimator._cv_models(X, U, groups, folds, basis=basis, shared=shared, **fit_kw)
+        return estimator._cv_models(X, U, groups, folds, basis=basis, shared=shared,
+                                    **estimator._fit_data(fit_kw))
     models = [clone(estimator).fit(X[train], U[train], groups=groups[train], **take_rows(fit_kw, train))
               for train, _ in folds.pairs]
     return None, models
@@ -245,7 +256,8 @@ def search(
                     basis = bases[key]
                 full, models = candidate_models(candidate, X, U, groups, folds, basis, shared, **fit_kw)
                 if isinstance(candidate, Searchable):
-                    errors = candidate._held_out_errors(models, X, U, groups, folds, shared=shared, **fit_kw)
+                    errors = candidate._held_out_errors(models, X, U, groups, folds, shared=shared,
+                                                        **candidate._fit_data(fit_kw))
                 else:
                     errors = held_out_errors(models, X, U, groups, folds, **fit_kw)
             except (InputError, LearningError, np.linalg.LinAlgError) as exc:
@@ -369,7 +381,7 @@ class Tuned(Estimator):
                 self.best_estimator_ = found.full  # the search fitted the winner on all rows already
             elif found is not None and isinstance(winner, Searchable):
                 self.best_estimator_ = winner._fit_given(X, U, groups=groups, basis=found.basis,
-                                                         start=found.full, **fit_kw)
+                                                         start=found.full, **winner._fit_data(fit_kw))
             else:
                 self.best_estimator_ = winner.fit(X, U, groups=groups, **fit_kw)
         self.best_params_ = chosen
@@ -377,6 +389,11 @@ class Tuned(Estimator):
         if hasattr(self.best_estimator_, "n_features_in_"):
             self.n_features_in_ = self.best_estimator_.n_features_in_
         return self
+
+    def _metadata(self, method: str) -> tuple[str, ...]:
+        """What ``fit`` / ``score`` pass on: the estimator's (and ``groups``, the search's folds)."""
+        inner = self.estimator._metadata(method)
+        return inner if method != "fit" or "groups" in inner else ("groups", *inner)
 
     def __getattr__(self, name: str) -> Any:
         """Learnt attributes (``..._``) of the winner, e.g. ``n_constraints_``."""

@@ -16,15 +16,20 @@ from ccl_cli.learn.model_selection.splitters import Folds, make_folds
 
 
 def take_rows(fit_kw: dict[str, Any], rows: np.ndarray) -> dict[str, Any]:
-    """The per-sample arguments of ``fit`` (e.g. ``projections`` (N, q, q)) for ``rows``."""
-    return {k: None if v is None else np.asarray(v)[rows] for k, v in fit_kw.items()}
+    """The arguments of ``fit`` for ``rows``: the per-sample ones (e.g. ``t`` (N,),
+    ``projections`` (N, q, q)) cut to them, the others (``derivative``) as they are."""
+    return {k: np.asarray(v)[rows] if v is not None and np.ndim(v) >= 1 else v for k, v in fit_kw.items()}
 
 
 def held_out_errors(models: list[Any], X: np.ndarray, U: np.ndarray, groups: np.ndarray, folds: Folds,
                     **fit_kw: Any) -> np.ndarray:
-    """−model.score on each test fold (the learner's own consistency error): (n_folds,)."""
-    return np.array([-m.score(X[test], U[test], groups=groups[test], **take_rows(fit_kw, test))
-                     for m, (_, test) in zip(models, folds.pairs, strict=True)], dtype=float)
+    """−model.score on each test fold (the learner's own consistency error), given the
+    arguments of ``fit`` that its ``score`` takes too (``t``, ``projections``): (n_folds,)."""
+    out = []
+    for m, (_, test) in zip(models, folds.pairs, strict=True):  # a loop over the folds
+        scored = {k: v for k, v in take_rows(fit_kw, test).items() if k in m._metadata("score")}
+        out.append(-m.score(X[test], U[test], groups=groups[test], **scored))
+    return np.array(out, dtype=float)
 
 
 @dataclass
