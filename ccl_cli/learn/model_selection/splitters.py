@@ -57,14 +57,15 @@ def make_folds(groups: np.ndarray | None, n: int, n_folds: int = N_FOLDS, seed: 
     """K folds over demonstrations (``groups``: demo id per sample) when there are at
     least ``min_demos`` of them, else K contiguous blocks of samples with guard gaps."""
     groups = np.zeros(n, int) if groups is None else np.asarray(groups)
-    ids = np.unique(groups)
+    ids, of_sample = np.unique(groups, return_inverse=True)
     if len(ids) >= max(min_demos, 2):
         k = min(n_folds, len(ids))
         perm = np.random.default_rng(seed).permutation(ids)
-        pairs = []
-        for part in np.array_split(perm, k):
-            test = np.isin(groups, part)
-            pairs.append((np.flatnonzero(~test), np.flatnonzero(test)))
+        fold_of = np.empty(len(ids), np.int64)  # each demonstration's fold: one pass over the samples
+        for j, part in enumerate(np.array_split(np.searchsorted(ids, perm), k)):
+            fold_of[part] = j
+        fold = fold_of[of_sample.ravel()]
+        pairs = [(np.flatnonzero(fold != j), np.flatnonzero(fold == j)) for j in range(k)]
         return Folds(pairs, "demonstrations", f"{len(ids)} demonstrations ≥ {min_demos}: "
                      f"{k} folds by demonstration")
     if n < n_folds * (2 * gap + 4):
