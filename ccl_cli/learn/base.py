@@ -87,6 +87,13 @@ def _init_parameters(cls: type) -> tuple[str, ...]:
                         and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)))
 
 
+@functools.cache
+def _keyword_only(cls: type, method: str) -> tuple[str, ...]:
+    """The keyword-only parameters of ``cls.method`` (read once per class and method)."""
+    params = inspect.signature(getattr(cls, method)).parameters.values()
+    return tuple(p.name for p in params if p.kind is p.KEYWORD_ONLY)
+
+
 class Estimator:
     """Base of every learner: parameters from the constructor signature."""
 
@@ -219,8 +226,7 @@ class Estimator:
     # -- scikit-learn's metadata routing ------------------------------------------------------
     def _metadata(self, method: str) -> tuple[str, ...]:
         """The metadata ``method`` (``fit`` or ``score``) takes: its keyword-only parameters."""
-        params = inspect.signature(getattr(type(self), method)).parameters.values()
-        return tuple(p.name for p in params if p.kind is p.KEYWORD_ONLY)
+        return _keyword_only(type(self), method)
 
     def _set_request(self, method: str, requests: dict[str, bool | str | None]) -> Estimator:
         known = self._metadata(method)
