@@ -29,8 +29,8 @@ surface (k < q − 1) demonstrations that come back over their own ground (:func
 k is the largest rank some model reaches (q − 1 first); among the models of that rank the
 simplest (global before per demonstration; linear, sphere, quadric) whose worst drift is within
 :data:`PARSIMONY` × the best one's wins — judged by the same measure, and even if it misses the
-limit itself: the evidence sets k, parsimony the shape (a tilting table is still a plane). k = 0 when none does: the states show no constraint
-(the velocities may still show one).
+limit itself: the evidence sets k, parsimony the shape (a tilting table is still a plane).
+k = 0 when none holds: the states show no constraint (the velocities may still show one).
 
 The thresholds were set on real recordings (docs/auto.md): hinges and drawers drift 0.5–3 %,
 tracker surfaces 10–16 %, a robot's wipes 11 %, free reaching ≥ 10 % with no returns.
@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from ccl_cli.dataset import Derivative, HowMade
 from ccl_cli.learn.constraint.manifold import BASES, ManifoldConstraint, within_covariance
 
 #: Largest drift of a rail (k = q − 1).
@@ -310,14 +311,14 @@ KINEMATIC_RESIDUAL = 0.3
 
 
 def kinematic(X: np.ndarray, U: np.ndarray, groups: np.ndarray, t: np.ndarray | None,
-              derivative: dict | bool | None = None) -> tuple[bool, str]:
+              derivative: HowMade = None) -> tuple[bool, str]:
     """Whether the actions U (N, q) are the time derivative of the states X (N, q) — derived from
     them by the readers (``derivative``), or recorded and matching the states' central
     differences on the stamps t (N,) to within KINEMATIC_RESIDUAL of their mean square — and a
     phrase saying why."""
     if X.shape[1] != U.shape[1]:
         return False, f"states ({X.shape[1]}) and actions ({U.shape[1]}) differ in dimension"
-    if isinstance(derivative, dict):
+    if Derivative.of(derivative).derived:
         return True, "the actions were derived from the states"
     if t is None:
         return False, "no sample times to differentiate the states on"

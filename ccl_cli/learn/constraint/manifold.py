@@ -102,9 +102,16 @@ class ManifoldConstraint(ConstraintModel):
     n_constraints: int | None = None
     tolerance: float = 0.05
 
-    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None) -> ManifoldConstraint:
+    @property
+    def varies_with_state(self) -> bool:  # type: ignore[override]
+        """Planes and lines (``linear``) have constant rows; spheres, circles, quadrics turn."""
+        return self.basis != "linear"
+
+    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+            t: np.ndarray | None = None, derivative: object = None) -> ManifoldConstraint:
         """Learn the level functions from the states X (N, q) of the demonstrations ``groups``
-        (N,; None: one); U (N, q), the states' velocities, is used for its shape only."""
+        (N,; None: one); U (N, q), the states' velocities, is used for its shape only, and
+        neither the times ``t`` nor how U was made are read (positions need no differentiation)."""
         X, U = self._prepare_fit(X, U)
         q = U.shape[1]
         if X.shape[1] != q:
@@ -141,18 +148,18 @@ class ManifoldConstraint(ConstraintModel):
                                         "RMS spread of the states"}
         return self
 
-    def check_shapes(self) -> str | None:
-        """The name of the first learnt array whose shape disagrees with the basis and q (a saved
-        model being loaded), or None."""
+    def check_shapes(self) -> None:
+        """weights_ (F, F), variation_ (F,), centre_ (q,) for the basis and q; scale_ > 0; 1 ≤ k < q."""
         q = self.n_action_
         F = n_features(self.basis, q)
         for name, want in (("weights_", (F, F)), ("variation_", (F,)), ("centre_", (q,))):
-            value = getattr(self, name, None)
-            if value is None or np.shape(value) != want:
-                return name
+            if getattr(self, name, None) is None or np.shape(getattr(self, name)) != want:
+                raise self._shape_error(name)
         if not (isinstance(self.scale_, float | int) and self.scale_ > 0):
-            return "scale_"
-        return None if 1 <= self.n_constraints_ < q else "n_constraints_"
+            raise self._shape_error("scale_")
+        if not 1 <= self.n_constraints_ < q:
+            raise self._shape_error("n_constraints_")
+        super().check_shapes()
 
     def _scaled(self, X: np.ndarray) -> np.ndarray:
         return (X - self.centre_) / self.scale_
@@ -171,8 +178,15 @@ class ManifoldConstraint(ConstraintModel):
         _, J = features(self.basis, self._scaled(self._check_states(X)))
         return np.einsum("fk,nfq->nkq", self.weights_[:, :k], J)
 
-    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None, k: int | None = None
-                   ) -> np.ndarray:
+    def constant_rows(self) -> np.ndarray | None:
+        """The rows (k, q) of a ``linear`` model (its gradients do not depend on x), else None."""
+        if self.basis != "linear":
+            return None
+        self._check_fitted("weights_")
+        return self.constraint(self.centre_[None])[0]
+
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None, t: np.ndarray | None = None,
+                   k: int | None = None) -> np.ndarray:
         """Ã(X): the gradients of the first k level functions, orthonormalised (Gram–Schmidt in
         their order): (N, p) → (N, k, q)."""
         A = self.gradients(X, k)
