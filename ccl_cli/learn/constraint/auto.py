@@ -291,8 +291,13 @@ class AutoConstraint(ConstraintModel, SeedParams):
                   f" ({t.worst:.3g} against {t.limit:g})"} for t in found.tried]
         rows += [ev.not_tried(c, "the states' geometry decided") for c in CANDIDATES
                  if c not in ("none", "manifold")]
-        self.selection_ = {"rule": "auto", "n_constraints": found.k, "model": label, "chosen": "manifold",
-                           "reason": f"{found.k} constraint(s): {found.reason}",
+        chosen = ("stretches" if w.scope == "phases" and data.t is not None else
+                  "manifold" if w.basis != "linear" or w.scope == "phases" else
+                  "nhat" if w.scope == "global" else "per_demo" if data.t is not None else "manifold")
+        self.selection_ = {"rule": "auto", "n_constraints": found.k, "model": label, "chosen": chosen,
+                           "decided_by": "states",
+                           "reason": f"{found.k} constraint(s): {found.reason}" + (
+                               f": {self.model_.summary()}" if hasattr(self.model_, "summary") else ""),
                            "values": [float(v) for v in w.drift],
                            "criterion": ("shape residual" if w.limit == geo.RAIL_FIT else "held-out drift")
                            + " of level function k (RMS along the demonstrations / RMS spread)",
@@ -307,13 +312,16 @@ class AutoConstraint(ConstraintModel, SeedParams):
         how much it moves, which a tilting or bowing surface does not skew the way the spread of
         the positions does; circles, spheres and quadrics take the gradients of their levels."""
         X, U, g = data.X, data.U, data.groups
+        if winner.scope == "phases" and data.t is not None:  # the rows where they hold, found in time
+            return ConstraintInStretches(block=BLOCK_S, n_constraints=k).fit(
+                X, U, groups=g, t=data.t, derivative=data.derivative)
         if winner.basis == "linear" and winner.scope == "global":
             return StateIndependentConstraint(n_constraints=k, seed=self.seed).fit(X, U, groups=g)
         if winner.basis == "linear" and data.t is not None:
             return PerWindow(window=None, n_constraints=k, heldout=True).fit(
                 X, U, groups=g, t=data.t, derivative=data.derivative)
         est = ManifoldConstraint(basis=winner.basis, n_constraints=k)
-        if winner.scope == "global":
+        if winner.scope in ("global", "phases"):
             return est.fit(X, U, groups=g)
         return PerDemonstration(est).fit(X, U, groups=g, derivative=data.derivative)
 

@@ -71,8 +71,15 @@ PARSIMONY = 2.0
 MAX_FOLDS = 12
 BLOCKS = 5
 GAP_SHARE = 0.01
-#: At most this many query samples per demonstration in :func:`revisits` (work bounded at any N).
+#: At most this many query samples per demonstration in :func:`returning` (work bounded at any N).
 REVISIT_QUERIES = 400
+#: Phases: the samples that come back over their ground within PHASE_RADIUS × the spread are where
+#: a surface may hold while the rest moves freely (approach, retract), when the free share of the
+#: samples is between FREE_SHARE and 1 − FREE_SHARE; runs shorter than MIN_RUN_SHARE of their
+#: demonstration are not a phase.
+PHASE_RADIUS = 0.15
+FREE_SHARE = 0.15
+MIN_RUN_SHARE = 0.05
 
 
 @dataclass
@@ -166,19 +173,28 @@ def drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int) -> np.ndarray:
     return np.sqrt(var / spread) if spread > 0 else np.full(k, np.inf)
 
 
-def revisits(P: np.ndarray) -> float:
-    """The share of a demonstration's samples P (n, q) whose neighbourhood (REVISIT_RADIUS × its RMS
-    spread) holds at least two other passes of it (runs of consecutive samples)."""
+def returning(P: np.ndarray, radius: float = REVISIT_RADIUS) -> np.ndarray:
+    """Per sample of a demonstration P (n, q): whether its neighbourhood (``radius`` × the
+    demonstration's RMS spread) holds at least two other passes of it (runs of consecutive
+    samples): (n,) bool. At most REVISIT_QUERIES samples are asked; the others take the answer of
+    the nearest one asked (work bounded at any n)."""
     from scipy.spatial import cKDTree
 
     spread = float(np.sqrt(((P - P.mean(0)) ** 2).sum(1).mean()))
     if len(P) < 3 or not spread > 0:
-        return 0.0
+        return np.zeros(len(P), dtype=bool)
     step = max(1, len(P) // REVISIT_QUERIES)
     queries = np.arange(0, len(P), step)
-    near = cKDTree(P).query_ball_point(P[queries], REVISIT_RADIUS * spread, return_sorted=True)
-    counts = np.array([np.count_nonzero(np.diff(nb) != 1) for nb in near])  # bounded: ≤ REVISIT_QUERIES
-    return float(np.mean(counts >= 2))
+    near = cKDTree(P).query_ball_point(P[queries], radius * spread, return_sorted=True)
+    answer = np.array([np.count_nonzero(np.diff(nb) != 1) >= 2 for nb in near])  # ≤ REVISIT_QUERIES
+    nearest = np.minimum((np.arange(len(P)) + step // 2) // step, len(queries) - 1)
+    return answer[nearest]
+
+
+def revisits(P: np.ndarray) -> float:
+    """The share of a demonstration's samples P (n, q) that come back over its own ground
+    (:func:`returning`)."""
+    return float(returning(P).mean()) if len(P) else 0.0
 
 
 def circle(P: np.ndarray) -> tuple[np.ndarray, float]:
@@ -251,6 +267,44 @@ def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
     return ok, f"circles with axes within {deg:.1f}°, radii within ±{100 * rel:.0f} % of {med:.3g}"
 
 
+def contact_runs(X: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """An id per sample for each run of samples that come back over their ground (PHASE_RADIUS;
+    runs of at least MIN_RUN_SHARE of their demonstration), −1 elsewhere: (N,)."""
+    mask = np.zeros(len(X), dtype=bool)
+    for d in np.unique(groups):
+        m = np.flatnonzero(groups == d)
+        mask[m] = returning(X[m], PHASE_RADIUS)
+    runs = np.cumsum(np.r_[True, (mask[1:] != mask[:-1]) | (groups[1:] != groups[:-1])])
+    ids = np.where(mask, runs, -1)
+    _, first, counts = np.unique(runs, return_index=True, return_counts=True)
+    sizes = np.bincount(groups.astype(np.int64) - groups.min())
+    short = counts < MIN_RUN_SHARE * sizes[groups[first].astype(np.int64) - groups.min()]
+    ids[np.isin(runs, np.flatnonzero(short) + 1)] = -1
+    return ids
+
+
+def _phases(X: np.ndarray, groups: np.ndarray, k: int, all_along: list[Tried]) -> Tried | None:
+    """A surface of rank k that holds in the runs that come back over their ground while the rest
+    of the recording moves freely (:func:`contact_runs`), judged on held-out runs — or None when
+    there are no such phases; it holds when within SURFACE and PARSIMONY × better than any surface
+    that holds all along."""
+    runs = contact_runs(X, groups)
+    inside = runs >= 0
+    free = 1.0 - inside.mean()
+    if not FREE_SHARE <= free <= 1.0 - FREE_SHARE or len(np.unique(runs[inside])) < 2:
+        return None
+    best_all = min((t.worst for t in all_along if t.holds), default=np.inf)
+    found = None
+    for basis in BASES[:2]:  # one table, one bowl: no quadric through a few runs
+        d = drift(X[inside], runs[inside], basis, k)
+        if found is None or d.max() < found.worst:
+            found = Tried(k, "phases", basis, d, SURFACE, False,
+                          "a surface in the stretches that come back over their ground "
+                          f"({100 * (1 - free):.0f} % of the samples), free motion elsewhere")
+    found.holds = bool(found.worst <= SURFACE and found.worst * PARSIMONY <= best_all)
+    return found
+
+
 def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None = None,
            max_k: int | None = None) -> Geometry:
     """The number of constraints the positions X (N, q) of demonstrations ``groups`` show, and the
@@ -291,9 +345,16 @@ def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None =
                 d = _per_demo_drift(X, groups, basis, k, returning)
                 tried.append(Tried(k, "per_demo", basis, d, SURFACE, bool(d.max() <= SURFACE),
                                    "one surface per demonstration that comes back over its ground"))
+        if not rail and surfaces_return:
+            found = _phases(X, groups, k, [t for t in tried if t.k == k])
+            if found is not None:
+                tried.append(found)
         holding = [t for t in tried if t.k == k and t.holds]
         if holding:  # k from the best evidence; the model: the simplest within PARSIMONY × its drift
             best = min(holding, key=lambda t: t.worst)
+            phased = next((t for t in holding if t.scope == "phases"), None)
+            if phased is not None:  # a surface that holds in phases beats one claimed all along
+                best = phased
             winner = next(t for t in tried if t.k == k and t.worst <= PARSIMONY * best.worst
                           and (t.holds or t.limit == best.limit))
             reason = (f"the states stay on a manifold of {q - k} dimension(s): {winner.why}, "
