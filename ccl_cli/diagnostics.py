@@ -334,13 +334,19 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
     the noise level or a negligible share — or None when the data cannot tell (not a
     trajectory in time, or no motion).
 
+    When the observations are the actions and these are the states' derivative, the test is the
+    positions' drift along the rows (:func:`~ccl_cli.learn.constraint.geometry.rows_drift`,
+    ``measure`` "drift", ``holds`` within :data:`~ccl_cli.learn.constraint.geometry.HOLDS`):
+    compliance and tremor lift the motion along a true row far above the sensor's noise, but do
+    not carry the states off it.
+
     A model per stretch (per window or segment, or in stretches) speaks only for the stretches
     it was fitted on: on other data its rows would be a neighbouring stretch's. It is applied to
     ``d`` as a new recording by its own stated rule (the same kind and rows per stretch fitted
     there, as ``ccl evaluate`` does) and the evidence says so (``refitted``): whether k rows per
     stretch hold on these data. A model whose rule carries nothing over to new data (one model
     per demonstration, fitted anew on each) has no evidence to give: None."""
-    from ccl_cli.learn.constraint import noise_rank
+    from ccl_cli.learn.constraint import geometry, noise_rank
 
     if not getattr(model, "n_constraints_", 0) or not model.new_data_rule.carries_over:
         return None
@@ -351,6 +357,14 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
         return None  # no rows on these data
     how = d.derivative
     positions = bool(how.derived) and d.n_state == d.n_action
+    if Y is d.U and geometry.kinematic(d.X, d.U, d.demo, d.t, how)[0]:
+        # the actions are the states' derivative: a constraint keeps the states on its level sets,
+        # whatever compliance or tremor adds to the velocities (learn/constraint/geometry.py)
+        drift = geometry.rows_drift(rows, d.X, d.demo)
+        share = noise_rank.row_evidence(Y, rows, d.demo, d.t).share
+        return {"ratio": [], "share": share.tolist(), "drift": drift.tolist(), "limit": geometry.HOLDS,
+                "holds": bool((drift <= geometry.HOLDS).all()), "refitted": applied.refitted,
+                "measure": "drift"}
     ev = noise_rank.row_evidence(Y, rows, d.demo, d.t, d.X if positions else None, how if positions else None)
     if not ev.snr >= noise_rank.MIN_SNR:  # also NaN: overflowing data tells nothing
         return None
@@ -368,6 +382,12 @@ def does_not_hold(stage: str, evidence: dict[str, Any] | None, where: str) -> li
 
     if evidence is None or evidence["holds"]:
         return []
+    if evidence.get("measure") == "drift":
+        k = next(i for i, v in enumerate(evidence["drift"]) if v > evidence["limit"])
+        return [warning("constraint_does_not_hold",
+                        f"{stage}: on the {where} the positions drift along learnt constraint row {k + 1} "
+                        f"by {evidence['drift'][k]:.3g} of their spread (> {evidence['limit']:g}): the "
+                        "constraint does not hold there")]
     k = next(i for i, (r, s) in enumerate(zip(evidence["ratio"], evidence["share"], strict=True))
              if r > MARGIN and s > SHARE)
     return [warning("constraint_does_not_hold",

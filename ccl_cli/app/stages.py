@@ -21,7 +21,7 @@ from ccl_cli.app.views import View, constant_rows, describe_constraint, stage_vi
 from ccl_cli.dataset import Demonstrations, Derivative
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn import model_selection
-from ccl_cli.learn.constraint import PerDemonstration, PerWindow
+from ccl_cli.learn.constraint import PerDemonstration, PerWindow, geometry
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
 from ccl_cli.spec import constraint_class
@@ -135,6 +135,14 @@ class StageProgress(Protocol):
     def start(self, label: str) -> None: ...
 
     def advance(self) -> None: ...
+
+
+#: ``on: auto`` does not learn from a learnt w̃ whose variance is below this share of u's: a
+#: null-space component of nearly nothing is a degenerate input, not evidence of a task part.
+DEGENERATE_SHARE = 1e-3
+#: ... nor when the task part it leaves, u − w̃, holds less than this share of u's variance on the
+#: held-out part: without a task part u and w̃ show the same constraint, and u is the measurement.
+TASK_SHARE = 0.05
 
 
 class Pipeline:
@@ -262,27 +270,56 @@ class Pipeline:
         return model
 
     def _choose_observations(self, opts: Any) -> tuple[Any, str, str]:
-        """``on: auto`` after a learn-v stage: the constraint is learnt from u when it holds on
-        the held-out u at the noise level (no task part is needed for it — the learnt w̃ is a
-        model's output, self-consistent whatever its direction), from w̃ when it does not and
-        learn-v generalised; → (model, "u" or "w", why)."""
+        """``on: auto`` after a learn-v stage: u and the learnt w̃ on equal terms. The constraint
+        is learnt from u when it finds rows there that hold on the held-out u (no task part is
+        needed for them); else from w̃ when learn-v generalised, w̃ is not degenerate (its
+        variance at least DEGENERATE_SHARE of u's), the task part it leaves is no less than
+        TASK_SHARE of u and more rows hold there — a task part moves u along the rows, and k = 0 on
+        u is no evidence that nothing holds; → (model, "u" or "w", why)."""
         model = self._fit_constraint(opts, "u")
         part, d = self._held_out()
         evidence = diagnostics.constraint_evidence(model, d, d.U)
         learn_v = next((r for r in self.results if r.name == "learn-v"), None)
-        if evidence is None or evidence["holds"]:
-            why = ("no constraint row of u to test" if evidence is None and not model.n_constraints_ else
-                   "the data cannot tell the noise of u" if evidence is None else
-                   f"it holds on the {part} u at the noise level (motion along its rows "
-                   f"{max(evidence['ratio']):.3g}× their noise"
-                   + ("; a model per stretch, fitted again there" if evidence["refitted"] else "") + ")")
+        k_u = int(model.n_constraints_)
+        if k_u and (evidence is None or evidence["holds"]):
+            why = ("the data cannot tell whether it holds on the held-out u" if evidence is None else
+                   f"its {k_u} row(s) hold on the {part} u ("
+                   + (f"the positions drift along them by at most {max(evidence['drift']):.3g} of their "
+                      "spread" if evidence.get("measure") == "drift" else
+                      f"motion along its rows {max(evidence['ratio']):.3g}× their noise")
+                   + ("; a model per stretch, fitted again there" if evidence and evidence["refitted"]
+                      else "") + ")")
             return model, "u", f"learnt from u: {why}, so no task part is needed for it"
         if learn_v is not None and learn_v.status != "ok":
-            return model, "u", ("learnt from u: learn-v did not generalise, so its w̃ is not used (the "
-                                f"constraint does not hold on the {part} u either)")
-        return self._fit_constraint(opts, "w"), "w", (
-            f"learnt from the learnt w̃: no constraint holds on the {part} u itself (motion along row 1 "
-            f"{evidence['ratio'][0]:.3g}× its noise) and learn-v generalised")
+            either = f" (the constraint does not hold on the {part} u either)" if k_u else ""
+            return model, "u", f"learnt from u: learn-v did not generalise, so its w̃ is not used{either}"
+        w = self.w["train"]
+        u_var = float(self.split.train.U.var(0).sum())
+        w_share = float(w.var(0).sum()) / max(u_var, 1e-300)
+        if not w_share >= DEGENERATE_SHARE:
+            return model, "u", (f"learnt from u: the learnt w̃ is degenerate (its variance {w_share:.2g} of "
+                                "u's), so it is not used")
+        tr = self.split.train
+        if geometry.kinematic(tr.X, tr.U, tr.demo, tr.t, tr.derivative)[0]:
+            # equal terms: the states with the learnt task part taken out, X − ∫ṽ dt, must show more
+            # constraints than the states themselves (they integrate w̃ as X integrates u)
+            shown = geometry.decide(geometry.integrate(w, tr.X, tr.demo, tr.t), tr.demo).k
+            if shown <= k_u:
+                return model, "u", (f"learnt from u: the states with learn-v's task part taken out show "
+                                    f"{shown} constraint(s), no more than the states themselves ({k_u})")
+        task = float((d.U - self.w[part]).var(0).sum()) / max(float(d.U.var(0).sum()), 1e-300)
+        if not task >= TASK_SHARE:
+            return model, "u", (f"learnt from u: the task part learn-v found is {task:.2g} of u's variance "
+                                f"on the {part} data, too little to move u off a constraint")
+        on_w = self._fit_constraint(opts, "w")
+        k_w = int(on_w.n_constraints_)
+        if k_w <= k_u:
+            return model, "u", (f"learnt from u: the learnt w̃ shows no more constraints ({k_w}) than u "
+                                f"({k_u})")
+        said = (f"no constraint holds on the {part} u itself" if not k_u or evidence is None else
+                f"u's rows do not hold on the {part} u")
+        return on_w, "w", (f"learnt from the learnt w̃: {said}; w̃ shows {k_w} constraint(s) and learn-v "
+                           "generalised")
 
     def _learn_a(self, opts: Any) -> StageResult:
         tr = self.split.train

@@ -285,7 +285,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
         rows = [{**ev.not_tried("none", ""), "model": "no constraint (Ñ = I)", "k": 0, "chosen": False,
                  "reason": f"the states show {found.k} constraint(s)"}]
         rows += [{**ev.not_tried("manifold", ""), "model": f"manifold: {t.basis} ({t.scope})", "k": t.k,
-                  "error": "held-out drift" if t.limit != geo.RAIL_FIT else "shape residual",
+                  "error": t.measure,
                   "heldout_error": t.worst, "chosen": t is w, "rank_reason": t.why,
                   "reason": ("chosen: " if t is w else "") + ("holds" if t.holds else "does not hold") +
                   f" ({t.worst:.3g} against {t.limit:g})"} for t in found.tried]
@@ -299,8 +299,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
                            "reason": f"{found.k} constraint(s): {found.reason}" + (
                                f": {self.model_.summary()}" if hasattr(self.model_, "summary") else ""),
                            "values": [float(v) for v in w.drift],
-                           "criterion": ("shape residual" if w.limit == geo.RAIL_FIT else "held-out drift")
-                           + " of level function k (RMS along the demonstrations / RMS spread)",
+                           "criterion": f"{w.measure} of level function k (RMS along the demonstrations / "
+                                        "RMS spread)",
                            "candidates": rows, "geometry": self.geometry_}
         self.model_.selection_ = {**self.selection_, "winner_selection": self.model_.selection_}
         return True
