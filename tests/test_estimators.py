@@ -24,6 +24,7 @@ from ccl_cli.learn.constraint import (
     StateDependentConstraint,
     StateIndependentConstraint,
 )
+from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.model_selection import Tuned
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.params import Options, parameter_hints
@@ -62,23 +63,46 @@ def test_scikit_learn_clones_and_grid_searches_every_learner(name, make, grid, d
     search = GridSearchCV(est, grid, cv=3, error_score="raise").fit(data.X, data.U, **kw)
     assert search.best_params_ in [dict(zip(grid, v, strict=True)) for v in zip(*grid.values(), strict=True)]
     scores = search.cv_results_["mean_test_score"]
-    assert scores.shape == (2,) and np.all(np.isfinite(scores)) and np.all(scores <= 0)
+    assert scores.shape == (2,) and np.all(np.isfinite(scores))
+    constraint = isinstance(getattr(est, "estimator", est), ConstraintModel)
+    assert np.all(scores >= 0) if constraint else np.all(scores <= 0)
     refit = search.best_estimator_
     assert refit.n_features_in_ == data.n_state
     assert refit.score(data.X, data.U) == pytest.approx(search.score(data.X, data.U))
 
 
-def test_grid_search_score_is_minus_the_held_out_npoe_by_hand():
-    """GridSearchCV's fold scores of nhat are −NPOE of the two smallest directions of the
-    training actions, computed here with numpy on scikit-learn's own folds."""
+def test_grid_search_score_is_the_split_likelihood_by_hand():
+    """GridSearchCV's fold scores of nhat are the split's likelihood gain of the two smallest
+    directions of the training actions (constraint models' score: comparable across k), computed
+    here with numpy on scikit-learn's own folds; held_out_error is their NPOE."""
     data = sim.arm7(rows=(0, 1), seed=2, n_demos=10)
     search = GridSearchCV(StateIndependentConstraint(n_constraints=2), {"threshold": [0.1]}, cv=3).fit(
         data.X, data.U)
     for i, (train, test) in enumerate(KFold(3).split(data.X)):
         vecs = np.linalg.eigh(data.U[train].T @ data.U[train])[1][:, :2]
         Ut = data.U[test]
-        npoe = np.mean(np.sum((Ut @ vecs @ vecs.T) ** 2, 1)) / np.var(Ut, axis=0, ddof=1).sum()
-        assert search.cv_results_[f"split{i}_test_score"][0] == pytest.approx(-npoe, rel=1e-9)
+        Ec = np.mean(np.sum((Ut @ vecs) ** 2, 1))
+        Ef = np.mean(np.sum(Ut**2, 1)) - Ec
+        gain = 0.5 * (7 * np.log((Ec + Ef) / 7) - 2 * np.log(Ec / 2) - 5 * np.log(Ef / 5)) / 7
+        assert search.cv_results_[f"split{i}_test_score"][0] == pytest.approx(gain, rel=1e-9)
+        model = StateIndependentConstraint(n_constraints=2).fit(data.X[train], data.U[train])
+        npoe = Ec / np.var(Ut, axis=0, ddof=1).sum()
+        assert model.held_out_error(data.X[test], Ut) == pytest.approx(npoe, rel=1e-9)
+
+
+def test_a_search_over_the_number_of_constraints_finds_the_true_one():
+    """−NPOE would pick one row (fewer rows always leave less motion in them); the split's
+    likelihood picks the two rows the arm holds, on held-out demonstrations."""
+    from sklearn import config_context
+    from sklearn.model_selection import GroupKFold
+
+    data = sim.arm7(rows=(0, 1), seed=0)
+    with config_context(enable_metadata_routing=True):
+        search = GridSearchCV(StateIndependentConstraint(), {"n_constraints": [1, 2, 3, 4]}, cv=GroupKFold(3),
+                              error_score="raise").fit(data.X, data.U, groups=data.demo)
+    assert search.best_params_ == {"n_constraints": 2}
+    scores = search.cv_results_["mean_test_score"]
+    assert scores[1] > 1.5 * max(scores[0], scores[2], scores[3])
 
 
 # -- the declaration of parameters -----------------------------------------------------------

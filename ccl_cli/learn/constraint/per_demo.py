@@ -86,7 +86,7 @@ class PerDemonstration(ConstraintModel):
 
         def error_of(train: np.ndarray, test: np.ndarray) -> float:
             twin.fit(X[train], U[train], groups=groups[train])
-            return -twin.score(X[test], U[test], groups=groups[test])
+            return twin.held_out_error(X[test], U[test], groups=groups[test])
 
         return inner_heldout(np.unique(groups, return_inverse=True)[1].ravel(), derivative, error_of,
                              "demonstration")

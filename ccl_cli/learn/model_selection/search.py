@@ -425,5 +425,10 @@ class Tuned(Estimator):
         return self._best().constraint(X, groups=groups, t=t)
 
     def score(self, X: np.ndarray, U: np.ndarray, **kw: Any) -> float:
-        """The winner's score (minus its own consistency error; higher is better)."""
+        """The winner's score (higher is better)."""
         return self._best().score(X, U, **kw)
+
+    def held_out_error(self, X: np.ndarray, U: np.ndarray, **kw: Any) -> float:
+        """The winner's own consistency error (its ``held_out_error``, else −score)."""
+        best = self._best()
+        return best.held_out_error(X, U, **kw) if hasattr(best, "held_out_error") else -best.score(X, U, **kw)
