@@ -334,11 +334,12 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
     the noise level or a negligible share — or None when the data cannot tell (not a
     trajectory in time, or no motion).
 
-    When the observations are the actions and these are the states' derivative, the test is the
-    positions' drift along the rows (:func:`~ccl_cli.learn.constraint.geometry.rows_drift`,
-    ``measure`` "drift", ``holds`` within :data:`~ccl_cli.learn.constraint.geometry.HOLDS`):
-    compliance and tremor lift the motion along a true row far above the sensor's noise, but do
-    not carry the states off it.
+    When the observations are the actions and these are the states' derivative, the positions'
+    drift along the rows (:func:`~ccl_cli.learn.constraint.geometry.rows_drift`) is a second test
+    (``drift``, ``limit``: :func:`~ccl_cli.learn.constraint.geometry.holds_limit`): compliance and
+    tremor lift the motion along a true row far above the sensor's noise, but do not carry the
+    states off it. The constraint holds when either test says so; when only the drift does not,
+    ``measure`` is "drift".
 
     A model per stretch (per window or segment, or in stretches) speaks only for the stretches
     it was fitted on: on other data its rows would be a neighbouring stretch's. It is applied to
@@ -357,23 +358,26 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
         return None  # no rows on these data
     how = d.derivative
     positions = bool(how.derived) and d.n_state == d.n_action
-    if Y is d.U and geometry.kinematic(d.X, d.U, d.demo, d.t, how)[0]:
-        # the actions are the states' derivative: a constraint keeps the states on its level sets,
-        # whatever compliance or tremor adds to the velocities (learn/constraint/geometry.py)
-        drift = geometry.rows_drift(rows, d.X, d.demo)
-        share = noise_rank.row_evidence(Y, rows, d.demo, d.t).share
-        return {"ratio": [], "share": share.tolist(), "drift": drift.tolist(), "limit": geometry.HOLDS,
-                "holds": bool((drift <= geometry.HOLDS).all()), "refitted": applied.refitted,
-                "measure": "drift"}
+    out = None
     ev = noise_rank.row_evidence(Y, rows, d.demo, d.t, d.X if positions else None, how if positions else None)
-    if not ev.snr >= noise_rank.MIN_SNR:  # also NaN: overflowing data tells nothing
-        return None
     ratio = ev.energy / np.maximum(ev.noise, np.finfo(float).tiny)
-    if not (np.isfinite(ratio).all() and np.isfinite(ev.share).all()):
-        return None
-    holds = (ratio <= noise_rank.MARGIN) | (ev.share <= noise_rank.SHARE)
-    return {"ratio": ratio.tolist(), "share": ev.share.tolist(), "holds": bool(holds.all()),
-            "refitted": applied.refitted}
+    if ev.snr >= noise_rank.MIN_SNR and np.isfinite(ratio).all() and np.isfinite(ev.share).all():
+        # (not: overflowing data tell nothing)
+        holds = (ratio <= noise_rank.MARGIN) | (ev.share <= noise_rank.SHARE)
+        out = {"ratio": ratio.tolist(), "share": ev.share.tolist(), "holds": bool(holds.all()),
+               "refitted": applied.refitted}
+    if Y is d.U and geometry.kinematic(d.X, d.U, d.demo, d.t, how)[0] and np.isfinite(d.X).all():
+        # the actions are the states' derivative: a constraint keeps the states on its level sets,
+        # whatever compliance or tremor adds to the velocities (learn/constraint/geometry.py) —
+        # it holds when either test says so
+        drift = geometry.rows_drift(rows, d.X, d.demo)
+        limit = geometry.holds_limit(d.X, d.demo, rows.shape[1])
+        kept = out or {"ratio": [], "share": ev.share.tolist(), "holds": False, "refitted": applied.refitted}
+        if not kept["holds"] and np.isfinite(drift).all():
+            return {**kept, "drift": drift.tolist(), "limit": limit, "holds": bool((drift <= limit).all()),
+                    "measure": "drift"}
+        return {**kept, "drift": drift.tolist(), "limit": limit}
+    return out
 
 
 def does_not_hold(stage: str, evidence: dict[str, Any] | None, where: str) -> list[dict[str, str]]:

@@ -283,7 +283,7 @@ class Pipeline:
         k_u = int(model.n_constraints_)
         if k_u and (evidence is None or evidence["holds"]):
             why = ("the data cannot tell whether it holds on the held-out u" if evidence is None else
-                   f"its {k_u} row(s) hold on the {part} u ("
+                   f"it holds on the {part} u ({k_u} row(s); "
                    + (f"the positions drift along them by at most {max(evidence['drift']):.3g} of their "
                       "spread" if evidence.get("measure") == "drift" else
                       f"motion along its rows {max(evidence['ratio']):.3g}× their noise")

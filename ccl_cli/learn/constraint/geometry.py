@@ -55,8 +55,9 @@ SURFACE = 0.2
 #: Largest drift of a plane or sphere shown by single passes.
 THIN = 0.05
 #: A learnt constraint holds on other data of the same recordings (a held-out part) while the
-#: positions drift along its rows by at most this share of their spread (:func:`rows_drift`): a
-#: check that nothing carries the states off the rows, looser than the limits that choose k.
+#: positions drift along its rows by at most this share of their spread (:func:`rows_drift`) where
+#: the demonstrations come back over their ground (a check that nothing carries the states off
+#: the rows, looser than the limits that choose k); on single passes the limits of :func:`decide`.
 HOLDS = 0.35
 #: Largest residual of the line or circle fitted to each demonstration (q ≤ 3), over its spread
 #: (hinges and slides of real recordings: 0.006–0.03, free curves 0.14 and more).
@@ -440,3 +441,12 @@ def integrate(W: np.ndarray, X: np.ndarray, groups: np.ndarray, t: np.ndarray | 
     starts = np.flatnonzero(np.r_[True, ~same])
     first = np.repeat(starts, np.diff(np.r_[starts, len(W)]))
     return X[first] + Z - Z[first]
+
+
+def holds_limit(X: np.ndarray, groups: np.ndarray, k: int) -> float:
+    """The largest drift (:func:`rows_drift`) along k learnt rows with which a constraint holds on
+    the positions X (N, q) of demonstrations ``groups``: HOLDS where most demonstrations come back
+    over their ground; on single passes RAIL_FIT for k = q − 1 (a line or circle) and THIN below."""
+    ids = np.unique(groups)
+    back = np.mean([revisits(X[groups == d]) >= REVISIT_SHARE for d in ids]) >= 0.5
+    return HOLDS if back else RAIL_FIT if k >= X.shape[1] - 1 else THIN
