@@ -5,8 +5,8 @@
   the signature of ``__init__``, :meth:`Estimator.set_params` writes them
   (``basis__n_centres`` reaches into a nested estimator), :func:`clone` builds a new,
   unfitted learner with the same parameters. What each parameter accepts is declared
-  once in ``_parameter_constraints`` (format: :mod:`ccl_cli.learn.params`) and checked at
-  the start of ``fit``.
+  once, in its annotation (format: :mod:`ccl_cli.learn.params`), and checked at the start
+  of ``fit``.
 * ``fit(X, U, *, groups=None)`` returns ``self`` (``groups``: demonstration id per
   sample). Learners that read the time structure (learn-a's ``auto``, the per-window
   constraint) also take ``t`` (N,), the sample times in seconds, and ``derivative``, how U
@@ -39,7 +39,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ccl_cli.errors import InputError, LearningError
-from ccl_cli.learn.params import validate_params
+from ccl_cli.learn.params import declared, validate_params
 
 
 class NotFittedError(LearningError):
@@ -74,20 +74,9 @@ def _init_parameters(cls: type) -> tuple[str, ...]:
 class Estimator:
     """Base of every learner: parameters from the constructor signature."""
 
-    #: parameter → the forms it accepts (:mod:`ccl_cli.learn.params`); one entry per parameter.
-    _parameter_constraints: ClassVar[dict[str, list]] = {}
     #: learnt attribute → how a saved model holds it: "value" (JSON), "array", "arrays" (a
     #: list of arrays), "basis" (a fitted feature map), "models" (one model per demonstration).
     _fitted_attributes: ClassVar[dict[str, str]] = {}
-
-    def __init_subclass__(cls, **kwargs: Any) -> None:
-        """Merge the ``_parameter_constraints`` of every base (parameter groups) into the
-        class's own declaration."""
-        super().__init_subclass__(**kwargs)
-        merged: dict[str, list] = {}
-        for base in reversed(cls.__mro__):
-            merged.update(vars(base).get("_parameter_constraints", {}))
-        cls._parameter_constraints = merged
 
     @classmethod
     def _param_names(cls) -> list[str]:
@@ -128,9 +117,10 @@ class Estimator:
         return self
 
     def _validate_params(self) -> None:
-        """Check every constructor parameter against ``_parameter_constraints``
-        (:class:`~ccl_cli.errors.ConfigError` naming the class and the parameter)."""
-        validate_params(type(self).__name__, self._parameter_constraints, self.get_params(deep=False))
+        """Check every constructor parameter against its annotation
+        (:func:`~ccl_cli.learn.params.declared`; :class:`~ccl_cli.errors.ConfigError` naming
+        the class and the parameter)."""
+        validate_params(type(self).__name__, declared(type(self)), self.get_params(deep=False))
 
     def _prepare_fit(self, X: np.ndarray | None, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The start of every ``fit``: validate the parameters and the data (X (N, p), U

@@ -25,7 +25,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
 
@@ -44,7 +44,7 @@ from ccl_cli.learn.defaults import (  # noqa: F401 - the shared defaults, re-exp
     TUNE_FOLDS,
     TUNE_MAX_ROWS,
 )
-from ccl_cli.learn.params import SEED, Fields, Interval, parameters
+from ccl_cli.learn.params import Fields, Interval, NFolds, Seed, parameters
 from ccl_cli.progress import progress_of
 
 
@@ -174,7 +174,7 @@ def cross_validate(
     U: np.ndarray,
     groups: np.ndarray | None = None,
     *,
-    folds: Folds | None = None,
+    folds: NFolds | None = None,
     n_folds: int = N_FOLDS,
     seed: int = 0,
     gap: int = DEFAULT_GAP,
@@ -305,14 +305,11 @@ def tuning_subset(groups: np.ndarray | None, n: int, seed: int = 0,
         "spread over the recording, each a group of the folds")
 
 
+#: A search's budget: model fits (candidates × folds); its rows at most.
+Budget = Annotated[float, Interval(0, None)]
+MaxRows = Annotated[int, Interval(100, None)]
 #: ``tune`` of a learner: True (the default search), False, or a mapping adjusting it.
-TUNE_FIELDS: dict[str, list] = {
-    "budget": [Interval(float, 0, None)],  # model fits (candidates × folds)
-    "folds": [Interval(int, 2, 1000)],
-    "max_rows": [Interval(int, 100, None)],
-    "grid": [dict],
-}
-TUNE_PARAMS: dict[str, list] = {"tune": [bool, Fields(TUNE_FIELDS)]}
+TuneSpec = bool | Annotated[dict, Fields(budget=Budget, folds=NFolds, max_rows=MaxRows, grid=dict)]
 #: What ``budget`` and ``budget_used`` count.
 BUDGET_UNIT = "fits (candidates × folds)"
 
@@ -594,12 +591,8 @@ class Tuned(Estimator):
         Other learnt attributes (``n_constraints_``, ``W_``, ...) are read from the winner.
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        "estimator": [Estimator], "grid": [dict], "folds": [Interval(int, 2, 1000), None],
-        "budget": [Interval(float, 0, None), None], "max_rows": [Interval(int, 100, None), None], **SEED}
-
-    def __init__(self, estimator: Estimator, grid: dict[str, list[Any]], *, folds: int | None = None,
-                 budget: float | None = None, max_rows: int | None = None, seed: int = 0) -> None:
+    def __init__(self, estimator: Estimator, grid: dict[str, list[Any]], *, folds: NFolds | None = None,
+                 budget: Budget | None = None, max_rows: MaxRows | None = None, seed: Seed = 0) -> None:
         self._store_params(locals())
 
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None, **fit_kw: Any) -> Tuned:
@@ -699,8 +692,7 @@ class Tunable:
     TUNE_CONSERVATIVE: ClassVar[tuple[str, ...]] = ()
     #: The parameters its feature map depends on (:meth:`_fit_basis`, :meth:`_basis_key`).
     BASIS_PARAMS: ClassVar[tuple[str, ...]] = ("basis", "n_centres", "seed")
-    _parameter_constraints: ClassVar[dict[str, list]] = TUNE_PARAMS
-    tune: bool | dict = TUNE
+    tune: TuneSpec = TUNE
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         """(numbers of centres, width factors) of the candidate bases, in order (:func:`basis_grid`)."""
