@@ -249,3 +249,19 @@ def test_the_budget_counts_fits_and_binds_the_same_way_on_any_clock(monkeypatch)
     for a, b in zip(calm[1].weights_, rushed[1].weights_, strict=True):
         np.testing.assert_array_equal(a, b)
 
+# -- errors that are ValueErrors too ---------------------------------------------------------
+def test_ccl_errors_are_value_errors_and_a_missing_h5_attribute_is_said_as_such(tmp_path):
+    """InputError and ConfigError are ValueErrors, and no ``except ValueError`` in ccl turns
+    them into another message (h5 access catches h5py's ValueErrors, not ours)."""
+    from ccl_cli.io.h5.access import attr_value
+
+    with h5py.File(tmp_path / "a.h5", "w") as f:
+        f.attrs["n"] = 3
+    with h5py.File(tmp_path / "a.h5", "r") as f:
+        assert attr_value(f.attrs, "n", "a.h5") == 3
+        with pytest.raises(ValueError) as err:
+            attr_value(f.attrs, "format", "a.h5")
+    assert isinstance(err.value, InputError) and err.value.message == "a.h5: attribute 'format' is missing"
+    with pytest.raises(ValueError, match="parameter n_centres must be"):
+        StateDependentConstraint(n_centres=0).fit(TOY.X, TOY.U)
+
