@@ -249,6 +249,7 @@ def test_the_budget_counts_fits_and_binds_the_same_way_on_any_clock(monkeypatch)
     for a, b in zip(calm[1].weights_, rushed[1].weights_, strict=True):
         np.testing.assert_array_equal(a, b)
 
+
 # -- errors that are ValueErrors too ---------------------------------------------------------
 def test_ccl_errors_are_value_errors_and_a_missing_h5_attribute_is_said_as_such(tmp_path):
     """InputError and ConfigError are ValueErrors, and no ``except ValueError`` in ccl turns
@@ -265,3 +266,16 @@ def test_ccl_errors_are_value_errors_and_a_missing_h5_attribute_is_said_as_such(
     with pytest.raises(ValueError, match="parameter n_centres must be"):
         StateDependentConstraint(n_centres=0).fit(TOY.X, TOY.U)
 
+
+@pytest.mark.parametrize("name,make,grid,data", [c for c in CASES if c[0] in ("alpha", "ncl", "pi", "tuned")],
+                         ids=["alpha", "ncl", "pi", "tuned"])
+def test_a_prediction_at_a_state_with_nan_is_one_input_error_not_a_nan_row(name, make, grid, data):
+    model = make().fit(data.X, data.U)
+    X = data.X[:5].copy()
+    X[3, 1] = np.nan
+    call = model.projection if name == "alpha" else model.predict
+    with pytest.raises(InputError) as err:
+        call(X)
+    assert err.value.message == ("X contains NaN or inf in 1 of 5 states (first: row 3); a model predicts at "
+                                 "finite states only")
+    assert np.isfinite(call(X[:3])).all()
