@@ -174,7 +174,7 @@ def cross_validate(
     U: np.ndarray,
     groups: np.ndarray | None = None,
     *,
-    folds: NFolds | None = None,
+    folds: Folds | None = None,
     n_folds: int = N_FOLDS,
     seed: int = 0,
     gap: int = DEFAULT_GAP,
