@@ -8,9 +8,9 @@ their options:
 
 * a stage section holds the constructor parameters of its estimators, read from each
   estimator's signature and the annotation that declares each parameter
-  (:func:`ccl_cli.learn.params.declared`): names, choices, ranges. A parameter the user did not set
-  stays ``None`` and the estimator's own default applies, so the library and the command
-  line share one set of defaults;
+  (:func:`ccl_cli.learn.params.declared`): names, choices, ranges. A parameter the user did
+  not set stays ``None`` and the estimator's own default applies, so the library and the
+  command line share one set of defaults;
 * the app-level options of a stage (``learn-a.method``: which estimator; ``on``: which
   observations; ``per_demo``; ``learn-pi.projections``, ``baseline``) are declared here;
 * the reading options are the readers' own (:mod:`ccl_cli.io.options`).
@@ -72,7 +72,7 @@ def _type_of(form: Any, name: str) -> Any:
     if form is None:
         return type(None)
     if isinstance(form, Interval):
-        return Annotated[form.type, Field(**{k: v for k, v in form.field().items() if k != "description"})]
+        return Annotated[form.type, Field(**form.bounds())]
     if isinstance(form, Options):
         return Literal[tuple(sorted(form.values))]
     if isinstance(form, Fields):  # named by its first key too: two mappings of one parameter differ

@@ -97,15 +97,19 @@ class Interval:
             [f"{'≤' if high_in else '<'} {high}"] if high is not None else [])
         return " ".join([noun, " and ".join(bounds)]).strip()
 
-    def field(self, unit: str | None = None) -> dict[str, Any]:
-        """The keyword arguments of a pydantic ``Field`` holding this range: its bounds
-        (``ge``/``gt``, ``le``/``lt``) and its description (with ``unit``: "a number > 0 (s)")."""
-        out: dict[str, Any] = {}
+    def bounds(self) -> dict[str, float]:
+        """The bounds as pydantic's ``Field`` takes them (``ge``/``gt``, ``le``/``lt``)."""
+        out: dict[str, float] = {}
         if self.low is not None:
             out["ge" if self.closed in ("both", "left") else "gt"] = self.low
         if self.high is not None:
             out["le" if self.closed in ("both", "right") else "lt"] = self.high
-        return {**out, "description": self.describe() + (f" ({unit})" if unit else "")}
+        return out
+
+    def field(self, unit: str | None = None) -> dict[str, Any]:
+        """The keyword arguments of a pydantic ``Field`` holding this range: its bounds and its
+        description (with ``unit``: "a number > 0 (s)")."""
+        return {**self.bounds(), "description": self.describe() + (f" ({unit})" if unit else "")}
 
 
 def out_of_range(name: str, value: Any, interval: Interval) -> str:
