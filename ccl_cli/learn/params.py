@@ -296,15 +296,14 @@ class SeedParams:
 
 def parameter_hints(cls: type, extras: bool = False) -> dict[str, Any]:
     """The resolved annotation of each constructor parameter of ``cls`` (``extras``: with the
-    ``Annotated`` declarations, else the plain types): a parameter group's annotation is
-    resolved in the module that declares the group (the dataclass-made ``__init__`` of a
-    learner carries its annotations unresolved)."""
+    ``Annotated`` declarations, else the plain types). A learner made by :func:`parameters`
+    has them on its class and its parameter groups, each resolved in the module that declares
+    it; a hand-written constructor (``Tuned``, ``PerDemonstration``) has them on itself."""
+    import dataclasses
     import inspect
 
-    try:
-        hints = typing.get_type_hints(cls.__init__, include_extras=extras)
-    except NameError:
-        hints = typing.get_type_hints(cls, include_extras=extras)
+    source = cls if dataclasses.is_dataclass(cls) else cls.__init__
+    hints = typing.get_type_hints(source, include_extras=extras)
     return {name: hints.get(name) for name in inspect.signature(cls.__init__).parameters if name != "self"}
 
 
