@@ -195,14 +195,14 @@ def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
     check_output(outdir, force)  # before any work: a folder ccl did not write is never replaced
     stages = cfg.stages() if stages is None else [(name, cfg.spec.section(name)) for name in stages]
     on_views = None
-    if cfg.spec.output.plots:  # figures drawn by another process while this one learns
-        from ccl_cli.render.drawing import start_drawer, stop_drawer, submit_views
+    try:  # the drawer ends however the run does (an error, Ctrl-C at any moment)
+        if cfg.spec.output.plots:  # figures drawn by another process while this one learns
+            from ccl_cli.render.drawing import start_drawer, submit_views
 
-        if start_drawer() is not None:
-            def on_views(views) -> None:
-                submit_views(views, cfg.spec.output.format)
-    bar = _bar("stages", len(stages), quiet)
-    try:
+            if start_drawer() is not None:
+                def on_views(views) -> None:
+                    submit_views(views, cfg.spec.output.format)
+        bar = _bar("stages", len(stages), quiet)
         try:
             result = execute(command, cfg, files, stages, progress=bar, on_views=on_views)
         finally:

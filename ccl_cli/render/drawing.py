@@ -64,13 +64,19 @@ class Drawer:
         import warnings
         from concurrent.futures import ProcessPoolExecutor
 
-        self._pool = ProcessPoolExecutor(1, mp_context=ctx)
-        before = set(multiprocessing.active_children())
-        with warnings.catch_warnings():  # 3.12+: fork() beside the BLAS's own (idle) threads
-            warnings.simplefilter("ignore", DeprecationWarning)
-            self._started = self._pool.submit(_warm_up, os.getpid())  # forks its worker now
-        self._workers = [p for p in multiprocessing.active_children() if p not in before]
         self._futures: dict[str, Any] = {}  # file name -> the future of its drawing
+        before = set(multiprocessing.active_children())
+        try:
+            self._pool = ProcessPoolExecutor(1, mp_context=ctx)
+            with warnings.catch_warnings():  # 3.12+: fork() beside the BLAS's own (idle) threads
+                warnings.simplefilter("ignore", DeprecationWarning)
+                self._started = self._pool.submit(_warm_up, os.getpid())  # forks its worker now
+            self._workers = [p for p in multiprocessing.active_children() if p not in before]
+        except BaseException:  # Ctrl-C half-way: a worker without its pool would be waited for at exit
+            for worker in set(multiprocessing.active_children()) - before:
+                worker.kill()
+                worker.join()
+            raise
 
     def submit(self, specs: list[Spec], fmt: str) -> None:
         """Have the drawer draw these figures, one after another, while ccl goes on (figures
