@@ -195,14 +195,14 @@ def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
     check_output(outdir, force)  # before any work: a folder ccl did not write is never replaced
     stages = cfg.stages() if stages is None else [(name, cfg.spec.section(name)) for name in stages]
     on_views = None
-    if cfg.spec.output.plots:  # figures drawn by another process while this one learns
-        from ccl_cli.render.drawing import start_drawer, stop_drawer, submit_views
+    try:  # the drawer ends however the run does (an error, Ctrl-C at any moment)
+        if cfg.spec.output.plots:  # figures drawn by another process while this one learns
+            from ccl_cli.render.drawing import start_drawer, submit_views
 
-        if start_drawer() is not None:
-            def on_views(views) -> None:
-                submit_views(views, cfg.spec.output.format)
-    bar = _bar("stages", len(stages), quiet)
-    try:
+            if start_drawer() is not None:
+                def on_views(views) -> None:
+                    submit_views(views, cfg.spec.output.format)
+        bar = _bar("stages", len(stages), quiet)
         try:
             result = execute(command, cfg, files, stages, progress=bar, on_views=on_views)
         finally:
@@ -211,6 +211,8 @@ def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
         summary = write_run(result, outdir, force)
     finally:
         if cfg.spec.output.plots:
+            from ccl_cli.render.drawing import stop_drawer
+
             stop_drawer()
     _emit(summary, as_json, quiet)
     if strict and summary["status"] != "ok":
@@ -664,6 +666,9 @@ def main(argv: list[str] | None = None) -> int:
         typer.echo("ccl: interrupted; no partial outputs were left", err=True)
         return 130
     except Exception as exc:  # an unexpected failure: still one line, unless debugging
+        if _caused_by_interrupt(exc):
+            typer.echo("ccl: interrupted; no partial outputs were left", err=True)
+            return 130
         if hasattr(exc, "show") and hasattr(exc, "exit_code"):  # typer's usage errors (exit 2)
             exc.show()
             _json_error(argv, int(exc.exit_code), "UsageError", exc.format_message())
@@ -675,6 +680,18 @@ def main(argv: list[str] | None = None) -> int:
         typer.echo(f"ccl: {message} (set CCL_DEBUG=1 for a traceback)", err=True)
         _json_error(argv, 1, "InternalError", message)
         return 1
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """A Ctrl-C that Python wrapped in another exception: 3.11 raises RuntimeError("Error calling
+    __set_name__ ...") from the KeyboardInterrupt when it lands while a module being imported
+    creates a class."""
+    seen = 0
+    while exc is not None and seen < 20:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return False
 
 
 def _json_error(argv: list[str] | None, code: int, kind: str, message: str) -> None:

@@ -512,10 +512,10 @@ def test_data_options_accept_every_key_and_type_the_config_allowed():
 
 @pytest.mark.parametrize(("mapping", "message"), [
     ({"stat": {}}, "unknown data option 'stat' (did you mean 'state'?)"),
-    ({"time": {"rate": "20"}}, "data.time.rate must be a rate in Hz between 1e-09 and 1e+12, got '20'"),
+    ({"time": {"rate": "20"}}, "data.time.rate must be a number between 1e-09 and 1e+12 (Hz), got '20'"),
     ({"action": {"derive": "state", "window": 0}}, "data.action.window must be an integer between 1 and"),
     ({"state": {"columns": [True]}}, "data.state.columns[0] must be an integer or a string, got True"),
-    ({"demos": {"split_on_gap": float("nan")}}, "data.demos.split_on_gap must be positive seconds, got nan"),
+    ({"demos": {"split_on_gap": float("nan")}}, "data.demos.split_on_gap must be a number > 0 (s), got nan"),
     ({"nonfinite": "keep"}, "data.nonfinite must be 'drop' or 'fail', got 'keep'"),
     ({"demos": {"window": 2, "windows": 4}}, "data.demos: unknown option 'windows' (did you mean 'window'?)"),
 ])

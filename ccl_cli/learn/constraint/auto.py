@@ -79,7 +79,7 @@ Nothing here reads a clock: the same data and parameters give the same model.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
 
@@ -92,7 +92,7 @@ from ccl_cli.learn.constraint import geometry as geo
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint.alpha import StateDependentConstraint
 from ccl_cli.learn.constraint.base import Applied, ConstraintModel, NewDataRule, Windows, check_rows_asked
-from ccl_cli.learn.constraint.lambda_ import FEATURE_PARAMS, KnownFeatureConstraint, make_features
+from ccl_cli.learn.constraint.lambda_ import FeatureSpec, KnownFeatureConstraint, make_features
 from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.manifold import ManifoldConstraint
 from ccl_cli.learn.constraint.nhat import StateIndependentConstraint
@@ -103,7 +103,16 @@ from ccl_cli.learn.constraint.stretches import BLOCK_S, MIN_SHARE, ConstraintInS
 from ccl_cli.learn.constraint.stretches import held_out as stretches_held_out
 from ccl_cli.learn.constraint.windows import PerWindow, window_index
 from ccl_cli.learn.defaults import N_FOLDS, WINDOW_S
-from ccl_cli.learn.params import Interval, Options, Regressors, SeedParams, parameters
+from ccl_cli.learn.params import (
+    Interval,
+    MaxConstraints,
+    NConstraints,
+    NFolds,
+    Regressors,
+    Seconds,
+    SeedParams,
+    parameters,
+)
 
 #: Every candidate, simplest first (module docstring).
 CANDIDATES = ("none", "manifold", "nhat", "per_demo", "per_segment", "per_window", "alpha_linear", "alpha",
@@ -142,24 +151,15 @@ class AutoConstraint(ConstraintModel, SeedParams):
         are the winner's.
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        "candidates": [list, None],
-        "window": [Interval(float, 0, None, closed="neither")],
-        "features": [*FEATURE_PARAMS["features"], None],
-        "regressors": [Options.of(Regressors), None],
-        "n_constraints": [Interval(int, 0, 100_000), None],
-        "max_constraints": [Interval(int, 1, 100_000), None],
-        "cv_folds": [Interval(int, 2, 1000)],
-        "gap": [Interval(int, 0, 1_000_000), None]}
     _fitted_attributes: ClassVar[dict[str, str]] = {}  # saved as its winner (ccl_cli.models)
     candidates: list[str] | None = None
-    window: float = WINDOW_S
-    features: Any = None
+    window: Seconds = WINDOW_S
+    features: FeatureSpec | None = None
     regressors: Regressors | None = None
-    n_constraints: int | None = None
-    max_constraints: int | None = None
-    cv_folds: int = N_FOLDS
-    gap: int | None = None
+    n_constraints: NConstraints = None
+    max_constraints: MaxConstraints = None
+    cv_folds: NFolds = N_FOLDS
+    gap: Annotated[int, Interval(0, 1_000_000)] | None = None
 
     # -- the protocol: answered as the model it chose --------------------------------------
     @property

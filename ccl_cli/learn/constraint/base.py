@@ -46,6 +46,7 @@ from ccl_cli.errors import ConfigError
 from ccl_cli.learn.base import Estimator
 from ccl_cli.learn.consistency import npoe_error, split_likelihood
 from ccl_cli.learn.linalg import nullspace_projection
+from ccl_cli.learn.params import Interval, out_of_range
 
 
 @dataclass(frozen=True)
@@ -249,4 +250,4 @@ def check_rows_asked(q: int, n_constraints: int | None) -> None:
     if q < 2:
         raise ConfigError("learning a constraint needs at least 2 action dimensions")
     if n_constraints is not None and n_constraints > q - 1:
-        raise ConfigError(f"n_constraints must be between 0 and {q - 1}, got {n_constraints}")
+        raise ConfigError(out_of_range("n_constraints", n_constraints, Interval(0, q - 1, type=int)))

@@ -37,7 +37,6 @@ class PerDemonstration(ConstraintModel):
     """
 
     local_to = "demonstration"
-    _parameter_constraints: ClassVar[dict[str, list]] = {"estimator": [ConstraintModel], "heldout": [bool]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "selection_": "value", "heldout_": "value",
         "models_": "models"}
