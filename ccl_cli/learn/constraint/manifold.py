@@ -29,14 +29,14 @@ Shapes: X (N, p) with p = q, groups (N,) demonstration ids.
 
 from __future__ import annotations
 
-from typing import ClassVar, Literal
+from typing import Annotated, ClassVar, Literal
 
 import numpy as np
 from scipy.linalg import eigh
 
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.learn.constraint.base import ConstraintModel, check_rows_asked
-from ccl_cli.learn.params import Interval, Options, parameters
+from ccl_cli.learn.params import Interval, parameters
 
 Basis = Literal["linear", "sphere", "quadric"]
 #: The feature spaces, simplest first.
@@ -92,15 +92,12 @@ class ManifoldConstraint(ConstraintModel):
         scale_: z = (x − centre_)/scale_; n_constraints_, n_action_, selection_, n_features_in_.
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        "basis": [Options.of(Basis)], "n_constraints": [Interval(int, 1, 100_000), None],
-        "tolerance": [Interval(float, 0, None)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
         "weights_": "array", "variation_": "array", "centre_": "array", "scale_": "value"}
     basis: Basis = "sphere"
-    n_constraints: int | None = None
-    tolerance: float = 0.05
+    n_constraints: Annotated[int, Interval(1, 100_000)] | None = None
+    tolerance: Annotated[float, Interval(0, None)] = 0.05
 
     @property
     def varies_with_state(self) -> bool:  # type: ignore[override]
