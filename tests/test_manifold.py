@@ -216,3 +216,17 @@ def test_the_answer_does_not_depend_on_frame_unit_or_order(angles, shift, scale,
     np.testing.assert_allclose(np.sort(moved.winner.drift), np.sort(base.winner.drift), rtol=1e-6, atol=1e-9)
     model = ManifoldConstraint(basis="sphere", n_constraints=2).fit(Y, Y, groups=h)
     assert np.median(largest_angle(model.constraint(Y), rows @ R.T)) < 0.5
+
+
+def test_demonstrations_held_still_or_too_short_show_nothing():
+    """A demonstration that does not move, or a scrap of a few samples, neither vetoes nor
+    makes a shape: the hinge is found on the others, and with nothing moving k = 0 with a reason."""
+    X, g, _ = hinge()
+    still = np.repeat(X[:1], 60, axis=0)
+    scrap = X[:4] + 0.3
+    Y = np.vstack([X, still, scrap])
+    h = np.r_[g, np.full(60, 100), np.full(4, 101)]
+    found = decide(Y, h)
+    assert found.k == 2 and found.winner.basis == "sphere"
+    nothing = decide(np.repeat(X[:1], 50, axis=0))
+    assert nothing.k == 0 and "no demonstration moves" in nothing.reason

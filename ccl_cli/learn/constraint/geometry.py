@@ -46,8 +46,13 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.dataset import Derivative, HowMade
+from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint.manifold import BASES, ManifoldConstraint, within_covariance
 
+#: A demonstration shows a shape with at least MIN_SAMPLES samples and a spread above STILL × the
+#: median demonstration's.
+MIN_SAMPLES = 10
+STILL = 1e-3
 #: Largest drift of a rail (k = q − 1).
 RAIL = 0.04
 #: Largest drift of a surface shown by demonstrations that come back over their ground.
@@ -170,8 +175,11 @@ def drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int) -> np.ndarray:
     H = np.zeros((len(X), k))
     piece = np.zeros(len(X), np.int64)
     for j, (train, test) in enumerate(folds(X, groups)):
-        model = ManifoldConstraint(basis=basis, n_constraints=k).fit(
-            X[train], np.zeros((len(train), q)), groups=_stretches(train, groups))
+        try:
+            model = ManifoldConstraint(basis=basis, n_constraints=k).fit(
+                X[train], np.zeros((len(train), q)), groups=_stretches(train, groups))
+        except (InputError, np.linalg.LinAlgError):  # a fold whose states do not move: no evidence
+            return np.full(k, np.inf)
         H[test] = model.levels(X[test], k)
         piece[test] = j
     pieces = np.cumsum(np.r_[True, (piece[1:] != piece[:-1]) | (groups[1:] != groups[:-1])])
@@ -312,6 +320,19 @@ def _phases(X: np.ndarray, groups: np.ndarray, k: int, all_along: list[Tried]) -
     return found
 
 
+def _moving(X: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """The samples of the demonstrations that can show a shape: at least MIN_SAMPLES samples and
+    an RMS spread above STILL × the median demonstration's (a demonstration held still, or a
+    scrap of one, shows nothing): (N,) bool."""
+    ids, inverse, counts = np.unique(groups, return_inverse=True, return_counts=True)
+    sums = np.zeros((len(ids), X.shape[1]))
+    np.add.at(sums, inverse, X)
+    centred = X - (sums / counts[:, None])[inverse]
+    spread = np.sqrt(np.bincount(inverse, (centred**2).sum(1)) / counts)
+    ok = (counts >= MIN_SAMPLES) & (spread > STILL * max(float(np.median(spread)), np.finfo(float).tiny))
+    return ok[inverse.ravel()]
+
+
 def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None = None,
            max_k: int | None = None) -> Geometry:
     """The number of constraints the positions X (N, q) of demonstrations ``groups`` show, and the
@@ -319,6 +340,11 @@ def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None =
     X = np.asarray(X, dtype=float)
     q = X.shape[1]
     groups = np.zeros(len(X), np.int64) if groups is None else np.asarray(groups)
+    usable = _moving(X, groups)
+    if not usable.any():
+        return Geometry(0, None, [], {}, "the states show no constraint: no demonstration moves over "
+                        f"{MIN_SAMPLES} samples or more")
+    X, groups = X[usable], groups[usable]
     ids = np.unique(groups)
     back = {int(d): revisits(X[groups == d]) for d in ids}
     returning = np.array([d for d in ids if back[int(d)] >= REVISIT_SHARE])
