@@ -329,7 +329,9 @@ def _moving(X: np.ndarray, groups: np.ndarray) -> np.ndarray:
     np.add.at(sums, inverse, X)
     centred = X - (sums / counts[:, None])[inverse]
     spread = np.sqrt(np.bincount(inverse, (centred**2).sum(1)) / counts)
-    ok = (counts >= MIN_SAMPLES) & (spread > STILL * max(float(np.median(spread)), np.finfo(float).tiny))
+    scale = float(np.abs(X).max()) if len(X) else 0.0  # rounding of the mean is not motion
+    floor = max(STILL * float(np.median(spread)), 1e-9 * scale, np.finfo(float).tiny)
+    ok = (counts >= MIN_SAMPLES) & (spread > floor)
     return ok[inverse.ravel()]
 
 
