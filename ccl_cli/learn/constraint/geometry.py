@@ -72,6 +72,8 @@ RAIL_FIT = 0.08
 #: demonstration and by a quadric when at least half of the demonstrations do.
 REVISIT_RADIUS = 0.3
 REVISIT_SHARE = 0.25
+#: A demonstration's circle of radius at least FLAT × its spread is a (bowed) line.
+FLAT = 5.0
 #: Circles fitted one per demonstration agree: axes within AXIS_DEG, radii within ± RADIUS_SPREAD.
 AXIS_DEG = 10.0
 RADIUS_SPREAD = 0.1
@@ -254,7 +256,7 @@ def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
         c0 = P.mean(0)
         V = np.linalg.svd(P - c0, full_matrices=False)[2]
         directions.append(V[0])
-        straight.append(bool(shape_residual(P, q - 1, "linear").max() <= RAIL_FIT))
+        spread = float(np.sqrt(((P - c0) ** 2).sum(1).mean()))
         if q == 3:
             axis, r = circle(P)
             axes.append(axis)
@@ -263,14 +265,22 @@ def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
             sol = np.linalg.lstsq(np.c_[2 * Q, np.ones(len(Q))], (Q**2).sum(1), rcond=None)[0]
             r = float(np.sqrt(max(sol[2] + sol[0] ** 2 + sol[1] ** 2, 0.0)))
         radii.append(r)
+        # a line: the circle fits it no PARSIMONY × better, or bends so little over the demonstration
+        # (radius ≥ FLAT × its spread) that it is a bowed line
+        straight.append(bool(r >= FLAT * spread or shape_residual(P, q - 1, "linear").max()
+                             <= PARSIMONY * shape_residual(P, q - 1, "sphere").max()))
     if all(straight):
         D = np.array(directions)
         ref = np.linalg.svd(D, full_matrices=False)[2][0]
         deg = float(np.degrees(np.arccos(np.clip(np.abs(D @ ref), 0.0, 1.0))).max())
         return deg <= AXIS_DEG, f"lines within {deg:.1f}° of one direction"
-    if any(straight):
-        return False, "lines in some demonstrations, arcs in others"
-    r = np.array(radii)
+    straight = np.array(straight)
+    sizes = np.array([np.count_nonzero(groups == d) for d in ids])
+    if sizes[straight].sum() > sizes[~straight].sum():
+        return False, "lines in most demonstrations, arcs in others"
+    # arcs in most: a straight piece is too short to tell a large circle from a line
+    r = np.array(radii)[~straight]
+    axes = [a for a, s in zip(axes, straight, strict=False) if not s] if axes else axes
     med = float(np.median(r))
     rel = float(np.abs(r - med).max() / med) if med > 0 else np.inf
     deg = 0.0
