@@ -230,3 +230,21 @@ def test_demonstrations_held_still_or_too_short_show_nothing():
     assert found.k == 2 and found.winner.basis == "sphere"
     nothing = decide(np.repeat(X[:1], 50, axis=0))
     assert nothing.k == 0 and "no demonstration moves" in nothing.reason
+
+
+def test_a_row_the_contact_gives_along_is_kept_by_the_positions():
+    """The noise rule stops at a row whose motion is far above the noise (a contact that gives, a
+    smooth wobble of a few mm); the positions do not drift along it: the row is kept. A row in the
+    plane is not."""
+    from ccl_cli.learn.constraint.geometry import add_still_rows
+    from ccl_cli.learn.constraint.rank import Selection
+
+    X, g, normal = plane_strokes(noise=0.0)
+    t = np.arange(len(X)) * 0.02
+    X = X + np.outer(0.002 * np.sin(2 * np.pi * t / 0.7), normal)  # 2 mm of give, well above any noise
+    U = np.gradient(X, t, axis=0)
+    in_plane = unit(np.cross(normal, [1.0, 0, 0]))
+    for rows, kept in ((np.stack([normal, in_plane]), 1), (np.stack([in_plane, normal]), 0)):
+        rows = np.broadcast_to(rows, (len(X), 2, 3))
+        chosen = add_still_rows(Selection("noise", 0, [], "row 1 moves"), rows, X, U, g, t, {"window": 5}, 2)
+        assert chosen.n_constraints == kept

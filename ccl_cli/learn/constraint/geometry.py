@@ -48,6 +48,7 @@ import numpy as np
 from ccl_cli.dataset import Derivative, HowMade
 from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint.manifold import BASES, ManifoldConstraint, within_covariance
+from ccl_cli.learn.constraint.rank import Selection
 
 #: A demonstration shows a shape with at least MIN_SAMPLES samples and a spread above STILL × the
 #: median demonstration's.
@@ -488,3 +489,27 @@ def holds_limit(X: np.ndarray, groups: np.ndarray, k: int) -> float:
     ids = np.unique(groups)
     back = np.mean([revisits(X[groups == d]) >= REVISIT_SHARE for d in ids]) >= 0.5
     return HOLDS if back else RAIL_FIT if k >= X.shape[1] - 1 else THIN
+
+
+def add_still_rows(chosen: Selection | None, rows: np.ndarray, X: np.ndarray, U: np.ndarray,
+                   groups: np.ndarray, t: np.ndarray | None, derivative: HowMade, max_k: int
+                   ) -> Selection | None:
+    """The noise rule's choice (:func:`~.noise_rank.noise_rank`) of an explicit learner's rows
+    (N, m, q), extended — when the actions are the states' derivative — by the next rows along
+    which the positions do not drift (:func:`rows_drift` within :func:`holds_limit`): a compliant
+    contact or a hand's tremor moves along a true row far above the noise, and never carries the
+    states off it. X (N, q), U (N, q), groups (N,), t (N,) s."""
+    if chosen is None or chosen.n_constraints >= max_k or not kinematic(X, U, groups, t, derivative)[0]:
+        return chosen
+    k = chosen.n_constraints
+    drift = rows_drift(rows[:, :max_k], X, groups)
+    limit = holds_limit(X, groups, max_k)
+    still = drift <= limit
+    while k < max_k and still[k]:
+        k += 1
+    if k > chosen.n_constraints:
+        chosen.reason += (f"; rows {chosen.n_constraints + 1}–{k} move above the noise but the positions "
+                          f"drift along them by at most {drift[chosen.n_constraints:k].max():.3g} of their "
+                          f"spread (≤ {limit:g}): constraints the contact gives a little along")
+        chosen.n_constraints = k
+    return chosen
