@@ -73,6 +73,11 @@ RAIL_FIT = 0.08
 #: demonstration and by a quadric when at least half of the demonstrations do.
 REVISIT_RADIUS = 0.3
 REVISIT_SHARE = 0.25
+#: Lines in different directions are one constraint per demonstration when there are at least
+#: MIN_LINES of them and no point comes within MEET × a demonstration's spread of every one (lines
+#: through one point are straight reaches to one goal).
+MIN_LINES = 3
+MEET = 0.3
 #: A demonstration's circle of radius at least FLAT × its spread is a (bowed) line.
 FLAT = 5.0
 #: Circles fitted one per demonstration agree: axes within AXIS_DEG, radii within ± RADIUS_SPREAD.
@@ -268,13 +273,26 @@ def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
         radii.append(r)
         # a line: the circle fits it no PARSIMONY × better, or bends so little over the demonstration
         # (radius ≥ FLAT × its spread) that it is a bowed line
-        straight.append(bool(r >= FLAT * spread or shape_residual(P, q - 1, "linear").max()
-                             <= PARSIMONY * shape_residual(P, q - 1, "sphere").max()))
+        line = shape_residual(P, q - 1, "linear").max()
+        straight.append(bool(r >= FLAT * spread or line <= 1e-6  # (exact lines: the circle fit is rounding)
+                             or line <= PARSIMONY * shape_residual(P, q - 1, "sphere").max()))
     if all(straight):
         D = np.array(directions)
         ref = np.linalg.svd(D, full_matrices=False)[2][0]
         deg = float(np.degrees(np.arccos(np.clip(np.abs(D @ ref), 0.0, 1.0))).max())
-        return deg <= AXIS_DEG, f"lines within {deg:.1f}° of one direction"
+        if deg <= AXIS_DEG:
+            return True, f"lines within {deg:.1f}° of one direction"
+        # lines in different directions: each demonstration under its own constraint — unless they
+        # run through one point, as straight reaches to one goal do
+        centres = np.array([X[groups == d].mean(0) for d in ids])
+        spreads = np.array([np.sqrt(((X[groups == d] - X[groups == d].mean(0)) ** 2).sum(1).mean())
+                            for d in ids])
+        miss = _meeting_miss(centres, D)
+        meet = len(ids) < MIN_LINES or miss <= MEET * float(np.median(spreads))
+        if meet:
+            return False, f"lines in directions {deg:.0f}° apart, through one point (within {miss:.3g})"
+        return True, (f"lines in directions {deg:.0f}° apart that do not run through one point (the "
+                      f"nearest misses them by {miss:.3g} RMS): one constraint per demonstration")
     straight = np.array(straight)
     sizes = np.array([np.count_nonzero(groups == d) for d in ids])
     if sizes[straight].sum() > sizes[~straight].sum():
@@ -291,6 +309,16 @@ def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
         deg = float(np.degrees(np.arccos(np.clip(np.abs(A @ ref), 0.0, 1.0))).max())
     ok = deg <= AXIS_DEG and rel <= RADIUS_SPREAD
     return ok, f"circles with axes within {deg:.1f}°, radii within ±{100 * rel:.0f} % of {med:.3g}"
+
+
+def _meeting_miss(points: np.ndarray, directions: np.ndarray) -> float:
+    """The RMS distance from the point nearest to every line (through ``points`` (L, q), along unit
+    ``directions`` (L, q)) to the lines."""
+    q = points.shape[1]
+    P = np.eye(q)[None] - np.einsum("li,lj->lij", directions, directions)  # projections across each line
+    point = np.linalg.lstsq(P.sum(0), np.einsum("lij,lj->i", P, points), rcond=None)[0]
+    gaps = np.einsum("lij,lj->li", P, point[None] - points)
+    return float(np.sqrt((gaps**2).sum(1).mean()))
 
 
 def contact_runs(X: np.ndarray, groups: np.ndarray) -> np.ndarray:
