@@ -446,6 +446,31 @@ def predict(
             typer.echo(f"note: {summary['note']}", err=True)
 
 
+@app.command("export")
+def export(
+    model: Annotated[Path, typer.Argument(metavar="MODEL", help="A model file (model.h5) written by ccl.",
+                                          show_default=False)],
+    out: Annotated[Path, typer.Option("--out", "-o", metavar="FILE", show_default=False,
+                                      help="The file to write: .yaml or .yml for YAML, .json for JSON.")],
+    force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
+) -> None:
+    """Write a saved model as a documented, versioned YAML or JSON file that any language reads: a
+    constraint's k and rows (or the parameters of A(x) and its formula, per window, segment, phase
+    or demonstration, with the rule for a new recording), a null-space component's or a policy's
+    basis and weights, the names, units and frame of the data, and how it was trained
+    (docs/export.md, with a reference evaluator in numpy)."""
+    from ccl_cli.app.export import export_model
+
+    _logging(quiet)
+    summary = export_model(model, out, force)
+    if json_out:
+        _emit(summary, True)
+    elif not quiet:
+        what = (f"{summary['method']} constraint, k = {summary['k']} ({summary['form']})"
+                if summary["kind"] == "constraint" else f"{summary['method']} {summary['kind']}")
+        typer.echo(f"wrote {out}: {what}, schema version {summary['schema_version']}", err=True)
+
+
 # -- data commands --------------------------------------------------------------------------
 @app.command("simulate")
 def simulate(

@@ -80,11 +80,25 @@ def run_record(command: str, cfg: Any, data: Demonstrations, pipeline: Any, blas
     }
 
 
+def frame_of(meta: dict[str, Any]) -> dict[str, Any] | None:
+    """The frame the states are expressed in, when the readers computed them by forward
+    kinematics ({robot, base, frame}: the chain's ``frame`` seen from its ``base``); None when the
+    states are the recording's own coordinates."""
+    for f in meta.get("files", []):
+        fk = f.get("forward_kinematics") if isinstance(f, dict) else None
+        if isinstance(fk, dict):
+            return {k: fk.get(k) for k in ("robot", "base", "frame")}
+    return None
+
+
 def training_record(stage: str, cfg: Any, data: Demonstrations, metrics: dict[str, Any] | None = None
                     ) -> dict[str, Any]:
-    """What a saved model records of its training: stage, config, input hashes, versions and
-    its figures ({train|test: {metric: value}} from metrics.json's stage entry)."""
+    """What a saved model records of its training: stage, config, input hashes, versions, its
+    figures ({train|test: {metric: value}} from metrics.json's stage entry) and what the data's
+    columns are (names, units and frame, for ``ccl export``)."""
     figures = {part: {name: m["value"] for name, m in (metrics or {}).get(part, {}).items()}
                for part in ("train", "test") if part in (metrics or {})}
+    columns = {"states": data.state_names, "state_units": data.state_units, "actions": data.action_names,
+               "action_units": data.action_units, "frame": frame_of(data.metadata)}
     return {"stage": stage, "config": cfg.raw, "inputs": input_hashes(data), "versions": versions(),
-            "metrics": figures}
+            "metrics": figures, "data": columns}
