@@ -448,7 +448,7 @@ CONSTRAINTS = [
     ("sphere", "sphere", {}, "manifold", 1),
     ("plane", "plane", {}, "nhat", 1),
     ("wipe", "wipe", {}, "stretches", 1),
-    ("varying", "varying", {}, "per_window", 1),
+    ("varying", "varying", {}, "per_demo:manifold", 1),
     ("free", "free", {}, "none", 0),
     ("saddle", "saddle", {}, "manifold", 1),
     ("drawer", "drawer", {}, "nhat", 2),

@@ -293,7 +293,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
                  if c not in ("none", "manifold")]
         chosen = ("stretches" if w.scope == "phases" and data.t is not None else
                   "manifold" if w.basis != "linear" or w.scope == "phases" else
-                  "nhat" if w.scope == "global" else "per_demo" if data.t is not None else "manifold")
+                  "nhat" if w.scope == "global" else
+                  "per_demo" if data.t is not None and w.measure != "shape residual" else "manifold")
         self.selection_ = {"rule": "auto", "n_constraints": found.k, "model": label, "chosen": chosen,
                            "decided_by": "states",
                            "reason": f"{found.k} constraint(s): {found.reason}" + (
@@ -307,17 +308,19 @@ class AutoConstraint(ConstraintModel, SeedParams):
 
     def _manifold_model(self, winner: geo.Tried, k: int, data: ev.Sample) -> ConstraintModel:
         """The model of the manifold the states showed, with k rows, fitted on all the data. Flat
-        manifolds (lines, planes: constant rows) take their rows from the velocities (§3.1, one
-        constant A, per demonstration when each has its own): every part of the motion weighs by
-        how much it moves, which a tilting or bowing surface does not skew the way the spread of
-        the positions does; circles, spheres and quadrics take the gradients of their levels."""
+        families (planes, and lines shared by every demonstration: constant rows) take their rows
+        from the velocities (§3.1, one constant A, per demonstration when each has its own
+        surface): every part of the motion weighs by how much it moves, which a tilting or bowing
+        surface does not skew the way the spread of the positions does; a line or circle in each
+        demonstration, spheres and quadrics take the gradients of their levels (a line's
+        direction is best read off its whole extent)."""
         X, U, g = data.X, data.U, data.groups
         if winner.scope == "phases" and data.t is not None:  # the rows where they hold, found in time
             return ConstraintInStretches(block=BLOCK_S, n_constraints=k).fit(
                 X, U, groups=g, t=data.t, derivative=data.derivative)
         if winner.basis == "linear" and winner.scope == "global":
             return StateIndependentConstraint(n_constraints=k, seed=self.seed).fit(X, U, groups=g)
-        if winner.basis == "linear" and data.t is not None:
+        if winner.basis == "linear" and data.t is not None and winner.measure != "shape residual":
             return PerWindow(window=None, n_constraints=k, heldout=True).fit(
                 X, U, groups=g, t=data.t, derivative=data.derivative)
         est = ManifoldConstraint(basis=winner.basis, n_constraints=k)

@@ -412,7 +412,8 @@ def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None =
             agree, how = shapes_agree(X, groups)
             worst = fits.max(axis=0)
             holds = bool(agree and worst.max() <= RAIL_FIT)
-            tried.append(Tried(k, "per_demo", "sphere", worst, RAIL_FIT, holds,
+            lines = how.startswith("lines")  # straight in every demonstration: constant rows each
+            tried.append(Tried(k, "per_demo", "linear" if lines else "sphere", worst, RAIL_FIT, holds,
                                f"a line or circle in every demonstration ({how})", "shape residual"))
         if not rail and len(returning) and surfaces_return and len(ids) > 1:
             for basis in BASES[: 3 if quadrics else 2]:
