@@ -327,7 +327,8 @@ def learn_a(
         help="auto (model class and number of constraints, 0 included, by held-out evidence), nhat "
              "(constant A, closed form), alpha (state-dependent), lambda (known Φ), linear (closed form), "
              "per_window (one constant A per time window), per_segment (one constant A per segment, cut "
-             "where it changes; docs/methods.md).",
+             "where it changes), manifold (the level sets the states stay on: lines, circles, surfaces; "
+             "docs/methods.md).",
         show_default=_default(spec.DEFAULT_CONSTRAINT_METHOD))] = None,
     selection: Annotated[Selection | None, typer.Option(
         help="How the number of constraints s is chosen (lambda's default: noise).",

@@ -323,7 +323,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
         if winner.basis == "linear" and data.t is not None and winner.measure != "shape residual":
             return PerWindow(window=None, n_constraints=k, heldout=True).fit(
                 X, U, groups=g, t=data.t, derivative=data.derivative)
-        est = ManifoldConstraint(basis=winner.basis, n_constraints=k)
+        est = ManifoldConstraint(family=winner.basis, n_constraints=k)
         if winner.scope in ("global", "phases"):
             return est.fit(X, U, groups=g)
         return PerDemonstration(est).fit(X, U, groups=g, derivative=data.derivative)

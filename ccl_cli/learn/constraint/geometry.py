@@ -184,7 +184,7 @@ def drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int) -> np.ndarray:
     piece = np.zeros(len(X), np.int64)
     for j, (train, test) in enumerate(folds(X, groups)):
         try:
-            model = ManifoldConstraint(basis=basis, n_constraints=k).fit(
+            model = ManifoldConstraint(family=basis, n_constraints=k).fit(
                 X[train], np.zeros((len(train), q)), groups=_stretches(train, groups))
         except (InputError, np.linalg.LinAlgError):  # a fold whose states do not move: no evidence
             return np.full(k, np.inf)
@@ -242,7 +242,7 @@ def shape_residual(P: np.ndarray, k: int, basis: str = "sphere") -> np.ndarray:
     fitted to it: the RMS of the first k level functions fitted to it alone, over its RMS
     spread: (k,). A circle or a line has a handful of parameters, so the fit to a few hundred
     samples is judged on those samples."""
-    model = ManifoldConstraint(basis=basis, n_constraints=k).fit(P, np.zeros_like(P))
+    model = ManifoldConstraint(family=basis, n_constraints=k).fit(P, np.zeros_like(P))
     spread = float(np.sqrt(((P - P.mean(0)) ** 2).sum(1).mean()))
     H = model.levels(P, k)
     return np.sqrt(((H - H.mean(0)) ** 2).mean(0)) / spread if spread > 0 else np.full(k, np.inf)
