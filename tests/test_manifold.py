@@ -248,3 +248,23 @@ def test_a_row_the_contact_gives_along_is_kept_by_the_positions():
         rows = np.broadcast_to(rows, (len(X), 2, 3))
         chosen = add_still_rows(Selection("noise", 0, [], "row 1 moves"), rows, X, U, g, t, {"window": 5}, 2)
         assert chosen.n_constraints == kept
+
+
+def test_rows_each_demonstration_moves_along_at_a_constant_rate_are_a_task_part():
+    """The varying-constraint tutorial with a task part (A u = b per demonstration): the states drift
+    along each one's row at its own constant rate; the geometry finds one row per demonstration and
+    learn-a's auto fits each with its task term — NPPE < 0.1 — while free motion stays at k = 0."""
+    from ccl_cli import simulate as sim
+    from ccl_cli.learn.constraint import AutoConstraint
+
+    d = sim.varying_constraint(task=True, noise=0.01, seed=0)
+    found = decide(d.X, d.demo, t=d.t)
+    assert found.k == 1 and found.winner.scope == "per_demo_task" and found.winner.worst < 0.02
+    model = AutoConstraint().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.derivative)
+    assert model.selection_["chosen"] == "per_demo_task"
+    N = model.projection(d.X, groups=d.demo)
+    Pi = d.truth["pi"]
+    nppe = np.mean(((d.true_projection() - N) @ Pi[:, :, None]) ** 2) * 2 / np.var(d.U, axis=0, ddof=1).sum()
+    assert nppe < 0.1
+    free = sim.flow2d(seed=0)
+    assert decide(free.X, free.demo, t=free.t).k == 0

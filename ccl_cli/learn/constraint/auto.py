@@ -269,7 +269,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
         if not moving:
             self.geometry_ = {"tried": False, "reason": why}
             return False
-        found = geo.decide(X, data.groups, only_k=self.n_constraints, max_k=self.max_constraints)
+        found = geo.decide(X, data.groups, only_k=self.n_constraints, max_k=self.max_constraints, t=data.t)
         self.geometry_ = {"tried": True, "k": found.k, "reason": f"{why}; {found.reason}",
                           "models": [t.row(t is found.winner) for t in found.tried],
                           "returns": {str(k): v for k, v in found.revisits.items()}}
@@ -291,7 +291,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
                   f" ({t.worst:.3g} against {t.limit:g})"} for t in found.tried]
         rows += [ev.not_tried(c, "the states' geometry decided") for c in CANDIDATES
                  if c not in ("none", "manifold")]
-        chosen = ("stretches" if w.scope == "phases" and data.t is not None else
+        chosen = ("per_demo_task" if w.scope == "per_demo_task" else
+                  "stretches" if w.scope == "phases" and data.t is not None else
                   "manifold" if w.basis != "linear" or w.scope == "phases" else
                   "nhat" if w.scope == "global" else
                   "per_demo" if data.t is not None and w.measure != "shape residual" else "manifold")
@@ -315,6 +316,9 @@ class AutoConstraint(ConstraintModel, SeedParams):
         demonstration, spheres and quadrics take the gradients of their levels (a line's
         direction is best read off its whole extent)."""
         X, U, g = data.X, data.U, data.groups
+        if winner.scope == "per_demo_task":  # its own rows and task part in each: §3.5 with a task term
+            return PerDemonstration(LinearConstraint(regressors="identity", task=True, n_constraints=k)).fit(
+                X, U, groups=g, derivative=data.derivative)
         if winner.scope == "phases" and data.t is not None:  # the rows where they hold, found in time
             return ConstraintInStretches(block=BLOCK_S, n_constraints=k).fit(
                 X, U, groups=g, t=data.t, derivative=data.derivative)
