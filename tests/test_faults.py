@@ -331,3 +331,18 @@ def test_timing_on_a_smooth_path_is_no_spike_and_a_spike_off_it_is(seed):
     X[1500] += 0.004 * np.cross(tangent, [0.0, 0.0, 1.0])
     for unit in (1.0, 1000.0):
         assert np.flatnonzero(faults.spikes(X * unit, t, demo).mask).tolist() == [1500]
+
+
+@pytest.mark.parametrize("unit", [1.0, 1000.0])
+def test_a_quantised_log_moving_slowly_has_no_spike_until_one_is_put_in(unit):
+    """Joint positions written to 10⁻⁴ rad (an encoder's count) of an arm at 1 kHz, one joint
+    crawling (most of its residuals are exactly 0, so their MAD is 0): its one-count toggles are
+    no spikes (the noise is at least the rounding's, q/√12); a jump of 20 counts is."""
+    t = np.arange(20000) / 1000.0
+    rng = np.random.default_rng(0)
+    X = 0.5 * np.c_[np.sin(0.3 * t), 0.2 * np.cos(0.2 * t)] + rng.normal(scale=2e-6, size=(len(t), 2))
+    X = np.round(X / 1e-4) * 1e-4 * unit
+    demo = np.zeros(len(t), int)
+    assert faults.clean_positions(t, X, demo).findings == []
+    X[12345, 1] += 20e-4 * unit
+    assert np.flatnonzero(faults.spikes(X, t, demo).mask).tolist() == [12345]

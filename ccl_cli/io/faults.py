@@ -54,6 +54,9 @@ PATH_REACH = 2
 #: ... sought only where the motion of one period exceeds PATH_MOTION noise standard deviations
 #: (slower, a timing error moves a sample less than its noise, and the path is the noise's).
 PATH_MOTION = 2.0
+#: The noise of a quantised value: the standard deviation of rounding to its resolution q,
+#: q/√12, times the residual's gain over white noise (≈ 1.39, :func:`spikes`).
+ROUNDING = 1.39 / np.sqrt(12.0)
 #: A spike lies off that path by more than the motion of this many periods (½‖x_{n+1} − x_{n−1}‖):
 #: a smooth, nearly noise-free log (positions from joint encoders, filtered or resampled) has
 #: residuals many times its tiny noise that are still a small part of one period's motion.
@@ -340,6 +343,37 @@ def _off_path(Y: np.ndarray, t: np.ndarray, k: np.ndarray, scale: np.ndarray
     return off, ratio
 
 
+def _peaks(R: np.ndarray, scale: np.ndarray, z: float, score: np.ndarray) -> np.ndarray:
+    """R (d, N) divided by ``scale`` (d,) in place (z-scores); ``score`` (N,) filled with each
+    sample's largest |z|; the samples (N,) whose score exceeds ``z`` and is a peak: at least its
+    neighbours' (0 beyond the ends)."""
+    def z_scores(s: int, e: int) -> None:
+        block = R[:, s:e]
+        block /= scale[:, None]  # z-scores, in place
+        score[s:e] = np.abs(block).max(0)
+
+    each_block(z_scores, 0, R.shape[1])
+    mask = score > z
+    mask[1:] &= score[1:] >= score[:-1]
+    mask[:-1] &= score[:-1] >= score[1:]
+    return mask
+
+
+def _resolution(Y: np.ndarray) -> np.ndarray:
+    """The smallest nonzero change between successive values of each column of Y (N, d): (d,),
+    the step of a quantised signal (an encoder's count, values written with few digits); inf
+    for a column that never changes."""
+    low = {-1: np.full(Y.shape[1], np.inf)}  # per block
+
+    def block(s: int, e: int) -> None:
+        step = np.abs(np.diff(_rows(Y, s, e + 1), axis=1))
+        step[step == 0] = np.inf
+        low[s] = step.min(1)
+
+    each_block(block, 0, len(Y) - 1)
+    return np.min(list(low.values()), axis=0)
+
+
 def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z, *,
            period: float | None = None) -> Finding:
     """Isolated outliers in Y (N, d) (positions, or recorded actions) sampled at t (N,).
@@ -378,17 +412,12 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z, *
     each_block(spread, 0, len(R), rows=1)
     scale = np.maximum(sigma / MAD_NORMAL, max(1e-12 * extent, np.finfo(float).tiny))  # relative: any unit
     score = np.empty(n)
-
-    def z_scores(s: int, e: int) -> None:
-        block = R[:, s:e]
-        block /= scale[:, None]  # z-scores, in place
-        score[s:e] = np.abs(block).max(0)
-
-    each_block(z_scores, 0, n)
-    mask = score > z  # ... and a peak: at least its neighbours' scores (0 beyond the ends)
-    mask[1:] &= score[1:] >= score[:-1]
-    mask[:-1] &= score[:-1] >= score[1:]
-    mask[[0, -1]] &= score[[0, -1]] >= 0.0
+    mask = _peaks(R, scale, z, score)
+    if mask.any():  # the noise no finer than the values' resolution (a quantised log at rest has MAD 0)
+        floor = ROUNDING * _resolution(Y)
+        if (floor > scale).any():
+            scale, R = np.maximum(scale, floor), R * (scale / np.maximum(scale, floor))[:, None]
+            mask = _peaks(R, np.ones(len(R)), z, score)
     k = np.flatnonzero(mask)  # the few candidates: their sign test
     Z = R[:, k]
     j = np.abs(Z).argmax(0)  # the dimension of each candidate's largest residual
