@@ -11,6 +11,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.io.files import expand_files, file_hash
@@ -28,7 +30,8 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
     train/test masks (lists of demo ids) a single canonical file stores, re-cut by the
     ``demos`` options; None otherwise.
 
-    ``metadata`` records per file its path, sha256 and what was read, the time origin
+    ``metadata`` records per file its path, sha256, what was read and the ids of the
+    demonstrations it gave (``demos``), the time origin
     (int64 ns) of the first file and, for a single file that stores one, its provenance.
     A mapping is validated into :class:`DataOptions` (a ``test`` key is ignored).
     """
@@ -46,9 +49,11 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
     data = parts[0] if len(parts) == 1 else Demonstrations.concatenate(parts)
     fill_units(data, configured(options.state and options.state.units, data.n_state, "data.state"),
                configured(options.action and options.action.units, data.n_action, "data.action"))
+    ends = np.cumsum([part.n_samples for part in parts])
     data.metadata = {"files": [{"path": str(p), "sha256": file_hash(p),
-                                **{k: v for k, v in part.metadata.items() if k != "source"}}
-                               for p, part in zip(paths, parts, strict=True)],
+                                **{k: v for k, v in part.metadata.items() if k != "source"},
+                                "demos": np.unique(data.demo[end - part.n_samples:end]).tolist()}
+                               for p, part, end in zip(paths, parts, ends, strict=True)],
                      "time_origin_ns": recordings[0].time_origin_ns}
     single = recordings[0] if len(recordings) == 1 else None
     if single is not None and single.provenance is not None:

@@ -125,6 +125,11 @@ def inspect_lines(info: dict[str, Any]) -> list[str]:
         out.append(f"learning reads: {c['demos']} demonstration(s), {c['samples']} samples ({shown}), "
                    f"{c['duration_s']:.2f} s; {c['split']}")
         out.append(f"  state {', '.join(c['state_names'])}; action {', '.join(c['action_names'])}")
+        for r in c.get("repairs") or []:
+            times = ", ".join(f"{a:.2f}–{b:.2f} s" if b > a else f"{a:.2f} s" for a, b in r["times"][:6])
+            more = f" and {len(r['times']) - 6} more" if len(r["times"]) > 6 else ""
+            out.append(f"  repaired: demonstration {r['demo']}: {r['samples']} sample(s) {r['action']} "
+                       f"({r['fault']}) at {times}{more}")
     for key in ("samples", "demos", "samples_per_demo", "state_names", "action_names", "truth", "masks"):
         if key in info and not (key == "demos" and "gap_s" in info):
             out.append(f"{key + ':':9s} {info[key]}")
