@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import json
 import shutil
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -20,6 +21,7 @@ from ccl_cli.learn import constraint as C
 from ccl_cli.models import save_model
 
 T0_NS = 1_700_000_000_000_000_000
+SAMPLES = Path(__file__).resolve().parents[1] / "sample_data"
 CONFIG = "data:\n  time: {column: stamp, unit: ns}\n  state: {columns: [x, y, z]}\n"
 
 
@@ -67,7 +69,7 @@ def test_predict_gives_one_row_per_sample_read_with_the_repairs_flagged(capsys, 
                                    "restamped": {"bad_stamp": 1, "backward_stamp": 1}}
     assert summary["rule"]["rule"] == "as fitted" and "one row per sample read" in summary["fill_rule"]
     with h5py.File(tmp / "p.h5") as f:
-        sample, x, N = f["sample"][()], f["x"][()], f["N"][()]
+        sample, x, N, t = f["sample"][()], f["x"][()], f["N"][()], f["t"][()]
         repair, fault = f["repair"].asstr()[()], f["fault"].asstr()[()]
         assert json.loads(f.attrs["rule"])["rule"] == "as fitted"
     assert sample.tolist() == list(range(n)) and len(x) == len(N) == n
@@ -77,13 +79,15 @@ def test_predict_gives_one_row_per_sample_read_with_the_repairs_flagged(capsys, 
     assert np.array_equal(repair == "mirrored", mirrored) and set(fault[mirrored]) == {"hemisphere_flip"}
     np.testing.assert_allclose(x[mirrored], -raw[mirrored], atol=1e-15)  # predicted at the repaired state
     np.testing.assert_array_equal(x[repair == "kept"], raw[repair == "kept"])
-    for k in (a for a, _ in faults["spike"]):  # a dropped spike: every output halfway between its neighbours
+    for k in (a for a, _ in faults["spike"]):  # a dropped spike: the row of the sample before it, held
         assert repair[k] == "filled" and fault[k] == "spike"
-        np.testing.assert_allclose(x[k], 0.5 * (x[k - 1] + x[k + 1]), rtol=0, atol=1e-15)
-        np.testing.assert_allclose(N[k], 0.5 * (N[k - 1] + N[k + 1]), rtol=0, atol=1e-15)
-        assert np.abs(x[k] - raw[k]).max() > 0.01  # not the spike (2–8 cm off)
-    dup = faults["duplicate_sample"][0][0]
+        assert np.array_equal(x[k], x[k - 1]) and np.array_equal(N[k], N[k - 1]) and t[k] == t[k - 1]
+        np.testing.assert_array_equal(x[k], raw[k - 1])  # a state that was recorded ...
+        assert np.abs(x[k] - raw[k]).max() > 0.01  # ... not the spike (2–8 cm off)
+    dup = faults["duplicate_sample"][0][0]  # a repeated sample: the one it repeats
     assert repair[dup] == "filled" and fault[dup] == "duplicate_sample"
+    assert np.array_equal(raw[dup], raw[dup - 1])
+    np.testing.assert_array_equal(x[dup], raw[dup])
     # the CSV holds the same rows, the flags as text
     assert main(["predict", str(tmp / "a" / "model.h5"), str(tmp / "faulty.csv"), "-c", str(tmp / "c.yaml"),
                  "-o", str(tmp / "p.csv"), "-q"]) == 0
@@ -140,6 +144,10 @@ KINDS = [
      "as fitted"),
     ("alpha", lambda: C.StateDependentConstraint(tune=False),
      lambda s: sim.toy2d(constraint="parabola", seed=s, n_demos=24), "as fitted"),
+    ("lambda", lambda: C.KnownFeatureConstraint(features="arm2", tune=False, n_restarts=1),
+     lambda s: sim.two_link(seed=s, n_demos=12, n_steps=20), "as fitted"),
+    ("linear", lambda: C.LinearConstraint(regressors="polynomial", degree=1, tune=False),
+     lambda s: sim.toy2d(constraint="parabola", seed=s, n_demos=12), "as fitted"),
     ("per_demo", lambda: C.PerWindow(window=None), lambda s: sim.varying_constraint(seed=s),
      "rows fitted per stretch"),
     ("per_window", lambda: C.PerWindow(window=6.0), lambda s: sim.tracker_tilt(seed=s, duration=36.0),
@@ -201,3 +209,30 @@ def test_a_recording_given_twice_is_refused(capsys, tmp_path, faulty):
     code, _, err = ccl(capsys, "predict", src / "a" / "model.h5", one, copy, "-c", cfg, "-o",
                        tmp_path / "p.h5")
     assert code == 2 and "have the same content" in err and not (tmp_path / "p.h5").exists()
+
+
+def test_learn_a_defaults_on_real_hinge_logs_then_two_logs_it_has_not_seen(capsys, tmp_path):
+    """learn-a's own file on the shipped dishwasher logs 001–006 (auto: a circle per demonstration,
+    k = 2), evaluated and predicted on 007 and 008: one row per line of those files, the rule
+    stated, the same answer twice, N a rank-1 projection (two constraints in 3-D) everywhere."""
+    logs = sorted((SAMPLES / "articulation" / "dishwasher").glob("*.log"))
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("data:\n  state: {columns: [0, 1, 2]}\n  action: {derive: state}\n  time: {rate: 10}\n")
+    code, res, err = ccl(capsys, "learn-a", *logs[:6], "-c", cfg, "-o", tmp_path / "a", "--json", "-q")
+    assert code == 0 and res["stages"]["learn-a"]["n_constraints"] == 2, err
+    lines = sum(len(f.read_text().split()) // 3 for f in logs[6:])  # three numbers a line
+    answers = []
+    for i in range(2):
+        code, ev, err = ccl(capsys, "evaluate", tmp_path / "a" / "model.h5", *logs[6:], "-c", cfg, "--json",
+                            "-q")
+        assert code == 0, err
+        code, pred, err = ccl(capsys, "predict", tmp_path / "a" / "model.h5", *logs[6:], "-c", cfg, "-o",
+                              tmp_path / f"p{i}.h5", "--json", "-q")
+        assert code == 0, err
+        assert ev["rule"] == pred["rule"] and pred["rule"]["rule"] == "fitted per demonstration"
+        assert pred["samples"] == pred["samples_read"] == lines and pred["repaired"] == {} and "note" in pred
+        with h5py.File(tmp_path / f"p{i}.h5") as f:
+            answers.append((ev["metrics"], f["N"][()]))
+    assert answers[0][0] == answers[1][0] and np.array_equal(answers[0][1], answers[1][1])
+    N = answers[0][1]
+    assert len(N) == lines and np.allclose(np.trace(N, axis1=1, axis2=2), 1.0, atol=1e-9)

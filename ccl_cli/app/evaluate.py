@@ -85,10 +85,10 @@ FUNCTION_RULE = {"rule": "as fitted", "keeps": ["function"],
                           "states; nothing is fitted on it"}
 #: What ``ccl predict`` writes for the samples as read (:func:`per_sample_read`).
 FILL_RULE = ("one row per sample read: a sample the sensor-fault repair mirrored back or re-stamped is "
-             "predicted at its repaired value; one it dropped is filled — every output interpolated "
-             "between the samples kept on either side in its demonstration (copied from the nearer at a "
-             "demonstration's end); columns sample (its index as read), repair (kept / mirrored / restamped "
-             "/ filled) and fault (why)")
+             "predicted at its repaired value; one it dropped is filled with the row of the nearest sample "
+             "kept in its demonstration (the earlier on a tie: a held value, a state that was recorded); "
+             "columns sample (its index as read), repair (kept / mirrored / restamped / filled) and fault "
+             "(why)")
 
 
 def new_data_rule(model: Any, kind: str) -> dict[str, Any]:
@@ -127,7 +127,7 @@ def predict(model: Any, kind: str, data: Demonstrations, notes: list[str] | None
 def per_sample_read(outputs: dict[str, np.ndarray], data: Demonstrations
                     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """``outputs`` (one row per row of ``data``) as one row per sample read (:data:`FILL_RULE`,
-    by :meth:`~ccl_cli.dataset.Repair.places`), with ``sample`` (M,) int, ``repair`` and
+    the nearest row by :meth:`~ccl_cli.dataset.Repair.places`), with ``sample`` (M,) int, ``repair`` and
     ``fault`` (M,) str; and what was done: ``samples_read``, ``left_out`` (samples with no place
     in the data: outside the demonstrations the options keep, or another stream's span) and
     ``repaired`` (action → fault → samples). Without a repair record: the rows as they are."""
@@ -137,16 +137,8 @@ def per_sample_read(outputs: dict[str, np.ndarray], data: Demonstrations
         rep = Repair.untouched(n)
     a, b, w = rep.places(data.demo)
     k = np.flatnonzero(a >= 0)
-    a, b, w = a[k], b[k], w[k]
-    filled = np.flatnonzero(w > 0)
-    out: dict[str, np.ndarray] = {}
-    for key, arr in outputs.items():
-        rows = arr[a]
-        if len(filled) and key != "demo":
-            wf = w[filled].reshape(-1, *([1] * (arr.ndim - 1)))
-            rows = rows.astype(float, copy=True) if rows.dtype.kind != "f" else rows
-            rows[filled] = (1 - wf) * arr[a[filled]] + wf * arr[b[filled]]
-        out[key] = rows
+    nearest = np.where(w[k] > 0.5, b[k], a[k])
+    out: dict[str, np.ndarray] = {key: arr[nearest] for key, arr in outputs.items()}
     done = rep.actions()[k].astype(object)
     done[done == "dropped"] = "filled"
     out["sample"] = k.astype(np.int64)
