@@ -261,7 +261,7 @@ def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
                            for r in where[:6]) \
                 + (f"; and {len(where) - 6} more demonstrations" if len(where) > 6 else "") if where else \
                 f"at {_times(f.get('times') or [])} (from the file's start)"
-            out.append(warning(code, f"{entry.get('path')}: {f['count']} {what}, {f['n_samples']} samples "
+            out.append(warning(code, f"{entry.get('path')}: {f['count']} {what}, {_samples(f['n_samples'])} "
                                      f"{done} — {at}{fix}"))
     return out
 

@@ -134,6 +134,8 @@ def test_the_warnings_report_and_inspect_name_each_repair_by_demonstration_and_t
     assert info["as_configured"]["repairs"] == record
     assert main(["inspect", str(tmp / "faulty.csv"), "-c", str(tmp / "c.yaml")]) == 0
     assert "repaired: demonstration 0: 2 sample(s) dropped (spike) at" in capsys.readouterr().out
+    code, model, err = ccl(capsys, "inspect", tmp / "r" / "model.h5", "--json")  # what it was trained on
+    assert code == 0 and model["training"]["repairs"] == record, err
 
 
 #: Every kind of constraint model learn-a writes (auto's winners saved as the model they are):

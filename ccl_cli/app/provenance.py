@@ -84,9 +84,10 @@ def run_record(command: str, cfg: Any, data: Demonstrations, pipeline: Any, blas
 
 def training_record(stage: str, cfg: Any, data: Demonstrations, metrics: dict[str, Any] | None = None
                     ) -> dict[str, Any]:
-    """What a saved model records of its training: stage, config, input hashes, versions and
-    its figures ({train|test: {metric: value}} from metrics.json's stage entry)."""
+    """What a saved model records of its training: stage, config, input hashes, versions, its
+    figures ({train|test: {metric: value}} from metrics.json's stage entry) and what the
+    sensor-fault repair did to the data it read, per demonstration (``repairs``)."""
     figures = {part: {name: m["value"] for name, m in (metrics or {}).get(part, {}).items()}
                for part in ("train", "test") if part in (metrics or {})}
     return {"stage": stage, "config": cfg.raw, "inputs": input_hashes(data), "versions": versions(),
-            "metrics": figures}
+            "metrics": figures, "repairs": repairs(data)}

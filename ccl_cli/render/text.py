@@ -64,6 +64,9 @@ def model_lines(info: dict[str, Any]) -> list[str]:
         out.append(f"trained:  stage {training['stage']}")
     for path, digest in (training.get("inputs") or {}).items():
         out.append(f"  input   {path}  sha256 {digest[:16]}…")
+    for r in (training.get("repairs") or [])[:8]:
+        out.append(f"  repaired demonstration {r['demo']}: {r['samples']} sample(s) {r['action']} "
+                   f"({r['fault']})")
     for part, figures in (training.get("metrics") or {}).items():
         out.append(f"  {part:7s} " + "  ".join(f"{k}={v:.3e}" for k, v in figures.items()
                                                if isinstance(v, float)))
