@@ -48,11 +48,10 @@ STEP_RATIO = 0.5
 #: The five samples of a spike test span at most this many median periods.
 SPIKE_SPAN = 6.0
 #: A sample off the cubic through its neighbours only along that curve — where the motion would
-#: have been up to this many of its neighbours' samples earlier or later — is a stamp or pacing
-#: error (the recording's own timing), no spike: it lies on the path its neighbours trace.
-PATH_REACH = 2
-#: ... sought only where the motion of one period exceeds PATH_MOTION noise standard deviations
-#: (slower, a timing error moves a sample less than its noise, and the path is the noise's).
+#: have been up to two samples earlier or later — is a stamp or pacing error (the recording's own
+#: timing), no spike: it lies on the path its neighbours trace. Sought only where the motion of one
+#: period exceeds PATH_MOTION noise standard deviations (slower, a timing error moves a sample less
+#: than its noise, and the path is the noise's).
 PATH_MOTION = 2.0
 #: The noise of a quantised value: the standard deviation of rounding to its resolution q,
 #: q/√12, times the residual's gain over white noise (≈ 1.39, :func:`spikes`).
@@ -284,7 +283,7 @@ def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, period: flo
 def _lagrange(tau: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The cubic's Lagrange weights W (K, 4, G) through the four ``nodes`` (K, 4) (the neighbours'
     times relative to the sample) at times ``tau`` (K, G), and their derivatives dW/dτ."""
-    W, dW = np.empty((*tau.shape[:1], 4, tau.shape[1])), np.empty((*tau.shape[:1], 4, tau.shape[1]))
+    W, dW = np.empty((len(tau), 4, tau.shape[1])), np.empty((len(tau), 4, tau.shape[1]))
     with np.errstate(divide="ignore", invalid="ignore"):
         for j in range(4):  # four weights, not a loop over samples
             a, b, c = (tau - nodes[:, m, None] for m in range(4) if m != j)
