@@ -256,7 +256,7 @@ def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
             done = "kept as recorded" if f.get("action") == "reported" else f["action"]
             fix = "" if f.get("action") == "reported" else f"; data.faults: {{{keep}}} keeps them"
             where = [r for r in placed if r["fault"] == f["kind"]
-                     and r["demo"] in entry.get("demos", [r["demo"]])]
+                     and r["demo"] in entry.get("demo_ids", [r["demo"]])]
             at = "; ".join(f"demonstration {r['demo']}: {_samples(r['samples'])} at {_times(r['times'])}"
                            for r in where[:6]) \
                 + (f"; and {len(where) - 6} more demonstrations" if len(where) > 6 else "") if where else \

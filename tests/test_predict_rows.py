@@ -136,6 +136,13 @@ def test_the_warnings_report_and_inspect_name_each_repair_by_demonstration_and_t
     assert "repaired: demonstration 0: 2 sample(s) dropped (spike) at" in capsys.readouterr().out
     code, model, err = ccl(capsys, "inspect", tmp / "r" / "model.h5", "--json")  # what it was trained on
     assert code == 0 and model["training"]["repairs"] == record, err
+    # two files: the repairs of the second are its demonstration's, 1
+    code, both, err = ccl(capsys, "learn-a", tmp / "clean.csv", tmp / "faulty.csv", "-c", tmp / "c.yaml",
+                          "-o", tmp / "r2", "--json", "-q")
+    assert code == 0, err
+    spikes = [w["message"] for w in both["warnings"] if w["code"] == "spikes"]
+    assert len(spikes) == 1 and spikes[0].startswith(f"{tmp / 'faulty.csv'}: 2 spike(s)")
+    assert f"demonstration 1: 2 samples at {said}" in spikes[0]
 
 
 #: Every kind of constraint model learn-a writes (auto's winners saved as the model they are):

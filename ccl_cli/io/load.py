@@ -31,7 +31,7 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
     ``demos`` options; None otherwise.
 
     ``metadata`` records per file its path, sha256, what was read and the ids of the
-    demonstrations it gave (``demos``), the time origin
+    demonstrations it gave (``demo_ids``), the time origin
     (int64 ns) of the first file and, for a single file that stores one, its provenance.
     A mapping is validated into :class:`DataOptions` (a ``test`` key is ignored). A recording
     given twice (the same file, or the same content) is refused (InputError).
@@ -56,7 +56,7 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
     _given_once(paths, digests)
     data.metadata = {"files": [{"path": str(p), "sha256": digest,
                                 **{k: v for k, v in part.metadata.items() if k != "source"},
-                                "demos": np.unique(data.demo[end - part.n_samples:end]).tolist()}
+                                "demo_ids": np.unique(data.demo[end - part.n_samples:end]).tolist()}
                                for p, part, end, digest in zip(paths, parts, ends, digests, strict=True)],
                      "time_origin_ns": recordings[0].time_origin_ns}
     single = recordings[0] if len(recordings) == 1 else None
