@@ -235,10 +235,18 @@ def _times(times: list[list[float]], limit: int = 4) -> str:
     return shown + (f" and {len(times) - limit} more" if len(times) > limit else "")
 
 
+def _samples(n: int) -> str:
+    return f"{n} sample" + ("" if n == 1 else "s")
+
+
 def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
     """One warning per kind of sensor fault the readers found in a file (``metadata`` of each
-    file: ``faults``), with its count, time ranges (s from the file's first sample), what was
-    done and the ``data.faults`` key that keeps them."""
+    file: ``faults``), with its count, what was done, where — per demonstration of the data with
+    the times from its first sample (:func:`ccl_cli.io.summary.repairs`; else the time ranges from
+    the file's first sample) — and the ``data.faults`` key that keeps them."""
+    from ccl_cli.io.summary import repairs
+
+    placed = repairs(data)
     out = []
     for entry in (data.metadata or {}).get("files", []):
         for f in (entry.get("faults") or []) if isinstance(entry, dict) else []:
@@ -247,8 +255,14 @@ def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
             code, what, keep = FAULTS[f["kind"]]
             done = "kept as recorded" if f.get("action") == "reported" else f["action"]
             fix = "" if f.get("action") == "reported" else f"; data.faults: {{{keep}}} keeps them"
-            out.append(warning(code, f"{entry.get('path')}: {f['count']} {what}, {f['n_samples']} samples at "
-                                     f"{_times(f.get('times') or [])}: {done}{fix}"))
+            where = [r for r in placed if r["fault"] == f["kind"]
+                     and r["demo"] in entry.get("demo_ids", [r["demo"]])]
+            at = "; ".join(f"demonstration {r['demo']}: {_samples(r['samples'])} at {_times(r['times'])}"
+                           for r in where[:6]) \
+                + (f"; and {len(where) - 6} more demonstrations" if len(where) > 6 else "") if where else \
+                f"at {_times(f.get('times') or [])} (from the file's start)"
+            out.append(warning(code, f"{entry.get('path')}: {f['count']} {what}, {_samples(f['n_samples'])} "
+                                     f"{done} — {at}{fix}"))
     return out
 
 

@@ -446,7 +446,8 @@ def describe_model(path: str | Path) -> dict[str, Any]:
                                                    "sigma2": float(state["sigma2"])} if state["kind"] == "rbf"
                                                   else {})}
     training = info.get("training") or {}
-    out["training"] = {k: training[k] for k in ("stage", "inputs", "metrics", "versions") if k in training}
+    out["training"] = {k: training[k] for k in ("stage", "inputs", "metrics", "versions", "repairs")
+                       if k in training}
     if "config" in training:
         out["training"]["config"] = training["config"]
     return out
