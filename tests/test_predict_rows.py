@@ -164,10 +164,10 @@ KINDS = [
     ("per_segment", C.PerSegment, lambda s: sim.tracker_tilt(mode="steps", seed=s, duration=36.0),
      "rows fitted per stretch"),
     ("stretches", C.ConstraintInStretches, lambda s: sim.arm_wipe(n_demos=4, seed=s), "stretches classified"),
-    ("manifold", lambda: C.ManifoldConstraint(basis="sphere", n_constraints=1),
+    ("manifold", lambda: C.ManifoldConstraint(family="sphere", n_constraints=1),
      lambda s: sim.tracker_sphere(duration=15.0, n_recordings=3, seed=s), "as fitted"),
     ("manifold per demonstration",
-     lambda: C.PerDemonstration(C.ManifoldConstraint(basis="sphere", n_constraints=1)),
+     lambda: C.PerDemonstration(C.ManifoldConstraint(family="sphere", n_constraints=1)),
      lambda s: sim.tracker_sphere(duration=15.0, n_recordings=3, seed=s), "fitted per demonstration"),
 ]
 
