@@ -383,8 +383,8 @@ class Pipeline:
         tr = self.split.train
         part, d = self._held_out() if result.generalises else ("train", tr)
         Y = self._target(on, part, d)
-        comparison = truth.compare(model, d, Y, part, result.metrics.get(part),
-                                   on == "u" and truth.has_task_part(d))
+        hint = truth.task_hint(d, on, any(r.name == "learn-v" for r in self.results))
+        comparison = truth.compare(model, d, Y, part, result.metrics.get(part), hint)
         support = diagnostics.heldout_support(model.selection_, result.info.get("evidence"), part)
         found = phases(model, tr)
         result.info.update({k: v for k, v in (("truth", comparison), ("support", support), ("phases", found))

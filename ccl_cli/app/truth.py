@@ -60,13 +60,14 @@ def per_sample(learnt: np.ndarray, true: np.ndarray) -> tuple[np.ndarray, np.nda
 
 
 def compare(model: Any, d: Demonstrations, Y: np.ndarray, part: str, metrics: dict[str, Any] | None = None,
-            task_hint: bool = False) -> dict[str, Any] | None:
+            task_hint: str = "") -> dict[str, Any] | None:
     """The learnt constraint ``model`` (as it applies to ``d`` with the observations ``Y`` (N, q) it
     was learnt from: its stated rule) against the ground
     truth of ``d`` (None without ``truth/A`` or ``truth/N``): {part, samples, true_k, true_k_varies,
     learnt_k, k_agrees (share of samples with as many learnt as true rows), median_deg, p90_deg
     (None when neither has rows anywhere), NPPE (from ``metrics`` of that part), far, why}.
-    ``task_hint``: the constraint was learnt from u while the truth holds a task part."""
+    ``task_hint``: what to do when the answer is far off (e.g. the constraint was learnt from u
+    while the truth holds a task part: :func:`task_hint`)."""
     from ccl_cli.app.scoring import applied_on
 
     if not (d.has_truth("A") or d.has_truth("N")) or not d.n_samples:
@@ -87,17 +88,21 @@ def compare(model: Any, d: Demonstrations, Y: np.ndarray, part: str, metrics: di
         why = (f"the learnt constraint is {median:.0f}° from the one stored in the file (median over the "
                f"{part} samples; 90th percentile {p90:.0f}°)")
     if why and task_hint:
-        why += " — the file's actions carry a task part, which moves u along the rows: run learn-v first " \
-               "(stages: [learn-v, learn-a])"
+        why += f" — {task_hint}"
     return {"part": part, "samples": int(d.n_samples), "true_k": true_k,
             "true_k_varies": bool((counts > 0).sum() > 1), "learnt_k": learnt_k,
             "k_agrees": float(np.mean(k_l == k_t)), "median_deg": median, "p90_deg": p90,
             "NPPE": None if nppe is None else float(nppe), "far": bool(why), "why": why}
 
 
-def has_task_part(d: Demonstrations) -> bool:
-    """Whether the ground truth of ``d`` holds a task part v with at least TASK_SHARE of u's
-    variance."""
-    if not d.has_truth("v") or d.n_samples < 2:
-        return False
-    return float(d.truth["v"].var(0).sum()) >= TASK_SHARE * float(d.U.var(0).sum())
+def task_hint(d: Demonstrations, on: str, learn_v: bool) -> str:
+    """What to try when a constraint learnt from u (``on``) is far off while the ground truth of
+    ``d`` holds a task part v (at least TASK_SHARE of u's variance), which moves u along the rows;
+    ``learn_v``: a learn-v stage ran before. "" otherwise."""
+    if on != "u" or not d.has_truth("v") or d.n_samples < 2:
+        return ""
+    if float(d.truth["v"].var(0).sum()) < TASK_SHARE * float(d.U.var(0).sum()):
+        return ""
+    said = "the file's actions carry a task part, which moves u along the rows: "
+    return said + ("learn-a learnt from u, not learn-v's w̃ (learn-a on: w learns from w̃)" if learn_v else
+                   "run learn-v first (stages: [learn-v, learn-a])")
