@@ -511,6 +511,8 @@ def heldout_support(selection: dict[str, Any] | None, evidence: dict[str, Any] |
     velocity candidates (the winner's held-out rank at least k), or else the rows holding on the
     held-out ``part`` (``evidence``: :func:`constraint_evidence`). {supported, why}; None when
     there is nothing to support (k = 0, or a method other than ``auto``, judged by its test data)."""
+    from ccl_cli.learn.constraint.sure import judged
+
     selection = selection or {}
     k = int(selection.get("n_constraints") or 0)
     if selection.get("rule") != "auto" or k == 0:
@@ -522,7 +524,7 @@ def heldout_support(selection: dict[str, Any] | None, evidence: dict[str, Any] |
             best = min(holding, key=lambda m: max(m["drift"]))
             return {"supported": True, "why": f"the states' geometry: {best['basis']} "
                     f"({best['scope'].replace('_', ' ')}), {best['measure']} {max(best['drift']):.3g} ≤ "
-                    f"{best['limit']:g} on held-out data"}
+                    f"{best['limit']:g}{judged(best['measure'])}"}
     winner = next((r for r in selection.get("candidates") or [] if r.get("chosen") and r["class"] != "none"),
                   None)
     if winner is not None and (winner.get("k") or 0) >= k:

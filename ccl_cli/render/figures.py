@@ -417,6 +417,7 @@ def _geometry_axes(ax: Any, models: list[dict[str, Any]], chosen: int, q: int, d
         ticks += list(x)
         names += [f"{m['basis']} {m['scope'].replace('_', ' ')}" for m in at]
     _log_axis(ax)
+    ax.set_ylim(top=ax.get_ylim()[1] * 1.6)  # room for the values over the bars
     ax.set_xlim(0.4, q - 0.6)
     ax.set_xticks(ticks, names, fontsize=7, rotation=35, ha="right", rotation_mode="anchor")
     for k in range(1, q):

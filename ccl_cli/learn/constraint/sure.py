@@ -112,6 +112,12 @@ def _entry(k: int, role: str, rejected: bool | None, measure: str, value: float 
             "limit": None if limit is None else float(limit), "words": words}
 
 
+def judged(measure: str) -> str:
+    """How a measure of the states' geometry was judged, in words (after its value)."""
+    return (" (each demonstration's own line or circle, the demonstrations agreeing)"
+            if measure == "shape residual" else "")
+
+
 def _model(r: dict[str, Any]) -> str:
     return f"{r['basis']} ({r['scope'].replace('_', ' ')})"
 
@@ -140,7 +146,7 @@ def _by_states(models: list[dict[str, Any]], k: int) -> list[dict[str, Any]]:
             f"; chosen: {_model(chosen)}, the simplest within 2× of it ({max(chosen['drift']):.3g})")
         out.append(_entry(k, "chosen", False, evidence["measure"], worst, evidence["limit"],
                           f"{_model(evidence)}: {evidence['measure']} {worst:.3g} ≤ {evidence['limit']:g}"
-                          f" on held-out data{said}"))
+                          f"{judged(evidence['measure'])}{said}"))
     more = best(k + 1)
     if more is not None:
         worst = max(more["drift"])
