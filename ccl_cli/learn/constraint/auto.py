@@ -320,20 +320,24 @@ class AutoConstraint(ConstraintModel, SeedParams):
                 folds = ms.inner_folds(seg, self.cv_folds, gap, "demonstration")
             else:
                 folds = ms.make_folds(data.groups, len(data.U), self.cv_folds, self.seed, gap)
-            held = sure.held_out_rows(lambda idx: self._manifold_model(winner, k, sure.part(data, idx)),
-                                      data.X, data.groups, data.t, k, folds.pairs)
+            def refit(idx: np.ndarray) -> ConstraintModel:
+                return self._manifold_model(winner, k, sure.part(data, idx), heldout=False)
+
+            held = sure.held_out_rows(refit, data.X, data.groups, data.t, k, folds.pairs)
         except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
             why = f"no held-out fits: {getattr(exc, 'message', None) or exc}"
             return sure.summary(None, None, "", self.selection_, q, why)
         final = self.model_.constraint(data.X, groups=data.groups, t=data.t)
         return sure.summary(final, held, folds.reason, self.selection_, q)
 
-    def _manifold_model(self, winner: geo.Tried, k: int, data: ev.Sample) -> ConstraintModel:
+    def _manifold_model(self, winner: geo.Tried, k: int, data: ev.Sample, heldout: bool = True
+                        ) -> ConstraintModel:
         """The model of the manifold the states showed, with k rows, fitted on all the data. Flat
         manifolds (lines, planes: constant rows) take their rows from the velocities (§3.1, one
         constant A, per demonstration when each has its own): every part of the motion weighs by
         how much it moves, which a tilting or bowing surface does not skew the way the spread of
-        the positions does; circles, spheres and quadrics take the gradients of their levels."""
+        the positions does; circles, spheres and quadrics take the gradients of their levels.
+        ``heldout``: a model per demonstration also measures its held-out NPOE."""
         X, U, g = data.X, data.U, data.groups
         if winner.scope == "phases" and data.t is not None:  # the rows where they hold, found in time
             return ConstraintInStretches(block=BLOCK_S, n_constraints=k).fit(
@@ -341,12 +345,12 @@ class AutoConstraint(ConstraintModel, SeedParams):
         if winner.basis == "linear" and winner.scope == "global":
             return StateIndependentConstraint(n_constraints=k, seed=self.seed).fit(X, U, groups=g)
         if winner.basis == "linear" and data.t is not None:
-            return PerWindow(window=None, n_constraints=k, heldout=True).fit(
+            return PerWindow(window=None, n_constraints=k, heldout=heldout).fit(
                 X, U, groups=g, t=data.t, derivative=data.derivative)
         est = ManifoldConstraint(basis=winner.basis, n_constraints=k)
         if winner.scope in ("global", "phases"):
             return est.fit(X, U, groups=g)
-        return PerDemonstration(est).fit(X, U, groups=g, derivative=data.derivative)
+        return PerDemonstration(est, heldout=heldout).fit(X, U, groups=g, derivative=data.derivative)
 
     def _candidates(self, data: ev.Sample, gap: int) -> tuple[list[ev.Candidate], list[dict[str, Any]]]:
         """The candidates to try, simplest first, and the table rows of those not tried."""
