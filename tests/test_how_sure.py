@@ -15,9 +15,8 @@ from ccl_cli import simulate as sim
 from ccl_cli.app.views import phases
 from ccl_cli.cli import main
 from ccl_cli.io import write_demonstrations
-from ccl_cli.learn.constraint import AutoConstraint
+from ccl_cli.learn.constraint import AutoConstraint, sure
 from ccl_cli.learn.constraint import noise_rank as nr
-from ccl_cli.learn.constraint import sure
 from ccl_cli.render import figures
 
 
@@ -83,7 +82,8 @@ def test_a_plane_from_its_positions_row_cone_and_neighbours():
     # the numbers are those of the geometry's table
     shapes = sel["geometry"]["models"]
     two = [m for m in shapes if m["k"] == 2]
-    assert near[2]["value"] / near[2]["limit"] == pytest.approx(min(max(m["drift"]) / m["limit"] for m in two))
+    nearest = min(max(m["drift"]) / m["limit"] for m in two)
+    assert near[2]["value"] / near[2]["limit"] == pytest.approx(nearest)
 
 
 def test_velocity_candidates_rows_quiet_up_to_k_and_the_next_one_moving():
@@ -131,7 +131,8 @@ def test_report_metrics_and_inspect_say_how_sure(tmp_path, capsys):
     assert main(["inspect", str(out / "model.h5")]) == 0
     shown = capsys.readouterr().out
     assert f"cone:     row 1 {cone['rows'][0]['median_deg']:.2g}°" in shown
-    assert "k = 0:    rejected: row 1 of" in shown and "k = 2:    rejected: the best model with 2 rows" in shown
+    assert "k = 0:    rejected: row 1 of" in shown
+    assert "k = 2:    rejected: the best model with 2 rows" in shown
 
 
 # -- figures -------------------------------------------------------------------------------------
@@ -200,5 +201,6 @@ def test_a_run_on_a_whole_wipe_recording_reports_its_phases(wipe, tmp_path, caps
     assert "### Phases" in report and "![learn-a: where the constraint holds over time]" in report
     first = metrics["phases"]["demos"][0]
     a, b = first["spans"][0]
-    assert f"| {first['demo']} | {first['held_s']:.1f} | {first['duration_s']:.1f} | {a:.1f}–{b:.1f}" in report
+    row = f"| {first['demo']} | {first['held_s']:.1f} | {first['duration_s']:.1f} | {a:.1f}–{b:.1f}"
+    assert row in report
     assert (out / "plots" / "learn-a-phases.png").exists()

@@ -142,7 +142,8 @@ def test_angles_to_the_truth_per_sample_by_hand():
     d.truth = {"N": np.eye(3) - np.outer(n, n)}
     rows = truth.true_rows(d)
     assert rows.shape == (d.n_samples, 3, 3)
-    assert np.linalg.matrix_rank(rows[0]) == 1 and subspace_angle(rows[0], n[None]) == pytest.approx(0.0, abs=1e-6)
+    assert np.linalg.matrix_rank(rows[0]) == 1
+    assert subspace_angle(rows[0], n[None]) == pytest.approx(0.0, abs=1e-6)
 
 
 def test_a_constraint_far_from_the_truth_in_the_file_is_poor_and_says_so(capsys, tmp_path):
@@ -160,10 +161,12 @@ def test_a_constraint_far_from_the_truth_in_the_file_is_poor_and_says_so(capsys,
     assert summary["verdict"].startswith(f"poor: learn-a: the learnt constraint is {angle:.0f}° from the one "
                                          "stored in the file")
     assert "run learn-v first" in summary["verdict"]
-    assert "### Against the ground truth in the file" in report and "**Far off**: the learnt constraint" in report
+    assert "### Against the ground truth in the file" in report
+    assert "**Far off**: the learnt constraint" in report
     # after learn-v, learnt from u still: the words say where the task part went
     code, summary, *_ = run(capsys, tmp_path, data, "[learn-v, learn-a]")
-    assert summary["stages"]["learn-a"]["status"] == "poor" and "learn-a on: w learns from w̃" in summary["verdict"]
+    assert summary["stages"]["learn-a"]["status"] == "poor"
+    assert "learn-a on: w learns from w̃" in summary["verdict"]
     code, summary, *_ = run(capsys, tmp_path, data, "[learn-v, learn-a]", "learn-a: {on: w}\n")
     found = summary["stages"]["learn-a"]["truth"]
     assert summary["status"] == "ok" and found["median_deg"] < 1.0 and not found["far"]
@@ -175,8 +178,8 @@ def test_a_wrong_number_of_constraints_against_the_truth_is_poor(capsys, tmp_pat
     found = metrics["learn-a"]["truth"]
     assert found["true_k"] == 1 and found["learnt_k"] == metrics["learn-a"]["n_constraints"] == 0
     assert found["median_deg"] == 90.0 and found["k_agrees"] == 0.0
-    assert summary["verdict"].startswith("poor: learn-a: 0 constraint(s) learnt, the ground truth stored in the "
-                                         "file has 1")
+    assert summary["verdict"].startswith("poor: learn-a: 0 constraint(s) learnt, the ground truth stored in "
+                                         "the file has 1")
 
 
 def test_a_right_answer_against_the_truth_stays_ok(capsys, tmp_path):
@@ -185,7 +188,8 @@ def test_a_right_answer_against_the_truth_stays_ok(capsys, tmp_path):
     found = metrics["learn-a"]["truth"]
     assert summary["status"] == "ok" and not found["far"] and found["true_k"] == found["learnt_k"] == 1
     normal = np.asarray(metrics["learn-a"]["constraint"]["rows"])
-    assert found["median_deg"] == pytest.approx(subspace_angle(normal, data.truth_per_sample("A")[0]), abs=1e-6)
+    angle = subspace_angle(normal, data.truth_per_sample("A")[0])
+    assert found["median_deg"] == pytest.approx(angle, abs=1e-6)
     assert found["median_deg"] < 1.5 and found["part"] == "test"
     assert f"largest principal angle per sample median {found['median_deg']:.3g}°" in report
 
