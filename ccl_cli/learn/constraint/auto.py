@@ -314,15 +314,16 @@ class AutoConstraint(ConstraintModel, SeedParams):
         q = data.U.shape[1]
         derived = data.derived
         gap = self.gap if self.gap is not None else int(derived.window) if derived else ms.RECORDED_GAP
+
+        def refit(idx: np.ndarray) -> ConstraintModel:
+            return self._manifold_model(winner, k, sure.part(data, idx), heldout=False)
+
         try:
             if self.model_.is_local:
                 seg = np.unique(data.groups, return_inverse=True)[1].ravel()
                 folds = ms.inner_folds(seg, self.cv_folds, gap, "demonstration")
             else:
                 folds = ms.make_folds(data.groups, len(data.U), self.cv_folds, self.seed, gap)
-            def refit(idx: np.ndarray) -> ConstraintModel:
-                return self._manifold_model(winner, k, sure.part(data, idx), heldout=False)
-
             held = sure.held_out_rows(refit, data.X, data.groups, data.t, k, folds.pairs)
         except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
             why = f"no held-out fits: {getattr(exc, 'message', None) or exc}"
