@@ -150,9 +150,11 @@ def _by_states(models: list[dict[str, Any]], k: int) -> list[dict[str, Any]]:
     more = best(k + 1)
     if more is not None:
         worst = max(more["drift"])
+        within = worst <= more["limit"]
+        why = f"; it does not hold: {more['reason']}" if within and not more["holds"] else ""
         out.append(_entry(k + 1, "more", not more["holds"], more["measure"], worst, more["limit"],
                           f"the best model with {k + 1} rows, {_model(more)}: {more['measure']} {worst:.3g} "
-                          f"{'>' if worst > more['limit'] else '≤'} {more['limit']:g}"))
+                          f"{'≤' if within else '>'} {more['limit']:g}{why}"))
     return out
 
 
