@@ -5,9 +5,9 @@ filtered velocities — is :mod:`.realism`'s.
 
 Magnitudes of the real logs (circle or line fitted per log; :mod:`.realism` for the
 residuals): hinges of radius 0.30–0.67 m swept 57–111°, 240–770 samples, 1–2.4 mm a step, the
-trials' frames 8–18 cm apart (each in its own base frame), radial residual 0.6–6.4 mm, out of
-plane 0.7–4 mm; drawers and sliding doors 0.45–0.6 m of travel, 1–10 mm RMS across the line
-(a sliding door's rail bows 2.5 cm mid-way).
+trials' frames 8–18 cm apart (each in its own base frame), the fitted radii of one door ±2–3 %
+apart, radial residual 0.6–6.4 mm, out of plane 0.7–4 mm; drawers and sliding doors 0.45–0.6 m
+of travel, 1–10 mm RMS across the line (a sliding door's rail bows 2.5 cm mid-way).
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def hinge(
     n_demos: int = 5,
     rate: float = 30.0,
     radius: tuple[float, float] = (0.3, 0.67),
-    grasp: float = 0.03,
+    grasp: float = 0.015,
     height: float = 0.05,
     offset: float = 0.1,
     sweep_deg: tuple[float, float] = (60.0, 120.0),
@@ -68,7 +68,8 @@ def hinge(
     """A hand opening one hinged door ``n_demos`` times (k = 2: the axis and the radial row).
 
     The door's radius R is uniform in ``radius`` (m); each demonstration grasps it at its own
-    radius R + U(±``grasp``) and height U(±``height``) along the axis, starts within ±5° of
+    radius R + U(±``grasp``) (the real logs' radii spread ±2–3 %, ±1–1.7 cm) and height
+    U(±``height``) along the axis, starts within ±5° of
     closed and sweeps its own angle, uniform in ``sweep_deg`` (all the same way), by a
     minimum-jerk move at a mean speed uniform in ``speed`` (m/s) between rests of ``hold_s``
     s. Each trial is recorded in its own frame: the whole scene is translated by U(±``offset``)
