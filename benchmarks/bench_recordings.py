@@ -443,6 +443,7 @@ REALISM_CASES: list[tuple[str, str, list[str]]] = [
     ("hinge", "hinge", []),
     ("hinge 4 demos", "hinge", ["--n-demos", "4"]),
     ("hinge 10 Hz", "hinge", ["--rate", "10"]),
+    ("hinge grasp ±3 cm", "hinge", ["--set", "grasp=0.03"]),
     ("hinge compliance 6 mm", "hinge", ["--set", "compliance=0.006"]),
     ("hinge tremor 0.5 mm", "hinge", ["--set", "tremor=0.0005"]),
     ("hinge drift 0.5 mm/s", "hinge", ["--set", "drift=0.0005"]),
