@@ -80,7 +80,8 @@ def _simulated(problem: str, folder: Path, *args: str, seed: int = 3) -> Path:
 
 def _real(kind: str, folder: Path) -> Case:
     # 5 of the 8 logs (a test of modest size; with 4 the held-out split cuts time blocks instead of
-    # holding out whole logs, and learn-a finds k = 1 on 3 of 4 such subsets of the dishwasher)
+    # holding out whole logs — learn-a finds k = 2 on such subsets of the dishwasher too, but they
+    # test the split in time, not whole logs held out)
     files = [sorted((ARTICULATION / kind).glob("*.log"))[i] for i in (0, 2, 4, 6, 7)]
     return Case(kind, files, TEXT, [np.loadtxt(f) for f in files])
 
@@ -209,9 +210,11 @@ def test_an_assumed_rate_does_not_change_the_answer(runs, name, rate):
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "learn-a's per_window candidate (4-s windows, learn/constraint/auto.py) is tried when its windows "
-    "hold ≥ 70 samples: at an assumed 10 Hz they hold 40 (not tried, k = 0), at 30 Hz 120 and it claims "
-    "one constraint in free reaching (k 0 → 1); the window is in seconds of a rate nobody measured"))
+    "the states' geometry finds no constraint at either rate, and then learn-a's velocity candidates run: "
+    "per_window (4-s windows, learn/constraint/auto.py) is tried when its windows hold ≥ 70 samples: at "
+    "an assumed 10 Hz they hold 40 (not tried, k = 0), at 30 Hz 120 and it claims one constraint in free "
+    "reaching (k 0 → 1, noise ratio 7.7 below the limit 10); the window is in seconds of a rate nobody "
+    "measured"))
 def test_an_assumed_rate_on_free_reaching(runs):
     case = runs.case("reach_goal text")
     assert_same(runs.base("reach_goal text"), runs.learn(case.files, {**case.data, "time": {"rate": 30.0}}),
@@ -219,8 +222,11 @@ def test_an_assumed_rate_on_free_reaching(runs):
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "where the constraint holds in phases is found in blocks of BLOCK_S seconds (learn/constraint/"
-    "stretches.py): at an assumed 100 Hz the rows hold in a quarter of the samples, at 10 Hz in half"))
+    "the states' geometry finds the same phases at every rate (the stretches that come back over their "
+    "ground: 58 % of the samples, learn/constraint/geometry.py), but the model auto fits on them "
+    "(auto.py _manifold_model, scope phases) is ConstraintInStretches, which finds again where the rows "
+    "hold in blocks of BLOCK_S = 0.5 s (learn/constraint/stretches.py): at an assumed 100 Hz they hold in "
+    "25 % of the samples, at 10 Hz in 46 %"))
 def test_an_assumed_rate_on_a_surface_worked_in_phases(runs):
     case = runs.case("contact_phases text")
     assert_same(runs.base("contact_phases text"),
@@ -283,12 +289,13 @@ def test_a_rotated_and_translated_frame_does_not_change_the_answer(runs, name, a
 
 
 # -- the order of files and demonstrations ----------------------------------------------------------
-#: Cases whose answer does not depend on the held-out split's choice (in the examples tried): a
-#: model per demonstration (refitted on every log) whose circles agree on every subset, or no
-#: constraint.
-ORDER_CASES = ["dishwasher", "hinge", "handwriting", "reach_goal"]
-#: Cases fitted on the training demonstrations alone: checked with the split off.
-ORDER_CASES_NO_SPLIT = ["drawer", "slide", "contact_phases"]
+#: Cases whose answer does not depend on the held-out split's choice (in the examples tried, 25
+#: per property): a model per demonstration (refitted on every log) whose circles agree on every
+#: subset, or no constraint.
+ORDER_CASES = ["hinge", "handwriting", "reach_goal"]
+#: Cases fitted on the training demonstrations alone: checked with the split off (the dishwasher:
+#: which log is held out decides between a circle per log and one family, see below).
+ORDER_CASES_NO_SPLIT = ["dishwasher", "drawer", "slide", "contact_phases"]
 NO_SPLIT = {"test": {"fraction": 0}}
 
 
@@ -335,7 +342,8 @@ SPLIT_BY_POSITION = (
 
 
 @pytest.mark.xfail(strict=True, reason=SPLIT_BY_POSITION + "; drawer logs 001, 003, 005, 007, 008 in the "
-                   "order [0, 1, 3, 2, 4]: rows 1.4° apart (median), 5.1° (95 %), another model")
+                   "order [0, 1, 3, 2, 4]: logs 005 and 008 held out instead of 007 and 008, rows 1.6° "
+                   "apart (median), 3.9° (95 %), one family of spheres → a line per log")
 def test_the_order_of_files_with_the_split_on_the_drawer(runs):
     assert_same(*reordered(runs, "drawer", np.array([0, 1, 3, 2, 4]), split=True), "drawer in the order "
                 "[0, 1, 3, 2, 4]", reordered=True)
@@ -346,3 +354,12 @@ def test_the_order_of_files_with_the_split_on_the_drawer(runs):
 def test_the_order_of_demonstrations_with_the_split_on_a_surface_worked_in_phases(runs):
     assert_same(*reordered(runs, "contact_phases", np.array([2, 0, 1]), split=True),
                 "contact_phases in the order [2, 0, 1]", reordered=True)
+
+
+@pytest.mark.xfail(strict=True, reason=SPLIT_BY_POSITION + "; dishwasher logs 001, 003, 005, 007, 008 in the "
+                   "order [0, 3, 4, 1, 2]: logs 003 and 005 held out instead of 007 and 008, and the states' "
+                   "geometry on the other three takes one family of spheres instead of a circle per log: "
+                   "rows 0.9° apart (median), 7.7° (95 %)")
+def test_the_order_of_files_with_the_split_on_the_dishwasher(runs):
+    assert_same(*reordered(runs, "dishwasher", np.array([0, 3, 4, 1, 2]), split=True), "dishwasher in the "
+                "order [0, 3, 4, 1, 2]", reordered=True)

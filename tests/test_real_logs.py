@@ -44,7 +44,7 @@ def line_rows(P: np.ndarray, X: np.ndarray) -> np.ndarray:
 
 
 @pytest.mark.parametrize(("kind", "truth", "worst_deg"), [
-    ("dishwasher", hinge_rows, 0.5),
+    ("dishwasher", hinge_rows, 0.1),
     ("drawer", line_rows, 2.5),
 ])
 def test_learn_a_defaults_on_the_shipped_logs(tmp_path, kind, truth, worst_deg):
