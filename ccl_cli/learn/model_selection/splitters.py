@@ -169,10 +169,11 @@ def holdout_split(demo: np.ndarray, fraction: float = 0.3, seed: int = 0, gap: i
     """The reported train/test split: by demonstration when there are at least
     ``min_demos``; else ``n_blocks`` contiguous time blocks of which round(fraction ·
     n_blocks) (seeded) are held out, with ``gap`` samples dropped from training at each
-    boundary. ``keys`` (one per demonstration, :func:`shape_keys`) rank the demonstrations —
-    which are held out, and the order the blocks are laid over — so that the split does not
-    depend on the order the demonstrations came in. ``info``: kind, reason, n_train/n_test demos
-    or blocks, samples, gap."""
+    boundary. ``keys`` (one per demonstration, :func:`shape_keys`) rank the demonstrations
+    held out whole, so that which ones are does not depend on the order they came in; the time
+    blocks of fewer demonstrations follow the samples' order (blocks inside each demonstration,
+    or laid over them in ranked order, cut the arcs of a few hinge logs short enough to hide
+    their common circle). ``info``: kind, reason, n_train/n_test demos or blocks, samples, gap."""
     if not 0.0 < fraction < 1.0:
         raise InputError(f"test fraction must be in (0, 1), got {fraction}")
     demo = np.asarray(demo)
@@ -199,18 +200,11 @@ def holdout_split(demo: np.ndarray, fraction: float = 0.3, seed: int = 0, gap: i
     blocks = _blocks(n, possible)
     n_test = min(max(1, int(round(fraction * len(blocks)))), len(blocks) - 1)
     chosen = np.sort(rng.choice(len(blocks), size=n_test, replace=False))
-    # the blocks are laid over the demonstrations in their ranked order (each one's samples in
-    # time order): position i of that layout is sample lay[i]
-    lay = np.arange(n)
-    if keys is not None and len(ids) > 1:
-        rank = np.empty(len(ids), np.int64)
-        rank[np.searchsorted(ids, _ranked(ids, keys, seed))] = np.arange(len(ids))
-        lay = np.argsort(rank[np.searchsorted(ids, demo)], kind="stable")
-    test_pos = np.concatenate([blocks[i] for i in chosen])
+    test_idx = np.concatenate([blocks[i] for i in chosen])
     train = np.zeros(n, bool)
-    train[lay[_guarded_train(n, test_pos, gap)]] = True
+    train[_guarded_train(n, test_idx, gap)] = True
     test = np.zeros(n, bool)
-    test[lay[test_pos]] = True
+    test[test_idx] = True
     why = ("a single continuous recording" if len(ids) == 1 else f"only {len(ids)} demonstrations")
     info = {"kind": "blocks",
             "reason": f"{why} (< {min_demos}): {n_test} of {len(blocks)} contiguous time blocks held out, "
