@@ -128,7 +128,7 @@ def test_task_term_is_not_in_npoe_and_policy_metrics_by_hand(tmp_path):
         check(got, "NCPE", msq(apply(Np, d.truth["pi"] - est)), tv(apply(Np, d.truth["pi"])), "N pi")
         if part == "train":
             z = d.U - v_est
-            check(got, "NCPE_obs", msq(z - apply(N_est, est)), tv(z), "u - learnt v")
+            check(got, "NCPE_obs", msq(z - apply(N_est, est)), tv(z), "u - learnt task part A+b")
         # no policy metric compares u with π̃
         assert set(got) <= {"NUPE", "NCPE", "NCPE_obs"}
         base = metrics["learn-pi"]["baseline"][part]

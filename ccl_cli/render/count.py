@@ -66,7 +66,10 @@ def _per_demo(selection: dict[str, Any], q: int, chosen: int):
     ax.set_xticks(k)
     ax.set_xlabel("number of constraints k")
     ax.set_ylabel("demonstrations")
-    ax.set_title(wrap(f"Number of constraints chosen in each training demonstration; the most common, "
+    rules = selection.get("inner_rules") or []
+    how = ("fixed by the user" if rules == ["fixed"] else
+           f"chosen by rule {', '.join(rules)}" if rules else "chosen")
+    ax.set_title(wrap(f"Number of constraints {how} in each training demonstration; the most common, "
                       f"{chosen}, is reported"), fontsize=9, y=1.0)
     fig.subplots_adjust(left=0.14, right=0.97, top=0.84, bottom=0.16)
     return fig
@@ -98,7 +101,8 @@ def _rule_axes(ax: Any, selection: dict[str, Any], chosen: int) -> list[Any]:
 
     v = np.asarray(selection["values"], dtype=float)
     k = np.arange(1, len(v) + 1)
-    shown = np.maximum(v, 1e-300)
+    top = float(np.nanmax(v)) if np.any(v > 0) else 1.0
+    shown = np.maximum(v, 1e-12 * top)  # exact zeros (noise-free data) at the foot of the axis
     ax.plot(k, shown, "-", color="0.5", lw=0.8, zorder=2)
     colour = [HOLDS_COLOUR if i <= chosen else MISSES_COLOUR for i in k]
     ax.scatter(k, shown, c=colour, s=28, zorder=3)
@@ -261,7 +265,7 @@ def _log_axis(ax: Any, axis: str = "y") -> None:
     ax.autoscale_view()
     target = ax.yaxis if axis == "y" else ax.xaxis
     low, high = (ax.get_ylim() if axis == "y" else ax.get_xlim())
-    decades = np.log10(max(high, 1e-300) / max(low, 1e-300))
+    decades = np.log10(max(high, 1e-300)) - np.log10(max(low, 1e-300))
     subs = (1.0,) if decades > 2.5 else (1.0, 2.0, 5.0)
     target.set_major_locator(LogLocator(base=10, subs=subs, numticks=8))
     target.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
