@@ -339,7 +339,8 @@ class Pipeline:
         else:
             on = self._on(opts.on)
             model = self._fit_constraint(opts, on)
-            why = "learnt from the learnt w̃ (on: w)" if on == "w" else "learnt from u"
+            why = ("learnt from the learnt w̃ (on: w)" if on == "w" else
+                   "on: u" if self.w else "")  # without learn-v there is nothing else to learn from
         self.constraint = model
         target = self._target(on, "train", tr)
         self.warnings += diagnostics.emit(diagnostics.low_rank_actions(tr, target, int(model.n_constraints_)))
