@@ -58,7 +58,7 @@ CODES = ("constant_dimension", "no_motion", "noisy_actions", "few_demos", "short
          "low_rank_actions", "duplicate_stamps", "jittery_stamps", "hemisphere_flips", "spikes",
          "stamp_faults", "overfit", "no_better_than_baseline", "constraint_does_not_hold",
          "constraint_varies", "not_identifiable", "actions_near_faults", "far_from_truth",
-         "no_heldout_support", "degenerate_input")
+         "no_heldout_support", "degenerate_input", "not_judged")
 #: Sensor faults the readers found (:mod:`ccl_cli.io.faults`) → (warning code, what they are,
 #: the config key that keeps them); gaps are pauses or lost samples, stated in the report only.
 FAULTS = {"hemisphere_flip": ("hemisphere_flips", "hemisphere flip(s) of the tracker (positions "
@@ -307,9 +307,10 @@ def low_rank_actions(data: Demonstrations, U: np.ndarray, n_constraints: int,
 
 
 # -- verdicts of fitted stages -------------------------------------------------------------------
-#: A stage is ``ok`` when its held-out evidence is; ``poor`` when a check below fails (the
-#: run completes and says what is wrong); ``failed`` when it could not produce a result.
-STATUSES = ("ok", "poor", "failed")
+#: A stage is ``ok`` when its held-out evidence is; ``unjudged`` when it has no metric to judge
+#: it by (a policy learnt alone from data without a true π); ``poor`` when a check below fails
+#: (the run completes and says what is wrong); ``failed`` when it could not produce a result.
+STATUSES = ("ok", "unjudged", "poor", "failed")
 #: Overfit: a held-out error above OVERFIT_RATIO × the training error, and above OVERFIT_FLOOR
 #: (below it both are at the level of noise and numerical error).
 OVERFIT_RATIO = 10.0
@@ -500,8 +501,16 @@ def not_identifiable(stage: str, data: Demonstrations, Y: np.ndarray,
 
 
 def status(checks: list[dict[str, str]]) -> str:
-    """``poor`` when a verdict check fired, else ``ok``."""
-    return "poor" if any(c["code"] in VERDICT_CODES for c in checks) else "ok"
+    """``poor`` when a verdict check fired, ``unjudged`` when the stage has no metric to be
+    judged by (``not_judged``), else ``ok``."""
+    if any(c["code"] in VERDICT_CODES for c in checks):
+        return "poor"
+    return "unjudged" if any(c["code"] == "not_judged" for c in checks) else "ok"
+
+
+def not_judged(stage: str, what: str) -> list[dict[str, str]]:
+    """``not_judged``: the stage has no metric at all (``what`` says why and what would give one)."""
+    return [warning("not_judged", f"{stage}: no metric to judge it by: {what}")]
 
 
 #: The checks that make a stage ``poor``.

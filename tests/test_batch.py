@@ -339,8 +339,8 @@ def test_summary_figure_names_each_job_without_its_key_hash():
 
 
 def test_summary_figure_is_drawn_when_a_job_draws_figures(capsys, recordings, tmp_path):
-    """summary.png: one panel per held-out metric, 80 dpi, as wide as the jobs need; drawn
-    only when a job's config draws figures (an earlier one is removed when not)."""
+    """summary.png: one panel per held-out metric, 80 dpi, a row per job (as tall as the jobs
+    need); drawn only when a job's config draws figures (an earlier one is removed when not)."""
     from PIL import Image
 
     from ccl_cli.app.batch import JobResult
@@ -353,8 +353,11 @@ def test_summary_figure_is_drawn_when_a_job_draws_figures(capsys, recordings, tm
     results = [JobResult(**r) for r in summary_results(out)]
     metrics = {k for r in results for k, v in r.stages["learn-a"]["test"].items() if v > 0}
     write_summary(out, results, 1.0, plots=True)
+    from ccl_cli.render import jobs_figure as jf
+
     with Image.open(out / "summary.png") as png:
-        assert png.size == (max(6, 0.25 * 10 + 3) * 80, round(2.2 * len(metrics) * 80))
+        assert png.size[1] == round((jf.HEAD + 10 * jf.ROW + jf.FOOT) * jf.DPI)
+        assert png.size[0] > round(jf.PANEL * len(metrics) * jf.DPI)
     assert "(summary.png)" in (out / "summary.md").read_text()
     write_summary(out, results, 1.0, plots=False)
     assert not (out / "summary.png").exists() and "summary.png" not in (out / "summary.md").read_text()

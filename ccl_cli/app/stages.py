@@ -24,6 +24,7 @@ from ccl_cli.learn import model_selection
 from ccl_cli.learn.constraint import PerDemonstration, PerWindow, geometry
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
+from ccl_cli.metrics import SPLITS
 from ccl_cli.spec import constraint_class
 
 log = logging.getLogger("ccl")
@@ -338,7 +339,8 @@ class Pipeline:
         else:
             on = self._on(opts.on)
             model = self._fit_constraint(opts, on)
-            why = "learnt from the learnt w̃ (on: w)" if on == "w" else "learnt from u"
+            why = ("learnt from the learnt w̃ (on: w)" if on == "w" else
+                   "on: u" if self.w else "")  # without learn-v there is nothing else to learn from
         self.constraint = model
         target = self._target(on, "train", tr)
         self.warnings += diagnostics.emit(diagnostics.low_rank_actions(tr, target, int(model.n_constraints_)))
@@ -488,6 +490,10 @@ class Pipeline:
             if name in base:
                 checks += diagnostics.not_better("learn-pi", name, test.get(name), base[name]["value"],
                                                  "the dpl baseline (u regressed on the features)")
+        if not any(result.metrics.get(split) for split in SPLITS):
+            checks += diagnostics.not_judged("learn-pi", "the data carry no true π and no learnt constraint "
+                                             "gives Ñ to compare the observations with (learn a constraint "
+                                             "first: stages: [learn-a, learn-pi])")
         return checks
 
     def stage_views(self, result: StageResult) -> list[View]:

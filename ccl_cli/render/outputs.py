@@ -69,7 +69,13 @@ def write_run(result: RunResult, outdir: Path, force: bool = False,
         plots = draw_views(tmp, result.views, plot_seconds, result.cfg.spec.output.format) \
             if result.views else []
         write_json(tmp / "metrics.json", result.metrics)
-        (tmp / "report.md").write_text(markdown(f"ccl {result.command}", result, plots))
+        report = markdown(f"ccl {result.command}", result, plots)
+        (tmp / "report.md").write_text(report)
+        if result.cfg.spec.output.html:  # the same text and figures as one web page
+            from ccl_cli.render.html import run_page
+
+            (tmp / "report.html").write_text(run_page(f"ccl {result.command}", report, tmp, result.data,
+                                                      result.views))
         (tmp / "config.yaml").write_text(yaml.safe_dump(result.cfg.raw, sort_keys=False))
         write_json(tmp / "run.json", {**result.record, "plot_seconds": plot_seconds})
         for name, value in (extra_files or {}).items():

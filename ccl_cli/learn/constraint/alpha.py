@@ -75,7 +75,11 @@ class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedPara
                 else len(fits)
             reason = (f"constraint {k + 1} raised nmse to {nmse[k]:.3g} (> best and > 1e-3)"
                       if k < len(fits) else f"stopped at the maximum {k}")
-            return sel.Selection("threshold", k, nmse, reason)
+            last = [max(min(nmse[:-1]), 1e-3)] if len(fits) > 1 else []
+            return sel.Selection("threshold", k, nmse, reason, "nmse of row k",
+                                 limits=[None] * (len(fits) - len(last)) + last,
+                                 limit_rule="the last row fitted counts unless its nmse rose above the best "
+                                            "before it and above 1e-3 (the original's rule)")
 
         def noise() -> sel.Selection | None:  # the rows of every fit at every sample, (N, m, q)
             timing = getattr(self, "_timing", (None, None))

@@ -588,5 +588,7 @@ def add_still_rows(chosen: Selection | None, rows: np.ndarray, X: np.ndarray, U:
         chosen.reason += (f"; rows {chosen.n_constraints + 1}–{k} move above the noise but the positions "
                           f"drift along them by at most {drift[chosen.n_constraints:k].max():.3g} of their "
                           f"spread (≤ {limit:g}): constraints the contact gives a little along")
+        chosen.extra.update(drift=[float(v) for v in drift], drift_limit=float(limit),
+                            still_rows=list(range(chosen.n_constraints + 1, k + 1)))
         chosen.n_constraints = k
     return chosen

@@ -252,7 +252,10 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
             k = 1
             while k < max_k and nmse[k] < self.threshold:
                 k += 1
-            return sel.Selection("threshold", k, list(nmse[:max_k]), f"nmse below {self.threshold}")
+            return sel.Selection("threshold", k, list(nmse[:max_k]), f"nmse below {self.threshold}",
+                                 "nmse of row k",
+                                 limits=sel.threshold_limits(min(max_k, len(nmse)), self.threshold),
+                                 limit_rule=sel.THRESHOLD_RULE.format(self.threshold))
 
         chosen = sel.choose(self, ratio_values=vals[: max_k + 1] / len(X), gap_values=vals[: max_k + 1],
                             max_k=max_k, fixed_max=d,

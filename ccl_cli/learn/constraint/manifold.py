@@ -143,6 +143,10 @@ class ManifoldConstraint(ConstraintModel):
                            "values": [float(v) for v in ratio], "reason": reason,
                            "criterion": "RMS variation of level function k along the demonstrations / "
                                         "RMS spread of the states"}
+        if self.n_constraints is None:
+            self.selection_.update(limits=[float(self.tolerance)] * len(ratio), limit_rule=(
+                f"level function k counts while it varies by at most {self.tolerance:g} × the spread "
+                "(row 1 always counts)"))
         return self
 
     def check_shapes(self) -> None:

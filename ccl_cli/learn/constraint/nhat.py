@@ -39,7 +39,10 @@ def _threshold_count(lams: np.ndarray, rows: np.ndarray, cov: np.ndarray, n: int
         k += 1
     return sel.Selection("threshold", k, list(nmse[:max_k]),
                          f"constraint {k + 1} would have nmse {nmse[k]:.3g} ≥ {threshold}"
-                         if k < max_k else f"all {k} candidates below {threshold}")
+                         if k < max_k else f"all {k} candidates below {threshold}",
+                         "nmse of row k: (λ_k / N) / Σ var(N_k u)",
+                         limits=sel.threshold_limits(min(max_k, len(nmse)), threshold),
+                         limit_rule=sel.THRESHOLD_RULE.format(threshold))
 
 
 @parameters
