@@ -327,7 +327,8 @@ def learn_a(
         help="auto (model class and number of constraints, 0 included, by held-out evidence), nhat "
              "(constant A, closed form), alpha (state-dependent), lambda (known Φ), linear (closed form), "
              "per_window (one constant A per time window), per_segment (one constant A per segment, cut "
-             "where it changes; docs/methods.md).",
+             "where it changes), manifold (the level sets the states stay on: lines, circles, surfaces; "
+             "docs/methods.md).",
         show_default=_default(spec.DEFAULT_CONSTRAINT_METHOD))] = None,
     selection: Annotated[Selection | None, typer.Option(
         help="How the number of constraints s is chosen (lambda's default: noise).",
@@ -418,6 +419,8 @@ def evaluate(
         for k, v in summary["metrics"].items():
             typer.echo(f"{k} = {v['value']:.6e}  (error {v['error']:.3e} / var of {v['normaliser_of']} "
                        f"{v['normaliser']:.3e})")
+        if summary.get("rule"):
+            typer.echo(f"applied: {summary['rule']['words']}", err=True)
         if summary.get("note"):
             typer.echo(f"note: {summary['note']}", err=True)
 
@@ -441,7 +444,12 @@ def predict(
     if json_out:
         _emit(summary, True)
     elif not quiet:
-        typer.echo(f"wrote {out} ({dataset.n_samples} samples)", err=True)
+        repaired = sum(n for kinds in summary["repaired"].values() for n in kinds.values())
+        typer.echo(f"wrote {out} ({summary['samples']} rows: one per sample read"
+                   + (f", {repaired} repaired (columns repair, fault)" if repaired else "")
+                   + (f"; {summary['left_out']} outside the configured demonstrations" if summary["left_out"]
+                      else "") + ")", err=True)
+        typer.echo(f"applied: {summary['rule']['words']}", err=True)
         if summary.get("note"):
             typer.echo(f"note: {summary['note']}", err=True)
 

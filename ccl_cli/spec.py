@@ -37,7 +37,8 @@ STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
 Convention = Literal["ccl", "original"]
 #: learn-a's ``method``: which constraint estimator (:data:`CONSTRAINT_METHODS`); ``auto`` (the
 #: default) chooses the model class and the number of constraints, 0 included, by held-out evidence
-ConstraintMethod = Literal["auto", "nhat", "alpha", "lambda", "linear", "per_window", "per_segment"]
+ConstraintMethod = Literal["auto", "nhat", "alpha", "lambda", "linear", "per_window", "per_segment",
+                           "manifold"]
 DEFAULT_CONSTRAINT_METHOD = "auto"
 #: learn-pi's ``projections`` (pi-coupled): from the ground truth, a learn-a stage, or either
 Projections = Literal["auto", "learnt", "true"]
@@ -123,6 +124,7 @@ def _stage_classes() -> dict[str, tuple[type, ...]]:
         AutoConstraint,
         KnownFeatureConstraint,
         LinearConstraint,
+        ManifoldConstraint,
         PerSegment,
         PerWindow,
         StateDependentConstraint,
@@ -133,13 +135,14 @@ def _stage_classes() -> dict[str, tuple[type, ...]]:
 
     return {"learn-v": (NullSpaceComponent,), "learn-pi": (PolicyLearner,),
             "learn-a": (StateIndependentConstraint, StateDependentConstraint, KnownFeatureConstraint,
-                        LinearConstraint, AutoConstraint, PerWindow, PerSegment)}
+                        LinearConstraint, AutoConstraint, PerWindow, PerSegment, ManifoldConstraint)}
 
 
 #: learn-a ``method`` → the estimator class's name (the class itself: :func:`constraint_class`)
 CONSTRAINT_METHODS = {"auto": "AutoConstraint", "nhat": "StateIndependentConstraint",
                       "alpha": "StateDependentConstraint", "lambda": "KnownFeatureConstraint",
-                      "linear": "LinearConstraint", "per_window": "PerWindow", "per_segment": "PerSegment"}
+                      "linear": "LinearConstraint", "per_window": "PerWindow", "per_segment": "PerSegment",
+                      "manifold": "ManifoldConstraint"}
 #: config keys that are not the estimator's own names: (method, config key) → parameter
 RENAMED = {("nhat", "variant"): "method"}
 

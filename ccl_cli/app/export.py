@@ -155,8 +155,8 @@ def _none(model: Any) -> dict[str, Any]:
 
 def _manifold(model: Any) -> dict[str, Any]:
     k = int(model.n_constraints_)
-    return {"form": "manifold", "basis": model.basis, "centre": model.centre_, "scale": float(model.scale_),
-            "features": MANIFOLD_FEATURES[model.basis], "levels": model.weights_[:, :k].T,
+    return {"form": "manifold", "basis": model.family, "centre": model.centre_, "scale": float(model.scale_),
+            "features": MANIFOLD_FEATURES[model.family], "levels": model.weights_[:, :k].T,
             "variation": model.variation_[:k],
             "formula": "z = (x − centre)/scale; the level functions h_j(x) = scale · levels_jᵀ φ(z) are "
                        "constant along a demonstration; A(x) = their gradients (∂φ/∂z)ᵀ levels_j, j = 1 … k, "
@@ -309,7 +309,7 @@ def new_data(model: Any, method: str) -> dict[str, Any]:
         fixed = getattr(est, "n_constraints", None)
         out["fit"] = {"method": inner, "k": fixed}
         if inner == "manifold":
-            out["fit"].update(basis=est.basis, ridge=RIDGE)
+            out["fit"].update(basis=est.family, ridge=RIDGE)
         out["reproducible"] = fixed is not None and (
             inner == "manifold" or (inner == "nhat" and est.method == "closed_form"))
         if not out["reproducible"]:

@@ -78,6 +78,11 @@ REVISIT_SHARE = 0.25
 #: through one point are straight reaches to one goal).
 MIN_LINES = 3
 MEET = 0.3
+#: Largest pooled residual of rows that each demonstration moves along at its own constant rate (a
+#: constant task part, :func:`task_residual`): strict, since a steady drift of a free motion (a pen
+#: progressing across a page) comes within 0.11–0.3.
+TASK_FIT = 0.02
+RIDGE_TIME = 1e-9
 #: A demonstration's circle of radius at least FLAT × its spread is a (bowed) line.
 FLAT = 5.0
 #: Circles fitted one per demonstration agree: axes within AXIS_DEG, radii within ± RADIUS_SPREAD.
@@ -184,7 +189,7 @@ def drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int) -> np.ndarray:
     piece = np.zeros(len(X), np.int64)
     for j, (train, test) in enumerate(folds(X, groups)):
         try:
-            model = ManifoldConstraint(basis=basis, n_constraints=k).fit(
+            model = ManifoldConstraint(family=basis, n_constraints=k).fit(
                 X[train], np.zeros((len(train), q)), groups=_stretches(train, groups))
         except (InputError, np.linalg.LinAlgError):  # a fold whose states do not move: no evidence
             return np.full(k, np.inf)
@@ -242,7 +247,7 @@ def shape_residual(P: np.ndarray, k: int, basis: str = "sphere") -> np.ndarray:
     fitted to it: the RMS of the first k level functions fitted to it alone, over its RMS
     spread: (k,). A circle or a line has a handful of parameters, so the fit to a few hundred
     samples is judged on those samples."""
-    model = ManifoldConstraint(basis=basis, n_constraints=k).fit(P, np.zeros_like(P))
+    model = ManifoldConstraint(family=basis, n_constraints=k).fit(P, np.zeros_like(P))
     spread = float(np.sqrt(((P - P.mean(0)) ** 2).sum(1).mean()))
     H = model.levels(P, k)
     return np.sqrt(((H - H.mean(0)) ** 2).mean(0)) / spread if spread > 0 else np.full(k, np.inf)
@@ -374,10 +379,31 @@ def _moving(X: np.ndarray, groups: np.ndarray) -> np.ndarray:
     return ok[inverse.ravel()]
 
 
+def task_residual(X: np.ndarray, groups: np.ndarray, t: np.ndarray, k: int) -> float:
+    """How far the demonstrations are from moving along their own k constant rows at their own
+    constant rates (a·x − b t constant in each: a constraint with a constant task part, A u = b):
+    the RMS of the k quietest such levels fitted to each demonstration alone, pooled, over the
+    pooled RMS spread of the positions. X (N, q), groups (N,), t (N,) s."""
+    from scipy.linalg import eigh
+
+    q = X.shape[1]
+    num = den = 0.0
+    for d in np.unique(groups):  # a closed form per demonstration
+        m = groups == d
+        P, s = X[m] - X[m].mean(0), t[m] - t[m].mean()
+        Z = np.c_[P, s / max(float(np.abs(s).max()), np.finfo(float).tiny)]  # time scaled to the unit
+        G = np.diag([1.0] * q + [0.0]) + RIDGE_TIME * np.eye(q + 1)
+        lam = eigh(Z.T @ Z, G, eigvals_only=True)
+        num += float(np.maximum(lam[:k], 0.0).sum()) / k
+        den += float((P**2).sum())
+    return float(np.sqrt(num / den)) if den > 0 else np.inf
+
+
 def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None = None,
-           max_k: int | None = None) -> Geometry:
+           max_k: int | None = None, t: np.ndarray | None = None) -> Geometry:
     """The number of constraints the positions X (N, q) of demonstrations ``groups`` show, and the
-    model that shows it (module docstring); ``only_k``: judge that rank alone; ``max_k``: at most."""
+    model that shows it (module docstring); ``only_k``: judge that rank alone; ``max_k``: at most;
+    ``t`` (N,) s: the sample times, for rails that move at a constant rate (a task part)."""
     X = np.asarray(X, dtype=float)
     q = X.shape[1]
     groups = np.zeros(len(X), np.int64) if groups is None else np.asarray(groups)
@@ -415,6 +441,12 @@ def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None =
             lines = how.startswith("lines")  # straight in every demonstration: constant rows each
             tried.append(Tried(k, "per_demo", "linear" if lines else "sphere", worst, RAIL_FIT, holds,
                                f"a line or circle in every demonstration ({how})", "shape residual"))
+        if rail and q <= 3 and t is not None and len(ids) >= MIN_LINES and not any(
+                x.holds for x in tried if x.k == k):
+            fit = task_residual(X, groups, t[usable], k)
+            tried.append(Tried(k, "per_demo_task", "linear", np.full(k, fit), TASK_FIT, bool(fit <= TASK_FIT),
+                               "each demonstration moving along its own constant rows at its own constant "
+                               "rate (a task part: A u = b)", "shape residual"))
         if not rail and len(returning) and surfaces_return and len(ids) > 1:
             for basis in BASES[: 3 if quadrics else 2]:
                 d = _per_demo_drift(X, groups, basis, k, returning)
@@ -495,6 +527,22 @@ def rows_drift(rows: np.ndarray, X: np.ndarray, groups: np.ndarray) -> np.ndarra
     spread = within_covariance(X, groups).trace()
     var = np.diag(within_covariance(z, groups))
     return np.sqrt(var / spread) if spread > 0 else np.full(k, np.inf)
+
+
+def model_drift(model: Any, rows: np.ndarray, X: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """How far the positions X (N, q) of demonstrations ``groups`` move off a fitted model's
+    constraint: a model of level sets (one with ``levels``, :class:`~.manifold.ManifoldConstraint`)
+    by its own level functions h(x) — RMS(h − mean) / RMS(x − mean) within the demonstrations,
+    the measure of :func:`drift` — others by integrating their rows (N, k, q) along the
+    demonstrations (:func:`rows_drift`). Integrating the normalised gradients of a curved surface
+    adds up their small tilts over every loop; the level itself does not: (k,)."""
+    levels = getattr(model, "levels", None)
+    if not callable(levels):
+        return rows_drift(rows, X, groups)
+    H = levels(X)
+    spread = within_covariance(X, groups).trace()
+    var = np.diag(within_covariance(H, groups))
+    return np.sqrt(var / spread) if spread > 0 else np.full(H.shape[1], np.inf)
 
 
 def integrate(W: np.ndarray, X: np.ndarray, groups: np.ndarray, t: np.ndarray | None) -> np.ndarray:
