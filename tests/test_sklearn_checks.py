@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from sklearn.utils.estimator_checks import check_estimator, parametrize_with_checks
 
+from ccl_cli.cli import main
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.learn.constraint import (
     AutoConstraint,
@@ -241,3 +242,23 @@ def test_lambda_features_that_do_not_fit_the_data():
     with pytest.raises(ConfigError, match=r"^the features give Φ \(r, q\) = \(2, 2\) for q = 2 actions; "
                                           "U has q = 1$"):
         KnownFeatureConstraint().fit(rng.normal(size=(50, 2)), rng.normal(size=(50, 1)))
+
+
+def test_the_command_line_refuses_one_action_column(tmp_path, capsys):
+    """learn-a on a recording of one action column: the learners would answer k = 0 by
+    construction, which no recording can tell; the command says so in one line (exit 2), with
+    every method, as before."""
+    X, _, g, t = one_dimensional_motion()
+    for i in (0, 1):
+        m = g == i
+        np.savetxt(tmp_path / f"d{i}.csv", np.c_[t[m], X[m]], delimiter=",", header="t,x", comments="")
+    config = tmp_path / "c.yaml"
+    config.write_text("data:\n  files: [d0.csv, d1.csv]\n  time: {column: t}\n  state: {columns: [x]}\n"
+                      "  action: {derive: state}\n")
+    for method in ("auto", "nhat", "linear", "manifold"):
+        out = tmp_path / method
+        assert main(["learn-a", "-c", str(config), "-o", str(out), "--method", method, "-q"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert err[-1] == ("ccl: error: learning a constraint needs at least 2 action dimensions (a "
+                           "constraint row on one would forbid all motion)")
+        assert not out.exists()
