@@ -261,6 +261,9 @@ class Pipeline:
     def _fit_constraint(self, opts: Any, on: str) -> Any:
         tr = self.split.train
         q = tr.n_action
+        if q < 2:  # the learners answer k = 0 there (base.ONE_ACTION): nothing to learn from a recording
+            raise ConfigError("learning a constraint needs at least 2 action dimensions (a constraint row "
+                              "on one would forbid all motion)")
         if opts.n_constraints is not None and not 1 <= opts.n_constraints <= max(q - 1, 1):
             raise ConfigError(f"learn-a.n_constraints (--n-constraints) is {opts.n_constraints}, but "
                               f"{q}-dimensional actions allow 1 to {max(q - 1, 1)} constraints")

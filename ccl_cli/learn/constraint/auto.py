@@ -92,7 +92,14 @@ from ccl_cli.learn.constraint import geometry as geo
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import sure
 from ccl_cli.learn.constraint.alpha import StateDependentConstraint
-from ccl_cli.learn.constraint.base import Applied, ConstraintModel, NewDataRule, Windows, check_rows_asked
+from ccl_cli.learn.constraint.base import (
+    ONE_ACTION,
+    Applied,
+    ConstraintModel,
+    NewDataRule,
+    Windows,
+    check_rows_asked,
+)
 from ccl_cli.learn.constraint.lambda_ import FeatureSpec, KnownFeatureConstraint, make_features
 from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.manifold import ManifoldConstraint
@@ -234,6 +241,9 @@ class AutoConstraint(ConstraintModel, SeedParams):
                 from the positions X by their local polynomial, False when recorded, None when
                 not known (the larger of the two noise estimates,
                 :func:`~ccl_cli.learn.constraint.noise_rank.row_evidence`).
+
+        One action dimension (q = 1): no constraint (k = 0, :data:`~.base.ONE_ACTION`), no
+        candidate tried.
         """
         X, U = self._prepare_fit(X, U)
         n, q = U.shape
@@ -242,10 +252,13 @@ class AutoConstraint(ConstraintModel, SeedParams):
             t = np.asarray(t, dtype=float)
             if t.shape != (n,):
                 raise InputError(f"t must hold one time per sample, ({n},), got {t.shape}")
-        data = ev.Sample.of(X, U, groups, t, derivative)
-        derived = data.derived
         self.n_action_ = q
         self.geometry_ = None
+        if q == 1:
+            self._one_action(X, U, groups)
+            return self
+        data = ev.Sample.of(X, U, groups, t, derivative)
+        derived = data.derived
         if self._geometry(data, derivative):
             return self
         gap = self.gap if self.gap is not None else int(derived.window) if derived else ms.RECORDED_GAP
@@ -541,6 +554,15 @@ class AutoConstraint(ConstraintModel, SeedParams):
             return NoConstraint().fit(data.X, data.U, groups=data.groups)
         how = data.derivative if winner.candidate.name == "stretches" else None  # its noise needs it
         return winner.candidate.make(k).fit(data.X, data.U, groups=data.groups, t=data.t, derivative=how)
+
+    def _one_action(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None) -> None:
+        """k = 0 at one action dimension (:data:`~.base.ONE_ACTION`): no candidate is tried."""
+        self.model_ = NoConstraint().fit(X, U, groups=groups)
+        self.n_constraints_ = 0
+        self.heldout_ = None
+        self.selection_ = {"rule": "auto", "n_constraints": 0, "model": "no constraint", "chosen": "none",
+                           "reason": ONE_ACTION, "values": [], "criterion": "", "candidates": []}
+        self.model_.selection_ = {**self.selection_, "winner_selection": self.model_.selection_}
 
     def _fit_without_cv(self, data: ev.Sample, why: str) -> None:
         """Too few samples to cross-validate: nhat, its rank by the noise rule on its own rows
