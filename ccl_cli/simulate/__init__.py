@@ -6,6 +6,8 @@ seeded and returns :class:`~ccl_cli.dataset.Demonstrations` with ``truth``."""
 
 from __future__ import annotations
 
+from functools import partial
+
 from ccl_cli.simulate.recordings import flow2d, free_reach, tracker_flips, tracker_tilt
 from ccl_cli.simulate.reference import (
     LINEAR_POLICY,
@@ -31,6 +33,7 @@ PROBLEMS = {
     "tracker_flips": tracker_flips,
     "tracker_tilt": tracker_tilt,
     "arm_wipe": arm_wipe,
+    "arm_wipe_force": partial(arm_wipe, force=True),  # with the force channel (base frame)
     "arm_wipe_joint": arm_wipe_joint,
     "free_reach": free_reach,
     "flow2d": flow2d,

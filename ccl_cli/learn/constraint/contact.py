@@ -7,12 +7,15 @@ hand moves along the push. "A reaction along the rows and no motion along them i
 f the force in the base frame and u the velocity (N, 3), on windows of WINDOW_S s centred on each
 sample (sliding means within each demonstration):
 
-*Baseline and level.* A channel that is not zeroed reads an offset, which drifts. The baseline
-b_d of demonstration d is the median window mean over its quietest windows — the QUIET_SHARE
-whose force varies least — and the channel's noise σ the median RMS deviation within them. The
-force is *on* where |f̄ − b_d| > level = max(NOISE_K σ, LEVEL_SHARE · P90), P90 the 90th
-percentile of |f̄ − b| over the recording: both terms scale with the channel, so newtons and
-kilonewtons give the same samples.
+*Baseline and level.* A channel that is not zeroed reads an offset, which drifts. A recording starts
+and ends out of contact (as :func:`ccl_cli.io.faults.force_bias` takes it): the baseline of a
+demonstration is read at each end — its first and last EDGE_SHARE of the samples, on the windows
+that move less than the median there (a hand that pushes moves the tool) and, of those, whose force
+varies less than the median — and the mean of the two is its baseline b (a drift between them,
+1–3 N on the KUKA rim log, stays below the level); the channel's noise σ is the median RMS
+deviation within those windows. The force is *on* where |f̄ − b| > level = max(NOISE_K σ,
+LEVEL_SHARE · P90), P90 the 90th percentile of |f̄ − b| over the recording: both terms scale with
+the channel, so newtons and kilonewtons give the same samples.
 
 *Reaction.* With C the window's second moment of u (3, 3), the window reacts when some direction
 n within REACTION_DEG of the force f̄ − b carries at most MOTION_SHARE of its motion,
@@ -50,8 +53,10 @@ from ccl_cli.errors import InputError
 
 #: Window (s) of the sliding means.
 WINDOW_S = 0.3
-#: The baseline is read on this share of each demonstration's windows, those whose force varies least.
-QUIET_SHARE = 0.2
+#: The baseline is read at the ends of each demonstration — its first and last EDGE_SHARE of the
+#: samples, where a recording is out of contact — on the quarter of their windows that move less than
+#: the median and, of those, vary less than the median.
+EDGE_SHARE = 0.1
 #: The force is on above NOISE_K × its noise and LEVEL_SHARE × its 90th percentile above baseline.
 NOISE_K = 5.0
 LEVEL_SHARE = 0.1
@@ -199,6 +204,29 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(min(c, 1.0))))
 
 
+def _baseline(mean: np.ndarray, dev: np.ndarray, C: np.ndarray, ok: np.ndarray, w: int
+              ) -> tuple[np.ndarray | None, np.ndarray]:
+    """The channel's baseline in one demonstration (3,) — the mean of the levels read at each end (its
+    first and last EDGE_SHARE) on the windows that move less than the median there and, of those,
+    vary less than the median — and the windows it was read on; None when no end (nor the rest) has
+    ``w`` windows with evidence.
+    ``mean`` (n, 3), ``dev`` (n,) the windows' force and its RMS deviation, C (n, 3, 3), ok (n,)."""
+    n = len(mean)
+    rank = np.arange(n) / max(n - 1, 1)
+    sides = [np.flatnonzero((rank <= EDGE_SHARE) & ok), np.flatnonzero((rank >= 1 - EDGE_SHARE) & ok)]
+    sides = [c for c in sides if len(c) >= w] or [np.flatnonzero(ok)]
+    if len(sides[0]) < w:
+        return None, np.zeros(0, np.int64)
+    levels, used = [], []
+    for cand in sides:
+        trace = np.trace(C[cand], axis1=1, axis2=2)
+        still = cand[trace <= np.quantile(trace, 0.5)]  # a hand that pushes moves the tool
+        quiet = still[dev[still] <= np.quantile(dev[still], 0.5)]
+        levels.append(np.median(mean[quiet], axis=0))
+        used.append(quiet)
+    return np.mean(levels, axis=0), np.concatenate(used)
+
+
 def find(force: np.ndarray, U: np.ndarray, groups: np.ndarray | None = None, t: np.ndarray | None = None
          ) -> Contact:
     """The contact stretches and their rows the force (N, 3) and the velocities U (N, 3) show (module
@@ -226,13 +254,12 @@ def find(force: np.ndarray, U: np.ndarray, groups: np.ndarray | None = None, t: 
         dev[m] = np.sqrt(np.maximum(sliding((force[m] ** 2).sum(1), w) - (mean**2).sum(1), 0.0))
         C[m] = sliding(outer[m], w)
         ok[m] = ~(sliding(stale[m].astype(float), w) > 0)
-        good = m[ok[m]]
-        if len(good) < w:
+        b, quiet = _baseline(mean, dev[m], C[m], ok[m], w)
+        if b is None:
             continue  # held (nearly) throughout: no evidence from this demonstration
-        quiet = good[dev[good] <= np.quantile(dev[good], QUIET_SHARE)]
-        baseline[int(d)] = np.median(mean[ok[m]][np.isin(good, quiet)], axis=0)
-        D[m] = mean - baseline[int(d)]
-        quiet_dev.append(dev[quiet])
+        baseline[int(d)] = b
+        D[m] = mean - b
+        quiet_dev.append(dev[m][quiet])
     if not baseline:
         return Contact(np.zeros(n, bool), [], baseline, held_share)
     mag = np.linalg.norm(D, axis=1)
