@@ -380,3 +380,60 @@ def test_learn_a_reads_the_force_and_reports_the_decision(tmp_path, capsys):
     capsys.readouterr()
     assert main(["inspect", str(out / "model.h5")]) == 0
     assert "method contact" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("fmt", ["csv", "mat"])
+def test_the_force_stays_with_its_samples_when_faults_drop_some(tmp_path, fmt, log):
+    """A spike in the positions is dropped by fault repair: each row's force is still its own
+    sample's (the force is a known function of time here)."""
+    m = log.demo == 0
+    t, ee = log.t[m], log.ee[m].copy()
+    ee[200] += [0.3, 0.0, 0.0]  # one sample 30 cm off
+    force = np.c_[np.sin(t), np.cos(3 * t), t]
+    if fmt == "csv":
+        path = tmp_path / "r.csv"
+        with open(path, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["time", "x", "y", "z", "fx", "fy", "fz"])
+            w.writerows(np.c_[t, ee, force].tolist())
+        options = {"state": {"columns": ["x", "y", "z"]}, "force": {"columns": ["fx", "fy", "fz"]}}
+    else:
+        path = tmp_path / "r.mat"
+        sio.savemat(path, {"X": np.c_[ee, force].T, "t": t[:, None]})
+        columns = {"variable": "X", "samples": "columns"}
+        options = {"format": "mat", "state": {**columns, "columns": [0, 1, 2]}, "time": {"variable": "t"},
+                   "force": {**columns, "columns": [3, 4, 5]}}
+    d = load_demonstrations(options, files=[path])
+    assert d.n_samples == len(t) - 1 and d.repair.counts()["dropped"] == {"spike": 1}
+    np.testing.assert_allclose(d.force, np.c_[np.sin(d.t), np.cos(3 * d.t), d.t], atol=1e-9)
+
+
+def test_a_kuka_style_log_in_the_tool_frame_gives_the_wipe_phases(tmp_path):
+    """The LWR's ``proc_data`` (13-row X: position, wxyz quaternion, force, torque) with the force in
+    the flange's frame, read with frame: tool: auto finds the labelled wipe phases and the table's
+    normal."""
+    lwr = lwr_wipe_log(n_demos=5, seed=2)
+    cells = proc_data(lwr, seed=2)
+    labels = []
+    for c, phases in zip(cells, lwr.metadata["phases"], strict=True):
+        X = c["X"]
+        X[7:10] = tool_frame(X[7:10].T, X[3:7].T).T
+        t = np.arange(X.shape[1]) * c["dt"]
+        labels.append((t >= phases["wipe"][0]) & (t < phases["wipe"][1]))
+    arr = np.empty((1, len(cells)), dtype=object)
+    for i, c in enumerate(cells):
+        arr[0, i] = c
+    path = tmp_path / "lwr.mat"
+    sio.savemat(path, {"proc_data": arr})
+    mapping = {"variable": "proc_data.X", "samples": "columns"}
+    options = {"format": "mat", "state": {**mapping, "columns": [0, 1, 2]},
+               "time": {"variable": "proc_data.dt"},
+               "force": {**mapping, "columns": [7, 8, 9], "frame": "tool",
+                         "orientation": {**mapping, "columns": [3, 4, 5, 6], "convention": "wxyz"}}}
+    truth = np.concatenate(labels)
+    d = load_demonstrations(options, files=[path])
+    auto = AutoConstraint().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.derivative, force=d.force)
+    holds = auto.holds(d.X, groups=d.demo, t=d.t)
+    assert auto.selection_["decided_by"] == "forces" and (holds == truth).mean() >= 0.98
+    rows = auto.constraint(d.X, groups=d.demo, t=d.t)[holds & truth, 0]
+    assert np.degrees(np.arccos(np.abs(rows @ lwr.normal).min())) < 1.0
