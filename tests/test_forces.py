@@ -87,24 +87,32 @@ def test_csv_columns_give_the_force_and_its_bias_is_reported(tmp_path, log):
     assert bias["count"] == 1 and bias["action"] == "reported"
 
 
-def test_mat_tool_frame_force_is_rotated_into_the_base_frame(tmp_path):
-    lwr = lwr_wipe_log(n_demos=2, seed=3)
-    cells = proc_data(lwr, seed=3)
-    base = []
-    for c in cells:  # the file holds the force in the flange's frame, as the KUKA logs do
-        X = c["X"]
-        base.append(X[7:10].T.copy())
-        X[7:10] = tool_frame(X[7:10].T, X[3:7].T).T
+#: The KUKA rim log's mapping (position, wxyz quaternion, force in the flange's frame in X's rows).
+MAPPING = {"variable": "proc_data.X", "samples": "columns"}
+KUKA = {"format": "mat", "state": {**MAPPING, "columns": [0, 1, 2]}, "time": {"variable": "proc_data.dt"},
+        "force": {**MAPPING, "columns": [7, 8, 9], "frame": "tool",
+                  "orientation": {**MAPPING, "columns": [3, 4, 5, 6], "convention": "wxyz"}}}
+
+
+def kuka_file(path: Path, n_demos: int, seed: int) -> tuple[Path, list[dict], object]:
+    """The LWR's ``proc_data`` with the force turned into the flange's frame, as the KUKA logs hold
+    it, written by scipy.io.savemat: (path, the cells with the base-frame force under "base", the log)."""
+    lwr = lwr_wipe_log(n_demos=n_demos, seed=seed)
+    cells = proc_data(lwr, seed=seed)
     arr = np.empty((1, len(cells)), dtype=object)
     for i, c in enumerate(cells):
-        arr[0, i] = c
-    path = tmp_path / "rim.mat"
+        X = c["X"]
+        c["base"] = X[7:10].T.copy()
+        X[7:10] = tool_frame(X[7:10].T, X[3:7].T).T
+        arr[0, i] = {"X": X, "J": c["J"], "dt": c["dt"]}
     sio.savemat(path, {"proc_data": arr})
-    mapping = {"variable": "proc_data.X", "samples": "columns"}
-    options = {"format": "mat", "state": {**mapping, "columns": [0, 1, 2]},
-               "time": {"variable": "proc_data.dt"},
-               "force": {**mapping, "columns": [7, 8, 9], "frame": "tool",
-                         "orientation": {**mapping, "columns": [3, 4, 5, 6], "convention": "wxyz"}}}
+    return path, cells, lwr
+
+
+def test_mat_tool_frame_force_is_rotated_into_the_base_frame(tmp_path):
+    path, cells, _ = kuka_file(tmp_path / "rim.mat", 2, 3)
+    base = [c["base"] for c in cells]
+    mapping, options = MAPPING, KUKA
     d = load_demonstrations(options, files=[path])
     np.testing.assert_allclose(d.force, np.concatenate(base), atol=1e-9)
     # xyzw: the same quaternion's columns in the other order
@@ -412,26 +420,13 @@ def test_a_kuka_style_log_in_the_tool_frame_gives_the_wipe_phases(tmp_path):
     """The LWR's ``proc_data`` (13-row X: position, wxyz quaternion, force, torque) with the force in
     the flange's frame, read with frame: tool: auto finds the labelled wipe phases and the table's
     normal."""
-    lwr = lwr_wipe_log(n_demos=5, seed=2)
-    cells = proc_data(lwr, seed=2)
+    path, cells, lwr = kuka_file(tmp_path / "lwr.mat", 5, 2)
     labels = []
     for c, phases in zip(cells, lwr.metadata["phases"], strict=True):
-        X = c["X"]
-        X[7:10] = tool_frame(X[7:10].T, X[3:7].T).T
-        t = np.arange(X.shape[1]) * c["dt"]
+        t = np.arange(c["X"].shape[1]) * c["dt"]
         labels.append((t >= phases["wipe"][0]) & (t < phases["wipe"][1]))
-    arr = np.empty((1, len(cells)), dtype=object)
-    for i, c in enumerate(cells):
-        arr[0, i] = c
-    path = tmp_path / "lwr.mat"
-    sio.savemat(path, {"proc_data": arr})
-    mapping = {"variable": "proc_data.X", "samples": "columns"}
-    options = {"format": "mat", "state": {**mapping, "columns": [0, 1, 2]},
-               "time": {"variable": "proc_data.dt"},
-               "force": {**mapping, "columns": [7, 8, 9], "frame": "tool",
-                         "orientation": {**mapping, "columns": [3, 4, 5, 6], "convention": "wxyz"}}}
     truth = np.concatenate(labels)
-    d = load_demonstrations(options, files=[path])
+    d = load_demonstrations(KUKA, files=[path])
     auto = AutoConstraint().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.derivative, force=d.force)
     holds = auto.holds(d.X, groups=d.demo, t=d.t)
     assert auto.selection_["decided_by"] == "forces" and (holds == truth).mean() >= 0.98
