@@ -385,7 +385,7 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
         # the actions are the states' derivative: a constraint keeps the states on its level sets,
         # whatever compliance or tremor adds to the velocities (learn/constraint/geometry.py) —
         # it holds when either test says so
-        drift = geometry.rows_drift(rows, d.X, d.demo)
+        drift = geometry.model_drift(applied.model, rows, d.X, d.demo)
         limit = geometry.holds_limit(d.X, d.demo, rows.shape[1])
         kept = out or {"ratio": [], "share": ev.share.tolist(), "holds": False, "refitted": applied.refitted}
         if not kept["holds"] and np.isfinite(drift).all():

@@ -55,6 +55,25 @@ def test_constraint_evidence_tells_a_quiet_row_from_a_moving_one():
 
 
 
+def test_constraint_evidence_of_a_curved_surface_reads_its_level_not_its_integrated_rows():
+    """A model of level sets measures the positions' drift by its own level h(x): integrating the
+    normalised gradients of a sphere adds up their tilts over every loop (the Trakstar curved
+    surface: 1.1 of the spread, "does not hold", on the right answer)."""
+    from ccl_cli.learn.constraint import ManifoldConstraint, geometry
+
+    d = sim.tracker_sphere(duration=60.0, seed=4)
+    model = ManifoldConstraint(family="sphere", n_constraints=1).fit(d.X, d.U, groups=d.demo)
+    ev = diagnostics.constraint_evidence(model, d, d.U)
+    h = model.levels(d.X)[:, 0]
+    by_hand = h.std() / np.sqrt(np.trace(np.cov(d.X.T, bias=True)))  # one demonstration
+    assert ev["holds"] and ev["drift"][0] == pytest.approx(by_hand, rel=1e-9) and by_hand < 0.02
+    integrated = geometry.rows_drift(model.constraint(d.X), d.X, d.demo)[0]
+    assert integrated > 5 * by_hand
+    model.weights_[:, 0] = model.weights_[:, -1].copy()  # the level of the widest spread instead
+    ev = diagnostics.constraint_evidence(model, d, d.U)
+    assert not ev["holds"] and ev["measure"] == "drift" and ev["drift"][0] > 0.5
+
+
 def test_constraint_evidence_of_overflowing_data_tells_nothing():
     """Observations whose squares overflow (a damaged file's 1e200s) give no evidence, not
     rows judged on NaN (does_not_hold then found no moving row: StopIteration)."""
