@@ -96,8 +96,8 @@ def split_data(data: Demonstrations, spec: Any, masks: dict[str, list[int]] | No
                                   "set, every metric is on training data",
                                   "n_train_samples": data.n_samples, "n_test_samples": 0})
     hold = model_selection.holdout_split(data.demo, float(test.fraction), test.seed, guard_gap(spec, data),
-                                         test.min_demos,
-                           test.blocks)
+                                         test.min_demos, test.blocks,
+                                         keys=model_selection.shape_keys(data.X, data.demo))
     train, held = data.subset(hold.train), data.subset(hold.test)
     return Split(train, held if held.n_samples else None, hold.info)
 
