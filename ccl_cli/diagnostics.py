@@ -548,6 +548,9 @@ def heldout_support(selection: dict[str, Any] | None, evidence: dict[str, Any] |
             return {"supported": True, "why": f"the states' geometry: {best['basis']} "
                     f"({best['scope'].replace('_', ' ')}), {best['measure']} {max(best['drift']):.3g} ≤ "
                     f"{best['limit']:g}{judged(best['measure'])}"}
+    held = (selection.get("forces") or {}).get("heldout") if selection.get("decided_by") == "forces" else None
+    if held:  # contact stretches from the forces: their rows fitted without blocks held out inside them
+        return {"supported": bool(held["supported"]), "why": f"the forces' contact stretches: {held['why']}"}
     winner = next((r for r in selection.get("candidates") or [] if r.get("chosen") and r["class"] != "none"),
                   None)
     if winner is not None and (winner.get("k") or 0) >= k:

@@ -43,6 +43,7 @@ from ccl_cli.io.h5.seal import create_hdf5
 from ccl_cli.learn.basis import basis_from_state
 from ccl_cli.learn.constraint import (
     ConstraintInStretches,
+    ContactPhases,
     KnownFeatureConstraint,
     LinearConstraint,
     ManifoldConstraint,
@@ -70,6 +71,7 @@ CLASSES: dict[str, tuple[str, type]] = {
     "per_window": ("constraint", PerWindow),
     "per_segment": ("constraint", PerSegment),
     "stretches": ("constraint", ConstraintInStretches),
+    "contact": ("constraint", ContactPhases),
     "manifold": ("constraint", ManifoldConstraint),
     "none": ("constraint", NoConstraint),
     "ncl": ("nullspace", NullSpaceComponent),

@@ -21,7 +21,7 @@ from ccl_cli.app.views import View, constant_rows, describe_constraint, phases, 
 from ccl_cli.dataset import Demonstrations, Derivative
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn import model_selection
-from ccl_cli.learn.constraint import PerDemonstration, PerWindow, geometry
+from ccl_cli.learn.constraint import PerDemonstration, PerWindow, force_evidence, geometry
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
 from ccl_cli.metrics import SPLITS
@@ -271,7 +271,8 @@ class Pipeline:
         target = self._target(on, "train", tr)
         how = tr.derivative if target is tr.U else Derivative(False)  # a learnt w̃ is no derivative
         try:
-            model.fit(tr.X, target, groups=tr.demo, t=tr.t, derivative=how)
+            model.fit(tr.X, target, groups=tr.demo, t=tr.t, derivative=how,
+                      **force_evidence.fit_params(model, tr.force))
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             raise LearningError(f"learn-a failed: {exc}") from None
         return model

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import InputError
+from ccl_cli.io import forces
 from ccl_cli.io.arrays import Variable, as_numeric, assemble, cut_parts, named_parts, orient, split_by_index
 from ccl_cli.io.formats.mat5_elements import check_variable
 from ccl_cli.io.h5.access import attr_str, attr_value, error_text
@@ -284,6 +285,11 @@ def read_mat(src: _V5 | _V73, path: Path, options: DataOptions) -> Recording:
         specs["time"] = (options.time.variable, None)
     if signal is not None:
         specs["where"] = (signal.variable, signal.samples)
+    for key, selection in forces.selections(options).items():  # data.force beside the state
+        if selection.variable is None:
+            raise InputError(f"{where}: {forces.option_path(key)} needs variable: NAME "
+                             "for a .mat file")
+        specs[key] = (selection.variable, selection.samples)
     values = {key: src.get(name) for key, (name, _) in specs.items()}
     cells = {key: isinstance(v, list) for key, v in values.items()}
     chunks: list[tuple[str, dict[str, np.ndarray]]] = []

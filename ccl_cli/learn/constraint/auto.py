@@ -88,9 +88,9 @@ from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn import blas
 from ccl_cli.learn import model_selection as ms
 from ccl_cli.learn.constraint import evidence as ev
+from ccl_cli.learn.constraint import force_evidence, sure
 from ccl_cli.learn.constraint import geometry as geo
 from ccl_cli.learn.constraint import noise_rank as nr
-from ccl_cli.learn.constraint import sure
 from ccl_cli.learn.constraint.alpha import StateDependentConstraint
 from ccl_cli.learn.constraint.base import (
     ONE_ACTION,
@@ -229,8 +229,19 @@ class AutoConstraint(ConstraintModel, SeedParams):
 
     # -- fitting --------------------------------------------------------------------------
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-            t: np.ndarray | None = None, derivative: HowMade = None) -> AutoConstraint:
-        """Choose and fit the constraint model.
+            t: np.ndarray | None = None, derivative: HowMade = None, force: np.ndarray | None = None
+            ) -> AutoConstraint:
+        """Choose and fit the constraint model: from the states and the velocities
+        (:meth:`_fit`), then — with ``force`` (N, 3), the base-frame force of a force/torque
+        sensor — weighed against the contact the force shows (:mod:`.force_evidence`)."""
+        self._fit(X, U, groups=groups, t=t, derivative=derivative)
+        if force is not None:
+            force_evidence.weigh(self, np.asarray(X, float), np.asarray(U, float), groups, t, force)
+        return self
+
+    def _fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+             t: np.ndarray | None = None, derivative: HowMade = None) -> AutoConstraint:
+        """Choose and fit the constraint model from the states and the velocities.
 
         Args:
             X (N, p), U (N, q): states and actions, in time order within each demonstration.
