@@ -564,6 +564,9 @@ def batch(
     workers: Annotated[int | None, typer.Option("--workers", "-j", help="Local processes.",
                                                 show_default="the number of cores")] = None,
     scheduler: Annotated[str | None, typer.Option(help="Address of a running Dask scheduler.")] = None,
+    worker_wait: Annotated[float, typer.Option("--worker-wait", min=0, help="With --scheduler: seconds to "
+                                               "wait for a Dask worker when none is left (then the batch "
+                                               "ends; a rerun resumes it).")] = 30.0,
     force: Annotated[bool, typer.Option("--force", help="Re-run jobs whose outputs are up to date.")] = False,
     allow_outside: Annotated[bool, typer.Option("--allow-outside", help="Let the manifest name paths "
                                                 "outside its folder.")] = False,
@@ -595,7 +598,7 @@ def batch(
     bar = _bar("jobs", len(jobs), quiet)
     try:
         results = run_batch(jobs, outdir, write_run, workers, scheduler, force,
-                            progress=bar.advance if bar else None, pool=pool)
+                            progress=bar.advance if bar else None, pool=pool, worker_wait=worker_wait)
     finally:
         if bar:
             bar.stop()

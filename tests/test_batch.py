@@ -407,3 +407,154 @@ def test_forked_workers_get_their_share_of_the_blas_threads():
 
     if blas.controllable():
         assert json.loads(proc.stdout) == [max(1, (os.cpu_count() or 1) // 2)]
+
+
+# -- a Dask cluster losing workers or its scheduler (os.kill of their pids) ---------------------
+def _ccl_lines(err: str) -> list[str]:
+    return [ln for ln in err.splitlines() if ln.startswith("ccl: ")]
+
+
+def _wait_for_jobs(jobs: Path, n: int, proc: subprocess.Popen, timeout: float = 120) -> None:
+    """Until ``n`` job folders are written (or the batch has ended)."""
+    deadline = time.time() + timeout
+    while time.time() < deadline and proc.poll() is None:
+        if jobs.exists() and len([p for p in jobs.iterdir() if not p.name.startswith(".")]) >= n:
+            return
+        time.sleep(0.02)
+
+
+@pytest.fixture(scope="module")
+def clean_local(recordings, tmp_path_factory):
+    """The ten rec_0* jobs run locally, once: the metrics every Dask rerun must give."""
+    out = tmp_path_factory.mktemp("clean") / "out"
+    proc = subprocess.run([CCL, "batch", "--files", str(recordings / "rec_0*.h5"), "-c",
+                           str(recordings / "pipeline.yaml"), "-o", str(out), "-j", "2", "-q"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    return job_metrics(out)
+
+
+@pytest.mark.parametrize("victim", ["worker", "scheduler"])
+def test_dask_batch_survives_a_killed_worker_or_scheduler(recordings, tmp_path, clean_local, victim):
+    """The only worker (nothing restarts it) or the scheduler SIGKILLed mid-batch: ccl ends
+    within seconds (no hang), exit 1, one line naming what was lost (the worker and the jobs
+    it held; the scheduler), no traceback; a rerun (here: local) completes with the metrics of
+    a clean local run."""
+    import dask_cluster
+
+    cluster, info = dask_cluster.start(1, nanny=False)
+    out = tmp_path / "out"
+    args = [CCL, "batch", "--files", str(recordings / "rec_0*.h5"), "-c", str(recordings / "pipeline.yaml"),
+            "-o", str(out)]
+    try:
+        proc = subprocess.Popen([*args, "--scheduler", info["address"], "--worker-wait", "2"],
+                                stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+        _wait_for_jobs(out / "jobs", 2, proc)
+        assert proc.poll() is None, proc.communicate()[1]
+        (worker, pid), = info["workers"].items()
+        os.kill(info["scheduler_pid"] if victim == "scheduler" else pid, signal.SIGKILL)
+        _, err = proc.communicate(timeout=60)  # a hang fails here
+    finally:
+        dask_cluster.stop(cluster)
+    lines = _ccl_lines(err)
+    assert proc.returncode == 1 and len(lines) == 1 and "Traceback" not in err, err
+    finished = {p.name for p in (out / "jobs").iterdir() if not p.name.startswith(".")}
+    assert 2 <= len(finished) < 10
+    if victim == "worker":
+        named = re.findall(r"rec_0\d_h5-[0-9a-f]{8}", lines[0])
+        assert lines[0].startswith(f"ccl: error: no Dask worker left: worker {worker} lost while running job")
+        assert named and not set(named) & finished, lines[0]  # jobs it held, not finished ones
+    else:
+        assert lines[0].startswith(f"ccl: error: lost the Dask scheduler at {info['address']}")
+    assert f"{10 - len(finished)} " in lines[0] and "run the batch again to resume" in lines[0]
+    again = subprocess.run([*args, "-j", "2", "-q", "--json"], capture_output=True, text=True, timeout=600)
+    summary = json.loads(again.stdout)
+    assert again.returncode == 0 and summary["skipped"] >= len(finished), again.stderr
+    assert summary["ok"] + summary["skipped"] == 10
+    assert not [p for p in (out / "jobs").iterdir() if p.name.startswith(".")]
+    now = job_metrics(out)
+    assert now.keys() == clean_local.keys() and all(values(now[k]) == values(clean_local[k]) for k in now)
+
+
+def test_dask_worker_restarted_by_its_nanny_costs_nothing(capsys, recordings, tmp_path, clean_local):
+    """A worker killed mid-batch and restarted by its nanny: the jobs it held run again on
+    the new worker, one warning line names the lost worker and jobs, every job finishes
+    with the metrics of a local run."""
+    import dask_cluster
+
+    cluster, info = dask_cluster.start(1, nanny=True)
+    out = tmp_path / "out"
+    try:
+        proc = subprocess.Popen([CCL, "batch", "--files", str(recordings / "rec_0*.h5"), "-c",
+                                 str(recordings / "pipeline.yaml"), "-o", str(out), "--scheduler",
+                                 info["address"], "--json"], stderr=subprocess.PIPE, stdout=subprocess.PIPE,
+                                text=True)
+        _wait_for_jobs(out / "jobs", 2, proc)
+        (worker, pid), = info["workers"].items()
+        os.kill(pid, signal.SIGKILL)
+        stdout, err = proc.communicate(timeout=120)
+    finally:
+        dask_cluster.stop(cluster)
+    summary = json.loads(stdout)
+    assert proc.returncode == 0 and summary["ok"] + summary["skipped"] == 10, err
+    warned = [ln for ln in _ccl_lines(err) if "lost" in ln]
+    assert len(warned) == 1 and worker in warned[0] and "retried on another worker" in warned[0], err
+    now = job_metrics(out)
+    assert all(values(now[k]) == values(clean_local[k]) for k in now)
+
+
+def test_a_job_that_keeps_losing_its_worker_is_failed_not_retried_forever(monkeypatch):
+    """The supervisor's bound, on a stand-in cluster: a job whose worker is lost twice is
+    cancelled and failed naming the worker; the other jobs go on."""
+    from ccl_cli.app import dask_jobs
+
+    class Fut:
+        def __init__(self, key):
+            self.key, self.status, self.cancelled = key, "pending", False
+
+        def done(self):
+            return self.status != "pending"
+
+        def result(self):
+            return "done"
+
+        def cancel(self, force=False):
+            self.cancelled = True
+
+        def release(self):
+            pass
+
+    class Client:
+        status = "running"
+
+        def __init__(self):
+            self.futures, self.looks = {}, 0
+            self.scheduler = type("S", (), {"address": "tcp://sched:1"})()
+
+        def submit(self, fn, *args, key, pure):
+            self.futures[key] = Fut(key)
+            return self.futures[key]
+
+        def scheduler_info(self, n_workers=-1):
+            self.looks += 1
+            # look 1: w1 holds job a; 2: w1 lost, w2 holds a; 3: w2 lost, w3 alive; then b finishes
+            alive = {1: ["tcp://w1"], 2: ["tcp://w2"], 3: ["tcp://w3"]}.get(self.looks, ["tcp://w3"])
+            if self.looks >= 4:
+                self.futures["ccl-job-b"].status = "finished"
+            return {"workers": dict.fromkeys(alive)}
+
+        def processing(self):
+            return {1: {"tcp://w1": ["ccl-job-a"]}, 2: {"tcp://w2": ["ccl-job-a"]}}.get(self.looks, {})
+
+        def cancel(self, futures, force=False):
+            pass
+
+    import distributed
+
+    monkeypatch.setattr(distributed, "wait", lambda fs, timeout, return_when: None)
+    client = Client()
+    done, failed = [], []
+    dask_jobs.run_jobs(client, {"a": (print, ()), "b": (print, ())}, lambda j, r: done.append(j),
+                       lambda j, why: failed.append((j, why)), worker_wait=60)
+    assert done == ["b"] and client.futures["ccl-job-a"].cancelled
+    assert failed == [("a", "worker tcp://w2 lost while running job a (2 workers lost with it; not retried)")]

@@ -14,9 +14,9 @@ Manifest (YAML; paths relative to it)::
 Each job writes ``OUT/jobs/<job>/`` exactly as ``ccl run`` would, plus ``job.json`` with its
 content key (sha256 of the input files, the resolved config and the ccl version). A job
 whose folder holds the same key is skipped unless ``force``; folders are written atomically,
-so an interrupted batch resumes where it stopped. Execution goes through one
-``concurrent.futures.Executor``: a process pool locally, or a dask.distributed cluster's
-executor with ``scheduler`` — the same code path.
+so an interrupted batch resumes where it stopped. Each job is one call of :func:`run_job`: on a
+local process pool, or with ``scheduler`` on a dask.distributed cluster whose lost workers and
+scheduler are watched for (:mod:`ccl_cli.app.dask_jobs`).
 """
 
 from __future__ import annotations
@@ -293,21 +293,8 @@ def _ignore_file_size_signal() -> None:
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 
 
-def make_executor(workers: int | None, scheduler: str | None,
-                  preload: tuple[str, ...] = ()) -> tuple[Executor, Any]:
-    """A process pool (workers from the fork server), or the executor of a dask.distributed
-    client at ``scheduler``."""
-    if scheduler:
-        try:
-            from distributed import Client
-        except ImportError:
-            raise ConfigError("--scheduler needs dask.distributed: pip install 'ccl_cli[dask]'") from None
-        _check_reachable(scheduler)
-        try:
-            client = Client(scheduler, timeout="10s")
-        except Exception as exc:
-            raise ConfigError(f"cannot connect to the Dask scheduler at {scheduler} ({exc})") from None
-        return client.get_executor(), client
+def make_executor(workers: int | None, preload: tuple[str, ...] = ()) -> Executor:
+    """The local process pool (workers from the fork server)."""
     from concurrent.futures import ProcessPoolExecutor
 
     from ccl_cli.lifeline import worker_init
@@ -315,24 +302,7 @@ def make_executor(workers: int | None, scheduler: str | None,
     n = workers or os.cpu_count() or 1
     ctx = local_context(n, preload)
     return ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=worker_init,
-                               initargs=(os.getpid(),)), None
-
-
-def _check_reachable(address: str) -> None:
-    """A refused or unresolvable ``tcp://host:port`` scheduler address is a ConfigError at once
-    (dask.distributed would retry it until its connect timeout)."""
-    import socket
-    from urllib.parse import urlsplit
-
-    parts = urlsplit(address if "://" in address else f"tcp://{address}")
-    if parts.scheme != "tcp" or not parts.hostname or parts.port is None:
-        return  # other transports (tls, inproc, ...): left to dask.distributed
-    try:
-        with socket.create_connection((parts.hostname, parts.port), timeout=5):
-            pass
-    except OSError as exc:
-        reason = exc.strerror or type(exc).__name__
-        raise ConfigError(f"cannot connect to the Dask scheduler at {address} ({reason})") from None
+                               initargs=(os.getpid(),))
 
 
 #: modules every worker starts with, imported once (by the fork server, or by this process
@@ -434,7 +404,7 @@ def _forked_init(parent: int, blas_threads: int | None) -> None:
 
 def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = None,
               scheduler: str | None = None, force: bool = False, progress=None,
-              pool: Executor | None = None) -> list[JobResult]:
+              pool: Executor | None = None, worker_wait: float | None = None) -> list[JobResult]:
     """Run ``jobs`` into ``out/jobs/`` over ``workers`` local processes (or the Dask cluster at
     ``scheduler``), each job's folder written by ``write`` (see :func:`run_job`); results in
     the jobs' order. ``progress(result)`` is called as each job ends. ``pool``: local workers
@@ -443,7 +413,10 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
     ``out`` must be new, empty, or a batch folder ccl made (:func:`~ccl_cli.io.atomic.claim_folder`):
     a user's folder is refused untouched. A job whose folder cannot be written (a full disk,
     a file-size limit) stops the batch: :class:`OutputError`, and what this run left empty
-    is removed (:func:`~ccl_cli.io.atomic.release_folder`)."""
+    is removed (:func:`~ccl_cli.io.atomic.release_folder`). On Dask, a lost worker costs the
+    jobs it held (retried elsewhere, then failed), a lost scheduler or no worker left for
+    ``worker_wait`` seconds ends the batch with one line (:mod:`ccl_cli.app.dask_jobs`); the
+    jobs that finished are kept for a rerun."""
     from ccl_cli.io.atomic import claim_folder, clean_stale, release_folder
 
     try:
@@ -464,36 +437,72 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
     removed = clean_stale(jobs_dir, every=True)
     if removed:
         log.info("removed %d unfinished job folder(s) of an interrupted batch", removed)
-    executor, client = (pool, None) if pool is not None else \
-        make_executor(workers, scheduler, (write.__module__,))
+    by_id = {job.job_id: job for job in jobs}
     results: list[JobResult] = []
+
+    def ended(res: JobResult) -> None:
+        results.append(res)
+        if progress is not None:
+            progress(res)
+        if res.output_fault:  # the disk is full or a size limit hit: every job would fail
+            raise OutputError(res.error)
+
+    def failed(job_id: str, reason: str) -> None:
+        job = by_id[job_id]
+        ended(JobResult(job.job_id, job.files, "failed", 0.0, reason, 1))
+
     try:
-        futures = {executor.submit(run_job, job, str(jobs_dir.resolve()), force, write): job for job in jobs}
+        args = (str(jobs_dir.resolve()), force, write)
+        if scheduler:
+            _on_dask(scheduler, {j.job_id: (run_job, (j, *args)) for j in jobs}, ended, failed, worker_wait)
+        else:
+            _on_pool(pool or make_executor(workers, (write.__module__,)), jobs, args, ended, failed)
+    except BaseException as exc:  # Ctrl-C or a failure here: do not wait for the running jobs
+        _kill_workers()
+        clean_stale(jobs_dir, every=True)
+        release_folder(out, fault=isinstance(exc, OutputError))
+        raise
+    clean_stale(jobs_dir, every=True)  # temporaries of processes that were still dying at the start
+    order = {j.job_id: i for i, j in enumerate(jobs)}
+    return sorted(results, key=lambda r: order[r.job_id])
+
+
+def _on_pool(executor: Executor, jobs: list[Job], args: tuple, ended: Callable[[JobResult], None],
+             failed: Callable[[str, str], None]) -> None:
+    """The jobs on a local process pool; ``ended`` / ``failed`` as each one ends."""
+    try:
+        futures = {executor.submit(run_job, job, *args): job for job in jobs}
         for fut in as_completed(futures):
             job = futures[fut]
             try:
                 res = fut.result()
             except Exception as exc:  # a worker died
-                res = JobResult(job.job_id, job.files, "failed", 0.0, f"worker failed: {exc}", 1)
-            results.append(res)
-            if progress is not None:
-                progress(res)
-            if res.output_fault:  # the disk is full or a size limit hit: every job would fail
-                raise OutputError(res.error)
-    except BaseException as exc:  # Ctrl-C or a failure here: do not wait for the running jobs
+                failed(job.job_id, f"worker failed: {exc}")
+            else:
+                ended(res)
+    except BaseException:
         executor.shutdown(wait=False, cancel_futures=True)
-        _kill_workers()
-        clean_stale(jobs_dir, every=True)
-        release_folder(out, fault=isinstance(exc, OutputError))
         raise
-    else:
-        executor.shutdown(wait=True)
+    executor.shutdown(wait=True)
+
+
+def _on_dask(scheduler: str, tasks: dict[str, tuple[Callable, tuple]], ended: Callable[[JobResult], None],
+             failed: Callable[[str, str], None], worker_wait: float | None) -> None:
+    """The jobs on the Dask cluster at ``scheduler``, watched (:func:`~ccl_cli.app.dask_jobs.run_jobs`)."""
+    from ccl_cli.app import dask_jobs
+
+    restore = dask_jobs.quiet_dask()
+    client = None
+    try:
+        client = dask_jobs.connect(scheduler)
+        dask_jobs.run_jobs(client, tasks, lambda _, res: ended(res), failed,
+                           dask_jobs.WORKER_WAIT if worker_wait is None else worker_wait)
     finally:
-        if client is not None:
-            client.close()
-    clean_stale(jobs_dir, every=True)  # temporaries of processes that were still dying at the start
-    order = {j.job_id: i for i, j in enumerate(jobs)}
-    return sorted(results, key=lambda r: order[r.job_id])
+        with contextlib.suppress(Exception):  # a lost scheduler: nothing left to close
+            if client is not None:
+                client.close(timeout=5)
+        if client is None or str(client.status) == "closed":
+            restore()
 
 
 def _kill_workers() -> None:
