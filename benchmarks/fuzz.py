@@ -41,6 +41,7 @@ import os
 import random
 import shutil
 import signal
+import struct
 import subprocess
 import sys
 import tempfile
@@ -528,6 +529,29 @@ def long_line(raw: bytes, rng: random.Random) -> tuple[str, bytes]:
     k = rng.randrange(1, max(2, len(lines) - 1))
     lines[k] = lines[k] + b"9" * 1_500_000
     return "long:cell", b"\n".join(lines)
+
+
+#: positions a damaged ROS 1 bag may declare: past the end, beyond any seek, "negative"
+#: (a small unsigned value's two's complement), inside the magic, zero
+ROS1_POSITIONS = ["past-end", "beyond-seek", "max", "negative", "in-magic", "zero", "at-end"]
+
+
+def ros1_positions(raw: bytes, rng: random.Random) -> tuple[str, bytes]:
+    """A ROS 1 bag with one declared position rewritten: a chunk info record's chunk_pos,
+    or the bag header's index_pos."""
+    fields = [(name, at + len(name)) for name in (b"chunk_pos=", b"index_pos=")
+              for at in _find_all(raw, name)]
+    if not fields:
+        return byte_mutation(raw, rng)
+    name, at = rng.choice(fields)
+    kind = rng.choice(ROS1_POSITIONS)
+    value = {"past-end": len(raw) + rng.randrange(1, 1 << 20),
+             "beyond-seek": (1 << 63) + rng.randrange(1 << 20), "max": (1 << 64) - 1,
+             "negative": (1 << 64) - rng.randrange(1, 4096), "in-magic": rng.randrange(1, 13),
+             "zero": 0, "at-end": len(raw)}[kind]
+    b = bytearray(raw)
+    struct.pack_into("<Q", b, at, value)
+    return f"ros1-position:{name.decode().rstrip('=')}:{kind}", bytes(b)
 
 
 def outside_manifest(target: Path, rng: random.Random) -> str:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import time
 from pathlib import Path
 
@@ -425,6 +426,107 @@ def test_ros2_metadata_with_odd_types(capsys, tmp_path, edit):
             assert code == 2 and "nested deeper than 64 levels" in err
         if edit.startswith(("paths", "files")):  # the storage file names, checked before rosbags opens
             assert code == 2 and ("storage file name must be" in err or "must be lists" in err), err
+
+
+WIDE = "9" * 5000  # over Python's 4,300-digit limit of int(str)
+
+
+@pytest.mark.parametrize("where", ["config", "config_nested", "config_list", "manifest", "metadata",
+                                   "model_params", "model_fitted", "job_record"])
+def test_integers_beyond_64_bits_are_one_line(capsys, fixtures, tmp_path, where):
+    """A 5,000-digit integer in a config, a manifest, a ROS 2 bag's metadata.yaml or a model's
+    JSON attribute: exit 2, one line naming the file, the key and the line (it was an internal
+    ValueError from int() of > 4,300 digits); refused at parse time, never converted."""
+    import sys
+
+    import yaml
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    import writers
+
+    cfg = tmp_path / "c.yaml"
+    if where.startswith("config"):
+        cfg.write_text({"config": f"seed: {WIDE}\n",
+                        "config_nested": f"seed: 1\ndata:\n  test:\n    seed: {WIDE}\n",
+                        "config_list": f"learn-a:\n  grid: {{n_centres: [1, -{WIDE}]}}\n"}[where])
+        key = {"config": "seed", "config_nested": "data.test.seed",
+               "config_list": "learn-a.grid.n_centres[1]"}[where]
+        line = {"config": 1, "config_nested": 4, "config_list": 2}[where]
+        code, _, err = run_main(capsys, "learn-a", fixtures["data"], "-c", cfg, "-o", tmp_path / "o")
+        assert code == 2 and f"c.yaml:{line}: {key} is an integer of 5000 digits" in one_line_error(err)
+    elif where == "manifest":
+        manifest = tmp_path / "m.yaml"
+        manifest.write_text(f"jobs:\n  - files: [x.h5]\n    overrides: {{seed: {WIDE}}}\n")
+        code, _, err = run_main(capsys, "batch", manifest, "-o", tmp_path / "b")
+        assert code == 2 and "m.yaml:3: jobs[0].overrides.seed is an integer of 5000 digits" \
+            in one_line_error(err)
+    elif where == "metadata":
+        bag = writers.write_ros2_bag(tmp_path / "bag", writers.joint_recording(n=20))
+        text = (bag / "metadata.yaml").read_text()
+        count = yaml.safe_load(text)["rosbag2_bagfile_information"]["message_count"]
+        text = text.replace(f"message_count: {count}", f"message_count: {WIDE}", 1)
+        (bag / "metadata.yaml").write_text(text)
+        cfg.write_text("data:\n  state: {topic: /joint_states, field: position}\n")
+        for command in (["inspect", bag], ["convert", bag, "-o", tmp_path / "o.h5", "-c", cfg]):
+            code, _, err = run_main(capsys, *command)
+            assert code == 2 and re.search(r"metadata.yaml:\d+: rosbag2_bagfile_information\..*message_count "
+                                           "is an integer of 5000 digits", one_line_error(err)), err
+    elif where == "job_record":  # a tampered job.json: the job runs again instead of failing
+        data = copy(fixtures["data"], tmp_path / "toy.h5")
+        cfg.write_text("stages: [learn-a]\noutput: {plots: false}\ndata: {test: {fraction: 0}}\n")
+        args = ["batch", "--files", data, "-c", cfg, "-o", tmp_path / "b", "-j", "1", "--json", "-q"]
+        assert run_main(capsys, *args)[0] == 0
+        record = next((tmp_path / "b" / "jobs").iterdir()) / "job.json"
+        record.write_text(f'{{"key": {WIDE}}}')
+        code, out, err = run_main(capsys, *args)
+        assert code == 0 and json.loads(out)["ok"] == 1, err
+    else:
+        model = copy(fixtures["model"], tmp_path / "m.h5")
+        attr = where.split("_")[1]
+        with h5py.File(model, "a") as f:
+            value = json.loads(f.attrs[attr])
+            first = next(iter(value))
+            f.attrs[attr] = json.dumps({**value, first: 0}, indent=1).replace(": 0", f": {WIDE}", 1)
+        for command in (["predict", model, fixtures["data"], "-o", tmp_path / "p.csv"], ["inspect", model]):
+            code, _, err = run_main(capsys, *command)
+            assert code == 2 and f"attribute '{attr}' line 2: {first} is an integer of 5000 digits" \
+                in one_line_error(err)
+
+
+@pytest.mark.parametrize("text,match", [
+    ("seed: 1\nseed: 2\n", "c.yaml:2: duplicate key 'seed' at the top level (lines 1 and 2)"),
+    ("data:\n  test: {fraction: 0.2}\n  state: {columns: [x]}\n  test: {seed: 3}\n",
+     "c.yaml:4: duplicate key 'test' in data (lines 2 and 4)"),
+    ("stages:\n  - learn-a: {method: nhat, method: alpha}\n",
+     "c.yaml:2: duplicate key 'method' in stages[0].learn-a (lines 2 and 2)"),
+])
+def test_duplicate_yaml_keys_are_refused_naming_both_lines(capsys, fixtures, tmp_path, text, match):
+    """PyYAML keeps the last of two equal keys silently; a config saying two things is refused."""
+    (tmp_path / "c.yaml").write_text(text)
+    code, _, err = run_main(capsys, "learn-a", fixtures["data"], "-c", tmp_path / "c.yaml", "-o",
+                            tmp_path / "o")
+    assert code == 2 and match in one_line_error(err)
+
+
+def test_a_key_bomb_is_refused_before_it_is_built(capsys, fixtures, tmp_path):
+    """A 3.4-MB config of 200,000 keys: refused while only the parser's events are walked —
+    no node built (it was refused after composing 400,003 nodes: 22–50 s and ~370 MB)."""
+    import tracemalloc
+
+    from ccl_cli import config as C
+
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text("data:\n" + "".join(f"  k{i:06d}: {i}\n" for i in range(200_000)))
+    assert bomb.stat().st_size > 3.4e6
+    tracemalloc.start()
+    t0 = cpu_seconds()
+    with pytest.raises(C.ConfigError, match=r"bomb.yaml:50000: config has more than 100000 values"):
+        C.load(bomb)
+    seconds, peak = cpu_seconds() - t0, tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 60e6 and seconds < 3, (peak, seconds)  # the text and its decoding, no nodes
+    code, _, err = run_main(capsys, "learn-a", fixtures["data"], "-c", bomb)
+    assert code == 2 and "key or alias bomb" in one_line_error(err)
 
 
 # -- never lose data ---------------------------------------------------------------------------

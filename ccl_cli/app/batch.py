@@ -238,14 +238,11 @@ def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
         key = job_key(job.files, job.config)
         marker = outdir / "job.json"
         if not force and marker.exists():
-            try:
-                if json.loads(marker.read_text()).get("key") == key:
-                    stages = json.loads((outdir / "metrics.json").read_text())
-                    from ccl_cli.app.run import summarise
+            done = _recorded(marker, outdir / "metrics.json", key)
+            if done is not None:
+                from ccl_cli.app.run import summarise
 
-                    return JobResult(job.job_id, job.files, "skipped", 0.0, stages=summarise(stages))
-            except (json.JSONDecodeError, OSError):
-                pass
+                return JobResult(job.job_id, job.files, "skipped", 0.0, stages=summarise(done))
         cfg = config.from_mapping(job.config, source=job.config_path or "<batch>")
         from ccl_cli.app.run import execute
 
@@ -262,6 +259,20 @@ def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
         first = str(exc).splitlines()[0] if str(exc) else ""
         return JobResult(job.job_id, job.files, "failed", time.perf_counter() - t0,
                          f"internal error: {type(exc).__name__}: {first}", 1)
+
+
+def _recorded(marker: Path, metrics: Path, key: str) -> dict[str, Any] | None:
+    """The metrics of a job folder whose ``job.json`` records ``key`` (it is up to date);
+    None when it records another key or either file is unreadable (the job runs again)."""
+    from ccl_cli.io.jsonsafe import loads
+
+    try:
+        record = loads(marker.read_bytes(), str(marker))
+        stages = loads(metrics.read_bytes(), str(metrics)) if isinstance(record, dict) and \
+            record.get("key") == key else None
+    except (CCLError, OSError):
+        return None
+    return stages if isinstance(stages, dict) else None
 
 
 #: what a batch folder of a ccl version before the .ccl-output marker holds

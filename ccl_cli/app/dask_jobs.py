@@ -175,7 +175,7 @@ def _ended(client: Any, address: str, keys: dict[str, str], futures: dict[str, A
     elif fut.status == "error":
         on_failure(keys[key], _cluster_failure(keys[key], fut.exception(), watch))
     else:  # cancelled: by us, or by a client that lost its scheduler
-        _check_scheduler(client, address, keys, futures, key)
+        _check_scheduler(client, address)
         on_failure(keys[key], "cancelled by the Dask cluster")
     fut.release()
 
@@ -197,15 +197,12 @@ def _status(client: Any) -> str:
     return str(getattr(client, "status", "running"))
 
 
-def _check_scheduler(client: Any, address: str, keys: dict[str, str], futures: dict[str, Any],
-                     key: str | None = None) -> None:
+def _check_scheduler(client: Any, address: str) -> None:
     """ClusterLost when the client is not connected to its scheduler (a future was cancelled
     meanwhile: the client cancels every future when the connection drops)."""
     if _status(client) != "running":
-        left = len(futures) + (key is not None)
-        raise ClusterLost(f"lost the Dask scheduler at {address} (the connection closed and did not "
-                          f"come back); {left} job(s) not finished: run the batch again to resume "
-                          "(finished jobs are kept)")
+        raise ClusterLost(f"lost the Dask scheduler at {address} (its connection closed); the jobs that "
+                          "finished keep their folders: run the batch again to resume the others")
 
 
 def _look(client: Any, address: str, keys: dict[str, str], futures: dict[str, Any], watch: _Watch,
@@ -213,7 +210,7 @@ def _look(client: Any, address: str, keys: dict[str, str], futures: dict[str, An
     """One look at the cluster between polls: workers alive, the jobs each holds; losses
     counted per job (a job over :data:`MAX_LOSSES` cancelled and failed); the wait for a
     worker when none is left."""
-    _check_scheduler(client, address, keys, futures)  # not connected (reconnecting, or closed)
+    _check_scheduler(client, address)  # not connected (reconnecting, or closed)
     try:
         alive = set(client.scheduler_info(n_workers=-1)["workers"])
         processing = client.processing()

@@ -17,7 +17,7 @@ import numpy as np
 from ccl_cli.errors import InputError
 from ccl_cli.io.layouts import FixedTopic, NotFixed, fixed_topic
 from ccl_cli.io.library_errors import library_call, library_iter
-from ccl_cli.io.limits import check_claim, open_regular
+from ccl_cli.io.limits import check_claim, check_span, open_regular
 from ccl_cli.io.messages import TopicReader, finish_topics, read_topics, short_type
 from ccl_cli.io.options import StreamOptions
 from ccl_cli.io.sniff import MCAP_MAGIC
@@ -61,9 +61,14 @@ class McapReader(TopicReader):
         summary = library_call(where, "read MCAP", reader.get_summary)
         if summary is None:
             raise InputError(f"{where}: MCAP has no summary (truncated?)")
-        for index in summary.chunk_indexes:  # what each chunk decompresses to, before it is read
-            check_claim(where, f"the chunk at byte {index.chunk_start_offset}",
-                        max(int(index.uncompressed_size), int(index.chunk_length)), 1)
+        size = os.fstat(f.fileno()).st_size
+        for index in summary.chunk_indexes:  # where each chunk lies, and what it decompresses to
+            what = f"the chunk at byte {index.chunk_start_offset}"
+            start = int(index.chunk_start_offset)
+            check_span(where, what, start, start + int(index.chunk_length), size)
+            check_claim(where, what, max(int(index.uncompressed_size), int(index.chunk_length)), 1)
+            for cid, offset in index.message_index_offsets.items():
+                check_span(where, f"the message index of channel {cid}", int(offset), int(offset), size)
         return reader, summary
 
     def listing(self) -> dict[str, Any]:
