@@ -148,11 +148,26 @@ def _root(version: Annotated[bool, typer.Option("--version", callback=_version, 
 _QUIET = [False]  # set by every command through _logging: -q silences the summaries too
 
 
+def shown(text: str) -> str:
+    """``text`` as it can be printed: the bytes of a file name that is not UTF-8 (held as
+    surrogate escapes, ``os.fsdecode``) shown as ``\\xNN``."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+class _Shown(logging.Formatter):
+    """'ccl: message', with :func:`shown` file names."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return shown(super().format(record))
+
+
 def _logging(quiet: bool) -> None:
     _QUIET[0] = quiet
     progress.install(progress.terminal_hook(quiet))  # long reads: a bar on a terminal, not with -q
     level = logging.WARNING if quiet else logging.INFO
     logging.basicConfig(level=level, format="ccl: %(message)s", stream=sys.stderr, force=True)
+    for handler in logging.root.handlers:
+        handler.setFormatter(_Shown("ccl: %(message)s"))
 
 
 def _common(seed, test_fraction, convention) -> dict[str, Any]:
@@ -174,7 +189,7 @@ def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
         sys.stdout.write(text.json_line(summary))
         return
     for line in text.summary_lines(summary, quiet or _QUIET[0]):
-        typer.echo(line, err=True)
+        typer.echo(shown(line), err=True)
 
 
 def _wrote(command: str, out: Path, data, as_json: bool) -> None:
@@ -183,7 +198,7 @@ def _wrote(command: str, out: Path, data, as_json: bool) -> None:
         _emit({"status": "ok", "command": command, "out": str(out), "samples": data.n_samples,
                "demos": data.n_demos}, True)
     elif not _QUIET[0]:
-        typer.echo(f"wrote {out}: {data.n_samples} samples in {data.n_demos} demonstrations", err=True)
+        typer.echo(shown(f"wrote {out}: {data.n_samples} samples in {data.n_demos} demonstrations"), err=True)
 
 
 def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
@@ -439,7 +454,7 @@ def predict(
     if json_out:
         _emit(summary, True)
     elif not quiet:
-        typer.echo(f"wrote {out} ({dataset.n_samples} samples)", err=True)
+        typer.echo(shown(f"wrote {out} ({dataset.n_samples} samples)"), err=True)
         if summary.get("note"):
             typer.echo(f"note: {summary['note']}", err=True)
 
@@ -607,10 +622,10 @@ def batch(
     if json_out:
         _emit({k: v for k, v in summary.items() if k != "results"}, True)
     elif not quiet or summary["failed"]:
-        typer.echo(f"{summary['jobs']} jobs: {summary['ok']} ran, {summary['skipped']} skipped, "
-                   f"{summary['failed']} failed; summary in {outdir / 'summary.md'}", err=True)
+        typer.echo(shown(f"{summary['jobs']} jobs: {summary['ok']} ran, {summary['skipped']} skipped, "
+                         f"{summary['failed']} failed; summary in {outdir / 'summary.md'}"), err=True)
         for f in summary["failures"]:
-            typer.echo(f"  failed {f['job']}: {f['error']}", err=True)
+            typer.echo(shown(f"  failed {f['job']}: {f['error']}"), err=True)
     return 1 if summary["failed"] else 0
 
 
@@ -641,6 +656,12 @@ def main(argv: list[str] | None = None) -> int:
 
     import ccl_cli
 
+    reconfigure = getattr(sys.stdout, "reconfigure", None)
+    if reconfigure is not None:
+        try:  # a file name that is not UTF-8 is printed as its own bytes (as ls prints it)
+            reconfigure(errors="surrogateescape")
+        except (ValueError, OSError):
+            pass
     try:
         if signal.getsignal(signal.SIGINT) is ccl_cli._interrupted_while_starting:
             signal.signal(signal.SIGINT, signal.default_int_handler)  # from here on: KeyboardInterrupt
@@ -658,7 +679,7 @@ def main(argv: list[str] | None = None) -> int:
         typer.echo("ccl: interrupted; no partial outputs were left", err=True)
         return 130
     except CCLError as exc:
-        typer.echo(f"ccl: error: {exc.message}", err=True)
+        typer.echo(f"ccl: error: {shown(exc.message)}", err=True)
         if not getattr(exc, "summarised", False):
             _json_error(argv, exc.exit_code, type(exc).__name__, exc.message)
         return exc.exit_code
@@ -674,7 +695,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         first = str(exc).splitlines()[0] if str(exc) else ""
         message = f"internal error: {type(exc).__name__}: {first}"
-        typer.echo(f"ccl: {message} (set CCL_DEBUG=1 for a traceback)", err=True)
+        typer.echo(f"ccl: {shown(message)} (set CCL_DEBUG=1 for a traceback)", err=True)
         _json_error(argv, 1, "InternalError", message)
         return 1
 

@@ -100,7 +100,8 @@ def job_key(files: list[str], cfg: dict[str, Any]) -> str:
 
 def _job_id(files: list[str]) -> str:
     stem = Path(files[0]).name.replace(".", "_") if len(files) == 1 else f"group_{Path(files[0]).parent.name}"
-    digest = hashlib.sha256("\n".join(sorted(map(str, files))).encode()).hexdigest()[:8]
+    names = "\n".join(sorted(map(str, files))).encode("utf-8", "surrogateescape")  # any bytes a name holds
+    digest = hashlib.sha256(names).hexdigest()[:8]
     return f"{stem}-{digest}"
 
 
