@@ -313,21 +313,25 @@ def test_manifest_paths_stay_in_its_folder(capsys, recordings, tmp_path, edit):
     assert code == 0 and summary["ok"] >= 1, err
 
 
-def test_batch_folder_of_an_earlier_version_is_resumed(capsys, recordings, tmp_path):
-    """A batch folder written before the .ccl-output marker (jobs/ and summaries only, each
-    job folder ccl's) is still ccl's: resumed, not refused."""
+def test_batch_folder_of_an_earlier_version_is_refused_with_a_hint(capsys, recordings, tmp_path):
+    """A batch folder without the .ccl-output marker (as a ccl before the marker left it, or
+    anything made to look like one: jobs/ and summaries, run.json files) is not ccl's: refused
+    untouched, with a one-line hint to remove it; with the marker it is resumed."""
     out = tmp_path / "old"
     one = ["--files", recordings / "rec_00.h5", "-c", recordings / "pipeline.yaml", "-j", 1, "-o", out]
     code, summary, err = batch(capsys, *one)
     assert code == 0 and summary["ok"] == 1, err
-    (out / ".ccl-output").unlink()  # as an earlier version left it
-    code, summary, err = batch(capsys, *one)
+    code, summary, err = batch(capsys, *one)  # marked: resumed
     assert code == 0 and summary["skipped"] == 1, err
-    (out / ".ccl-output").unlink()
-    (out / "notes.txt").write_text("mine\n")  # anything else: not a batch folder
+    (out / ".ccl-output").unlink()  # as an earlier version left it
+    before = sorted(str(p) for p in out.rglob("*"))
+    code, _, err = batch(capsys, *one)
+    assert code == 2 and err.count("\n") == 1 and "holds files ccl did not write" in err
+    assert "the batch folder of an earlier ccl" in err and "remove it yourself" in err
+    assert sorted(str(p) for p in out.rglob("*")) == before
+    (out / ".ccl-output").write_text('{"written_by": "someone"}')  # a look-alike marker
     code, _, err = batch(capsys, *one)
     assert code == 2 and "holds files ccl did not write" in err
-    assert (out / "notes.txt").read_text() == "mine\n"
 
 
 def test_summary_figure_names_each_job_without_its_key_hash():
@@ -560,3 +564,30 @@ def test_a_job_that_keeps_losing_its_worker_is_failed_not_retried_forever(monkey
                        lambda j, why: failed.append((j, why)), worker_wait=60)
     assert done == ["b"] and client.futures["ccl-job-a"].cancelled
     assert failed == [("a", "worker tcp://w2 lost while running job a (2 workers lost with it; not retried)")]
+
+
+def test_batch_as_an_unprivileged_user_never_writes_into_a_users_folder(recordings):
+    """As the user nobody, into a folder another user made world-writable: refused, every
+    file as it was; into a new folder: the batch runs."""
+    from tests_paths import as_nobody, shared_folder
+
+    prefix = as_nobody()
+    root = shared_folder()
+    try:
+        for name in ("rec_00.h5", "pipeline.yaml"):
+            shutil.copy(recordings / name, root / name)
+            (root / name).chmod(0o644)
+        user = root / "user"
+        user.mkdir()
+        user.chmod(0o777)
+        (user / "summary.md").write_text("mine\n")
+        args = [*prefix, CCL, "batch", "--files", str(root / "rec_00.h5"), "-c", str(root / "pipeline.yaml"),
+                "-j", "1", "-q"]
+        proc = subprocess.run([*args, "-o", str(user)], capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 2 and "holds files ccl did not write" in proc.stderr, proc.stderr
+        assert [p.name for p in user.iterdir()] == ["summary.md"]
+        assert (user / "summary.md").read_text() == "mine\n"
+        proc = subprocess.run([*args, "-o", str(root / "new")], capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+    finally:
+        shutil.rmtree(root, ignore_errors=True)

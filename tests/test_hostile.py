@@ -537,6 +537,7 @@ def test_force_never_replaces_a_folder_ccl_did_not_write(capsys, fixtures, tmp_p
     (mine / "metrics.json").write_text("{}")  # looks a bit like an output, still not ours
     code, _, err = run_main(capsys, "learn-v", fixtures["data"], "-o", mine, "--force", "-q")
     assert code == 2 and "was not written by ccl" in one_line_error(err)
+    assert "remove it yourself" in err and "holds a run.json" not in err
     assert (mine / "chapter1.tex").read_text() == "years of work"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["thesis"]
     afile = tmp_path / "notes.txt"
@@ -549,6 +550,76 @@ def test_force_never_replaces_a_folder_ccl_did_not_write(capsys, fixtures, tmp_p
         code, _, err = run_main(capsys, "learn-v", fixtures["data"], "-o", out, "--force", "-q")
         assert code == 0, err
     assert (out / ".ccl-output").is_file()
+
+
+@pytest.mark.parametrize("marker", [None, "empty", "other", "symlink", "fifo", "folder"])
+def test_force_never_replaces_a_folder_holding_a_look_alike_run_json(capsys, fixtures, tmp_path, marker):
+    """A user's folder holding a run.json with command and versions (what ccl's outputs held
+    before the marker; any tool may write one), with or without a .ccl-output that is not
+    ccl's: --force refuses it in one line naming the hint, every file intact (it was deleted)."""
+    mine = tmp_path / "results"
+    mine.mkdir()
+    files = {"run.json": json.dumps({"command": "my-tool", "versions": {"my-tool": "1.0"}}),
+             "data.csv": "1,2,3\n", "notes.md": "two years of notes\n"}
+    for name, text in files.items():
+        (mine / name).write_text(text)
+    outside = tmp_path / "elsewhere.json"
+    outside.write_text(json.dumps({"written_by": "ccl"}))
+    if marker == "empty":
+        (mine / ".ccl-output").write_text("")
+    elif marker == "other":
+        (mine / ".ccl-output").write_text(json.dumps({"written_by": "another tool"}))
+    elif marker == "symlink":  # ccl's content, but not a file of the folder
+        (mine / ".ccl-output").symlink_to(outside)
+    elif marker == "fifo":
+        os.mkfifo(mine / ".ccl-output")
+    elif marker == "folder":
+        (mine / ".ccl-output").mkdir()
+    code, _, err = run_main(capsys, "learn-a", fixtures["data"], "-o", mine, "--force", "-q")
+    line = one_line_error(err)
+    assert code == 2 and "--force replaces only folders ccl marked" in line
+    assert "holds a run.json but no .ccl-output marker of ccl's" in line and "remove it yourself" in line
+    assert {p.name: p.read_text() for p in mine.iterdir() if p.is_file() and not p.is_symlink()
+            and p.name != ".ccl-output"} == files
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere.json", "results"]
+
+
+def test_force_as_an_unprivileged_user(fixtures):
+    """As the user nobody (where permissions matter): an output nobody wrote is replaced with
+    --force; a look-alike folder, and one whose marker nobody cannot read, are refused with
+    every file intact."""
+    import shutil
+    import subprocess
+
+    from tests_paths import CCL, as_nobody, shared_folder
+
+    prefix = as_nobody()
+    root = shared_folder()
+    try:
+        data = copy(fixtures["data"], root / "toy.h5")
+        data.chmod(0o644)
+
+        def ccl(*args):
+            proc = subprocess.run([*prefix, CCL, *map(str, args), "-q"], capture_output=True, text=True,
+                                  timeout=300, cwd=root)
+            return proc.returncode, proc.stderr
+
+        code, err = ccl("learn-a", data, "-o", root / "out")
+        assert code == 0, err
+        code, err = ccl("learn-a", data, "-o", root / "out", "--force")
+        assert code == 0, err
+        mine = root / "mine"
+        mine.mkdir()
+        (mine / "run.json").write_text(json.dumps({"command": "x", "versions": {}}))
+        (mine / "keep.txt").write_text("mine")
+        (mine / ".ccl-output").write_text(json.dumps({"written_by": "ccl"}))
+        (mine / ".ccl-output").chmod(0o000)  # a marker this user cannot read is no marker
+        mine.chmod(0o777)
+        code, err = ccl("learn-a", data, "-o", mine, "--force")
+        assert code == 2 and "--force replaces only folders ccl marked" in one_line_error(err)
+        assert (mine / "keep.txt").read_text() == "mine" and (mine / "run.json").exists()
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
 
 
 def test_stale_temporaries_of_a_killed_run_are_removed(capsys, fixtures, tmp_path):

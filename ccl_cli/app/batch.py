@@ -281,9 +281,11 @@ BATCH_FILES = {"jobs", "summary.csv", "summary.md", "summary.json", "summary.png
 
 
 def written_by_earlier_batch(path: Path) -> bool:
-    """True for a batch folder of an earlier ccl (no marker): nothing but ``jobs/`` and the
-    summaries, every job folder one ccl wrote (:func:`~ccl_cli.io.atomic.written_by_ccl`)."""
-    from ccl_cli.io.atomic import is_temporary, written_by_ccl
+    """True for what looks like the batch folder of an earlier ccl (no marker): nothing but
+    ``jobs/`` and the summaries, every job folder holding a run.json like ccl's
+    (:func:`~ccl_cli.io.atomic.looks_like_an_output`). Only a hint: such a folder is refused
+    like any other folder ccl did not mark (any tool may write such files)."""
+    from ccl_cli.io.atomic import is_temporary, looks_like_an_output
 
     try:
         names = {p.name for p in path.iterdir()}
@@ -291,7 +293,7 @@ def written_by_earlier_batch(path: Path) -> bool:
     except OSError:
         return False
     return "jobs" in names and names <= BATCH_FILES and bool(jobs) and \
-        all(p.is_dir() and not p.is_symlink() and written_by_ccl(p) for p in jobs)
+        all(p.is_dir() and not p.is_symlink() and looks_like_an_output(p) for p in jobs)
 
 
 def _ignore_file_size_signal() -> None:
@@ -422,7 +424,7 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
     the jobs' order. ``progress(result)`` is called as each job ends. ``pool``: local workers
     already started (:func:`fork_workers`), shut down here whatever happens.
 
-    ``out`` must be new, empty, or a batch folder ccl made (:func:`~ccl_cli.io.atomic.claim_folder`):
+    ``out`` must be new, empty, or a batch folder ccl marked (:func:`~ccl_cli.io.atomic.claim_folder`):
     a user's folder is refused untouched. A job whose folder cannot be written (a full disk,
     a file-size limit) stops the batch: :class:`OutputError`, and what this run left empty
     is removed (:func:`~ccl_cli.io.atomic.release_folder`). On Dask, a lost worker costs the
