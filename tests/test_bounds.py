@@ -289,6 +289,23 @@ def test_bag_storage_outside_its_folder_needs_allow_outside(tmp_path, caplog):
     refused(cfg, rf"names '../elsewhere/{store.name}', which leads to {store}, outside")
 
 
+def test_a_symlinked_metadata_yaml_leading_outside_the_bag_needs_allow_outside(tmp_path, capsys):
+    """A ROS 2 bag whose metadata.yaml is a symlink to a file elsewhere: refused like a
+    storage file outside the bag (it was followed silently), read with data.allow_outside."""
+    rec = writers.joint_recording(n=40)
+    bag = writers.write_ros2_bag(tmp_path / "bag", rec, "sqlite3")
+    reference = load_demonstrations({"files": [str(bag)], "state": JOINTS})
+    outside = tmp_path / "meta.yaml"
+    outside.write_bytes((bag / "metadata.yaml").read_bytes())
+    (bag / "metadata.yaml").unlink()
+    (bag / "metadata.yaml").symlink_to(outside)
+    cfg = {"files": [str(bag)], "state": JOINTS}
+    refused(cfg, f"leads through a symlink to {outside}, outside .*data.allow_outside: true allows it")
+    assert main(["inspect", str(bag)]) == 2 and "outside" in capsys.readouterr().err
+    data = load_demonstrations({**cfg, "allow_outside": True})
+    np.testing.assert_array_equal(data.X, reference.X)
+
+
 # -- the probe fails closed ----------------------------------------------------------------------
 def test_probe_refuses_a_file_whose_attribute_table_cannot_be_read(tmp_path, monkeypatch):
     """libhdf5 failing while the probe iterates an attribute table (as on the damaged model

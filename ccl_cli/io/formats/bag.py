@@ -85,6 +85,15 @@ def storage_files(root: Path, metadata: Any, allow_outside: bool = False) -> lis
     return out
 
 
+def bag_metadata(root: Path, allow_outside: bool = False) -> Any:
+    """A ROS 2 bag's metadata.yaml, read by ccl's bounded YAML parser (rosbags' is not bounded);
+    a metadata.yaml that is a symlink leading outside the bag folder is refused unless
+    ``allow_outside``, as a storage file would be."""
+    inside(root, BAG2_METADATA, f"the bag {root}", allow_outside)
+    metadata, _ = read_yaml(root / BAG2_METADATA, "ROS 2 bag metadata", error=InputError)
+    return metadata
+
+
 def _count(value, where: str) -> int:
     """A count or time from bag metadata (metadata.yaml can hold anything)."""
     if value is None:
@@ -107,7 +116,7 @@ class BagReader(TopicReader):
         root = bag_root(self.path)
         if root.is_dir():
             # bounded first (size, depth, aliases): rosbags' YAML parser is not
-            metadata, _ = read_yaml(root / BAG2_METADATA, "ROS 2 bag metadata", error=InputError)
+            metadata = bag_metadata(root, self.options.allow_outside)
             storage_files(root, metadata, self.options.allow_outside)
         else:
             regular_file(root, "the bag")
@@ -165,7 +174,7 @@ class BagReader(TopicReader):
         root = bag_root(self.path)
         if not root.is_dir():
             return {"storage": "ROS 1 bag", "encoding": "ros1msg"}
-        metadata, _ = read_yaml(root / BAG2_METADATA, "ROS 2 bag metadata", error=InputError)
+        metadata = bag_metadata(root, self.options.allow_outside)
         info = metadata.get("rosbag2_bagfile_information") if isinstance(metadata, dict) else None
         if not isinstance(info, dict):
             return {}
