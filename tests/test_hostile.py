@@ -250,6 +250,36 @@ def test_model_json_attributes_are_typed(fixtures, tmp_path):
         load_model(model)
 
 
+@pytest.mark.parametrize("method,array", [("nhat", "eigenvalues_"), ("nhat", "residuals_"),
+                                          ("linear", "scale_"), ("linear", "singular_values_")])
+@pytest.mark.parametrize("edit", ["short", "long"])
+def test_a_model_array_of_the_wrong_length_is_refused(capsys, tmp_path, method, array, edit):
+    """The vectors a model keeps beside its weights, edited to another length: refused when
+    the model loads (they were carried along silently)."""
+    data = tmp_path / "toy.h5"
+    write_demonstrations(data, sim.toy2d(constraint="parabola", n_demos=6, n_steps=40, seed=1))
+    extra = ["--regressors", "polynomial", "--degree", "2"] if method == "linear" else []
+    assert main(["learn-a", str(data), "--method", method, *extra, "-o", str(tmp_path / "m"), "-q",
+                 "--test-fraction", "0"]) == 0
+    model = tmp_path / "m" / "model.h5"
+    load_model(model)
+    with h5py.File(model, "a") as f:
+        name = next(k for k in _datasets(f) if k.endswith(array))
+        value = f[name][()]
+        del f[name]
+        f[name] = value[:-1] if edit == "short" else np.r_[value, value[-1:]]
+    with pytest.raises(h5safe.InputError, match=f"array {array} has shape"):
+        load_model(model)
+    code, _, err = run_main(capsys, "predict", model, data, "-o", tmp_path / "p.csv")
+    assert code == 2 and f"array {array} has shape" in one_line_error(err)
+
+
+def _datasets(f) -> list[str]:
+    found: list[str] = []
+    f.visititems(lambda name, obj: found.append(name) if isinstance(obj, h5py.Dataset) else None)
+    return found
+
+
 # -- YAML safely -----------------------------------------------------------------------------
 def billion_laughs(path: Path) -> Path:
     """Nine levels of nine aliases: 9^9 ≈ 387 million strings once expanded, in < 1 kB."""
