@@ -467,7 +467,8 @@ def test_dask_batch_survives_a_killed_worker_or_scheduler(recordings, tmp_path, 
     if victim == "worker":
         named = re.findall(r"rec_0\d_h5-[0-9a-f]{8}", lines[0])
         assert lines[0].startswith(f"ccl: error: no Dask worker left: worker {worker} lost while running job")
-        assert named and not set(named) & finished, lines[0]  # jobs it held, not finished ones
+        # jobs it held (one may have written its folder before its result reached ccl)
+        assert set(named) - finished, lines[0]
         done, left = map(int, re.search(r"(\d+) of 10 jobs done, (\d+) not", lines[0]).groups())
         assert done + left == 10 and done <= len(finished)
     else:
@@ -521,7 +522,7 @@ def test_a_job_that_keeps_losing_its_worker_is_failed_not_retried_forever(monkey
         def done(self):
             return self.status != "pending"
 
-        def result(self):
+        def result(self, timeout=None):
             return "done"
 
         def cancel(self, force=False):

@@ -35,6 +35,9 @@ MAX_LOSSES = 2
 POLL = 0.5
 #: default seconds to wait for a worker when none is left
 WORKER_WAIT = 30.0
+#: seconds to wait for a finished job's result (a few hundred bytes) from its worker: longer,
+#: the worker holding it is gone and the scheduler runs the job again
+RESULT_WAIT = 10.0
 
 log = logging.getLogger("ccl")
 
@@ -168,14 +171,31 @@ def run_jobs(client: Any, tasks: dict[str, tuple[Callable[..., Any], tuple]], on
 def _ended(client: Any, address: str, keys: dict[str, str], futures: dict[str, Any], key: str,
            watch: _Watch, on_result: Callable, on_failure: Callable[[str, str], Any]) -> None:
     """Hand over the outcome of a finished task, and release it at once (a lost worker's
-    results are not recomputed)."""
-    fut = futures.pop(key)
-    if fut.status == "finished":
-        on_result(keys[key], fut.result())
-    elif fut.status == "error":
-        on_failure(keys[key], _cluster_failure(keys[key], fut.exception(), watch))
-    else:  # cancelled: by us, or by a client that lost its scheduler
+    results are not recomputed). A connection that closes while the outcome is fetched is
+    the scheduler lost; a result that does not come (its worker died after finishing it) is
+    waited for again, as the scheduler runs the job again."""
+    from distributed.comm.core import CommClosedError
+
+    fut = futures[key]
+    try:
+        if fut.status == "finished":
+            value, error = fut.result(timeout=RESULT_WAIT), None
+        elif fut.status == "error":
+            value, error = None, fut.exception(timeout=RESULT_WAIT)
+        else:  # cancelled: by us, or by a client that lost its scheduler
+            _check_scheduler(client, address)
+            value, error = None, None
+    except TimeoutError:  # (an OSError too: before it)
         _check_scheduler(client, address)
+        return  # left in ``futures``: the scheduler computes it again (or no worker is left)
+    except (CommClosedError, OSError):
+        raise ClusterLost(_lost_scheduler(address)) from None
+    del futures[key]
+    if fut.status == "finished":
+        on_result(keys[key], value)
+    elif error is not None:
+        on_failure(keys[key], _cluster_failure(keys[key], error, watch))
+    else:
         on_failure(keys[key], "cancelled by the Dask cluster")
     fut.release()
 
@@ -201,8 +221,12 @@ def _check_scheduler(client: Any, address: str) -> None:
     """ClusterLost when the client is not connected to its scheduler (a future was cancelled
     meanwhile: the client cancels every future when the connection drops)."""
     if _status(client) != "running":
-        raise ClusterLost(f"lost the Dask scheduler at {address} (its connection closed); the jobs that "
-                          "finished keep their folders: run the batch again to resume the others")
+        raise ClusterLost(_lost_scheduler(address))
+
+
+def _lost_scheduler(address: str) -> str:
+    return (f"lost the Dask scheduler at {address} (its connection closed); the jobs that finished keep "
+            "their folders: run the batch again to resume the others")
 
 
 def _look(client: Any, address: str, keys: dict[str, str], futures: dict[str, Any], watch: _Watch,
