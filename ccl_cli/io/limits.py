@@ -88,13 +88,20 @@ def check_claim(where: str, what: str, shape: tuple[int, ...] | int, itemsize: i
     return nbytes
 
 
-def check_span(where: str, what: str, start: int, stop: int, size: int) -> None:
+class OutsideFile(InputError):
+    """A position a file declares lies outside it: the file is damaged (no other reader of
+    it would do better)."""
+
+
+def check_span(where: str, what: str, start: int, stop: int, size: int, within: str = "") -> None:
     """Refuse a span [start, stop) a file declares (a record's position and length) that does
-    not lie inside its first ``size`` bytes — a position past the end, a negative one, one
-    beyond any seek — before anything is sought or read there."""
+    not lie inside its first ``size`` bytes (``within`` names them; default: the file's) — a
+    position past the end, a negative one, one beyond any seek — before anything is sought
+    or read there."""
     if not 0 <= start <= stop <= size:
-        raise InputError(f"{where}: {what} is declared at bytes [{start}, {stop}), outside the file's "
-                         f"{size} bytes (damaged file?)")
+        at = f"byte {start}" if start == stop else f"bytes [{start}, {stop})"
+        within = within or f"the file ({size} bytes)"
+        raise OutsideFile(f"{where}: {what} is declared at {at}, outside {within}; damaged file?")
 
 
 # -- regular files ----------------------------------------------------------------------------

@@ -17,7 +17,7 @@ from ccl_cli.errors import InputError
 from ccl_cli.io.formats.bag1 import BagIndex, in_order, read_chunk, read_index
 from ccl_cli.io.layouts import NotFixed, fixed_topic, read_uint
 from ccl_cli.io.library_errors import library_call, library_iter
-from ccl_cli.io.limits import inside, open_regular, regular_file
+from ccl_cli.io.limits import OutsideFile, inside, open_regular, regular_file
 from ccl_cli.io.messages import TopicReader, finish_topics, read_topics, short_type
 from ccl_cli.io.options import StreamOptions
 from ccl_cli.io.sniff import BAG2_METADATA
@@ -138,6 +138,8 @@ class BagReader(TopicReader):
             return None
         try:
             index = read_index(root)
+        except OutsideFile:
+            raise  # a chunk or index position outside the file: damaged, whoever reads it
         except InputError:
             return None
         return index if set(index.entries) == {c.id for c in index.connections} else None

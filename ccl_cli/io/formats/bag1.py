@@ -194,7 +194,8 @@ def read_index(path: Path) -> BagIndex:
         ends = sorted({pos for pos, _ in infos} | {index_pos})
         chunks: list[Chunk] = []
         for number, (pos, counts) in enumerate(infos):
-            check_span(where, f"chunk {number}", pos, pos, index_pos)  # chunks lie before the index
+            check_span(where, f"chunk {number}", pos, pos, index_pos,
+                       f"the {index_pos} bytes before the bag's index")  # where chunks lie
             top = _block(f, pos, min(pos + HEAD_READ, size), f"chunk {number}", where, size)
             fields, n = top.record(OP_CHUNK, "a chunk")
             data_pos = pos + top.f.tell()
