@@ -264,6 +264,18 @@ def test_manifest_fields_are_typed(capsys, tmp_path, text, match):
     assert code == 2 and re.search(match, err) and err.count("\n") == 1, err
 
 
+def test_override_keys_of_several_types_are_one_line(capsys, recordings, tmp_path):
+    """A manifest's overrides with an integer key beside string ones (YAML ``1:``): one line
+    naming the key (json could not sort the keys: an internal TypeError, fuzz seed 280)."""
+    shutil.copy(recordings / "rec_00.h5", tmp_path / "rec_00.h5")
+    shutil.copy(recordings / "pipeline.yaml", tmp_path / "pipeline.yaml")
+    manifest = tmp_path / "m.yaml"
+    manifest.write_text("jobs:\n  - files: rec_00.h5\n    config: pipeline.yaml\n"
+                        "    overrides: {learn-a: {n_constraints: 1, 1: x}}\n")
+    code, _, err = batch(capsys, manifest, "-o", tmp_path / "o")
+    assert code == 2 and "jobs[0]" in err and "learn-a" in err and err.count("\n") == 1, err
+
+
 def test_batch_never_writes_into_a_users_folder(capsys, recordings, tmp_path):
     """-o on a folder with the user's files (even ones named like the summaries): exit 2,
     every file as it was; an empty folder, or one ccl made, is written into."""

@@ -165,7 +165,7 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
         for group in groups:
             overrides = [rule.get("overrides") or {}, *(v for paths, v in file_over
                                                           if any(p in group for p in paths))]
-            same = json.dumps([rule.get("config"), overrides], sort_keys=True, default=str)
+            same = json.dumps(_typed_keys([rule.get("config"), overrides]), sort_keys=True, default=str)
             cfg = resolved.get(same)
             if cfg is None:
                 try:
@@ -185,6 +185,17 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
     if not jobs:
         raise ConfigError("the manifest matches no files")
     return jobs, out
+
+
+def _typed_keys(value: Any) -> Any:
+    """``value`` with every mapping key as text naming its type (``str:a``, ``int:1``): a
+    manifest may give keys of several types (YAML ``1:`` is an integer), which json cannot
+    sort together; the config check then names the key at fault."""
+    if isinstance(value, dict):
+        return {f"{type(k).__name__}:{k}": _typed_keys(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_typed_keys(v) for v in value]
+    return value
 
 
 def _resolved(paths: list[Path], base: Path, manifest: Path | None, allow_outside: bool) -> list[str]:
