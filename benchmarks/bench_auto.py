@@ -26,7 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from ccl_cli import simulate as sim  # noqa: E402
-from ccl_cli.app.scoring import projection_on  # noqa: E402
+from ccl_cli.app.scoring import applied_on, projection_on  # noqa: E402
 from ccl_cli.dataset import Demonstrations  # noqa: E402
 from ccl_cli.learn import model_selection as S  # noqa: E402
 from ccl_cli.learn.constraint import (  # noqa: E402
@@ -34,7 +34,6 @@ from ccl_cli.learn.constraint import (  # noqa: E402
     KnownFeatureConstraint,
     StateIndependentConstraint,
 )
-from ccl_cli.learn.constraint.base import constraint_at, fit_constraint  # noqa: E402
 from ccl_cli.metrics import subspace_angle  # noqa: E402
 
 ARM7_JACOBIAN = {"arm": "arm7", "rows": [0, 1, 2]}
@@ -80,7 +79,7 @@ def true_rows(d: Demonstrations, i: int) -> np.ndarray:
 def mean_angle(model, d: Demonstrations) -> float | None:
     """Median over samples (every 25th) of the angle between the learnt rows and the true ones."""
     idx = np.arange(0, d.n_samples, 25)
-    rows = constraint_at(model, d.X[idx], d.demo[idx], d.t[idx])
+    rows = model.constraint(d.X[idx], groups=d.demo[idx], t=d.t[idx])
     if rows.shape[1] == 0:
         return None
     held = np.abs(rows).sum((1, 2)) > 0  # a constraint in stretches: where it holds
@@ -105,7 +104,7 @@ def before(d: Demonstrations, features) -> int:
 def run_case(name: str, seed: int, window: float | None = None) -> dict:
     truth, make, features, check = SCENARIOS[name]
     d = make(seed)
-    deriv = d.metadata.get("derivative", False)
+    deriv = d.derivative if d.derivative.derived else False
     row: dict = {"case": name, "seed": seed, "true_k": truth}
     fit_on, test = d, None
     if check == "N":  # max|N − N_true| on held-out demonstrations
@@ -114,7 +113,8 @@ def run_case(name: str, seed: int, window: float | None = None) -> dict:
     kw = {} if window is None else {"window": window}
     if check == "lambda":
         t0 = time.process_time()
-        model = fit_constraint(KnownFeatureConstraint(features=features), d.X, d.U, d.demo, d.t, deriv)
+        model = KnownFeatureConstraint(features=features).fit(d.X, d.U, groups=d.demo, t=d.t,
+                                                              derivative=deriv)
         return {**row, "cpu_s": round(time.process_time() - t0, 2), "k": model.n_constraints_,
                 "chosen": "lambda", "before_k": before(d, features)}
     t0 = time.process_time()
@@ -136,8 +136,9 @@ def run_case(name: str, seed: int, window: float | None = None) -> dict:
         row["share"] = model.model_.share_
         row["true_share"] = true_share(d)
     if test is not None:  # as ccl scores a held-out part: a model per stretch is fitted on it (said so)
-        N, note = projection_on(model, test, test.U)
-        row["refitted_on_test"] = note is not None
+        applied = applied_on(model, test, test.U)
+        N = projection_on(applied, test)
+        row["refitted_on_test"] = applied.refitted
         row["max_abs_N_err"] = float(np.abs(N - test.true_projection()).max())
     return row
 

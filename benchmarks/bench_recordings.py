@@ -223,7 +223,7 @@ def repaired(d: Demonstrations) -> Demonstrations:
 
 
 def _derivative(d: Demonstrations) -> dict | None:
-    return d.metadata.get("derivative")
+    return d.derivative
 
 
 #: (case, true k, make(seed) → dataset, learner(d, derivative), per_demo)

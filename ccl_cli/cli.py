@@ -512,7 +512,8 @@ def simulate(
     if test_fraction > 0:
         train, test = data.split(test_fraction, seed)
         masks = {"train": list(train.demo_ids), "test": list(test.demo_ids)}
-    derivative = {"derivative": data.metadata["derivative"]} if "derivative" in data.metadata else {}
+    how = data.derivative  # stored, so that a file says how its actions were made
+    derivative = {"derivative": {"window": how.window, "order": how.order}} if how.derived else {}
     write_demonstrations(out, data, provenance={"simulate": problem, "seed": seed, **kwargs, **derivative},
                          masks=masks, force=force)
     _wrote("simulate", out, data, json_out)

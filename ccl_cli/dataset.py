@@ -7,8 +7,9 @@ Ground truth, when known (simulation), lives in ``truth``; learners never read i
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -16,6 +17,152 @@ from ccl_cli.errors import InputError
 
 #: Ground-truth keys and their per-sample shapes (s = number of constraints).
 TRUTH_KEYS = ("pi", "w", "v", "b", "A", "N")
+#: The readers' local polynomial where a source does not say (the filter assumed when it is not
+#: known how the actions were made): its window (samples) and order.
+DEFAULT_WINDOW = 9
+DEFAULT_ORDER = 2
+
+
+@dataclass(frozen=True)
+class Derivative:
+    """How the actions U were made from the states X — a fact of the data, set by the reader
+    or simulator that made them.
+
+    Attributes:
+        derived: True when U = dX/dt by the readers' local polynomial
+            (:mod:`ccl_cli.io.derivative`), False when the actions were recorded (or are a
+            model's output), None when nothing says.
+        window, order: the polynomial's samples and degree (:data:`DEFAULT_WINDOW`,
+            :data:`DEFAULT_ORDER` where the source does not say).
+        rule: why that window, in words ("" when not said).
+    """
+
+    derived: bool | None = None
+    window: int = DEFAULT_WINDOW
+    order: int = DEFAULT_ORDER
+    rule: str = ""
+
+    @classmethod
+    def of(cls, value: HowMade) -> Derivative:
+        """The value a learner's ``derivative`` argument takes: a Derivative; the readers'
+        ``{"window", "order"}`` (derived); False (recorded); None (not known)."""
+        if isinstance(value, Derivative):
+            return value
+        if isinstance(value, Mapping):
+            return cls(True, int(value.get("window") or DEFAULT_WINDOW),
+                       int(value.get("order") or DEFAULT_ORDER), str(value.get("window_rule") or ""))
+        if value is None or value is False:
+            return cls(None if value is None else False)
+        raise InputError(f"derivative must say how the actions were made (a Derivative, "
+                         f"{{window, order}}, False or None), got {value!r}"[:200])
+
+    @classmethod
+    def from_record(cls, record: Any) -> Derivative | None:
+        """From a record a source stored (a reader's ``{"derived", "window", "order", ...}``, a
+        simulator's ``{"window", "order"}``, a recorded stream's description): derived when it
+        names a window or says derived, else recorded; None when ``record`` is no mapping."""
+        if not isinstance(record, Mapping):
+            return None
+        if "derived" in record or "window" in record:
+            return cls.of(record)
+        return cls(False)
+
+    @property
+    def known(self) -> bool:
+        return self.derived is not None
+
+    def gain(self, dt: float) -> float:
+        """Σc² of the polynomial's slope filter c (1/s) on stamps ``dt`` s apart: the variance
+        of a derived velocity per unit variance of white position noise."""
+        from ccl_cli.learn.noise import slope_filter
+
+        return float((slope_filter(dt, self.window, self.order) ** 2).sum())
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"derived": self.derived, "window": self.window, "order": self.order, "rule": self.rule}
+
+
+#: What a learner's ``derivative`` argument takes (:meth:`Derivative.of`).
+HowMade = Derivative | Mapping[str, Any] | bool | None
+
+
+@dataclass(frozen=True, eq=False)
+class Repair:
+    """What sensor-fault repair (:mod:`ccl_cli.io.faults`) did to each sample it saw — the
+    samples of the recording(s) as read, in order, before any was dropped — and why.
+
+    Attributes:
+        done: (M,) index into :data:`ACTIONS` — ``kept`` (as recorded), ``mirrored`` (a
+            hemisphere flip mirrored back), ``restamped`` (its stamp repaired) or ``dropped``.
+        why: (M,) index into ``faults``: the kind of fault behind it (``faults[0]`` is "":
+            none found; a kept sample with a fault was found faulty and kept as recorded).
+        faults: the kinds of fault named in ``why``.
+        row: (M,) the row of X/U the sample is, −1 when it is not in the data (dropped by the
+            repair, or left out afterwards: outside every demonstration, a held-out part, ...).
+    """
+
+    ACTIONS: ClassVar[tuple[str, ...]] = ("kept", "mirrored", "restamped", "dropped")
+
+    done: np.ndarray
+    why: np.ndarray
+    faults: tuple[str, ...]
+    row: np.ndarray
+
+    @classmethod
+    def untouched(cls, n: int) -> Repair:
+        """n samples checked and kept as recorded, row i the i-th."""
+        return cls(np.zeros(n, np.uint8), np.zeros(n, np.uint8), ("",), np.arange(n, dtype=np.int64))
+
+    def actions(self) -> np.ndarray:
+        """(M,) what was done to each sample, in words."""
+        return np.asarray(self.ACTIONS)[self.done]
+
+    def reasons(self) -> np.ndarray:
+        """(M,) the fault behind it ("" where none was found)."""
+        return np.asarray(self.faults)[self.why]
+
+    def of_rows(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(what was done, why) for each of the ``n`` rows of the data, in words: (n,) each
+        (a row no repaired sample became — data that were not checked — is ``kept``, "")."""
+        done, why = np.full(n, "kept", dtype=object), np.full(n, "", dtype=object)
+        on = self.row >= 0
+        done[self.row[on]], why[self.row[on]] = self.actions()[on], self.reasons()[on]
+        return done, why
+
+    def after(self, kept: np.ndarray, n: int) -> Repair:
+        """The record once the data's ``n`` rows are cut to ``kept`` (a mask (n,) or row indices,
+        in the new order): each sample's row where it went, −1 where it left."""
+        new_of_old = np.full(n + 1, -1, dtype=np.int64)  # entry n: the −1 of samples already out
+        idx = np.flatnonzero(kept) if np.asarray(kept).dtype == bool else np.asarray(kept, dtype=np.int64)
+        new_of_old[idx] = np.arange(len(idx))
+        return replace(self, row=new_of_old[np.where(self.row >= 0, self.row, n)])
+
+    @staticmethod
+    def join(parts: list[tuple[Repair | None, int]]) -> Repair | None:
+        """One record of datasets joined in order: (record or None — not checked: its rows kept —
+        and its row count) each; None when no part holds one."""
+        if all(r is None for r, _ in parts):
+            return None
+        faults = tuple(dict.fromkeys(k for r, _ in parts if r is not None for k in r.faults))
+        if "" not in faults:
+            faults = ("", *faults)
+        done, why, row, offset = [], [], [], 0
+        for r, n in parts:
+            r = r if r is not None else Repair.untouched(n)
+            code = np.array([faults.index(k) for k in r.faults], dtype=np.uint8)
+            done.append(r.done)
+            why.append(code[r.why])
+            row.append(np.where(r.row >= 0, r.row + offset, -1))
+            offset += n
+        return Repair(np.concatenate(done), np.concatenate(why), faults, np.concatenate(row))
+
+    def counts(self) -> dict[str, dict[str, int]]:
+        """action → fault → number of samples (faults "" : none found)."""
+        out: dict[str, dict[str, int]] = {}
+        pairs, n = np.unique(np.stack([self.done, self.why], 1), axis=0, return_counts=True)
+        for (a, w), k in zip(pairs, n, strict=True):
+            out.setdefault(self.ACTIONS[a], {})[self.faults[w]] = int(k)
+        return out
 
 
 @dataclass
@@ -33,6 +180,9 @@ class Demonstrations:
         state_names, action_names: length p and q.
         state_units, action_units: length p and q (free text, may be empty).
         metadata: JSON-serialisable provenance (source files, topics, ...).
+        derivative: how U was made (:class:`Derivative`; not known by default).
+        repair: what sensor-fault repair did to each sample it saw (:class:`Repair`; None
+            when no check ran).
     """
 
     X: np.ndarray
@@ -45,6 +195,8 @@ class Demonstrations:
     state_units: list[str] | None = None
     action_units: list[str] | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
+    derivative: Derivative = field(default_factory=Derivative)
+    repair: Repair | None = None
 
     def __post_init__(self) -> None:
         self.X = np.asarray(self.X, dtype=float)
@@ -136,8 +288,9 @@ class Demonstrations:
                 truth[key] = value[idx]
             else:
                 truth[key] = value
+        repair = None if self.repair is None else self.repair.after(idx, n)
         return replace(self, X=self.X[idx], U=self.U[idx], demo=self.demo[idx], t=self.t[idx],
-                       truth=truth, metadata=dict(self.metadata))
+                       truth=truth, metadata=dict(self.metadata), repair=repair)
 
     def select_demos(self, ids: np.ndarray | list[int]) -> Demonstrations:
         return self.subset(np.isin(self.demo, np.asarray(ids)))
@@ -196,6 +349,8 @@ class Demonstrations:
             state_units=first.state_units,
             action_units=first.action_units,
             metadata={"parts": [p.metadata for p in parts]},
+            derivative=next((p.derivative for p in parts if p.derivative.known), Derivative()),
+            repair=Repair.join([(p.repair, p.n_samples) for p in parts]),
         )
 
     def check_finite(self) -> None:

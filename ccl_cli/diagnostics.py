@@ -29,7 +29,7 @@ import numpy as np
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
 from ccl_cli.learn import model_selection as _selection
-from ccl_cli.learn.noise import slope_filter, white_noise_var
+from ccl_cli.learn.noise import white_noise_var
 
 log = logging.getLogger("ccl")
 
@@ -87,34 +87,6 @@ def emit(warnings: list[dict[str, str]]) -> list[dict[str, str]]:
 
 
 # -- noise estimates (ccl_cli.learn.noise) ------------------------------------------------------
-def derivative_gain(dt: float, window: int = 9, order: int = 2) -> float:
-    """Σc² of the local-polynomial slope filter c (1/s) on uniform stamps ``dt`` apart: the
-    variance of a derived velocity per unit variance of white position noise."""
-    return float((slope_filter(dt, window, order) ** 2).sum())
-
-
-def derivation(data: Demonstrations) -> tuple[bool | None, int, int]:
-    """(are the actions derived from the states?, window, order) from the metadata:
-    True/False when a reader or the simulator said so, None when unknown."""
-    meta = data.metadata or {}
-    infos = [f.get("action") for f in meta.get("files", []) if isinstance(f, dict)]
-    infos += [meta.get("action"), (meta.get("provenance") or {}).get("derivative"), meta.get("derivative")]
-    for info in infos:
-        if isinstance(info, dict) and ("derived" in info or "window" in info):
-            return True, int(info.get("window") or 9), int(info.get("order") or 2)
-        if isinstance(info, dict):
-            return False, 9, 2
-    return None, 9, 2
-
-
-def action_derivative(data: Demonstrations) -> dict | bool | None:
-    """How the actions were made, as the constraint learners take it (``derivative`` of
-    :class:`~ccl_cli.learn.constraint.AutoConstraint`): {"window", "order"} when derived from the
-    states, False when recorded, None when the metadata do not say."""
-    derived, window, order = derivation(data)
-    return {"window": window, "order": order} if derived else derived
-
-
 def noise_levels(data: Demonstrations) -> dict[str, Any]:
     """Estimated noise variances and SNRs of states and actions.
 
@@ -127,10 +99,11 @@ def noise_levels(data: Demonstrations) -> dict[str, Any]:
     X, U, demo = data.X, data.U, data.demo
     x_noise = white_noise_var(X, demo)
     u_white = white_noise_var(U, demo)
-    derived, window, order = derivation(data)
+    how = data.derivative
+    derived = how.derived
     dt = _median_step(data)
     if data.n_state == data.n_action and derived is not False and dt > 0:
-        via_x = x_noise * derivative_gain(dt, window, order)
+        via_x = x_noise * how.gain(dt)
         u_noise = via_x if derived else np.maximum(u_white, via_x)
     else:
         u_noise = u_white
@@ -361,27 +334,24 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
     the noise level or a negligible share — or None when the data cannot tell (not a
     trajectory in time, or no motion).
 
-    A model per stretch (per window, segment or demonstration, or in stretches) speaks only for
-    the stretches it was fitted on: on other data its rows would be a neighbouring stretch's.
-    It is fitted again on ``d`` (the same kind and rows per stretch, as ``ccl evaluate`` does)
-    and the evidence says so (``refitted``): whether k rows per stretch hold on these data."""
+    A model per stretch (per window or segment, or in stretches) speaks only for the stretches
+    it was fitted on: on other data its rows would be a neighbouring stretch's. It is applied to
+    ``d`` as a new recording by its own stated rule (the same kind and rows per stretch fitted
+    there, as ``ccl evaluate`` does) and the evidence says so (``refitted``): whether k rows per
+    stretch hold on these data. A model whose rule carries nothing over to new data (one model
+    per demonstration, fitted anew on each) has no evidence to give: None."""
     from ccl_cli.learn.constraint import noise_rank
-    from ccl_cli.learn.constraint.base import constraint_at
-    from ccl_cli.learn.constraint.windows import fitted_per_stretch, refit_on_new_demos
 
-    if not getattr(model, "n_constraints_", 0):
+    if not getattr(model, "n_constraints_", 0) or not model.new_data_rule.carries_over:
         return None
-    refitted = fitted_per_stretch(model) is not None
     try:
-        if refitted:
-            model = refit_on_new_demos(model, d.X, Y, d.demo, d.t, always=True)[0]
-        rows = constraint_at(model, d.X, d.demo, d.t)
-    except (InputError, NotImplementedError):
+        applied = model.applies_to(d.X, Y, groups=d.demo, t=d.t, new_recording=model.is_local)
+        rows = applied.model.constraint(d.X, groups=d.demo, t=d.t)
+    except InputError:
         return None  # no rows on these data
-    derived, window, order = derivation(d)
-    positions = derived and d.n_state == d.n_action
-    ev = noise_rank.row_evidence(Y, rows, d.demo, d.t, d.X if positions else None,
-                                 {"window": window, "order": order} if positions else None)
+    how = d.derivative
+    positions = bool(how.derived) and d.n_state == d.n_action
+    ev = noise_rank.row_evidence(Y, rows, d.demo, d.t, d.X if positions else None, how if positions else None)
     if not ev.snr >= noise_rank.MIN_SNR:  # also NaN: overflowing data tells nothing
         return None
     ratio = ev.energy / np.maximum(ev.noise, np.finfo(float).tiny)
@@ -389,7 +359,7 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
         return None
     holds = (ratio <= noise_rank.MARGIN) | (ev.share <= noise_rank.SHARE)
     return {"ratio": ratio.tolist(), "share": ev.share.tolist(), "holds": bool(holds.all()),
-            "refitted": refitted}
+            "refitted": applied.refitted}
 
 
 def does_not_hold(stage: str, evidence: dict[str, Any] | None, where: str) -> list[dict[str, str]]:

@@ -10,7 +10,8 @@
     /demos/<id>/ the same layout once per demonstration (per-demonstration models)
 
 What is saved is what each learner declares in ``_fitted_attributes`` (a JSON value, an
-array, one array per constraint row, the basis, or one model per demonstration).
+array, one array per constraint row, the basis, or one model per demonstration) of the model
+that answers for it (its ``chosen_``: learn-a's ``auto`` is saved as the model it chose).
 Schema version 2 records ``n_features_in_`` (the state dimension p); version-1 files
 are still read, p then inferred from the basis (or a linear model's polynomial
 regressors) and left unchecked when nothing implies it (nhat, identity regressors).
@@ -19,8 +20,9 @@ Loading goes through :func:`ccl_cli.io.open_hdf5` (nothing outside the file is
 ever read, damaged files cannot hang libhdf5) and checks the format, the schema version,
 the method, the type of every attribute and parameter, and every array's type, shape
 and finiteness; then it rebuilds the estimator so predictions are bit-identical to the
-saved one's. Any problem is one :class:`~ccl_cli.errors.InputError` naming the file and
-the object at fault.
+saved one's — each learner checks that its own arrays fit together (``check_shapes``) and
+says what state dimension they imply (``implied_n_features``). Any problem is one
+:class:`~ccl_cli.errors.InputError` naming the file and the object at fault.
 """
 
 from __future__ import annotations
@@ -40,7 +42,6 @@ from ccl_cli.io.h5.probe import open_hdf5
 from ccl_cli.io.h5.seal import create_hdf5
 from ccl_cli.learn.basis import basis_from_state
 from ccl_cli.learn.constraint import (
-    AutoConstraint,
     ConstraintInStretches,
     KnownFeatureConstraint,
     LinearConstraint,
@@ -72,13 +73,21 @@ CLASSES: dict[str, tuple[str, type]] = {
     "ncl": ("nullspace", NullSpaceComponent),
     "policy": ("policy", PolicyLearner),
 }
+#: The method name a model file gives each class.
+NAMES = {cls: name for name, (_, cls) in CLASSES.items()}
+
+
+def _per_demonstration(model: Any) -> bool:
+    """Whether a model holds one model per demonstration (declared learnt ``models``)."""
+    return "models" in type(model)._fitted_attributes.values()
+
+
 def method_of(model: Any) -> str:
-    if isinstance(model, AutoConstraint):  # saved as the model it chose
-        return method_of(model.model_)
-    for name, (_, cls) in CLASSES.items():
-        if type(model) is cls:
-            return name
-    if isinstance(model, PerDemonstration):
+    """The method name ``model`` is saved under (``per_demo:`` and its estimator's for one model
+    per demonstration)."""
+    if type(model) in NAMES:
+        return NAMES[type(model)]
+    if _per_demonstration(model):
         return "per_demo:" + method_of(model.estimator)
     raise ConfigError(f"cannot save a {type(model).__name__}")
 
@@ -113,7 +122,7 @@ def _write(group, model: Any, method: str) -> None:
     """``model``'s method, parameters and declared learnt attributes into ``group``."""
     declared = type(model)._fitted_attributes
     group.attrs["method"] = method
-    template = model.estimator if isinstance(model, PerDemonstration) else model
+    template = model.estimator if _per_demonstration(model) else model
     group.attrs["params"] = json.dumps(_params(template), default=_json)
     group.attrs["fitted"] = json.dumps({k: getattr(model, k) for k, kind in declared.items()
                                         if kind == "value" and hasattr(model, k)}, default=_json)
@@ -147,9 +156,8 @@ def _write_basis(g, state: dict[str, Any]) -> None:
 def save_model(path: str | Path, model: Any, training: dict[str, Any] | None = None,
                force: bool = False) -> Path:
     """Write ``model`` to ``path`` atomically."""
+    model = model.chosen_  # auto: the model it chose, its selection_ the candidates table
     method = method_of(model)
-    if isinstance(model, AutoConstraint):  # the chosen model, its selection_ the candidates table
-        model = model.model_
     path = Path(path)
     with create_hdf5(path, force=force) as f:
         f.attrs["format"] = FORMAT
@@ -258,9 +266,14 @@ def _read(group, method: str, where: str) -> Any:
             model.models_ = _read_demos(group, base, where)
     if base == "lambda":
         _check_features(model, where)
-    if not isinstance(model, PerDemonstration):
-        _check_shapes(model, base, where)
-        _check_lengths(model, base, where)
+    robot = getattr(model, "regressors", None)
+    if isinstance(robot, dict) and robot.get("kind") == "robot":  # rebuilt from the stored URDF text
+        model.regressors_ = _robot(robot, where, "regressors")
+    try:
+        model.check_shapes()
+    except InputError as exc:
+        raise InputError(f"{where}: {exc.message} ({method} model)"[:300]) from None
+    _check_lengths(model, base, where)
     _check_n_features(model, where)
     return model
 
@@ -270,9 +283,9 @@ def _check_lengths(model: Any, method: str, where: str) -> None:
     scales) are as long as its weights imply: one per action (nhat), one per regressor
     column (linear); a file edited to another length is refused, not carried along."""
     want: dict[str, int] = {}
-    if method == "nhat":
+    if method == "nhat" and isinstance(getattr(model, "n_action_", None), int):
         want = {"eigenvalues_": model.n_action_, "residuals_": model.n_action_}
-    elif method == "linear" and model.W_ is not None:
+    elif method == "linear" and getattr(model, "W_", None) is not None:
         d = model.W_.shape[1] + (model.Wb_.shape[1] if model.task and model.Wb_ is not None else 0)
         want = {"singular_values_": d, "scale_": d}
     for name, n in want.items():
@@ -319,27 +332,10 @@ def _read_demos(group, base: str, where: str) -> dict[int, Any]:
     return models
 
 
-def _implied_n_features(model: Any) -> int | None:
-    """The state dimension p that what ``model`` holds implies: its basis, a linear model's
-    polynomial regressors (degree ≥ 1), a per-demonstration model's sub-models; else None."""
-    if isinstance(model, PerDemonstration):
-        found = {p for m in model.models_.values() if (p := getattr(m, "n_features_in_", None)) is not None}
-        return found.pop() if len(found) == 1 else None
-    basis = getattr(model, "basis_", None)
-    if basis is not None:
-        return _n_state(basis)
-    if isinstance(model, LinearConstraint) and isinstance(model.degree, int) and model.degree >= 1:
-        width = (model.W_.shape[1] // model.n_action_ if model.regressors == "polynomial" else
-                 model.Wb_.shape[1] if model.task and model.task_regressors == "polynomial" else None)
-        found = [p for p in range(1, 1025) if math.comb(p + model.degree, model.degree) == width]
-        return found[0] if found else None
-    return None
-
-
 def _check_n_features(model: Any, where: str) -> None:
     """n_features_in_ as saved (version 2), else inferred (version 1); it must agree with
     what the model holds."""
-    implied = _implied_n_features(model)
+    implied = model.implied_n_features()
     saved = getattr(model, "n_features_in_", None)
     if saved is None:
         if implied is not None:
@@ -378,7 +374,7 @@ def _check_features(model: Any, where: str) -> None:
     if model.n_task_ != r or model.n_action_ != n_joints:
         raise InputError(f"{where}: n_task_ {model.n_task_} / n_action_ {model.n_action_} do not fit "
                          f"{name} with {r} rows")
-    if not hasattr(model, "basis_") or _n_state(model.basis_) != n_joints:
+    if not hasattr(model, "basis_") or model.basis_.n_state != n_joints:
         raise InputError(f"{where}: the basis does not fit {name} ({n_joints} joints)")
 
 
@@ -394,91 +390,6 @@ def _robot(spec: dict[str, Any], where: str, key: str) -> Any:
         return robot_features({k: v for k, v in spec.items() if k in ("urdf", "frame", "base", "rows")})
     except CCLError as exc:
         raise InputError(f"{where}: {key}: {exc.message}"[:300]) from None
-
-
-def _n_state(basis: Any) -> int:
-    return int(basis.centres_.shape[1]) if hasattr(basis, "centres_") else int(basis.n_state_)
-
-
-def _linear_width(model: Any, kind: str, q: int | None) -> list[int]:
-    """Possible column counts of f(x) for regressors ``kind`` (×q for Φ_A)."""
-    K = model.basis_.n_features if hasattr(model, "basis_") else None
-    if kind in ("identity", "constant"):
-        return [1]
-    if kind == "rbf":
-        return [K] if K else []
-    degree = model.degree
-    if not isinstance(degree, int) or not 0 <= degree <= 64:
-        return []
-    return [math.comb(p + degree, degree) for p in range(1, 1025)]
-
-
-def _check_shapes(model: Any, method: str, where: str) -> None:
-    q = model.n_action_
-    K = model.basis_.n_features if hasattr(model, "basis_") else None
-    s = getattr(model, "n_constraints_", None)
-    needs_basis = method in ("alpha", "lambda", "ncl", "policy") or (
-        method == "linear" and "rbf" in (model.regressors, model.task_regressors if model.task else None))
-    if needs_basis and K is None:
-        raise InputError(f"{where}: a {method} model needs a /basis group")
-    bad = None
-    if method == "nhat" and (model.A_ is None or model.A_.shape != (s, q)):
-        bad = "A_"
-    elif method == "ncl" and (model.W_ is None or model.W_.shape != (q, K)):
-        bad = "W_"
-    elif method == "policy":
-        want = (K, _n_state(model.basis_) + 1, q) if model.method == "lwpi" else (K, q)
-        if model.W_ is None or model.W_.shape != want:
-            bad = "W_"
-    elif method in ("alpha", "lambda"):
-        d = q if method == "alpha" else model.n_task_
-        if s > d - 1 or any(w.shape != (d - 1 - k, K) for k, w in enumerate(model.weights_)):
-            bad = "weights"
-    elif method == "linear":
-        robot = isinstance(model.regressors, dict) and model.regressors.get("kind") == "robot"
-        if (not robot and model.regressors not in ("identity", "polynomial", "rbf")) or \
-                model.task_regressors not in ("constant", "polynomial", "rbf"):
-            raise InputError(f"{where}: unknown regressors {model.regressors!r} / {model.task_regressors!r}"
-                             [:300])
-        if robot:  # A(q) = W J(q)[rows]: one column of W per Jacobian row
-            model.regressors_ = _robot(model.regressors, where, "regressors")
-            if model.regressors_.n_joints != q:
-                raise InputError(f"{where}: the stored robot has {model.regressors_.n_joints} joints, the "
-                                 f"model {q} actions")
-            widths = [len(model.regressors_.rows or range(6))]
-        else:
-            widths = [w * q for w in _linear_width(model, model.regressors, q)]
-        if model.W_ is None or model.W_.ndim != 2 or model.W_.shape[0] != s or \
-                model.W_.shape[1] not in widths:
-            bad = "W_"
-        elif model.task and (model.Wb_ is None or model.Wb_.ndim != 2 or model.Wb_.shape[0] != s or
-                             model.Wb_.shape[1] not in _linear_width(model, model.task_regressors, q)):
-            bad = "Wb_"
-        elif not model.task:
-            model.Wb_ = None
-    elif method in ("per_window", "per_segment"):
-        win = model.windows_
-        width = 2 if method == "per_window" else 3  # [demo, j] or [demo, first block, end block)
-        if win is None or win.ndim != 2 or win.shape[1] != width or not np.array_equal(win, np.round(win)) \
-                or (width == 3 and not (win[:, 2] > win[:, 1]).all()):
-            bad = "windows_"
-        elif model.A_ is None or model.A_.shape != (len(win), s, q) or (model.window_ is not None and not (
-                isinstance(model.window_, int | float) and model.window_ > 0)):
-            bad = "A_"
-    elif method == "stretches":
-        blocks = model.blocks_
-        if blocks is None or blocks.ndim != 2 or blocks.shape[1] != 3 or \
-                not np.array_equal(blocks, np.round(blocks)) or not np.isin(blocks[:, 2], (0, 1)).all():
-            bad = "blocks_"
-        elif model.A_ is None or s < 1 or model.A_.shape != (s, q):
-            bad = "A_"
-    if bad:
-        raise InputError(f"{where}: array {bad} has the wrong shape for a {method} model")
-    if K is not None and hasattr(model.basis_, "centres_"):
-        # the feature map must give finite features (σ² and centres are finite and σ² > 0)
-        beta = model.basis_.transform(model.basis_.centres_[:1])
-        if not np.isfinite(beta).all():
-            raise InputError(f"{where}: the basis gives non-finite features")
 
 
 def load_model(path: str | Path) -> tuple[Any, dict[str, Any]]:
@@ -531,14 +442,15 @@ def describe_model(path: str | Path) -> dict[str, Any]:
     constraints and why, the basis, the dimensions, and what it was trained on (stage, input
     files and their sha256, the config, package versions, its train/test figures)."""
     model, info = load_model(path)
-    inner = next(iter(model.models_.values())) if isinstance(model, PerDemonstration) else model
+    demos = model.models_ if _per_demonstration(model) else None
+    inner = next(iter(demos.values())) if demos else model
     out: dict[str, Any] = {"path": str(path), "format": FORMAT, "schema_version": info["schema_version"],
                            "method": model.method if info["kind"] == "policy" else info["method"],
                            "kind": info["kind"],
                            "n_features_in": getattr(model, "n_features_in_", None),
                            "n_action": getattr(inner, "n_action_", None)}
-    if isinstance(model, PerDemonstration):
-        out["demonstrations"] = sorted(model.models_)
+    if demos:
+        out["demonstrations"] = sorted(demos)
     if hasattr(model, "n_constraints_"):
         out["n_constraints"] = int(model.n_constraints_)
         selection = getattr(model, "selection_", None) or {}

@@ -10,6 +10,7 @@ import pytest
 
 from ccl_cli import simulate as sim
 from ccl_cli.cli import main
+from ccl_cli.dataset import Derivative
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.learn import model_selection as S
 from ccl_cli.learn.consistency import npoe_error
@@ -20,7 +21,6 @@ from ccl_cli.learn.constraint import (
     PerWindow,
     StateIndependentConstraint,
 )
-from ccl_cli.learn.constraint.base import constraint_at, projection_at
 from ccl_cli.learn.constraint.windows import window_index
 from ccl_cli.metrics import subspace_angle
 from ccl_cli.models import load_model, save_model
@@ -98,7 +98,7 @@ def test_a_bowl_gets_a_state_dependent_or_per_window_constraint():
     assert model.selection_["chosen"] in ("alpha_linear", "alpha", "per_window")
     assert model.heldout_["mean"] < 0.03
     assert row_of(model, "nhat")["k"] != 2  # the constant model does not take the curvature for a 2nd row
-    rows = constraint_at(model, d.X[::50], d.demo[::50], d.t[::50])
+    rows = model.constraint(d.X[::50], groups=d.demo[::50], t=d.t[::50])
     assert np.median([subspace_angle(rows[i], d.truth["A"][j]) for i, j in
                       enumerate(range(0, d.n_samples, 50))]) < 3
 
@@ -109,7 +109,7 @@ def test_two_constant_rows_of_the_arm_on_held_out_demonstrations():
     tr, te = d.subset(hold.train), d.subset(hold.test)
     model = fit_auto(tr)
     assert model.n_constraints_ == 2
-    assert np.abs(projection_at(model, te.X, te.demo, te.t) - te.true_projection()).max() <= 1e-2
+    assert np.abs(model.projection(te.X, groups=te.demo, t=te.t) - te.true_projection()).max() <= 1e-2
     per_demo = row_of(model, "per_demo")
     assert per_demo["k"] <= 2  # directions one short demonstration did not take are not constraints
     assert row_of(model, "alpha")["reason"].startswith("not tried: 7 state dimensions")
@@ -127,12 +127,11 @@ def test_lambda_default_rule_is_the_noise_test_on_its_rows(seed):
     """Explicit ``method: lambda``: its default rule reads the noise of the trajectories (the
     ratio rule finds both Jacobian rows in 3 of seeds 0–19, noise in 20: docs/auto.md)."""
     from ccl_cli.learn.constraint import KnownFeatureConstraint
-    from ccl_cli.learn.constraint.base import fit_constraint
     from ccl_cli.learn.constraint.noise_rank import Sample, row_evidence
 
     d = sim.arm7(rows=(0, 1), constraint="jacobian", seed=seed)
     features = {"arm": "arm7", "rows": [0, 1, 2]}
-    model = fit_constraint(KnownFeatureConstraint(features=features), d.X, d.U, d.demo, d.t, False)
+    model = KnownFeatureConstraint(features=features).fit(d.X, d.U, groups=d.demo, t=d.t, derivative=False)
     assert model.n_constraints_ == 2 and model.selection_["rule"] == "noise"
     # the figures it read: the motion along each learnt row against that row's noise, by hand
     ev = row_evidence(d.U, model.constraint(d.X), d.demo, d.t, recorded=True)
@@ -141,7 +140,7 @@ def test_lambda_default_rule_is_the_noise_test_on_its_rows(seed):
     # ratio (kept as an option) reads the nmse sequence instead
     ratio = KnownFeatureConstraint(features=features, selection="ratio").fit(d.X, d.U, groups=d.demo)
     assert ratio.selection_["rule"] == "ratio" and ratio.selection_["values"] == ratio.nmse_
-    assert Sample.of(d.X, d.U, None, d.t, {"window": 9}).derived == {"window": 9}  # X has q columns
+    assert Sample.of(d.X, d.U, None, d.t, {"window": 9}).derived == Derivative(True, 9, 2)  # X has q columns
 
 
 # -- the evidence, by hand -------------------------------------------------------------------------
@@ -150,7 +149,7 @@ def test_nhat_held_out_rows_and_npoe_by_hand():
     training fold's Σ u uᵀ on its test fold (folds of make_folds), averaged over folds."""
     d = sim.tracker_plane(duration=30.0, seed=1)
     model = fit_auto(d, candidates=["none", "nhat"])
-    folds = S.make_folds(d.demo, d.n_samples, 5, 0, d.metadata["derivative"]["window"])
+    folds = S.make_folds(d.demo, d.n_samples, 5, 0, d.derivative.window)
     errors = []
     for train, test in folds.pairs:
         a = np.linalg.eigh(d.U[train].T @ d.U[train])[1][:, 0]
@@ -233,11 +232,11 @@ def test_per_window_rows_are_each_windows_eigenvectors_without_shrinkage():
 
 def test_per_window_held_out_figure_is_its_own_refit_by_hand():
     d = sim.tracker_tilt(seed=3, duration=30.0)
-    deriv = d.metadata["derivative"]
+    deriv = d.derivative
     model = PerWindow(n_constraints=1).fit(d.X, d.U, groups=d.demo, t=d.t, derivative=deriv)
     seg, _ = window_index(d.demo, d.t, 4.0, d.n_samples)
     errors = []
-    for train, test in S.inner_folds(seg, 5, d.metadata["derivative"]["window"]).pairs:
+    for train, test in S.inner_folds(seg, 5, d.derivative.window).pairs:
         twin = PerWindow(n_constraints=1, heldout=False).fit(d.X[train], d.U[train], groups=d.demo[train],
                                                              t=d.t[train])
         errors.append(npoe_error(twin.projection(d.X[test], groups=d.demo[test], t=d.t[test]), d.U[test]))
@@ -246,11 +245,11 @@ def test_per_window_held_out_figure_is_its_own_refit_by_hand():
 
 def test_per_window_rank_by_the_noise_rule():
     d = sim.tracker_tilt(seed=4)
-    assert PerWindow().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.metadata["derivative"]
+    assert PerWindow().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.derivative
                            ).n_constraints_ == 1
     free = sim.free_reach(seed=1)
     assert PerWindow().fit(free.X, free.U, groups=free.demo, t=free.t,
-                           derivative=free.metadata["derivative"]).n_constraints_ == 0
+                           derivative=free.derivative).n_constraints_ == 0
 
 
 # -- saving, loading, using on new recordings ------------------------------------------------------------
@@ -262,7 +261,8 @@ def test_auto_saves_the_model_it_chose_with_its_table(tmp_path):
     assert info["method"] == "per_window" and type(again) is PerWindow
     assert again.window_ == 4.0 and again.heldout_ == model.heldout_
     assert again.selection_["candidates"] == model.selection_["candidates"]
-    assert np.array_equal(projection_at(again, d.X, d.demo, d.t), model.projection(d.X, groups=d.demo, t=d.t))
+    at = {"groups": d.demo, "t": d.t}
+    assert np.array_equal(again.projection(d.X, **at), model.projection(d.X, **at))
     with h5py.File(path, "r+") as f:  # a window table that is not integers is refused
         table = f["arrays/windows_"][()].astype(float)
         table[0, 1] = 0.5
@@ -334,7 +334,7 @@ def test_unknown_provenance_takes_the_larger_noise_estimate():
 
     d = sim.tracker_plane(duration=30.0, seed=0)
     rows = np.linalg.eigh(d.U.T @ d.U)[1].T[:2]
-    told = nr.row_evidence(d.U, rows, d.demo, d.t, d.X, d.metadata["derivative"])
+    told = nr.row_evidence(d.U, rows, d.demo, d.t, d.X, d.derivative)
     recorded = nr.row_evidence(d.U, rows, d.demo, d.t, d.X)
     unknown = nr.row_evidence(d.U, rows, d.demo, d.t, d.X, recorded=False)
     assert np.allclose(unknown.noise, told.noise, rtol=1e-12)

@@ -10,7 +10,7 @@ from test_segment import CSV_CFG, write_tracker_csv
 from ccl_cli import diagnostics as D
 from ccl_cli import simulate as sim
 from ccl_cli.cli import main
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, Derivative
 from ccl_cli.io import load_demonstrations
 from ccl_cli.io.derivative import local_polynomial_derivative
 from ccl_cli.learn.constraint import StateIndependentConstraint
@@ -72,7 +72,8 @@ def test_noise_estimates_match_the_simulated_noise():
     lv = D.noise_levels(data)
     np.testing.assert_allclose(np.sqrt(lv["x_noise"]), 1e-3, rtol=0.1)
     dt = 1 / 50.0
-    assert D.derivative_gain(dt, 9, 2) == pytest.approx(1 / (60 * dt**2))  # Σc² = 1/(Δt² Σk²)
+    assert data.derivative == Derivative(True, 9, 2)  # the simulator says how it made the velocities
+    assert data.derivative.gain(dt) == pytest.approx(1 / (60 * dt**2))  # Σc² = 1/(Δt² Σk²)
     normal = data.U @ data.truth["A"][0]  # the velocity across the plane is pure noise
     assert np.sqrt(lv["u_noise"].mean()) == pytest.approx(normal.std(), rel=0.1)
 

@@ -51,7 +51,7 @@ def _nhat_rows(U: np.ndarray) -> np.ndarray:
 def test_evidence_on_a_tracker_plane():
     data = sim.tracker_plane(duration=60.0, noise=1e-3, seed=2)
     rows = _nhat_rows(data.U)
-    ev = nr.row_evidence(data.U, rows, data.demo, data.t, data.X, data.metadata["derivative"])
+    ev = nr.row_evidence(data.U, rows, data.demo, data.t, data.X, data.derivative)
     assert ev.energy[0] == pytest.approx(np.linalg.eigvalsh(data.U.T @ data.U)[0] / len(data.U))
     # along the normal the actions are the derived noise: energy ≈ its variance
     assert 0.8 < ev.ratio[0] < 1.3
@@ -69,7 +69,7 @@ def test_evidence_on_a_tracker_plane():
 def test_derived_velocities(make, truth):
     data = make()
     chosen = nr.choose(data.U, _nhat_rows(data.U), data.demo, data.t, data.n_action - 1, data.X,
-                       data.metadata["derivative"])
+                       data.derivative)
     assert chosen.n_constraints == truth
     if truth == 0:
         assert chosen.reason.startswith("no constraint")
@@ -90,11 +90,11 @@ def test_a_pressing_contact_is_a_constraint_by_its_share():
     for i, p in enumerate(data.metadata["phases"]):
         keep |= (data.demo == i) & (data.t >= p["wipe"][0]) & (data.t < p["wipe"][1])
     wipe = data.subset(keep)
-    ev = nr.row_evidence(wipe.U, _nhat_rows(wipe.U), wipe.demo, wipe.t, wipe.X, data.metadata["derivative"])
+    ev = nr.row_evidence(wipe.U, _nhat_rows(wipe.U), wipe.demo, wipe.t, wipe.X, data.derivative)
     assert ev.ratio[0] > nr.MARGIN  # the tool presses in: motion along n above the sensor's noise ...
     assert ev.share[0] < nr.SHARE / 10  # ... but a negligible share of the motion
     assert nr.noise_rank(ev, 2).n_constraints == 1
-    whole = nr.choose(data.U, _nhat_rows(data.U), data.demo, data.t, 2, data.X, data.metadata["derivative"])
+    whole = nr.choose(data.U, _nhat_rows(data.U), data.demo, data.t, 2, data.X, data.derivative)
     assert whole.n_constraints == 0  # approach and retract move along n
 
 
@@ -118,4 +118,4 @@ def test_noise_free_constraints_are_kept_by_their_share():
 def test_derived_needs_the_positions():
     data = sim.tracker_plane(duration=10.0, seed=9)
     with pytest.raises(ValueError, match="positions"):
-        nr.row_evidence(data.U, _nhat_rows(data.U), data.demo, data.t, None, data.metadata["derivative"])
+        nr.row_evidence(data.U, _nhat_rows(data.U), data.demo, data.t, None, data.derivative)

@@ -155,22 +155,25 @@ def test_original_convention_changes_the_normalisers_it_should(tmp_path):
 
 
 def test_original_convention_state_independent_and_npe(tmp_path):
-    from ccl_cli.app.scoring import constraint_metrics, nullspace_metrics
+    from ccl_cli.app.scoring import applied_on, constraint_metrics, nullspace_metrics
     from ccl_cli.dataset import Demonstrations
     from ccl_cli.learn.constraint import StateIndependentConstraint
 
     data, _ = read_demonstrations(SAMPLES / "arm7.h5")
     model = StateIndependentConstraint().fit(data.X, data.U)
     N_est = model.projection(data.X)
-    ccl = constraint_metrics(model, data, data.U, "ccl")
-    orig = constraint_metrics(model, data, data.U, "original")
+    applied = applied_on(model, data, data.U)
+    assert applied.model is model and applied.note is None  # one A for every sample: as fitted
+    ccl = constraint_metrics(applied, data, data.U, "ccl")
+    orig = constraint_metrics(applied, data, data.U, "original")
     assert ccl["NPOE"]["normaliser"] == pytest.approx(tv(data.U))
     assert orig["NPOE"]["normaliser"] == pytest.approx(tv(data.truth["pi"]))  # var(π) when A is constant
     assert orig["NPPE"]["normaliser_of"] == "pi" and orig["NPOE"]["normaliser_of"] == "pi"
     assert orig["NPOE"]["error"] == pytest.approx(msq(data.U - apply(N_est, data.U)))
     # without ground truth the original normaliser cannot be had: the label says which was used
     bare = Demonstrations(data.X, data.U, demo=data.demo, t=data.t)
-    label = constraint_metrics(model, bare, bare.U, "original")["NPOE"]["normaliser_of"]
+    label = constraint_metrics(applied_on(model, bare, bare.U), bare, bare.U, "original")["NPOE"]
+    label = label["normaliser_of"]
     assert label.startswith("u (no true")
     # NPE: ddof 0 under the original convention
     w = data.U * 0.5

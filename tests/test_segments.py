@@ -10,7 +10,6 @@ from ccl_cli import simulate as sim
 from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint import AutoConstraint, PerSegment, PerWindow, StateIndependentConstraint
 from ccl_cli.learn.constraint.segments import cut, quietest_motion
-from ccl_cli.learn.constraint.windows import refit_on_new_demos
 from ccl_cli.metrics import subspace_angle
 from ccl_cli.models import load_model, save_model
 
@@ -79,7 +78,7 @@ def test_a_constant_plane_keeps_its_normal():
 
 def test_auto_takes_the_segments_on_a_board_tilting_in_steps():
     d = sim.tracker_tilt(mode="steps", seed=1)
-    model = AutoConstraint().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.metadata.get("derivative"))
+    model = AutoConstraint().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.derivative)
     assert model.selection_["chosen"] == "per_segment" and model.n_constraints_ == 1
     said = model.selection_["reason"]  # where the cuts are, in words
     first = model.model_.windows_[1, 1] * model.model_.block
@@ -91,7 +90,7 @@ def test_auto_takes_the_segments_on_a_board_tilting_in_steps():
 
 def test_saved_and_loaded_it_predicts_the_same_and_refits_on_a_new_recording(tmp_path):
     d = sim.tracker_tilt(mode="steps", seed=2)
-    model = PerSegment().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.metadata.get("derivative"))
+    model = PerSegment().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.derivative)
     save_model(tmp_path / "m.h5", model)
     back, _ = load_model(tmp_path / "m.h5")
     assert type(back) is PerSegment
@@ -101,8 +100,10 @@ def test_saved_and_loaded_it_predicts_the_same_and_refits_on_a_new_recording(tmp
     other = replace(other, demo=other.demo + 7)  # a demonstration the model has not seen
     with pytest.raises(InputError, match="not seen"):
         back.projection(other.X, groups=other.demo, t=other.t)
-    refit, note = refit_on_new_demos(back, other.X, other.U, other.demo, other.t)
+    applied = back.applies_to(other.X, other.U, groups=other.demo, t=other.t, new_recording=False)
+    refit, note = applied.model, applied.note
     assert type(refit) is PerSegment and "segment" in note and refit.n_constraints_ == back.n_constraints_
+    assert applied.rule.rule == "rows fitted per stretch" and "k" in applied.rule.keeps
     assert np.median(angles_deg(refit, other)) < 3.0
 
 

@@ -75,8 +75,8 @@ def test_position_noise_reaches_the_derived_velocity_as_the_reader_derivative_pr
 def test_default_window_spans_the_same_time_at_any_rate():
     slow = sim.tracker_plane(duration=10.0, rate=50.0, noise=0.0)
     fast = sim.tracker_plane(duration=10.0, rate=500.0, noise=0.0)
-    assert slow.metadata["derivative"]["window"] == 9
-    assert fast.metadata["derivative"]["window"] == 81
+    assert slow.derivative.window == 9
+    assert fast.derivative.window == 81
 
 
 def test_recordings_jitter_drift_and_seeds():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ccl_cli import simulate as sim
-from ccl_cli.app.scoring import projection_on
+from ccl_cli.app.scoring import applied_on, projection_on
 from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint import AutoConstraint, ConstraintInStretches
 from ccl_cli.learn.constraint import noise_rank as nr
@@ -53,7 +53,7 @@ def test_whole_wipe_recording_gets_the_table_in_its_stretches(wipe, wipe_model):
     row = row_of(model, "stretches")
     assert row["chosen"] and row["time_share"] >= st.MIN_SHARE
     # where it holds: the wipe phase, against the truth sample by sample
-    on = inner.holds(wipe.X, wipe.demo, wipe.t)
+    on = inner.holds(wipe.X, groups=wipe.demo, t=wipe.t)
     truth = wiping(wipe)
     assert (on == truth).mean() > 0.9
     assert abs(inner.share_ - truth.mean()) < 0.1
@@ -93,7 +93,7 @@ def test_free_motion_gets_no_constraint_from_lucky_stretches(make, seed):
     assert row["k"] == 0 and row["time_share"] < st.MIN_SHARE
     # on its own training data a row quiet in some stretches exists, in far fewer than the table's
     inner = ConstraintInStretches(n_constraints=1).fit(d.X, d.U, groups=d.demo, t=d.t,
-                                                       derivative=d.metadata["derivative"])
+                                                       derivative=d.derivative)
     assert 0 < inner.share_ < st.MIN_SHARE
 
 
@@ -116,7 +116,9 @@ def test_saved_model_loads_and_classifies_new_demonstrations_of_the_same_table(t
     with pytest.raises(InputError, match="not seen"):
         loaded.projection(new.X, groups=new.demo, t=new.t)
     # new recordings: the same row, their own stretches classified by the motion along it (said so)
-    N, note = projection_on(loaded, new, new.U, new_data=True)
+    applied = applied_on(loaded, new, new.U, new_data=True)
+    N, note = projection_on(applied, new), applied.note
+    assert applied.rule.rule == "stretches classified" and applied.rule.keeps == ("rows", "k", "block")
     assert "holds in stretches" in note and "free motion elsewhere" in note
     assert (np.abs(N - new.true_projection()).max((1, 2)) < 0.05).mean() > 0.9
 

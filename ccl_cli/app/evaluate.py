@@ -12,6 +12,7 @@ import numpy as np
 
 from ccl_cli.app.scoring import (
     KINDS,
+    applied_on,
     constraint_metrics,
     nullspace_metrics,
     policy_metrics,
@@ -19,7 +20,6 @@ from ccl_cli.app.scoring import (
 )
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import InputError
-from ccl_cli.learn.constraint import PerDemonstration
 
 
 def evaluate_model(model: Any, kind: str, data: Demonstrations, convention: str = "ccl") -> dict:
@@ -28,26 +28,22 @@ def evaluate_model(model: Any, kind: str, data: Demonstrations, convention: str 
     The same functions score the pipeline's stages, so a model scored on the same data
     and observations gets the same numbers here. A policy on data without ground truth
     has no metric (an empty dict)."""
-    if kind == "constraint":  # a model per window or per demonstration: fitted on ``data`` (a note)
-        return constraint_metrics(model, data, data.U, convention, new_data=True)
+    if kind == "constraint":  # as it applies to a new recording: a model per stretch says what it fits there
+        return constraint_metrics(applied_on(model, data, data.U, new_data=True), data, data.U, convention)
     if kind == "nullspace":
         return nullspace_metrics(model.predict(data.X), data, convention)
     return policy_metrics(model.predict(data.X), data)
 
 
 def check_dimensions(model: Any, data: Demonstrations) -> None:
-    """The data's state and action dimensions match the model's (else InputError)."""
+    """The data's state and action dimensions match the model's (``n_action_``, and
+    ``n_features_in_`` when it recorded one; else InputError)."""
     q = getattr(model, "n_action_", None)
-    if q is None and isinstance(model, PerDemonstration):
-        q = next(iter(model.models_.values())).n_action_
     if q is not None and data.n_action != q:
         raise InputError(f"the model expects {q}-dimensional actions, the data has {data.n_action}")
-    basis = getattr(model, "basis_", None) or (getattr(next(iter(model.models_.values())), "basis_", None)
-                                               if isinstance(model, PerDemonstration) else None)
-    if basis is not None:
-        p = basis.centres_.shape[1] if hasattr(basis, "centres_") else basis.n_state_
-        if data.n_state != p:
-            raise InputError(f"the model expects {p}-dimensional states, the data has {data.n_state}")
+    p = getattr(model, "n_features_in_", None)
+    if p is not None and data.n_state != p:
+        raise InputError(f"the model expects {p}-dimensional states, the data has {data.n_state}")
 
 
 # -- using saved models ------------------------------------------------------------------
@@ -88,7 +84,8 @@ def predict(model: Any, kind: str, data: Demonstrations, notes: list[str] | None
     ``notes`` gets the sentence saying so."""
     outputs: dict[str, np.ndarray] = {"x": data.X, "u": data.U, "t": data.t, "demo": data.demo}
     if kind == "constraint":
-        N, note = projection_on(model, data, data.U, new_data=True)
+        applied = applied_on(model, data, data.U, new_data=True)
+        N, note = projection_on(applied, data), applied.note
         if note and notes is not None:
             notes.append(note)
         outputs["N"] = N

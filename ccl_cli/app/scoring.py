@@ -15,6 +15,10 @@ over several demonstrations or held-out time blocks, its standard error (``se``)
 ``convention="original"`` switches to the original library's normalisers (NPPE and NPOE:
 var(π) for state-independent models, var of the true w for state-dependent ones; NPE:
 ddof = 0).
+
+A constraint is scored as it applies to the data (:meth:`applied_on`: the model's own stated
+rule for data it has not seen, :class:`~ccl_cli.learn.constraint.base.Applied`); nothing here
+fits a model.
 """
 
 from __future__ import annotations
@@ -25,9 +29,7 @@ import numpy as np
 
 from ccl_cli import metrics
 from ccl_cli.dataset import Demonstrations
-from ccl_cli.learn.constraint import NoConstraint, PerDemonstration, PerWindow, StateIndependentConstraint
-from ccl_cli.learn.constraint.base import projection_at
-from ccl_cli.learn.constraint.windows import refit_on_new_demos
+from ccl_cli.learn.constraint.base import Applied
 
 KINDS = {"learn-a": "constraint", "learn-v": "nullspace", "learn-pi": "policy"}
 
@@ -36,37 +38,27 @@ def _dict(*items: metrics.Metric) -> dict[str, dict]:
     return {m.name: m.as_dict() for m in items}
 
 
-def _base(model: Any) -> Any:
-    model = vars(model).get("model_", model)  # auto: the model it chose
-    return model.estimator if isinstance(model, PerDemonstration) else model
+def applied_on(model: Any, d: Demonstrations, Y: np.ndarray, new_data: bool = False) -> Applied:
+    """A constraint model as it applies to ``d`` with observations ``Y`` (N, q): by its own
+    stated rule (:meth:`~ccl_cli.learn.constraint.base.ConstraintModel.applies_to`) — as fitted,
+    or, for a model per stretch on demonstrations it has not seen (any, with ``new_data``: a saved
+    model on a recording), fitted on ``d`` as the rule says, with the note saying so."""
+    return model.applies_to(d.X, Y, groups=d.demo, t=d.t, new_recording=new_data)
 
 
-def state_dependent(model: Any) -> bool:
-    """Whether a constraint model's A depends on x (everything but nhat, per window or none)."""
-    return not isinstance(_base(model), StateIndependentConstraint | PerWindow | NoConstraint)
+def projection_on(applied: Applied, d: Demonstrations) -> np.ndarray:
+    """Ñ (N, q, q) of an applied constraint model at the samples of ``d``."""
+    return applied.model.projection(d.X, groups=d.demo, t=d.t)
 
 
-def projection_on(model: Any, d: Demonstrations, Y: np.ndarray, new_data: bool = False
-                  ) -> tuple[np.ndarray, str | None]:
-    """Ñ (N, q, q) of a constraint model on ``d``, and None — or, for a model fitted per window
-    or per demonstration on demonstrations it has not seen (any, with ``new_data``: a saved
-    model on a recording), Ñ of the same kind of model fitted on ``d``'s observations ``Y``
-    (N, q) and the sentence saying so."""
-    refit = refit_on_new_demos(model, d.X, Y, d.demo, d.t, always=new_data)
-    if refit is not None:
-        return projection_at(refit[0], d.X, d.demo, d.t), refit[1]
-    return projection_at(model, d.X, d.demo, d.t), None
+def task_part(applied: Applied, d: Demonstrations) -> np.ndarray | None:
+    """The learnt task part ṽ = Ã⁺ b̃ (§1) of an applied constraint model with a task term at the
+    samples of ``d``: (N, q), or ``None`` when the model has none (then ṽ = 0)."""
+    return applied.model.task_part(d.X, groups=d.demo, t=d.t)
 
 
 def _has_true_constraint(d: Demonstrations) -> bool:
     return d.has_truth("pi") and (d.has_truth("N") or d.has_truth("A"))
-
-
-def task_part(model: Any, X: np.ndarray, demo: np.ndarray | None = None) -> np.ndarray | None:
-    """The learnt task part ṽ = Ã⁺ b̃ (§1) of a constraint model with a task term: (N, q),
-    or ``None`` when the model has none (then ṽ = 0)."""
-    model = vars(model).get("model_", model)  # auto: the model it chose
-    return model.task_part(X, groups=demo) if hasattr(model, "task_part") else None
 
 
 def groups_of(d: Demonstrations) -> np.ndarray:
@@ -83,13 +75,14 @@ def groups_of(d: Demonstrations) -> np.ndarray:
     return np.r_[0, np.cumsum(cut)]
 
 
-def constraint_metrics(model: Any, d: Demonstrations, Y: np.ndarray, convention: str = "ccl",
-                       of: str = "u", new_data: bool = False) -> dict[str, dict]:
+def constraint_metrics(applied: Applied, d: Demonstrations, Y: np.ndarray, convention: str = "ccl",
+                       of: str = "u") -> dict[str, dict]:
     """NPOE of the observations ``Y`` (N, q) the model was learnt from (``of`` names them)
-    and, with ground truth π and N, NPPE; both under ``convention`` (``new_data``: see
-    :func:`projection_on`; its note goes into every entry)."""
-    N_est, note = projection_on(model, d, Y, new_data)
-    sd = state_dependent(model)
+    and, with ground truth π and N, NPPE; both under ``convention``, of the constraint model as
+    it applies to ``d`` (:func:`applied_on`; its note, when it was fitted there, goes into every
+    entry)."""
+    N_est, note = projection_on(applied, d), applied.note
+    sd = applied.model.varies_with_state
     truth = _has_true_constraint(d)
     Pi = d.truth["pi"] if truth else None
     W = None
@@ -97,7 +90,7 @@ def constraint_metrics(model: Any, d: Demonstrations, Y: np.ndarray, convention:
         W = d.truth["w"] if d.has_truth("w") else np.einsum("nij,nj->ni", d.true_projection(), Pi)
     groups = groups_of(d)
     items = [metrics.npoe(N_est, Y, convention, Pi=None if sd else Pi, W=W,
-                          V_est=task_part(model, d.X, d.demo), of=of, groups=groups)]
+                          V_est=task_part(applied, d), of=of, groups=groups)]
     if truth:
         items.append(metrics.nppe(d.true_projection(), N_est, Pi, d.U, convention, state_dependent=sd,
                                   groups=groups))
@@ -118,10 +111,11 @@ def nullspace_metrics(w: np.ndarray, d: Demonstrations, convention: str = "ccl")
     return _dict(*items)
 
 
-def policy_metrics(est: np.ndarray, d: Demonstrations, constraint: Any = None, Y: np.ndarray | None = None,
-                   of: str = "u") -> dict[str, dict]:
-    """With ground truth: NUPE and NCPE of π̃ (N, q). With a learnt ``constraint`` (and the
-    observations ``Y`` it was learnt from): NCPE_obs, the observations against Ñπ̃."""
+def policy_metrics(est: np.ndarray, d: Demonstrations, constraint: Applied | None = None,
+                   Y: np.ndarray | None = None, of: str = "u") -> dict[str, dict]:
+    """With ground truth: NUPE and NCPE of π̃ (N, q). With a learnt ``constraint`` as it applies
+    to ``d`` (:func:`applied_on`, with the observations ``Y`` it was learnt from): NCPE_obs, the
+    observations against Ñπ̃."""
     items = []
     groups = groups_of(d)
     if d.has_truth("pi"):
@@ -130,6 +124,6 @@ def policy_metrics(est: np.ndarray, d: Demonstrations, constraint: Any = None, Y
             items.append(metrics.ncpe(d.true_projection(), d.truth["pi"], est, groups))
     if constraint is not None:
         Y = d.U if Y is None else Y
-        items.append(metrics.ncpe_observed(projection_on(constraint, d, Y)[0], Y, est,
-                                           task_part(constraint, d.X, d.demo), of, groups))
+        items.append(metrics.ncpe_observed(projection_on(constraint, d), Y, est, task_part(constraint, d),
+                                           of, groups))
     return _dict(*items)

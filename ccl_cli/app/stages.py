@@ -18,12 +18,10 @@ import numpy as np
 from ccl_cli import diagnostics
 from ccl_cli.app import scoring
 from ccl_cli.app.views import View, constant_rows, describe_constraint, stage_views
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, Derivative
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn import model_selection
-from ccl_cli.learn.constraint import ConstraintInStretches, PerDemonstration, PerWindow
-from ccl_cli.learn.constraint.base import fit_constraint
-from ccl_cli.learn.constraint.windows import fitted_per_stretch
+from ccl_cli.learn.constraint import PerDemonstration, PerWindow
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
 from ccl_cli.spec import constraint_class
@@ -50,6 +48,9 @@ class StageResult:
     #: (:mod:`ccl_cli.diagnostics`: overfit, no_better_than_baseline, constraint_does_not_hold)
     status: str = "ok"
     checks: list[dict[str, str]] = field(default_factory=list)
+    #: whether the model speaks for data it was not fitted on (False for a constraint whose rule
+    #: for new data carries nothing over: it has no test figures)
+    generalises: bool = True
 
 
 @dataclass
@@ -66,12 +67,8 @@ def guard_gap(spec: Any, data: Demonstrations | None = None) -> int:
     from the rate and recorded in the data's metadata), else :data:`model_selection.DEFAULT_GAP`."""
     if spec.data.test.gap is not None:
         return int(spec.data.test.gap)
-    if data is not None:
-        from ccl_cli.diagnostics import derivation
-
-        derived, window, _ = derivation(data)
-        if derived:
-            return max(window, model_selection.DEFAULT_GAP)
+    if data is not None and data.derivative.derived:
+        return max(data.derivative.window, model_selection.DEFAULT_GAP)
     action = spec.data.action
     if action is not None and action.derive and action.window:
         return max(int(action.window), 1)
@@ -106,11 +103,10 @@ def split_data(data: Demonstrations, spec: Any, masks: dict[str, list[int]] | No
 
 
 def _heldout_blocks(model: Any) -> dict[str, Any] | None:
-    """The held-out NPOE of a model fitted per demonstration or window — blocks held out inside
-    the demonstrations it was fitted on (its ``heldout_``) — as a metric entry; None for a global
-    model (its held-out figure is the test split's) or when none was measured."""
-    local = fitted_per_stretch(model)
-    h = getattr(local, "heldout_", None) if local is not None else None
+    """The held-out NPOE of a model fitted per stretch (demonstration, window, segment) — blocks
+    held out inside the stretches it was fitted on (its ``heldout_``) — as a metric entry; None
+    for a global model (its held-out figure is the test split's) or when none was measured."""
+    h = model.heldout_ if model.is_local else None
     if not h:
         return None
     return {"name": "NPOE", "value": h["mean"], "error": None, "normaliser": None, "normaliser_of": "u",
@@ -258,9 +254,9 @@ class Pipeline:
                               f"{q}-dimensional actions allow 1 to {max(q - 1, 1)} constraints")
         model = make_constraint(opts, self.seed)
         target = self._target(on, "train", tr)
-        try:  # the learners that read the time structure (auto, per_window) get t and how u was made
-            fit_constraint(model, tr.X, target, tr.demo, tr.t,
-                           diagnostics.action_derivative(tr) if target is tr.U else False)
+        how = tr.derivative if target is tr.U else Derivative(False)  # a learnt w̃ is no derivative
+        try:
+            model.fit(tr.X, target, groups=tr.demo, t=tr.t, derivative=how)
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             raise LearningError(f"learn-a failed: {exc}") from None
         return model
@@ -308,7 +304,8 @@ class Pipeline:
             result.info["tuning"] = model.tuning_
         result.info["constraint"] = describe_constraint(model, tr)
         heldout = _heldout_blocks(model)
-        if isinstance(model, PerDemonstration):
+        result.generalises = model.new_data_rule.carries_over
+        if not result.generalises:
             result.info["per_demo_note"] = (
                 "One constraint per training demonstration: a held-out demonstration has none, so there "
                 "are no test metrics; " + ("the held-out figure is from blocks held out inside each "
@@ -317,22 +314,23 @@ class Pipeline:
                                            "them, so every figure is a training figure."))
         targets = {part: self._target(on, part, d) for part, d in self.parts()}
         result.score = lambda part, d, convention: scoring.constraint_metrics(
-            model, d, targets[part], convention, of="learnt w" if on == "w" else "u")
+            scoring.applied_on(model, d, targets[part]), d, targets[part], convention,
+            of="learnt w" if on == "w" else "u")
         self._score_parts(result)
         if heldout is not None:
             result.metrics["heldout_blocks"] = {"NPOE": heldout}
         part, d = self._held_out()
         checks = diagnostics.overfit("learn-a", "NPOE", result.metrics["train"]["NPOE"],
                                      heldout or result.metrics.get("test", {}).get("NPOE"))
-        if on == "u" and not isinstance(model, PerDemonstration):
+        if on == "u" and result.generalises:
             evidence = diagnostics.constraint_evidence(model, d, d.U)
             result.info["evidence"] = {"part": part, **evidence} if evidence else None
             checks += diagnostics.does_not_hold("learn-a", evidence, f"{part} data")
         rows = constant_rows(model, tr)
         if rows is not None:
-            chosen, judged = getattr(model, "model_", model), (tr, target)
-            if isinstance(chosen, ConstraintInStretches):  # judged where it claims to hold, not in free air
-                inside = chosen.holds(tr.X, tr.demo, tr.t)
+            judged = (tr, target)
+            inside = model.holds(tr.X, groups=tr.demo, t=tr.t)
+            if not inside.all():  # judged where it claims to hold, not in free air
                 judged = (tr.subset(inside), target[inside])
             self.warnings += diagnostics.emit(diagnostics.constraint_varies("learn-a", rows, *judged))
         self._judge(result, checks)
@@ -344,8 +342,8 @@ class Pipeline:
         the training demonstrations it knows) into ``into`` (default: its own metrics)."""
         into = result.metrics if into is None else into
         for part, d in self.parts():
-            if isinstance(result.model, PerDemonstration) and part != "train":
-                continue  # a per-demonstration model knows only its own demonstrations
+            if not result.generalises and part != "train":
+                continue  # e.g. a per-demonstration model knows only its own demonstrations
             convention = convention or self.convention
             if convention == self.convention and into is not result.metrics and part in result.metrics:
                 scored = dict(result.metrics[part])  # the same numbers: no need to score again
@@ -358,8 +356,8 @@ class Pipeline:
         if method != "pi-coupled":
             return None
         source = opts.projections
-        if source in ("learnt", "auto") and self.constraint is not None:
-            return scoring.projection_on(self.constraint, d, d.U)[0]  # per stretch: fitted on d
+        if source in ("learnt", "auto") and self.constraint is not None:  # per stretch: by its rule on d
+            return scoring.projection_on(scoring.applied_on(self.constraint, d, d.U), d)
         if source in ("true", "auto") and (d.has_truth("N") or d.has_truth("A")):
             return d.true_projection()
         raise ConfigError("pi-coupled needs projections: run learn-a first (projections: learnt) or "
@@ -387,20 +385,19 @@ class Pipeline:
         targets = {part: self._target(on, part, d) for part, d in self.parts()}
         of = "learnt w" if self._on(on) == "w" else "u"
 
-        def score(part: str, d: Demonstrations, convention: str) -> dict:
-            knows = constraint is not None and not (isinstance(constraint, PerDemonstration)
-                                                    and part != "train")
-            return scoring.policy_metrics(model.predict(d.X), d, constraint if knows else None,
-                                           targets[part], of)
+        def applied(part: str, d: Demonstrations) -> Any:
+            """The learnt constraint on ``d`` (None: none, or one that knows only its training data)."""
+            if constraint is None or (part != "train" and not constraint.new_data_rule.carries_over):
+                return None
+            return scoring.applied_on(constraint, d, targets[part])
 
-        result.score = score
+        result.score = lambda part, d, convention: scoring.policy_metrics(
+            model.predict(d.X), d, applied(part, d), targets[part], of)
         self._score_parts(result)
         if result.baseline is not None:  # the dpl baseline is its own model, with its own metrics
             baseline = StageResult("learn-pi", "dpl", result.baseline)
-            knows = {part: constraint is not None and not (isinstance(constraint, PerDemonstration)
-                                                           and part != "train") for part, _ in self.parts()}
             baseline.score = lambda part, d, convention: scoring.policy_metrics(
-                result.baseline.predict(d.X), d, constraint if knows[part] else None, targets[part], of)
+                result.baseline.predict(d.X), d, applied(part, d), targets[part], of)
             self._score_parts(baseline)
             result.info["baseline"] = {"method": "dpl", **baseline.metrics}
         self.warnings += diagnostics.emit(diagnostics.not_identifiable(

@@ -21,9 +21,7 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.dataset import Demonstrations
-from ccl_cli.learn.constraint import PerDemonstration
-from ccl_cli.learn.constraint.base import constraint_at
-from ccl_cli.learn.constraint.windows import PerWindow, fitted_per_stretch, refit_on_new_demos
+from ccl_cli.learn.constraint.base import Windows
 from ccl_cli.metrics import row_basis, subspace_angle
 
 GRID = 22  # points per axis of the grid a 2-D field is evaluated on
@@ -68,14 +66,13 @@ def null_direction(model: Any):
 
 
 def constant_rows(model: Any, d: Demonstrations) -> np.ndarray | None:
-    """The rows (s, q) of a constant learnt constraint (one ``A_`` of shape (s, q); for
-    ``method: auto``, of the model it chose), orthonormal; None for state-dependent,
-    per-demonstration and per-window models."""
-    chosen = getattr(model, "model_", model)
-    A = getattr(chosen, "A_", None)
-    if isinstance(chosen, PerDemonstration) or A is None or np.ndim(A) != 2:
+    """The rows (s, q) of a constant learnt constraint (its ``constant_rows()``; for ``method:
+    auto``, of the model it chose), orthonormal; None for state-dependent, per-demonstration
+    and per-window models."""
+    A = model.constant_rows()
+    if A is None:
         return None
-    if not getattr(chosen, "n_constraints_", 0):
+    if not model.n_constraints_:
         return np.zeros((0, d.n_action))
     return row_basis(np.asarray(A, dtype=float))
 
@@ -89,32 +86,29 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
     between the two row spaces (for one row in 3-D: the angle between the plane normals).
     Per demonstration: that angle per demonstration (with ground truth)."""
     names = short_names(d.action_names)
-    if isinstance(model, PerDemonstration):
+    by_demo = model.models_by_demonstration()
+    if by_demo is not None:
         if not d.has_truth("A"):
             return None
         angles = {}
-        for k, m in model.models_.items():
+        for k, m in by_demo.items():
             sel = np.flatnonzero(d.demo == k)
-            if sel.size == 0 or not hasattr(m, "constraint"):
+            if sel.size == 0:
                 continue
             learnt = m.constraint(d.X[sel[:1]])[0]
             angles[int(k)] = subspace_angle(learnt, d.truth_per_sample("A")[sel[0]])
         if not angles:
             return None
         return {"per_demo_angle_deg": angles, "median_angle_deg": float(np.median(list(angles.values())))}
-    try:
-        i = int(np.argmin(np.sum((d.X - d.X.mean(0)) ** 2, axis=1)))
-        A = getattr(model, "A_", None)  # constant rows (also those of a constraint in stretches)
-        learnt = row_basis(A if np.ndim(A) == 2 else
-                           constraint_at(model, d.X[i:i + 1], d.demo[i:i + 1], d.t[i:i + 1])[0])
-    except (AttributeError, NotImplementedError):
-        return None
+    i = int(np.argmin(np.sum((d.X - d.X.mean(0)) ** 2, axis=1)))
+    A = model.constant_rows()  # constant rows (also those of a constraint in stretches)
+    learnt = row_basis(A if A is not None else
+                       model.constraint(d.X[i:i + 1], groups=d.demo[i:i + 1], t=d.t[i:i + 1])[0])
     if not len(learnt):
         return None  # no constraint: nothing to draw (the selection says why)
     learnt = learnt * np.sign(learnt[np.arange(len(learnt)), np.argmax(np.abs(learnt), axis=1)])[:, None]
-    out: dict[str, Any] = {"names": names, "rows": learnt.tolist(),
-                           "at": "constant" if np.ndim(getattr(model, "A_", None)) == 2 else
-                           f"state of sample {i} (nearest the mean state)"}
+    at = "constant" if A is not None else f"state of sample {i} (nearest the mean state)"
+    out: dict[str, Any] = {"names": names, "rows": learnt.tolist(), "at": at}
     if d.has_truth("A"):
         true = row_basis(d.truth_per_sample("A")[i])
         true = true * np.sign(true[np.arange(len(true)), np.argmax(np.abs(true), axis=1)])[:, None]
@@ -122,9 +116,9 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
         out["angle_deg"] = subspace_angle(learnt, true)
     if d.n_action == 3 and len(learnt) == 1:
         out["plane_normal"] = learnt[0].tolist()
-    local = fitted_per_stretch(model)
-    if isinstance(local, PerWindow) and local.window_ is not None:
-        out["per"], out["stretches"] = local.per, stretch_rows(local, d)
+    windows = model.windows()
+    if windows is not None:
+        out["per"], out["stretches"] = windows.per, stretch_rows(windows, d)
     return out
 
 
@@ -132,13 +126,14 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
 SHOWN_STRETCHES = 12
 
 
-def stretch_rows(model: PerWindow, d: Demonstrations) -> dict[str, Any]:
-    """The first :data:`SHOWN_STRETCHES` windows or segments of ``model``: demonstration,
-    start and end (s), their first row (sign fixed as above) and, with ground truth, the angle
-    to the true rows at the sample nearest the stretch's middle; and how many there are."""
-    spans = model.spans()
+def stretch_rows(windows: Windows, d: Demonstrations) -> dict[str, Any]:
+    """The first :data:`SHOWN_STRETCHES` windows or segments of a model (its ``windows()``):
+    demonstration, start and end (s), their first row (sign fixed as above) and, with ground
+    truth, the angle to the true rows at the sample nearest the stretch's middle; and how many
+    there are."""
+    spans = windows.spans
     rows = []
-    for (demo, start, end), A in zip(spans[:SHOWN_STRETCHES], model.A_[:SHOWN_STRETCHES], strict=False):
+    for (demo, start, end), A in zip(spans[:SHOWN_STRETCHES], windows.rows[:SHOWN_STRETCHES], strict=False):
         if not len(A):
             continue
         row = A[0] * np.sign(A[0][np.argmax(np.abs(A[0]))])
@@ -167,7 +162,7 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
     blocks, so titles say so; a per-demonstration constraint is shown on its ``train``
     demonstrations), with ``constraint`` the learnt constraint model of an earlier learn-a
     stage (for the predicted u = ṽ + Ñπ̃ of a policy)."""
-    from ccl_cli.app.scoring import projection_on, task_part
+    from ccl_cli.app.scoring import applied_on, projection_on, task_part
 
     model = result.model
     if model is None:
@@ -187,10 +182,10 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
                                ("learnt vs true null-space component",
                                 "learnt w̃ against the observations over time"))
     elif result.name == "learn-a":
-        if isinstance(model, PerDemonstration) and not dpart.startswith("train"):
-            d, dpart = train, "train" + suffix
-        N = projection_on(model, d, d.U)[0]
-        v = task_part(model, d.X, d.demo)
+        if not model.new_data_rule.carries_over and not dpart.startswith("train"):
+            d, dpart = train, "train" + suffix  # e.g. one model per demonstration: its own only
+        applied = applied_on(model, d, d.U)
+        N, v = projection_on(applied, d), task_part(applied, d)
         Y = d.U if v is None else d.U - v
         arrows = {"observed": ("observed u" if v is None else "u − its learnt task part Ã⁺b̃", Y),
                   "learnt": ("Ñ(u − Ã⁺b̃)" if v is not None else "Ñ u", np.einsum("nij,nj->ni", N, Y))}
@@ -201,8 +196,7 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
                       "learnt": ("Ñ π", np.einsum("nij,nj->ni", N, pi))}
         title_a = f"{title}: projection onto the learnt null space"
         if planar:
-            grid = None if isinstance(model, PerDemonstration) or model.needs_demo else field_on_grid(
-                d, null_direction(model))
+            grid = None if model.is_local else field_on_grid(d, null_direction(model))
             out.append(View("learn-a-field.png", "learn-a: learnt vs true projections", "field",
                             {"title": title_a, "d": d, "part": dpart, "arrows": arrows, "field": grid,
                              "field_label": "learnt null-space direction of Ñ(x) on a grid",
@@ -229,9 +223,9 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
         if result.baseline is not None:
             arrows["baseline"] = ("dpl baseline", result.baseline.predict(d.X))
         lines = dict(arrows)
-        if constraint is not None and not isinstance(constraint, PerDemonstration):
-            v = task_part(constraint, d.X, d.demo)
-            N = projection_on(constraint, d, d.U)[0]
+        if constraint is not None and constraint.new_data_rule.carries_over:
+            applied = applied_on(constraint, d, d.U)
+            v, N = task_part(applied, d), projection_on(applied, d)
             pred = np.einsum("nij,nj->ni", N, est) + (0 if v is None else v)
             lines["predicted"] = ("predicted u = Ñπ̃" if v is None else "predicted u = Ã⁺b̃ + Ñπ̃", pred)
         out += _field_and_time("learn-pi", f"{title}: null-space policy π", d, dpart, arrows, lines,
@@ -264,15 +258,9 @@ def trajectory_normals(model: Any, d: Demonstrations, title: str, part: str) -> 
     sign fixed towards the mean row) and the true ones where known: {"X", "demo", "at" (M,),
     "learnt" (M, s, 3), "true" (M, s', 3) or None, ...}."""
     at = np.unique(np.linspace(0, d.n_samples - 1, TRAJECTORY_ARROWS).astype(int))
-    if isinstance(model, PerDemonstration):
-        rows = np.zeros((len(at), model.n_constraints_, 3))
-        for k, m in model.models_.items():
-            sel = d.demo[at] == k
-            if sel.any() and m.n_constraints_ == model.n_constraints_:
-                rows[sel] = m.constraint(d.X[at[sel]])
-    else:  # a model per stretch on demonstrations it did not see: as projection_on does
-        refit = refit_on_new_demos(model, d.X, d.U, d.demo, d.t)
-        rows = constraint_at(model if refit is None else refit[0], d.X[at], d.demo[at], d.t[at])
+    # a model per stretch on demonstrations it did not see: by its rule, as the metrics are
+    applied = model.applies_to(d.X, d.U, groups=d.demo, t=d.t, new_recording=False).model
+    rows = applied.constraint(d.X[at], groups=d.demo[at], t=d.t[at])[:, : model.n_constraints_]
     rows = rows / np.maximum(np.linalg.norm(rows, axis=-1, keepdims=True), 1e-300)
     ref = rows.mean(0)  # one sign for every arrow of a row: towards the row's mean direction
     rows = rows * np.sign(np.einsum("msq,sq->ms", rows, ref) + 1e-300)[..., None]

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, Derivative, Repair
 from ccl_cli.errors import InputError
 from ccl_cli.io.derivative import derive_actions
 from ccl_cli.io.options import UNIT_NS, DataOptions, DemoOptions, TimeOptions
@@ -306,17 +306,21 @@ def assemble(parts: list[Part], options: DataOptions, where: str, state_names: l
     X, t, ids = np.concatenate(Xs), np.concatenate(Ts), np.concatenate(demo)
     U = np.concatenate(Us) if q is not None else None
     fixed = repair_recording(t, X, U, ids, options.faults)  # before actions are derived
+    repair = Repair.untouched(len(t))
     if fixed is not None:
         t, X, U, ids = fixed.t, fixed.X, fixed.U, ids[fixed.keep]
         meta["faults"] = fixed.report
+        repair = fixed.record
     bad = np.flatnonzero((np.diff(t) <= 0) & (ids[1:] == ids[:-1]))
     if len(bad):
         k = int(bad[0]) + 1
         first = int(np.argmax(ids == ids[k]))
         raise InputError(f"{where}: {parts[ids[k]].label}: time is not strictly increasing at sample "
                          f"{k - first} ({t[k - 1]!r} s then {t[k]!r} s)")
+    how = Derivative()  # recorded actions of a table: not said
     if U is None:
         U, meta["action"] = derive_actions(t, X, ids, options.action)
+        how = Derivative.from_record(meta["action"])
         action_names = [f"d{n}/dt" for n in state_names]
     if dropped:
         meta["dropped_nonfinite"] = dropped
@@ -327,4 +331,4 @@ def assemble(parts: list[Part], options: DataOptions, where: str, state_names: l
         units = meta["forward_kinematics"]["units"]
     return Demonstrations(X=X, U=U, demo=ids, t=t, state_names=state_names, action_names=action_names,
                           state_units=units, action_units=[f"{u}/s" for u in units] if units else None,
-                          metadata=meta)
+                          metadata=meta, derivative=how, repair=repair)

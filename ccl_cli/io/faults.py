@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from ccl_cli.dataset import Repair
 from ccl_cli.errors import ConfigError
 from ccl_cli.io.blockwise import each_block
 from ccl_cli.learn.noise import MAD_NORMAL, robust_std, white_noise_var
@@ -506,6 +507,31 @@ class Cleaned:
     def report(self, t: np.ndarray) -> list[dict[str, Any]]:
         """Every finding as a dict, ranges and times in the input's samples and stamps t (N,)."""
         return [f.as_dict(t) for f in self.findings]
+
+    def record(self) -> Repair:
+        """What was done to each input sample, and why (:func:`repair_record`)."""
+        return repair_record(self.findings, self.keep)
+
+
+#: The precedence of what was done to a sample several findings cover.
+_PRECEDENCE = {"reported": 0, "restamped": 1, "mirrored": 2, "dropped": 3}
+
+
+def repair_record(findings: list[Finding], keep: np.ndarray) -> Repair:
+    """What the repair did to each of the N input samples (:class:`~ccl_cli.dataset.Repair`):
+    ``dropped`` where ``keep`` (N,) is False, else ``mirrored`` or ``restamped`` where a finding
+    with that action covers it, else ``kept``; the reason is the kind of the finding behind it (a
+    kept sample a finding covers was found faulty and reported, kept as recorded). The row of a
+    kept sample is its place among the kept ones."""
+    n = len(keep)
+    level, why = np.full(n, -1, np.int8), np.zeros(n, np.uint8)
+    kinds = ("", *dict.fromkeys(f.kind for f in findings))
+    for f in findings:  # a loop over the kinds of fault
+        rank = _PRECEDENCE.get(f.action, 0)
+        on = f.mask & (rank > level)
+        level[on], why[on] = rank, kinds.index(f.kind)
+    done = np.select([~keep, level == 2, level == 1], [3, 1, 2], 0).astype(np.uint8)
+    return Repair(done, why, kinds, np.where(keep, np.cumsum(keep) - 1, -1).astype(np.int64))
 
 
 def run_edges(mask: np.ndarray, reach: int) -> np.ndarray:

@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, Repair
 from ccl_cli.io.derivative import default_window
-from ccl_cli.io.faults import Cleaned, Finding, clean_positions, run_edges, runs
+from ccl_cli.io.faults import Cleaned, Finding, clean_positions, repair_record, run_edges, runs
 from ccl_cli.io.options import FaultOptions
 
 #: The fewest samples the fault checks look at (the spike test's stencil).
@@ -37,13 +37,15 @@ MIN_SAMPLES = 5
 class Repaired:
     """A recording after its fault checks: ``keep`` (N,) the input samples kept; t (M,), X (M, p),
     U (M, q) or None, repaired; ``report`` the findings (counts, index and time ranges in the
-    input's samples and stamps) as :mod:`ccl_cli.diagnostics` reads them."""
+    input's samples and stamps) as :mod:`ccl_cli.diagnostics` reads them; ``record`` what was
+    done to each input sample and why."""
 
     keep: np.ndarray
     t: np.ndarray
     X: np.ndarray
     U: np.ndarray | None
     report: list[dict[str, Any]]
+    record: Repair
 
 
 def check_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, options: FaultOptions
@@ -66,16 +68,18 @@ def repair_recording(t: np.ndarray, X: np.ndarray, U: np.ndarray | None, demo: n
         return None
     report = cleaned.report(t)
     if U is None:
-        return Repaired(cleaned.keep, cleaned.t, cleaned.X, None, report)
+        return Repaired(cleaned.keep, cleaned.t, cleaned.X, None, report, cleaned.record())
     near = _near_repairs(cleaned.findings, t, demo)
     U = _mirror_followers(U, X, t, demo, cleaned.findings)
     keep = cleaned.keep & ~near
     kept = ~near[cleaned.keep]  # of the samples clean_positions kept
     lost = near & cleaned.keep
+    findings = list(cleaned.findings)
     if lost.any():
-        report.append(Finding("action_near_fault", lost, "dropped",
-                              {"window_samples": int(2 * _reach(t, demo) + 1)}).as_dict(t))
-    return Repaired(keep, cleaned.t[kept], cleaned.X[kept], U[keep], report)
+        findings.append(Finding("action_near_fault", lost, "dropped",
+                                {"window_samples": int(2 * _reach(t, demo) + 1)}))
+        report.append(findings[-1].as_dict(t))
+    return Repaired(keep, cleaned.t[kept], cleaned.X[kept], U[keep], report, repair_record(findings, keep))
 
 
 def _reach(t: np.ndarray, demo: np.ndarray) -> int:
@@ -122,8 +126,10 @@ def repair_dataset(data: Demonstrations, options: FaultOptions) -> Demonstration
     samples (ground truth with them), repaired, the findings in ``metadata["faults"]``."""
     fixed = repair_recording(data.t, data.X, data.U, data.demo, options)
     if fixed is None:
+        data.repair = Repair.untouched(data.n_samples)
         return data
     out = data.subset(fixed.keep)
     out.t, out.X, out.U = fixed.t, fixed.X, fixed.U
     out.metadata = {**data.metadata, "faults": fixed.report}
+    out.repair = fixed.record
     return out

@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, Derivative, Repair
 from ccl_cli.errors import InputError
 from ccl_cli.io.derivative import derive_actions
 from ccl_cli.io.options import DataOptions, DemoOptions, FaultOptions, StreamOptions
@@ -33,13 +33,15 @@ log = logging.getLogger("ccl")
 @dataclass
 class Stream:
     """One selection from one file: ``t_ns`` (n,) int64 nanoseconds, ``values`` (n, d)
-    float64, a name per column, the file it came from and what was read (``meta``)."""
+    float64, a name per column, the file it came from and what was read (``meta``); for the
+    state, what its fault repair did to each sample (``repair``)."""
 
     t_ns: np.ndarray
     values: np.ndarray
     names: list[str]
     source: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
+    repair: Repair | None = None
 
 
 class StreamReader(ReaderBase):
@@ -85,7 +87,7 @@ class StreamReader(ReaderBase):
         raw = self.streams(selections + ([signal.selection()] if signal is not None else []))
         state = _repaired(raw[0], selections[0], o)
         rest = [_clean(s, sel, o.nonfinite) for s, sel in zip(raw[1:], selections[1:], strict=False)]
-        t_ns, X = state.t_ns, state.values
+        t_ns, X, repair = state.t_ns, state.values, state.repair
         meta: dict[str, Any] = {"source": str(self.path), "format": self.format, "state": state.meta}
         if state.meta.get("faults"):
             meta["faults"] = state.meta.pop("faults")
@@ -102,10 +104,11 @@ class StreamReader(ReaderBase):
                                  "overlap the state stream in time")
             dropped = int((~inside).sum())
             if dropped:
-                t_ns, X = t_ns[inside], X[inside]
+                t_ns, X, repair = t_ns[inside], X[inside], repair.after(inside, len(inside))
             action_names = action.names
             meta["action"] = {**action.meta, "aligned": "linear interpolation onto state stamps",
                               "dropped_outside_span": dropped}
+            how = Derivative(False)  # recorded
         else:
             action_names = [f"d{n}/dt" for n in state.names]
         state_names, units = state.names, None
@@ -128,13 +131,16 @@ class StreamReader(ReaderBase):
         t = t_s  # seconds from the first sample kept
         if not keep.all():  # samples outside every demos.range
             t_ns, t_s, X, demo = t_ns[keep], t_s[keep], X[keep], demo[keep]
+            repair = repair.after(keep, len(keep))
             U = U[keep] if U is not None else None
             t = (t_ns - t_ns[0]) / 1e9
         if U is None:
             U, meta["action"] = derive_actions(t_s, X, demo, o.action)
+            how = Derivative.from_record(meta["action"])
         data = Demonstrations(X=X, U=U, demo=demo, t=t,
                               state_names=state_names, action_names=action_names, state_units=units,
-                              action_units=[f"{u}/s" for u in units] if units else None, metadata=meta)
+                              action_units=[f"{u}/s" for u in units] if units else None, metadata=meta,
+                              derivative=how, repair=repair)
         return Recording(data, int(t_ns[0]))
 
     def inspect(self, gap: float | None = None) -> dict[str, Any]:
@@ -179,12 +185,14 @@ def _repair_faults(stream: Stream, options: FaultOptions, demos: DemoOptions, wh
     pieces = segment_ids(np.maximum.accumulate(t_s), cuts, where)
     cleaned = check_positions(t_s, stream.values, pieces, options)
     if cleaned is None:
+        stream.repair = Repair.untouched(len(t_s))
         return stream
     kept = stream.t_ns[cleaned.keep]
     moved = cleaned.t != t_s[cleaned.keep]
     stream.t_ns = np.where(moved, t0 + np.round(cleaned.t * 1e9).astype(np.int64), kept)
     stream.values = cleaned.X
     stream.meta = {**stream.meta, "faults": cleaned.report(t_s)}
+    stream.repair = cleaned.record()
     return stream
 
 

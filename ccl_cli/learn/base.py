@@ -8,16 +8,24 @@
   once in ``_parameter_constraints`` (format: :mod:`ccl_cli.learn.params`) and checked at
   the start of ``fit``.
 * ``fit(X, U, *, groups=None)`` returns ``self`` (``groups``: demonstration id per
-  sample). Learners that read the time structure (learn-a's ``auto``, the per-window
-  constraint) also take ``t`` (N,), the sample times in seconds, and ``derivative``, how U
-  was made (the readers' {"window", "order"} when derived from the states, False when
-  recorded, None when not known): ``fit(X, U, *, groups=None, t=None, derivative=None)``;
-  :func:`ccl_cli.learn.constraint.base.fit_constraint` passes them to those that take them.
-  Learnt attributes end in ``_``; ``n_features_in_`` is the state dimension p
-  seen in ``fit`` and every prediction checks it. The learnt attributes a saved model
-  holds are declared once in ``_fitted_attributes`` (read by :mod:`ccl_cli.models`).
+  sample). Every constraint learner takes one signature (:mod:`ccl_cli.learn.constraint.base`):
+  ``fit(X, U, *, groups=None, t=None, derivative=None)`` — ``t`` (N,) the sample times in
+  seconds, ``derivative`` how U was made (:class:`~ccl_cli.dataset.Derivative`); a learner
+  that does not read one of them ignores it. Learnt attributes end in ``_``;
+  ``n_features_in_`` is the state dimension p seen in ``fit`` and every prediction checks it.
+  The learnt attributes a saved model holds are declared once in ``_fitted_attributes``
+  (read by :mod:`ccl_cli.models`).
 * ``score(X, U, ...)`` is minus the learner's own held-out consistency error (higher is
   better), so scikit-learn's ``GridSearchCV`` and ``cross_validate`` work unchanged.
+* Metadata routing: the keyword-only arguments of ``fit`` and ``score`` beside X and U —
+  ``groups``, ``t`` (every learner takes them; one that does not read them says so),
+  ``derivative``, a pi-coupled policy's ``projections`` — are per-sample data of the
+  recording, so every learner *requests* them by default: with
+  ``sklearn.set_config(enable_metadata_routing=True)``, ``GridSearchCV(...).fit(X, U,
+  groups=..., t=...)`` and ``cross_validate(..., params={...})`` give each fold's fit and
+  score its part. ``set_fit_request`` / ``set_score_request`` change a request (``False``: not
+  passed, a string: an alias), as on scikit-learn's own estimators. scikit-learn is imported
+  only by :meth:`Estimator.get_metadata_routing`, which only scikit-learn calls.
 * Asking a learner for a prediction before ``fit`` raises :class:`NotFittedError`.
 
 :class:`NotFittedError` is a :class:`~ccl_cli.errors.LearningError` (exit code 1): a
@@ -38,12 +46,20 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ccl_cli.errors import InputError, LearningError
+from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn.params import validate_params
 
 
 class NotFittedError(LearningError):
     """A learner was asked for a prediction before ``fit``."""
+
+
+class Requests(dict):
+    """A learner's changed metadata requests: method → {metadata: request}. scikit-learn's
+    ``clone`` copies it with the learner (it calls ``__sklearn_clone__``), as :func:`clone` does."""
+
+    def __sklearn_clone__(self) -> Requests:
+        return copy.deepcopy(self)
 
 
 def check_xu(X: np.ndarray, U: np.ndarray, min_samples: int = 2) -> tuple[np.ndarray, np.ndarray]:
@@ -69,6 +85,13 @@ def _init_parameters(cls: type) -> tuple[str, ...]:
     params = inspect.signature(init).parameters.values()
     return tuple(sorted(p.name for p in params if p.name != "self"
                         and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)))
+
+
+@functools.cache
+def _keyword_only(cls: type, method: str) -> tuple[str, ...]:
+    """The keyword-only parameters of ``cls.method`` (read once per class and method)."""
+    params = inspect.signature(getattr(cls, method)).parameters.values()
+    return tuple(p.name for p in params if p.kind is p.KEYWORD_ONLY)
 
 
 class Estimator:
@@ -155,6 +178,40 @@ class Estimator:
             raise InputError(f"the model expects {want}, got {got}")
         return X
 
+    # -- what a loaded model is checked with (ccl_cli.models) ---------------------------------
+    @property
+    def chosen_(self) -> Estimator:
+        """The fitted model that answers for this one: itself (a learner that chooses among
+        models — learn-a's ``auto``, :class:`~ccl_cli.learn.model_selection.Tuned` — gives the
+        one it chose; a model file holds that one)."""
+        return self
+
+    def check_shapes(self) -> None:
+        """InputError (naming the learnt array) unless the learnt arrays fit together: what a
+        model read from a file is checked with before it predicts. Each learner checks its
+        own arrays and then calls this, which checks that a fitted RBF basis gives finite
+        features."""
+        basis = vars(self).get("basis_")
+        if basis is not None and hasattr(basis, "centres_") and \
+                not np.isfinite(basis.transform(basis.centres_[:1])).all():
+            raise InputError("the basis gives non-finite features")
+
+    def _shape_error(self, name: str) -> InputError:
+        return InputError(f"array {name} has the wrong shape for a {type(self).__name__}")
+
+    def _basis_width(self) -> int:
+        """K, the features of the fitted basis (InputError when the model holds none)."""
+        basis = vars(self).get("basis_")
+        if basis is None:
+            raise InputError(f"a {type(self).__name__} needs a basis (a /basis group)")
+        return int(basis.n_features)
+
+    def implied_n_features(self) -> int | None:
+        """The state dimension p that what the model holds implies (its fitted basis), None when
+        nothing does: a file that does not record ``n_features_in_`` is read with it."""
+        basis = vars(self).get("basis_")
+        return None if basis is None else basis.n_state
+
     def _check_fitted(self, *attrs: str) -> None:
         """Raise :class:`NotFittedError` unless every learnt attribute in ``attrs`` exists."""
         if not all(hasattr(self, a) for a in attrs):
@@ -165,6 +222,44 @@ class Estimator:
         for name, value in vars(fitted).items():
             if name.endswith("_") and not name.startswith("_"):
                 setattr(self, name, value)
+
+    # -- scikit-learn's metadata routing ------------------------------------------------------
+    def _metadata(self, method: str) -> tuple[str, ...]:
+        """The metadata ``method`` (``fit`` or ``score``) takes: its keyword-only parameters."""
+        return _keyword_only(type(self), method)
+
+    def _set_request(self, method: str, requests: dict[str, bool | str | None]) -> Estimator:
+        known = self._metadata(method)
+        for name in requests:
+            if name not in known:
+                raise ConfigError(f"{type(self).__name__}.{method} takes no {name!r} "
+                                  f"(it takes: {', '.join(known)})")
+        table = Requests(vars(self).get("_metadata_request", {}))
+        table[method] = {**table.get(method, {}), **requests}
+        self._metadata_request = table  # cloned with the learner (here and by scikit-learn)
+        return self
+
+    def set_fit_request(self, **requests: bool | str | None) -> Estimator:
+        """Which metadata scikit-learn routes to ``fit`` (True by default; False, None or an
+        alias): ``est.set_fit_request(t=False)``."""
+        return self._set_request("fit", requests)
+
+    def set_score_request(self, **requests: bool | str | None) -> Estimator:
+        """Which metadata scikit-learn routes to ``score`` (as :meth:`set_fit_request`)."""
+        return self._set_request("score", requests)
+
+    def get_metadata_routing(self) -> Any:
+        """scikit-learn's ``MetadataRequest`` of this learner: ``fit`` and ``score`` request their
+        metadata (:meth:`_metadata`) unless :meth:`set_fit_request` / :meth:`set_score_request`
+        said otherwise. Only scikit-learn calls it, so only then is scikit-learn imported."""
+        from sklearn.utils.metadata_routing import MetadataRequest
+
+        request = MetadataRequest(owner=type(self).__name__)
+        chosen = vars(self).get("_metadata_request", {})
+        for method in ("fit", "score"):
+            for name in self._metadata(method):
+                getattr(request, method).add_request(param=name, alias=chosen.get(method, {}).get(name, True))
+        return request
 
     def __sklearn_tags__(self) -> SimpleNamespace:
         """The description scikit-learn's meta-estimators read (GridSearchCV, clone checks):
@@ -203,4 +298,7 @@ def clone(estimator: Any) -> Any:
     if not hasattr(estimator, "get_params") or isinstance(estimator, type):
         return copy.deepcopy(estimator)
     params = estimator.get_params(deep=False)
-    return type(estimator)(**{k: clone(v) for k, v in params.items()})
+    out = type(estimator)(**{k: clone(v) for k, v in params.items()})
+    if "_metadata_request" in vars(estimator):  # its metadata requests go with it
+        out._metadata_request = copy.deepcopy(estimator._metadata_request)
+    return out

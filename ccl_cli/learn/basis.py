@@ -208,6 +208,11 @@ class RBFBasis:
     def n_features(self) -> int:
         return int(self.centres_.shape[0])
 
+    @property
+    def n_state(self) -> int:
+        """p, the state dimension of the centres."""
+        return int(self.centres_.shape[1])
+
     def transform(self, X: np.ndarray) -> np.ndarray:
         """β(X): (N, p) → (N, K); rows sum to 1."""
         logits = -pairwise_sqdist(np.asarray(X, dtype=float), self.centres_) / (2.0 * self.sigma2_)
@@ -235,6 +240,10 @@ class LinearBasis:
     @property
     def n_features(self) -> int:
         return self.n_state_ + 1
+
+    @property
+    def n_state(self) -> int:
+        return int(self.n_state_)
 
     def transform(self, X: np.ndarray) -> np.ndarray:
         X = np.asarray(X, dtype=float)

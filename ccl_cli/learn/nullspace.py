@@ -160,10 +160,11 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         return [((self.n_centres, 16, 36, 64, 100), (1.0,))]
 
-    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None
-            ) -> NullSpaceComponent:
+    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+            t: np.ndarray | None = None) -> NullSpaceComponent:
         """Learn w̃ from states X (N, p) and actions U (N, q); ``groups`` (N,):
-        demonstration ids, for the folds of tuning."""
+        demonstration ids, for the folds of tuning. The sample times ``t`` every learner takes
+        are not read (w̃(x) depends on the state alone)."""
         return self._fit(X, U, groups=groups)
 
     def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
@@ -288,7 +289,15 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
         """ṽ = u − w̃(x): (N, q)."""
         return np.asarray(U, dtype=float) - self.predict(X)
 
-    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None) -> float:
+    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+              t: np.ndarray | None = None) -> float:
         """−NPE of actions U (N, q) at states X (N, p) (§6): −mean ‖P̃u − w̃‖² / Σ var(u),
         P̃ = w̃w̃ᵀ/‖w̃‖²; higher is better."""
         return -npe_error(self.predict(X), np.asarray(U, dtype=float))
+
+    def check_shapes(self) -> None:
+        """W_ (q, K), K the basis's features."""
+        K = self._basis_width()
+        if self.W_ is None or self.W_.shape != (self.n_action_, K):
+            raise self._shape_error("W_")
+        super().check_shapes()

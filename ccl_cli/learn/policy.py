@@ -110,6 +110,9 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         floor = ("min_norm",) if self.method in NOISE_METHODS else ()
         return ("cutoff", WIDTH, *floor) if self.method == "lwpi" else ("cutoff", *floor)
 
+    #: pi-coupled reads the projections in a search's fits (the times it does not read).
+    FIT_DATA = ("projections",)
+
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         if self.method == "lwpi":
             return [((self.n_centres, 9, 16, 25, 49, 100), (1.0, 0.25, 0.1, 0.03, 0.01))]
@@ -134,10 +137,11 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         return grid
 
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-            projections: np.ndarray | None = None) -> PolicyLearner:
+            projections: np.ndarray | None = None, t: np.ndarray | None = None) -> PolicyLearner:
         """Fit on states X (N, p), actions U (N, q); ``pi-coupled`` needs ``projections``
         Ñ_n (N, q, q) (true, or from a learnt constraint model). ``groups`` (N,):
-        demonstration ids, only for the folds of tuning."""
+        demonstration ids, only for the folds of tuning. The sample times ``t`` every learner
+        takes are not read (π̃(x) depends on the state alone)."""
         return self._fit(X, U, groups=groups, projections=projections)
 
     @property
@@ -396,7 +400,7 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         return np.einsum("ni,niq->nq", phi, local)
 
     def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-              projections: np.ndarray | None = None) -> float:
+              projections: np.ndarray | None = None, t: np.ndarray | None = None) -> float:
         """Minus the normalised inconsistency error (§5) of π̃ on actions U (N, q) at states
         X (N, p): −mean ‖u − ûûᵀπ̃(x)‖² / Σ var(u) (pi-weighted: terms weighted by ‖u‖²);
         pi-coupled with ``projections`` Ñ (N, q, q): −mean ‖u − Ñπ̃(x)‖² / Σ var(u). Higher is better."""
@@ -405,6 +409,15 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         if self.method == "pi-coupled":
             return -inconsistency_error(P, U, projections)
         return -inconsistency_error(P, U, weighted=self.method == "pi-weighted")
+
+
+    def check_shapes(self) -> None:
+        """W_ (K, q), or (K, p + 1, q) for lwpi, with the basis's K and p."""
+        K = self._basis_width()
+        want = (K, self.basis_.n_state + 1, self.n_action_) if self.method == "lwpi" else (K, self.n_action_)
+        if self.W_ is None or self.W_.shape != want:
+            raise self._shape_error("W_")
+        super().check_shapes()
 
 
 def rms_norm(U: np.ndarray) -> float:

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, Derivative
 from ccl_cli.errors import ConfigError
 from ccl_cli.io.derivative import local_polynomial_derivative, window_for_rate
 from ccl_cli.learn.linalg import nullspace_projection, unit_rows
@@ -73,12 +73,15 @@ def fault(kind: str, ranges: list[tuple[int, int]], t: np.ndarray, **extra: Any)
 
 
 def position_recording(X: np.ndarray, U: np.ndarray, demo: np.ndarray, t: np.ndarray,
-                       truth: dict[str, np.ndarray], metadata: dict[str, Any]) -> Demonstrations:
-    """Demonstrations of positions X (N, d) in m (axes x, y[, z]) and their velocities U (N, d)."""
+                       truth: dict[str, np.ndarray], metadata: dict[str, Any], derived: dict[str, int]
+                       ) -> Demonstrations:
+    """Demonstrations of positions X (N, d) in m (axes x, y[, z]) and their velocities U (N, d),
+    derived by the local polynomial ``derived`` ({"window", "order"}, :func:`derive`)."""
     axes = ["x", "y", "z"][: X.shape[1]]
     return Demonstrations(X=X, U=U, demo=demo, t=t, truth=truth, state_names=axes,
                           action_names=[f"d{a}/dt" for a in axes], state_units=["m"] * len(axes),
-                          action_units=["m/s"] * len(axes), metadata=metadata)
+                          action_units=["m/s"] * len(axes), metadata=metadata,
+                          derivative=Derivative.of(derived))
 
 
 def _free_truth(V: np.ndarray) -> dict[str, np.ndarray]:
@@ -164,7 +167,7 @@ def tracker_flips(
         raise ConfigError("tracker_flips needs n_flips, n_spikes ≥ 0 and positive flip_s, spike_m ranges")
     clean = makers[surface](duration=duration, rate=rate, noise=noise, n_recordings=n_recordings, seed=seed)
     rng = np.random.default_rng([seed, 0xF11B])
-    window = clean.metadata["derivative"]["window"]
+    window = clean.derivative.window
     n = clean.n_samples
     starts = np.flatnonzero(np.r_[True, clean.demo[1:] != clean.demo[:-1]])
     stops = np.r_[starts[1:], n]
@@ -210,7 +213,7 @@ def tracker_flips(
     faults += [fault(STAMP_FAULTS[k], r, t) for k, r in stamp_ranges.items()]
     meta = {**clean.metadata, "simulated": "tracker_flips", "surface": surface, "derivative": deriv,
             "offset_m": [float(v) for v in offset], "faults": faults}
-    return position_recording(X, U, demo, t, data.truth, meta)
+    return position_recording(X, U, demo, t, data.truth, meta, deriv)
 
 
 # -- a surface that tilts -------------------------------------------------------------------
@@ -305,7 +308,7 @@ def tracker_tilt(
             "derivative": deriv, "window_s": window_s, "windows": windows,
             "angles_deg": angles.round(3).tolist(),
             "angle_range_deg": [float(upper.min()), float(upper.max())], "faults": []}
-    return position_recording(X, U, demo, t, truth, meta)
+    return position_recording(X, U, demo, t, truth, meta, deriv)
 
 
 # -- motion with no constraint ------------------------------------------------------------------
@@ -380,7 +383,7 @@ def free_reach(
     U, deriv = derive(t, X, demo, rate)
     meta = {"simulated": "free_reach", "rate_hz": rate, "noise_m": noise, "derivative": deriv,
             "n_constraints": 0, "faults": []}
-    return position_recording(X, U, demo, t, _free_truth(xdot), meta)
+    return position_recording(X, U, demo, t, _free_truth(xdot), meta, deriv)
 
 
 def flow2d(
@@ -427,4 +430,4 @@ def flow2d(
     U, deriv = derive(t, X, demo, rate)
     meta = {"simulated": "flow2d", "rate_hz": rate, "noise_m": noise, "derivative": deriv,
             "n_constraints": 0, "faults": []}
-    return position_recording(X, U, demo, t, _free_truth(xdot), meta)
+    return position_recording(X, U, demo, t, _free_truth(xdot), meta, deriv)

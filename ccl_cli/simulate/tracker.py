@@ -12,7 +12,7 @@ from typing import Literal
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, Derivative
 from ccl_cli.errors import ConfigError
 from ccl_cli.io.derivative import local_polynomial_derivative, window_for_rate
 from ccl_cli.learn import defaults
@@ -189,7 +189,7 @@ def _tracker(surface: str, *, duration: float, rate: float, noise: float, n_reco
             "derivative": {"window": window, "order": order}}
     return Demonstrations(X=X, U=U, demo=demo, t=t, truth=truth, state_names=["x", "y", "z"],
                           action_names=["dx/dt", "dy/dt", "dz/dt"], state_units=["m"] * 3,
-                          action_units=["m/s"] * 3, metadata=meta)
+                          action_units=["m/s"] * 3, metadata=meta, derivative=Derivative(True, window, order))
 
 
 def tracker(

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, Derivative
 from ccl_cli.errors import ConfigError
 from ccl_cli.learn.kinematics import SevenDofArm
 from ccl_cli.learn.linalg import nullspace_projection, unit_rows
@@ -299,7 +299,8 @@ def _wipe_data(log: WipeLog, X: np.ndarray, U: np.ndarray, truth: dict[str, np.n
         meta["derivative"] = derivative
     return Demonstrations(X=X, U=U, demo=log.demo, t=log.t, truth=truth, state_names=names,
                           action_names=[f"d{n}/dt" for n in names], state_units=units,
-                          action_units=[f"{u}/s" for u in units], metadata=meta)
+                          action_units=[f"{u}/s" for u in units], metadata=meta,
+                          derivative=Derivative.of(derivative) if derivative else Derivative())
 
 
 def _split(N: np.ndarray, velocity: np.ndarray) -> dict[str, np.ndarray]:

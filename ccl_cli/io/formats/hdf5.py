@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from ccl_cli.dataset import Derivative
 from ccl_cli.errors import InputError
 from ccl_cli.io.arrays import (
     NAME_ATTRS,
@@ -220,6 +221,7 @@ class Hdf5Reader(ReaderBase):
                     f"time.rate, demos.group or demos.dataset); the file has: {_contents(f)}")
         data, info = read_demonstrations(self.path)
         data.metadata["format"] = "hdf5"
+        data.derivative = Derivative.from_record(info["provenance"].get("derivative")) or Derivative()
         data = repair_dataset(data, self.options.faults)  # a file another tool wrote may hold them
         data, masks = resegment(data, self.options.demos, str(self.path), info["masks"])
         return Recording(data, info["time_origin_ns"], masks, info["provenance"])

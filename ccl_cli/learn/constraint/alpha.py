@@ -11,6 +11,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ccl_cli.dataset import HowMade
 from ccl_cli.errors import ConfigError
 from ccl_cli.learn.basis import Basis, BasisParams
 from ccl_cli.learn.constraint import noise_rank as nr
@@ -100,8 +101,19 @@ class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedPara
         """The rows of angle ``weights`` at states X (N, p), in action space: (N, m, q)."""
         return rows_from_weights(basis.transform(X), weights, self.n_action_)
 
+    def _angle_dim(self) -> int:
+        """d, the space the unit rows a(θ) live in (q; lambda: r, the rows of Φ)."""
+        return int(self.n_action_)
+
+    def check_shapes(self) -> None:
+        """weights_: row k (d − 1 − k, K) for the s ≤ d − 1 rows, K the basis's features."""
+        K, d = self._basis_width(), self._angle_dim()
+        if self.n_constraints_ > d - 1 or any(w.shape != (d - 1 - k, K) for k, w in enumerate(self.weights_)):
+            raise self._shape_error("weights_")
+        super().check_shapes()
+
     def _fit_timed(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None, t: np.ndarray | None,
-                   derivative: dict | bool | None) -> AngularConstraintMixin:
+                   derivative: HowMade) -> AngularConstraintMixin:
         """``_fit`` with the sample times and how U was made, for the ``noise`` rule."""
         self._timing = (None if t is None else np.asarray(t, dtype=float), derivative)
         try:
@@ -142,11 +154,13 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         return [((self.n_centres, 9), (1.0,)), ((36,), (0.25,))]
 
-    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None
+    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+            t: np.ndarray | None = None, derivative: HowMade = None
             ) -> StateDependentConstraint:
         """Learn Ã(x) from states X (N, p) and actions U (N, q); ``groups`` (N,):
-        demonstration ids, for the folds of tuning and of the ``cv`` rule."""
-        return self._fit(X, U, groups=groups)
+        demonstration ids, for the folds of tuning and of the ``cv`` rule; ``t`` (N,) s and
+        ``derivative`` (how U was made) for the noise of the ``noise`` rule (as lambda's)."""
+        return self._fit_timed(X, U, groups, t, derivative)
 
     def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
                   basis: Basis | None = None, start: StateDependentConstraint | None = None
@@ -169,10 +183,12 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
         return rows_from_weights(self.basis_.transform(self._check_states(X)), self.weights_[:k],
                                  self.n_action_)
 
-    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
         """Ã(X): (N, p) → (N, s, q), orthonormal rows."""
         return self._rows(X)
 
-    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
         """Ñ(x) = I − Ã(x)ᵀÃ(x): (N, p) → (N, q, q)."""
         return self.projection_k(X, None)

@@ -83,20 +83,14 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from ccl_cli.dataset import HowMade
 from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn import blas
 from ccl_cli.learn import model_selection as ms
-from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import evidence as ev
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint.alpha import StateDependentConstraint
-from ccl_cli.learn.constraint.base import (
-    ConstraintModel,
-    check_rows_asked,
-    constraint_at,
-    fit_constraint,
-    projection_at,
-)
+from ccl_cli.learn.constraint.base import Applied, ConstraintModel, NewDataRule, Windows, check_rows_asked
 from ccl_cli.learn.constraint.lambda_ import FEATURE_PARAMS, KnownFeatureConstraint, make_features
 from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.nhat import StateIndependentConstraint
@@ -164,14 +158,38 @@ class AutoConstraint(ConstraintModel, SeedParams):
     cv_folds: int = N_FOLDS
     gap: int | None = None
 
-    # -- the winner's interface -------------------------------------------------------------
+    # -- the protocol: answered as the model it chose --------------------------------------
     @property
-    def needs_time(self) -> bool:  # type: ignore[override]
-        return bool(getattr(vars(self).get("model_"), "needs_time", False))
+    def chosen_(self) -> ConstraintModel:
+        """The model it chose, fitted on all the data (``selection_["reason"]`` says why)."""
+        self._check_fitted("model_")
+        return self.model_
 
     @property
-    def needs_demo(self) -> bool:  # type: ignore[override]
-        return bool(getattr(vars(self).get("model_"), "needs_demo", False))
+    def local_to(self) -> str | None:  # type: ignore[override]
+        return self.chosen_.local_to
+
+    @property
+    def varies_with_state(self) -> bool:  # type: ignore[override]
+        return self.chosen_.varies_with_state
+
+    @property
+    def new_data_rule(self) -> NewDataRule:
+        return self.chosen_.new_data_rule
+
+    def applies_to(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None, new_recording: bool = True) -> Applied:
+        """As the model it chose applies (its :attr:`new_data_rule`)."""
+        return self.chosen_.applies_to(X, U, groups=groups, t=t, new_recording=new_recording)
+
+    def constant_rows(self) -> np.ndarray | None:
+        return self.chosen_.constant_rows()
+
+    def windows(self) -> Windows | None:
+        return self.chosen_.windows()
+
+    def models_by_demonstration(self) -> dict[int, ConstraintModel] | None:
+        return self.chosen_.models_by_demonstration()
 
     def __getattr__(self, name: str) -> Any:
         """Learnt attributes (``..._``) of the winner, e.g. ``A_`` or ``basis_``."""
@@ -182,23 +200,25 @@ class AutoConstraint(ConstraintModel, SeedParams):
     def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
                    t: np.ndarray | None = None) -> np.ndarray:
         """The winner's Ã(X): (N, p) → (N, k, q) (k = 0: no rows)."""
-        self._check_fitted("model_")
-        return constraint_at(self.model_, X, groups, t)
+        return self.chosen_.constraint(X, groups=groups, t=t)
 
     def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
                    t: np.ndarray | None = None) -> np.ndarray:
         """The winner's Ñ(X): (N, p) → (N, q, q)."""
-        self._check_fitted("model_")
-        return projection_at(self.model_, X, groups, t)
+        return self.chosen_.projection(X, groups=groups, t=t)
 
-    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-              t: np.ndarray | None = None) -> float:
-        """−NPOE of U (N, q) under the winner."""
-        return -npoe_error(self.projection(X, groups=groups, t=t), np.asarray(U, dtype=float))
+    def task_part(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                  t: np.ndarray | None = None) -> np.ndarray | None:
+        """The winner's ṽ (N, q), or None."""
+        return self.chosen_.task_part(X, groups=groups, t=t)
+
+    def holds(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+              t: np.ndarray | None = None) -> np.ndarray:
+        return self.chosen_.holds(X, groups=groups, t=t)
 
     # -- fitting --------------------------------------------------------------------------
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-            t: np.ndarray | None = None, derivative: dict | bool | None = None) -> AutoConstraint:
+            t: np.ndarray | None = None, derivative: HowMade = None) -> AutoConstraint:
         """Choose and fit the constraint model.
 
         Args:
@@ -221,7 +241,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
         data = ev.Sample.of(X, U, groups, t, derivative)
         derived = data.derived
         self.n_action_ = q
-        gap = self.gap if self.gap is not None else int(derived["window"]) if derived else ms.RECORDED_GAP
+        gap = self.gap if self.gap is not None else int(derived.window) if derived else ms.RECORDED_GAP
         try:
             folds = ms.make_folds(data.groups, n, self.cv_folds, self.seed, gap)
         except InputError as exc:
@@ -408,7 +428,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
         if winner is None or k == 0:
             return NoConstraint().fit(data.X, data.U, groups=data.groups)
         how = data.derivative if winner.candidate.name == "stretches" else None  # its noise needs it
-        return fit_constraint(winner.candidate.make(k), data.X, data.U, data.groups, data.t, how)
+        return winner.candidate.make(k).fit(data.X, data.U, groups=data.groups, t=data.t, derivative=how)
 
     def _fit_without_cv(self, data: ev.Sample, why: str) -> None:
         """Too few samples to cross-validate: nhat, its rank by the noise rule on its own rows

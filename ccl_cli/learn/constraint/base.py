@@ -1,6 +1,43 @@
-"""The interface every learnt constraint shares (ALGORITHMS.md §1, §3)."""
+"""The protocol every learnt constraint keeps (ALGORITHMS.md §1, §3): what the app, the model
+files and the renderers may ask a constraint model — and all they ask.
+
+=====================================  =========================================================
+``fit(X, U, *, groups, t, derivative)``  one signature for every model: X (N, p), U (N, q),
+                                       demonstration ids and sample times (N,), how U was made
+                                       (:class:`~ccl_cli.dataset.Derivative`); a model that does
+                                       not read one of them ignores it (its docstring says so)
+``n_constraints_``, ``n_action_``      k rows, q actions; ``selection_`` how k was chosen
+``constraint(X, *, groups, t)``        Ã at each sample, (N, s, q): the rows at given states
+                                       (and, for a model per stretch, demonstrations and times)
+``projection(X, *, groups, t)``        Ñ = I − Ã⁺Ã at each sample, (N, q, q)
+``task_part(X, *, groups, t)``         ṽ = Ã⁺b̃ (N, q), None without a task term
+``score(X, U, *, groups, t)``          −NPOE (§6): higher is better
+``holds(X, *, groups, t)``             where the model claims its rows, (N,) bool
+``is_local`` / ``local_to``            whether one fitted piece speaks only for a stretch of the
+                                       recording, and which: None (global), ``demonstration``,
+                                       ``window``, ``segment`` or ``stretch``
+``varies_with_state``                  Ã depends on the state x (the original library's
+                                       normaliser of §6 follows it)
+``chosen_``                            the fitted model that answers (learn-a's ``auto``: the one
+                                       it chose; ``selection_["reason"]`` says why)
+``constant_rows()``                    the rows (s, q) of one constant Ã, else None
+``windows()``                          the windows / segments and their rows, else None
+``models_by_demonstration()``          the separate model of each demonstration, else None
+``new_data_rule``                      how it applies to a recording it has not seen, stated
+                                       (:class:`NewDataRule`: words and data)
+``applies_to(X, U, *, groups, t, new_recording)``  the model as it applies to given data by
+                                       that rule (:class:`Applied`): deterministic, and a fit it
+                                       needs is said in its ``note``, never silent
+``check_shapes()``                     (every learner) its learnt arrays fit together
+=====================================  =========================================================
+
+No caller needs to know a model's class: ``auto`` answers every question as the model it chose.
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -10,64 +47,183 @@ from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.linalg import nullspace_projection
 
 
-class ConstraintModel(Estimator):
-    """A learnt constraint. Subclasses implement :meth:`constraint` (and may give a
-    cheaper :meth:`projection`).
+@dataclass(frozen=True)
+class NewDataRule:
+    """How a fitted constraint model applies to a recording it has not seen.
 
-    Attributes (after ``fit``): ``n_constraints_``, ``selection_`` (dict with the rule,
-    the residuals it looked at and why it chose ``n_constraints_``), ``n_features_in_``.
+    ``rule``: ``as fitted`` (nothing is fitted: the learnt Ã at the new states), ``rows fitted per
+    stretch`` (the same kind of model, its parameters and k fixed, fitted on the new data's own
+    stretches), ``stretches classified`` (the learnt rows kept, where they hold found on the new
+    data) or ``fitted per demonstration`` (the estimator fitted anew on each new demonstration);
+    ``keeps``: what carries over from the fit (empty: nothing — figures on new data are then
+    not figures of this model); ``words``: the rule in a sentence."""
+
+    rule: str
+    keeps: tuple[str, ...]
+    words: str
+
+    @property
+    def carries_over(self) -> bool:
+        """Whether anything learnt carries over to a recording the model has not seen."""
+        return bool(self.keeps)
+
+    def as_dict(self) -> dict[str, object]:
+        return {"rule": self.rule, "keeps": list(self.keeps), "words": self.words}
+
+
+@dataclass(frozen=True)
+class Applied:
+    """A constraint model as it applies to given data (:meth:`ConstraintModel.applies_to`): the
+    fitted ``model`` whose rows those data take, the ``rule`` that made it, and ``note`` — the
+    sentence saying what was fitted on those data (None: the model applies as fitted)."""
+
+    model: ConstraintModel
+    rule: NewDataRule
+    note: str | None = None
+
+    @property
+    def refitted(self) -> bool:
+        return self.note is not None
+
+
+#: The rule of a model that is one Ã(x) for every sample.
+AS_FITTED = NewDataRule("as fitted", ("rows",), "one Ã(x) for every sample: a new recording takes the "
+                        "learnt rows at its own states; nothing is fitted on it")
+
+
+def unseen(known: set[int], groups: np.ndarray | None, new_recording: bool) -> bool:
+    """Whether data of demonstrations ``groups`` (N,) (None: one, id 0) hold one a model fitted on
+    the demonstrations ``known`` has not seen: any, for a ``new_recording`` (its ids say nothing)."""
+    ids = {0} if groups is None else {int(d) for d in np.unique(groups)}
+    return new_recording or not ids <= known
+
+
+def refit_note(what: str) -> str:
+    """The sentence of a model per stretch fitted again on data it describes (``what``: its kind)."""
+    return (f"a model per stretch, fitted again on these data ({what}): it describes only the "
+            "recordings it was fitted on, so its errors here are training figures")
+
+
+class ConstraintModel(Estimator):
+    """A learnt constraint: the protocol of the module docstring. Subclasses implement ``fit``
+    and :meth:`constraint` (and may give a cheaper :meth:`projection`); a model per stretch
+    also its locality, :meth:`applies_to` and :attr:`new_data_rule`.
+
+    Attributes (after ``fit``): ``n_constraints_``, ``n_action_``, ``selection_`` (dict with
+    the rule, the residuals it looked at and why it chose ``n_constraints_``), ``n_features_in_``.
     """
 
-    #: True when the model needs the demonstration id of each sample to predict.
-    needs_demo = False
-    #: True when it also needs each sample's time (``projection(X, groups=..., t=...)``).
-    needs_time = False
+    #: None for one Ã(x) over every sample; else what one fitted piece speaks for.
+    local_to: ClassVar[str | None] = None
+    #: Whether Ã depends on the state x.
+    varies_with_state: ClassVar[bool] = True
 
-    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+            t: np.ndarray | None = None, derivative: object = None) -> ConstraintModel:
+        raise NotImplementedError
+
+    # -- what the model is ------------------------------------------------------------------
+    @property
+    def is_local(self) -> bool:
+        """Whether one fitted piece speaks only for a stretch of the recording (``local_to``)."""
+        return self.local_to is not None
+
+    @property
+    def chosen_(self) -> ConstraintModel:
+        """The fitted model that answers: this one (``auto`` gives the one it chose)."""
+        self._check_fitted("n_constraints_")
+        return self
+
+    @property
+    def new_data_rule(self) -> NewDataRule:
+        """How this model applies to a recording it has not seen (:class:`NewDataRule`)."""
+        return AS_FITTED
+
+    def applies_to(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None, new_recording: bool = True) -> Applied:
+        """This model as it applies to states X (N, p) and observations U (N, q) of
+        demonstrations ``groups`` at times ``t`` (N,): by :attr:`new_data_rule`. ``new_recording``
+        False: the data are a part of the recordings the model was fitted on (a held-out part),
+        so a demonstration id it has seen is that demonstration. A global model applies as
+        fitted."""
+        self._check_fitted("n_constraints_")
+        return Applied(self, self.new_data_rule)
+
+    def constant_rows(self) -> np.ndarray | None:
+        """The rows (s, q) when Ã is one constant matrix wherever the model holds, else None."""
+        return None
+
+    def windows(self) -> Windows | None:
+        """The fixed windows or segments the model holds one constant Ã per, else None."""
+        return None
+
+    def models_by_demonstration(self) -> dict[int, ConstraintModel] | None:
+        """Demonstration id → its own model, for a model fitted separately per demonstration."""
+        return None
+
+    # -- what it predicts -------------------------------------------------------------------
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
         """Ã(X): (N, p) → (N, s, q)."""
         raise NotImplementedError
 
-    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
         """Ñ(X) = I − Ã⁺Ã: (N, p) → (N, q, q) (ALGORITHMS.md §1)."""
         self._check_fitted("n_constraints_")
-        return nullspace_projection(self.constraint(X, groups=groups))
+        return nullspace_projection(self.constraint(X, groups=groups, t=t))
 
-    def task_part(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray | None:
+    def task_part(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                  t: np.ndarray | None = None) -> np.ndarray | None:
         """The learnt task part ṽ = Ã⁺b̃ (§1) at states X (N, p): (N, q); None for a model
         without a task term (then ṽ = 0)."""
         return None
 
-    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None) -> float:
+    def holds(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+              t: np.ndarray | None = None) -> np.ndarray:
+        """Whether the model claims its rows at each sample: (N,) bool (everywhere, but for a
+        constraint that holds in stretches)."""
+        return np.ones(len(self._check_states(X)), dtype=bool)
+
+    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+              t: np.ndarray | None = None) -> float:
         """−NPOE of actions U (N, q) at states X (N, p) (§6): −mean ‖z − Ñ(x)z‖² / Σ var(u),
         z = u − ṽ (the learnt task part, when the model has one); higher is better, 0 when every
-        action (less its task part) lies in the learnt null space."""
+        action (less its task part) lies in the learnt null space.
+
+        Scored as the model applies to these data (:meth:`applies_to`, a part of the recordings
+        it was fitted on): a demonstration it has seen takes its fitted rows, one it has not the
+        rows its stated rule gives — a global model's own; for a model per stretch, rows fitted
+        on that demonstration with k fixed, so the score there is a training figure (a held-out
+        one needs blocks held out inside its stretches, as ``heldout_`` and learn-a's ``auto``
+        measure it)."""
+        model = self.applies_to(X, U, groups=groups, t=t, new_recording=False).model
         U = np.asarray(U, dtype=float)
-        V = self.task_part(X, groups=groups)
-        return -npoe_error(self.projection(X, groups=groups), U if V is None else U - V, U)
+        V = model.task_part(X, groups=groups, t=t)
+        return -npoe_error(model.projection(X, groups=groups, t=t), U if V is None else U - V, U)
+
+
+@dataclass(frozen=True)
+class Windows:
+    """The windows (or segments) of a model with one constant Ã per window: ``per`` in words
+    ("4-s window"), ``spans`` (S, 3) [demonstration id, start s, end s] and ``rows`` (S, s, q)."""
+
+    per: str
+    spans: np.ndarray
+    rows: np.ndarray
 
 
 class TimedConstraint(ConstraintModel):
     """A constraint whose orthonormal rows depend on each sample's demonstration and time (one
-    constant A per window, or in the stretches where it holds): :meth:`constraint` takes
-    ``groups`` and ``t`` (N,)."""
+    constant A per window, or in the stretches where it holds): Ñ = I − ÃᵀÃ."""
 
-    needs_demo = True
-    needs_time = True
-
-    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
-                   t: np.ndarray | None = None) -> np.ndarray:
-        raise NotImplementedError
+    varies_with_state = False
 
     def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
                    t: np.ndarray | None = None) -> np.ndarray:
         """Ñ = I − ÃᵀÃ of each sample (orthonormal rows, or rows of zeros): (N, q, q)."""
         A = self.constraint(X, groups=groups, t=t)
         return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", A, A)
-
-    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-              t: np.ndarray | None = None) -> float:
-        """−NPOE of U (N, q) (see :class:`ConstraintModel`)."""
-        return -npoe_error(self.projection(X, groups=groups, t=t), np.asarray(U, dtype=float))
 
 
 def check_rows_asked(q: int, n_constraints: int | None) -> None:
@@ -77,31 +233,3 @@ def check_rows_asked(q: int, n_constraints: int | None) -> None:
         raise ConfigError("learning a constraint needs at least 2 action dimensions")
     if n_constraints is not None and n_constraints > q - 1:
         raise ConfigError(f"n_constraints must be between 0 and {q - 1}, got {n_constraints}")
-
-
-def projection_at(model: ConstraintModel, X: np.ndarray, groups: np.ndarray | None = None,
-                  t: np.ndarray | None = None) -> np.ndarray:
-    """Ñ of any constraint model at states X (N, p) of demonstrations ``groups`` at times ``t``
-    (N,) s: the times go only to models that use them (``needs_time``). → (N, q, q)."""
-    if getattr(model, "needs_time", False):
-        return model.projection(X, groups=groups, t=t)
-    return model.projection(X, groups=groups)
-
-
-def constraint_at(model: ConstraintModel, X: np.ndarray, groups: np.ndarray | None = None,
-                  t: np.ndarray | None = None) -> np.ndarray:
-    """Ã of any constraint model at X (N, p) as :func:`projection_at`: → (N, s, q)."""
-    if getattr(model, "needs_time", False):
-        return model.constraint(X, groups=groups, t=t)
-    return model.constraint(X, groups=groups)
-
-
-def fit_constraint(model: ConstraintModel, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None = None,
-                   t: np.ndarray | None = None, derivative: dict | bool | None = None) -> ConstraintModel:
-    """``model.fit`` with the sample times ``t`` and how U was made (``derivative``) for the
-    models that read the time structure (auto, per window), the plain fit for the others."""
-    import inspect
-
-    takes = inspect.signature(model.fit).parameters
-    extra = {k: v for k, v in (("t", t), ("derivative", derivative)) if k in takes}
-    return model.fit(X, U, groups=groups, **extra)

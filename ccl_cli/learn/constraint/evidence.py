@@ -17,7 +17,7 @@ from ccl_cli.learn import model_selection as ms
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import rank as sel
-from ccl_cli.learn.constraint.base import ConstraintModel, constraint_at, fit_constraint
+from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.linalg import nullspace_projection
 
 #: The data of one fit and how its actions were made (:class:`.noise_rank.Sample`).
@@ -95,8 +95,8 @@ def held_out_rows(cand: Candidate, folds: ms.Folds, m: int, data: Sample) -> np.
     X, U, g, t = data.X, data.U, data.groups, data.t
     rows = np.zeros((len(U), m, U.shape[1]))
     for train, test in folds.pairs:
-        model = fit_constraint(cand.make(m), X[train], U[train], g[train], None if t is None else t[train])
-        rows[test] = constraint_at(model, X[test], g[test], None if t is None else t[test])[:, :m]
+        model = cand.make(m).fit(X[train], U[train], groups=g[train], t=None if t is None else t[train])
+        rows[test] = model.constraint(X[test], groups=g[test], t=None if t is None else t[test])[:, :m]
     return rows
 
 

@@ -14,6 +14,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ccl_cli.dataset import HowMade
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn.basis import Basis, make_basis
 from ccl_cli.learn.constraint import rank as sel
@@ -88,12 +89,15 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
         return [((k, (isqrt(k) + 1) ** 2), (1.0,))]
 
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-            t: np.ndarray | None = None, derivative: dict | bool | None = None) -> KnownFeatureConstraint:
+            t: np.ndarray | None = None, derivative: HowMade = None) -> KnownFeatureConstraint:
         """Learn Λ̃(x) from states X (N, p) and joint-space actions U (N, q); ``groups``
         (N,): demonstration ids, for the folds of tuning and of the ``cv`` rule; ``t`` (N,) s
         and ``derivative`` (how U was made: the readers' {"window", "order"}, False when
         recorded, None when not known) for the noise of the ``noise`` rule."""
         return self._fit_timed(X, U, groups, t, derivative)
+
+    def _angle_dim(self) -> int:
+        return int(self.n_task_)
 
     def _rows_at(self, basis: Basis, X: np.ndarray, weights: list[np.ndarray]) -> np.ndarray:
         """Λ(X)Φ(X) of angle ``weights`` (:meth:`AngularConstraintMixin._rows_at`): (N, m, q)."""
@@ -150,6 +154,7 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
         lam = rows_from_weights(self.basis_.transform(X), self.weights_[:k], self.n_task_)
         return np.einsum("nkr,nrq->nkq", lam, self.features_(X))
 
-    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
         """Ã(X) = Λ̃(X) Φ(X): (N, s, q)."""
         return self._constraint(X)

@@ -19,10 +19,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from itertools import combinations_with_replacement
+from math import comb
 from typing import Any, ClassVar, get_args
 
 import numpy as np
 
+from ccl_cli.dataset import HowMade
+from ccl_cli.errors import InputError
 from ccl_cli.learn.basis import Basis, BasisParams, make_basis
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.base import ConstraintModel
@@ -221,9 +224,11 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
             W = (vecs[:, :k] / scale[:, None]).T[:, :m]
         return np.maximum(vals, 0.0), vecs, scale, msq
 
-    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None) -> LinearConstraint:
+    def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+            t: np.ndarray | None = None, derivative: HowMade = None) -> LinearConstraint:
         """Estimate W (and W_b) from states X (N, p) and actions U (N, q); ``groups`` (N,):
-        demonstration ids, for the folds of tuning and of the ``cv`` rule."""
+        demonstration ids, for the folds of tuning and of the ``cv`` rule. Its rules read
+        neither the times ``t`` nor ``derivative`` (the protocol's signature)."""
         return self._fit(X, U, groups=groups)
 
     def _fit_basis(self, X: np.ndarray, U: np.ndarray) -> Basis | None:
@@ -278,11 +283,13 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
         self._check_fitted("W_")
         return np.einsum("km,nmq->nkq", self.W_[:k], self._phi(self._check_states(X)))
 
-    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
         """Ã(X) = W Φ_A(X): (N, s, q) (rows not normalised)."""
         return self._constraint(X)
 
-    def task_part(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray | None:
+    def task_part(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                  t: np.ndarray | None = None) -> np.ndarray | None:
         """ṽ = Ã⁺b̃ (§1): (N, p) → (N, q); None without a task term."""
         self._check_fitted("W_")
         if self.Wb_ is None:
@@ -296,3 +303,53 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
         if self.Wb_ is None:
             return np.zeros((len(X), self.n_constraints_))
         return self._task_features(X) @ self.Wb_.T
+
+    # -- a model read from a file ---------------------------------------------------------
+    def _widths(self, kind: str) -> list[int]:
+        """The column counts f(x) of regressor family ``kind`` may have (×q for Φ_A): 1 for
+        identity / constant, K for rbf, a polynomial's for every p up to 1024."""
+        if kind in ("identity", "constant"):
+            return [1]
+        if kind == "rbf":
+            basis = vars(self).get("basis_")
+            return [basis.n_features] if basis is not None else []
+        if not isinstance(self.degree, int) or not 0 <= self.degree <= 64:
+            return []
+        return [comb(p + self.degree, self.degree) for p in range(1, 1025)]
+
+    def check_shapes(self) -> None:
+        """Known regressors; W_ (s, width of Φ_A) — a robot's Jacobian rows (``regressors_``
+        rebuilt from the stored URDF first) or f(x) ⊗ I_q — and W_b (s, width of φ_b) with a task
+        term (else None)."""
+        q, s = self.n_action_, self.n_constraints_
+        robot = isinstance(self.regressors, dict) and self.regressors.get("kind") == "robot"
+        if "rbf" in (self.regressors, self.task_regressors if self.task else None):
+            self._basis_width()
+        if (not robot and self.regressors not in ("identity", "polynomial", "rbf")) or \
+                self.task_regressors not in ("constant", "polynomial", "rbf"):
+            raise InputError(f"unknown regressors {self.regressors!r} / {self.task_regressors!r}"[:300])
+        if robot:  # A(q) = W J(q)[rows]: one column of W per Jacobian row
+            joints = self.regressors_.n_joints
+            if joints != q:
+                raise InputError(f"the stored robot has {joints} joints, the model {q} actions")
+            widths = [len(self.regressors_.rows or range(6))]
+        else:
+            widths = [w * q for w in self._widths(self.regressors)]
+        W, Wb = self.W_, self.Wb_
+        if W is None or W.ndim != 2 or W.shape[0] != s or W.shape[1] not in widths:
+            raise self._shape_error("W_")
+        if self.task and (Wb is None or Wb.ndim != 2 or Wb.shape[0] != s or
+                          Wb.shape[1] not in self._widths(self.task_regressors)):
+            raise self._shape_error("Wb_")
+        if not self.task:
+            self.Wb_ = None
+        super().check_shapes()
+
+    def implied_n_features(self) -> int | None:
+        """p of the basis, else of polynomial regressors (degree ≥ 1) from W_'s width."""
+        found = super().implied_n_features()
+        if found is not None or not isinstance(self.degree, int) or self.degree < 1:
+            return found
+        width = (self.W_.shape[1] // self.n_action_ if self.regressors == "polynomial" else
+                 self.Wb_.shape[1] if self.task and self.task_regressors == "polynomial" else None)
+        return next((p for p in range(1, 1025) if comb(p + self.degree, self.degree) == width), None)

@@ -11,6 +11,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ccl_cli.dataset import HowMade
 from ccl_cli.errors import ConfigError
 from ccl_cli.learn.angles import unit_vector
 from ccl_cli.learn.constraint import rank as sel
@@ -76,10 +77,14 @@ class StateIndependentConstraint(ConstraintModel, sel.SelectionParams, sel.Thres
             return vecs.T, np.maximum(lams, 0.0)
         return _search_rows(C)
 
-    def fit(self, X: np.ndarray | None, U: np.ndarray, *, groups: np.ndarray | None = None
+    varies_with_state = False
+
+    def fit(self, X: np.ndarray | None, U: np.ndarray, *, groups: np.ndarray | None = None,
+            t: np.ndarray | None = None, derivative: HowMade = None
             ) -> StateIndependentConstraint:
         """Learn Ã from actions U (N, q); X (N, p) is only used for ``n_features_in_`` (it
-        may be None: any p is then accepted); ``groups`` (N,) for the ``cv`` rule's folds."""
+        may be None: any p is then accepted); ``groups`` (N,) for the ``cv`` rule's folds.
+        Its rules read neither the times ``t`` nor ``derivative`` (the protocol's signature)."""
         X, U = self._prepare_fit(X, U)
         n, q = U.shape
         max_k = self.max_constraints or q - 1
@@ -110,16 +115,29 @@ class StateIndependentConstraint(ConstraintModel, sel.SelectionParams, sel.Thres
         N = np.eye(self.n_action_) - A.T @ A
         return np.broadcast_to(N, (X.shape[0], *N.shape)).copy()
 
-    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
         """Ã broadcast to (N, s, q) for X (N, p)."""
         self._check_fitted("A_")
         X = self._check_states(X)
         return np.broadcast_to(self.A_, (X.shape[0], *self.A_.shape))
 
-    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
         """Ñ = I − ÃᵀÃ, broadcast to (N, q, q)."""
         self._check_fitted("A_")
         return self.projection_k(X, len(self.A_))
+
+    def constant_rows(self) -> np.ndarray:
+        """Ã (s, q): the same rows at every sample."""
+        self._check_fitted("A_")
+        return self.A_
+
+    def check_shapes(self) -> None:
+        """A_ (s, q)."""
+        if self.A_ is None or self.A_.shape != (self.n_constraints_, self.n_action_):
+            raise self._shape_error("A_")
+        super().check_shapes()
 
 
 def _search_rows(C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ccl_cli.dataset import Derivative, HowMade
 from ccl_cli.learn.constraint.rank import Selection
 from ccl_cli.learn.linalg import unit_rows
 from ccl_cli.learn.noise import default_window, derived_noise_var, white_noise_var
@@ -80,17 +81,17 @@ def _median_step(t: np.ndarray, demo: np.ndarray) -> float:
 
 
 def row_evidence(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarray,
-                 X: np.ndarray | None = None, derivative: dict | None = None, *,
+                 X: np.ndarray | None = None, derivative: HowMade = None, *,
                  recorded: bool = True) -> RowEvidence:
     """Energy, noise and share of the actions U (N, q) along candidate ``rows`` ((m, q) or
     (N, m, q)), demonstrations ``demo`` (N,) sampled at ``t`` (N,) s.
 
-    ``derivative`` ({"window", "order"}) says U was derived from the positions X (N, q) by the
-    readers' local polynomial: the noise is then the positions' along each row times the
-    filter's gain at the median interval. Without it U is taken as recorded (white noise), or,
-    with ``recorded=False`` (how U was made is not known), the noise is the larger of U's own
-    white-noise estimate and the derived one with the readers' default filter at the data's
-    rate (when X has q columns): recorded actions then get their own noise, derived ones the
+    ``derivative`` (a derived :class:`~ccl_cli.dataset.Derivative`) says U was derived from the
+    positions X (N, q) by the readers' local polynomial: the noise is then the positions' along
+    each row times the filter's gain at the median interval. Without it U is taken as recorded
+    (white noise), or, with ``recorded=False`` (how U was made is not known), the noise is the
+    larger of U's own white-noise estimate and the derived one with the readers' default filter
+    at the data's rate (when X has q columns): recorded actions then get their own noise, derived ones the
     filtered positions' noise (which a white-noise estimate of smoothed velocities misses)."""
     U = np.asarray(U, dtype=float)
     rows = unit_rows(np.asarray(rows, dtype=float))
@@ -103,12 +104,13 @@ def row_evidence(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarra
     total = float((U**2).sum(1).mean())
     share = energy / total if total > 0 else np.zeros_like(energy)
     dt = _median_step(np.asarray(t, float), demo) if t is not None else 0.0
-    if derivative is not None:
+    derivative = Derivative.of(derivative) if derivative is not None else None
+    if derivative is not None and derivative.derived:
         if X is None or np.shape(X)[1] != U.shape[1]:
             raise ValueError("derived actions need the positions X they were derived from, (N, q)")
         if not dt > 0:
             raise ValueError("derived actions need the sample times t")
-        window, order = int(derivative["window"]), int(derivative.get("order", 2))
+        window, order = int(derivative.window), int(derivative.order)
         noise = derived_noise_var(X, demo, dt, window, order, rows)
         per_dim = derived_noise_var(X, demo, dt, window, order)
     else:
@@ -126,32 +128,32 @@ def row_evidence(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarra
 
 @dataclass
 class Sample:
-    """The data of one fit and how its actions were made: ``derived`` the readers'
-    {"window", "order"} (or None), ``recorded`` True when the actions are known to be recorded
-    (:func:`row_evidence`). X (N, p), U (N, q), groups (N,), t (N,) s or None."""
+    """The data of one fit and how its actions were made: ``derived`` the derivative when U was
+    derived from the positions X (else None), ``recorded`` True when the actions are known to be
+    recorded (:func:`row_evidence`). X (N, p), U (N, q), groups (N,), t (N,) s or None."""
 
     X: np.ndarray
     U: np.ndarray
     groups: np.ndarray
     t: np.ndarray | None
-    derived: dict | None
+    derived: Derivative | None
     recorded: bool
 
     @classmethod
     def of(cls, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None, t: np.ndarray | None,
-           derivative: dict | bool | None) -> Sample:
-        """From a learner's ``fit`` arguments: ``derivative`` the readers' {"window", "order"}
-        when U was derived from the positions X (used only with the times and when X has q
-        columns), False when recorded, None when not known."""
-        derived = derivative if isinstance(derivative, dict) and t is not None and X.shape[1] == U.shape[1] \
-            else None
+           derivative: HowMade) -> Sample:
+        """From a learner's ``fit`` arguments: ``derivative`` how U was made
+        (:meth:`Derivative.of <ccl_cli.dataset.Derivative.of>`); a derivative is used only with
+        the times and when X has q columns (the positions U was derived from)."""
+        how = Derivative.of(derivative)
+        derived = how if how.derived and t is not None and X.shape[1] == U.shape[1] else None
         return cls(X, U, np.zeros(len(U), np.int64) if groups is None else np.asarray(groups), t, derived,
-                   recorded=derivative is False)
+                   recorded=how.derived is False)
 
     @property
-    def derivative(self) -> dict | bool | None:
+    def derivative(self) -> Derivative:
         """How the actions were made, as a learner's ``fit`` takes it (:meth:`of`)."""
-        return self.derived if self.derived else (False if self.recorded else None)
+        return self.derived if self.derived else Derivative(False if self.recorded else None)
 
     def rows_evidence(self, rows: np.ndarray, pieces: np.ndarray | None = None) -> RowEvidence:
         """Energy, noise and share of U along ``rows`` ((m, q) or per sample (N, m, q)); second
@@ -192,6 +194,6 @@ def noise_rank(evidence: RowEvidence, max_k: int, margin: float = MARGIN, share:
 
 
 def choose(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarray, max_k: int,
-           X: np.ndarray | None = None, derivative: dict | None = None) -> Selection | None:
+           X: np.ndarray | None = None, derivative: HowMade = None) -> Selection | None:
     """:func:`row_evidence` then :func:`noise_rank` with the default thresholds."""
     return noise_rank(row_evidence(U, rows, demo, t, X, derivative), max_k)

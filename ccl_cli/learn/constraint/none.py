@@ -10,6 +10,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ccl_cli.dataset import HowMade
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.params import parameters
 
@@ -27,8 +28,11 @@ class NoConstraint(ConstraintModel):
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value"}
 
-    def fit(self, X: np.ndarray | None, U: np.ndarray, *, groups: np.ndarray | None = None) -> NoConstraint:
-        """Record q from U (N, q) (and p from X (N, p), which may be None)."""
+    varies_with_state = False
+
+    def fit(self, X: np.ndarray | None, U: np.ndarray, *, groups: np.ndarray | None = None,
+            t: np.ndarray | None = None, derivative: HowMade = None) -> NoConstraint:
+        """Record q from U (N, q) (and p from X (N, p), which may be None); nothing else is read."""
         X, U = self._prepare_fit(X, U)
         self.n_action_ = int(U.shape[1])
         self.n_constraints_ = 0
@@ -36,12 +40,14 @@ class NoConstraint(ConstraintModel):
                            "reason": NO_CONSTRAINT}
         return self
 
-    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
         """Ã with no rows: (N, 0, q)."""
         self._check_fitted("n_action_")
         return np.zeros((self._check_states(X).shape[0], 0, self.n_action_))
 
-    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
         """Ñ = I: (N, q, q)."""
         self._check_fitted("n_action_")
         X = self._check_states(X)

@@ -7,9 +7,10 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from ccl_cli.dataset import HowMade
 from ccl_cli.errors import InputError
 from ccl_cli.learn.base import clone
-from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.constraint.base import Applied, ConstraintModel, NewDataRule, refit_note, unseen
 from ccl_cli.learn.model_selection import inner_heldout
 
 
@@ -17,9 +18,11 @@ class PerDemonstration(ConstraintModel):
     """Fit a copy of ``estimator`` on each demonstration separately.
 
     ``fit(X, U, groups=...)`` takes the demonstration id of each sample; without
-    ``groups`` the data are one demonstration. Predicting needs the demonstration id of
-    each sample (one of those seen in ``fit``), except when a single demonstration was
-    fitted.
+    ``groups`` the data are one demonstration. Each copy is fitted on its demonstration's X
+    and U alone (not the times). Predicting needs the demonstration id of each sample (one of
+    those seen in ``fit``), except when a single demonstration was fitted. A demonstration it
+    has not seen has no model here: the stated rule (:attr:`new_data_rule`) fits the estimator
+    anew on it, and nothing of this model carries over.
 
     ``heldout``: also measure the held-out NPOE (eq. 3.8) of such a model, which can only be
     tested on its own demonstrations: K = 5 folds of contiguous blocks held out inside every
@@ -33,7 +36,7 @@ class PerDemonstration(ConstraintModel):
         not measured or most demonstrations are too short for the blocks and their gaps).
     """
 
-    needs_demo = True
+    local_to = "demonstration"
     _parameter_constraints: ClassVar[dict[str, list]] = {"estimator": [ConstraintModel], "heldout": [bool]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "selection_": "value", "heldout_": "value",
@@ -42,11 +45,24 @@ class PerDemonstration(ConstraintModel):
     def __init__(self, estimator: ConstraintModel, *, heldout: bool = True) -> None:
         self._store_params(locals())
 
+    @property
+    def varies_with_state(self) -> bool:  # type: ignore[override]
+        """As the estimator's."""
+        return self.estimator.varies_with_state
+
+    @property
+    def n_action_(self) -> int:
+        """q, the action dimension of every demonstration's model."""
+        if "models_" not in vars(self):
+            raise AttributeError("n_action_")
+        return next(iter(self.models_.values())).n_action_
+
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-            derivative: dict | bool | None = None) -> PerDemonstration:
+            t: np.ndarray | None = None, derivative: HowMade = None
+            ) -> PerDemonstration:
         """One copy of the estimator per demonstration of ``groups`` (N,) on X (N, p), U (N, q);
-        ``derivative`` says how U was made ({"window", "order"} when derived, else False or None),
-        for the guard gaps of the held-out blocks."""
+        ``derivative`` says how U was made (:class:`~ccl_cli.dataset.Derivative`), for the guard
+        gaps of the held-out blocks; the times ``t`` are not read."""
         X, U = self._prepare_fit(X, U)
         groups = np.zeros(len(U), int) if groups is None else np.asarray(groups)
         self.models_: dict[int, Any] = {}
@@ -62,7 +78,7 @@ class PerDemonstration(ConstraintModel):
         self.heldout_ = self._held_out(X, U, groups, derivative) if self.heldout else None
         return self
 
-    def _held_out(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray, derivative: dict | bool | None
+    def _held_out(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray, derivative: HowMade
                   ) -> dict | None:
         """NPOE of the blocks held out inside every demonstration, mean and standard error over
         the folds; None when most demonstrations are too short for them."""
@@ -75,10 +91,41 @@ class PerDemonstration(ConstraintModel):
         return inner_heldout(np.unique(groups, return_inverse=True)[1].ravel(), derivative, error_of,
                              "demonstration")
 
-    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
+    # -- the protocol ------------------------------------------------------------------------
+    @property
+    def new_data_rule(self) -> NewDataRule:
+        """Fitted per demonstration: nothing carries over to a demonstration it has not seen."""
+        return NewDataRule("fitted per demonstration", (),
+                           "one model per demonstration it was fitted on: a demonstration it has not seen "
+                           "has none, and the estimator is fitted anew on it (its own rule chooses k) — "
+                           "figures there are training figures of that new fit")
+
+    def applies_to(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None, new_recording: bool = True) -> Applied:
+        """Itself when every demonstration of ``groups`` (N,) was fitted here (and the data are a
+        part of those recordings), else the estimator fitted anew per demonstration of X (N, p),
+        U (N, q) (:attr:`new_data_rule`), with the note saying so."""
+        self._check_fitted("models_")
+        rule = self.new_data_rule
+        if not unseen(set(self.models_), groups, new_recording):
+            return Applied(self, rule)
+        refit = PerDemonstration(clone(self.estimator)).fit(X, U, groups=groups)
+        return Applied(refit, rule, refit_note("one constraint per demonstration"))
+
+    def implied_n_features(self) -> int | None:
+        """p when every demonstration's model holds the same one."""
+        found = {p for m in self.models_.values() if (p := getattr(m, "n_features_in_", None)) is not None}
+        return found.pop() if len(found) == 1 else None
+
+    def models_by_demonstration(self) -> dict[int, ConstraintModel]:
+        self._check_fitted("models_")
+        return dict(self.models_)
+
+    def projection(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
         """Ñ(X) of each sample's own demonstration: (N, p), groups (N,) → (N, q, q)."""
         self._check_fitted("models_")
-        q = next(iter(self.models_.values())).n_action_
+        q = self.n_action_
         out = np.empty((X.shape[0], q, q))
         for d, rows in self._demo_rows(X, groups):  # a loop over demonstrations
             out[rows] = self.models_[d].projection(X[rows])
@@ -101,7 +148,8 @@ class PerDemonstration(ConstraintModel):
             out.append((int(d), groups == d))
         return out
 
-    def task_part(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray | None:
+    def task_part(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                  t: np.ndarray | None = None) -> np.ndarray | None:
         """ṽ = Ã⁺b̃ of each sample's own demonstration: (N, p), groups (N,) → (N, q); None when
         the estimator has no task term."""
         self._check_fitted("models_")
@@ -113,5 +161,14 @@ class PerDemonstration(ConstraintModel):
             out[rows] = self.models_[d].task_part(X[rows])
         return out
 
-    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None) -> np.ndarray:
-        raise InputError("per-demonstration models may differ in s; use projection()")
+    def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None) -> np.ndarray:
+        """Ã of each sample's own demonstration: (N, s, q), s the most rows any demonstration's
+        model has; a model with fewer is padded with rows of zeros (which constrain nothing: Ñ
+        is unchanged)."""
+        demos = self._demo_rows(X, groups)
+        out = np.zeros((len(X), max(m.n_constraints_ for m in self.models_.values()), self.n_action_))
+        for d, rows in demos:  # a loop over demonstrations
+            A = self.models_[d].constraint(X[rows])
+            out[rows, : A.shape[1]] = A
+        return out

@@ -118,6 +118,12 @@ class PerSegment(PerWindow):
     block: float = BLOCK_S
     penalty: float = PENALTY
 
+    local_to = "segment"
+    #: Columns of ``windows_``: [demonstration id, first block, end block).
+    TABLE_WIDTH = 3
+    #: What is kept when the model is fitted on a recording it has not seen.
+    KEEPS = ("k", "window", "block", "penalty", "shrinkage")
+
     @property
     def per(self) -> str:
         return "segment (cut where the constraint changes)"

@@ -42,7 +42,9 @@ happens to avoid a direction; it does not find them in half of the held-out time
 New recordings: the rows describe a surface, not where the recording touches it. A sample of a
 demonstration seen in ``fit`` takes the label of its block; new data are classified by
 :meth:`ConstraintInStretches.classify` — the same rows, the new data's blocks labelled by the
-motion along them (``ccl evaluate`` / ``ccl predict`` do, and say so).
+motion along them. That is the model's stated rule for a recording it has not seen
+(:attr:`~ConstraintInStretches.new_data_rule`, :meth:`~ConstraintInStretches.applies_to`;
+``ccl evaluate`` / ``ccl predict`` apply a model so, and say so).
 
 Shapes: X (N, p), U (N, q), groups (N,) demonstration ids, t (N,) s; ``A_`` (s, q);
 ``blocks_`` (B, 3) [demonstration id, block index j, holds (0/1)].
@@ -55,12 +57,13 @@ from typing import ClassVar
 
 import numpy as np
 
+from ccl_cli.dataset import HowMade
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.learn import model_selection as ms
 from ccl_cli.learn.basis import cluster_moments
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
-from ccl_cli.learn.constraint.base import TimedConstraint
+from ccl_cli.learn.constraint.base import Applied, NewDataRule, TimedConstraint, unseen
 from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
 from ccl_cli.learn.linalg import nullspace_projection
 from ccl_cli.learn.params import Interval, parameters
@@ -201,8 +204,13 @@ class ConstraintInStretches(TimedConstraint):
     block: float = BLOCK_S
     n_constraints: int | None = None
 
+    local_to = "stretch"
+    #: Its Ñ switches between I − RᵀR and I from stretch to stretch, not one matrix per window:
+    #: it is normalised as the models whose Ã changes from sample to sample (§6, original).
+    varies_with_state = True
+
     def fit(self, X: np.ndarray | None, U: np.ndarray, *, groups: np.ndarray | None = None,
-            t: np.ndarray | None = None, derivative: dict | bool | None = None) -> ConstraintInStretches:
+            t: np.ndarray | None = None, derivative: HowMade = None) -> ConstraintInStretches:
         """Learn the rows and where they hold from U (N, q) of demonstrations ``groups`` at times
         ``t`` (N,) s; ``derivative`` says how U was made (as for ``auto``: the readers'
         {"window", "order"}, False when recorded, None when not known)."""
@@ -244,7 +252,7 @@ class ConstraintInStretches(TimedConstraint):
         self.stretches_ = stretches(self.blocks_, self.block)
 
     def classify(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-                 t: np.ndarray | None = None, derivative: dict | bool | None = None
+                 t: np.ndarray | None = None, derivative: HowMade = None
                  ) -> ConstraintInStretches:
         """The same rows on new data X (N, p), U (N, q) at times t (N,): a copy whose stretches
         are those of these data where the motion along the rows is quiet."""
@@ -263,7 +271,46 @@ class ConstraintInStretches(TimedConstraint):
         out.heldout_ = None
         return out
 
-    def holds(self, X: np.ndarray, groups: np.ndarray | None = None, t: np.ndarray | None = None
+    @property
+    def new_data_rule(self) -> NewDataRule:
+        """Stretches classified: the rows kept, where they hold found on the new data."""
+        self._check_fitted("A_")
+        return NewDataRule(
+            "stretches classified", ("rows", "k", "block"),
+            f"its {self.n_constraints_} row(s) describe a surface, not where a recording touches it: on "
+            f"a recording it has not seen the rows are kept and they hold in the {self.block:g}-s blocks "
+            "where the motion along them is quiet (labelled on those data)")
+
+    def applies_to(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None, new_recording: bool = True) -> Applied:
+        """Itself when every demonstration of ``groups`` (N,) was fitted here (and the data are
+        a part of those recordings), else :meth:`classify` on X (N, p), U (N, q) at times t (N,)
+        (:attr:`new_data_rule`), with the note saying so."""
+        rule = self.new_data_rule
+        if not unseen({int(d) for d in np.unique(self.blocks_[:, 0])}, groups, new_recording):
+            return Applied(self, rule)
+        refit = self.classify(X, U, groups=groups, t=t)
+        return Applied(refit, rule, (
+            f"a constraint that holds in stretches: its {self.n_constraints_} learnt row(s) on these data, "
+            "holding where the motion along them is quiet — " + refit.summary()))
+
+    def constant_rows(self) -> np.ndarray:
+        """The rows (s, q) where the constraint holds."""
+        self._check_fitted("A_")
+        return self.A_
+
+    def check_shapes(self) -> None:
+        """blocks_ (B, 3) integers with a 0/1 label, A_ (s, q) with s ≥ 1."""
+        blocks = self.blocks_
+        if blocks is None or blocks.ndim != 2 or blocks.shape[1] != 3 or \
+                not np.array_equal(blocks, np.round(blocks)) or not np.isin(blocks[:, 2], (0, 1)).all():
+            raise self._shape_error("blocks_")
+        s, q = self.n_constraints_, self.n_action_
+        if self.A_ is None or s < 1 or self.A_.shape != (s, q):
+            raise self._shape_error("A_")
+        super().check_shapes()
+
+    def holds(self, X: np.ndarray, *, groups: np.ndarray | None = None, t: np.ndarray | None = None
               ) -> np.ndarray:
         """Whether the constraint holds at each sample (N,): the label of its block, else of the
         nearest fitted block of its demonstration."""
@@ -276,7 +323,7 @@ class ConstraintInStretches(TimedConstraint):
                    t: np.ndarray | None = None) -> np.ndarray:
         """Ã: the rows where the constraint holds, rows of zeros elsewhere (so Ñ = I − RᵀR
         there and I elsewhere): (N, s, q)."""
-        on = self.holds(X, groups, t)
+        on = self.holds(X, groups=groups, t=t)
         return np.where(on[:, None, None], self.A_[None], 0.0)
 
     def summary(self) -> str:

@@ -20,7 +20,10 @@ second moment, which moves a row little.
 Prediction needs each sample's demonstration and time: a sample of a demonstration seen in
 ``fit`` takes the rows of its window, or of the nearest fitted window of that demonstration
 (a held-out stretch that covers whole windows). A demonstration not seen in ``fit`` has no
-constraint here: fit a PerWindow on it (``ccl evaluate`` / ``ccl predict`` do, and say so).
+constraint here. The model's rule for one (:meth:`PerWindow.applies_to`, stated in
+:attr:`PerWindow.new_data_rule`): the same kind of model — window, shrinkage and k rows per
+window fixed — is fitted on the new demonstration's own windows, and the application says so
+(its errors there are training figures). ``ccl evaluate`` / ``ccl predict`` apply a model so.
 
 Shapes: X (N, p), U (N, q), groups (N,) demonstration ids, t (N,) seconds; ``A_`` (S, s, q)
 the rows of the S windows in ``windows_`` (S, 2): demonstration id, window index j.
@@ -32,12 +35,21 @@ from typing import ClassVar
 
 import numpy as np
 
+from ccl_cli.dataset import HowMade
 from ccl_cli.learn.base import clone
 from ccl_cli.learn.basis import cluster_moments
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import rank as sel
-from ccl_cli.learn.constraint.base import ConstraintModel, TimedConstraint, check_rows_asked
+from ccl_cli.learn.constraint.base import (
+    Applied,
+    NewDataRule,
+    TimedConstraint,
+    Windows,
+    check_rows_asked,
+    refit_note,
+    unseen,
+)
 from ccl_cli.learn.constraint.timeblocks import nearest_window, window_ends, window_index
 from ccl_cli.learn.defaults import WINDOW_S
 from ccl_cli.learn.model_selection import inner_heldout
@@ -97,7 +109,7 @@ class PerWindow(TimedConstraint):
     heldout: bool = True
 
     def fit(self, X: np.ndarray | None, U: np.ndarray, *, groups: np.ndarray | None = None,
-            t: np.ndarray | None = None, derivative: dict | bool | None = None) -> PerWindow:
+            t: np.ndarray | None = None, derivative: HowMade = None) -> PerWindow:
         """Learn the rows of every window from U (N, q) with demonstration ids ``groups`` and
         times ``t`` (N,) s. ``derivative`` says how U was made, for the noise of the rank rule
         (as :meth:`AutoConstraint.fit <ccl_cli.learn.constraint.auto.AutoConstraint.fit>`: the
@@ -128,6 +140,42 @@ class PerWindow(TimedConstraint):
         return "demonstration" if self.window is None else f"{self.window:g}-s window"
 
     @property
+    def local_to(self) -> str:  # type: ignore[override]
+        """``demonstration`` (no window) or ``window``."""
+        return "demonstration" if self.window is None else "window"
+
+    #: What is kept when the model is fitted on a recording it has not seen.
+    KEEPS = ("k", "window", "shrinkage")
+
+    @property
+    def new_data_rule(self) -> NewDataRule:
+        """Rows fitted per stretch: the rows speak only for the windows they were fitted on."""
+        self._check_fitted("A_")
+        return NewDataRule(
+            "rows fitted per stretch", self.KEEPS,
+            f"one constant Ã per {self.per} of the recordings it was fitted on: a demonstration it has "
+            f"not seen gets rows fitted on its own {self.per}s by the same rule, "
+            f"{self.n_constraints_} row(s) per {self.per} fixed — training figures on those data; a seen "
+            "one keeps its fitted rows")
+
+    def applies_to(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                   t: np.ndarray | None = None, new_recording: bool = True) -> Applied:
+        """Itself when every demonstration of ``groups`` (N,) was fitted here (and the data are
+        a part of those recordings), else :meth:`same_kind` fitted on X (N, p), U (N, q) at
+        times t (N,) (:attr:`new_data_rule`), with the note saying so."""
+        rule = self.new_data_rule
+        if not unseen({int(d) for d in np.unique(self.windows_[:, 0])}, groups, new_recording):
+            return Applied(self, rule)
+        refit = self.same_kind().fit(X, U, groups=groups, t=t)
+        what = f"one constraint per {self.per}, {self.n_constraints_} row(s)"
+        return Applied(refit, rule, refit_note(what))
+
+    def windows(self) -> Windows | None:
+        """The windows in time and their rows (None for one window per demonstration)."""
+        self._check_fitted("A_")
+        return None if self.window_ is None else Windows(self.per, self.spans(), self.A_)
+
+    @property
     def _unit(self) -> float | None:
         """The length (s) of one step of the table's window index (``window_``): the window."""
         return self.window
@@ -145,7 +193,7 @@ class PerWindow(TimedConstraint):
         return clone(self).set_params(n_constraints=self.n_constraints_, heldout=False)
 
     def _held_out(self, X: np.ndarray, U: np.ndarray, seg: np.ndarray, groups: np.ndarray | None,
-                  t: np.ndarray | None, derivative: dict | bool | None) -> dict | None:
+                  t: np.ndarray | None, derivative: HowMade) -> dict | None:
         """NPOE of blocks held out inside every window, the model refitted without them (the
         same rows per window), mean and standard error over the folds; None when most windows
         are too short for the blocks and their guard gaps."""
@@ -161,7 +209,7 @@ class PerWindow(TimedConstraint):
 
     @staticmethod
     def _rank(X: np.ndarray, U: np.ndarray, seg: np.ndarray, rows: np.ndarray, t: np.ndarray | None,
-              derivative: dict | bool | None) -> sel.Selection:
+              derivative: HowMade) -> sel.Selection:
         """s by the noise rule on every sample's window rows (segments as the demonstrations of
         the second differences), else the ratio rule on the mean squared action along each row."""
         q = U.shape[1]
@@ -181,6 +229,22 @@ class PerWindow(TimedConstraint):
             return np.column_stack([table[:, 0], np.zeros(len(table)), np.full(len(table), np.inf)])
         return np.column_stack([table[:, 0], table[:, 1] * self.window_, window_ends(table) * self.window_])
 
+    #: Columns of ``windows_``: [demonstration id, j].
+    TABLE_WIDTH = 2
+
+    def check_shapes(self) -> None:
+        """windows_ (S, 2) integers (a segment table (S, 3) with end > first), A_ (S, s, q) and a
+        positive ``window_`` (or None)."""
+        win, width = self.windows_, self.TABLE_WIDTH
+        if win is None or win.ndim != 2 or win.shape[1] != width or not np.array_equal(win, np.round(win)) \
+                or (width == 3 and not (win[:, 2] > win[:, 1]).all()):
+            raise self._shape_error("windows_")
+        step = self.window_
+        if self.A_ is None or self.A_.shape != (len(win), self.n_constraints_, self.n_action_) or (
+                step is not None and not (isinstance(step, int | float) and step > 0)):
+            raise self._shape_error("A_")
+        super().check_shapes()
+
     # -- prediction ----------------------------------------------------------------------
     def window_of(self, X: np.ndarray, groups: np.ndarray | None = None,
                   t: np.ndarray | None = None) -> np.ndarray:
@@ -194,52 +258,3 @@ class PerWindow(TimedConstraint):
         """Ã of each sample's window: (N, s, q)."""
         return self.A_[self.window_of(X, groups, t)]
 
-
-def fitted_per_stretch(model: ConstraintModel) -> ConstraintModel | None:
-    """The per-window, per-demonstration or in-stretches model inside ``model`` (itself, or the
-    winner of an :class:`~ccl_cli.learn.constraint.auto.AutoConstraint`), None for a global
-    model."""
-    from ccl_cli.learn.constraint.per_demo import PerDemonstration
-    from ccl_cli.learn.constraint.stretches import ConstraintInStretches
-
-    inner = vars(model).get("model_", model)
-    return inner if isinstance(inner, PerWindow | PerDemonstration | ConstraintInStretches) else None
-
-
-def refit_on_new_demos(model: ConstraintModel, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None,
-                       t: np.ndarray | None = None, always: bool = False
-                       ) -> tuple[ConstraintModel, str] | None:
-    """A model fitted per window or per demonstration has no constraint for a demonstration it
-    did not see (a constraint in stretches: no label for its stretches). When ``groups`` (N,)
-    holds such a demonstration — or ``always``, for data that are not those the model was
-    fitted on (a saved model on a recording: its demonstration ids say nothing) — the same kind
-    of model (the same window length and rows per window; per demonstration, the same
-    estimator) is fitted on these data, X (N, p), U (N, q), t (N,), and returned with a
-    sentence saying so (its errors are then training figures on these data) — for a constraint
-    in stretches, the same rows with the stretches of these data classified by the motion
-    along them (:meth:`~.stretches.ConstraintInStretches.classify`); None when every
-    demonstration is known or ``model`` is global."""
-    from ccl_cli.learn.constraint.per_demo import PerDemonstration
-    from ccl_cli.learn.constraint.stretches import ConstraintInStretches
-
-    local = fitted_per_stretch(model)
-    if local is None:
-        return None
-    table = local.blocks_ if isinstance(local, ConstraintInStretches) else getattr(local, "windows_", None)
-    known = set(local.models_) if isinstance(local, PerDemonstration) else set(
-        int(d) for d in np.unique(table[:, 0]))
-    ids = {0} if groups is None else {int(d) for d in np.unique(groups)}
-    if ids <= known and not always:
-        return None
-    if isinstance(local, ConstraintInStretches):
-        refit = local.classify(X, U, groups=groups, t=t)
-        return refit, (f"a constraint that holds in stretches: its {local.n_constraints_} learnt row(s) on "
-                       "these data, holding where the motion along them is quiet — " + refit.summary())
-    if isinstance(local, PerDemonstration):
-        refit = PerDemonstration(clone(local.estimator)).fit(X, U, groups=groups)
-        what = "one constraint per demonstration"
-    else:
-        refit = local.same_kind().fit(X, U, groups=groups, t=t)
-        what = f"one constraint per {local.per}, {local.n_constraints_} row(s)"
-    return refit, (f"a model per stretch, fitted again on these data ({what}): it describes only the "
-                   "recordings it was fitted on, so its errors here are training figures")
