@@ -424,6 +424,11 @@ def test_mat73_cells_that_are_not_references_or_loop_are_refused(tmp_path):
         ds.attrs["MATLAB_class"] = b"cell"
         ds[0, 0] = ds.ref
     refused(cfg, "nested deeper than 32 levels")
+    with h5py.File(path, "a") as f:  # a cell pointing to a named datatype (fuzz seed 280, case 5158)
+        f["#refs#/type"] = np.dtype("f8")
+        f["X"][0, 0] = f["#refs#/type"].ref
+    refused(cfg, "a reference to a Datatype, not an array")
+    assert main(["inspect", str(path), "--json"]) == 2
 
 
 def test_attribute_text_that_is_not_utf8_is_refused_in_plain_text(capsys, tmp_path):

@@ -209,14 +209,20 @@ class _V73:
         return np.asarray(raw).T  # back to MATLAB's orientation
 
     def _deref(self, ref: Any, where: str) -> Any:
-        """The object an object reference points to (a null or dangling one: InputError)."""
+        """The dataset or group an object reference points to (a null or dangling one, or one
+        to anything else — a named datatype: InputError)."""
+        import h5py
+
         try:
             if not ref:
                 raise ValueError("null reference")
-            return self.f[ref]
+            found = self.f[ref]
         except (KeyError, ValueError, TypeError, OSError, RuntimeError) as exc:
             raise InputError(f"{where}: a reference that cannot be followed ({error_text(exc)}); "
                              "damaged file?") from None
+        if not isinstance(found, h5py.Dataset | h5py.Group):
+            raise InputError(f"{where}: a reference to a {type(found).__name__}, not an array; damaged file?")
+        return found
 
     def _read(self, obj, where: str) -> np.ndarray:
         """A dataset's values, its declared size (as float64) checked before reading."""
