@@ -210,14 +210,14 @@ def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
     check_output(outdir, force)  # before any work: a folder ccl did not write is never replaced
     stages = cfg.stages() if stages is None else [(name, cfg.spec.section(name)) for name in stages]
     on_views = None
-    if cfg.spec.output.plots:  # figures drawn by another process while this one learns
-        from ccl_cli.render.drawing import start_drawer, stop_drawer, submit_views
+    try:  # the drawer ends however the run does (an error, Ctrl-C at any moment)
+        if cfg.spec.output.plots:  # figures drawn by another process while this one learns
+            from ccl_cli.render.drawing import start_drawer, submit_views
 
-        if start_drawer() is not None:
-            def on_views(views) -> None:
-                submit_views(views, cfg.spec.output.format)
-    bar = _bar("stages", len(stages), quiet)
-    try:
+            if start_drawer() is not None:
+                def on_views(views) -> None:
+                    submit_views(views, cfg.spec.output.format)
+        bar = _bar("stages", len(stages), quiet)
         try:
             result = execute(command, cfg, files, stages, progress=bar, on_views=on_views)
         finally:
@@ -226,6 +226,8 @@ def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
         summary = write_run(result, outdir, force)
     finally:
         if cfg.spec.output.plots:
+            from ccl_cli.render.drawing import stop_drawer
+
             stop_drawer()
     _emit(summary, as_json, quiet)
     if strict and summary["status"] != "ok":
@@ -340,7 +342,8 @@ def learn_a(
         help="auto (model class and number of constraints, 0 included, by held-out evidence), nhat "
              "(constant A, closed form), alpha (state-dependent), lambda (known Φ), linear (closed form), "
              "per_window (one constant A per time window), per_segment (one constant A per segment, cut "
-             "where it changes; docs/methods.md).",
+             "where it changes), manifold (the level sets the states stay on: lines, circles, surfaces; "
+             "docs/methods.md).",
         show_default=_default(spec.DEFAULT_CONSTRAINT_METHOD))] = None,
     selection: Annotated[Selection | None, typer.Option(
         help="How the number of constraints s is chosen (lambda's default: noise).",
@@ -431,6 +434,8 @@ def evaluate(
         for k, v in summary["metrics"].items():
             typer.echo(f"{k} = {v['value']:.6e}  (error {v['error']:.3e} / var of {v['normaliser_of']} "
                        f"{v['normaliser']:.3e})")
+        if summary.get("rule"):
+            typer.echo(f"applied: {summary['rule']['words']}", err=True)
         if summary.get("note"):
             typer.echo(f"note: {summary['note']}", err=True)
 
@@ -454,9 +459,39 @@ def predict(
     if json_out:
         _emit(summary, True)
     elif not quiet:
-        typer.echo(shown(f"wrote {out} ({dataset.n_samples} samples)"), err=True)
+        repaired = sum(n for kinds in summary["repaired"].values() for n in kinds.values())
+        typer.echo(shown(f"wrote {out} ({summary['samples']} rows: one per sample read"
+                   + (f", {repaired} repaired (columns repair, fault)" if repaired else "")
+                   + (f"; {summary['left_out']} outside the configured demonstrations" if summary["left_out"]
+                      else "") + ")"), err=True)
+        typer.echo(f"applied: {summary['rule']['words']}", err=True)
         if summary.get("note"):
             typer.echo(f"note: {summary['note']}", err=True)
+
+
+@app.command("export")
+def export(
+    model: Annotated[Path, typer.Argument(metavar="MODEL", help="A model file (model.h5) written by ccl.",
+                                          show_default=False)],
+    out: Annotated[Path, typer.Option("--out", "-o", metavar="FILE", show_default=False,
+                                      help="The file to write: .yaml or .yml for YAML, .json for JSON.")],
+    force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
+) -> None:
+    """Write a saved model as a documented, versioned YAML or JSON file that any language reads: a
+    constraint's k and rows (or the parameters of A(x) and its formula, per window, segment, phase
+    or demonstration, with the rule for a new recording), a null-space component's or a policy's
+    basis and weights, the names, units and frame of the data, and how it was trained
+    (docs/export.md, with a reference evaluator in numpy)."""
+    from ccl_cli.app.export import export_model
+
+    _logging(quiet)
+    summary = export_model(model, out, force)
+    if json_out:
+        _emit(summary, True)
+    elif not quiet:
+        what = (f"{summary['method']} constraint, k = {summary['k']} ({summary['form']})"
+                if summary["kind"] == "constraint" else f"{summary['method']} {summary['kind']}")
+        typer.echo(f"wrote {out}: {what}, schema version {summary['schema_version']}", err=True)
 
 
 # -- data commands --------------------------------------------------------------------------
@@ -688,6 +723,9 @@ def main(argv: list[str] | None = None) -> int:
         typer.echo("ccl: interrupted; no partial outputs were left", err=True)
         return 130
     except Exception as exc:  # an unexpected failure: still one line, unless debugging
+        if _caused_by_interrupt(exc):
+            typer.echo("ccl: interrupted; no partial outputs were left", err=True)
+            return 130
         if hasattr(exc, "show") and hasattr(exc, "exit_code"):  # typer's usage errors (exit 2)
             exc.show()
             _json_error(argv, int(exc.exit_code), "UsageError", exc.format_message())
@@ -699,6 +737,18 @@ def main(argv: list[str] | None = None) -> int:
         typer.echo(f"ccl: {shown(message)} (set CCL_DEBUG=1 for a traceback)", err=True)
         _json_error(argv, 1, "InternalError", message)
         return 1
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """A Ctrl-C that Python wrapped in another exception: 3.11 raises RuntimeError("Error calling
+    __set_name__ ...") from the KeyboardInterrupt when it lands while a module being imported
+    creates a class."""
+    seen = 0
+    while exc is not None and seen < 20:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return False
 
 
 def _json_error(argv: list[str] | None, code: int, kind: str, message: str) -> None:

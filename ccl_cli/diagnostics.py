@@ -235,10 +235,18 @@ def _times(times: list[list[float]], limit: int = 4) -> str:
     return shown + (f" and {len(times) - limit} more" if len(times) > limit else "")
 
 
+def _samples(n: int) -> str:
+    return f"{n} sample" + ("" if n == 1 else "s")
+
+
 def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
     """One warning per kind of sensor fault the readers found in a file (``metadata`` of each
-    file: ``faults``), with its count, time ranges (s from the file's first sample), what was
-    done and the ``data.faults`` key that keeps them."""
+    file: ``faults``), with its count, what was done, where — per demonstration of the data with
+    the times from its first sample (:func:`ccl_cli.io.summary.repairs`; else the time ranges from
+    the file's first sample) — and the ``data.faults`` key that keeps them."""
+    from ccl_cli.io.summary import repairs
+
+    placed = repairs(data)
     out = []
     for entry in (data.metadata or {}).get("files", []):
         for f in (entry.get("faults") or []) if isinstance(entry, dict) else []:
@@ -247,8 +255,14 @@ def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
             code, what, keep = FAULTS[f["kind"]]
             done = "kept as recorded" if f.get("action") == "reported" else f["action"]
             fix = "" if f.get("action") == "reported" else f"; data.faults: {{{keep}}} keeps them"
-            out.append(warning(code, f"{entry.get('path')}: {f['count']} {what}, {f['n_samples']} samples at "
-                                     f"{_times(f.get('times') or [])}: {done}{fix}"))
+            where = [r for r in placed if r["fault"] == f["kind"]
+                     and r["demo"] in entry.get("demo_ids", [r["demo"]])]
+            at = "; ".join(f"demonstration {r['demo']}: {_samples(r['samples'])} at {_times(r['times'])}"
+                           for r in where[:6]) \
+                + (f"; and {len(where) - 6} more demonstrations" if len(where) > 6 else "") if where else \
+                f"at {_times(f.get('times') or [])} (from the file's start)"
+            out.append(warning(code, f"{entry.get('path')}: {f['count']} {what}, {_samples(f['n_samples'])} "
+                                     f"{done} — {at}{fix}"))
     return out
 
 
@@ -334,13 +348,20 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
     the noise level or a negligible share — or None when the data cannot tell (not a
     trajectory in time, or no motion).
 
+    When the observations are the actions and these are the states' derivative, the positions'
+    drift along the rows (:func:`~ccl_cli.learn.constraint.geometry.rows_drift`) is a second test
+    (``drift``, ``limit``: :func:`~ccl_cli.learn.constraint.geometry.holds_limit`): compliance and
+    tremor lift the motion along a true row far above the sensor's noise, but do not carry the
+    states off it. The constraint holds when either test says so; when only the drift does not,
+    ``measure`` is "drift".
+
     A model per stretch (per window or segment, or in stretches) speaks only for the stretches
     it was fitted on: on other data its rows would be a neighbouring stretch's. It is applied to
     ``d`` as a new recording by its own stated rule (the same kind and rows per stretch fitted
     there, as ``ccl evaluate`` does) and the evidence says so (``refitted``): whether k rows per
     stretch hold on these data. A model whose rule carries nothing over to new data (one model
     per demonstration, fitted anew on each) has no evidence to give: None."""
-    from ccl_cli.learn.constraint import noise_rank
+    from ccl_cli.learn.constraint import geometry, noise_rank
 
     if not getattr(model, "n_constraints_", 0) or not model.new_data_rule.carries_over:
         return None
@@ -351,15 +372,26 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
         return None  # no rows on these data
     how = d.derivative
     positions = bool(how.derived) and d.n_state == d.n_action
+    out = None
     ev = noise_rank.row_evidence(Y, rows, d.demo, d.t, d.X if positions else None, how if positions else None)
-    if not ev.snr >= noise_rank.MIN_SNR:  # also NaN: overflowing data tells nothing
-        return None
     ratio = ev.energy / np.maximum(ev.noise, np.finfo(float).tiny)
-    if not (np.isfinite(ratio).all() and np.isfinite(ev.share).all()):
-        return None
-    holds = (ratio <= noise_rank.MARGIN) | (ev.share <= noise_rank.SHARE)
-    return {"ratio": ratio.tolist(), "share": ev.share.tolist(), "holds": bool(holds.all()),
-            "refitted": applied.refitted}
+    if ev.snr >= noise_rank.MIN_SNR and np.isfinite(ratio).all() and np.isfinite(ev.share).all():
+        # (not: overflowing data tell nothing)
+        holds = (ratio <= noise_rank.MARGIN) | (ev.share <= noise_rank.SHARE)
+        out = {"ratio": ratio.tolist(), "share": ev.share.tolist(), "holds": bool(holds.all()),
+               "refitted": applied.refitted}
+    if Y is d.U and geometry.kinematic(d.X, d.U, d.demo, d.t, how)[0] and np.isfinite(d.X).all():
+        # the actions are the states' derivative: a constraint keeps the states on its level sets,
+        # whatever compliance or tremor adds to the velocities (learn/constraint/geometry.py) —
+        # it holds when either test says so
+        drift = geometry.rows_drift(rows, d.X, d.demo)
+        limit = geometry.holds_limit(d.X, d.demo, rows.shape[1])
+        kept = out or {"ratio": [], "share": ev.share.tolist(), "holds": False, "refitted": applied.refitted}
+        if not kept["holds"] and np.isfinite(drift).all():
+            return {**kept, "drift": drift.tolist(), "limit": limit, "holds": bool((drift <= limit).all()),
+                    "measure": "drift"}
+        return {**kept, "drift": drift.tolist(), "limit": limit}
+    return out
 
 
 def does_not_hold(stage: str, evidence: dict[str, Any] | None, where: str) -> list[dict[str, str]]:
@@ -368,6 +400,12 @@ def does_not_hold(stage: str, evidence: dict[str, Any] | None, where: str) -> li
 
     if evidence is None or evidence["holds"]:
         return []
+    if evidence.get("measure") == "drift":
+        k = next(i for i, v in enumerate(evidence["drift"]) if v > evidence["limit"])
+        return [warning("constraint_does_not_hold",
+                        f"{stage}: on the {where} the positions drift along learnt constraint row {k + 1} "
+                        f"by {evidence['drift'][k]:.3g} of their spread (> {evidence['limit']:g}): the "
+                        "constraint does not hold there")]
     k = next(i for i, (r, s) in enumerate(zip(evidence["ratio"], evidence["share"], strict=True))
              if r > MARGIN and s > SHARE)
     return [warning("constraint_does_not_hold",

@@ -1,7 +1,9 @@
 """The one error type of the project.
 
 Library code raises :class:`CCLError` (or a subclass) with a message meant for the
-user; only the command line turns it into an exit code.
+user; only the command line turns it into an exit code. Bad input and bad configuration
+(:class:`InputError`, :class:`ConfigError`) are :class:`ValueError` too, as Python and
+scikit-learn raise for a bad argument: ``except ValueError`` around a ccl call catches them.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ class CCLError(Exception):
         self.message = message
 
 
-class InputError(CCLError):
+class InputError(CCLError, ValueError):
     """Bad input: unreadable file, missing field, wrong shapes, NaNs."""
 
     exit_code = 2
@@ -30,7 +32,7 @@ class OutputError(InputError):
     exit_code = 2
 
 
-class ConfigError(CCLError):
+class ConfigError(CCLError, ValueError):
     """Bad configuration: unknown key, wrong type, inconsistent options."""
 
     exit_code = 2

@@ -45,6 +45,7 @@ from ccl_cli.learn.constraint import (
     ConstraintInStretches,
     KnownFeatureConstraint,
     LinearConstraint,
+    ManifoldConstraint,
     NoConstraint,
     PerDemonstration,
     PerSegment,
@@ -69,6 +70,7 @@ CLASSES: dict[str, tuple[str, type]] = {
     "per_window": ("constraint", PerWindow),
     "per_segment": ("constraint", PerSegment),
     "stretches": ("constraint", ConstraintInStretches),
+    "manifold": ("constraint", ManifoldConstraint),
     "none": ("constraint", NoConstraint),
     "ncl": ("nullspace", NullSpaceComponent),
     "policy": ("policy", PolicyLearner),
@@ -462,7 +464,8 @@ def describe_model(path: str | Path) -> dict[str, Any]:
                                                    "sigma2": float(state["sigma2"])} if state["kind"] == "rbf"
                                                   else {})}
     training = info.get("training") or {}
-    out["training"] = {k: training[k] for k in ("stage", "inputs", "metrics", "versions") if k in training}
+    out["training"] = {k: training[k] for k in ("stage", "inputs", "metrics", "versions", "repairs")
+                       if k in training}
     if "config" in training:
         out["training"]["config"] = training["config"]
     return out

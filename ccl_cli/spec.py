@@ -7,10 +7,10 @@ stage (``learn-v``, ``learn-a``, ``learn-pi``, ``evaluate``), ``metrics``, ``out
 their options:
 
 * a stage section holds the constructor parameters of its estimators, read from each
-  estimator's signature and its ``_parameter_constraints`` declaration
-  (:mod:`ccl_cli.learn.params`): names, choices, ranges. A parameter the user did not set
-  stays ``None`` and the estimator's own default applies, so the library and the command
-  line share one set of defaults;
+  estimator's signature and the annotation that declares each parameter
+  (:func:`ccl_cli.learn.params.declared`): names, choices, ranges. A parameter the user did
+  not set stays ``None`` and the estimator's own default applies, so the library and the
+  command line share one set of defaults;
 * the app-level options of a stage (``learn-a.method``: which estimator; ``on``: which
   observations; ``per_demo``; ``learn-pi.projections``, ``baseline``) are declared here;
 * the reading options are the readers' own (:mod:`ccl_cli.io.options`).
@@ -31,13 +31,14 @@ from pydantic import BaseModel, ConfigDict, Field, create_model
 
 from ccl_cli.io.options import DataOptions
 from ccl_cli.learn import defaults
-from ccl_cli.learn.params import MAX_SEED, Fields, Interval, Options
+from ccl_cli.learn.params import MAX_SEED, Fields, Interval, Options, declared, describe
 
 STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
 Convention = Literal["ccl", "original"]
 #: learn-a's ``method``: which constraint estimator (:data:`CONSTRAINT_METHODS`); ``auto`` (the
 #: default) chooses the model class and the number of constraints, 0 included, by held-out evidence
-ConstraintMethod = Literal["auto", "nhat", "alpha", "lambda", "linear", "per_window", "per_segment"]
+ConstraintMethod = Literal["auto", "nhat", "alpha", "lambda", "linear", "per_window", "per_segment",
+                           "manifold"]
 DEFAULT_CONSTRAINT_METHOD = "auto"
 #: learn-pi's ``projections`` (pi-coupled): from the ground truth, a learn-a stage, or either
 Projections = Literal["auto", "learnt", "true"]
@@ -58,28 +59,12 @@ class Section(BaseModel):
 
 
 # -- estimator parameters → pydantic fields ---------------------------------------------------
-def _bound(value: float) -> str:
-    return f"{value:g}" if isinstance(value, float) else str(value)
+#: The forms a YAML config can hold (not a callable, nor a Python object such as a fitted basis).
+_CONFIG_TYPES = (bool, str, int, float, dict, list)
 
 
-def phrase(form: Any) -> str | None:
-    """What one declared form accepts, in words (None: not expressible in a config)."""
-    if form is None:
-        return None
-    if isinstance(form, Interval):
-        noun = "an integer" if form.type is int else "a number"
-        low_in, high_in = form.closed in ("both", "left"), form.closed in ("both", "right")
-        if form.low is not None and form.high is not None and low_in and high_in:
-            return f"{noun} between {_bound(form.low)} and {_bound(form.high)}"
-        parts = ([f"{'≥' if low_in else '>'} {_bound(form.low)}"] if form.low is not None else []) + (
-            [f"{'≤' if high_in else '<'} {_bound(form.high)}"] if form.high is not None else [])
-        return " ".join([noun, " and ".join(parts)]).strip()
-    if isinstance(form, Options):
-        return "one of " + ", ".join(sorted(map(str, form.values)))
-    if isinstance(form, Fields):
-        return "a mapping of " + ", ".join(form.fields)
-    return {bool: "true or false", str: "a string", dict: "a mapping", list: "a list", int: "an integer",
-            float: "a number"}.get(form)
+def _in_config(form: Any) -> bool:
+    return isinstance(form, Interval | Options | Fields) or form in _CONFIG_TYPES
 
 
 def _type_of(form: Any, name: str) -> Any:
@@ -88,17 +73,11 @@ def _type_of(form: Any, name: str) -> Any:
     if form is None:
         return type(None)
     if isinstance(form, Interval):
-        bounds: dict[str, float] = {}
-        if form.low is not None:
-            bounds["ge" if form.closed in ("both", "left") else "gt"] = form.low
-        if form.high is not None:
-            bounds["le" if form.closed in ("both", "right") else "lt"] = form.high
-        return Annotated[form.type, Field(**bounds)]
+        return Annotated[form.type, Field(**form.bounds())]
     if isinstance(form, Options):
         return Literal[tuple(sorted(form.values))]
     if isinstance(form, Fields):  # named by its first key too: two mappings of one parameter differ
-        return _fields_model(f"{name}_{next(iter(form.fields))}",
-                             tuple((k, tuple(v)) for k, v in form.fields.items()))
+        return _fields_model(f"{name}_{next(iter(form.fields))}", form)
     if form in (bool, str):
         return form
     if form is dict:
@@ -109,10 +88,10 @@ def _type_of(form: Any, name: str) -> Any:
 
 
 @cache
-def _fields_model(name: str, fields: tuple[tuple[str, tuple[Any, ...]], ...]) -> type[Section]:
+def _fields_model(name: str, form: Fields) -> type[Section]:
     """A section model for a mapping-valued parameter (e.g. ``basis: {kind, n_centres, ...}``)."""
     return create_model(f"{name.title().replace('_', '')}Options", __base__=Section,
-                        **{key: _field(forms, key) for key, forms in fields})
+                        **{key: _field(form.forms(key), key) for key in form.fields})
 
 
 def _field(forms: Iterable[Any], name: str) -> tuple[Any, Any]:
@@ -120,7 +99,7 @@ def _field(forms: Iterable[Any], name: str) -> tuple[Any, Any]:
     forms = list(forms)
     types = [t for t in (_type_of(f, name) for f in forms) if t is not None]
     types = [t for t in dict.fromkeys(types) if t is not type(None)]
-    words = [p for p in (phrase(f) for f in forms) if p]
+    words = [describe(f) for f in forms if _in_config(f)]
     annotation = typing.Union[tuple(types)] if len(types) > 1 else types[0]  # noqa: UP007 - a runtime tuple
     return annotation | None, Field(None, description=" or ".join(dict.fromkeys(words)) or None)
 
@@ -135,7 +114,7 @@ def _parameters(classes: Iterable[type], rename: dict[tuple[type, str], str] | N
             if name in ("self", *skip):
                 continue
             key = (rename or {}).get((cls, name), name)
-            out.setdefault(key, _field(cls._parameter_constraints[name], key))
+            out.setdefault(key, _field(declared(cls)[name], key))
     return out
 
 
@@ -145,6 +124,7 @@ def _stage_classes() -> dict[str, tuple[type, ...]]:
         AutoConstraint,
         KnownFeatureConstraint,
         LinearConstraint,
+        ManifoldConstraint,
         PerSegment,
         PerWindow,
         StateDependentConstraint,
@@ -155,13 +135,14 @@ def _stage_classes() -> dict[str, tuple[type, ...]]:
 
     return {"learn-v": (NullSpaceComponent,), "learn-pi": (PolicyLearner,),
             "learn-a": (StateIndependentConstraint, StateDependentConstraint, KnownFeatureConstraint,
-                        LinearConstraint, AutoConstraint, PerWindow, PerSegment)}
+                        LinearConstraint, AutoConstraint, PerWindow, PerSegment, ManifoldConstraint)}
 
 
 #: learn-a ``method`` → the estimator class's name (the class itself: :func:`constraint_class`)
 CONSTRAINT_METHODS = {"auto": "AutoConstraint", "nhat": "StateIndependentConstraint",
                       "alpha": "StateDependentConstraint", "lambda": "KnownFeatureConstraint",
-                      "linear": "LinearConstraint", "per_window": "PerWindow", "per_segment": "PerSegment"}
+                      "linear": "LinearConstraint", "per_window": "PerWindow", "per_segment": "PerSegment",
+                      "manifold": "ManifoldConstraint"}
 #: config keys that are not the estimator's own names: (method, config key) → parameter
 RENAMED = {("nhat", "variant"): "method"}
 
@@ -223,18 +204,22 @@ def stage_models() -> dict[str, type[StageSection]]:
 
 
 # -- the run ------------------------------------------------------------------------------------
+#: A seed: the range of a learner's (:data:`ccl_cli.learn.params.Seed`).
+_SEED = Interval(0, MAX_SEED, type=int)
+
+
 class TestSplit(Section):
     """The held-out test set: ``fraction`` of the demonstrations (or time blocks), seeded; the
     file's stored masks when ``use_masks``; by demonstration from ``min_demos`` of them, else
     ``blocks`` contiguous time blocks with ``gap`` samples dropped at each boundary (default:
     the derivative window)."""
 
-    fraction: Annotated[float, Field(ge=0, le=1, description="a number between 0 and 1")] = 0.3
-    seed: Annotated[int, Field(ge=0, le=MAX_SEED)] = 0
+    fraction: float = Field(0.3, **Interval(0, 1).field())
+    seed: int = Field(0, **_SEED.field())
     use_masks: bool = True
-    gap: Annotated[int, Field(ge=0, le=1_000_000)] | None = None
-    min_demos: Annotated[int, Field(ge=2, le=1_000_000)] = defaults.MIN_DEMOS
-    blocks: Annotated[int, Field(ge=2, le=1_000_000)] = defaults.N_BLOCKS
+    gap: int | None = Field(None, **Interval(0, 1_000_000, type=int).field())
+    min_demos: int = Field(defaults.MIN_DEMOS, **Interval(2, 1_000_000, type=int).field())
+    blocks: int = Field(defaults.N_BLOCKS, **Interval(2, 1_000_000, type=int).field())
 
 
 class Data(DataOptions):
@@ -278,8 +263,7 @@ def _run_spec_model() -> type[BaseModel]:
         key.replace("-", "_"): (m[key], Field(default_factory=m[key], alias=key)) for key in STAGES}
     return create_model(
         "RunSpec", __base__=RunSpecBase,
-        seed=(Annotated[int, Field(ge=0, le=MAX_SEED, description=f"an integer between 0 and {MAX_SEED}")],
-              0),
+        seed=(int, Field(0, **_SEED.field())),
         data=(Data, Field(default_factory=Data)), **stages,
         metrics=(Metrics, Field(default_factory=Metrics)), output=(Output, Field(default_factory=Output)),
         stages=(list[str | dict[str, Any]] | None, Field(None, description="a list of stage names or "

@@ -24,9 +24,10 @@ from ccl_cli.learn.constraint import (
     StateDependentConstraint,
     StateIndependentConstraint,
 )
+from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.model_selection import Tuned
 from ccl_cli.learn.nullspace import NullSpaceComponent
-from ccl_cli.learn.params import Options, parameter_hints
+from ccl_cli.learn.params import Interval, Options, declared, forms_of, problem
 from ccl_cli.learn.policy import METHODS, PolicyLearner
 from ccl_cli.models import load_model, save_model
 
@@ -62,23 +63,46 @@ def test_scikit_learn_clones_and_grid_searches_every_learner(name, make, grid, d
     search = GridSearchCV(est, grid, cv=3, error_score="raise").fit(data.X, data.U, **kw)
     assert search.best_params_ in [dict(zip(grid, v, strict=True)) for v in zip(*grid.values(), strict=True)]
     scores = search.cv_results_["mean_test_score"]
-    assert scores.shape == (2,) and np.all(np.isfinite(scores)) and np.all(scores <= 0)
+    assert scores.shape == (2,) and np.all(np.isfinite(scores))
+    constraint = isinstance(getattr(est, "estimator", est), ConstraintModel)
+    assert np.all(scores >= 0) if constraint else np.all(scores <= 0)
     refit = search.best_estimator_
     assert refit.n_features_in_ == data.n_state
     assert refit.score(data.X, data.U) == pytest.approx(search.score(data.X, data.U))
 
 
-def test_grid_search_score_is_minus_the_held_out_npoe_by_hand():
-    """GridSearchCV's fold scores of nhat are −NPOE of the two smallest directions of the
-    training actions, computed here with numpy on scikit-learn's own folds."""
+def test_grid_search_score_is_the_split_likelihood_by_hand():
+    """GridSearchCV's fold scores of nhat are the split's likelihood gain of the two smallest
+    directions of the training actions (constraint models' score: comparable across k), computed
+    here with numpy on scikit-learn's own folds; held_out_error is their NPOE."""
     data = sim.arm7(rows=(0, 1), seed=2, n_demos=10)
     search = GridSearchCV(StateIndependentConstraint(n_constraints=2), {"threshold": [0.1]}, cv=3).fit(
         data.X, data.U)
     for i, (train, test) in enumerate(KFold(3).split(data.X)):
         vecs = np.linalg.eigh(data.U[train].T @ data.U[train])[1][:, :2]
         Ut = data.U[test]
-        npoe = np.mean(np.sum((Ut @ vecs @ vecs.T) ** 2, 1)) / np.var(Ut, axis=0, ddof=1).sum()
-        assert search.cv_results_[f"split{i}_test_score"][0] == pytest.approx(-npoe, rel=1e-9)
+        Ec = np.mean(np.sum((Ut @ vecs) ** 2, 1))
+        Ef = np.mean(np.sum(Ut**2, 1)) - Ec
+        gain = 0.5 * (7 * np.log((Ec + Ef) / 7) - 2 * np.log(Ec / 2) - 5 * np.log(Ef / 5)) / 7
+        assert search.cv_results_[f"split{i}_test_score"][0] == pytest.approx(gain, rel=1e-9)
+        model = StateIndependentConstraint(n_constraints=2).fit(data.X[train], data.U[train])
+        npoe = Ec / np.var(Ut, axis=0, ddof=1).sum()
+        assert model.held_out_error(data.X[test], Ut) == pytest.approx(npoe, rel=1e-9)
+
+
+def test_a_search_over_the_number_of_constraints_finds_the_true_one():
+    """−NPOE would pick one row (fewer rows always leave less motion in them); the split's
+    likelihood picks the two rows the arm holds, on held-out demonstrations."""
+    from sklearn import config_context
+    from sklearn.model_selection import GroupKFold
+
+    data = sim.arm7(rows=(0, 1), seed=0)
+    with config_context(enable_metadata_routing=True):
+        search = GridSearchCV(StateIndependentConstraint(), {"n_constraints": [1, 2, 3, 4]}, cv=GroupKFold(3),
+                              error_score="raise").fit(data.X, data.U, groups=data.demo)
+    assert search.best_params_ == {"n_constraints": 2}
+    scores = search.cv_results_["mean_test_score"]
+    assert scores[1] > 1.5 * max(scores[0], scores[2], scores[3])
 
 
 # -- the declaration of parameters -----------------------------------------------------------
@@ -87,31 +111,51 @@ CLASSES = [StateIndependentConstraint, StateDependentConstraint, KnownFeatureCon
 
 
 @pytest.mark.parametrize("cls", CLASSES, ids=lambda c: c.__name__)
-def test_every_parameter_is_declared_and_literal_choices_agree(cls):
+def test_every_parameter_is_declared_by_its_annotation(cls):
     names = [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
-    assert sorted(cls._parameter_constraints) == sorted(names)
-    hints = parameter_hints(cls)
-    for name in names:
-        hint = hints[name]
-        parts = (hint,) if typing.get_origin(hint) is typing.Literal else typing.get_args(hint)
-        literals = [a for a in parts if typing.get_origin(a) is typing.Literal]
-        options = [f for f in cls._parameter_constraints[name] if isinstance(f, Options)]
-        assert [set(typing.get_args(a)) for a in literals] == [set(o.values) for o in options], name
+    forms = declared(cls)
+    assert list(forms) == names and all(forms.values())
+
+
+def test_an_annotation_is_read_as_the_forms_it_accepts():
+    hint = typing.Annotated[int, Interval(1, 10)] | typing.Literal["a", "b"] | None
+    assert forms_of(hint) == [Interval(1, 10, type=int), Options(str, frozenset({"a", "b"})), None]
+    assert problem(11, forms_of(hint), "k") == "k must be an integer between 1 and 10, got 11"
+    assert problem("c", forms_of(hint), "k") == "k must be one of a, b, got 'c'"
+    assert problem(2.0, forms_of(hint), "k") == \
+        "k must be an integer between 1 and 10 or one of a, b or None, got 2.0"
+    assert problem(None, forms_of(hint), "k") is None and problem(10, forms_of(hint), "k") is None
+    assert Interval(0, None, closed="neither").describe() == "a number > 0"
+    assert Interval(0, 1, closed="right").describe() == "a number > 0 and ≤ 1"
+
+
+def test_a_range_is_phrased_alike_by_the_learner_and_by_the_config(tmp_path):
+    """One declaration, one phrasing: the learner's own check and the run spec's."""
+    from ccl_cli.config import from_mapping
+
+    with pytest.raises(ConfigError) as by_learner:
+        StateDependentConstraint(n_centres=0).fit(TOY.X, TOY.U)
+    with pytest.raises(ConfigError) as by_config:
+        from_mapping({"learn-a": {"method": "alpha", "n_centres": 0}}, source="run.yaml")
+    phrase = "n_centres must be an integer between 1 and 100000, got 0"
+    assert by_learner.value.message == f"StateDependentConstraint: parameter {phrase}"
+    assert by_config.value.message.endswith(f"learn-a.{phrase}")
 
 
 @pytest.mark.parametrize("make,message", [
     (lambda: StateDependentConstraint(n_centres=0),
-     "StateDependentConstraint: parameter n_centres must be ≥ 1, got 0"),
+     "StateDependentConstraint: parameter n_centres must be an integer between 1 and 100000, got 0"),
     (lambda: StateIndependentConstraint(selection="ratoi"),
      "StateIndependentConstraint: parameter selection must be one of cv, eigengap, noise, ratio, threshold, "
      "got 'ratoi' (did you mean 'ratio'?)"),
     (lambda: PolicyLearner(tune={"bugdet": 5}),
      "PolicyLearner: parameter tune has an unknown key 'bugdet' (did you mean 'budget'?)"),
     (lambda: PolicyLearner(basis={"kind": "rbf", "sigma2": -1.0}),
-     "PolicyLearner: parameter basis.sigma2 must be ≥ 1e-300, got -1.0"),
-    (lambda: LinearConstraint(degree=11), "LinearConstraint: parameter degree must be ≤ 10, got 11"),
+     "PolicyLearner: parameter basis.sigma2 must be a number ≥ 1e-300, got -1.0"),
+    (lambda: LinearConstraint(degree=11),
+     "LinearConstraint: parameter degree must be an integer between 0 and 10, got 11"),
     (lambda: NullSpaceComponent(max_iter=True),
-     "NullSpaceComponent: parameter max_iter must be an integer ≥ 1 and ≤ 1e+07, got True"),
+     "NullSpaceComponent: parameter max_iter must be an integer between 1 and 10000000, got True"),
 ])
 def test_bad_parameters_are_one_config_error_from_fit(make, message):
     model = make()  # the constructor stores, fit validates
@@ -228,3 +272,34 @@ def test_the_budget_counts_fits_and_binds_the_same_way_on_any_clock(monkeypatch)
     np.testing.assert_array_equal(calm[0].W_, rushed[0].W_)
     for a, b in zip(calm[1].weights_, rushed[1].weights_, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+# -- errors that are ValueErrors too ---------------------------------------------------------
+def test_ccl_errors_are_value_errors_and_a_missing_h5_attribute_is_said_as_such(tmp_path):
+    """InputError and ConfigError are ValueErrors, and no ``except ValueError`` in ccl turns
+    them into another message (h5 access catches h5py's ValueErrors, not ours)."""
+    from ccl_cli.io.h5.access import attr_value
+
+    with h5py.File(tmp_path / "a.h5", "w") as f:
+        f.attrs["n"] = 3
+    with h5py.File(tmp_path / "a.h5", "r") as f:
+        assert attr_value(f.attrs, "n", "a.h5") == 3
+        with pytest.raises(ValueError) as err:
+            attr_value(f.attrs, "format", "a.h5")
+    assert isinstance(err.value, InputError) and err.value.message == "a.h5: attribute 'format' is missing"
+    with pytest.raises(ValueError, match="parameter n_centres must be"):
+        StateDependentConstraint(n_centres=0).fit(TOY.X, TOY.U)
+
+
+@pytest.mark.parametrize("name,make,grid,data", [c for c in CASES if c[0] in ("alpha", "ncl", "pi", "tuned")],
+                         ids=["alpha", "ncl", "pi", "tuned"])
+def test_a_prediction_at_a_state_with_nan_is_one_input_error_not_a_nan_row(name, make, grid, data):
+    model = make().fit(data.X, data.U)
+    X = data.X[:5].copy()
+    X[3, 1] = np.nan
+    call = model.projection if name == "alpha" else model.predict
+    with pytest.raises(InputError) as err:
+        call(X)
+    assert err.value.message == ("X contains NaN or inf in 1 of 5 states (first: row 3); a model predicts at "
+                                 "finite states only")
+    assert np.isfinite(call(X[:3])).all()

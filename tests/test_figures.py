@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from ccl_cli import lifeline
 from ccl_cli.render import drawing, figures
 
 
@@ -121,17 +122,6 @@ def test_the_toy_run_draws_its_five_figures(tmp_path):
             assert len(np.unique(np.asarray(im).reshape(-1, 3), axis=0)) > 20  # drawn, not blank
 
 
-def test_a_second_drawing_process_only_when_a_core_is_idle(monkeypatch):
-    monkeypatch.setattr(drawing.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
-    monkeypatch.setattr(drawing.os, "getloadavg", lambda: (0.4, 0.0, 0.0))
-    assert drawing.idle_workers() == 2
-    monkeypatch.setattr(drawing.os, "getloadavg", lambda: (1.6, 0.0, 0.0))
-    assert drawing.idle_workers() == 1
-    monkeypatch.setattr(drawing.os, "sched_getaffinity", lambda pid: {0}, raising=False)
-    monkeypatch.setattr(drawing.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
-    assert drawing.idle_workers() == 1
-
-
 def test_the_drawer_draws_each_stage_while_the_next_runs_and_its_files_are_ccls(tmp_path, monkeypatch):
     """A drawer started before the run gets learn-a's figures as soon as learn-a ends (before
     learn-pi has run) and draws the same bytes ccl draws itself; it ends when stopped."""
@@ -151,11 +141,9 @@ def test_the_drawer_draws_each_stage_while_the_next_runs_and_its_files_are_ccls(
         return learn_pi(self, opts)
 
     monkeypatch.setattr(stages.Pipeline, "_learn_pi", tracked)
-    monkeypatch.setattr(drawing, "idle_workers", lambda: 1)
-    assert drawing.start_drawer() is None  # a busy machine: ccl draws itself
-    monkeypatch.setattr(drawing, "idle_workers", lambda: 2)
     drawer = drawing.start_drawer()
-    assert drawer is not None and drawer.running
+    assert drawer is not None and drawing.start_drawer() is drawer  # one per process
+    worker = drawer._workers[0]
     try:
         def on_views(views):
             seen.append(([v.name for v in views], list(ran)))
@@ -163,10 +151,14 @@ def test_the_drawer_draws_each_stage_while_the_next_runs_and_its_files_are_ccls(
 
         result = execute("run", cfg, None, on_views=on_views)
         (tmp_path / "a").mkdir()
-        by_drawer = drawing.draw_views(tmp_path / "a", result.views, workers=2)
+        seconds: dict[str, float] = {}
+        by_drawer = drawing.draw_views(tmp_path / "a", result.views, seconds)
     finally:
         drawing.stop_drawer()
-    assert not drawer.running and not drawer._process.is_alive()  # ended with the run
+    assert set(drawer._futures) == {rel.removeprefix("plots/") for _, rel in by_drawer}
+    assert all(f.done() and f.exception() is None for f in drawer._futures.values())  # all drawn there
+    assert seconds["matplotlib import"] == drawer._started.result() > 0
+    assert worker.exitcode == 0 and not lifeline.pid_alive(worker.pid)  # ended with the run
     assert seen[0] == (["learn-a-field.png", "learn-a-selection.png", "learn-a-constraint.png"], [])
     assert seen[1][1] == ["learn-pi"]
     (tmp_path / "b").mkdir()
@@ -185,12 +177,10 @@ def test_a_drawer_that_died_leaves_the_figures_to_ccl(tmp_path, capfd, monkeypat
     views = [View(f"f{k}.png", f"figure {k}", "selection",
                   {"selection": {"n_constraints": k % 3, "NPOE": [3.0, 1.0, 2.0 + k]}, "q": 3})
              for k in range(3)]
-    monkeypatch.setattr(drawing, "idle_workers", lambda: 2)
     drawer = drawing.start_drawer()
     try:
         drawing.submit_views(views[:1])
-        os.kill(drawer._process.pid, signal.SIGKILL)
-        drawer._process.join()
+        os.kill(drawer._workers[0].pid, signal.SIGKILL)
         drawn = drawing.draw_views(tmp_path, views)
     finally:
         drawing.stop_drawer()
@@ -204,15 +194,27 @@ def test_a_drawer_that_died_leaves_the_figures_to_ccl(tmp_path, capfd, monkeypat
 def test_figures_too_large_to_send_are_drawn_by_ccl(tmp_path, monkeypatch):
     from ccl_cli.app.views import View
 
-    monkeypatch.setattr(drawing, "idle_workers", lambda: 2)
     monkeypatch.setattr(drawing, "MAX_MESSAGE", 1000)
     big = View("big.png", "big", "selection", {"selection": {"n_constraints": 1, "NPOE": list(range(3000))},
                                                  "q": 3})
     drawer = drawing.start_drawer()
     try:
         drawing.submit_views([big])
-        assert not drawer.running  # closed rather than sent
+        assert drawer._futures == {}  # not sent
         drawn = drawing.draw_views(tmp_path, [big])
     finally:
         drawing.stop_drawer()
     assert drawn == [("big", "plots/big.png")] and (tmp_path / "plots" / "big.png").stat().st_size > 1000
+
+
+def test_a_drawer_stopped_while_it_draws_ends_its_worker():
+    from ccl_cli.app.views import View
+
+    views = [View(f"f{k}.png", f"figure {k}", "selection",
+                  {"selection": {"n_constraints": 1, "NPOE": [3.0, 1.0, 2.0 + k]}, "q": 3}) for k in range(3)]
+    drawer = drawing.start_drawer()
+    drawing.submit_views(views)
+    drawing.stop_drawer()  # before it could import matplotlib and draw three figures: killed
+    worker = drawer._workers[0]
+    assert worker.exitcode is not None and not lifeline.pid_alive(worker.pid)
+    assert drawing._drawer is None and all(f.done() for f in drawer._futures.values())

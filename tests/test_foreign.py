@@ -153,7 +153,8 @@ def test_hdf5_external_link_and_storage_refused(tmp_path, arm):
     path = tmp_path / "link.h5"
     with h5py.File(path, "w") as f:
         f["X"] = h5py.ExternalLink(str(other), "X")
-    bad({"state": {"dataset": "X"}, "time": {"rate": 20}}, path, "external link")
+    said = bad({"state": {"dataset": "X"}, "time": {"rate": 20}}, path, "external link")
+    assert said == f"{path}: /X is an external link to {other}:X; ccl reads nothing outside the file"
     raw = tmp_path / "raw.bin"
     arm.X.astype("<f8").tofile(raw)
     path2 = tmp_path / "ext.h5"

@@ -789,6 +789,22 @@ def test_file_size_limit_is_one_line_and_leaves_nothing(fixtures, tmp_path, comm
 
 
 # -- faults ------------------------------------------------------------------------------------
+def test_ctrl_c_wrapped_by_python_is_still_130_and_one_line(fixtures, tmp_path, monkeypatch, capsys):
+    """Python 3.11 wraps a KeyboardInterrupt that lands while an imported module creates a class
+    in RuntimeError("Error calling __set_name__ ..."): still an interruption, not an internal error."""
+    from ccl_cli import cli
+
+    def interrupted(*args, **kwargs):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise RuntimeError("Error calling __set_name__ on 'Field' instance 'values'") from exc
+
+    monkeypatch.setattr(cli, "_learn", interrupted)
+    assert cli.main(["learn-v", str(fixtures["data"]), "-o", str(tmp_path / "o"), "-q"]) == 130
+    assert capsys.readouterr().err.strip().splitlines() == ["ccl: interrupted; no partial outputs were left"]
+
+
 @pytest.mark.parametrize("delay", [0.0, 0.05, 0.15, 0.4])
 def test_ctrl_c_at_any_moment_is_130_and_one_line(fixtures, tmp_path, delay):
     """SIGINT while ccl imports its modules (delay 0: the first ones), reads, learns or

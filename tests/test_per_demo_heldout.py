@@ -62,7 +62,7 @@ def test_a_task_part_is_taken_out_of_the_score_and_the_heldout_blocks(seed):
     floor = npoe_error(data.true_projection(), data.U - data.truth["v"], data.U)
     without_task = npoe_error(model.projection(data.X, groups=data.demo), data.U)
     assert without_task > 15 * floor  # the task part A⁺b counted as error
-    assert floor < -model.score(data.X, data.U, groups=data.demo) < 2 * floor
+    assert floor < model.held_out_error(data.X, data.U, groups=data.demo) < 2 * floor
     assert model.heldout_["mean"] < 5 * floor
 
 

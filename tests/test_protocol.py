@@ -60,6 +60,9 @@ CASES = [
      1, "segment", False, "rows fitted per stretch", "PerSegment", 0.04, 0.04),
     ("stretches", C.ConstraintInStretches, lambda s: sim.arm_wipe(n_demos=4, seed=s),
      1, "stretch", True, "stretches classified", "ConstraintInStretches", 1e-3, 1e-3),
+    ("manifold", lambda: C.ManifoldConstraint(family="sphere", n_constraints=1),
+     lambda s: sim.tracker_sphere(duration=15.0, n_recordings=3, seed=s),
+     1, None, True, "as fitted", "ManifoldConstraint", 0.02, 0.02),
     ("auto", C.AutoConstraint, lambda s: sim.arm7(rows=(0, 1), seed=s, n_demos=12),
      2, None, False, "as fitted", "StateIndependentConstraint", 0.01, 0.01),
 ]
@@ -99,8 +102,16 @@ def test_every_constraint_learner_answers_the_protocol(case, fitted, tmp_path):
         assert 0.5 < holds.mean() < 0.95 and (holds == wiping).mean() > 0.95
     else:
         assert holds.all()
-    score = model.score(d.X, d.U, **at)
-    assert -0.05 <= score <= 0.0
+    assert 0.0 <= model.held_out_error(d.X, d.U, **at) <= 0.05
+    # score: the split's likelihood gain by hand — 0 without rows, positive with quiet rows
+    N, U = model.projection(d.X, **at), d.U
+    free = np.einsum("nij,nj->ni", N, U)
+    Ef, Ec = (free**2).sum(1).mean(), ((U - free) ** 2).sum(1).mean()
+    q, r = d.n_action, np.trace(np.eye(d.n_action) - N, axis1=1, axis2=2).mean()  # r: the mean rank
+    by_hand = 0.0 if k == 0 else 0.5 * (q * np.log((Ec + Ef) / q) - r * np.log(max(Ec, 1e-12 * (Ec + Ef)) / r)
+                                         - (q - r) * np.log(Ef / (q - r))) / q
+    assert model.score(d.X, d.U, **at) == pytest.approx(by_hand, rel=1e-9, abs=1e-12)
+    assert (by_hand > 0.1) == (k > 0)
     # a model file holds what answers; its own checks pass, and it predicts the same
     model.chosen_.check_shapes()
     back, _ = load_model(save_model(tmp_path / "m.h5", model))

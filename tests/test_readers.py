@@ -270,8 +270,8 @@ def test_csv_errors(tmp_path):
 
 
 def test_files_can_be_globs_and_demos_are_renumbered(tmp_path):
-    for k in range(3):
-        write_ros1_bag(tmp_path / f"run_{k}.bag", joint_recording(n=10, seed=k))
+    for k in range(3):  # three recordings (identical files would be one recording given three times)
+        write_ros1_bag(tmp_path / f"run_{k}.bag", joint_recording(n=10, jitter=0.05, seed=k))
     data = load_demonstrations({**JOINT_CFG, "files": [str(tmp_path / "run_*.bag")]})
     assert data.n_demos == 3 and data.n_samples == 30
     assert [Path(f["path"]).name for f in data.metadata["files"]] == ["run_0.bag", "run_1.bag", "run_2.bag"]
@@ -514,10 +514,10 @@ def test_data_options_accept_every_key_and_type_the_config_allowed():
 
 @pytest.mark.parametrize(("mapping", "message"), [
     ({"stat": {}}, "unknown data option 'stat' (did you mean 'state'?)"),
-    ({"time": {"rate": "20"}}, "data.time.rate must be a rate in Hz between 1e-09 and 1e+12, got '20'"),
+    ({"time": {"rate": "20"}}, "data.time.rate must be a number between 1e-09 and 1e+12 (Hz), got '20'"),
     ({"action": {"derive": "state", "window": 0}}, "data.action.window must be an integer between 1 and"),
     ({"state": {"columns": [True]}}, "data.state.columns[0] must be an integer or a string, got True"),
-    ({"demos": {"split_on_gap": float("nan")}}, "data.demos.split_on_gap must be positive seconds, got nan"),
+    ({"demos": {"split_on_gap": float("nan")}}, "data.demos.split_on_gap must be a number > 0 (s), got nan"),
     ({"nonfinite": "keep"}, "data.nonfinite must be 'drop' or 'fail', got 'keep'"),
     ({"demos": {"window": 2, "windows": 4}}, "data.demos: unknown option 'windows' (did you mean 'window'?)"),
 ])

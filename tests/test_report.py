@@ -217,14 +217,10 @@ def test_plot_helpers_subsample_and_angles():
     assert activity(t, gap_s=3.0)["demos"] == 1
 
 
-def test_figures_drawn_by_a_forked_child_are_the_same_files_and_a_failed_child_is_redrawn(tmp_path):
-    """drawing.render: with 2 workers a forked child draws the figures it takes; the PNGs
-    are byte-identical to one process drawing them all, and jobs of a child that dies are
-    drawn by the parent (nothing is missing)."""
-    import os
-
-    from ccl_cli.render.drawing import render
-    from ccl_cli.render.figures import save_figure, subplots
+def test_a_figure_drawn_in_memory_is_the_file_save_figure_writes(tmp_path):
+    """figures._draw (what ccl and its drawer run for every figure): the bytes save_figure
+    writes for the same figure, and None when there is nothing to draw."""
+    from ccl_cli.render.figures import _draw, save_figure, subplots
 
     def figure(k):
         fig, ax = subplots(figsize=(3, 2))
@@ -232,24 +228,10 @@ def test_figures_drawn_by_a_forked_child_are_the_same_files_and_a_failed_child_i
         ax.legend(loc="upper left")
         return fig
 
-    def jobs(parent=None):
-        def make(k):
-            if parent is not None and os.getpid() != parent:
-                os._exit(7)  # the child dies on the first figure it takes
-            return figure(k) if k != 4 else None
-
-        return [(f"f{k}.png", lambda k=k: make(k)) for k in range(6)]
-
-    serial = render(jobs(), "png", workers=1)
-    parallel = render(jobs(), "png", workers=2)
-    recovered = render(jobs(parent=os.getpid()), "png", workers=2)
-    assert list(serial) == list(parallel) == list(recovered) == [f"f{k}.png" for k in range(6)]
-    assert serial["f4.png"] is None and parallel["f4.png"] is None and recovered["f4.png"] is None
-    assert all(serial[f"f{k}.png"][0] > 0 for k in (0, 1, 2, 3, 5))
-    for name in ("f0.png", "f1.png", "f2.png", "f3.png", "f5.png"):
-        assert serial[name][1] == parallel[name][1] == recovered[name][1]
-    save_figure(figure(1), tmp_path / "direct.png")  # the helper the jobs use
-    assert (tmp_path / "direct.png").read_bytes() == serial["f1.png"][1]
+    seconds, drawn = _draw(lambda: figure(1), "png")
+    assert seconds > 0 and _draw(lambda: None, "png") is None
+    save_figure(figure(1), tmp_path / "direct.png")
+    assert (tmp_path / "direct.png").read_bytes() == drawn
 
 
 def test_a_state_dependent_normal_is_not_called_a_plane_normal():

@@ -69,7 +69,7 @@ def test_window_applies_within_gaps_and_ranges():
 
 @pytest.mark.parametrize("bad", [0, -2.0, True, "4"])
 def test_bad_windows_are_refused_with_the_file_named(bad):
-    with pytest.raises(InputError, match=r"^rec\.csv: demos\.window must be positive seconds"):
+    with pytest.raises(InputError, match=r"^rec\.csv: demos\.window must be a number > 0 \(s\)"):
         segment_ids(np.arange(10.0), {"window": bad}, "rec.csv")
     with pytest.raises(InputError, match="unknown option"):
         segment_ids(np.arange(10.0), {"windows": 4}, "rec.csv")

@@ -11,6 +11,7 @@ import numpy as np
 from ccl_cli import diagnostics
 from ccl_cli import simulate as sim
 from ccl_cli.cli import main
+from ccl_cli.dataset import Derivative
 from ccl_cli.io import write_demonstrations
 from ccl_cli.learn.constraint import StateIndependentConstraint
 from ccl_cli.metrics import subspace_angle
@@ -35,13 +36,21 @@ def test_overfit_and_baseline_checks_by_hand():
 def test_constraint_evidence_tells_a_quiet_row_from_a_moving_one():
     d = sim.tracker_plane(duration=30.0, seed=4)
     right = StateIndependentConstraint(n_constraints=1).fit(d.X, d.U)
-    ev = diagnostics.constraint_evidence(right, d, d.U)
-    assert ev["holds"] and ev["ratio"][0] < 5
+    ev = diagnostics.constraint_evidence(right, d, d.U)  # velocities of the positions: their drift
+    assert ev["holds"] and ev["ratio"][0] < 5 and ev["drift"][0] < 0.05  # both tests agree
     wrong = StateIndependentConstraint(n_constraints=1).fit(d.X, d.U)
     wrong.A_ = np.linalg.svd(right.A_)[2][1:2]  # an in-plane direction instead of the normal
     ev = diagnostics.constraint_evidence(wrong, d, d.U)
-    assert not ev["holds"] and ev["ratio"][0] > 30
+    assert not ev["holds"] and ev["drift"][0] > 0.3 and ev["ratio"][0] > 30 and ev["measure"] == "drift"
     assert diagnostics.does_not_hold("learn-a", ev, "test data")[0]["code"] == "constraint_does_not_hold"
+    # recorded actions (not the states' derivative): the motion along the rows against their noise
+    recorded = d.subset(np.arange(d.n_samples))
+    recorded.derivative = Derivative(False)
+    recorded.X = recorded.X + np.random.default_rng(0).normal(scale=1.0, size=recorded.X.shape)
+    ev = diagnostics.constraint_evidence(right, recorded, recorded.U)
+    assert "drift" not in ev and ev["holds"] and ev["ratio"][0] < 5
+    ev = diagnostics.constraint_evidence(wrong, recorded, recorded.U)
+    assert not ev["holds"] and ev["ratio"][0] > 30
 
 
 
@@ -95,7 +104,7 @@ def test_a_constraint_that_does_not_hold_on_held_out_data_is_poor(capsys, tmp_pa
     assert code == 0
     assert metrics["learn-a"]["n_constraints"] >= 1 and metrics["learn-a"]["status"] == "poor"
     found = [w for w in summary["warnings"] if w["code"] == "constraint_does_not_hold"]
-    assert found and "× its noise" in found[0]["message"]
+    assert found and "the positions drift along learnt constraint row 1" in found[0]["message"]
 
 
 def test_held_out_figures_carry_their_spread(capsys, tmp_path):

@@ -39,7 +39,7 @@ from ccl_cli.errors import CCLError, ConfigError, OutputError
 from ccl_cli.learn.blas import THREAD_VARS
 
 log = logging.getLogger("ccl")
-#: writes one job's folder: (RunResult, outdir, *, force, plot_workers, extra_files) → summary
+#: writes one job's folder: (RunResult, outdir, *, force, extra_files) → summary
 Writer = Callable[..., dict[str, Any]]
 MANIFEST_KEYS = {"out", "jobs", "overrides"}
 RULE_KEYS = {"files", "config", "overrides", "group"}
@@ -239,7 +239,7 @@ def _check_rule(rule: Any, where: str) -> None:
 # -- running -------------------------------------------------------------------------------
 def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
     """Run one job into ``jobs_dir/<job_id>`` (in a worker process or on a Dask worker);
-    ``write(result, outdir, force=, plot_workers=, extra_files=)`` writes its folder (the
+    ``write(result, outdir, force=, extra_files=)`` writes its folder (the
     command line passes :func:`ccl_cli.render.outputs.write_run`: a module-level function,
     so it pickles to the workers)."""
     logging.getLogger("ccl").setLevel(logging.WARNING)
@@ -258,7 +258,7 @@ def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
         cfg = config.from_mapping(job.config, source=job.config_path or "<batch>")
         from ccl_cli.app.run import execute
 
-        summary = write(execute("run", cfg, job.files), outdir, force=True, plot_workers=1,
+        summary = write(execute("run", cfg, job.files), outdir, force=True,
                         extra_files={"job.json": {"key": key, "files": job.files, "config": job.config_path}})
         return JobResult(job.job_id, job.files, "ok", time.perf_counter() - t0, stages=summary["stages"])
     except OutputError as exc:

@@ -21,7 +21,7 @@ from ccl_cli.app.views import View, constant_rows, describe_constraint, stage_vi
 from ccl_cli.dataset import Demonstrations, Derivative
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn import model_selection
-from ccl_cli.learn.constraint import PerDemonstration, PerWindow
+from ccl_cli.learn.constraint import PerDemonstration, PerWindow, geometry
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
 from ccl_cli.spec import constraint_class
@@ -135,6 +135,17 @@ class StageProgress(Protocol):
     def start(self, label: str) -> None: ...
 
     def advance(self) -> None: ...
+
+
+#: ``on: auto`` does not learn from a learnt w̃ whose variance is below this share of u's: a
+#: null-space component of nearly nothing is a degenerate input, not evidence of a task part.
+DEGENERATE_SHARE = 1e-3
+#: ... nor when the task part it leaves, u − w̃, holds less than this share of u's variance on the
+#: held-out part: without a task part u and w̃ show the same constraint, and u is the measurement.
+TASK_SHARE = 0.05
+#: ... and on samples that are not trajectories (no states' geometry, no noise to judge by), only
+#: when the model on w̃ explains the held-out w̃ PREFER_W × better than the model on u explains u.
+PREFER_W = 2.0
 
 
 class Pipeline:
@@ -262,27 +273,62 @@ class Pipeline:
         return model
 
     def _choose_observations(self, opts: Any) -> tuple[Any, str, str]:
-        """``on: auto`` after a learn-v stage: the constraint is learnt from u when it holds on
-        the held-out u at the noise level (no task part is needed for it — the learnt w̃ is a
-        model's output, self-consistent whatever its direction), from w̃ when it does not and
-        learn-v generalised; → (model, "u" or "w", why)."""
+        """``on: auto`` after a learn-v stage: u and the learnt w̃ on equal terms; → (model, "u"
+        or "w", why). The constraint is learnt from u when it finds rows there that hold on the
+        held-out u (no task part is needed for them), when learn-v did not generalise, when w̃ is
+        degenerate (variance below DEGENERATE_SHARE of u's) or its task part negligible (below
+        TASK_SHARE). Otherwise from w̃ when it shows more: when the actions are the states'
+        derivative, the states with the learnt task part integrated out (X − ∫ṽ dt) must show more
+        constraints than the states themselves; else the model learnt on w̃ must explain the
+        held-out w̃ at least PREFER_W × better (held-out NPOE) than the model on u explains u — a
+        task part moves u along the rows, and k = 0 on u is no evidence that nothing holds."""
         model = self._fit_constraint(opts, "u")
         part, d = self._held_out()
         evidence = diagnostics.constraint_evidence(model, d, d.U)
         learn_v = next((r for r in self.results if r.name == "learn-v"), None)
-        if evidence is None or evidence["holds"]:
-            why = ("no constraint row of u to test" if evidence is None and not model.n_constraints_ else
-                   "the data cannot tell the noise of u" if evidence is None else
-                   f"it holds on the {part} u at the noise level (motion along its rows "
-                   f"{max(evidence['ratio']):.3g}× their noise"
+        k_u = int(model.n_constraints_)
+        if k_u and evidence is not None and evidence["holds"]:
+            why = (f"it holds on the {part} u ({k_u} row(s); "
+                   + (f"the positions drift along them by at most {max(evidence['drift']):.3g} of their "
+                      "spread" if evidence.get("measure") == "drift" else
+                      f"motion along its rows {max(evidence['ratio']):.3g}× their noise")
                    + ("; a model per stretch, fitted again there" if evidence["refitted"] else "") + ")")
             return model, "u", f"learnt from u: {why}, so no task part is needed for it"
         if learn_v is not None and learn_v.status != "ok":
-            return model, "u", ("learnt from u: learn-v did not generalise, so its w̃ is not used (the "
-                                f"constraint does not hold on the {part} u either)")
-        return self._fit_constraint(opts, "w"), "w", (
-            f"learnt from the learnt w̃: no constraint holds on the {part} u itself (motion along row 1 "
-            f"{evidence['ratio'][0]:.3g}× its noise) and learn-v generalised")
+            either = f" (the constraint does not hold on the {part} u either)" if k_u and evidence else ""
+            return model, "u", f"learnt from u: learn-v did not generalise, so its w̃ is not used{either}"
+        w = self.w["train"]
+        u_var = float(self.split.train.U.var(0).sum())
+        w_share = float(w.var(0).sum()) / max(u_var, 1e-300)
+        if not w_share >= DEGENERATE_SHARE:
+            return model, "u", (f"learnt from u: the learnt w̃ is degenerate (its variance {w_share:.2g} of "
+                                "u's), so it is not used")
+        task = float((d.U - self.w[part]).var(0).sum()) / max(float(d.U.var(0).sum()), 1e-300)
+        if not task >= TASK_SHARE:
+            return model, "u", (f"learnt from u: the task part learn-v found is {task:.2g} of u's variance "
+                                f"on the {part} data, too little to move u off a constraint")
+        tr = self.split.train
+        if geometry.kinematic(tr.X, tr.U, tr.demo, tr.t, tr.derivative)[0]:
+            # equal terms: the states with the learnt task part taken out, X − ∫ṽ dt, must show more
+            # constraints than the states themselves (they integrate w̃ as X integrates u)
+            shown = geometry.decide(geometry.integrate(w, tr.X, tr.demo, tr.t), tr.demo).k
+            if shown <= k_u:
+                return model, "u", (f"learnt from u: the states with learn-v's task part taken out show "
+                                    f"{shown} constraint(s), no more than the states themselves ({k_u})")
+            return self._fit_constraint(opts, "w"), "w", (
+                f"learnt from the learnt w̃: the states with learn-v's task part taken out show {shown} "
+                f"constraint(s), the states themselves {k_u}, and learn-v generalised")
+        on_w = self._fit_constraint(opts, "w")
+        k_w = int(on_w.n_constraints_)
+        if not k_w:
+            return model, "u", "learnt from u: the learnt w̃ shows no constraint either"
+        err_u = model.held_out_error(d.X, d.U, groups=d.demo, t=d.t) if k_u else 1.0
+        err_w = on_w.held_out_error(d.X, self.w[part], groups=d.demo, t=d.t)
+        if k_w <= k_u and not err_w * PREFER_W <= err_u:
+            return model, "u", (f"learnt from u: the model on w̃ explains the {part} w̃ (NPOE {err_w:.3g}) no "
+                                f"{PREFER_W:g}× better than the model on u explains u ({err_u:.3g})")
+        return on_w, "w", (f"learnt from the learnt w̃: its {k_w} row(s) explain the {part} w̃ with NPOE "
+                           f"{err_w:.3g} against {err_u:.3g} for {k_u} row(s) on u, and learn-v generalised")
 
     def _learn_a(self, opts: Any) -> StageResult:
         tr = self.split.train

@@ -319,7 +319,8 @@ def assemble(parts: list[Part], options: DataOptions, where: str, state_names: l
                          f"{k - first} ({t[k - 1]!r} s then {t[k]!r} s)")
     how = Derivative()  # recorded actions of a table: not said
     if U is None:
-        U, meta["action"] = derive_actions(t, X, ids, options.action)
+        paced = str(meta.get("time", "")).startswith("rate")  # stamps from an assumed rate
+        U, meta["action"] = derive_actions(t, X, ids, options.action, paced=paced)
         how = Derivative.from_record(meta["action"])
         action_names = [f"d{n}/dt" for n in state_names]
     if dropped:

@@ -38,15 +38,20 @@ def default_window(t: np.ndarray, demo: np.ndarray, order: int = 2) -> tuple[int
     return window_for_rate(rate, order), rate
 
 
-def derive_actions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, action: ActionOptions | None
-                   ) -> tuple[np.ndarray, dict[str, Any]]:
+def derive_actions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, action: ActionOptions | None,
+                   paced: bool = False) -> tuple[np.ndarray, dict[str, Any]]:
     """Velocities of the states, dX/dt (N, d), by :func:`local_polynomial_derivative` with
     the ``action`` window and order; without a window, :func:`default_window` chooses it
-    from the sampling rate. t (N,) s, X (N, d), demo (N,) → (U, metadata saying what was
-    used and why)."""
+    from the sampling rate — or, when the stamps are made from an assumed rate (``paced``),
+    :data:`~ccl_cli.learn.defaults.DERIVATIVE_PACED_WINDOW` samples, so that the assumed rate
+    only rescales U. t (N,) s, X (N, d), demo (N,) → (U, metadata saying what was used and why)."""
     action = action or ActionOptions()
     order, window = action.order, action.window
-    if window is None:
+    if window is None and paced:
+        window = max(defaults.DERIVATIVE_PACED_WINDOW, order + 2 + (order + 3) % 2)
+        why = (f"default without stamps: {window} samples, whatever rate is assumed (an assumed rate "
+               "only rescales the velocities)")
+    elif window is None:
         window, rate = default_window(t, demo, order)
         why = (f"default: ±{defaults.DERIVATIVE_HALF_SPAN_S:g} s at the median rate "
                f"{rate:.4g} Hz" + (f" (capped at {defaults.DERIVATIVE_MAX_WINDOW} samples)"

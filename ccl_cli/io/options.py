@@ -27,6 +27,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from ccl_cli.errors import InputError
+from ccl_cli.learn.params import Interval
 
 Format = Literal["auto", "hdf5", "csv", "bag", "mcap", "mat"]
 TimeUnit = Literal["s", "ms", "us", "ns"]
@@ -144,8 +145,8 @@ class ActionOptions(StreamOptions):
     ``order`` fitted to ``window`` samples (odd; default: from the sampling rate)."""
 
     derive: Literal["state"] | None = None
-    window: int | None = Field(None, ge=1, le=1_000_000, description="an integer between 1 and 1000000")
-    order: int = Field(2, ge=1, le=20, description="an integer between 1 and 20")
+    window: int | None = Field(None, **Interval(1, 1_000_000, type=int).field())
+    order: int = Field(2, **Interval(1, 20, type=int).field())
 
 
 class TimeOptions(Options):
@@ -156,7 +157,7 @@ class TimeOptions(Options):
 
     column: int | str | None = Field(None, description="a column name or a 0-based index")
     unit: TimeUnit | None = None
-    rate: Number | None = Field(None, ge=1e-9, le=1e12, description="a rate in Hz between 1e-09 and 1e+12")
+    rate: Number | None = Field(None, **Interval(1e-9, 1e12).field("Hz"))
     delimiter: str | None = None
     dataset: str | None = None
     variable: str | None = None
@@ -172,6 +173,10 @@ class TimeOptions(Options):
         return value
 
 
+#: A length of time > 0 (seconds).
+_SECONDS = Interval(0, None, closed="neither")
+
+
 class DemoOptions(Options):
     """How a recording becomes demonstrations (:mod:`ccl_cli.io.segment`). Every format:
     ``split_on_gap`` (a pause longer than this many seconds starts a new one), ``ranges``
@@ -184,12 +189,12 @@ class DemoOptions(Options):
     layouts: one per ``group`` matching a glob, or a ``dataset`` holding a demo id per
     sample; .mat: a demo-index ``variable``."""
 
-    split_on_gap: Number | None = Field(None, gt=0, description="positive seconds")
+    split_on_gap: Number | None = Field(None, **_SECONDS.field("s"))
     ranges: list[list[Number]] | dict[int, list[list[Number]]] | None = Field(
         None, description="a list of [start, end] pairs or {demo index: [[start, end], ...]}")
     where: SignalOptions | None = None
-    min_duration: Number | None = Field(None, ge=0, description="seconds ≥ 0")
-    window: Number | None = Field(None, gt=0, description="positive seconds")
+    min_duration: Number | None = Field(None, **Interval(0, None).field("s"))
+    window: Number | None = Field(None, **_SECONDS.field("s"))
     per_file: bool | None = None
     group: str | None = None
     dataset: str | None = None
@@ -256,7 +261,7 @@ class DataOptions(Options):
     demos: DemoOptions = DemoOptions()
     nonfinite: Literal["drop", "fail"] = "drop"
     faults: FaultOptions = FaultOptions()
-    min_samples: int = Field(2, ge=1, description="an integer ≥ 1")
+    min_samples: int = Field(2, **Interval(1, None, type=int).field())
     allow_outside: bool = False
 
     @classmethod

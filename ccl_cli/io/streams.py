@@ -135,7 +135,8 @@ class StreamReader(ReaderBase):
             U = U[keep] if U is not None else None
             t = (t_ns - t_ns[0]) / 1e9
         if U is None:
-            U, meta["action"] = derive_actions(t_s, X, demo, o.action)
+            paced = str(state.meta.get("time_column", "")).startswith("rate")
+            U, meta["action"] = derive_actions(t_s, X, demo, o.action, paced=paced)
             how = Derivative.from_record(meta["action"])
         data = Demonstrations(X=X, U=U, demo=demo, t=t,
                               state_names=state_names, action_names=action_names, state_units=units,

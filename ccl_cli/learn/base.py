@@ -5,8 +5,8 @@
   the signature of ``__init__``, :meth:`Estimator.set_params` writes them
   (``basis__n_centres`` reaches into a nested estimator), :func:`clone` builds a new,
   unfitted learner with the same parameters. What each parameter accepts is declared
-  once in ``_parameter_constraints`` (format: :mod:`ccl_cli.learn.params`) and checked at
-  the start of ``fit``.
+  once, in its annotation (format: :mod:`ccl_cli.learn.params`), and checked at the start
+  of ``fit``.
 * ``fit(X, U, *, groups=None)`` returns ``self`` (``groups``: demonstration id per
   sample). Every constraint learner takes one signature (:mod:`ccl_cli.learn.constraint.base`):
   ``fit(X, U, *, groups=None, t=None, derivative=None)`` — ``t`` (N,) the sample times in
@@ -25,7 +25,8 @@
   groups=..., t=...)`` and ``cross_validate(..., params={...})`` give each fold's fit and
   score its part. ``set_fit_request`` / ``set_score_request`` change a request (``False``: not
   passed, a string: an alias), as on scikit-learn's own estimators. scikit-learn is imported
-  only by :meth:`Estimator.get_metadata_routing`, which only scikit-learn calls.
+  only by :meth:`Estimator.get_metadata_routing` and ``__sklearn_tags__``, which only
+  scikit-learn calls.
 * Asking a learner for a prediction before ``fit`` raises :class:`NotFittedError`.
 
 :class:`NotFittedError` is a :class:`~ccl_cli.errors.LearningError` (exit code 1): a
@@ -41,13 +42,12 @@ from __future__ import annotations
 import copy
 import functools
 import inspect
-from types import SimpleNamespace
 from typing import Any, ClassVar
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError, LearningError
-from ccl_cli.learn.params import validate_params
+from ccl_cli.learn.params import declared, validate_params
 
 
 class NotFittedError(LearningError):
@@ -62,14 +62,27 @@ class Requests(dict):
         return copy.deepcopy(self)
 
 
+def as_real(A: Any, name: str) -> np.ndarray:
+    """``A`` as a float array; InputError for what is not a real dense array (None, sparse
+    matrices, complex numbers: scikit-learn's phrases, so its checks read them)."""
+    if A is None:
+        raise InputError(f"{name}: Expected array-like (array or non-string sequence), got None")
+    if hasattr(A, "toarray") or hasattr(A, "tocsr"):  # scipy.sparse, without importing it
+        raise InputError(f"{name}: sparse input is not supported; pass a dense array (.toarray())")
+    A = np.asarray(A)
+    if np.iscomplexobj(A):
+        raise InputError(f"{name}: Complex data not supported")
+    return A.astype(float, copy=False)
+
+
 def check_xu(X: np.ndarray, U: np.ndarray, min_samples: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """States X (N, p) and actions U (N, q) as finite float arrays with N ≥ ``min_samples``."""
-    X = np.asarray(X, dtype=float)
-    U = np.asarray(U, dtype=float)
+    X, U = as_real(X, "X"), as_real(U, "U")
     if X.ndim != 2 or U.ndim != 2 or X.shape[0] != U.shape[0]:
         raise InputError(f"X and U must be (N, p) and (N, q) with the same N, got {X.shape}, {U.shape}")
     if X.shape[0] < min_samples:
-        raise InputError(f"need at least {min_samples} samples, got {X.shape[0]}")
+        n = X.shape[0]
+        raise InputError(f"need at least {min_samples} samples, got {n} sample{'' if n == 1 else 's'}")
     if not (np.isfinite(X).all() and np.isfinite(U).all()):
         raise InputError("X or U contains NaN or inf")
     return X, U
@@ -97,20 +110,9 @@ def _keyword_only(cls: type, method: str) -> tuple[str, ...]:
 class Estimator:
     """Base of every learner: parameters from the constructor signature."""
 
-    #: parameter → the forms it accepts (:mod:`ccl_cli.learn.params`); one entry per parameter.
-    _parameter_constraints: ClassVar[dict[str, list]] = {}
     #: learnt attribute → how a saved model holds it: "value" (JSON), "array", "arrays" (a
     #: list of arrays), "basis" (a fitted feature map), "models" (one model per demonstration).
     _fitted_attributes: ClassVar[dict[str, str]] = {}
-
-    def __init_subclass__(cls, **kwargs: Any) -> None:
-        """Merge the ``_parameter_constraints`` of every base (parameter groups) into the
-        class's own declaration."""
-        super().__init_subclass__(**kwargs)
-        merged: dict[str, list] = {}
-        for base in reversed(cls.__mro__):
-            merged.update(vars(base).get("_parameter_constraints", {}))
-        cls._parameter_constraints = merged
 
     @classmethod
     def _param_names(cls) -> list[str]:
@@ -151,9 +153,10 @@ class Estimator:
         return self
 
     def _validate_params(self) -> None:
-        """Check every constructor parameter against ``_parameter_constraints``
-        (:class:`~ccl_cli.errors.ConfigError` naming the class and the parameter)."""
-        validate_params(type(self).__name__, self._parameter_constraints, self.get_params(deep=False))
+        """Check every constructor parameter against its annotation
+        (:func:`~ccl_cli.learn.params.declared`; :class:`~ccl_cli.errors.ConfigError` naming
+        the class and the parameter)."""
+        validate_params(type(self).__name__, declared(type(self)), self.get_params(deep=False))
 
     def _prepare_fit(self, X: np.ndarray | None, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The start of every ``fit``: validate the parameters and the data (X (N, p), U
@@ -161,7 +164,12 @@ class Estimator:
         learner that does not read states) leaves ``n_features_in_`` unset: any p is then
         accepted when predicting."""
         self._validate_params()
-        U = np.asarray(U, dtype=float)
+        U = as_real(U, "U")
+        if X is not None:
+            X = as_real(X, "X")
+            if X.ndim == 2 and X.shape[1] == 0:  # scikit-learn's phrase
+                raise InputError(f"X has 0 feature(s) (shape={X.shape}) while a minimum of 1 is required: "
+                                 "give the states, or X=None to a learner that does not read them")
         X, U = check_xu(np.zeros((U.shape[0] if U.ndim else 0, 0)) if X is None else X, U)
         self.__dict__.pop("n_features_in_", None)  # a refit forgets the previous p
         if X.shape[1]:
@@ -169,13 +177,20 @@ class Estimator:
         return X, U
 
     def _check_states(self, X: np.ndarray) -> np.ndarray:
-        """X (N, p) as floats, with p = ``n_features_in_`` (else one InputError)."""
-        X = np.asarray(X, dtype=float)
+        """X (N, p) as finite floats, with p = ``n_features_in_`` (else one InputError: a
+        state with NaN or inf has no prediction, and none is made up)."""
+        X = as_real(X, "X")
         p = getattr(self, "n_features_in_", None)
-        if X.ndim != 2 or (p is not None and X.shape[1] != p):
-            got = X.shape[1] if X.ndim == 2 else f"an array of shape {X.shape}"
-            want = f"p = {p} state dimensions" if p is not None else "states as an (N, p) array"
-            raise InputError(f"the model expects {want}, got {got}")
+        if X.ndim != 2:
+            shape = f"(N, {'p' if p is None else p})"
+            raise InputError(f"the model expects states as an {shape} array, got an array of shape "
+                             f"{X.shape}. Reshape your data: X.reshape(1, -1) for one state")
+        if p is not None and X.shape[1] != p:
+            raise InputError(f"the model expects p = {p} state dimensions, got {X.shape[1]}")
+        if not np.isfinite(X).all():
+            bad = np.flatnonzero(~np.isfinite(X).all(axis=1))
+            raise InputError(f"X contains NaN or inf in {len(bad)} of {len(X)} states (first: row {bad[0]}); "
+                             "a model predicts at finite states only")
         return X
 
     # -- what a loaded model is checked with (ccl_cli.models) ---------------------------------
@@ -261,19 +276,16 @@ class Estimator:
                 getattr(request, method).add_request(param=name, alias=chosen.get(method, {}).get(name, True))
         return request
 
-    def __sklearn_tags__(self) -> SimpleNamespace:
-        """The description scikit-learn's meta-estimators read (GridSearchCV, clone checks):
-        a 2-D numeric input, a multi-output target, fitting required. Plain attributes —
-        ccl never imports scikit-learn."""
-        return SimpleNamespace(
-            estimator_type=None, transformer_tags=None, classifier_tags=None, regressor_tags=None,
-            array_api_support=False, no_validation=False, non_deterministic=False, requires_fit=True,
-            _skip_test=False,
-            target_tags=SimpleNamespace(required=True, one_d_labels=False, two_d_labels=True,
-                                        positive_only=False, multi_output=True, single_output=False),
-            input_tags=SimpleNamespace(one_d_array=False, two_d_array=True, three_d_array=False,
-                                       sparse=False, categorical=False, string=False, dict=False,
-                                       positive_only=False, allow_nan=False, pairwise=False))
+    def __sklearn_tags__(self) -> Any:
+        """The description scikit-learn's meta-estimators and checks read (GridSearchCV, clone,
+        ``parametrize_with_checks``): a 2-D numeric input without NaN, a multi-output target,
+        fitting required. scikit-learn's own ``Tags``: only scikit-learn calls this, so it is
+        imported here and nowhere else in ccl (a test-only dependency)."""
+        from sklearn.utils import InputTags, Tags, TargetTags
+
+        return Tags(estimator_type=None, target_tags=TargetTags(required=True, two_d_labels=True,
+                                                                 multi_output=True, single_output=False),
+                    input_tags=InputTags(two_d_array=True, allow_nan=False), requires_fit=True)
 
     def __repr__(self) -> str:
         defaults = {p.name: p.default for p in inspect.signature(type(self).__init__).parameters.values()}

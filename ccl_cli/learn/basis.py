@@ -16,13 +16,13 @@ import copy
 import hashlib
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
-from typing import Any, ClassVar
+from typing import Annotated, Any, Literal
 
 import numpy as np
 
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.learn.linalg import row_chunks
-from ccl_cli.learn.params import SEED, BasisKind, Fields, Interval, Options, parameters
+from ccl_cli.learn.params import BasisKind, Fields, Interval, Seed, out_of_range, parameters
 
 #: Feature blocks of iterative learners are kept in memory up to this many bytes (N K · 8);
 #: above it they are recomputed on every pass, so memory stays bounded in N.
@@ -200,7 +200,7 @@ class RBFBasis:
             if self.centres_.ndim != 2 or self.centres_.shape[1] != X.shape[1]:
                 raise ConfigError(f"centres must be (K, {X.shape[1]}), got {self.centres_.shape}")
         if self.sigma2 is not None and not self.sigma2 > 0:
-            raise ConfigError(f"sigma2 must be positive, got {self.sigma2}")
+            raise ConfigError(out_of_range("sigma2", self.sigma2, Interval(0, None, closed="neither")))
         self.sigma2_ = float(self.sigma2) if self.sigma2 is not None else default_sigma2(self.centres_)
         return self
 
@@ -254,21 +254,14 @@ class LinearBasis:
 
 
 Basis = RBFBasis | LinearBasis
+#: RBF centres.
+NCentres = Annotated[int, Interval(1, 100_000)]
+#: The keys of a ``basis`` mapping (a linear basis takes none but ``kind``).
+BASIS_FIELDS = Fields(kind=BasisKind, n_centres=NCentres,
+                      centres=Literal["kmeans", "grid"] | list | np.ndarray,
+                      sigma2=Annotated[float, Interval(1e-300, None)], seed=Seed)
 #: What a learner's ``basis`` parameter takes: a kind, a mapping, a basis object or None (rbf).
-BasisSpec = BasisKind | dict | RBFBasis | LinearBasis | None
-#: Keys of a ``basis`` mapping (a linear basis takes none but ``kind``).
-BASIS_FIELDS: dict[str, list] = {
-    "kind": [Options.of(BasisKind)],
-    "n_centres": [Interval(int, 1, 100_000)],
-    "centres": [Options(str, frozenset({"kmeans", "grid"})), list, np.ndarray],
-    "sigma2": [Interval(float, 1e-300, None)],
-    **SEED,
-}
-#: The feature-map parameters of every learner with a basis.
-BASIS_PARAMS: dict[str, list] = {
-    "basis": [Options.of(BasisKind), Fields(BASIS_FIELDS), RBFBasis, LinearBasis, None],
-    "n_centres": [Interval(int, 1, 100_000)],
-}
+BasisSpec = BasisKind | Annotated[dict, BASIS_FIELDS] | RBFBasis | LinearBasis | None
 
 
 @parameters
@@ -276,9 +269,8 @@ class BasisParams:
     """``basis``: the feature map (``"rbf"``, ``"linear"``, a mapping ``{kind, n_centres,
     centres, sigma2, seed}`` or a basis object); ``n_centres``: RBF centres when it is a name."""
 
-    _parameter_constraints: ClassVar[dict[str, list]] = BASIS_PARAMS
     basis: BasisSpec = "rbf"
-    n_centres: int = 16
+    n_centres: NCentres = 16
 
 
 def make_basis(spec: BasisSpec, default_centres: int = 16, seed: int = 0) -> Basis:

@@ -74,3 +74,35 @@ def inconsistency_error(P: np.ndarray, U: np.ndarray, N: np.ndarray | None = Non
         res = U[keep] - uh * np.sum(uh * P[keep], 1)[:, None]
         w = norm[keep] ** 2 if weighted else np.ones(int(keep.sum()))
     return float(np.sum(w * np.sum(res**2, 1)) / max(np.sum(w), 1e-300) / action_variance(U))
+
+
+#: Energies below this share of the total are floored in :func:`split_likelihood` (exact data).
+LIKELIHOOD_FLOOR = 1e-12
+
+
+def split_likelihood(N: np.ndarray, U: np.ndarray) -> float:
+    """How much better the split of the actions U (N, q) by a constraint with projections N
+    (N, q, q) explains them than no split, per action dimension — a score comparable across the
+    number of constraints k (higher is better, 0 for k = 0):
+
+        ½ [q log(E/q) − k log(E_c/k) − (q − k) log(E_f/(q − k))] / q,
+
+    the Gaussian log-likelihood of the actions with one variance along the k constraint rows,
+    E_c/k (E_c = mean ‖u − Ñu‖²), and another across the q − k free directions, E_f/(q − k)
+    (E_f = mean ‖Ñu‖²), against one variance in every direction, E/q (E = E_c + E_f); k is the
+    mean rank of I − Ñ. A true constraint row, quiet, gains; a row along which the actions move
+    spends the constraint variance on motion and loses; a missed quiet row gains nothing."""
+    N = np.asarray(N, dtype=float)
+    U = np.asarray(U, dtype=float)
+    q = U.shape[1]
+    free = apply_projection(N, U)
+    Ef, Ec = mean_squared(free), mean_squared(U - free)
+    E = Ef + Ec
+    k = float(np.mean(np.trace(np.eye(q) - N, axis1=-2, axis2=-1))) if N.ndim == 3 else float(
+        np.trace(np.eye(q) - N))
+    k = min(max(k, 0.0), float(q))
+    if not E > 0 or k < 1e-9 or k > q - 1e-9:
+        return 0.0
+    floor = LIKELIHOOD_FLOOR * E
+    Ec, Ef = max(Ec, floor), max(Ef, floor)
+    return 0.5 * (q * np.log(E / q) - k * np.log(Ec / k) - (q - k) * np.log(Ef / (q - k))) / q

@@ -20,6 +20,10 @@ N_FOLDS = 5
 DERIVATIVE_HALF_SPAN_S = 0.08
 #: Upper bound of that default window (samples), which keeps its memory bounded at kHz rates.
 DERIVATIVE_MAX_WINDOW = 101
+#: The default window (samples) when the recording has no stamps and its rate is assumed
+#: (``data.time.rate``): a count of samples, so that the assumed rate only rescales the
+#: velocities and nothing learnt from them depends on it (±2 samples, the default at 10 Hz).
+DERIVATIVE_PACED_WINDOW = 5
 #: The rule choosing the number of constraints, for every learner and the command line
 #: (one source of truth: the learners' constructors and config.DEFAULTS read it; the
 #: rules live in :mod:`ccl_cli.learn.constraint.rank`).

@@ -56,7 +56,7 @@ from ccl_cli.learn.basis import Basis, BasisParams, Blocks, feature_blocks, feat
 from ccl_cli.learn.consistency import npe_error
 from ccl_cli.learn.linalg import WARM_TOL, eigen_lstsq, kron_least_squares, lift_to_rows, row_chunks
 from ccl_cli.learn.model_selection import Tunable
-from ccl_cli.learn.params import ITERATION_PARAMS, Interval, SeedParams, parameters
+from ccl_cli.learn.params import ChunkSize, MaxIter, NonNegative, SeedParams, Tolerance, parameters
 
 #: ``residual(W, rows, β)`` → (r (c,), ∂r/∂w̃ (c, q)), the callback of kron_least_squares.
 Residual = Callable[[np.ndarray, slice, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -145,17 +145,14 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
     #: Rows of the basis search at most (a seeded subset above; docs/measurements.md, "Tuning":
     #: the same test errors at N = 1e5 as with 20000 rows, at a third of the time).
     TUNE_MAX_ROWS = 5000
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        **ITERATION_PARAMS, "chunk_size": [Interval(int, 1, None), None],
-        "polish": [bool], "smoothing": [Interval(float, 0, None)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_action_": "value", "cost_": "value", "n_iter_": "value",
         "stop_reason_": "value", "W_": "array", "basis_": "basis"}
-    max_iter: int = 1000
-    tol: float = 1e-9
-    chunk_size: int | None = None
+    max_iter: MaxIter = 1000
+    tol: Tolerance = 1e-9
+    chunk_size: ChunkSize = None
     polish: bool = True
-    smoothing: float = SMOOTHING
+    smoothing: NonNegative = SMOOTHING
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         return [((self.n_centres, 16, 36, 64, 100), (1.0,))]

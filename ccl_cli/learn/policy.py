@@ -35,7 +35,7 @@ from ccl_cli.learn.consistency import inconsistency_error
 from ccl_cli.learn.defaults import POLICY_METHOD
 from ccl_cli.learn.linalg import eigen_solve, kron_rows, row_chunks
 from ccl_cli.learn.model_selection import WIDTH, Folds, Tunable, basis_grid, held_out_errors
-from ccl_cli.learn.params import CutoffRule, Interval, Options, SeedParams, parameters
+from ccl_cli.learn.params import ChunkSize, CutoffRule, NonNegative, SeedParams, parameters
 from ccl_cli.learn.params import PolicyMethod as Method
 
 METHODS = get_args(Method)
@@ -87,19 +87,15 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         basis_, W_ ((K, q); for lwpi (K, p + 1, q)), n_used_, n_features_in_, tuning_.
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        "method": [Options.of(Method)], "cutoff": [Interval(float, 0, None)],
-        "min_norm": [Interval(float, 0, None)], "chunk_size": [Interval(int, 1, None), None],
-        "cutoff_rule": [Options.of(CutoffRule)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_action_": "value", "n_used_": "value", "W_": "array", "basis_": "basis"}
     #: Fits of the default search at most: pi (5 sizes × 3 widths) × 3 cut-offs × 3 folds = 135;
     #: lwpi (6 sizes × 5 widths) × 2 min_norm × 3 folds = 180.
     TUNE_BUDGET = 400
     method: Method = POLICY_METHOD
-    cutoff: float = 1e-6
-    min_norm: float = 1e-6
-    chunk_size: int | None = None
+    cutoff: NonNegative = 1e-6
+    min_norm: NonNegative = 1e-6
+    chunk_size: ChunkSize = None
     cutoff_rule: CutoffRule = "relative"
 
     @property

@@ -51,18 +51,17 @@ def check_output(outdir: Path, force: bool) -> None:
         raise InputError(f"{outdir}: cannot write the output ({parent} is not writable); nothing was done")
 
 
-def write_run(result: RunResult, outdir: Path, force: bool = False, plot_workers: int | None = None,
+def write_run(result: RunResult, outdir: Path, force: bool = False,
               extra_files: dict[str, Any] | None = None) -> dict[str, Any]:
     """Write every output of ``result`` into ``outdir`` atomically; returns the run's
-    summary with ``outdir`` filled in. The figures are drawn by ``plot_workers`` processes
-    (default: :func:`~ccl_cli.render.drawing.idle_workers`, 2 when a second core is idle;
-    ``ccl batch`` passes 1, its jobs already fill the cores). ``extra_files`` (name → JSON
-    value) go into the folder too."""
+    summary with ``outdir`` filled in. The figures are drawn by this process's drawer when
+    one runs, else here (:func:`~ccl_cli.render.drawing.draw_views`). ``extra_files`` (name →
+    JSON value) go into the folder too."""
     import yaml
 
     from ccl_cli.io.atomic import atomic_dir
     from ccl_cli.models import save_model
-    from ccl_cli.render.drawing import draw_views, idle_workers
+    from ccl_cli.render.drawing import draw_views
     from ccl_cli.render.report import markdown
 
     models = [r for r in result.results if r.model is not None]
@@ -73,9 +72,7 @@ def write_run(result: RunResult, outdir: Path, force: bool = False, plot_workers
             save_model(path, r.model, training=training_record(r.name, result.cfg, result.data,
                                                                result.metrics.get(r.name)))
         plot_seconds: dict[str, float] = {}
-        if plot_workers is None:
-            plot_workers = idle_workers()
-        plots = draw_views(tmp, result.views, plot_seconds, plot_workers, result.cfg.spec.output.format) \
+        plots = draw_views(tmp, result.views, plot_seconds, result.cfg.spec.output.format) \
             if result.views else []
         write_json(tmp / "metrics.json", result.metrics)
         write_text(tmp / "report.md", markdown(f"ccl {result.command}", result, plots))

@@ -65,6 +65,7 @@ def markdown(title: str, result: Any, plots: list[tuple[str, str]]) -> str:
               *([f"- actions: {', '.join(data_info['actions'])}"] if data_info.get("actions") else []),
               f"- inputs: {', '.join(data_info.get('files', [])) or '—'}",
               *([f"- actions derived: {data_info['derived']}"] if data_info.get("derived") else []),
+              *repair_lines(data_info.get("repairs")),
               "- metrics: mean squared error / normaliser, both shown; see docs/metrics.md", ""]
     lines += validation_markdown(data_info.get("validation"))
     for stage, entry in results_metrics.items():
@@ -153,6 +154,19 @@ def stretch_lines(info: dict[str, Any]) -> list[str]:
 
 
 # -- sections of report.md ------------------------------------------------------------------
+def repair_lines(repairs: list[dict[str, Any]] | None) -> list[str]:
+    """report.md's lines on what the sensor-fault repair did, per demonstration (times from its
+    first sample); none when it did nothing."""
+    if not repairs:
+        return []
+    said = [f"demonstration {r['demo']}: {r['samples']} {r['action']} ({r['fault'].replace('_', ' ')}) at "
+            + ", ".join(f"{a:.2f}–{b:.2f} s" if b > a else f"{a:.2f} s" for a, b in r["times"][:4])
+            + (f" and {len(r['times']) - 4} more" if len(r["times"]) > 4 else "") for r in repairs[:8]]
+    more = [f"  - and {len(repairs) - 8} more (run.json: data.repairs)"] if len(repairs) > 8 else []
+    return ["- sensor-fault repair (samples as read; the rest kept as recorded):",
+            *(f"  - {x}" for x in said), *more]
+
+
 def validation_markdown(split_info: dict[str, Any] | None) -> list[str]:
     """The "Validation" section of report.md: how train and test were split, and why."""
     if not split_info:

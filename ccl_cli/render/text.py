@@ -64,6 +64,9 @@ def model_lines(info: dict[str, Any]) -> list[str]:
         out.append(f"trained:  stage {training['stage']}")
     for path, digest in (training.get("inputs") or {}).items():
         out.append(f"  input   {path}  sha256 {digest[:16]}…")
+    for r in (training.get("repairs") or [])[:8]:
+        out.append(f"  repaired demonstration {r['demo']}: {r['samples']} sample(s) {r['action']} "
+                   f"({r['fault']})")
     for part, figures in (training.get("metrics") or {}).items():
         out.append(f"  {part:7s} " + "  ".join(f"{k}={v:.3e}" for k, v in figures.items()
                                                if isinstance(v, float)))
@@ -125,6 +128,11 @@ def inspect_lines(info: dict[str, Any]) -> list[str]:
         out.append(f"learning reads: {c['demos']} demonstration(s), {c['samples']} samples ({shown}), "
                    f"{c['duration_s']:.2f} s; {c['split']}")
         out.append(f"  state {', '.join(c['state_names'])}; action {', '.join(c['action_names'])}")
+        for r in c.get("repairs") or []:
+            times = ", ".join(f"{a:.2f}–{b:.2f} s" if b > a else f"{a:.2f} s" for a, b in r["times"][:6])
+            more = f" and {len(r['times']) - 6} more" if len(r["times"]) > 6 else ""
+            out.append(f"  repaired: demonstration {r['demo']}: {r['samples']} sample(s) {r['action']} "
+                       f"({r['fault']}) at {times}{more}")
     for key in ("samples", "demos", "samples_per_demo", "state_names", "action_names", "truth", "masks"):
         if key in info and not (key == "demos" and "gap_s" in info):
             out.append(f"{key + ':':9s} {info[key]}")

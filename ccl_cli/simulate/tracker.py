@@ -18,6 +18,7 @@ from ccl_cli.io.derivative import local_polynomial_derivative, window_for_rate
 from ccl_cli.learn import defaults
 from ccl_cli.learn.kinematics import SevenDofArm
 from ccl_cli.learn.linalg import nullspace_projection, unit_rows
+from ccl_cli.learn.params import Interval, out_of_range
 
 # -- realistic tracker recordings --------------------------------------------------------
 
@@ -129,20 +130,26 @@ def _wobble(rng: np.random.Generator, t: np.ndarray, std: float) -> np.ndarray:
     return std * sig / np.sqrt((amp**2).sum() / 2)
 
 
+_AT_LEAST_0 = Interval(0, None)
+
+
 def _tracker(surface: str, *, duration: float, rate: float, noise: float, n_recordings: int,
              tilt_deg: float, radius: float, extent: float, speed: tuple[float, float],
              pause: tuple[float, float], aspect: tuple[float, float], spread: float, wobble: float,
              window: int | None, order: int, jitter: float, drift: float, seed: int) -> Demonstrations:
-    if not 1.0 <= rate <= 10_000.0:
-        raise ConfigError(f"tracker rate must be in [1, 10000] Hz, got {rate}")
+    if not Interval(1.0, 10_000.0).contains(rate):
+        raise ConfigError(out_of_range("tracker rate (Hz)", rate, Interval(1.0, 10_000.0)))
     if window is None:
         window = window_for_rate(rate, order)
     if duration * rate < max(window, order + 1):
         raise ConfigError(f"tracker recording of {duration} s at {rate} Hz is shorter than the "
                           f"derivative window ({window} samples)")
-    if min(noise, jitter, wobble, drift) < 0 or n_recordings < 1 or not spread > 0:
-        raise ConfigError("tracker noise, jitter, wobble and drift must be ≥ 0, spread > 0 and "
-                          "n_recordings ≥ 1")
+    for name, value, allowed in (("noise", noise, _AT_LEAST_0), ("jitter", jitter, _AT_LEAST_0),
+                                 ("wobble", wobble, _AT_LEAST_0), ("drift", drift, _AT_LEAST_0),
+                                 ("spread", spread, Interval(0, None, closed="neither")),
+                                 ("n_recordings", n_recordings, Interval(1, None, type=int))):
+        if not allowed.contains(value):
+            raise ConfigError(out_of_range(f"tracker {name}", value, allowed))
     rng = np.random.default_rng(seed)
     rot = _tilt(rng, tilt_deg)
     origin = np.array([0.30, -0.05, 0.12])  # where the surface sits in the transmitter's frame (m)

@@ -31,13 +31,13 @@ def error_text(exc: BaseException) -> str:
 
 def _attr(attrs, key: str, where: str, default: Any) -> Any:
     try:
-        if key not in attrs:
-            if default is _MISSING:
-                raise InputError(f"{where}: attribute {key!r} is missing")
-            return default
-        return attrs[key]
-    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+        present = key in attrs
+        value = attrs[key] if present else default
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:  # h5py's, never ours
         raise InputError(f"{where}: attribute {key!r} cannot be read ({error_text(exc)})") from None
+    if value is _MISSING:
+        raise InputError(f"{where}: attribute {key!r} is missing")
+    return value
 
 
 def _describe(value: Any) -> str:

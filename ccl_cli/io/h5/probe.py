@@ -305,5 +305,7 @@ def check_tree(f, where: str) -> None:
                 if dcpl.get_external_count() > 0:
                     raise InputError(f"{where}: /{name} stores its data in external files; ccl reads "
                                      "nothing outside the file")
+        except InputError:  # said above (an InputError is a ValueError too)
+            raise
         except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
             raise InputError(f"{where}: damaged HDF5 structure at /{name} ({error_text(exc)})") from None

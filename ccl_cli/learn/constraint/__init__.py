@@ -5,6 +5,7 @@ from ccl_cli.learn.constraint.auto import AutoConstraint
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.constraint.lambda_ import KnownFeatureConstraint
 from ccl_cli.learn.constraint.linear import LinearConstraint
+from ccl_cli.learn.constraint.manifold import ManifoldConstraint
 from ccl_cli.learn.constraint.nhat import StateIndependentConstraint
 from ccl_cli.learn.constraint.none import NoConstraint
 from ccl_cli.learn.constraint.per_demo import PerDemonstration
@@ -18,6 +19,7 @@ __all__ = [
     "ConstraintModel",
     "KnownFeatureConstraint",
     "LinearConstraint",
+    "ManifoldConstraint",
     "NoConstraint",
     "PerDemonstration",
     "PerSegment",

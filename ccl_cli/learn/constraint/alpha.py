@@ -7,13 +7,14 @@ a time, each orthogonal to the earlier ones, by minimising Σ_n (a(θ(x_n))ᵀ u
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Annotated, ClassVar
 
 import numpy as np
 
 from ccl_cli.dataset import HowMade
 from ccl_cli.errors import ConfigError
-from ccl_cli.learn.basis import Basis, BasisParams
+from ccl_cli.learn.basis import Basis, BasisParams, NCentres
+from ccl_cli.learn.constraint import geometry
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.angular import (
@@ -26,10 +27,7 @@ from ccl_cli.learn.constraint.angular import (
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.linalg import row_chunks
 from ccl_cli.learn.model_selection import Tunable
-from ccl_cli.learn.params import ITERATION_PARAMS, Interval, SeedParams, parameters
-
-#: The parameters of the angle fits (alpha and lambda).
-ANGLE_FIT_PARAMS: dict[str, list] = {"n_restarts": [Interval(int, 1, 10_000)], **ITERATION_PARAMS}
+from ccl_cli.learn.params import Interval, MaxIter, SeedParams, Tolerance, out_of_range, parameters
 
 
 @parameters
@@ -41,14 +39,13 @@ class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedPara
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
         "nmse_": "value", "weights_": "arrays", "basis_": "basis"}
-    _parameter_constraints: ClassVar[dict[str, list]] = ANGLE_FIT_PARAMS
     #: The search runs on at most SEARCH_ROWS rows: a candidate's fit on them is then its
     #: subsample search alone, and the winner is refined on all rows (docs/measurements.md,
     #: "Tuning": the same test errors at N = 1e5 as with 20000 rows, for half the time).
     TUNE_MAX_ROWS = SEARCH_ROWS
-    n_restarts: int = 3
-    max_iter: int = MAX_ITER
-    tol: float = 1e-9
+    n_restarts: Annotated[int, Interval(1, 10_000)] = 3
+    max_iter: MaxIter = MAX_ITER
+    tol: Tolerance = 1e-9
 
     def _learn_rows(self, basis: Basis, Xs: np.ndarray, V: np.ndarray, X: np.ndarray, U: np.ndarray,
                     groups: np.ndarray | None, start: AngularConstraintMixin | None) -> None:
@@ -64,7 +61,7 @@ class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedPara
         max_k = min(self.max_constraints or d - 1, d - 1)
         rule = sel.rule_of(self)
         if rule == "fixed" and self.n_constraints > max_k:
-            raise ConfigError(f"n_constraints must be between 1 and {max_k}")
+            raise ConfigError(out_of_range("n_constraints", self.n_constraints, Interval(1, max_k, type=int)))
         limit = self.n_constraints if rule == "fixed" else max_k
         fits = fit_sequence(basis, Xs, V, limit, self.n_restarts, self.seed, self.max_iter, self.tol,
                             stop_original=(rule == "threshold"),
@@ -81,11 +78,13 @@ class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedPara
             return sel.Selection("threshold", k, nmse, reason)
 
         def noise() -> sel.Selection | None:  # the rows of every fit at every sample, (N, m, q)
-            data = nr.Sample.of(X, U, groups, *getattr(self, "_timing", (None, None)))
+            timing = getattr(self, "_timing", (None, None))
+            data = nr.Sample.of(X, U, groups, *timing)
             rows = np.empty((len(X), len(self._row_weights), self.n_action_))
             for chunk in row_chunks(len(X)):  # the features of a block of samples at a time
                 rows[chunk] = self._rows_at(basis, X[chunk], self._row_weights)
-            return nr.noise_rank(data.rows_evidence(rows), max_k)
+            chosen = nr.noise_rank(data.rows_evidence(rows), max_k)
+            return geometry.add_still_rows(chosen, rows, X, U, data.groups, *timing, max_k)
 
         chosen = sel.choose(self, ratio_values=np.asarray(nmse), gap_values=np.append(nmse, 1.0),
                             max_k=max_k, fixed_max=max_k, criterion="nmse of row k", threshold=threshold,
@@ -149,7 +148,7 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
         n_features_in_, tuning_.
     """
 
-    n_centres: int = 25
+    n_centres: NCentres = 25
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         return [((self.n_centres, 9), (1.0,)), ((36,), (0.25,))]

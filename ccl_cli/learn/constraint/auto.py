@@ -79,7 +79,7 @@ Nothing here reads a clock: the same data and parameters give the same model.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
 
@@ -88,23 +88,35 @@ from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn import blas
 from ccl_cli.learn import model_selection as ms
 from ccl_cli.learn.constraint import evidence as ev
+from ccl_cli.learn.constraint import geometry as geo
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint.alpha import StateDependentConstraint
 from ccl_cli.learn.constraint.base import Applied, ConstraintModel, NewDataRule, Windows, check_rows_asked
-from ccl_cli.learn.constraint.lambda_ import FEATURE_PARAMS, KnownFeatureConstraint, make_features
+from ccl_cli.learn.constraint.lambda_ import FeatureSpec, KnownFeatureConstraint, make_features
 from ccl_cli.learn.constraint.linear import LinearConstraint
+from ccl_cli.learn.constraint.manifold import ManifoldConstraint
 from ccl_cli.learn.constraint.nhat import StateIndependentConstraint
 from ccl_cli.learn.constraint.none import NO_CONSTRAINT, NoConstraint
+from ccl_cli.learn.constraint.per_demo import PerDemonstration
 from ccl_cli.learn.constraint.segments import PerSegment
 from ccl_cli.learn.constraint.stretches import BLOCK_S, MIN_SHARE, ConstraintInStretches
 from ccl_cli.learn.constraint.stretches import held_out as stretches_held_out
 from ccl_cli.learn.constraint.windows import PerWindow, window_index
 from ccl_cli.learn.defaults import N_FOLDS, WINDOW_S
-from ccl_cli.learn.params import Interval, Options, Regressors, SeedParams, parameters
+from ccl_cli.learn.params import (
+    Interval,
+    MaxConstraints,
+    NConstraints,
+    NFolds,
+    Regressors,
+    Seconds,
+    SeedParams,
+    parameters,
+)
 
 #: Every candidate, simplest first (module docstring).
-CANDIDATES = ("none", "nhat", "per_demo", "per_segment", "per_window", "alpha_linear", "alpha", "lambda",
-              "linear", "stretches")
+CANDIDATES = ("none", "manifold", "nhat", "per_demo", "per_segment", "per_window", "alpha_linear", "alpha",
+              "lambda", "linear", "stretches")
 #: The RBF alpha candidate is tried up to this state dimension: its 25 centres cover no more
 #: (beyond it: alpha with linear angles, or lambda with the arm's own features).
 MAX_RBF_STATES = 3
@@ -139,24 +151,15 @@ class AutoConstraint(ConstraintModel, SeedParams):
         are the winner's.
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        "candidates": [list, None],
-        "window": [Interval(float, 0, None, closed="neither")],
-        "features": [*FEATURE_PARAMS["features"], None],
-        "regressors": [Options.of(Regressors), None],
-        "n_constraints": [Interval(int, 0, 100_000), None],
-        "max_constraints": [Interval(int, 1, 100_000), None],
-        "cv_folds": [Interval(int, 2, 1000)],
-        "gap": [Interval(int, 0, 1_000_000), None]}
     _fitted_attributes: ClassVar[dict[str, str]] = {}  # saved as its winner (ccl_cli.models)
     candidates: list[str] | None = None
-    window: float = WINDOW_S
-    features: Any = None
+    window: Seconds = WINDOW_S
+    features: FeatureSpec | None = None
     regressors: Regressors | None = None
-    n_constraints: int | None = None
-    max_constraints: int | None = None
-    cv_folds: int = N_FOLDS
-    gap: int | None = None
+    n_constraints: NConstraints = None
+    max_constraints: MaxConstraints = None
+    cv_folds: NFolds = N_FOLDS
+    gap: Annotated[int, Interval(0, 1_000_000)] | None = None
 
     # -- the protocol: answered as the model it chose --------------------------------------
     @property
@@ -241,6 +244,9 @@ class AutoConstraint(ConstraintModel, SeedParams):
         data = ev.Sample.of(X, U, groups, t, derivative)
         derived = data.derived
         self.n_action_ = q
+        self.geometry_ = None
+        if self._geometry(data, derivative):
+            return self
         gap = self.gap if self.gap is not None else int(derived.window) if derived else ms.RECORDED_GAP
         try:
             folds = ms.make_folds(data.groups, n, self.cv_folds, self.seed, gap)
@@ -251,6 +257,80 @@ class AutoConstraint(ConstraintModel, SeedParams):
             tried, skipped = self._cross_validate(data, folds, gap)
             self._choose(data, tried, skipped)
         return self
+
+    def _geometry(self, data: ev.Sample, derivative: HowMade) -> bool:
+        """The states' own geometry first (:mod:`.geometry`), when the actions are their derivative:
+        if it shows k > 0 constraints, the winner is the manifold that shows them (True);
+        otherwise (False) the velocities decide, and ``geometry_`` keeps what the states showed."""
+        if (self.candidates is not None and "manifold" not in self.candidates) or self.n_constraints == 0:
+            return False
+        X, U = data.X, data.U
+        moving, why = geo.kinematic(X, U, data.groups, data.t, derivative)
+        if not moving:
+            self.geometry_ = {"tried": False, "reason": why}
+            return False
+        found = geo.decide(X, data.groups, only_k=self.n_constraints, max_k=self.max_constraints, t=data.t)
+        self.geometry_ = {"tried": True, "k": found.k, "reason": f"{why}; {found.reason}",
+                          "models": [t.row(t is found.winner) for t in found.tried],
+                          "returns": {str(k): v for k, v in found.revisits.items()}}
+        if found.k == 0:
+            return False
+        w = found.winner
+        self.model_ = self._manifold_model(w, found.k, data)
+        self.n_constraints_ = found.k
+        scope = ("one per demonstration" if w.scope == "per_demo" else
+                 "one family, each demonstration at its own offset")
+        label = f"the manifold of the states ({w.basis}, {scope})"
+        self.heldout_ = None
+        rows = [{**ev.not_tried("none", ""), "model": "no constraint (Ñ = I)", "k": 0, "chosen": False,
+                 "reason": f"the states show {found.k} constraint(s)"}]
+        rows += [{**ev.not_tried("manifold", ""), "model": f"manifold: {t.basis} ({t.scope})", "k": t.k,
+                  "error": t.measure,
+                  "heldout_error": t.worst, "chosen": t is w, "rank_reason": t.why,
+                  "reason": ("chosen: " if t is w else "") + ("holds" if t.holds else "does not hold") +
+                  f" ({t.worst:.3g} against {t.limit:g})"} for t in found.tried]
+        rows += [ev.not_tried(c, "the states' geometry decided") for c in CANDIDATES
+                 if c not in ("none", "manifold")]
+        chosen = ("per_demo_task" if w.scope == "per_demo_task" else
+                  "stretches" if w.scope == "phases" and data.t is not None else
+                  "manifold" if w.basis != "linear" or w.scope == "phases" else
+                  "nhat" if w.scope == "global" else
+                  "per_demo" if data.t is not None and w.measure != "shape residual" else "manifold")
+        self.selection_ = {"rule": "auto", "n_constraints": found.k, "model": label, "chosen": chosen,
+                           "decided_by": "states",
+                           "reason": f"{found.k} constraint(s): {found.reason}" + (
+                               f": {self.model_.summary()}" if hasattr(self.model_, "summary") else ""),
+                           "values": [float(v) for v in w.drift],
+                           "criterion": f"{w.measure} of level function k (RMS along the demonstrations / "
+                                        "RMS spread)",
+                           "candidates": rows, "geometry": self.geometry_}
+        self.model_.selection_ = {**self.selection_, "winner_selection": self.model_.selection_}
+        return True
+
+    def _manifold_model(self, winner: geo.Tried, k: int, data: ev.Sample) -> ConstraintModel:
+        """The model of the manifold the states showed, with k rows, fitted on all the data. Flat
+        families (planes, and lines shared by every demonstration: constant rows) take their rows
+        from the velocities (§3.1, one constant A, per demonstration when each has its own
+        surface): every part of the motion weighs by how much it moves, which a tilting or bowing
+        surface does not skew the way the spread of the positions does; a line or circle in each
+        demonstration, spheres and quadrics take the gradients of their levels (a line's
+        direction is best read off its whole extent)."""
+        X, U, g = data.X, data.U, data.groups
+        if winner.scope == "per_demo_task":  # its own rows and task part in each: §3.5 with a task term
+            return PerDemonstration(LinearConstraint(regressors="identity", task=True, n_constraints=k)).fit(
+                X, U, groups=g, derivative=data.derivative)
+        if winner.scope == "phases" and data.t is not None:  # the rows where they hold, found in time
+            return ConstraintInStretches(block=BLOCK_S, n_constraints=k).fit(
+                X, U, groups=g, t=data.t, derivative=data.derivative)
+        if winner.basis == "linear" and winner.scope == "global":
+            return StateIndependentConstraint(n_constraints=k, seed=self.seed).fit(X, U, groups=g)
+        if winner.basis == "linear" and data.t is not None and winner.measure != "shape residual":
+            return PerWindow(window=None, n_constraints=k, heldout=True).fit(
+                X, U, groups=g, t=data.t, derivative=data.derivative)
+        est = ManifoldConstraint(family=winner.basis, n_constraints=k)
+        if winner.scope in ("global", "phases"):
+            return est.fit(X, U, groups=g)
+        return PerDemonstration(est).fit(X, U, groups=g, derivative=data.derivative)
 
     def _candidates(self, data: ev.Sample, gap: int) -> tuple[list[ev.Candidate], list[dict[str, Any]]]:
         """The candidates to try, simplest first, and the table rows of those not tried."""
@@ -264,7 +344,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
         seed = int(self.seed)
         out: list[ev.Candidate] = []
         skipped: list[dict[str, Any]] = []
-        for name in sorted(set(names) - {"none", "stretches"}, key=CANDIDATES.index):
+        for name in sorted(set(names) - {"none", "manifold", "stretches"}, key=CANDIDATES.index):
             if name == "nhat":
                 out.append(ev.Candidate(name, "one constant A (nhat)", lambda k: StateIndependentConstraint(
                     n_constraints=max(k, 1), seed=seed), m))

@@ -11,7 +11,8 @@ files and the renderers may ask a constraint model — and all they ask.
                                        (and, for a model per stretch, demonstrations and times)
 ``projection(X, *, groups, t)``        Ñ = I − Ã⁺Ã at each sample, (N, q, q)
 ``task_part(X, *, groups, t)``         ṽ = Ã⁺b̃ (N, q), None without a task term
-``score(X, U, *, groups, t)``          −NPOE (§6): higher is better
+``score(X, U, *, groups, t)``          the split's likelihood gain, comparable across k (higher
+                                       is better); ``held_out_error`` the NPOE (§6) it is tuned by
 ``holds(X, *, groups, t)``             where the model claims its rows, (N,) bool
 ``is_local`` / ``local_to``            whether one fitted piece speaks only for a stretch of the
                                        recording, and which: None (global), ``demonstration``,
@@ -43,8 +44,9 @@ import numpy as np
 
 from ccl_cli.errors import ConfigError
 from ccl_cli.learn.base import Estimator
-from ccl_cli.learn.consistency import npoe_error
+from ccl_cli.learn.consistency import npoe_error, split_likelihood
 from ccl_cli.learn.linalg import nullspace_projection
+from ccl_cli.learn.params import Interval, out_of_range
 
 
 @dataclass(frozen=True)
@@ -185,22 +187,38 @@ class ConstraintModel(Estimator):
         constraint that holds in stretches)."""
         return np.ones(len(self._check_states(X)), dtype=bool)
 
-    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-              t: np.ndarray | None = None) -> float:
-        """−NPOE of actions U (N, q) at states X (N, p) (§6): −mean ‖z − Ñ(x)z‖² / Σ var(u),
-        z = u − ṽ (the learnt task part, when the model has one); higher is better, 0 when every
-        action (less its task part) lies in the learnt null space.
+    def held_out_error(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+                       t: np.ndarray | None = None) -> float:
+        """NPOE of actions U (N, q) at states X (N, p) (§6): mean ‖z − Ñ(x)z‖² / Σ var(u),
+        z = u − ṽ (the learnt task part, when the model has one); 0 when every action (less its
+        task part) lies in the learnt null space — the error a model of a given k is tuned by.
 
         Scored as the model applies to these data (:meth:`applies_to`, a part of the recordings
         it was fitted on): a demonstration it has seen takes its fitted rows, one it has not the
         rows its stated rule gives — a global model's own; for a model per stretch, rows fitted
-        on that demonstration with k fixed, so the score there is a training figure (a held-out
+        on that demonstration with k fixed, so the figure there is a training figure (a held-out
         one needs blocks held out inside its stretches, as ``heldout_`` and learn-a's ``auto``
         measure it)."""
+        model, Z = self._applied(X, U, groups, t)
+        return npoe_error(model.projection(X, groups=groups, t=t), Z, U)
+
+    def score(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+              t: np.ndarray | None = None) -> float:
+        """How much better the learnt split explains the actions U (N, q) (less the learnt task
+        part) than no constraint: :func:`~ccl_cli.learn.consistency.split_likelihood` — higher
+        is better and comparable across k, so that a search over ``n_constraints``
+        (scikit-learn's ``GridSearchCV``) finds the number of quiet rows: NPOE alone is 0 for
+        k = 0 and always prefers fewer rows. Applied to the data as :meth:`held_out_error` is."""
+        model, Z = self._applied(X, U, groups, t)
+        return split_likelihood(model.projection(X, groups=groups, t=t), Z)
+
+    def _applied(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None, t: np.ndarray | None
+                 ) -> tuple[ConstraintModel, np.ndarray]:
+        """The model as it applies to these data and the actions less its task part: (model, (N, q))."""
         model = self.applies_to(X, U, groups=groups, t=t, new_recording=False).model
         U = np.asarray(U, dtype=float)
         V = model.task_part(X, groups=groups, t=t)
-        return -npoe_error(model.projection(X, groups=groups, t=t), U if V is None else U - V, U)
+        return model, U if V is None else U - V
 
 
 @dataclass(frozen=True)
@@ -232,4 +250,4 @@ def check_rows_asked(q: int, n_constraints: int | None) -> None:
     if q < 2:
         raise ConfigError("learning a constraint needs at least 2 action dimensions")
     if n_constraints is not None and n_constraints > q - 1:
-        raise ConfigError(f"n_constraints must be between 0 and {q - 1}, got {n_constraints}")
+        raise ConfigError(out_of_range("n_constraints", n_constraints, Interval(0, q - 1, type=int)))

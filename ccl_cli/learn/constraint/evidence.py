@@ -91,12 +91,23 @@ def not_tried(name: str, why: str) -> dict[str, Any]:
 
 def held_out_rows(cand: Candidate, folds: ms.Folds, m: int, data: Sample) -> np.ndarray:
     """The first m rows of the candidate fitted on each training fold, at that fold's held-out
-    samples: (N, m, q)."""
+    samples: (N, m, q). A model per stretch has no rows for a demonstration its training fold
+    holds no sample of (one too short for blocks inside it): those samples take the rows of the
+    same kind of model fitted on the whole training fold as one stretch — still not fitted on them."""
     X, U, g, t = data.X, data.U, data.groups, data.t
     rows = np.zeros((len(U), m, U.shape[1]))
     for train, test in folds.pairs:
-        model = cand.make(m).fit(X[train], U[train], groups=g[train], t=None if t is None else t[train])
-        rows[test] = model.constraint(X[test], groups=g[test], t=None if t is None else t[test])[:, :m]
+        at = (lambda idx: None) if t is None else (lambda idx: t[idx])
+        model = cand.make(m).fit(X[train], U[train], groups=g[train], t=at(train))
+        seen = np.isin(g[test], g[train]) if model.is_local else np.ones(len(test), dtype=bool)
+        if seen.any():
+            rows[test[seen]] = model.constraint(X[test[seen]], groups=g[test[seen]], t=at(test[seen]))[:, :m]
+        if not seen.all():
+            one = np.zeros(len(train), np.int64)
+            pooled = cand.make(m).fit(X[train], U[train], groups=one, t=at(train))
+            orphan = test[~seen]
+            rows[orphan] = pooled.constraint(X[orphan], groups=np.zeros(len(orphan), np.int64),
+                                             t=at(orphan))[:, :m]
     return rows
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from math import isqrt
-from typing import ClassVar
+from typing import Annotated, ClassVar
 
 import numpy as np
 
@@ -23,22 +23,20 @@ from ccl_cli.learn.constraint.angular import rows_from_weights
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.kinematics import ArmFeatures, ArmName
 from ccl_cli.learn.linalg import nullspace_projection, row_chunks
-from ccl_cli.learn.params import Fields, Options, parameters
+from ccl_cli.learn.params import Fields, parameters
 
 Features = Callable[[np.ndarray], np.ndarray]
-#: A built-in arm's Jacobian: its name, or {arm, rows} to keep some of its rows.
-_ARM = Options.of(ArmName)
 #: A robot's Jacobian rows: {robot: a URDF / MJCF path or {dh: [[a, d, alpha, theta0], ...], ...},
 #: frame, base, rows} (:func:`ccl_cli.learn.robots.robot_features`; ``urdf``: the stored form).
-ROBOT = Fields({"robot": [str, dict], "urdf": [str], "frame": [str, None], "base": [str, None],
-                "rows": [list, None], "kind": [str]})
-FEATURE_PARAMS: dict[str, list] = {
-    "features": [_ARM, Fields({"arm": [_ARM], "rows": [list, None], "kind": [str]}), ROBOT, callable]}
+ROBOT = Fields(robot=str | dict, urdf=str, frame=str | None, base=str | None, rows=list | None, kind=str)
+#: Φ: a built-in arm's Jacobian (its name, or {arm, rows} to keep some of its rows), a robot's, or
+#: a callable.
+FeatureSpec = ArmName | Annotated[dict, Fields(arm=ArmName, rows=list | None, kind=str), ROBOT] | Features
 #: ‖Φu‖ below this carries no information about Λ.
 MIN_TASK_NORM = 1e-3
 
 
-def make_features(spec: ArmName | dict | Features) -> Features:
+def make_features(spec: FeatureSpec) -> Features:
     """Φ from a callable (X (N, p) → (N, r, q)), a built-in arm (``"arm2"``, ``"arm7"``, or
     ``{"arm": "arm7", "rows": [0, 1, 2]}``) or a robot (``{"robot": "lwr.urdf", "frame":
     "flange", "rows": [0, 1, 2]}``, also a DH table: ``{"robot": {"dh": [[a, d, α, θ0], ...]}}``)."""
@@ -75,10 +73,9 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
         n_features_in_, tuning_.
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = FEATURE_PARAMS
     _fitted_attributes: ClassVar[dict[str, str]] = {
         **AngularConstraintMixin._fitted_attributes, "n_task_": "value", "n_dropped_": "value"}
-    features: ArmName | dict | Features = "arm2"
+    features: FeatureSpec = "arm2"
     #: The noise test on the learnt rows (rank.py): on ``ccl simulate arm7 --constraint jacobian``
     #: it finds both Jacobian rows in 20 of 20 seeds, ``ratio`` in 3 (docs/auto.md).
     selection: sel.Rule = "noise"

@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from itertools import combinations_with_replacement
 from math import comb
-from typing import Any, ClassVar, get_args
+from typing import Annotated, Any, ClassVar, get_args
 
 import numpy as np
 
@@ -32,7 +32,7 @@ from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.constraint.lambda_ import ROBOT, make_features
 from ccl_cli.learn.linalg import nullspace_projection, row_chunks
 from ccl_cli.learn.model_selection import Tunable
-from ccl_cli.learn.params import Interval, Options, Regressors, SeedParams, TaskRegressors, Whiten, parameters
+from ccl_cli.learn.params import Interval, Regressors, SeedParams, TaskRegressors, Whiten, parameters
 
 REGRESSORS = get_args(Regressors)
 #: Regressor rows of all samples are cached between the reweighting passes up to this size.
@@ -79,19 +79,15 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
         selection_, scale_ (m + m_b,) (ones unless whiten='rms').
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        "regressors": [Options.of(Regressors), ROBOT, callable], "degree": [Interval(int, 0, 10)],
-        "task": [bool], "task_regressors": [Options.of(TaskRegressors)],
-        "whiten": [Options.of(Whiten)], "reweight": [Interval(int, 0, 1000)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
         "W_": "array", "Wb_": "array", "singular_values_": "array", "scale_": "array", "basis_": "basis"}
-    regressors: Regressors | dict | Callable[[np.ndarray], np.ndarray] = "polynomial"
-    degree: int = 1
+    regressors: Regressors | Annotated[dict, ROBOT] | Callable[[np.ndarray], np.ndarray] = "polynomial"
+    degree: Annotated[int, Interval(0, 10)] = 1
     task: bool = False
     task_regressors: TaskRegressors = "constant"
     whiten: Whiten = "rms"
-    reweight: int = 3
+    reweight: Annotated[int, Interval(0, 1000)] = 3
     BASIS_PARAMS = ("basis", "n_centres", "seed", "regressors", "task", "task_regressors")
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:

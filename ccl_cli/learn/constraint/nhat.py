@@ -17,7 +17,7 @@ from ccl_cli.learn.angles import unit_vector
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.base import ConstraintModel
 from ccl_cli.learn.params import NhatMethod as Method
-from ccl_cli.learn.params import Options, SeedParams, parameters
+from ccl_cli.learn.params import SeedParams, parameters
 
 #: Grid of the original search: 20 angles per axis in [0, π − π/20].
 SEARCH_STEPS = 20
@@ -63,7 +63,6 @@ class StateIndependentConstraint(ConstraintModel, sel.SelectionParams, sel.Thres
         n_constraints_, selection_.
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {"method": [Options.of(Method)]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
         "A_": "array", "eigenvalues_": "array", "residuals_": "array"}

@@ -37,7 +37,6 @@ class PerDemonstration(ConstraintModel):
     """
 
     local_to = "demonstration"
-    _parameter_constraints: ClassVar[dict[str, list]] = {"estimator": [ConstraintModel], "heldout": [bool]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "selection_": "value", "heldout_": "value",
         "models_": "models"}
@@ -86,7 +85,7 @@ class PerDemonstration(ConstraintModel):
 
         def error_of(train: np.ndarray, test: np.ndarray) -> float:
             twin.fit(X[train], U[train], groups=groups[train])
-            return -twin.score(X[test], U[test], groups=groups[test])
+            return twin.held_out_error(X[test], U[test], groups=groups[test])
 
         return inner_heldout(np.unique(groups, return_inverse=True)[1].ravel(), derivative, error_of,
                              "demonstration")

@@ -38,7 +38,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, get_args
+from typing import Any, get_args
 
 import numpy as np
 
@@ -47,23 +47,20 @@ from ccl_cli.learn import model_selection
 from ccl_cli.learn.base import clone
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.defaults import DEFAULT_RULE, RATIO_FACTOR
-from ccl_cli.learn.params import Interval, Options, parameters
+from ccl_cli.learn.params import (
+    Interval,
+    MaxConstraints,
+    NConstraints,
+    NFolds,
+    NonNegative,
+    out_of_range,
+    parameters,
+)
 from ccl_cli.learn.params import SelectionRule as Rule
 
 #: The rules a learner's ``selection`` may name; "fixed" is recorded when ``n_constraints`` is given.
 RULES = (*get_args(Rule), "fixed")
-__all__ = ["DEFAULT_RULE", "RATIO_FACTOR", "RULES", "SELECTION_PARAMS", "Rule", "Selection"]
-
-#: The parameters of the choice of s shared by every constraint learner.
-SELECTION_PARAMS: dict[str, list] = {
-    "selection": [Options.of(Rule)],
-    "n_constraints": [Interval(int, 0, 100_000), None],
-    "max_constraints": [Interval(int, 1, 100_000), None],
-    "gap_floor": [Interval(float, 0, None)],
-    "cv_folds": [Interval(int, 2, 1000)],
-}
-#: The ``threshold`` rule's level (nhat and linear).
-THRESHOLD_PARAMS: dict[str, list] = {"threshold": [Interval(float, 0, None)]}
+__all__ = ["DEFAULT_RULE", "RATIO_FACTOR", "RULES", "Rule", "Selection"]
 
 
 @parameters
@@ -73,20 +70,18 @@ class SelectionParams:
     at most ``max_constraints`` rows (default q − 1); ``gap_floor``: the relative floor of the
     residuals; ``cv_folds``: folds of the ``cv`` rule."""
 
-    _parameter_constraints: ClassVar[dict[str, list]] = SELECTION_PARAMS
     selection: Rule = DEFAULT_RULE
-    n_constraints: int | None = None
-    max_constraints: int | None = None
-    gap_floor: float = 1e-9
-    cv_folds: int = 5
+    n_constraints: NConstraints = None
+    max_constraints: MaxConstraints = None
+    gap_floor: NonNegative = 1e-9
+    cv_folds: NFolds = 5
 
 
 @parameters
 class ThresholdParams:
     """``threshold``: the level of the ``threshold`` rule (original: 0.1)."""
 
-    _parameter_constraints: ClassVar[dict[str, list]] = THRESHOLD_PARAMS
-    threshold: float = 0.1
+    threshold: NonNegative = 0.1
 
 
 @dataclass
@@ -139,7 +134,7 @@ def choose(model: Any, *, ratio_values: np.ndarray, gap_values: np.ndarray, max_
 
 def fixed(n: int, max_k: int) -> Selection:
     if not 1 <= n <= max_k:
-        raise ConfigError(f"n_constraints must be between 1 and {max_k}, got {n}")
+        raise ConfigError(out_of_range("n_constraints", n, Interval(1, max_k, type=int)))
     return Selection("fixed", n, [], f"fixed by the user at {n}")
 
 

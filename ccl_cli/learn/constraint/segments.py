@@ -35,13 +35,11 @@ end block) of the S segments, ``A_`` (S, s, q).
 
 from __future__ import annotations
 
-from typing import ClassVar
-
 import numpy as np
 
 from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
 from ccl_cli.learn.constraint.windows import PerWindow, window_moments
-from ccl_cli.learn.params import Interval, parameters
+from ccl_cli.learn.params import NonNegative, Seconds, parameters
 
 #: Block length (s): the resolution of the cuts.
 BLOCK_S = 0.5
@@ -109,14 +107,9 @@ class PerSegment(PerWindow):
         block length), n_constraints_, n_action_, selection_, n_features_in_, heldout_.
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        **PerWindow._parameter_constraints,
-        "window": [Interval(float, 0, None, closed="neither")],
-        "block": [Interval(float, 0, None, closed="neither")],
-        "penalty": [Interval(float, 0, None)]}
-    window: float = MAX_SEGMENT_S
-    block: float = BLOCK_S
-    penalty: float = PENALTY
+    window: Seconds = MAX_SEGMENT_S
+    block: Seconds = BLOCK_S
+    penalty: NonNegative = PENALTY
 
     local_to = "segment"
     #: Columns of ``windows_``: [demonstration id, first block, end block).

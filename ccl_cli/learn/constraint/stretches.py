@@ -66,7 +66,7 @@ from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint.base import Applied, NewDataRule, TimedConstraint, unseen
 from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
 from ccl_cli.learn.linalg import nullspace_projection
-from ccl_cli.learn.params import Interval, parameters
+from ccl_cli.learn.params import Interval, MaxConstraints, Seconds, out_of_range, parameters
 
 #: Block length (s) over which a stretch is judged.
 BLOCK_S = 0.5
@@ -195,14 +195,11 @@ class ConstraintInStretches(TimedConstraint):
         heldout_ (set by learn-a's ``auto``: {error, mean, se, per_fold, folds}, else None).
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        "block": [Interval(float, 0, None, closed="neither")],
-        "n_constraints": [Interval(int, 1, 100_000), None]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
         "share_": "value", "stretches_": "value", "heldout_": "value", "A_": "array", "blocks_": "array"}
-    block: float = BLOCK_S
-    n_constraints: int | None = None
+    block: Seconds = BLOCK_S
+    n_constraints: MaxConstraints = None
 
     local_to = "stretch"
     #: Its Ñ switches between I − RᵀR and I from stretch to stretch, not one matrix per window:
@@ -219,7 +216,7 @@ class ConstraintInStretches(TimedConstraint):
         if q < 2:
             raise ConfigError("learning a constraint needs at least 2 action dimensions")
         if self.n_constraints is not None and self.n_constraints > q - 1:
-            raise ConfigError(f"n_constraints must be between 1 and {q - 1}, got {self.n_constraints}")
+            raise ConfigError(out_of_range("n_constraints", self.n_constraints, Interval(1, q - 1, type=int)))
         if t is None:
             raise InputError("a constraint in stretches needs the sample times t")
         data = nr.Sample.of(X, U, groups, np.asarray(t, float), derivative)

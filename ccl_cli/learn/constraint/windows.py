@@ -53,7 +53,7 @@ from ccl_cli.learn.constraint.base import (
 from ccl_cli.learn.constraint.timeblocks import nearest_window, window_ends, window_index
 from ccl_cli.learn.defaults import WINDOW_S
 from ccl_cli.learn.model_selection import inner_heldout
-from ccl_cli.learn.params import Interval, parameters
+from ccl_cli.learn.params import NConstraints, NonNegative, Seconds, parameters
 
 #: ρ of the prior term: the weight of the pooled second moment in each window's.
 SHRINKAGE = 0.1
@@ -96,16 +96,12 @@ class PerWindow(TimedConstraint):
         per_fold, folds}, or None when not measured or the windows are too short).
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        "window": [Interval(float, 0, None, closed="neither"), None],
-        "n_constraints": [Interval(int, 0, 100_000), None],
-        "shrinkage": [Interval(float, 0, None)], "heldout": [bool]}
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
         "window_": "value", "heldout_": "value", "A_": "array", "windows_": "array"}
-    window: float | None = WINDOW_S
-    n_constraints: int | None = None
-    shrinkage: float = SHRINKAGE
+    window: Seconds | None = WINDOW_S
+    n_constraints: NConstraints = None
+    shrinkage: NonNegative = SHRINKAGE
     heldout: bool = True
 
     def fit(self, X: np.ndarray | None, U: np.ndarray, *, groups: np.ndarray | None = None,

@@ -24,6 +24,8 @@ from ccl_cli.learn.model_selection.search import (  # noqa: F401
     STOP_GAIN,
     STOP_SE,
     WIDTH,
+    Budget,
+    MaxRows,
     Searchable,
     SearchResult,
     Tuned,
@@ -42,5 +44,5 @@ from ccl_cli.learn.model_selection.splitters import (  # noqa: F401
     make_folds,
     tuning_subset,
 )
-from ccl_cli.learn.model_selection.tuning import TUNE_FIELDS, TUNE_PARAMS, Tunable, basis_grid, rbf_tunable  # noqa: F401
+from ccl_cli.learn.model_selection.tuning import Tunable, TuneSpec, basis_grid, rbf_tunable  # noqa: F401
 from ccl_cli.learn.model_selection.validation import CVResult, cross_validate, held_out_errors, take_rows  # noqa: F401

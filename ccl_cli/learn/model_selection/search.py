@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
 
@@ -25,11 +25,14 @@ from ccl_cli.learn.base import Estimator, check_xu, clone
 from ccl_cli.learn.defaults import DEFAULT_GAP, N_FOLDS, TUNE_BUDGET, TUNE_FOLDS
 from ccl_cli.learn.model_selection.splitters import Folds, make_folds, tuning_subset
 from ccl_cli.learn.model_selection.validation import held_out_errors, take_rows
-from ccl_cli.learn.params import SEED, Interval
+from ccl_cli.learn.params import Interval, NFolds, Seed
 from ccl_cli.progress import progress_of
 
 #: What ``budget`` and ``budget_used`` count.
 BUDGET_UNIT = "fits (candidates × folds)"
+#: A search's budget: model fits (candidates × folds); its rows at most.
+Budget = Annotated[float, Interval(0, None)]
+MaxRows = Annotated[int, Interval(100, None)]
 
 
 class Searchable:
@@ -336,12 +339,8 @@ class Tuned(Estimator):
         Other learnt attributes (``n_constraints_``, ``W_``, ...) are read from the winner.
     """
 
-    _parameter_constraints: ClassVar[dict[str, list]] = {
-        "estimator": [Estimator], "grid": [dict], "folds": [Interval(int, 2, 1000), None],
-        "budget": [Interval(float, 0, None), None], "max_rows": [Interval(int, 100, None), None], **SEED}
-
-    def __init__(self, estimator: Estimator, grid: dict[str, list[Any]], *, folds: int | None = None,
-                 budget: float | None = None, max_rows: int | None = None, seed: int = 0) -> None:
+    def __init__(self, estimator: Estimator, grid: dict[str, list[Any]], *, folds: NFolds | None = None,
+                 budget: Budget | None = None, max_rows: MaxRows | None = None, seed: Seed = 0) -> None:
         self._store_params(locals())
 
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None, **fit_kw: Any) -> Tuned:
@@ -425,5 +424,10 @@ class Tuned(Estimator):
         return self._best().constraint(X, groups=groups, t=t)
 
     def score(self, X: np.ndarray, U: np.ndarray, **kw: Any) -> float:
-        """The winner's score (minus its own consistency error; higher is better)."""
+        """The winner's score (higher is better)."""
         return self._best().score(X, U, **kw)
+
+    def held_out_error(self, X: np.ndarray, U: np.ndarray, **kw: Any) -> float:
+        """The winner's own consistency error (its ``held_out_error``, else −score)."""
+        best = self._best()
+        return best.held_out_error(X, U, **kw) if hasattr(best, "held_out_error") else -best.score(X, U, **kw)

@@ -4,26 +4,20 @@ search can share work; and the candidate bases (:func:`basis_grid`)."""
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
 
 from ccl_cli.learn import blas
 from ccl_cli.learn.base import clone
 from ccl_cli.learn.defaults import TUNE
-from ccl_cli.learn.model_selection.search import Searchable, Tuned
+from ccl_cli.learn.model_selection.search import Budget, MaxRows, Searchable, Tuned
 from ccl_cli.learn.model_selection.splitters import Folds
 from ccl_cli.learn.model_selection.validation import held_out_errors, take_rows
-from ccl_cli.learn.params import Fields, Interval, parameters
+from ccl_cli.learn.params import Fields, NFolds, parameters
 
 #: ``tune`` of a learner: True (the default search), False, or a mapping adjusting it.
-TUNE_FIELDS: dict[str, list] = {
-    "budget": [Interval(float, 0, None)],  # model fits (candidates × folds)
-    "folds": [Interval(int, 2, 1000)],
-    "max_rows": [Interval(int, 100, None)],
-    "grid": [dict],
-}
-TUNE_PARAMS: dict[str, list] = {"tune": [bool, Fields(TUNE_FIELDS)]}
+TuneSpec = bool | Annotated[dict, Fields(budget=Budget, folds=NFolds, max_rows=MaxRows, grid=dict)]
 
 
 @parameters
@@ -50,8 +44,7 @@ class Tunable(Searchable):
     TUNE_CONSERVATIVE: ClassVar[tuple[str, ...]] = ()
     #: The parameters its feature map depends on (:meth:`_fit_basis`, :meth:`_basis_key`).
     BASIS_PARAMS: ClassVar[tuple[str, ...]] = ("basis", "n_centres", "seed")
-    _parameter_constraints: ClassVar[dict[str, list]] = TUNE_PARAMS
-    tune: bool | dict = TUNE
+    tune: TuneSpec = TUNE
 
     def _basis_candidates(self) -> list[tuple[tuple[int, ...], tuple[float, ...]]]:
         """(numbers of centres, width factors) of the candidate bases, in order (:func:`basis_grid`)."""

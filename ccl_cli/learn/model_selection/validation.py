@@ -21,6 +21,15 @@ def take_rows(fit_kw: dict[str, Any], rows: np.ndarray) -> dict[str, Any]:
     return {k: np.asarray(v)[rows] if v is not None and np.ndim(v) >= 1 else v for k, v in fit_kw.items()}
 
 
+def held_out_error(model: Any, X: np.ndarray, U: np.ndarray, groups: np.ndarray, kw: dict[str, Any]) -> float:
+    """A fitted learner's own consistency error on held-out data: its ``held_out_error`` when it
+    has one (constraint models: NPOE — their ``score`` compares numbers of constraints instead),
+    else −``score``."""
+    if hasattr(model, "held_out_error"):
+        return float(model.held_out_error(X, U, groups=groups, **kw))
+    return -float(model.score(X, U, groups=groups, **kw))
+
+
 def held_out_errors(models: list[Any], X: np.ndarray, U: np.ndarray, groups: np.ndarray, folds: Folds,
                     **fit_kw: Any) -> np.ndarray:
     """−model.score on each test fold (the learner's own consistency error), given the
@@ -28,7 +37,7 @@ def held_out_errors(models: list[Any], X: np.ndarray, U: np.ndarray, groups: np.
     out = []
     for m, (_, test) in zip(models, folds.pairs, strict=True):  # a loop over the folds
         scored = {k: v for k, v in take_rows(fit_kw, test).items() if k in m._metadata("score")}
-        out.append(-m.score(X[test], U[test], groups=groups[test], **scored))
+        out.append(held_out_error(m, X[test], U[test], groups[test], scored))
     return np.array(out, dtype=float)
 
 
@@ -91,5 +100,5 @@ def cross_validate(
             out.append(scorer(model, X[test], U[test], groups[test]))
         else:
             extra = {} if projections is None else {"projections": projections[test]}
-            out.append(-model.score(X[test], U[test], groups=groups[test], **extra))
+            out.append(held_out_error(model, X[test], U[test], groups[test], extra))
     return CVResult(np.asarray(out, dtype=float), folds.kind, folds.reason)
