@@ -77,6 +77,7 @@ class CsvTable:
         self._wanted: set[str | int] = set()
         self._loaded: tuple[list[str], Body] | None = None
         self._time: tuple[np.ndarray, str] | None = None
+        self._delim = ","
 
     # -- parsing ---------------------------------------------------------------------------
     def want(self, keys: list[str | int] | tuple) -> None:
@@ -131,6 +132,7 @@ class CsvTable:
                 n_lines = check_lines(f, where)
                 f.seek(0)
                 delim = self.time.delimiter or _sniff_delimiter(f.read(65536).decode("utf-8-sig", "replace"))
+                self._delim = delim
                 if self.samples == "columns":
                     with csv_body.text_stream(f, "") as text:
                         return self._transposed(text.read(), delim)
@@ -241,11 +243,37 @@ class CsvTable:
         return parse_time_ns(body.text(idx), self.time.unit, where), names[idx]
 
     def listing(self) -> dict[str, Any]:
+        """Columns, rows, time column and span; a table with no time column and none configured
+        is listed too (``time_column`` None: a config must say the rate or the column)."""
         names, body = self.load()
-        t, col = self.time_ns() if body.n_rows else (np.zeros(0, np.int64), "")
+        t, col = np.zeros(0, np.int64), ""
+        if body.n_rows and (self.time.column is not None or self.time.rate or find_time_column(names, body)
+                            is not None):
+            t, col = self.time_ns()
+        elif body.n_rows:
+            col = None
         return {"start_ns": int(t[0]) if len(t) else 0, "end_ns": int(t[-1]) if len(t) else 0,
                 "columns": names, "rows": body.n_rows, "time_column": col, "header": not self.headerless,
                 "sample_axis": self.samples}
+
+    def kinds(self, names: list[str], cells: int = 200_000) -> list[str]:
+        """What each column holds in the first rows of the file (as many as hold about ``cells``
+        cells, at most 50): ``number``, ``text`` (a cell that is not a number: a frame_id, a
+        flattened header) or ``empty``. Called after :meth:`load` (the file's lines are checked)."""
+        limit = max(2, min(50, cells // max(len(names), 1)))
+        rows: list[list[str]] = []
+        with open_regular(self.path, "the CSV file") as f, csv_body.text_stream(f, "") as text:
+            for row in csv_body.csv_rows(text, self._delim, str(self.path)):
+                if row and any(c.strip() for c in row):
+                    rows.append(row)
+                if len(rows) >= limit:
+                    break
+        rows = [r for r in rows[(0 if self.headerless else 1):] if len(r) == len(names)]
+        out = []
+        for k in range(len(names)):
+            cells_k = [r[k].strip() for r in rows if r[k].strip()]
+            out.append("empty" if not cells_k else "number" if all(map(is_number, cells_k)) else "text")
+        return out
 
     def stream(self, selection: StreamOptions) -> Stream:
         """The columns of ``selection`` (all but the time column of a text matrix)."""
@@ -363,24 +391,54 @@ class CsvReader(StreamReader):
         for selection in (o.state, None if o.derives_action else o.action):
             if selection is not None and selection.columns:
                 self.table(selection).want(selection.columns)
-        # the first column that is not the time column is column 0 or 1
-        self.table(StreamOptions(samples=o.state.samples) if o.state is not None else None).want([0, 1])
+        table = self.table(StreamOptions(samples=o.state.samples) if o.state is not None else None)
+        table.want([0, 1])  # the first column that is not the time column is most often column 0 or 1
         info = self.listing()
+        kinds = table.kinds(info["columns"]) if info["sample_axis"] == "rows" and info["rows"] else \
+            ["number"] * len(info["columns"])
         out = self.span(info)
         out.update({k: info[k] for k in ("columns", "rows", "time_column", "header", "sample_axis")})
+        for kind in ("text", "empty"):
+            listed = [c for c, k in zip(info["columns"], kinds, strict=True) if k == kind]
+            if listed:
+                out[f"{kind}_columns"] = listed
+        if info["time_column"] is None:  # nothing to time the rows by: say what a config needs
+            return {k: v for k, v in out.items() if k not in ("start_ns", "end_ns", "duration_s")} \
+                | {"needs": _needs(table, info, kinds)}
         if info["rows"] > 1 and out["duration_s"] > 0:
             out["rate_hz"] = (info["rows"] - 1) / out["duration_s"]
         for key, selection in (("state", o.state), ("action", None if o.derives_action else o.action)):
             if selection is not None and (selection.columns or (key == "state" and not info["header"])):
                 out[f"{key}_names"] = self.streams([selection])[0].names
-        state = o.state.columns if o.state is not None and o.state.columns else \
-            [c for c in info["columns"] if c != info["time_column"]][:1]
+        numbers = [c for c, k in zip(info["columns"], kinds, strict=True)
+                   if k == "number" and c != info["time_column"]]
+        state = o.state.columns if o.state is not None and o.state.columns else numbers[:1]
         if state:
             main = StreamOptions(columns=state[:1], samples=o.state.samples if o.state else None)
             act = activity(self.streams([main])[0].t_ns, gap)
             out.update({"rate_hz": act["rate_hz"], "active_s": act["active_s"], "demos": act["demos"],
                         "demos_from": "rows", "gap_s": act["gap_s"]} | _rule(act))
         return out
+
+
+def _needs(table: CsvTable, info: dict[str, Any], kinds: list[str]) -> list[str]:
+    """What a config must say to read a table that has no time column (for ``ccl inspect``):
+    the rate or the time column (a first column that increases throughout is named), the state
+    columns, and the samples' side of a matrix wider than tall."""
+    names, body = table.load()
+    numbers = [c for c, k in zip(names, kinds, strict=True) if k == "number"]
+    out = ["data.time: {rate: HZ} (the rows carry no time: say how many were recorded per second)"]
+    if numbers and numbers[0] == names[0] and body.n_rows > 2 and \
+            bool(np.all(np.diff(body.numbers(0, names[0], str(table.path))) > 0)):
+        out[0] += f", or data.time: {{column: {names[0]}}} (column {names[0]} increases throughout: a time?)"
+        numbers = numbers[1:]
+    if info["sample_axis"] == "rows" and table.headerless and len(names) > info["rows"]:
+        out.append(f"data.state: {{samples: columns}} if each of the {len(names)} columns is a sample (the "
+                   f"original library's layout: {info['rows']} rows, one per dimension)")
+    shown = ", ".join(map(str, numbers[:8])) + (", …" if len(numbers) > 8 else "")
+    out.append(f"data.state: {{columns: [{shown}]}} (the state's columns)")
+    out.append("data.action: {derive: state} (velocities from the states), or {columns: [...]}")
+    return out
 
 
 def _rule(act: dict[str, Any]) -> dict[str, Any]:
