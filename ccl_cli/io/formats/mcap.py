@@ -18,7 +18,7 @@ from ccl_cli.errors import InputError
 from ccl_cli.io.layouts import FixedTopic, NotFixed, fixed_topic
 from ccl_cli.io.library_errors import library_call, library_iter
 from ccl_cli.io.limits import check_claim, check_span, open_regular
-from ccl_cli.io.messages import TopicReader, finish_topics, read_topics, short_type
+from ccl_cli.io.messages import TopicReader, finish_topics, read_topics, short_type, type_name
 from ccl_cli.io.options import StreamOptions
 from ccl_cli.io.sniff import MCAP_MAGIC
 from ccl_cli.io.streams import Stream
@@ -78,7 +78,8 @@ class McapReader(TopicReader):
         topics = {}
         for cid, ch in summary.channels.items():
             schema = summary.schemas.get(ch.schema_id)
-            topics[str(ch.topic)] = {"type": schema.name if schema else "", "encoding": ch.message_encoding,
+            topics[str(ch.topic)] = {"type": type_name(schema.name) if schema else "",
+                                     "encoding": ch.message_encoding,
                                      "count": int(counts.get(cid, 0))}
         st = summary.statistics
         codecs = sorted({str(c.compression) or "none" for c in summary.chunk_indexes}) or ["none"]
@@ -101,7 +102,7 @@ class McapReader(TopicReader):
                     have = ", ".join(sorted({str(c.topic) for c in summary.channels.values()})) or "none"
                     raise InputError(f"{where}: topic {selection.topic!r} not found (topics: {have})")
                 schema = summary.schemas.get(channels[0].schema_id)
-                msgtypes[selection.topic] = schema.name if schema else ""
+                msgtypes[selection.topic] = type_name(schema.name) if schema else ""
                 encodings[selection.topic] = channels[0].message_encoding
             collectors, slots = read_topics(selections, msgtypes, where)
             done: dict[str, list[Stream]] = {}
