@@ -19,7 +19,7 @@ from typing import Annotated, Any, get_args
 
 import typer
 from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer vendors its click
-from typer.core import TyperCommand, TyperGroup
+from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
 
 from ccl_cli import progress, spec
 from ccl_cli.errors import CCLError, ConfigError, InputError, LearningError
@@ -38,15 +38,118 @@ class _OneLineUsage:
 
     def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
         try:
-            return super().parse_args(ctx, args)  # type: ignore[misc]
+            return super().parse_args(ctx, spread(self, args))  # type: ignore[misc]
         except NoArgsIsHelpError:
             raise
         except UsageError as exc:
             raise _one_line(ctx, exc) from None
 
 
+def spread(command: Any, args: list[str]) -> list[str]:
+    """``args`` with the values after an option that takes several (``--data A B C``, as a shell
+    expands ``--data *.log``) each given to it (``--data A --data B --data C``): the values run
+    to the next option or ``--``."""
+    many = {name for p in getattr(command, "params", []) if getattr(p, "multiple", False)
+            for name in p.opts}
+    if not many:
+        return args
+    out: list[str] = []
+    taking = None
+    for i, arg in enumerate(args):
+        if arg == "--":
+            return out + args[i:]
+        if arg.startswith("-") and arg != "-":
+            name = arg.split("=", 1)[0]
+            taking = name if name in many else None
+            out.append(arg)
+            if taking and "=" not in arg and i + 1 < len(args):
+                continue  # its first value follows as usual
+        elif taking is not None and out and out[-1] != taking:
+            out += [taking, arg]
+        else:
+            out.append(arg)
+    return out
+
+
+#: What a value is, in the words --help shows (``<list[Path]>`` → ``PATH...``).
+_WORDS = {int: "INTEGER", float: "NUMBER", str: "TEXT", Path: "PATH"}
+
+
+def _word(param: Any) -> str:
+    """The value of ``param`` in words: its choices (``auto|nhat``), else PATH, INTEGER,
+    NUMBER or TEXT."""
+    desc = getattr(param, "type_descriptor", None)
+    choices = getattr(desc, "choices", None)
+    if choices:
+        return "|".join(str(getattr(c, "value", c)) for c in choices)
+    annotation = getattr(desc, "annotation", None)
+    args = get_args(annotation)
+    if getattr(desc, "is_list", False) and args:
+        annotation = args[0]
+    return _WORDS.get(annotation, "VALUE")
+
+
+def _range(low: Any, high: Any) -> str | None:
+    """A number's range in words: 'from 1 to 2', 'at least 0'."""
+    if low is not None and high is not None:
+        return f"from {low} to {high}"
+    if low is not None:
+        return f"at least {low}"
+    return f"at most {high}" if high is not None else None
+
+
+class _Argument(TyperArgument):
+    """An argument shown by its name in capitals (``PIPELINE``, ``[DATA]...``), no type."""
+
+    def display_type_rich(self, ctx: Any) -> str | None:
+        return None
+
+    def _rich_display_name(self) -> str:
+        return self.display_name_raw + ("..." if self.nargs != 1 else "")
+
+    def _usage_display_name(self) -> str:
+        name = self.display_name_raw if self.required else f"[{self.display_name_raw}]"
+        return name + ("..." if self.nargs != 1 else "")
+
+    def _get_number_range_help_str(self) -> str | None:
+        return _range(self.min, self.max)
+
+
+class _Option(TyperOption):
+    """An option whose value is shown in words (``--out PATH``, ``--workers INTEGER``); one that
+    takes several values is shown with ``...`` (``--data PATH...``)."""
+
+    def display_type_rich(self, ctx: Any) -> str | None:
+        word = self.metavar or _word(self)
+        return word + ("..." if self.multiple and not word.endswith("...") else "")
+
+    def _get_number_range_help_str(self) -> str | None:
+        return _range(self.min, self.max)
+
+    def _get_default_string(self, *, ctx: Any, show_default_is_str: bool, default_value: Any) -> str:
+        if show_default_is_str:  # a default said in words: as it is, not in parentheses
+            return str(self.show_default)
+        return super()._get_default_string(ctx=ctx, show_default_is_str=show_default_is_str,
+                                           default_value=default_value)
+
+
+def _in_words(params: list[Any]) -> None:
+    """Every parameter of a command shown in words in --help and the usage line."""
+    for param in params:
+        if isinstance(param, TyperArgument) and not isinstance(param, _Argument):
+            param.__class__ = _Argument
+            if param.metavar is None:
+                param.metavar = (param.name or "value").upper()
+        elif isinstance(param, TyperOption) and not isinstance(param, _Option):
+            param.__class__ = _Option
+
+
 class _Command(_OneLineUsage, TyperCommand):
-    """Commands whose usage errors are one line."""
+    """Commands whose usage errors are one line and whose --help is in words."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        _in_words(self.params)
 
 
 class _Group(_OneLineUsage, TyperGroup):
@@ -556,30 +659,37 @@ def simulate(
 
 @app.command("inspect")
 def inspect_cmd(
-    data: Annotated[Path, typer.Argument(help="A recording (file or bag directory) or a model file.")],
+    data: Annotated[list[Path], typer.Argument(
+        help="Recordings (files, bag directories, folders of recordings or globs) or model files: "
+             "each is described.", show_default=False)],
     config: ConfigOpt = None,
-    gap: Annotated[float | None, typer.Option(help="Pause (seconds) that splits demonstrations "
-                                              "[default: data.demos.split_on_gap, else 5 × the median "
-                                              "sampling interval].", show_default=False)] = None,
+    gap: Annotated[float | None, typer.Option(metavar="SECONDS", help="Pause (seconds) that splits "
+                                              "demonstrations.", show_default="data.demos.split_on_gap, "
+                                              "else 5 × the median sampling interval")] = None,
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
-    """What a file holds. A recording: topics (type, count, rate over the active time, fields,
-    joint names), CSV columns, time span and the stretches between pauses (default: longer than
-    5 × the median sampling interval); with -c, the demonstrations learning reads with that
-    config. A model file: its method, constraints, basis and what it
-    was trained on (inputs, config, figures)."""
-    from ccl_cli.app.evaluate import inspect_file
+    """What files hold. A recording: topics (type, count, rate over the active time, fields,
+    joint names), CSV columns (those holding text said so), time span and the stretches between
+    pauses (default: longer than 5 × the median sampling interval); a headerless table without
+    a time column: its columns, rows and what a config must say to read it; with -c, the
+    demonstrations learning reads with that config. A model file: its method, constraints, basis
+    and what it was trained on (inputs, config, figures). Several files: each in turn (--json:
+    one object, "files" holding each one's)."""
+    from ccl_cli.app.evaluate import inspect_files
 
     _logging(quiet)
     cfg = _config(config, {})
-    info = inspect_file(data, cfg.spec.data, gap, cfg.base, configured=config is not None)
+    infos = inspect_files(data, cfg.spec.data, gap, cfg.base, configured=config is not None)
     if json_out:
-        _emit(info, True)
+        _emit(infos[0] if len(infos) == 1 else {"status": "ok", "command": "inspect", "files": infos}, True)
         return
     from ccl_cli.render.text import inspect_lines
 
-    for line in inspect_lines(info):
-        typer.echo(line)
+    for i, info in enumerate(infos):
+        if i:
+            typer.echo("")
+        for line in inspect_lines(info):
+            typer.echo(line)
 
 
 @app.command("convert")
