@@ -171,7 +171,7 @@ def _typer() -> typer.Typer:
              "null-space policies π(x) from demonstrations (HDF5, CSV, MCAP, ROS 1/2 bags).",
         no_args_is_help=True,
         context_settings={"help_option_names": ["-h", "--help"]},
-        add_completion=False,
+        add_completion=True,
         pretty_exceptions_enable=False,
         rich_markup_mode=None,
     )
@@ -498,12 +498,42 @@ def run(
     data: Annotated[list[Path] | None, typer.Option("--data", help="Recordings overriding data.files.")]
     = None,
     out: OutOpt = None, seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
+    n_centres: Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres of every stage "
+                                                  "of the pipeline that has a basis (learn-v, learn-pi, "
+                                                  "learn-a with alpha, lambda or linear; no basis search).",
+                                                  show_default="config, else each stage's default")] = None,
+    basis: Annotated[BasisKind | None, typer.Option("--basis", help="Feature map of every stage of the "
+                                                    "pipeline that has a basis (no basis search).",
+                                                    show_default="config, else rbf")] = None,
     strict: StrictOpt = False, force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Run the stages of a pipeline YAML in order (learn-v, learn-a, learn-pi, evaluate)."""
     _logging(quiet)
-    cfg = _config(pipeline, _common(seed, test_fraction, convention))
+    flags = _common(seed, test_fraction, convention)
+    if n_centres is not None or basis is not None:
+        flags |= _basis_flags(pipeline, {"n_centres": n_centres, "basis": _value(basis)})
+    cfg = _config(pipeline, flags)
     _learn("run", None, cfg, data, out, force, json_out, quiet, strict)
+
+
+def _basis_flags(pipeline: Path, given: dict[str, Any]) -> dict[str, Any]:
+    """``--n-centres`` / ``--basis`` of ``ccl run`` as the flags of each stage of the pipeline
+    that has a basis (learn-v, learn-pi, and learn-a when its method has one); none is a
+    usage error naming the stages."""
+    import inspect as pyinspect
+
+    plain = _config(pipeline, {})
+    flags: dict[str, Any] = {}
+    for name, opts in plain.stages():
+        method = getattr(opts, "method", None)
+        if name in ("learn-v", "learn-pi") or (name == "learn-a" and "n_centres" in pyinspect.signature(
+                spec.constraint_class(method).__init__).parameters):
+            flags[name] = given
+    if not flags:
+        said = "/".join(f"--{k.replace('_', '-')}" for k, v in given.items() if v is not None)
+        stages = ", ".join(f"{n} ({getattr(o, 'method', '')})".replace(" ()", "") for n, o in plain.stages())
+        raise InputError(f"{said}: no stage of {pipeline} has a basis ({stages})")
+    return flags
 
 
 # -- using saved models -------------------------------------------------------------------

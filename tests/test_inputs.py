@@ -193,3 +193,63 @@ def test_message_types_are_named_alike_in_every_container(tmp_path, capsys):
     infos = json.loads(capsys.readouterr().out)["files"]
     assert [i["topics"]["/joint_states"]["type"] for i in infos] == ["sensor_msgs/msg/JointState"] * 5
     assert [i["encoding"] for i in infos] == ["ros1", "ros1", "cdr", "cdr", "json"]
+
+
+def _documented_flags() -> list[tuple[str, str, str, str]]:
+    """(file, command, flag, line) of every ``ccl COMMAND ... --flag`` in the README's and docs'
+    code (inline spans and blocks)."""
+    root = Path(__file__).resolve().parent.parent
+    found = []
+    for doc in [root / "README.md", *sorted((root / "docs").rglob("*.md"))]:
+        text = doc.read_text()
+        spans = re.findall(r"```[a-z]*\n(.*?)```", text, re.S)
+        spans += re.findall(r"`([^`\n]+)`", re.sub(r"```[a-z]*\n.*?```", "", text, flags=re.S))
+        for line in (ln for span in spans for ln in span.splitlines()):
+            for m in re.finditer(r"\bccl ([a-z][a-z-]*)([^|;&#]*)", line):
+                found += [(doc.name, m.group(1), flag, line.strip())
+                          for flag in re.findall(r"(?<![\w-])(--?[a-zA-Z][\w-]*)", m.group(2))]
+    return found
+
+
+def test_every_flag_the_docs_show_exists_on_the_command_they_show_it_with():
+    import typer.main
+
+    group = typer.main.get_command(app)
+    options = {name: {o for p in c.params for o in (*p.opts, *p.secondary_opts)}
+               for name, c in group.commands.items()}
+    common = {o for p in group.params for o in p.opts}
+    documented = [d for d in _documented_flags() if d[1] in options]
+    assert len(documented) > 40 and ("README.md", "run", "--n-centres") in [d[:3] for d in documented]
+    missing = [d for d in documented if d[2] not in options[d[1]] | common]
+    assert missing == []
+
+
+def test_run_takes_the_basis_flags_of_the_stages_that_have_a_basis(tmp_path, capsys):
+    from ccl_cli.models import load_model
+
+    configs = Path(__file__).resolve().parent.parent / "configs"
+    out = tmp_path / "run"
+    assert main(["run", str(configs / "toy2d_learn_pi.yaml"), "--n-centres", "9", "-o", str(out), "-q"]) == 0
+    policy, _ = load_model(out / "models" / "learn-pi.h5")
+    assert policy.basis_.centres_.shape == (9, 2)  # the config says 100 on a grid
+    assert main(["run", str(_config(tmp_path)), "--n-centres", "9", "-o", str(tmp_path / "r2")]) == 2
+    assert "--n-centres: no stage of" in capsys.readouterr().err and not (tmp_path / "r2").exists()
+
+
+def test_shell_completion_is_enabled():
+    import os
+    import subprocess
+
+    from tests_paths import CCL
+
+    env = {**os.environ, "_CCL_COMPLETE": "complete_bash", "COMP_WORDS": "ccl learn-a --method ",
+           "COMP_CWORD": "3"}
+    done = subprocess.run([CCL], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0
+    assert done.stdout.split() == ["auto", "nhat", "alpha", "lambda", "linear", "per_window", "per_segment",
+                                   "manifold"]
+    env |= {"COMP_WORDS": "ccl le", "COMP_CWORD": "1"}
+    done = subprocess.run([CCL], env=env, capture_output=True, text=True, timeout=120)
+    assert done.stdout.split() == ["learn-a", "learn-v", "learn-pi"]
+    script = subprocess.run([CCL, "--show-completion", "bash"], capture_output=True, text=True, timeout=120)
+    assert "_CCL_COMPLETE=complete_bash" in script.stdout
