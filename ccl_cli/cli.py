@@ -752,8 +752,11 @@ def batch(
     = None,
     config: ConfigOpt = None,
     out: OutOpt = None,
-    workers: Annotated[int | None, typer.Option("--workers", "-j", help="Local processes.",
-                                                show_default="the number of cores")] = None,
+    workers: Annotated[int | None, typer.Option("--workers", "-j", min=1, help="Local processes, at most "
+                                                "the usable cores (the CPU affinity's).",
+                                                show_default="one per usable core")] = None,
+    oversubscribe: Annotated[bool, typer.Option("--oversubscribe", help="Start -j workers even when they "
+                                                "are more than the usable cores.")] = False,
     scheduler: Annotated[str | None, typer.Option(help="Address of a running Dask scheduler.")] = None,
     worker_wait: Annotated[float, typer.Option("--worker-wait", min=0, help="With --scheduler: seconds to "
                                                "wait for a Dask worker when none is left (then the batch "
@@ -764,7 +767,7 @@ def batch(
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> int:
     """Run a pipeline per recording (or group) in parallel; resumable; summary.csv/.md/.png."""
-    from ccl_cli.app.batch import can_fork, fork_workers, plan, run_batch, start_workers
+    from ccl_cli.app.batch import can_fork, fork_workers, plan, run_batch, start_workers, worker_count
     from ccl_cli.render.outputs import write_run
     from ccl_cli.render.summary import write_summary
 
@@ -772,6 +775,13 @@ def batch(
     t0 = time.perf_counter()
     if manifest is None and files and config is None:
         raise ConfigError("batch --files needs --config/-c: a pipeline YAML with a stages: list")
+    if scheduler is not None and (workers is not None or oversubscribe):
+        log.warning("-j/--oversubscribe do not apply with --scheduler: the Dask workers run the jobs, as "
+                    "many at once as they have threads")
+    asked = workers
+    workers, said = worker_count(workers, oversubscribe)
+    if said and scheduler is None:
+        log.warning(said)
     fork = scheduler is None and can_fork()
     if scheduler is None and not fork:
         start_workers(workers, (write_run.__module__,))  # the fork server's imports overlap the planning
@@ -784,6 +794,7 @@ def batch(
         loading = preload_in_background()  # matplotlib for summary.png (and the jobs' figures)
         if fork:  # imported once here, not again in each worker
             loading.join()
+    workers, _ = worker_count(asked, oversubscribe, len(jobs))  # no more workers than jobs
     # workers forked once the plan holds, before this process starts any other thread
     pool = fork_workers(workers, (write_run.__module__,)) if fork else None
     bar = _bar("jobs", len(jobs), quiet)
@@ -795,6 +806,8 @@ def batch(
             bar.stop()
     summary = write_summary(outdir, results, time.perf_counter() - t0, plots=plots)
     summary["outdir"] = str(outdir)
+    if scheduler is None:
+        summary["workers"] = workers
     if json_out:
         _emit({k: v for k, v in summary.items() if k != "results"}, True)
     elif not quiet or summary["failed"]:

@@ -36,7 +36,7 @@ from typing import Any
 
 from ccl_cli import __version__, config
 from ccl_cli.errors import CCLError, ConfigError, OutputError
-from ccl_cli.learn.blas import THREAD_VARS
+from ccl_cli.learn.blas import THREAD_VARS, affinity_cores
 
 log = logging.getLogger("ccl")
 #: writes one job's folder: (RunResult, outdir, *, force, extra_files) → summary
@@ -244,6 +244,44 @@ def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
     so it pickles to the workers)."""
     logging.getLogger("ccl").setLevel(logging.WARNING)
     _ignore_file_size_signal()
+    with _named(job.job_id):
+        return _run_job(job, jobs_dir, force, write)
+
+
+class _JobLines(logging.Formatter):
+    """'ccl: <job>: message' on stderr, a file name that is not UTF-8 shown as ``\\xNN``."""
+
+    def __init__(self, job_id: str) -> None:
+        super().__init__("%(message)s")
+        self.job_id = job_id
+
+    def format(self, record: logging.LogRecord) -> str:
+        line = f"ccl: {self.job_id}: {super().format(record)}"
+        return line.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+@contextlib.contextmanager
+def _named(job_id: str):
+    """While a job runs, its warnings (stderr of a local worker, a Dask worker's log) name it:
+    'ccl: <job>: warning: ...'; only the lines of the thread that runs it (a Dask worker runs
+    several jobs at once)."""
+    import threading
+
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_JobLines(job_id))
+    handler.setLevel(logging.WARNING)
+    me = threading.get_ident()
+    handler.addFilter(lambda record: record.thread == me)
+    logger = logging.getLogger("ccl")
+    logger.addHandler(handler)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+
+
+def _run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
+    """:func:`run_job`'s work."""
     t0 = time.perf_counter()
     outdir = Path(jobs_dir) / job.job_id
     try:
@@ -318,13 +356,31 @@ def _ignore_file_size_signal() -> None:
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 
 
+def worker_count(requested: int | None, oversubscribe: bool = False, jobs: int | None = None
+                 ) -> tuple[int, str | None]:
+    """The local workers of a batch: ``requested`` (default: one per usable core, the cores
+    this process may run on: :func:`~ccl_cli.learn.blas.affinity_cores`), at most the usable
+    cores unless ``oversubscribe`` (more processes than cores only share them, and each costs
+    its memory and start), and no more than the ``jobs``. Returns (workers, the line that says
+    why fewer than asked for run, or None)."""
+    cores = affinity_cores()
+    n = cores if requested is None else requested
+    said = None
+    if n > cores and not oversubscribe:
+        many = "s" if cores != 1 else ""
+        said = (f"-j {requested}: {cores} usable core{many}, so {cores} worker{many} (more would only "
+                f"share them; --oversubscribe starts {requested})")
+        n = cores
+    return (max(1, min(n, jobs)) if jobs else n), said
+
+
 def make_executor(workers: int | None, preload: tuple[str, ...] = ()) -> Executor:
     """The local process pool (workers from the fork server)."""
     from concurrent.futures import ProcessPoolExecutor
 
     from ccl_cli.lifeline import worker_init
 
-    n = workers or os.cpu_count() or 1
+    n = workers or affinity_cores()
     ctx = local_context(n, preload)
     return ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=worker_init,
                                initargs=(os.getpid(),))
@@ -340,7 +396,7 @@ def _blas_threads(n: int) -> int | None:
     """BLAS threads of each of ``n`` local workers: cores / n, in the environment of the
     processes started from now on where the user set none (returned; None when the user
     set one: this process's BLAS, and a forked worker's, then already follow it)."""
-    threads = max(1, (os.cpu_count() or 1) // n)
+    threads = max(1, affinity_cores() // n)
     chosen = not any(var in os.environ for var in THREAD_VARS)
     for var in THREAD_VARS:
         os.environ.setdefault(var, str(threads))  # workers share the cores, not oversubscribe them
@@ -370,7 +426,7 @@ def local_context(n: int, preload: tuple[str, ...] = ()):
 def start_workers(workers: int | None, preload: tuple[str, ...] = ()) -> None:
     """Start the local fork server now: its imports (:data:`PRELOAD` and ``preload``) then
     overlap the planning of the batch instead of delaying the first job."""
-    ctx = local_context(workers or os.cpu_count() or 1, preload)
+    ctx = local_context(workers or affinity_cores(), preload)
     if ctx.get_start_method() == "forkserver":
         from multiprocessing import forkserver
 
@@ -401,7 +457,7 @@ def fork_workers(workers: int | None, preload: tuple[str, ...] = ()) -> Executor
 
     for module in (*PRELOAD, *preload):
         importlib.import_module(module)
-    n = workers or os.cpu_count() or 1
+    n = workers or affinity_cores()
     pool = ProcessPoolExecutor(max_workers=n, mp_context=get_context("fork"), initializer=_forked_init,
                                initargs=(os.getpid(), _blas_threads(n)))
     pool.submit(int)  # forks every worker now, before this process starts a thread
