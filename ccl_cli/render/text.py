@@ -127,7 +127,9 @@ def inspect_lines(info: dict[str, Any]) -> list[str]:
         out.append("to read it, a config (-c) says:")
         out += [f"  {need}" for need in info["needs"]]
     for node in info.get("tree", []):  # HDF5 / .mat contents
-        out.append("  " + "  ".join(str(v) for k, v in node.items() if k != "names"))
+        value = f"  = {node['value']:g} (one number: time: {{variable: {node['path']}}} takes it as the " \
+            "sampling interval)" if "value" in node else ""
+        out.append("  " + "  ".join(str(v) for k, v in node.items() if k not in ("names", "value")) + value)
     if "gap_s" in info and "demos" in info:
         out.append(f"pauses:   {info['demos']} stretches in {info.get('demos_from')} between pauses > "
                    f"{info['gap_s']:.3g} s ({info.get('gap_rule')}; change with --gap)")
