@@ -57,13 +57,14 @@ JITTER = 0.1
 CODES = ("constant_dimension", "no_motion", "noisy_actions", "few_demos", "short_demos",
          "low_rank_actions", "duplicate_stamps", "jittery_stamps", "hemisphere_flips", "spikes",
          "stamp_faults", "overfit", "no_better_than_baseline", "constraint_does_not_hold",
-         "constraint_varies", "not_identifiable", "actions_near_faults")
+         "constraint_varies", "not_identifiable", "actions_near_faults", "repeated_poses")
 #: Sensor faults the readers found (:mod:`ccl_cli.io.faults`) → (warning code, what they are,
 #: the config key that keeps them); gaps are pauses or lost samples, stated in the report only.
 FAULTS = {"hemisphere_flip": ("hemisphere_flips", "hemisphere flip(s) of the tracker (positions "
                                                   "mirrored through the transmitter)", "flips: keep"),
           "spike": ("spikes", "spike(s) in the states", "spikes: keep"),
           "duplicate_sample": ("stamp_faults", "duplicated sample(s)", "stamps: keep"),
+          "repeated_pose": ("repeated_poses", "repeated pose(s)", "stamps: keep"),
           "bad_stamp": ("stamp_faults", "repeated or misplaced stamp(s)", "stamps: keep"),
           "backward_stamp": ("stamp_faults", "clock step(s) back", "stamps: keep"),
           "clock_step": ("stamp_faults", "clock step(s) forward", "stamps: keep"),
@@ -252,6 +253,9 @@ def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
         for f in (entry.get("faults") or []) if isinstance(entry, dict) else []:
             if f.get("kind") not in FAULTS or not f.get("count"):
                 continue
+            if f["kind"] == "repeated_pose":
+                out.append(_repeats(entry.get("path"), f))
+                continue
             code, what, keep = FAULTS[f["kind"]]
             done = "kept as recorded" if f.get("action") == "reported" else f["action"]
             fix = "" if f.get("action") == "reported" else f"; data.faults: {{{keep}}} keeps them"
@@ -264,6 +268,21 @@ def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
             out.append(warning(code, f"{entry.get('path')}: {f['count']} {what}, {_samples(f['n_samples'])} "
                                      f"{done} — {at}{fix}"))
     return out
+
+
+def _repeats(path: str | None, f: dict[str, Any]) -> dict[str, str]:
+    """``repeated_poses``: the sensor's rate, the logging rate, and what was done with the
+    repeats (a :func:`ccl_cli.io.faults.repeated_poses` finding as a dict)."""
+    log_rate = f" logged at {f['log_rate_hz']:.3g} Hz" if f.get("log_rate_hz") else ""
+    head = (f"{path}: repeated poses: the sensor updates at {f['rate_hz']:.3g} Hz, its samples were"
+            f"{log_rate}: each pose is repeated {f['per_pose']:.3g} times (median) until the next")
+    if f.get("action") == "reported":
+        return warning("repeated_poses", f"{head}; kept as recorded (data.faults: {{stamps: keep}}): "
+                       "velocities derived across a repeat are zero, then jump")
+    return warning("repeated_poses", f"{head}; the {f['n_samples']} repeats were left out and learning "
+                   f"uses the {f['poses']} poses at their first stamps (a pose held over several updates "
+                   "keeps one sample per update); predict gives each repeat its pose's row (repair: "
+                   "filled); data.faults: {stamps: keep} keeps them")
 
 
 def action_rank(U: np.ndarray, noise_var: np.ndarray) -> int:

@@ -7,10 +7,10 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+from tests_paths import CCL
 
 from ccl_cli.app.batch import worker_count
 from ccl_cli.learn.blas import affinity_cores
-from tests_paths import CCL
 
 
 def _recordings(folder: Path, n: int) -> list[Path]:

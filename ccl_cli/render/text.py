@@ -123,6 +123,12 @@ def inspect_lines(info: dict[str, Any]) -> list[str]:
             if info.get("rate_hz") else ""
         timed = f"time column {info['time_column']}{rate}" if info.get("time_column") else "no time column"
         out.append(f"rows:     {info['rows']} ({timed})")
+    if info.get("repeats"):
+        r = info["repeats"]
+        cols = ", ".join(map(str, r["columns"][:6])) + (", …" if len(r["columns"]) > 6 else "")
+        out.append(f"repeats:  {r['rows']} rows repeat the row before (in {cols}): the sensor updates at "
+                   f"{r['rate_hz']:.1f} Hz, a pose every {r['per_pose']:.3g} rows; learning keeps each "
+                   "pose's first row (data.faults: {stamps: keep} keeps every row)")
     if info.get("needs"):
         out.append("to read it, a config (-c) says:")
         out += [f"  {need}" for need in info["needs"]]

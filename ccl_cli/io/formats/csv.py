@@ -31,6 +31,7 @@ from typing import IO, Any
 import numpy as np
 
 from ccl_cli.errors import InputError
+from ccl_cli.io.faults import repeated_poses
 from ccl_cli.io.formats import csv_body
 from ccl_cli.io.formats.csv_body import Body, is_number
 from ccl_cli.io.formats.csv_time import parse_time_ns
@@ -60,6 +61,10 @@ def unique_names(header: list[str]) -> list[str]:
 
 
 # -- the table -------------------------------------------------------------------------------------
+#: ``ccl inspect`` looks for repeated rows (a sensor logged faster than it updates) in the state's
+#: columns, or without a config in the first this many columns of numbers
+REPEAT_COLUMNS = 16
+
 #: a key asking for every column (a text matrix read without ``columns``)
 ALL = "*"
 
@@ -411,14 +416,26 @@ class CsvReader(StreamReader):
             if selection is not None and (selection.columns or (key == "state" and not info["header"])):
                 out[f"{key}_names"] = self.streams([selection])[0].names
         numbers = [c for c, k in zip(info["columns"], kinds, strict=True)
-                   if k == "number" and c != info["time_column"]]
-        state = o.state.columns if o.state is not None and o.state.columns else numbers[:1]
+                   if k == "number" and c != info["time_column"] and not _bookkeeping(c)]
+        state = o.state.columns if o.state is not None and o.state.columns else numbers[:REPEAT_COLUMNS]
         if state:
-            main = StreamOptions(columns=state[:1], samples=o.state.samples if o.state else None)
-            act = activity(self.streams([main])[0].t_ns, gap)
+            main = StreamOptions(columns=state, samples=o.state.samples if o.state else None)
+            stream = self.streams([main])[0]
+            act = activity(stream.t_ns, gap)
             out.update({"rate_hz": act["rate_hz"], "active_s": act["active_s"], "demos": act["demos"],
                         "demos_from": "rows", "gap_s": act["gap_s"]} | _rule(act))
+            held = repeated_poses((stream.t_ns - stream.t_ns[0]) / 1e9, stream.values,
+                                  np.zeros(len(stream.t_ns), dtype=np.int64))
+            if held:
+                out["repeats"] = {"columns": list(state), **held.detail, "rows": int(held.count)}
         return out
+
+
+def _bookkeeping(name: str) -> bool:
+    """A column that counts or stamps messages rather than measuring (a ROS header's seq and
+    stamp, another time column): new in every row, so no sign of a sensor's updates."""
+    low = str(name).lower()
+    return low in _TIME_KEYS or low.endswith(("seq", "stamp", ".secs", ".nsecs", "time"))
 
 
 def _needs(table: CsvTable, info: dict[str, Any], kinds: list[str]) -> list[str]:
