@@ -57,7 +57,7 @@ JITTER = 0.1
 CODES = ("constant_dimension", "no_motion", "noisy_actions", "few_demos", "short_demos",
          "low_rank_actions", "duplicate_stamps", "jittery_stamps", "hemisphere_flips", "spikes",
          "stamp_faults", "overfit", "no_better_than_baseline", "constraint_does_not_hold",
-         "constraint_varies", "not_identifiable", "actions_near_faults", "repeated_poses")
+         "constraint_varies", "not_identifiable", "actions_near_faults", "repeated_poses", "no_metric")
 #: Sensor faults the readers found (:mod:`ccl_cli.io.faults`) → (warning code, what they are,
 #: the config key that keeps them); gaps are pauses or lost samples, stated in the report only.
 FAULTS = {"hemisphere_flip": ("hemisphere_flips", "hemisphere flip(s) of the tracker (positions "
@@ -181,11 +181,15 @@ def demonstrations(data: Demonstrations) -> list[dict[str, str]]:
     out = []
     n = data.n_demos
     if n < MIN_DEMOS:
+        cut = pause_split(data)
+        advice = (f"the recordings pause {cut[2]} times for {cut[1]:.3g} s or more: data.demos: "
+                  f"{{split_on_gap: {cut[0]:g}}} cuts them at their pauses into {cut[3]} demonstrations"
+                  if cut is not None else "cut continuous recordings with data.demos: {window: S} (seconds) "
+                  "or record more demonstrations")
         out.append(warning("few_demos",
                            f"only {n} demonstration{'s' if n != 1 else ''} (fewer than {MIN_DEMOS}): "
                            "by default the held-out test set and cross-validation use contiguous time "
-                           "blocks rather than whole demonstrations; cut continuous recordings with "
-                           "data.demos: {window: S} (seconds) or record more demonstrations"))
+                           f"blocks rather than whole demonstrations; {advice}"))
     sizes = np.bincount(np.unique(data.demo, return_inverse=True)[1])
     short = int((sizes < MIN_DEMO_SAMPLES).sum())
     if short:
@@ -193,6 +197,31 @@ def demonstrations(data: Demonstrations) -> list[dict[str, str]]:
                            f"{short} of {n} demonstrations have fewer than {MIN_DEMO_SAMPLES} samples "
                            f"(shortest {int(sizes.min())})"))
     return out
+
+
+def pause_split(data: Demonstrations) -> tuple[float, float, int, int] | None:
+    """A ``split_on_gap`` that cuts the demonstrations at their pauses — intervals longer than
+    GAP_INTERVALS (:mod:`ccl_cli.io.summary`) × the median interval — into at least MIN_DEMOS
+    pieces of at least MIN_DEMO_SAMPLES samples: (the gap, a round value between that limit and
+    half the shortest pause; the shortest pause, s; the pauses; the pieces), else None."""
+    from ccl_cli.io.summary import GAP_INTERVALS
+
+    inside = data.demo[1:] == data.demo[:-1]
+    dt = np.diff(data.t)
+    steps = dt[inside & (dt > 0)]
+    if not len(steps):
+        return None
+    floor = GAP_INTERVALS * float(np.median(steps))
+    pause = inside & (dt > floor)
+    if not pause.any():
+        return None
+    shortest = float(dt[pause].min())
+    gap = max(float(f"{0.5 * shortest:.1g}"), float(f"{floor:.2g}"))
+    if gap <= floor or gap >= shortest:
+        gap = float(f"{0.5 * (floor + shortest):.3g}")
+    starts = np.r_[0, np.flatnonzero(~inside | pause) + 1, len(data.t)]
+    pieces = int((np.diff(starts) >= MIN_DEMO_SAMPLES).sum())
+    return (gap, shortest, int(pause.sum()), pieces) if pieces >= MIN_DEMOS else None
 
 
 def stamps(data: Demonstrations) -> list[dict[str, str]]:
@@ -325,9 +354,10 @@ def low_rank_actions(data: Demonstrations, U: np.ndarray, n_constraints: int,
 
 
 # -- verdicts of fitted stages -------------------------------------------------------------------
-#: A stage is ``ok`` when its held-out evidence is; ``poor`` when a check below fails (the
-#: run completes and says what is wrong); ``failed`` when it could not produce a result.
-STATUSES = ("ok", "poor", "failed")
+#: A stage is ``ok`` when its held-out evidence is; ``unchecked`` when there is no metric to
+#: judge it by (a policy learnt alone on data without ground truth); ``poor`` when a check below
+#: fails (the run completes and says what is wrong); ``failed`` when it could not produce a result.
+STATUSES = ("ok", "unchecked", "poor", "failed")
 #: Overfit: a held-out error above OVERFIT_RATIO × the training error, and above OVERFIT_FLOOR
 #: (below it both are at the level of noise and numerical error).
 OVERFIT_RATIO = 10.0
@@ -519,7 +549,21 @@ def not_identifiable(stage: str, data: Demonstrations, Y: np.ndarray,
 
 def status(checks: list[dict[str, str]]) -> str:
     """``poor`` when a verdict check fired, else ``ok``."""
-    return "poor" if any(c["code"] in VERDICT_CODES for c in checks) else "ok"
+    if any(c["code"] in VERDICT_CODES for c in checks):
+        return "poor"
+    return "unchecked" if any(c["code"] == "no_metric" for c in checks) else "ok"
+
+
+#: Why a policy learnt alone on data without ground truth has no metric, and how to get one.
+NO_POLICY_METRIC = ("the data has no true π (NUPE) and no constraint was learnt to compare Ñπ̃ with the "
+                    "observations (NCPE_obs); learn one before it (ccl run with stages: [learn-a, learn-pi]) "
+                    "or evaluate the policy on data with ground truth")
+
+
+def no_metric(stage: str, why: str) -> list[dict[str, str]]:
+    """``no_metric``: the stage has no metric on this data, so nothing supports its result (its
+    status is ``unchecked``); ``why`` says what is missing and how to get one."""
+    return [warning("no_metric", f"{stage}: no metric to judge it by: {why}")]
 
 
 #: The checks that make a stage ``poor``.

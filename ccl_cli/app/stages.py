@@ -458,6 +458,8 @@ class Pipeline:
         checks: list[dict[str, str]] = []
         test = result.metrics.get("test", {})
         base = (result.info.get("baseline") or {}).get("test", {})
+        if not any(n in result.metrics.get(p, {}) for p in ("train", "test") for n in ("NCPE_obs", "NUPE")):
+            return diagnostics.no_metric("learn-pi", diagnostics.NO_POLICY_METRIC)
         for name in ("NCPE_obs", "NUPE"):
             if name not in result.metrics.get("train", {}):
                 continue
