@@ -25,6 +25,7 @@ import csv
 import io
 import os
 from collections.abc import Sequence
+from itertools import islice
 from pathlib import Path
 from typing import IO, Any
 
@@ -64,6 +65,9 @@ def unique_names(header: list[str]) -> list[str]:
 #: ``ccl inspect`` looks for repeated rows (a sensor logged faster than it updates) in the state's
 #: columns, or without a config in the first this many columns of numbers
 REPEAT_COLUMNS = 16
+#: ``ccl inspect`` samples the first rows of a table this wide or narrower to tell which columns
+#: hold text (a wider one — 10⁶ columns — would hold each sampled row as that many strings)
+KIND_COLUMNS = 4096
 
 #: a key asking for every column (a text matrix read without ``columns``)
 ALL = "*"
@@ -264,7 +268,12 @@ class CsvTable:
     def kinds(self, names: list[str], cells: int = 200_000) -> list[str]:
         """What each column holds in the first rows of the file (as many as hold about ``cells``
         cells, at most 50): ``number``, ``text`` (a cell that is not a number: a frame_id, a
-        flattened header) or ``empty``. Called after :meth:`load` (the file's lines are checked)."""
+        flattened header) or ``empty``. Called after :meth:`load` (the file's lines are checked).
+        A table wider than :data:`KIND_COLUMNS` is not sampled (a row would be as many strings):
+        its columns read so far say what they hold, the others count as numbers."""
+        if len(names) > KIND_COLUMNS:
+            _, body = self.load()
+            return ["number" if not body.has(k) or body.is_numeric(k) else "text" for k in range(len(names))]
         limit = max(2, min(50, cells // max(len(names), 1)))
         rows: list[list[str]] = []
         with open_regular(self.path, "the CSV file") as f, csv_body.text_stream(f, "") as text:
@@ -397,7 +406,7 @@ class CsvReader(StreamReader):
             if selection is not None and selection.columns:
                 self.table(selection).want(selection.columns)
         table = self.table(StreamOptions(samples=o.state.samples) if o.state is not None else None)
-        table.want([0, 1])  # the first column that is not the time column is most often column 0 or 1
+        table.want(list(range(REPEAT_COLUMNS + 1)))  # those :data:`REPEAT_COLUMNS` looks at, in one pass
         info = self.listing()
         kinds = table.kinds(info["columns"]) if info["sample_axis"] == "rows" and info["rows"] else \
             ["number"] * len(info["columns"])
@@ -415,9 +424,10 @@ class CsvReader(StreamReader):
         for key, selection in (("state", o.state), ("action", None if o.derives_action else o.action)):
             if selection is not None and (selection.columns or (key == "state" and not info["header"])):
                 out[f"{key}_names"] = self.streams([selection])[0].names
-        numbers = [c for c, k in zip(info["columns"], kinds, strict=True)
-                   if k == "number" and c != info["time_column"] and not _bookkeeping(c)]
-        state = o.state.columns if o.state is not None and o.state.columns else numbers[:REPEAT_COLUMNS]
+        numbers = list(islice((c for c, k in zip(info["columns"], kinds, strict=True)
+                               if k == "number" and c != info["time_column"] and not _bookkeeping(c)),
+                              REPEAT_COLUMNS))
+        state = o.state.columns if o.state is not None and o.state.columns else numbers
         if state:
             main = StreamOptions(columns=state, samples=o.state.samples if o.state else None)
             stream = self.streams([main])[0]
