@@ -14,7 +14,8 @@ positions and stamps, before velocities are derived from them.
   not from runs of zero motion between jumps).
 * :func:`force_bias` — a force/torque channel that reads a constant offset where the tool is
   free. Reported, never removed (what the sensor should read is not known).
-* :func:`clean_positions` — stamps, then flips, then spikes, as a reader would call them.
+* :func:`clean_positions` — repeated poses, stamps, then flips, then spikes, as a reader would
+  call them.
 
 Nothing loops over samples: the passes over positions run in blocks of samples (each with
 the neighbours its stencil reaches), spread over the cores (:mod:`ccl_cli.io.blockwise`), so
@@ -738,7 +739,8 @@ def _widen(mask: np.ndarray, where: np.ndarray | None, n: int) -> np.ndarray:
 
 def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str = "mirror",
                     drop_spikes: bool = True, stamps: bool = True) -> Cleaned:
-    """Stamp faults (:func:`stamp_faults`), then hemisphere flips (``flips``: ``mirror`` them
+    """Repeated poses (:func:`repeated_poses`: dropped with ``stamps``, else reported), stamp
+    faults (:func:`stamp_faults`), then hemisphere flips (``flips``: ``mirror`` them
     back, ``drop`` them, or ``keep`` them as they are), then spikes (dropped unless
     ``drop_spikes`` is False) on t (N,), X (N, d), demo (N,). Findings that were kept are
     reported with action ``reported``. Arrays no check changed are returned as given."""
