@@ -19,9 +19,10 @@ from typing import Annotated, Any, get_args
 
 import typer
 from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer vendors its click
-from typer.core import TyperArgument, TyperCommand, TyperGroup, TyperOption
+from typer.core import TyperCommand, TyperGroup
 
 from ccl_cli import progress, spec
+from ccl_cli.cli_params import in_words, spread
 from ccl_cli.errors import CCLError, ConfigError, InputError, LearningError
 from ccl_cli.learn import defaults, params
 
@@ -45,111 +46,12 @@ class _OneLineUsage:
             raise _one_line(ctx, exc) from None
 
 
-def spread(command: Any, args: list[str]) -> list[str]:
-    """``args`` with the values after an option that takes several (``--data A B C``, as a shell
-    expands ``--data *.log``) each given to it (``--data A --data B --data C``): the values run
-    to the next option or ``--``."""
-    many = {name for p in getattr(command, "params", []) if getattr(p, "multiple", False)
-            for name in p.opts}
-    if not many:
-        return args
-    out: list[str] = []
-    taking = None
-    for i, arg in enumerate(args):
-        if arg == "--":
-            return out + args[i:]
-        if arg.startswith("-") and arg != "-":
-            name = arg.split("=", 1)[0]
-            taking = name if name in many else None
-            out.append(arg)
-            if taking and "=" not in arg and i + 1 < len(args):
-                continue  # its first value follows as usual
-        elif taking is not None and out and out[-1] != taking:
-            out += [taking, arg]
-        else:
-            out.append(arg)
-    return out
-
-
-#: What a value is, in the words --help shows (``<list[Path]>`` → ``PATH...``).
-_WORDS = {int: "INTEGER", float: "NUMBER", str: "TEXT", Path: "PATH"}
-
-
-def _word(param: Any) -> str:
-    """The value of ``param`` in words: its choices (``auto|nhat``), else PATH, INTEGER,
-    NUMBER or TEXT."""
-    desc = getattr(param, "type_descriptor", None)
-    choices = getattr(desc, "choices", None)
-    if choices:
-        return "|".join(str(getattr(c, "value", c)) for c in choices)
-    annotation = getattr(desc, "annotation", None)
-    args = get_args(annotation)
-    if getattr(desc, "is_list", False) and args:
-        annotation = args[0]
-    return _WORDS.get(annotation, "VALUE")
-
-
-def _range(low: Any, high: Any) -> str | None:
-    """A number's range in words: 'from 1 to 2', 'at least 0'."""
-    if low is not None and high is not None:
-        return f"from {low} to {high}"
-    if low is not None:
-        return f"at least {low}"
-    return f"at most {high}" if high is not None else None
-
-
-class _Argument(TyperArgument):
-    """An argument shown by its name in capitals (``PIPELINE``, ``[DATA]...``), no type."""
-
-    def display_type_rich(self, ctx: Any) -> str | None:
-        return None
-
-    def _rich_display_name(self) -> str:
-        return self.display_name_raw + ("..." if self.nargs != 1 else "")
-
-    def _usage_display_name(self) -> str:
-        name = self.display_name_raw if self.required else f"[{self.display_name_raw}]"
-        return name + ("..." if self.nargs != 1 else "")
-
-    def _get_number_range_help_str(self) -> str | None:
-        return _range(self.min, self.max)
-
-
-class _Option(TyperOption):
-    """An option whose value is shown in words (``--out PATH``, ``--workers INTEGER``); one that
-    takes several values is shown with ``...`` (``--data PATH...``)."""
-
-    def display_type_rich(self, ctx: Any) -> str | None:
-        word = self.metavar or _word(self)
-        return word + ("..." if self.multiple and not word.endswith("...") else "")
-
-    def _get_number_range_help_str(self) -> str | None:
-        return _range(self.min, self.max)
-
-    def _get_default_string(self, *, ctx: Any, show_default_is_str: bool, default_value: Any) -> str:
-        if show_default_is_str:  # a default said in words: as it is, not in parentheses
-            return str(self.show_default)
-        return super()._get_default_string(ctx=ctx, show_default_is_str=show_default_is_str,
-                                           default_value=default_value)
-
-
-def _in_words(params: list[Any]) -> None:
-    """Every parameter of a command shown in words in --help and the usage line."""
-    for param in params:
-        if isinstance(param, TyperArgument) and not isinstance(param, _Argument):
-            param.__class__ = _Argument
-            if param.metavar is None:
-                param.metavar = (param.name or "value").upper()
-        elif isinstance(param, TyperOption) and not isinstance(param, _Option):
-            param.__class__ = _Option
-
-
 class _Command(_OneLineUsage, TyperCommand):
     """Commands whose usage errors are one line and whose --help is in words."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        _in_words(self.params)
+        in_words(self.params)
 
 
 class _Group(_OneLineUsage, TyperGroup):
@@ -181,7 +83,8 @@ app = _typer()
 
 # -- shared options -----------------------------------------------------------------------
 DataArg = Annotated[list[Path] | None, typer.Argument(
-    help="Recordings (files, bag directories or globs); overrides data.files of the config.",
+    help="Recordings: files, globs, bag folders or folders of recordings; overrides data.files of the "
+         "config.",
     show_default=False)]
 ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="YAML config (see README).")]
 OutOpt = Annotated[Path | None, typer.Option(
@@ -495,8 +398,9 @@ def learn_pi(
 @app.command("run")
 def run(
     pipeline: Annotated[Path, typer.Argument(help="Pipeline YAML with data and stages.")],
-    data: Annotated[list[Path] | None, typer.Option("--data", help="Recordings overriding data.files.")]
-    = None,
+    data: Annotated[list[Path] | None, typer.Option(
+        "--data", help="Recordings overriding data.files: files, globs, folders; every word up to the next "
+                       "option.")] = None,
     out: OutOpt = None, seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
     n_centres: Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres of every stage "
                                                   "of the pipeline that has a basis (learn-v, learn-pi, "
@@ -724,7 +628,8 @@ def inspect_cmd(
 
 @app.command("convert")
 def convert(
-    data: Annotated[list[Path], typer.Argument(help="Recordings to convert.")],
+    data: Annotated[list[Path], typer.Argument(help="Recordings to convert: files, globs, bag folders or "
+                                                    "folders of recordings.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     config: ConfigOpt = None, force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
     format_version: Annotated[int, typer.Option("--format-version", min=1, max=2,
@@ -748,8 +653,9 @@ def convert(
 @app.command("batch")
 def batch(
     manifest: Annotated[Path | None, typer.Argument(help="Manifest YAML (files → pipeline configs).")] = None,
-    files: Annotated[list[str] | None, typer.Option("--files", help="Paths or globs (without a manifest).")]
-    = None,
+    files: Annotated[list[str] | None, typer.Option(
+        "--files", metavar="PATH", help="Recordings, one job each (without a manifest): files, globs, "
+                                        "folders.")] = None,
     config: ConfigOpt = None,
     out: OutOpt = None,
     workers: Annotated[int | None, typer.Option("--workers", "-j", min=1, help="Local processes, at most "
