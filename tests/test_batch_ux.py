@@ -57,3 +57,16 @@ def test_batch_caps_j_and_names_the_job_of_each_warning(tmp_path):
     for job in jobs:  # each job's few-demonstrations warning, named by its job
         assert any(ln.startswith(f"ccl: {job}: warning: only 1 demonstration") for ln in lines), done.stderr
     assert not any(ln.startswith("warning:") for ln in lines)
+
+
+def test_batch_refuses_a_recording_given_twice(tmp_path):
+    files = _recordings(tmp_path / "logs", 2)
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("data: {state: {columns: [0, 1, 2]}, action: {derive: state}, time: {rate: 20}}\n"
+                   "stages: [learn-a]\n")
+    out = tmp_path / "out"
+    args = ["batch", "--files", str(files[0]), str(tmp_path / "logs"), "-c", str(cfg), "-o", str(out)]
+    done = subprocess.run([CCL, *args], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2 and not (tmp_path / "out").exists()
+    assert done.stderr.strip() == f"ccl: error: {files[0]} is given twice: it would be run twice, into one " \
+                                  "folder; give each once"

@@ -116,6 +116,7 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
     (:func:`~ccl_cli.io.limits.inside`).
     """
     from ccl_cli.io import expand_files, read_yaml
+    from ccl_cli.io.files import TWICE, given_once
 
     if manifest is not None:
         mpath = Path(manifest)
@@ -159,6 +160,12 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
     for i, rule in enumerate(rules):
         _check_rule(rule, f"{where}jobs[{i}]")
         matched = _resolved(expand_files(rule["files"], base), base, named, allow_outside)
+        try:
+            given_once([Path(f) for f in matched],
+                       why=TWICE if rule.get("group") else "it would be run twice, into one folder")
+        except CCLError as exc:
+            rule_at = f"jobs[{i}]: " if named is not None else ""
+            raise ConfigError(f"{where}{rule_at}{exc.message}") from None
         if named is not None and rule.get("config"):
             _inside(base, Path(rule["config"]), named, allow_outside, f"jobs[{i}].config")
         groups = [matched] if rule.get("group") else [[f] for f in matched]

@@ -109,10 +109,15 @@ def _is_recording(path: Path) -> bool:
     return bool(head) and path.suffix.lower() in TABLE_SUFFIXES and is_text(path, head)
 
 
-def given_once(paths: list[Path], digests: list[str] | None = None) -> None:
+#: Why a recording given twice is refused, for a dataset
+TWICE = "a recording given twice would count its demonstrations twice (and could be trained and tested on)"
+
+
+def given_once(paths: list[Path], digests: list[str] | None = None, why: str = TWICE) -> None:
     """Refuse a recording given twice — the same file (by its resolved path; a glob and a name
     can both reach it) or, with ``digests`` (sha256 of each), the same content under two names:
-    its demonstrations would count twice, and a split could train and test on the same samples."""
+    its demonstrations would count twice, and a split could train and test on the same samples
+    (``why``: what it would do instead, said in the message)."""
     seen: dict[object, Path] = {}
     for i, p in enumerate(paths):
         key = p.resolve() if digests is None else digests[i]
@@ -120,8 +125,7 @@ def given_once(paths: list[Path], digests: list[str] | None = None) -> None:
             what = (f"{p} is given twice" if str(p) == str(seen[key]) else
                     f"{seen[key]} and {p} are the same file" if digests is None else
                     f"{seen[key]} and {p} have the same content (sha256 {key[:12]}…)")
-            raise InputError(f"{what}: a recording given twice would count its demonstrations twice (and "
-                             "could be trained and tested on); give each once")
+            raise InputError(f"{what}: {why}; give each once")
         seen[key] = p
 
 
