@@ -535,7 +535,9 @@ def export(
 @app.command("simulate")
 def simulate(
     problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7, varying_constraint, tracker_plane, "
-                                                "tracker_sphere or arm_at_rest.")],
+                                                "tracker_sphere, arm_at_rest, tracker_flips, tracker_tilt, "
+                                                "arm_wipe, arm_wipe_joint, free_reach, flow2d, hinge, slide, "
+                                                "contact_phases, reach_goal or handwriting.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     seed: Annotated[int, typer.Option(help="Seed.")] = 0,
     noise: Annotated[float | None, typer.Option(help="Std of noise on u (tracker_*: on positions, m).")]
@@ -557,6 +559,9 @@ def simulate(
     n_recordings: Annotated[int | None, typer.Option(help="tracker_*: continuous recordings (default 1).")]
     = None,
     test_fraction: Annotated[float, typer.Option(help="Demos marked test in /mask (0: no masks).")] = 0.0,
+    settings: Annotated[list[str] | None, typer.Option(
+        "--set", help="NAME=VALUE: any other keyword of the problem (docs/recordings.md), e.g. "
+                      "--set compliance=0.003 --set sweep_deg=[60,120]; repeatable.")] = None,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Write a reference problem with ground truth (π, w, v, b, A, N) as canonical HDF5."""
@@ -575,6 +580,12 @@ def simulate(
              "n_recordings": n_recordings}
     accepted = pyinspect.signature(fn).parameters
     kwargs = {k: v for k, v in given.items() if v is not None}
+    extra = simulations.parse_settings(settings)
+    twice = [k for k in extra if k in kwargs or k == "seed"]
+    if twice:
+        flag = twice[0].replace("_", "-")
+        raise InputError(f"--set {twice[0]} repeats an option of its own (use --{flag})")
+    kwargs.update(extra)
     bad = [k for k in kwargs if k not in accepted]
     if bad:
         raise InputError(f"{problem} takes no --{bad[0].replace('_', '-')} "

@@ -456,7 +456,7 @@ def describe_model(path: str | Path) -> dict[str, Any]:
     if hasattr(model, "n_constraints_"):
         out["n_constraints"] = int(model.n_constraints_)
         selection = getattr(model, "selection_", None) or {}
-        out["selection"] = {k: selection[k] for k in ("rule", "reason") if k in selection}
+        out["selection"] = {k: selection[k] for k in ("rule", "reason", "sure") if k in selection}
     basis = getattr(inner, "basis_", None)
     if basis is not None:
         state = basis.state()

@@ -53,6 +53,7 @@ def model_lines(info: dict[str, Any]) -> list[str]:
         sel = info.get("selection") or {}
         why = f" (rule {sel.get('rule')}: {sel.get('reason')})" if sel.get("rule") else ""
         out.append(f"constraints: {info['n_constraints']}{why}")
+        out += sure_lines(sel.get("sure"))
     dims = f"state p = {info.get('n_features_in')}" if info.get("n_features_in") else "state p not recorded"
     out.append(f"dimensions: {dims}, action q = {info.get('n_action')}")
     if info.get("basis"):
@@ -74,6 +75,24 @@ def model_lines(info: dict[str, Any]) -> list[str]:
         import json
 
         out.append(f"config:   {json.dumps(training['config'], default=str)[:300]}")
+    return out
+
+
+def sure_lines(sure: dict[str, Any] | None) -> list[str]:
+    """How sure learn-a's ``auto`` was (``selection.sure``): each learnt row's cone over held-out
+    folds, and the evidence for one constraint fewer and one more."""
+    if not sure:
+        return []
+    out = []
+    cone = sure.get("cone")
+    if cone:
+        rows = ", ".join(f"row {r['row']} {r['median_deg']:.2g}° (90 %: {r['p90_deg']:.2g}°)"
+                         for r in cone["rows"])
+        out.append(f"cone:     {rows} from the rows fitted without them ({cone['over']})")
+    for e in sure.get("neighbours") or []:
+        if e["role"] != "chosen":
+            verdict = {True: "rejected", False: "not ruled out", None: "not judged"}[e["rejected"]]
+            out.append(f"k = {e['k']}:    {verdict}: {e['words']}")
     return out
 
 

@@ -529,6 +529,22 @@ def rows_drift(rows: np.ndarray, X: np.ndarray, groups: np.ndarray) -> np.ndarra
     return np.sqrt(var / spread) if spread > 0 else np.full(k, np.inf)
 
 
+def model_drift(model: Any, rows: np.ndarray, X: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """How far the positions X (N, q) of demonstrations ``groups`` move off a fitted model's
+    constraint: a model of level sets (one with ``levels``, :class:`~.manifold.ManifoldConstraint`)
+    by its own level functions h(x) — RMS(h − mean) / RMS(x − mean) within the demonstrations,
+    the measure of :func:`drift` — others by integrating their rows (N, k, q) along the
+    demonstrations (:func:`rows_drift`). Integrating the normalised gradients of a curved surface
+    adds up their small tilts over every loop; the level itself does not: (k,)."""
+    levels = getattr(model, "levels", None)
+    if not callable(levels):
+        return rows_drift(rows, X, groups)
+    H = levels(X)
+    spread = within_covariance(X, groups).trace()
+    var = np.diag(within_covariance(H, groups))
+    return np.sqrt(var / spread) if spread > 0 else np.full(H.shape[1], np.inf)
+
+
 def integrate(W: np.ndarray, X: np.ndarray, groups: np.ndarray, t: np.ndarray | None) -> np.ndarray:
     """The states a velocity W (N, q) would have carried X (N, q) through: each demonstration
     starts at its first state and adds ∫W dt (trapezoids on the stamps t (N,); unit steps
