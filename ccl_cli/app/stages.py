@@ -24,7 +24,6 @@ from ccl_cli.learn import model_selection
 from ccl_cli.learn.constraint import PerDemonstration, PerWindow, force_evidence, geometry
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
-from ccl_cli.metrics import SPLITS
 from ccl_cli.spec import constraint_class
 
 log = logging.getLogger("ccl")
@@ -485,6 +484,8 @@ class Pipeline:
         checks: list[dict[str, str]] = []
         test = result.metrics.get("test", {})
         base = (result.info.get("baseline") or {}).get("test", {})
+        if not any(n in result.metrics.get(p, {}) for p in ("train", "test") for n in ("NCPE_obs", "NUPE")):
+            return diagnostics.not_judged("learn-pi", diagnostics.NO_POLICY_METRIC)
         for name in ("NCPE_obs", "NUPE"):
             if name not in result.metrics.get("train", {}):
                 continue
@@ -494,10 +495,6 @@ class Pipeline:
             if name in base:
                 checks += diagnostics.not_better("learn-pi", name, test.get(name), base[name]["value"],
                                                  "the dpl baseline (u regressed on the features)")
-        if not any(result.metrics.get(split) for split in SPLITS):
-            checks += diagnostics.not_judged("learn-pi", "the data carry no true π and no learnt constraint "
-                                             "gives Ñ to compare the observations with (learn a constraint "
-                                             "first: stages: [learn-a, learn-pi])")
         return checks
 
     def stage_views(self, result: StageResult) -> list[View]:

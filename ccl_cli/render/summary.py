@@ -76,7 +76,7 @@ def _write_summary(out: Path, results: list[JobResult], seconds: float, plots: b
         def stage(name: str) -> Path:
             return staged.enter_context(atomic_path(out / name, force=True))
 
-        with open(stage("summary.csv"), "w", newline="") as f:
+        with open(stage("summary.csv"), "w", newline="", errors="surrogateescape") as f:
             w = csv.DictWriter(f, fieldnames=fixed[:6] + metric_cols + ["error"])
             w.writeheader()
             for r in rows:
@@ -84,7 +84,7 @@ def _write_summary(out: Path, results: list[JobResult], seconds: float, plots: b
         drawn = plots and _plot(stage, rows, shown)
         if drawn:
             lines += ["", "![metrics across jobs](summary.png)"]
-        stage("summary.md").write_text("\n".join(lines) + "\n")
+        stage("summary.md").write_text("\n".join(lines) + "\n", errors="surrogateescape")
         stage("summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
     if not drawn:  # an earlier run's figure would show other results
         (out / "summary.png").unlink(missing_ok=True)
