@@ -8,9 +8,9 @@ metadata.yaml), pipeline configs (YAML) and batch manifests. Each case mutates o
 them — byte flips, truncation, zeroed blocks, inserted/deleted bytes, or a structural
 edit (a CSV cell, a YAML/JSON value, an HDF5 attribute or dataset replaced by one of
 another type, shape or value, links and external storage) — and runs the command that
-reads it (``ccl convert`` / ``learn-a`` / ``inspect`` for recordings, ``predict`` for
-models, ``run`` for configs, the manifest planner for manifests) in a forked child with
-a wall-clock limit.
+reads it (``ccl convert`` / ``learn-a`` / ``inspect`` for recordings, ``predict`` /
+``export`` / ``inspect`` for models, ``run`` for configs, the manifest planner for
+manifests) in a forked child with a wall-clock limit.
 
 Mixes (``--mix``): ``classic`` — the mutations above; ``hostile`` and ``even`` — 70 % / 35 %
 of the cases instead get one of issue 20: datasets declaring gigabytes they do not hold
@@ -120,6 +120,8 @@ def build_fixtures(root: Path) -> list[dict[str, Any]]:
     models = {
         "nhat": (toy, ["learn-a", "--method", "nhat"]),
         "per_demo": (toy, ["learn-a", "--method", "nhat", "--per-demo"]),
+        "auto": (parabola, ["learn-a"]),
+        "manifold": (toy, ["learn-a", "--method", "manifold"]),
         "linear": (parabola, ["learn-a", "--method", "linear", "--regressors", "polynomial",
                               "--degree", "2"]),
         "alpha": (parabola, ["learn-a", "--method", "alpha", "--n-centres", "4"]),
@@ -819,9 +821,12 @@ def make_case(base: dict[str, Any], work: Path, rng: random.Random, hostile: flo
     if fmt == "config":
         return mutation, ["run", str(dst), "-o", str(out), "-q"], dst, env
     if fmt == "model":
-        command = "inspect-model" if rng.random() < 0.25 else "predict"
-        if command == "inspect-model":
+        r = rng.random()
+        if r < 0.25:
             return mutation, ["inspect", str(dst), "--json", "-q"], dst, env
+        if r < 0.45:
+            return mutation, ["export", str(dst), "-o", str(work / ("e.json" if r < 0.35 else "e.yaml")),
+                              "-q"], dst, env
         return mutation, ["predict", str(dst), str(base["data"]), "-o", str(work / "p.csv"), "-q"], dst, env
     cfg = ["-c", str(base["config"])] if base.get("config") else []
     command = rng.choice(["convert", "learn-a", "inspect"])

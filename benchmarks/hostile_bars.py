@@ -48,13 +48,24 @@ CCL = [sys.executable, "-m", "ccl_cli.cli"]
 STAGE = {"learn-a": {"method": "nhat"}, "stages": ["learn-a"], "output": {"plots": False}}
 
 
+#: starts the command as its own child and writes that child's peak RSS (KB) to argv[1]: a
+#: process started straight from this (large) one would count this one's pages in its ru_maxrss
+#: (Linux keeps the high-water mark of the address space it replaces at exec)
+LAUNCH = ("import os, resource, signal, subprocess, sys; p = subprocess.run(sys.argv[2:]); "
+          "open(sys.argv[1], 'w').write(str(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)); "
+          "p.returncode < 0 and (signal.signal(-p.returncode, signal.SIG_DFL), os.kill(os.getpid(), "
+          "-p.returncode)); sys.exit(p.returncode)")
+
+
 def run(argv: list[str], cwd: Path, timeout: float = 60.0, preexec: Any = None,
         prefix: list[str] | None = None) -> dict[str, Any]:
-    """Run one ccl command; exit status, wall and CPU seconds, peak RSS (MB) and stderr lines."""
-    err = cwd / ".stderr"
+    """Run one ccl command; exit status, wall and CPU seconds, peak RSS (MB, the command's own:
+    :data:`LAUNCH`) and stderr lines."""
+    err, rss = cwd / ".stderr", cwd / ".rss"
     t0 = time.monotonic()
     with open(err, "wb") as e:
-        proc = subprocess.Popen([*(prefix or []), *CCL, *map(str, argv)], cwd=cwd, stdin=subprocess.DEVNULL,
+        proc = subprocess.Popen([*(prefix or []), sys.executable, "-c", LAUNCH, rss, *CCL, *map(str, argv)],
+                                cwd=cwd, stdin=subprocess.DEVNULL,
                                 stdout=subprocess.DEVNULL, stderr=e, preexec_fn=preexec,
                                 start_new_session=True)
         code: int | None = None
@@ -70,8 +81,10 @@ def run(argv: list[str], cwd: Path, timeout: float = 60.0, preexec: Any = None,
     seconds = time.monotonic() - t0
     lines = [ln for ln in err.read_text(errors="replace").splitlines() if ln.strip()]
     err.unlink()
+    peak = int(rss.read_text()) if rss.exists() else usage.ru_maxrss  # killed: at least the launcher's
+    rss.unlink(missing_ok=True)
     return {"exit": code, "seconds": round(seconds, 2), "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
-            "peak_rss_mb": round(usage.ru_maxrss / 1024, 1),
+            "peak_rss_mb": round(peak / 1024, 1),
             "stderr_lines": len(lines), "first_line": lines[0][:200] if lines else ""}
 
 

@@ -528,7 +528,7 @@ def export(
     elif not quiet:
         what = (f"{summary['method']} constraint, k = {summary['k']} ({summary['form']})"
                 if summary["kind"] == "constraint" else f"{summary['method']} {summary['kind']}")
-        typer.echo(f"wrote {out}: {what}, schema version {summary['schema_version']}", err=True)
+        typer.echo(shown(f"wrote {out}: {what}, schema version {summary['schema_version']}"), err=True)
 
 
 # -- data commands --------------------------------------------------------------------------

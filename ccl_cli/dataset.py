@@ -21,6 +21,8 @@ TRUTH_KEYS = ("pi", "w", "v", "b", "A", "N")
 #: known how the actions were made): its window (samples) and order.
 DEFAULT_WINDOW = 9
 DEFAULT_ORDER = 2
+#: the largest state or action magnitude a run learns from: its square (1e300) still fits float64
+MAX_MAGNITUDE = 1e150
 
 
 @dataclass(frozen=True)
@@ -397,9 +399,19 @@ class Demonstrations:
         )
 
     def check_finite(self) -> None:
+        """Refuse NaN or inf, and values beyond ±:data:`MAX_MAGNITUDE` (no measurement: a
+        damaged number, whose square overflows float64 in every least-squares fit)."""
         for name, arr in (("X", self.X), ("U", self.U)):
             bad = ~np.isfinite(arr)
             if bad.any():
                 row = int(np.argwhere(bad)[0][0])
                 count = int(bad.any(axis=1).sum())
                 raise InputError(f"{name} has {count} non-finite samples (first at row {row})")
+            huge = np.abs(arr) > MAX_MAGNITUDE
+            if huge.any():
+                row, col = (int(i) for i in np.argwhere(huge)[0])
+                column = (self.state_names if name == "X" else self.action_names)[col]
+                count = int(huge.any(axis=1).sum())
+                raise InputError(f"{name} has {count} samples beyond ±{MAX_MAGNITUDE:g} "
+                                 f"(first at row {row}, {column} = {arr[row, col]:.3g}): no measurement is "
+                                 "that large; a damaged recording?")

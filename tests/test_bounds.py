@@ -372,6 +372,19 @@ def test_foreign_attributes_are_checked(tmp_path):
     refused({"files": [str(path)], "format": "hdf5"}, r"attribute 'format' must be a string")
 
 
+@pytest.mark.parametrize("suffix", [".h5", ".mat"])
+def test_an_object_name_that_is_not_utf8_is_one_line(capsys, tmp_path, suffix):
+    """h5py decodes link names as UTF-8 inside its visit callback and wraps the failure in a
+    SystemError (fuzz classic seed 4280, a flipped byte in a MATLAB v7.3 name)."""
+    path = writers.write_mat73(tmp_path / f"odd{suffix}", {"X": [[1.0, 2.0], [3.0, 4.0]]})
+    with h5py.File(path, "a") as f:
+        f.create_dataset(b"Y\xff\x80", data=np.ones(3))
+    assert main(["inspect", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"ccl: error: {path}: cannot read the HDF5 structure (an object's name is not UTF-8); " \
+                  "damaged file?\n"
+
+
 # -- JSON messages missing keys ------------------------------------------------------------------
 @pytest.mark.parametrize("key,match", [
     ("name", r"a JointState needs name: a list of strings, got NoneType \(message 8\)"),
@@ -394,6 +407,16 @@ def test_json_mcap_message_missing_a_key_is_one_line(tmp_path, key, match):
     path = writers.write_mcap_json(tmp_path / "v.mcap", rec, msgs)
     refused({"files": [str(path)], "state": JOINTS, "action": {**JOINTS, "field": "velocity"}},
             "velocity")
+
+
+def test_json_mcap_first_message_without_joint_names_is_one_line(tmp_path):
+    """The joints configured and the first message naming none: one line (was a TypeError)."""
+    rec = writers.joint_recording(n=20)
+    msgs = [writers.msg_dict(rec, i) for i in range(20)]
+    del msgs[0]["name"]
+    path = writers.write_mcap_json(tmp_path / "r.mcap", rec, msgs)
+    refused({"files": [str(path)], "state": JOINTS},
+            r"r.mcap: /joint_states: a JointState needs name: a list of strings, got NoneType$")
 
 
 # -- kinematic features ---------------------------------------------------------------------------

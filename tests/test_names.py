@@ -70,6 +70,25 @@ def test_every_command_reads_and_writes_names_that_are_not_utf8(capsys, names, t
         assert os.fsencode(data.name) in report  # the name's own bytes, not an escape
 
 
+@pytest.mark.parametrize("suffix", [".json", ".yaml"])
+def test_export_writes_such_a_name_as_an_escape_that_reads_back(capsys, names, tmp_path, suffix):
+    """A model learnt from such a file, exported: the document is UTF-8 (JSON and YAML cannot
+    hold the bytes), the name a \\udcNN escape that reads back to the same path."""
+    import yaml
+
+    _, data, _ = names
+    model = odd(tmp_path, b"m\xfb")
+    assert main(["learn-a", str(data), "-o", str(model), "-q"]) == 0
+    out = odd(tmp_path, b"e\xfd" + suffix.encode())
+    code, summary, err = run(capsys, "export", model / "model.h5", "-o", out)
+    assert code == 0 and summary["out"] == str(out) and err == "", err
+    text = out.read_bytes().decode("utf-8")  # valid UTF-8
+    doc = json.loads(text) if suffix == ".json" else yaml.safe_load(text)
+    assert os.fsencode(doc["source"]["file"]) == os.fsencode(model / "model.h5")
+    assert main(["export", str(model / "model.h5"), "-o", str(tmp_path / f"plain{suffix}")]) == 0
+    assert "wrote " + str(tmp_path / f"plain{suffix}") in capsys.readouterr().err
+
+
 def test_a_missing_file_of_such_a_name_is_one_line(capsys, tmp_path):
     code, summary, err = run(capsys, "learn-a", odd(tmp_path, b"gone\xf5.h5"), "-o", tmp_path / "o")
     assert code == 2 and summary["status"] == "error"

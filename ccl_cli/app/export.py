@@ -364,6 +364,7 @@ def clean(value: Any) -> Any:
 
 
 _SCALAR = r'(?:"(?:[^"\\]|\\.)*"|[-+0-9.eE]+|null|true|false)'
+_SURROGATE = re.compile("[\udc80-\udcff]")
 _FLAT = re.compile(rf"\[\s*({_SCALAR}(?:,\s*{_SCALAR})*)\s*\]")
 
 
@@ -372,6 +373,9 @@ def dump(doc: dict[str, Any], style: str) -> str:
     JSON (indented, the same lists on one line); numbers written so that they read back exactly."""
     if style == "json":
         text = json.dumps(doc, indent=2, ensure_ascii=False, allow_nan=False)
+        # a file name that is not UTF-8 (os.fsdecode's surrogate escapes) as a \udcNN escape, as
+        # YAML writes it and run.json does: UTF-8 cannot encode a lone surrogate
+        text = _SURROGATE.sub(lambda m: f"\\u{ord(m.group(0)):04x}", text)
         return _FLAT.sub(lambda m: "[" + re.sub(r",\n\s*", ", ", m.group(1)) + "]" if "\n" in m.group(0)
                          else m.group(0), text) + "\n"
     import yaml

@@ -222,7 +222,7 @@ class FieldExtractor:
 
     def _joints(self, msg: Any, leaf: Any) -> np.ndarray | Any:
         names = _get(msg, "name") if _has(msg, "name") else None
-        if names != self._joint_names:  # list equality: cheap, and robust to reordering
+        if names is None or names != self._joint_names:  # list equality: cheap, robust to reordering
             if not isinstance(names, list | tuple) or not all(isinstance(n, str) for n in names):
                 raise InputError(f"{self.where}: {self.spec.topic}: a JointState needs name: a list of "
                                  f"strings, got {type(names).__name__}")

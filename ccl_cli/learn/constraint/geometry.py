@@ -208,8 +208,12 @@ def returning(P: np.ndarray, radius: float = REVISIT_RADIUS) -> np.ndarray:
     the nearest one asked (work bounded at any n)."""
     from scipy.spatial import cKDTree
 
+    scale = float(np.abs(P).max()) if P.size else 0.0
+    if len(P) < 3 or not 0 < scale < np.inf:
+        return np.zeros(len(P), dtype=bool)
+    P = P / scale  # within ±1: the tree's squared distances cannot overflow (states near 1e300)
     spread = float(np.sqrt(((P - P.mean(0)) ** 2).sum(1).mean()))
-    if len(P) < 3 or not spread > 0:
+    if not spread > 0:
         return np.zeros(len(P), dtype=bool)
     step = max(1, len(P) // REVISIT_QUERIES)
     queries = np.arange(0, len(P), step)
