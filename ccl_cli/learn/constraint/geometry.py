@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Derivative, HowMade
+from ccl_cli.dataset import Derivative, HowMade, group_rows
 from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint.manifold import BASES, ManifoldConstraint, within_covariance
 
@@ -84,6 +84,13 @@ BLOCKS = 5
 GAP_SHARE = 0.01
 #: At most this many query samples per demonstration in :func:`returning` (work bounded at any N).
 REVISIT_QUERIES = 400
+#: The evidence is read on at most about EVIDENCE_ROWS samples (work bounded at any N): when the
+#: moving demonstrations hold more, at most max(EVIDENCE_DEMOS, EVIDENCE_ROWS / their median
+#: length) of them, evenly spaced in :func:`demo_order` (near the centre of the states to far from
+#: it), each cut to one contiguous block of at most EVIDENCE_ROWS / that many samples at a seeded
+#: place (:func:`evidence_rows`); the model that shows the constraint is then fitted on all rows.
+EVIDENCE_ROWS = 20_000
+EVIDENCE_DEMOS = 50
 #: Phases: the samples that come back over their ground within PHASE_RADIUS × the spread are where
 #: a surface may hold while the rest moves freely (approach, retract), when the free share of the
 #: samples is between FREE_SHARE and 1 − FREE_SHARE; runs shorter than MIN_RUN_SHARE of their
@@ -225,7 +232,8 @@ def circle(P: np.ndarray) -> tuple[np.ndarray, float]:
 def _per_demo_drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int, which: np.ndarray
                     ) -> np.ndarray:
     """Median over the demonstrations ``which`` of each one's own held-out drift (blocks): (k,)."""
-    values = [drift(X[groups == d], np.zeros(int(np.sum(groups == d)), np.int64), basis, k) for d in which]
+    rows = dict(zip(*group_rows(groups), strict=True))
+    values = [drift(X[rows[d]], np.zeros(len(rows[d]), np.int64), basis, k) for d in which]
     return np.median(values, axis=0)
 
 
@@ -244,13 +252,13 @@ def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
     """Whether the curves of the demonstrations agree: circles with one axis (within AXIS_DEG) and
     radius (within ± RADIUS_SPREAD of the median), or lines with one direction (within AXIS_DEG),
     and a phrase saying how far apart they are. One demonstration agrees with itself."""
-    ids = np.unique(groups)
+    ids, rows = group_rows(groups)
     if len(ids) == 1:
         return True, "one demonstration"
     q = X.shape[1]
     directions, axes, radii, straight = [], [], [], []
-    for d in ids:
-        P = X[groups == d]
+    for mine in rows:  # a loop over (at most EVIDENCE_DEMOS-bounded) demonstrations
+        P = X[mine]
         c0 = P.mean(0)
         V = np.linalg.svd(P - c0, full_matrices=False)[2]
         directions.append(V[0])
@@ -286,8 +294,7 @@ def contact_runs(X: np.ndarray, groups: np.ndarray) -> np.ndarray:
     """An id per sample for each run of samples that come back over their ground (PHASE_RADIUS;
     runs of at least MIN_RUN_SHARE of their demonstration), −1 elsewhere: (N,)."""
     mask = np.zeros(len(X), dtype=bool)
-    for d in np.unique(groups):
-        m = np.flatnonzero(groups == d)
+    for m in group_rows(groups)[1]:
         mask[m] = returning(X[m], PHASE_RADIUS)
     runs = np.cumsum(np.r_[True, (mask[1:] != mask[:-1]) | (groups[1:] != groups[:-1])])
     ids = np.where(mask, runs, -1)
@@ -335,6 +342,30 @@ def _moving(X: np.ndarray, groups: np.ndarray) -> np.ndarray:
     return ok[inverse.ravel()]
 
 
+def evidence_rows(X: np.ndarray, groups: np.ndarray, rows: int = EVIDENCE_ROWS,
+                  demos: int = EVIDENCE_DEMOS) -> np.ndarray:
+    """The rows (sorted indices) the evidence is read on: all when there are at most ``rows``;
+    else whole demonstrations evenly spaced in :func:`demo_order`, at most max(``demos``, ``rows``
+    / their median length) of them, each longer than ``rows`` / that many cut to one contiguous
+    block of that length at a seeded place — a bounded, stratified, deterministic sample."""
+    n = len(X)
+    if n <= rows:
+        return np.arange(n)
+    order = demo_order(X, groups)
+    ids, members = group_rows(groups)
+    sizes = np.array([len(m) for m in members])
+    count = min(len(ids), max(demos, rows // max(int(np.median(sizes)), 1)))
+    picked = order[np.linspace(0, len(order) - 1, count).round().astype(np.int64)]
+    length = max(rows // count, MIN_SAMPLES)
+    rng = np.random.default_rng(0)
+    parts = []
+    for d in np.unique(picked):  # a loop over the (bounded) demonstrations picked
+        mine = members[int(np.searchsorted(ids, d))]
+        start = int(rng.integers(0, len(mine) - length + 1)) if len(mine) > length else 0
+        parts.append(mine[start:start + length])
+    return np.sort(np.concatenate(parts))
+
+
 def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None = None,
            max_k: int | None = None) -> Geometry:
     """The number of constraints the positions X (N, q) of demonstrations ``groups`` show, and the
@@ -347,8 +378,10 @@ def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None =
         return Geometry(0, None, [], {}, "the states show no constraint: no demonstration moves over "
                         f"{MIN_SAMPLES} samples or more")
     X, groups = X[usable], groups[usable]
-    ids = np.unique(groups)
-    back = {int(d): revisits(X[groups == d]) for d in ids}
+    keep = evidence_rows(X, groups)
+    X, groups = X[keep], groups[keep]
+    ids, rows = group_rows(groups)
+    back = {int(d): revisits(X[mine]) for d, mine in zip(ids, rows, strict=True)}
     returning = np.array([d for d in ids if back[int(d)] >= REVISIT_SHARE])
     surfaces_return = len(returning) >= max(1, len(ids) / 2)
     quadrics = q <= 3
@@ -369,7 +402,7 @@ def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None =
             d = drift(X, groups, basis, k)
             tried.append(Tried(k, "global", basis, d, limit, bool(d.max() <= limit), why))
         if rail and q <= 3:
-            fits = np.array([shape_residual(X[groups == d], k) for d in ids])
+            fits = np.array([shape_residual(X[mine], k) for mine in rows])
             agree, how = shapes_agree(X, groups)
             worst = fits.max(axis=0)
             holds = bool(agree and worst.max() <= RAIL_FIT)
@@ -475,6 +508,6 @@ def holds_limit(X: np.ndarray, groups: np.ndarray, k: int) -> float:
     """The largest drift (:func:`rows_drift`) along k learnt rows with which a constraint holds on
     the positions X (N, q) of demonstrations ``groups``: HOLDS where most demonstrations come back
     over their ground; on single passes RAIL_FIT for k = q − 1 (a line or circle) and THIN below."""
-    ids = np.unique(groups)
-    back = np.mean([revisits(X[groups == d]) >= REVISIT_SHARE for d in ids]) >= 0.5
+    keep = evidence_rows(X, groups)
+    back = np.mean([revisits(X[keep][mine]) >= REVISIT_SHARE for mine in group_rows(groups[keep])[1]]) >= 0.5
     return HOLDS if back else RAIL_FIT if k >= X.shape[1] - 1 else THIN
