@@ -231,7 +231,10 @@ def circle(P: np.ndarray) -> tuple[np.ndarray, float]:
 
 def _per_demo_drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int, which: np.ndarray
                     ) -> np.ndarray:
-    """Median over the demonstrations ``which`` of each one's own held-out drift (blocks): (k,)."""
+    """Median over the demonstrations ``which`` (at most EVIDENCE_DEMOS of them, evenly spaced)
+    of each one's own held-out drift (blocks): (k,)."""
+    if len(which) > EVIDENCE_DEMOS:
+        which = which[np.linspace(0, len(which) - 1, EVIDENCE_DEMOS).round().astype(np.int64)]
     rows = dict(zip(*group_rows(groups), strict=True))
     values = [drift(X[rows[d]], np.zeros(len(rows[d]), np.int64), basis, k) for d in which]
     return np.median(values, axis=0)
