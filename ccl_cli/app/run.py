@@ -104,11 +104,11 @@ def verdict(results) -> str:
 
 
 def stage_metrics(results) -> dict[str, Any]:
-    """metrics.json: per stage its method, seconds, info and metrics per split."""
+    """metrics.json: per stage its method, seconds (wall and CPU), info and metrics per split."""
     out = {}
     for r in results:
-        entry = {"method": r.method, "seconds": round(r.seconds, 4), **{k: v for k, v in r.info.items()
-                                                                         if k != "summary"}}
+        entry = {"method": r.method, "seconds": round(r.seconds, 4), "cpu_seconds": round(r.cpu_seconds, 4),
+                 **{k: v for k, v in r.info.items() if k != "summary"}}
         entry.update(r.metrics)
         out[r.name] = entry
     return out
