@@ -11,7 +11,8 @@ Convention = Literal["ccl", "original"]
 CONVENTION = "ccl"
 #: learn-a's ``method``: which constraint estimator; ``auto`` (the default) chooses the model
 #: class and the number of constraints, 0 included, by held-out evidence
-ConstraintMethod = Literal["auto", "nhat", "alpha", "lambda", "linear", "per_window", "per_segment"]
+ConstraintMethod = Literal["auto", "nhat", "alpha", "lambda", "linear", "per_window", "per_segment",
+                           "manifold"]
 DEFAULT_CONSTRAINT_METHOD = "auto"
 #: learn-pi's ``projections`` (pi-coupled): from the ground truth, a learn-a stage, or either
 Projections = Literal["auto", "learnt", "true"]

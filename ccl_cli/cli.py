@@ -327,7 +327,8 @@ def learn_a(
         help="auto (model class and number of constraints, 0 included, by held-out evidence), nhat "
              "(constant A, closed form), alpha (state-dependent), lambda (known Φ), linear (closed form), "
              "per_window (one constant A per time window), per_segment (one constant A per segment, cut "
-             "where it changes; docs/methods.md).",
+             "where it changes), manifold (the level sets the states stay on: lines, circles, surfaces; "
+             "docs/methods.md).",
         show_default=_default(choices.DEFAULT_CONSTRAINT_METHOD))] = None,
     selection: Annotated[Selection | None, typer.Option(
         help="How the number of constraints s is chosen (lambda's default: noise).",
@@ -418,6 +419,8 @@ def evaluate(
         for k, v in summary["metrics"].items():
             typer.echo(f"{k} = {v['value']:.6e}  (error {v['error']:.3e} / var of {v['normaliser_of']} "
                        f"{v['normaliser']:.3e})")
+        if summary.get("rule"):
+            typer.echo(f"applied: {summary['rule']['words']}", err=True)
         if summary.get("note"):
             typer.echo(f"note: {summary['note']}", err=True)
 
@@ -441,9 +444,39 @@ def predict(
     if json_out:
         _emit(summary, True)
     elif not quiet:
-        typer.echo(f"wrote {out} ({dataset.n_samples} samples)", err=True)
+        repaired = sum(n for kinds in summary["repaired"].values() for n in kinds.values())
+        typer.echo(f"wrote {out} ({summary['samples']} rows: one per sample read"
+                   + (f", {repaired} repaired (columns repair, fault)" if repaired else "")
+                   + (f"; {summary['left_out']} outside the configured demonstrations" if summary["left_out"]
+                      else "") + ")", err=True)
+        typer.echo(f"applied: {summary['rule']['words']}", err=True)
         if summary.get("note"):
             typer.echo(f"note: {summary['note']}", err=True)
+
+
+@app.command("export")
+def export(
+    model: Annotated[Path, typer.Argument(metavar="MODEL", help="A model file (model.h5) written by ccl.",
+                                          show_default=False)],
+    out: Annotated[Path, typer.Option("--out", "-o", metavar="FILE", show_default=False,
+                                      help="The file to write: .yaml or .yml for YAML, .json for JSON.")],
+    force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
+) -> None:
+    """Write a saved model as a documented, versioned YAML or JSON file that any language reads: a
+    constraint's k and rows (or the parameters of A(x) and its formula, per window, segment, phase
+    or demonstration, with the rule for a new recording), a null-space component's or a policy's
+    basis and weights, the names, units and frame of the data, and how it was trained
+    (docs/export.md, with a reference evaluator in numpy)."""
+    from ccl_cli.app.export import export_model
+
+    _logging(quiet)
+    summary = export_model(model, out, force)
+    if json_out:
+        _emit(summary, True)
+    elif not quiet:
+        what = (f"{summary['method']} constraint, k = {summary['k']} ({summary['form']})"
+                if summary["kind"] == "constraint" else f"{summary['method']} {summary['kind']}")
+        typer.echo(f"wrote {out}: {what}, schema version {summary['schema_version']}", err=True)
 
 
 # -- data commands --------------------------------------------------------------------------

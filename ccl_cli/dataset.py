@@ -147,6 +147,31 @@ class Repair:
         done[self.row[on]], why[self.row[on]] = self.actions()[on], self.reasons()[on]
         return done, why
 
+    def places(self, demo: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Where each sample seen lies among the data's rows, whose demonstration ids are ``demo``
+        (n,): rows ``a``, ``b`` (M,) and weight ``w`` (M,) such that the sample is at
+        (1 − w)·row a + w·row b. A sample in the data: its row twice, w 0. A sample the repair
+        dropped: between the nearest samples it did not drop before and after it (w by position),
+        when both are rows of one demonstration; else at the nearer one (the earlier on a tie),
+        when that is a row. −1 where the sample has no place in the data: left out afterwards
+        (outside every demonstration, ...), or dropped nearer to such a sample than to a row."""
+        m = len(self.row)
+        i = np.arange(m)
+        inside = self.row >= 0
+        stays = self.done != self.ACTIONS.index("dropped")
+        before = np.maximum.accumulate(np.where(stays, i, -1))
+        after = np.minimum.accumulate(np.where(stays, i, m)[::-1])[::-1]
+        row = np.r_[self.row, -1]  # index −1 and m: no such sample
+        ra, rb = row[before], row[np.minimum(after, m)]
+        ids = np.r_[np.asarray(demo), -1]
+        between = (ra >= 0) & (rb >= 0) & (ids[ra] == ids[rb]) & (after > before)
+        nearer = np.where((before >= 0) & ((i - before <= after - i) | (after >= m)), ra, rb)
+        a = np.where(inside, self.row, np.where(between, ra, nearer))
+        b = np.where(inside, self.row, np.where(between, rb, nearer))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            w = np.where(inside | ~between, 0.0, (i - before) / np.maximum(after - before, 1))
+        return a, b, w
+
     def after(self, kept: np.ndarray, n: int) -> Repair:
         """The record once the data's ``n`` rows are cut to ``kept`` (a mask (n,) or row indices,
         in the new order): each sample's row where it went, −1 where it left."""

@@ -57,7 +57,8 @@ JITTER = 0.1
 CODES = ("constant_dimension", "no_motion", "noisy_actions", "few_demos", "short_demos",
          "low_rank_actions", "duplicate_stamps", "jittery_stamps", "hemisphere_flips", "spikes",
          "stamp_faults", "overfit", "no_better_than_baseline", "constraint_does_not_hold",
-         "constraint_varies", "not_identifiable", "actions_near_faults")
+         "constraint_varies", "not_identifiable", "actions_near_faults", "far_from_truth",
+         "no_heldout_support", "degenerate_input")
 #: Sensor faults the readers found (:mod:`ccl_cli.io.faults`) → (warning code, what they are,
 #: the config key that keeps them); gaps are pauses or lost samples, stated in the report only.
 FAULTS = {"hemisphere_flip": ("hemisphere_flips", "hemisphere flip(s) of the tracker (positions "
@@ -246,10 +247,18 @@ def _times(times: list[list[float]], limit: int = 4) -> str:
     return shown + (f" and {len(times) - limit} more" if len(times) > limit else "")
 
 
+def _samples(n: int) -> str:
+    return f"{n} sample" + ("" if n == 1 else "s")
+
+
 def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
     """One warning per kind of sensor fault the readers found in a file (``metadata`` of each
-    file: ``faults``), with its count, time ranges (s from the file's first sample), what was
-    done and the ``data.faults`` key that keeps them."""
+    file: ``faults``), with its count, what was done, where — per demonstration of the data with
+    the times from its first sample (:func:`ccl_cli.io.summary.repairs`; else the time ranges from
+    the file's first sample) — and the ``data.faults`` key that keeps them."""
+    from ccl_cli.io.summary import repairs
+
+    placed = repairs(data)
     out = []
     for entry in (data.metadata or {}).get("files", []):
         for f in (entry.get("faults") or []) if isinstance(entry, dict) else []:
@@ -258,8 +267,14 @@ def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
             code, what, keep = FAULTS[f["kind"]]
             done = "kept as recorded" if f.get("action") == "reported" else f["action"]
             fix = "" if f.get("action") == "reported" else f"; data.faults: {{{keep}}} keeps them"
-            out.append(warning(code, f"{entry.get('path')}: {f['count']} {what}, {f['n_samples']} samples at "
-                                     f"{_times(f.get('times') or [])}: {done}{fix}"))
+            where = [r for r in placed if r["fault"] == f["kind"]
+                     and r["demo"] in entry.get("demo_ids", [r["demo"]])]
+            at = "; ".join(f"demonstration {r['demo']}: {_samples(r['samples'])} at {_times(r['times'])}"
+                           for r in where[:6]) \
+                + (f"; and {len(where) - 6} more demonstrations" if len(where) > 6 else "") if where else \
+                f"at {_times(f.get('times') or [])} (from the file's start)"
+            out.append(warning(code, f"{entry.get('path')}: {f['count']} {what}, {_samples(f['n_samples'])} "
+                                     f"{done} — {at}{fix}"))
     return out
 
 
@@ -502,4 +517,95 @@ def status(checks: list[dict[str, str]]) -> str:
 
 
 #: The checks that make a stage ``poor``.
-VERDICT_CODES = ("overfit", "no_better_than_baseline", "constraint_does_not_hold")
+VERDICT_CODES = ("overfit", "no_better_than_baseline", "constraint_does_not_hold", "far_from_truth",
+                 "no_heldout_support", "degenerate_input")
+
+
+# -- honest by construction (issue 30 item 5) -----------------------------------------------------
+def far_from_truth(stage: str, comparison: dict[str, Any] | None) -> list[dict[str, str]]:
+    """``far_from_truth`` when the learnt constraint is far from the ground truth the file
+    carries (:func:`ccl_cli.app.truth.compare`: k differs, or the median angle is too large)."""
+    if not comparison or not comparison["far"]:
+        return []
+    return [warning("far_from_truth", f"{stage}: {comparison['why']}")]
+
+
+def heldout_support(selection: dict[str, Any] | None, evidence: dict[str, Any] | None,
+                    part: str) -> dict[str, Any] | None:
+    """Whether held-out evidence supports the k > 0 rows learn-a's ``auto`` chose: the states'
+    geometry (a model of rank k within its limit on held-out demonstrations or blocks), or the
+    velocity candidates (the winner's held-out rank at least k), or else the rows holding on the
+    held-out ``part`` (``evidence``: :func:`constraint_evidence`). {supported, why}; None when
+    there is nothing to support (k = 0, or a method other than ``auto``, judged by its test data)."""
+    from ccl_cli.learn.constraint.sure import judged
+
+    selection = selection or {}
+    k = int(selection.get("n_constraints") or 0)
+    if selection.get("rule") != "auto" or k == 0:
+        return None
+    if selection.get("decided_by") == "states":
+        holding = [m for m in (selection.get("geometry") or {}).get("models") or []
+                   if m["k"] == k and m["holds"]]
+        if holding:
+            best = min(holding, key=lambda m: max(m["drift"]))
+            return {"supported": True, "why": f"the states' geometry: {best['basis']} "
+                    f"({best['scope'].replace('_', ' ')}), {best['measure']} {max(best['drift']):.3g} ≤ "
+                    f"{best['limit']:g}{judged(best['measure'])}"}
+    winner = next((r for r in selection.get("candidates") or [] if r.get("chosen") and r["class"] != "none"),
+                  None)
+    if winner is not None and (winner.get("k") or 0) >= k:
+        return {"supported": True, "why": f"{winner['class']}: held-out rank {winner['k']} "
+                f"({winner.get('folds')}; {winner.get('rank_reason') or 'the noise rule'})"}
+    if evidence is not None and evidence.get("holds"):
+        return {"supported": True, "why": f"its rows hold on the {part} data"}
+    said = ("not cross-validated" if not selection.get("candidates") else
+            f"the held-out rank of {winner['class']} is {winner.get('k')}" if winner is not None else
+            "no candidate was chosen on held-out data")
+    return {"supported": False, "why": f"no held-out evidence supports {k} row(s) ({said})"}
+
+
+def no_heldout_support(stage: str, support: dict[str, Any] | None) -> list[dict[str, str]]:
+    """``no_heldout_support`` when :func:`heldout_support` found none."""
+    if support is None or support["supported"]:
+        return []
+    return [warning("no_heldout_support", f"{stage}: {support['why']}")]
+
+
+def model_parameters(model: Any) -> int | None:
+    """How many numbers a fitted constraint model learnt: k(q − k) per constant set of k rows
+    (one per window, demonstration or stretch), the size of its weights for a model of A(x);
+    None when not known."""
+    model = getattr(model, "chosen_", model)
+    by_demo = model.models_by_demonstration()
+    if by_demo is not None:
+        counts = [model_parameters(m) for m in by_demo.values()]
+        return None if any(c is None for c in counts) else int(sum(counts))
+    for name in ("weights_", "W_"):
+        value = getattr(model, name, None)
+        if value is not None:
+            return int(sum(np.size(w) for w in value) if isinstance(value, list) else np.size(value))
+    A = getattr(model, "A_", None)
+    if A is not None and np.ndim(A) >= 2:
+        k, q = np.shape(A)[-2:]
+        return int(np.prod(np.shape(A)[:-2], dtype=int) * k * (q - k))
+    return None
+
+
+def degenerate_input(stage: str, data: Demonstrations, Y: np.ndarray, on: str, model: Any,
+                     u_var: float | None = None, share: float = 1e-3) -> list[dict[str, str]]:
+    """``degenerate_input`` when a constraint was learnt from input that cannot show one: a
+    recording at rest (:func:`motion`: ``no_motion``), a learnt w̃ (``on`` "w") whose variance is
+    below ``share`` of u's (``u_var``), or fewer samples than the model has parameters."""
+    why = []
+    if any(w["code"] == "no_motion" for w in motion(data)):
+        why.append("the recording does not move (its actions are at their noise level)")
+    if on == "w" and u_var:
+        ratio = float(np.var(Y, axis=0).sum()) / u_var
+        if not ratio >= share:
+            why.append(f"the learnt w̃ it was learnt from holds {ratio:.2g} of u's variance (< {share:g})")
+    n_params = model_parameters(model)
+    if n_params is not None and data.n_samples < n_params:
+        why.append(f"{data.n_samples} training samples for {n_params} parameters")
+    if not why:
+        return []
+    return [warning("degenerate_input", f"{stage}: learnt from degenerate input: {'; '.join(why)}")]

@@ -438,7 +438,7 @@ def describe_model(path: str | Path) -> dict[str, Any]:
     if hasattr(model, "n_constraints_"):
         out["n_constraints"] = int(model.n_constraints_)
         selection = getattr(model, "selection_", None) or {}
-        out["selection"] = {k: selection[k] for k in ("rule", "reason") if k in selection}
+        out["selection"] = {k: selection[k] for k in ("rule", "reason", "sure") if k in selection}
     basis = getattr(inner, "basis_", None)
     if basis is not None:
         state = basis.state()
@@ -446,7 +446,8 @@ def describe_model(path: str | Path) -> dict[str, Any]:
                                                    "sigma2": float(state["sigma2"])} if state["kind"] == "rbf"
                                                   else {})}
     training = info.get("training") or {}
-    out["training"] = {k: training[k] for k in ("stage", "inputs", "metrics", "versions") if k in training}
+    out["training"] = {k: training[k] for k in ("stage", "inputs", "metrics", "versions", "repairs")
+                       if k in training}
     if "config" in training:
         out["training"]["config"] = training["config"]
     return out

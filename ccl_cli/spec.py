@@ -125,6 +125,7 @@ def _stage_classes() -> dict[str, tuple[type, ...]]:
         AutoConstraint,
         KnownFeatureConstraint,
         LinearConstraint,
+        ManifoldConstraint,
         PerSegment,
         PerWindow,
         StateDependentConstraint,
@@ -135,13 +136,14 @@ def _stage_classes() -> dict[str, tuple[type, ...]]:
 
     return {"learn-v": (NullSpaceComponent,), "learn-pi": (PolicyLearner,),
             "learn-a": (StateIndependentConstraint, StateDependentConstraint, KnownFeatureConstraint,
-                        LinearConstraint, AutoConstraint, PerWindow, PerSegment)}
+                        LinearConstraint, AutoConstraint, PerWindow, PerSegment, ManifoldConstraint)}
 
 
 #: learn-a ``method`` → the estimator class's name (the class itself: :func:`constraint_class`)
 CONSTRAINT_METHODS = {"auto": "AutoConstraint", "nhat": "StateIndependentConstraint",
                       "alpha": "StateDependentConstraint", "lambda": "KnownFeatureConstraint",
-                      "linear": "LinearConstraint", "per_window": "PerWindow", "per_segment": "PerSegment"}
+                      "linear": "LinearConstraint", "per_window": "PerWindow", "per_segment": "PerSegment",
+                      "manifold": "ManifoldConstraint"}
 #: config keys that are not the estimator's own names: (method, config key) → parameter
 RENAMED = {("nhat", "variant"): "method"}
 

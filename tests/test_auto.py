@@ -112,7 +112,7 @@ def test_a_bowl_gets_a_state_dependent_or_per_window_constraint():
     d = sim.tracker_sphere(duration=60.0, seed=2)
     model = fit_auto(d)
     assert model.n_constraints_ == 1
-    assert model.selection_["chosen"] == "manifold" and model.chosen_.basis == "sphere"  # the bowl itself
+    assert model.selection_["chosen"] == "manifold" and model.chosen_.family == "sphere"  # the bowl itself
     velocity = fit_auto(d, candidates=VELOCITY)
     assert velocity.selection_["chosen"] in ("alpha_linear", "alpha", "per_window")
     assert velocity.heldout_["mean"] < 0.03

@@ -368,7 +368,7 @@ def test_version_and_help_show_defaults_and_choices(capsys):
 
     proc = ccl("learn-a", "--help")
     text = " ".join(proc.stdout.split())
-    assert "<auto|nhat|alpha|lambda|linear|per_window|per_segment>" in text
+    assert "<auto|nhat|alpha|lambda|linear|per_window|per_segment|manifold>" in text
     assert "[default: (config, else auto)]" in text
     assert f"<{'|'.join(get_args(SelectionRule))}>" in text
     assert f"[default: (config, else {StateIndependentConstraint().selection})]" in text

@@ -1,12 +1,14 @@
 """Sensor faults (ccl_cli/io/faults.py) found against what the simulations injected, no
 findings on clean recordings, and the constraint of a repaired tracker recording."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from ccl_cli import simulate as sim
 from ccl_cli.errors import ConfigError
-from ccl_cli.io import blockwise, faults
+from ccl_cli.io import blockwise, faults, load_demonstrations
 from ccl_cli.learn.constraint import StateIndependentConstraint
 from ccl_cli.simulate.recordings import TRACKER_ORIGIN, derive
 
@@ -284,3 +286,63 @@ def test_median_is_numpys():
             got = faults._median(values.copy())
             assert isinstance(got, float)
             assert (np.isnan(want) and np.isnan(got)) or got == want, (n, trial)
+
+
+ARTICULATION = Path(__file__).resolve().parent.parent / "sample_data" / "articulation"
+
+
+@pytest.mark.parametrize("mechanism", ["dishwasher", "drawer"])
+@pytest.mark.parametrize("unit", [1.0, 1000.0])
+def test_the_real_articulation_logs_lose_no_sample(mechanism, unit):
+    """Robot end-effector logs (TUM, no stamps, 10 Hz assumed) paced unevenly — a step of 7 mm, then
+    three of < 1 mm — in metres and in millimetres: no sample is a spike (the two samples of
+    dishwasher/007.log that were dropped lie on the path their neighbours trace, up to 1.4
+    periods from where the even pace puts them)."""
+    files = sorted((ARTICULATION / mechanism).glob("*.log"))
+    data = load_demonstrations({"state": {"columns": [0, 1, 2]}, "action": {"derive": "state"},
+                                "time": {"rate": 10}}, files=files)
+    assert data.repair.counts() == {"kept": {"": data.n_samples}}
+    cleaned = faults.clean_positions(data.t, data.X * unit, data.demo)
+    assert cleaned.findings == []
+
+
+def _jittered_arc(seed: int, n: int = 3000, rate: float = 100.0) -> tuple[np.ndarray, np.ndarray]:
+    """An end effector drawing circles of 5 cm radius at 0.2 m/s, positions smooth to 1 µm, one
+    sample in ten taken 2–5 % of a period late, all stamped on the even grid: (t (n,), X (n, 3))
+    in s and m."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / rate
+    late = np.where(rng.random(n) < 0.1, rng.uniform(0.02, 0.05, n), 0.0) / rate
+    angle = 0.2 / 0.05 * (t + late)
+    X = np.c_[0.05 * np.cos(angle), 0.05 * np.sin(angle), 0.01 * np.sin(0.5 * angle)]
+    return t, X + rng.normal(scale=1e-6, size=X.shape)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_timing_on_a_smooth_path_is_no_spike_and_a_spike_off_it_is(seed):
+    """A smooth log (1 µm noise) whose samples are taken a little early or late leaves residuals
+    tens of noise deviations along the path: timing, kept. A sample 4 mm off the path (two
+    periods' motion) is a spike, found alone — in metres and in millimetres."""
+    t, X = _jittered_arc(seed)
+    demo = np.zeros(len(t), int)
+    assert faults.spikes(X, t, demo).detail["max_z"] > 30  # far beyond the noise ...
+    assert not faults.spikes(X, t, demo)  # ... and on the path
+    tangent = np.array([-np.sin(4.0 * t[1500]), np.cos(4.0 * t[1500]), 0.0])
+    X[1500] += 0.004 * np.cross(tangent, [0.0, 0.0, 1.0])
+    for unit in (1.0, 1000.0):
+        assert np.flatnonzero(faults.spikes(X * unit, t, demo).mask).tolist() == [1500]
+
+
+@pytest.mark.parametrize("unit", [1.0, 1000.0])
+def test_a_quantised_log_moving_slowly_has_no_spike_until_one_is_put_in(unit):
+    """Joint positions written to 10⁻⁴ rad (an encoder's count) of an arm at 1 kHz, one joint
+    crawling (most of its residuals are exactly 0, so their MAD is 0): its one-count toggles are
+    no spikes (the noise is at least the rounding's, q/√12); a jump of 20 counts is."""
+    t = np.arange(20000) / 1000.0
+    rng = np.random.default_rng(0)
+    X = 0.5 * np.c_[np.sin(0.3 * t), 0.2 * np.cos(0.2 * t)] + rng.normal(scale=2e-6, size=(len(t), 2))
+    X = np.round(X / 1e-4) * 1e-4 * unit
+    demo = np.zeros(len(t), int)
+    assert faults.clean_positions(t, X, demo).findings == []
+    X[12345, 1] += 20e-4 * unit
+    assert np.flatnonzero(faults.spikes(X, t, demo).mask).tolist() == [12345]

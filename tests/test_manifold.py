@@ -98,7 +98,7 @@ def test_features_jacobian_matches_finite_differences():
 
 def test_sphere_basis_learns_a_hinge_axis_and_radial_row():
     X, g, rows = hinge()
-    model = ManifoldConstraint(basis="sphere", n_constraints=2).fit(X, X, groups=g)
+    model = ManifoldConstraint(family="sphere", n_constraints=2).fit(X, X, groups=g)
     assert np.median(largest_angle(model.constraint(X), rows)) < 0.5
     # each level function is (nearly) constant along each demonstration: its variation is the noise
     assert np.sqrt(model.variation_[:2]).max() < 3e-3
@@ -113,7 +113,7 @@ def test_linear_basis_cannot_hold_a_hinge_but_holds_a_line():
     s = np.linspace(0, 0.4, 150)[:, None]
     X = np.vstack([o + s * d + rng.normal(scale=1e-3, size=(150, 3)) for o in offsets])
     g = np.repeat(np.arange(6), 150)
-    model = ManifoldConstraint(basis="linear", n_constraints=2).fit(X, X, groups=g)
+    model = ManifoldConstraint(family="linear", n_constraints=2).fit(X, X, groups=g)
     A = model.constraint(X[:1])[0]
     np.testing.assert_allclose(A @ d, 0.0, atol=2e-3)
     assert drift(X, g, "linear", 2).max() < 0.01
@@ -121,7 +121,7 @@ def test_linear_basis_cannot_hold_a_hinge_but_holds_a_line():
 
 def test_automatic_rank_of_the_manifold_learner():
     X, g, normal = plane_strokes()
-    model = ManifoldConstraint(basis="linear").fit(X, X, groups=g)
+    model = ManifoldConstraint(family="linear").fit(X, X, groups=g)
     assert model.n_constraints_ == 1
     assert abs(model.constraint(X[:1])[0, 0] @ normal) > np.cos(np.radians(1))
 
@@ -173,7 +173,7 @@ def test_real_dishwasher_is_a_hinge_per_demonstration():
         centre = c0 + sol[0] * e1 + sol[1] * e2
         radial = unit((P - centre) - np.outer((P - centre) @ axis, axis))
         truth = np.stack([np.broadcast_to(axis, P.shape), radial], 1)
-        model = ManifoldConstraint(basis="sphere", n_constraints=2).fit(P, P)
+        model = ManifoldConstraint(family="sphere", n_constraints=2).fit(P, P)
         angles.append(np.median(largest_angle(model.constraint(P), truth)))
     assert max(angles) < 1.0
 
@@ -182,7 +182,7 @@ def test_real_drawer_is_a_family_of_parallel_lines():
     X, g, parts = _logs("drawer")
     found = decide(X, g)
     assert found.k == 2 and found.winner.scope == "global" and found.winner.basis == "linear"
-    model = ManifoldConstraint(basis="linear", n_constraints=2).fit(X, X, groups=g)
+    model = ManifoldConstraint(family="linear", n_constraints=2).fit(X, X, groups=g)
     A = model.constraint(X[:1])[0]
     for P in parts:  # each log's own line, by SVD
         d = np.linalg.svd(P - P.mean(0), full_matrices=False)[2][0]
@@ -214,7 +214,7 @@ def test_the_answer_does_not_depend_on_frame_unit_or_order(angles, shift, scale,
     base, moved = decide(X, g), decide(Y, h)
     assert (moved.k, moved.winner.scope, moved.winner.basis) == (base.k, base.winner.scope, base.winner.basis)
     np.testing.assert_allclose(np.sort(moved.winner.drift), np.sort(base.winner.drift), rtol=1e-6, atol=1e-9)
-    model = ManifoldConstraint(basis="sphere", n_constraints=2).fit(Y, Y, groups=h)
+    model = ManifoldConstraint(family="sphere", n_constraints=2).fit(Y, Y, groups=h)
     assert np.median(largest_angle(model.constraint(Y), rows @ R.T)) < 0.5
 
 
@@ -230,3 +230,41 @@ def test_demonstrations_held_still_or_too_short_show_nothing():
     assert found.k == 2 and found.winner.basis == "sphere"
     nothing = decide(np.repeat(X[:1], 50, axis=0))
     assert nothing.k == 0 and "no demonstration moves" in nothing.reason
+
+
+def test_a_row_the_contact_gives_along_is_kept_by_the_positions():
+    """The noise rule stops at a row whose motion is far above the noise (a contact that gives, a
+    smooth wobble of a few mm); the positions do not drift along it: the row is kept. A row in the
+    plane is not."""
+    from ccl_cli.learn.constraint.geometry import add_still_rows
+    from ccl_cli.learn.constraint.rank import Selection
+
+    X, g, normal = plane_strokes(noise=0.0)
+    t = np.arange(len(X)) * 0.02
+    X = X + np.outer(0.002 * np.sin(2 * np.pi * t / 0.7), normal)  # 2 mm of give, well above any noise
+    U = np.gradient(X, t, axis=0)
+    in_plane = unit(np.cross(normal, [1.0, 0, 0]))
+    for rows, kept in ((np.stack([normal, in_plane]), 1), (np.stack([in_plane, normal]), 0)):
+        rows = np.broadcast_to(rows, (len(X), 2, 3))
+        chosen = add_still_rows(Selection("noise", 0, [], "row 1 moves"), rows, X, U, g, t, {"window": 5}, 2)
+        assert chosen.n_constraints == kept
+
+
+def test_rows_each_demonstration_moves_along_at_a_constant_rate_are_a_task_part():
+    """The varying-constraint tutorial with a task part (A u = b per demonstration): the states drift
+    along each one's row at its own constant rate; the geometry finds one row per demonstration and
+    learn-a's auto fits each with its task term — NPPE < 0.1 — while free motion stays at k = 0."""
+    from ccl_cli import simulate as sim
+    from ccl_cli.learn.constraint import AutoConstraint
+
+    d = sim.varying_constraint(task=True, noise=0.01, seed=0)
+    found = decide(d.X, d.demo, t=d.t)
+    assert found.k == 1 and found.winner.scope == "per_demo_task" and found.winner.worst < 0.02
+    model = AutoConstraint().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.derivative)
+    assert model.selection_["chosen"] == "per_demo_task"
+    N = model.projection(d.X, groups=d.demo)
+    Pi = d.truth["pi"]
+    nppe = np.mean(((d.true_projection() - N) @ Pi[:, :, None]) ** 2) * 2 / np.var(d.U, axis=0, ddof=1).sum()
+    assert nppe < 0.1
+    free = sim.flow2d(seed=0)
+    assert decide(free.X, free.demo, t=free.t).k == 0

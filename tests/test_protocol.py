@@ -60,7 +60,7 @@ CASES = [
      1, "segment", False, "rows fitted per stretch", "PerSegment", 0.04, 0.04),
     ("stretches", C.ConstraintInStretches, lambda s: sim.arm_wipe(n_demos=4, seed=s),
      1, "stretch", True, "stretches classified", "ConstraintInStretches", 1e-3, 1e-3),
-    ("manifold", lambda: C.ManifoldConstraint(basis="sphere", n_constraints=1),
+    ("manifold", lambda: C.ManifoldConstraint(family="sphere", n_constraints=1),
      lambda s: sim.tracker_sphere(duration=15.0, n_recordings=3, seed=s),
      1, None, True, "as fitted", "ManifoldConstraint", 0.02, 0.02),
     ("auto", C.AutoConstraint, lambda s: sim.arm7(rows=(0, 1), seed=s, n_demos=12),

@@ -270,8 +270,8 @@ def test_csv_errors(tmp_path):
 
 
 def test_files_can_be_globs_and_demos_are_renumbered(tmp_path):
-    for k in range(3):
-        write_ros1_bag(tmp_path / f"run_{k}.bag", joint_recording(n=10, seed=k))
+    for k in range(3):  # three recordings (identical files would be one recording given three times)
+        write_ros1_bag(tmp_path / f"run_{k}.bag", joint_recording(n=10, jitter=0.05, seed=k))
     data = load_demonstrations({**JOINT_CFG, "files": [str(tmp_path / "run_*.bag")]})
     assert data.n_demos == 3 and data.n_samples == 30
     assert [Path(f["path"]).name for f in data.metadata["files"]] == ["run_0.bag", "run_1.bag", "run_2.bag"]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from ccl_cli import diagnostics
 from ccl_cli import simulate as sim
@@ -122,3 +123,112 @@ def test_the_verdict_is_ok_when_the_evidence_is(capsys, tmp_path):
     code, summary, metrics, report = run(capsys, tmp_path, data, "[learn-a]")
     assert code == 0 and summary["status"] == "ok" and metrics["learn-a"]["status"] == "ok"
     assert "**Verdict: ok" in report
+
+
+# -- honest by construction (issue 30 item 5) ----------------------------------------------------
+def test_angles_to_the_truth_per_sample_by_hand():
+    from ccl_cli.app import truth
+
+    e1, e2, e3 = np.eye(3)
+    c, s = np.cos(np.radians(20.0)), np.sin(np.radians(20.0))
+    learnt = np.array([[c * e1 + s * e2], [e1], [np.zeros(3)], [e1]])
+    true = np.array([[e1], [np.zeros(3)], [np.zeros(3)], [e2]])
+    deg, k_l, k_t = truth.per_sample(learnt, true)
+    assert deg == pytest.approx([20.0, 90.0, 0.0, 90.0])  # rows 20° apart; a row against none; none; 90°
+    assert k_l.tolist() == [1, 1, 0, 1] and k_t.tolist() == [1, 0, 0, 1]
+    # the true rows from N alone: the direction I − N keeps
+    n = np.array([0.6, 0.0, 0.8])
+    d = sim.tracker_plane(duration=5.0, seed=0)
+    d.truth = {"N": np.eye(3) - np.outer(n, n)}
+    rows = truth.true_rows(d)
+    assert rows.shape == (d.n_samples, 3, 3)
+    assert np.linalg.matrix_rank(rows[0]) == 1
+    assert subspace_angle(rows[0], n[None]) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_a_constraint_far_from_the_truth_in_the_file_is_poor_and_says_so(capsys, tmp_path):
+    """u = v + w with a task part: learn-a on u alone finds a row 90° from the true one. Before,
+    the verdict was "ok" (the row holds on the held-out u); the file's truth says otherwise."""
+    data = sim.toy2d(constraint="fixed", task=True, sampling="uniform", n_samples=1000, n_demos=10, seed=0)
+    code, summary, metrics, report = run(capsys, tmp_path, data, "[learn-a]")
+    assert code == 0 and summary["status"] == "poor" and metrics["learn-a"]["status"] == "poor"
+    found = metrics["learn-a"]["truth"]
+    learnt = np.asarray(metrics["learn-a"]["constraint"]["rows"])
+    angle = subspace_angle(learnt, data.truth_per_sample("A")[0])
+    assert found["true_k"] == found["learnt_k"] == 1 and found["median_deg"] == pytest.approx(angle, abs=1e-6)
+    assert angle > 80 and found["far"] and found["NPPE"] == metrics["learn-a"]["test"]["NPPE"]["value"]
+    assert summary["stages"]["learn-a"]["truth"] == found
+    assert summary["verdict"].startswith(f"poor: learn-a: the learnt constraint is {angle:.0f}° from the one "
+                                         "stored in the file")
+    assert "run learn-v first" in summary["verdict"]
+    assert "### Against the ground truth in the file" in report
+    assert "**Far off**: the learnt constraint" in report
+    # after learn-v, on: auto weighs u against w̃ and learns from w̃: right, and said to be
+    for spec in ("", "learn-a: {on: w}\n"):
+        code, summary, *_ = run(capsys, tmp_path, data, "[learn-v, learn-a]", spec)
+        found = summary["stages"]["learn-a"]["truth"]
+        assert summary["status"] == "ok" and found["median_deg"] < 1.0 and not found["far"]
+    # forced onto u after learn-v: the words say where the task part went
+    code, summary, *_ = run(capsys, tmp_path, data, "[learn-v, learn-a]", "learn-a: {on: u}\n")
+    assert summary["stages"]["learn-a"]["status"] == "poor"
+    assert "learn-a on: w learns from w̃" in summary["verdict"]
+
+
+def test_a_wrong_number_of_constraints_against_the_truth_is_poor(capsys, tmp_path):
+    """Free reaching (no constraint: learn-a finds k = 0) in a file whose truth claims a row."""
+    data = sim.free_reach(seed=0)
+    data.truth = {"N": np.diag([0.0, 1.0, 1.0])}
+    code, summary, metrics, _ = run(capsys, tmp_path, data, "[learn-a]")
+    found = metrics["learn-a"]["truth"]
+    assert found["true_k"] == 1 and found["learnt_k"] == metrics["learn-a"]["n_constraints"] == 0
+    assert found["median_deg"] == 90.0 and found["k_agrees"] == 0.0
+    assert summary["verdict"].startswith("poor: learn-a: 0 constraint(s) learnt, the ground truth stored in "
+                                         "the file has 1")
+
+
+def test_a_right_answer_against_the_truth_stays_ok(capsys, tmp_path):
+    data = sim.tracker_plane(duration=30.0, seed=1)
+    code, summary, metrics, report = run(capsys, tmp_path, data, "[learn-a]")
+    found = metrics["learn-a"]["truth"]
+    assert summary["status"] == "ok" and not found["far"] and found["true_k"] == found["learnt_k"] == 1
+    normal = np.asarray(metrics["learn-a"]["constraint"]["rows"])
+    angle = subspace_angle(normal, data.truth_per_sample("A")[0])
+    assert found["median_deg"] == pytest.approx(angle, abs=1e-6)
+    assert found["median_deg"] < 1.5 and found["part"] == "test"
+    assert f"largest principal angle per sample median {found['median_deg']:.3g}°" in report
+
+
+def test_held_out_support_from_the_selection_table():
+    shape = {"k": 1, "scope": "global", "basis": "linear", "measure": "held-out drift", "drift": [0.02],
+             "limit": 0.05, "holds": True}
+    states = {"rule": "auto", "n_constraints": 1, "decided_by": "states", "geometry": {"models": [shape]}}
+    found = diagnostics.heldout_support(states, None, "test")
+    assert found["supported"] and "held-out drift 0.02 ≤ 0.05" in found["why"]
+    winner = {"class": "nhat", "chosen": True, "k": 1, "folds": "5 folds", "rank_reason": "row 2 moves"}
+    fixed = {"rule": "auto", "n_constraints": 2, "candidates": [{"class": "none", "chosen": False}, winner]}
+    found = diagnostics.heldout_support(fixed, None, "test")  # asked for 2 rows, 1 found held out
+    assert not found["supported"] and "the held-out rank of nhat is 1" in found["why"]
+    assert diagnostics.no_heldout_support("learn-a", found)[0]["code"] == "no_heldout_support"
+    assert diagnostics.heldout_support(fixed, {"holds": True}, "test")["supported"]  # the test part says so
+    lone = {"rule": "auto", "n_constraints": 1, "candidates": []}  # too few samples to cross-validate
+    assert "not cross-validated" in diagnostics.heldout_support(lone, None, "train")["why"]
+    assert diagnostics.heldout_support({"rule": "noise", "n_constraints": 1}, None, "test") is None
+    assert diagnostics.heldout_support({**states, "n_constraints": 0}, None, "test") is None
+
+
+def test_degenerate_input_is_not_ok(capsys, tmp_path):
+    data = sim.arm_at_rest(seed=0)
+    code, summary, metrics, _ = run(capsys, tmp_path, data, "[learn-a]")
+    assert code == 0 and metrics["learn-a"]["status"] == "poor"
+    assert "learn-a: learnt from degenerate input: the recording does not move" in summary["verdict"]
+    # a learnt w̃ of nearly nothing, and fewer samples than parameters, by hand
+    d = sim.tracker_plane(duration=4.0, seed=0)
+    model = StateIndependentConstraint(n_constraints=1).fit(d.X, d.U)
+    assert diagnostics.model_parameters(model) == 2  # one row in 3-D: 1 · (3 − 1)
+    tiny = d.U * 1e-3
+    found = diagnostics.degenerate_input("learn-a", d, tiny, "w", model, float(d.U.var(0).sum()))
+    assert "holds 1e-06 of u's variance" in found[0]["message"]
+    assert diagnostics.degenerate_input("learn-a", d, d.U, "w", model, float(d.U.var(0).sum())) == []
+    few = d.subset(np.arange(1))
+    found = diagnostics.degenerate_input("learn-a", few, few.U, "u", model)
+    assert found and "1 training samples for 2 parameters" in found[0]["message"]

@@ -10,6 +10,7 @@ from importlib import metadata
 from typing import Any
 
 from ccl_cli.dataset import Demonstrations
+from ccl_cli.io.summary import repairs
 from ccl_cli.learn import blas
 
 PACKAGES = ("ccl_cli", "numpy", "scipy", "h5py", "rosbags", "mcap", "mcap-ros1-support",
@@ -57,14 +58,15 @@ def named(names: list[str], units: list[str]) -> list[str]:
 
 
 def data_summary(pipeline: Any) -> dict[str, Any]:
-    """Sizes of the data and of its train/test parts, the input files, how actions were made."""
+    """Sizes of the data and of its train/test parts, the input files, how actions were made,
+    what the sensor-fault repair did per demonstration (:func:`ccl_cli.io.summary.repairs`)."""
     d = pipeline.data
     return {"samples": d.n_samples, "demos": d.n_demos, "p": d.n_state, "q": d.n_action,
             "states": named(d.state_names, d.state_units), "actions": named(d.action_names, d.action_units),
             "train": pipeline.split.train.n_samples,
             "test": pipeline.split.test.n_samples if pipeline.split.test is not None else 0,
             "files": [f["path"] for f in d.metadata.get("files", [])],
-            "derived": derived_actions(d.metadata)}
+            "derived": derived_actions(d.metadata), "repairs": repairs(d)}
 
 
 def run_record(command: str, cfg: Any, data: Demonstrations, pipeline: Any, blas_threads: int | None,
@@ -80,11 +82,26 @@ def run_record(command: str, cfg: Any, data: Demonstrations, pipeline: Any, blas
     }
 
 
+def frame_of(meta: dict[str, Any]) -> dict[str, Any] | None:
+    """The frame the states are expressed in, when the readers computed them by forward
+    kinematics ({robot, base, frame}: the chain's ``frame`` seen from its ``base``); None when the
+    states are the recording's own coordinates."""
+    for f in meta.get("files", []):
+        fk = f.get("forward_kinematics") if isinstance(f, dict) else None
+        if isinstance(fk, dict):
+            return {k: fk.get(k) for k in ("robot", "base", "frame")}
+    return None
+
+
 def training_record(stage: str, cfg: Any, data: Demonstrations, metrics: dict[str, Any] | None = None
                     ) -> dict[str, Any]:
-    """What a saved model records of its training: stage, config, input hashes, versions and
-    its figures ({train|test: {metric: value}} from metrics.json's stage entry)."""
+    """What a saved model records of its training: stage, config, input hashes, versions, its
+    figures ({train|test: {metric: value}} from metrics.json's stage entry), what the data's
+    columns are (names, units and frame, for ``ccl export``) and what the sensor-fault repair
+    did to the data it read, per demonstration (``repairs``)."""
     figures = {part: {name: m["value"] for name, m in (metrics or {}).get(part, {}).items()}
                for part in ("train", "test") if part in (metrics or {})}
+    columns = {"states": data.state_names, "state_units": data.state_units, "actions": data.action_names,
+               "action_units": data.action_units, "frame": frame_of(data.metadata)}
     return {"stage": stage, "config": cfg.raw, "inputs": input_hashes(data), "versions": versions(),
-            "metrics": figures}
+            "metrics": figures, "data": columns, "repairs": repairs(data)}

@@ -117,13 +117,19 @@ def stage_metrics(results) -> dict[str, Any]:
 def summarise(metrics: dict[str, Any]) -> dict[str, Any]:
     """metrics.json → {stage: {method, n_constraints, train: {name: value}, test: {...},
     heldout_blocks: {...} (a model per demonstration or window), baseline: {method, train,
-    test}}} (the baseline only where a stage has one)."""
+    test}, truth (learn-a against the file's ground truth), cone (learn-a auto: each row's
+    spread over held-out folds)}} (each only where a stage has one)."""
     def one(e: dict[str, Any]) -> dict[str, Any]:
         out = {k: v for k, v in e.items() if k in ("method", "n_constraints", "status")}
         out.update({split: {m: v["value"] for m, v in e.get(split, {}).items()}
                     for split in SPLITS if split in e})
         if isinstance(e.get("baseline"), dict):
             out["baseline"] = one(e["baseline"])
+        if e.get("truth"):  # learn-a against the ground truth the file carries
+            out["truth"] = e["truth"]
+        cone = ((e.get("selection") or {}).get("sure") or {}).get("cone")
+        if cone:  # how sure: each learnt row's spread over held-out folds
+            out["cone"] = cone
         return out
 
     return {name: one(e) for name, e in metrics.items()}

@@ -122,6 +122,45 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
     return out
 
 
+def phases(model: Any, d: Demonstrations) -> dict[str, Any] | None:
+    """Where a constraint that holds in stretches holds on its training data ``d`` (issue 30 item
+    3): the share of the samples and per demonstration its span, the seconds held and the
+    stretches [start, end] (s from the demonstration's first sample); None when the model holds
+    everywhere (or has no rows)."""
+    if not model.n_constraints_:
+        return None
+    on = np.asarray(model.holds(d.X, groups=d.demo, t=d.t), dtype=bool)
+    if on.all():
+        return None
+    step = float(np.median(np.diff(d.t)[d.demo[1:] == d.demo[:-1]])) if d.n_samples > 1 else 0.0
+    per_demo = []
+    for k in d.demo_ids:  # a loop over demonstrations
+        sel = np.flatnonzero(d.demo == k)
+        t, held = d.t[sel] - d.t[sel[0]], on[sel]
+        edges = np.flatnonzero(np.diff(np.r_[0, held.astype(np.int8), 0]))
+        spans = [[float(t[a]), float(t[b - 1] + step)] for a, b in zip(edges[::2], edges[1::2], strict=True)]
+        per_demo.append({"demo": int(k), "duration_s": float(t[-1] + step),
+                         "held_s": float(sum(b - a for a, b in spans)), "spans": spans})
+    return {"share": float(on.mean()), "demos": per_demo}
+
+
+def phase_series(model: Any, d: Demonstrations, title: str) -> dict[str, Any]:
+    """The data of the phases figure on the training data ``d``: per sample whether the
+    constraint holds (N,), the speed ‖u‖ and the speed along the learnt rows ‖Ã u‖ (N,) — with
+    the rows where it holds (constant rows elsewhere too, so the motion along them shows)."""
+    on = np.asarray(model.holds(d.X, groups=d.demo, t=d.t), dtype=bool)
+    A = model.constant_rows()
+    rows = (np.broadcast_to(A, (d.n_samples, *np.shape(A))) if A is not None else
+            model.constraint(d.X, groups=d.demo, t=d.t))
+    true = None
+    if d.has_truth("N") or d.has_truth("A"):  # where the file's ground truth has a constraint
+        true = np.abs(d.true_projection() - np.eye(d.n_action)).max(axis=(1, 2)) > 1e-6
+    return {"title": f"{title}: where the constraint holds", "d": d, "holds": on,
+            "speed": np.linalg.norm(d.U, axis=1),
+            "along": np.linalg.norm(np.einsum("nkq,nq->nk", rows, d.U), axis=1),
+            "true_holds": true}
+
+
 #: Stretches of a per-window / per-segment model listed in the report (the first ones).
 SHOWN_STRETCHES = 12
 
@@ -211,6 +250,9 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
                             trajectory_normals(model, d, title, dpart)))
         out.append(View("learn-a-selection.png", "learn-a: how the number of constraints was chosen",
                         "selection", {"selection": result.info.get("selection") or {}, "q": d.n_action}))
+        if result.info.get("phases"):
+            out.append(View("learn-a-phases.png", "learn-a: where the constraint holds over time", "phases",
+                            phase_series(model, train, title)))
         info = result.info.get("constraint")
         if info:
             out.append(View("learn-a-constraint.png", "learn-a: the learnt constraint", "constraint",

@@ -47,6 +47,19 @@ SPIKE_Z = 8.0
 STEP_RATIO = 0.5
 #: The five samples of a spike test span at most this many median periods.
 SPIKE_SPAN = 6.0
+#: A sample off the cubic through its neighbours only along that curve — where the motion would
+#: have been up to two samples earlier or later — is a stamp or pacing error (the recording's own
+#: timing), no spike: it lies on the path its neighbours trace. Sought only where the motion of one
+#: period exceeds PATH_MOTION noise standard deviations (slower, a timing error moves a sample less
+#: than its noise, and the path is the noise's).
+PATH_MOTION = 2.0
+#: The noise of a quantised value: the standard deviation of rounding to its resolution q,
+#: q/√12, times the residual's gain over white noise (≈ 1.39, :func:`spikes`).
+ROUNDING = 1.39 / np.sqrt(12.0)
+#: A spike lies off that path by more than the motion of this many periods (½‖x_{n+1} − x_{n−1}‖):
+#: a smooth, nearly noise-free log (positions from joint encoders, filtered or resampled) has
+#: residuals many times its tiny noise that are still a small part of one period's motion.
+SPIKE_MOTION = 1.0
 #: Stamp intervals beyond GAP_PERIODS periods + GAP_JITTER robust spreads of the intervals
 #: are gaps (or clock steps).
 GAP_PERIODS = 1.5
@@ -175,13 +188,13 @@ def hemisphere_flips(X: np.ndarray, demo: np.ndarray, ratio: float = FLIP_RATIO,
     the hemisphere holding fewer samples is the mirrored one (a recording mirrored throughout
     obeys the same constraints). Positions within ~10 (s + noise) of the origin flip without a
     detectable jump and are not found. ``mask`` marks the mirrored samples; ``detail`` gives
-    the largest jump (m) at a boundary.
+    the largest jump at a boundary (in the positions' unit).
     """
     X = np.asarray(X, dtype=float)
     demo = np.asarray(demo)
     n = len(X)
     mask = np.zeros(n, dtype=bool)
-    none = Finding("hemisphere_flip", mask, action, {"max_jump_m": 0.0})
+    none = Finding("hemisphere_flip", mask, action, {"max_jump": 0.0})
     if n < 3:
         return none
     # centres n − 1 whose neighbours share their demonstration (the boundary is at n)
@@ -202,7 +215,7 @@ def hemisphere_flips(X: np.ndarray, demo: np.ndarray, ratio: float = FLIP_RATIO,
     share = np.bincount(inverse, weights=side) / np.bincount(inverse)
     mirrored_side = (share > 0.5).astype(int)[inverse]  # the minority side is the mirrored one
     mask = side != mirrored_side
-    return Finding("hemisphere_flip", mask, action, {"max_jump_m": float(e_same[is_edge].max())})
+    return Finding("hemisphere_flip", mask, action, {"max_jump": float(e_same[is_edge].max())})
 
 
 def unflip(X: np.ndarray, flips: Finding) -> np.ndarray:
@@ -267,6 +280,99 @@ def _cubic_residuals(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, period: flo
     return R, tested, max(float(top.max()), -float(bottom.min()))
 
 
+def _lagrange(tau: np.ndarray, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The cubic's Lagrange weights W (K, 4, G) through the four ``nodes`` (K, 4) (the neighbours'
+    times relative to the sample) at times ``tau`` (K, G), and their derivatives dW/dτ."""
+    W, dW = np.empty((len(tau), 4, tau.shape[1])), np.empty((len(tau), 4, tau.shape[1]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for j in range(4):  # four weights, not a loop over samples
+            a, b, c = (tau - nodes[:, m, None] for m in range(4) if m != j)
+            den = np.prod([nodes[:, j] - nodes[:, m] for m in range(4) if m != j], axis=0)[:, None]
+            W[:, j], dW[:, j] = a * b * c / den, (b * c + a * c + a * b) / den
+    return W, dW
+
+
+#: Gauss–Newton steps from the best of the grid's PATH_GRID times.
+PATH_GRID, PATH_STEPS = 17, 6
+
+
+def _off_path(Y: np.ndarray, t: np.ndarray, k: np.ndarray, scale: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """For the samples ``k`` (K,) of Y (N, d), in units of ``scale`` (d,): how far y_n lies off
+    the path of its neighbours — min over τ ∈ [t_{n−2}, t_{n+2}] of ‖y_n − P(τ)‖, P the cubic
+    through samples n ± 1, n ± 2 at their stamps (a grid of PATH_GRID times, then PATH_STEPS
+    Gauss–Newton steps τ ← τ + (y_n − P)·P′/‖P′‖², kept in the interval) — as the largest
+    coordinate of y_n − P(τ*) (K,), and that distance over the motion of one period,
+    ½‖y_{n+1} − y_{n−1}‖ (K,; inf at rest)."""
+    off, ratio = np.empty(len(k)), np.empty(len(k))
+    steps = np.asarray(_STEPS)
+
+    def block(s: int, e: int) -> None:
+        n = k[s:e]
+        nodes = t[n[:, None] + steps] - t[n][:, None]  # (B, 4)
+        near = Y[n[:, None] + steps] / scale  # (B, 4, d)
+        y = Y[n] / scale
+        lo, hi = nodes[:, :1], nodes[:, -1:]
+        grid = lo + (hi - lo) * np.linspace(0.0, 1.0, PATH_GRID)
+        W, _ = _lagrange(np.c_[np.zeros(len(n)), grid], nodes)  # τ = 0 (the sample's own stamp) first
+        miss = ((y[:, None] - np.einsum("bjg,bjd->bgd", W, near)) ** 2).sum(2)
+        tau = np.c_[np.zeros(len(n)), grid][np.arange(len(n)), miss.argmin(1)][:, None]
+        best, r = None, None
+        for _ in range(PATH_STEPS + 1):  # a few steps, not a loop over samples; the best kept
+            W, dW = _lagrange(tau, nodes)
+            here = y - np.einsum("bj,bjd->bd", W[..., 0], near)
+            dist = (here**2).sum(1)
+            if best is None:
+                best, r = dist, here
+            else:
+                better = dist < best
+                best, r = np.where(better, dist, best), np.where(better[:, None], here, r)
+            slope = np.einsum("bj,bjd->bd", dW[..., 0], near)
+            move = (here * slope).sum(1) / np.maximum((slope**2).sum(1), np.finfo(float).tiny)
+            tau = np.clip(tau + move[:, None], lo, hi)
+        motion = 0.5 * np.sqrt((((Y[n + 1] - Y[n - 1]) / scale) ** 2).sum(1))
+        W, _ = _lagrange(np.zeros((len(n), 1)), nodes)
+        still = motion <= PATH_MOTION  # a timing error moves the sample less than its noise there
+        r[still] = (y - np.einsum("bj,bjd->bd", W[..., 0], near))[still]
+        off[s:e] = np.abs(r).max(1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio[s:e] = np.sqrt((r**2).sum(1)) / motion
+
+    each_block(block, 0, len(k), rows=1024)
+    return off, ratio
+
+
+def _peaks(R: np.ndarray, scale: np.ndarray, z: float, score: np.ndarray) -> np.ndarray:
+    """R (d, N) divided by ``scale`` (d,) in place (z-scores); ``score`` (N,) filled with each
+    sample's largest |z|; the samples (N,) whose score exceeds ``z`` and is a peak: at least its
+    neighbours' (0 beyond the ends)."""
+    def z_scores(s: int, e: int) -> None:
+        block = R[:, s:e]
+        block /= scale[:, None]  # z-scores, in place
+        score[s:e] = np.abs(block).max(0)
+
+    each_block(z_scores, 0, R.shape[1])
+    mask = score > z
+    mask[1:] &= score[1:] >= score[:-1]
+    mask[:-1] &= score[:-1] >= score[1:]
+    return mask
+
+
+def _resolution(Y: np.ndarray) -> np.ndarray:
+    """The smallest nonzero change between successive values of each column of Y (N, d): (d,),
+    the step of a quantised signal (an encoder's count, values written with few digits); inf
+    for a column that never changes."""
+    low = {-1: np.full(Y.shape[1], np.inf)}  # per block
+
+    def block(s: int, e: int) -> None:
+        step = np.abs(np.diff(_rows(Y, s, e + 1), axis=1))
+        step[step == 0] = np.inf
+        low[s] = step.min(1)
+
+    each_block(block, 0, len(Y) - 1)
+    return np.min(list(low.values()), axis=0)
+
+
 def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z, *,
            period: float | None = None) -> Finding:
     """Isolated outliers in Y (N, d) (positions, or recorded actions) sampled at t (N,).
@@ -276,14 +382,20 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z, *
     O(dt⁴)); a sample is a spike when its residual exceeds ``z`` robust standard deviations
     (median|r|/0.6745 over the recording, per dimension) in some dimension and is the largest
     of its neighbours' (a spike δ leaves −⅔δ on each neighbour, alike: a step leaves −½ and −⅙
-    of it, and is no spike). Bursts of adjacent outliers are found only in part. The first and
-    last two samples of a demonstration are not tested.
+    of it, and is no spike). It must also lie off the path its neighbours trace
+    (:func:`_off_path`): by more than ``z`` robust standard deviations once the sample may sit
+    anywhere on the cubic between its second neighbours (a sample taken early or late, or a
+    motion paced unevenly, lies on the path: timing, not a spike; sought only where the motion of
+    one period exceeds PATH_MOTION noise standard deviations), and by more than SPIKE_MOTION
+    times the motion of one period. Every threshold is a ratio to the recording's own noise or
+    motion: the same samples are found in metres or millimetres. Bursts of adjacent outliers are
+    found only in part. The first and last two samples of a demonstration are not tested.
     ``detail`` gives the largest residual in robust standard deviations. ``period``: the
     median positive interval of t, when the caller has it (else computed here).
     """
-    Y = np.asarray(Y, dtype=float)
+    Y, t = np.asarray(Y, dtype=float), np.asarray(t, dtype=float)
     n = len(Y)
-    R, tested, extent = _cubic_residuals(Y, np.asarray(t, float), np.asarray(demo), period)
+    R, tested, extent = _cubic_residuals(Y, t, np.asarray(demo), period)
     if not tested.any():
         return Finding("spike", np.zeros(n, dtype=bool), "dropped", {"max_z": 0.0})
     # robust σ per dimension: one partition of each dimension's tested residuals (a dimension
@@ -297,19 +409,14 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z, *
         sigma[s:e] = [_median(np.abs(row[where])) for row in R[s:e]]
 
     each_block(spread, 0, len(R), rows=1)
-    scale = np.maximum(sigma / MAD_NORMAL, 1e-12 * max(extent, 1.0))
+    scale = np.maximum(sigma / MAD_NORMAL, max(1e-12 * extent, np.finfo(float).tiny))  # relative: any unit
     score = np.empty(n)
-
-    def z_scores(s: int, e: int) -> None:
-        block = R[:, s:e]
-        block /= scale[:, None]  # z-scores, in place
-        score[s:e] = np.abs(block).max(0)
-
-    each_block(z_scores, 0, n)
-    mask = score > z  # ... and a peak: at least its neighbours' scores (0 beyond the ends)
-    mask[1:] &= score[1:] >= score[:-1]
-    mask[:-1] &= score[:-1] >= score[1:]
-    mask[[0, -1]] &= score[[0, -1]] >= 0.0
+    mask = _peaks(R, scale, z, score)
+    if mask.any():  # the noise no finer than the values' resolution (a quantised log at rest has MAD 0)
+        floor = ROUNDING * _resolution(Y)
+        if (floor > scale).any():
+            scale, R = np.maximum(scale, floor), R * (scale / np.maximum(scale, floor))[:, None]
+            mask = _peaks(R, np.ones(len(R)), z, score)
     k = np.flatnonzero(mask)  # the few candidates: their sign test
     Z = R[:, k]
     j = np.abs(Z).argmax(0)  # the dimension of each candidate's largest residual
@@ -321,7 +428,11 @@ def spikes(Y: np.ndarray, t: np.ndarray, demo: np.ndarray, z: float = SPIKE_Z, *
     signed = (before * centre < -(centre**2) / 3) & (after * centre < -(centre**2) / 3)
     # ... and alike (a spike leaves −⅔δ on both; a step S leaves −S/2 before it and −S/6 after)
     small, large = np.minimum(np.abs(before), np.abs(after)), np.maximum(np.abs(before), np.abs(after))
-    mask[k] = signed & (small >= STEP_RATIO * large)
+    alike = signed & (small >= STEP_RATIO * large)
+    # ... and off the path its neighbours trace, by more than the noise and one period's motion
+    off, ratio = _off_path(Y, t, k[alike], scale)
+    alike[alike] = (off > z) & (ratio > SPIKE_MOTION)
+    mask[k] = alike
     return Finding("spike", mask, "dropped", {"max_z": float(score.max())})
 
 
@@ -441,7 +552,9 @@ def _clock_steps(t: np.ndarray, X: np.ndarray, demo: np.ndarray, at: np.ndarray,
     v = 0.5 * (v_left + v_right)
     speed = np.sqrt((v**2).sum(1))
     elapsed = np.einsum("md,md->m", X[k] - X[k - 1], v) / np.maximum(speed**2, 1e-300)
-    sigma = max(float(np.sqrt(white_noise_var(X, demo).sum())), 1e-12)  # position noise, all axes
+    # position noise, all axes (a noise-free recording: 10⁻¹² of its extent, whatever the unit)
+    sigma = max(float(np.sqrt(white_noise_var(X, demo).sum())), 1e-12 * float(np.abs(X).max()),
+                np.finfo(float).tiny)
     with np.errstate(divide="ignore"):
         sigma_v = 0.5 * sigma * np.sqrt(1 / s_left + 1 / s_right)
     dt = t[k] - t[k - 1]

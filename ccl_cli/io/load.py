@@ -11,6 +11,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, InputError
 from ccl_cli.io.files import expand_files, file_hash
@@ -28,15 +30,18 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
     train/test masks (lists of demo ids) a single canonical file stores, re-cut by the
     ``demos`` options; None otherwise.
 
-    ``metadata`` records per file its path, sha256 and what was read, the time origin
+    ``metadata`` records per file its path, sha256, what was read and the ids of the
+    demonstrations it gave (``demo_ids``), the time origin
     (int64 ns) of the first file and, for a single file that stores one, its provenance.
-    A mapping is validated into :class:`DataOptions` (a ``test`` key is ignored).
+    A mapping is validated into :class:`DataOptions` (a ``test`` key is ignored). A recording
+    given twice (the same file, or the same content) is refused (InputError).
     """
     options = DataOptions.from_mapping(options)
     entries = [str(f) for f in files] if files else options.files
     if not entries:
         raise ConfigError("no input data: give files on the command line or data.files in the config")
     paths = expand_files(entries, None if files else base)
+    _given_once(paths)
     options = robot_relative_to(options, base)
     recordings: list[Recording] = []
     for path in paths:
@@ -46,9 +51,13 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
     data = parts[0] if len(parts) == 1 else Demonstrations.concatenate(parts)
     fill_units(data, configured(options.state and options.state.units, data.n_state, "data.state"),
                configured(options.action and options.action.units, data.n_action, "data.action"))
-    data.metadata = {"files": [{"path": str(p), "sha256": file_hash(p),
-                                **{k: v for k, v in part.metadata.items() if k != "source"}}
-                               for p, part in zip(paths, parts, strict=True)],
+    ends = np.cumsum([part.n_samples for part in parts])
+    digests = [file_hash(p) for p in paths]
+    _given_once(paths, digests)
+    data.metadata = {"files": [{"path": str(p), "sha256": digest,
+                                **{k: v for k, v in part.metadata.items() if k != "source"},
+                                "demo_ids": np.unique(data.demo[end - part.n_samples:end]).tolist()}
+                               for p, part, end, digest in zip(paths, parts, ends, digests, strict=True)],
                      "time_origin_ns": recordings[0].time_origin_ns}
     single = recordings[0] if len(recordings) == 1 else None
     if single is not None and single.provenance is not None:
@@ -57,6 +66,22 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
         raise InputError(f"only {data.n_samples} samples were read; at least {options.min_samples} "
                          "are needed")
     return data, single.masks if single is not None else None
+
+
+def _given_once(paths: list[Path], digests: list[str] | None = None) -> None:
+    """Refuse a recording given twice — the same file (by its resolved path; a glob and a name
+    can both reach it) or, with ``digests`` (sha256 of each), the same content under two names:
+    its demonstrations would count twice, and a split could train and test on the same samples."""
+    seen: dict[object, Path] = {}
+    for i, p in enumerate(paths):
+        key = p.resolve() if digests is None else digests[i]
+        if key in seen:
+            what = (f"{p} is given twice" if str(p) == str(seen[key]) else
+                    f"{seen[key]} and {p} are the same file" if digests is None else
+                    f"{seen[key]} and {p} have the same content (sha256 {key[:12]}…)")
+            raise InputError(f"{what}: a recording given twice would count its demonstrations twice (and "
+                             "could be trained and tested on); give each once")
+        seen[key] = p
 
 
 def robot_relative_to(options: DataOptions, base: Path | None) -> DataOptions:

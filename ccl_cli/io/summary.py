@@ -46,3 +46,39 @@ def summary(data: Demonstrations) -> dict[str, Any]:
     return {"samples": data.n_samples, "demos": int(data.n_demos), "state_names": data.state_names,
             "action_names": data.action_names, "samples_per_demo": counts.tolist(),
             "duration_s": float(sum(np.ptp(data.t[rows[d]]) for d in data.demo_ids))}
+
+
+def repairs(data: Demonstrations) -> list[dict[str, Any]]:
+    """What the sensor-fault repair did, per demonstration (:class:`~ccl_cli.dataset.Repair`):
+    one entry per demonstration, action and fault — ``demo`` (its id in the data), ``action``
+    (``mirrored``, ``restamped``, ``dropped``; ``kept`` for a fault kept as recorded), ``fault``,
+    ``samples`` and ``times``: [first, last] of each run of such samples, in s from the
+    demonstration's first sample (a dropped sample at the time between the samples on either
+    side). Samples with no place in the data (left out by the demonstrations' options) and the
+    gaps (pauses, in the stamps' findings) are not listed."""
+    rep = data.repair
+    if rep is None or not len(rep.row):
+        return []
+    a, b, w = rep.places(data.demo)
+    listed = (a >= 0) & ((rep.done != 0) | (rep.why != 0))
+    gap = rep.faults.index("gap") if "gap" in rep.faults else -1
+    listed &= (rep.done != 0) | (rep.why != gap)
+    k = np.flatnonzero(listed)
+    if not len(k):
+        return []
+    demo = data.demo[a[k]]
+    t = (1 - w[k]) * data.t[a[k]] + w[k] * data.t[b[k]]
+    ids, first = np.unique(data.demo, return_index=True)
+    t -= data.t[first[np.searchsorted(ids, demo)]]
+    key = np.stack([demo, rep.done[k], rep.why[k]], 1)
+    new = np.r_[True, (key[1:] != key[:-1]).any(1) | (np.diff(k) > 1)]  # a run: consecutive samples alike
+    start = np.flatnonzero(new)
+    stop = np.r_[start[1:], len(k)]
+    out: dict[tuple[int, int, int], dict[str, Any]] = {}
+    for s, e in zip(start, stop, strict=True):  # a loop over runs of repaired samples
+        d, act, why = (int(v) for v in key[s])
+        entry = out.setdefault((d, act, why), {"demo": d, "action": rep.ACTIONS[act],
+                                              "fault": rep.faults[why], "samples": 0, "times": []})
+        entry["samples"] += int(e - s)
+        entry["times"].append([float(t[s]), float(t[e - 1])])
+    return [out[key] for key in sorted(out)]

@@ -65,6 +65,7 @@ def markdown(title: str, result: Any, plots: list[tuple[str, str]]) -> str:
               *([f"- actions: {', '.join(data_info['actions'])}"] if data_info.get("actions") else []),
               f"- inputs: {', '.join(data_info.get('files', [])) or '—'}",
               *([f"- actions derived: {data_info['derived']}"] if data_info.get("derived") else []),
+              *repair_lines(data_info.get("repairs")),
               "- metrics: mean squared error / normaliser, both shown; see docs/metrics.md", ""]
     lines += validation_markdown(data_info.get("validation"))
     for stage, entry in results_metrics.items():
@@ -87,6 +88,9 @@ def markdown(title: str, result: Any, plots: list[tuple[str, str]]) -> str:
             lines.append("")
         if entry.get("constraint"):
             lines += constraint_lines(entry["constraint"])
+        lines += sure_lines((entry.get("selection") or {}).get("sure"), entry.get("support"))
+        lines += truth_lines(entry.get("truth"))
+        lines += phase_lines(entry.get("phases"))
         if entry.get("per_demo_note"):
             lines += [entry["per_demo_note"], ""]
         lines += metric_rows(entry)
@@ -132,6 +136,67 @@ def constraint_lines(info: dict[str, Any]) -> list[str]:
     return out + stretch_lines(info)
 
 
+def sure_lines(sure: dict[str, Any] | None, support: dict[str, Any] | None = None) -> list[str]:
+    """"How sure": each learnt row's cone over held-out folds and the evidence for k − 1 and k + 1
+    (learn-a ``auto``'s ``selection.sure``), and whether held-out evidence supports the rows."""
+    if not sure and not support:
+        return []
+    out = ["### How sure", ""]
+    if support:
+        out += [("Held-out support: " if support["supported"] else "**No held-out support**: ")
+                + support["why"] + ".", ""]
+    cone = (sure or {}).get("cone")
+    if cone:
+        out += [f"Each learnt row against the rows of the same model fitted without the samples it is read "
+                f"at ({cone['over']}; {cone['samples']} samples): the angle of the row from them.", "",
+                "| row | median | 90th percentile |", "|---|---|---|"]
+        out += [f"| {r['row']} | {r['median_deg']:.2g}° | {r['p90_deg']:.2g}° |" for r in cone["rows"]]
+        out += [f"| all (largest principal angle) | {cone['median_deg']:.2g}° | {cone['p90_deg']:.2g}° |", ""]
+    elif sure and sure.get("why"):
+        out += [f"No cone: {sure['why']}.", ""]
+    near = [e for e in (sure or {}).get("neighbours", []) if e["role"] != "chosen"]
+    if near:
+        out += ["Evidence for one constraint fewer and one more:", ""]
+        for e in near:
+            verdict = {True: "rejected", False: "not ruled out",
+                       None: "not judged by the noise rule"}[e["rejected"]]
+            out.append(f"- k = {e['k']} ({e['role']}): {verdict} — {e['words']}")
+        out.append("")
+    return out
+
+
+def truth_lines(found: dict[str, Any] | None) -> list[str]:
+    """The learnt constraint against the ground truth stored in the file (``entry["truth"]``)."""
+    if not found:
+        return []
+    angle = ("no constraint in either" if found["median_deg"] is None else
+             f"largest principal angle per sample median {found['median_deg']:.3g}°, 90th percentile "
+             f"{found['p90_deg']:.3g}°")
+    nppe = "" if found.get("NPPE") is None else f"; NPPE {found['NPPE']:.3e}"
+    varies = " (the most common; it varies over the samples)" if found["true_k_varies"] else ""
+    out = ["### Against the ground truth in the file", "",
+           f"On the {found['part']} data ({found['samples']} samples): true k = {found['true_k']}{varies}, "
+           f"learnt k = {found['learnt_k']} ({100 * found['k_agrees']:.0f} % of the samples with as many "
+           f"learnt as true rows); {angle}{nppe}.", ""]
+    if found["far"]:
+        out += [f"**Far off**: {found['why']}.", ""]
+    return out
+
+
+def phase_lines(found: dict[str, Any] | None) -> list[str]:
+    """Where a constraint that holds in stretches holds (``entry["phases"]``), per demonstration."""
+    if not found:
+        return []
+    out = ["### Phases", "", f"The constraint holds in {100 * found['share']:.0f} % of the training samples "
+           "and nowhere else (free motion):", "", "| demo | held (s) | of (s) | where (s from its start) |",
+           "|---|---|---|---|"]
+    for d in found["demos"]:
+        spans = ", ".join(f"{a:.1f}–{b:.1f}" for a, b in d["spans"][:6]) + (
+            f", … ({len(d['spans']) - 6} more)" if len(d["spans"]) > 6 else "")
+        out.append(f"| {d['demo']} | {d['held_s']:.1f} | {d['duration_s']:.1f} | {spans or '—'} |")
+    return [*out, ""]
+
+
 def stretch_lines(info: dict[str, Any]) -> list[str]:
     """The first row of each window / segment of a per-stretch model (``describe_constraint``'s
     ``stretches``) as a markdown table."""
@@ -153,6 +218,19 @@ def stretch_lines(info: dict[str, Any]) -> list[str]:
 
 
 # -- sections of report.md ------------------------------------------------------------------
+def repair_lines(repairs: list[dict[str, Any]] | None) -> list[str]:
+    """report.md's lines on what the sensor-fault repair did, per demonstration (times from its
+    first sample); none when it did nothing."""
+    if not repairs:
+        return []
+    said = [f"demonstration {r['demo']}: {r['samples']} {r['action']} ({r['fault'].replace('_', ' ')}) at "
+            + ", ".join(f"{a:.2f}–{b:.2f} s" if b > a else f"{a:.2f} s" for a, b in r["times"][:4])
+            + (f" and {len(r['times']) - 4} more" if len(r["times"]) > 4 else "") for r in repairs[:8]]
+    more = [f"  - and {len(repairs) - 8} more (run.json: data.repairs)"] if len(repairs) > 8 else []
+    return ["- sensor-fault repair (samples as read; the rest kept as recorded):",
+            *(f"  - {x}" for x in said), *more]
+
+
 def validation_markdown(split_info: dict[str, Any] | None) -> list[str]:
     """The "Validation" section of report.md: how train and test were split, and why."""
     if not split_info:

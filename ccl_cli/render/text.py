@@ -53,6 +53,7 @@ def model_lines(info: dict[str, Any]) -> list[str]:
         sel = info.get("selection") or {}
         why = f" (rule {sel.get('rule')}: {sel.get('reason')})" if sel.get("rule") else ""
         out.append(f"constraints: {info['n_constraints']}{why}")
+        out += sure_lines(sel.get("sure"))
     dims = f"state p = {info.get('n_features_in')}" if info.get("n_features_in") else "state p not recorded"
     out.append(f"dimensions: {dims}, action q = {info.get('n_action')}")
     if info.get("basis"):
@@ -64,6 +65,9 @@ def model_lines(info: dict[str, Any]) -> list[str]:
         out.append(f"trained:  stage {training['stage']}")
     for path, digest in (training.get("inputs") or {}).items():
         out.append(f"  input   {path}  sha256 {digest[:16]}…")
+    for r in (training.get("repairs") or [])[:8]:
+        out.append(f"  repaired demonstration {r['demo']}: {r['samples']} sample(s) {r['action']} "
+                   f"({r['fault']})")
     for part, figures in (training.get("metrics") or {}).items():
         out.append(f"  {part:7s} " + "  ".join(f"{k}={v:.3e}" for k, v in figures.items()
                                                if isinstance(v, float)))
@@ -71,6 +75,24 @@ def model_lines(info: dict[str, Any]) -> list[str]:
         import json
 
         out.append(f"config:   {json.dumps(training['config'], default=str)[:300]}")
+    return out
+
+
+def sure_lines(sure: dict[str, Any] | None) -> list[str]:
+    """How sure learn-a's ``auto`` was (``selection.sure``): each learnt row's cone over held-out
+    folds, and the evidence for one constraint fewer and one more."""
+    if not sure:
+        return []
+    out = []
+    cone = sure.get("cone")
+    if cone:
+        rows = ", ".join(f"row {r['row']} {r['median_deg']:.2g}° (90 %: {r['p90_deg']:.2g}°)"
+                         for r in cone["rows"])
+        out.append(f"cone:     {rows} from the rows fitted without them ({cone['over']})")
+    for e in sure.get("neighbours") or []:
+        if e["role"] != "chosen":
+            verdict = {True: "rejected", False: "not ruled out", None: "not judged"}[e["rejected"]]
+            out.append(f"k = {e['k']}:    {verdict}: {e['words']}")
     return out
 
 
@@ -125,6 +147,11 @@ def inspect_lines(info: dict[str, Any]) -> list[str]:
         out.append(f"learning reads: {c['demos']} demonstration(s), {c['samples']} samples ({shown}), "
                    f"{c['duration_s']:.2f} s; {c['split']}")
         out.append(f"  state {', '.join(c['state_names'])}; action {', '.join(c['action_names'])}")
+        for r in c.get("repairs") or []:
+            times = ", ".join(f"{a:.2f}–{b:.2f} s" if b > a else f"{a:.2f} s" for a, b in r["times"][:6])
+            more = f" and {len(r['times']) - 6} more" if len(r["times"]) > 6 else ""
+            out.append(f"  repaired: demonstration {r['demo']}: {r['samples']} sample(s) {r['action']} "
+                       f"({r['fault']}) at {times}{more}")
     for key in ("samples", "demos", "samples_per_demo", "state_names", "action_names", "truth", "masks"):
         if key in info and not (key == "demos" and "gap_s" in info):
             out.append(f"{key + ':':9s} {info[key]}")

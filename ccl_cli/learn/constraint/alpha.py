@@ -14,6 +14,7 @@ import numpy as np
 from ccl_cli.dataset import HowMade
 from ccl_cli.errors import ConfigError
 from ccl_cli.learn.basis import Basis, BasisParams, NCentres
+from ccl_cli.learn.constraint import geometry
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import rank as sel
 from ccl_cli.learn.constraint.angular import (
@@ -77,11 +78,13 @@ class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedPara
             return sel.Selection("threshold", k, nmse, reason)
 
         def noise() -> sel.Selection | None:  # the rows of every fit at every sample, (N, m, q)
-            data = nr.Sample.of(X, U, groups, *getattr(self, "_timing", (None, None)))
+            timing = getattr(self, "_timing", (None, None))
+            data = nr.Sample.of(X, U, groups, *timing)
             rows = np.empty((len(X), len(self._row_weights), self.n_action_))
             for chunk in row_chunks(len(X)):  # the features of a block of samples at a time
                 rows[chunk] = self._rows_at(basis, X[chunk], self._row_weights)
-            return nr.noise_rank(data.rows_evidence(rows), max_k)
+            chosen = nr.noise_rank(data.rows_evidence(rows), max_k)
+            return geometry.add_still_rows(chosen, rows, X, U, data.groups, *timing, max_k)
 
         chosen = sel.choose(self, ratio_values=np.asarray(nmse), gap_values=np.append(nmse, 1.0),
                             max_k=max_k, fixed_max=max_k, criterion="nmse of row k", threshold=threshold,

@@ -96,6 +96,7 @@ from ccl_cli.learn import model_selection as ms
 from ccl_cli.learn.constraint import evidence as ev
 from ccl_cli.learn.constraint import geometry as geo
 from ccl_cli.learn.constraint import noise_rank as nr
+from ccl_cli.learn.constraint import sure
 from ccl_cli.learn.constraint.alpha import StateDependentConstraint
 from ccl_cli.learn.constraint.base import Applied, ConstraintModel, NewDataRule, Windows, check_rows_asked
 from ccl_cli.learn.constraint.lambda_ import FeatureSpec, KnownFeatureConstraint, make_features
@@ -295,7 +296,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
         if not moving:
             self.geometry_ = {"tried": False, "reason": why}
             return False
-        found = geo.decide(X, data.groups, only_k=self.n_constraints, max_k=self.max_constraints)
+        found = geo.decide(X, data.groups, only_k=self.n_constraints, max_k=self.max_constraints, t=data.t)
         self.geometry_ = {"tried": True, "k": found.k, "reason": f"{why}; {found.reason}",
                           "models": [t.row(t is found.winner) for t in found.tried],
                           "returns": {str(k): v for k, v in found.revisits.items()}}
@@ -317,9 +318,11 @@ class AutoConstraint(ConstraintModel, SeedParams):
                   f" ({t.worst:.3g} against {t.limit:g})"} for t in found.tried]
         rows += [ev.not_tried(c, "the states' geometry decided") for c in CANDIDATES
                  if c not in ("none", "manifold")]
-        chosen = ("stretches" if w.scope == "phases" and data.t is not None else
+        chosen = ("per_demo_task" if w.scope == "per_demo_task" else
+                  "stretches" if w.scope == "phases" and data.t is not None else
                   "manifold" if w.basis != "linear" or w.scope == "phases" else
-                  "nhat" if w.scope == "global" else "per_demo" if data.t is not None else "manifold")
+                  "nhat" if w.scope == "global" else
+                  "per_demo" if data.t is not None and w.measure != "shape residual" else "manifold")
         self.selection_ = {"rule": "auto", "n_constraints": found.k, "model": label, "chosen": chosen,
                            "decided_by": "states",
                            "reason": f"{found.k} constraint(s): {found.reason}" + (
@@ -328,28 +331,60 @@ class AutoConstraint(ConstraintModel, SeedParams):
                            "criterion": f"{w.measure} of level function k (RMS along the demonstrations / "
                                         "RMS spread)",
                            "candidates": rows, "geometry": self.geometry_}
+        self.selection_["sure"] = self._sure_of_states(data, w, found.k)
         self.model_.selection_ = {**self.selection_, "winner_selection": self.model_.selection_}
         return True
 
-    def _manifold_model(self, winner: geo.Tried, k: int, data: ev.Sample) -> ConstraintModel:
+    def _sure_of_states(self, data: ev.Sample, winner: geo.Tried, k: int) -> dict[str, Any]:
+        """How sure (:mod:`.sure`): the model of the states' manifold fitted again without each
+        fold — whole demonstrations, or blocks inside each one for a model per demonstration or
+        stretch — its rows at the held-out samples against the final ones, and k ± 1."""
+        q = data.U.shape[1]
+        derived = data.derived
+        gap = self.gap if self.gap is not None else int(derived.window) if derived else ms.RECORDED_GAP
+
+        def refit(idx: np.ndarray) -> ConstraintModel:
+            return self._manifold_model(winner, k, sure.part(data, idx), heldout=False)
+
+        try:
+            if self.model_.is_local:
+                seg = np.unique(data.groups, return_inverse=True)[1].ravel()
+                folds = ms.inner_folds(seg, self.cv_folds, gap, "demonstration")
+            else:
+                folds = ms.make_folds(data.groups, len(data.U), self.cv_folds, self.seed, gap)
+            held = sure.held_out_rows(refit, data.X, data.groups, data.t, k, folds.pairs)
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
+            why = f"no held-out fits: {getattr(exc, 'message', None) or exc}"
+            return sure.summary(None, None, "", self.selection_, q, why)
+        final = self.model_.constraint(data.X, groups=data.groups, t=data.t)
+        return sure.summary(final, held, folds.reason, self.selection_, q)
+
+    def _manifold_model(self, winner: geo.Tried, k: int, data: ev.Sample, heldout: bool = True
+                        ) -> ConstraintModel:
         """The model of the manifold the states showed, with k rows, fitted on all the data. Flat
-        manifolds (lines, planes: constant rows) take their rows from the velocities (§3.1, one
-        constant A, per demonstration when each has its own): every part of the motion weighs by
-        how much it moves, which a tilting or bowing surface does not skew the way the spread of
-        the positions does; circles, spheres and quadrics take the gradients of their levels."""
+        families (planes, and lines shared by every demonstration: constant rows) take their rows
+        from the velocities (§3.1, one constant A, per demonstration when each has its own
+        surface): every part of the motion weighs by how much it moves, which a tilting or bowing
+        surface does not skew the way the spread of the positions does; a line or circle in each
+        demonstration, spheres and quadrics take the gradients of their levels (a line's
+        direction is best read off its whole extent). ``heldout``: a model per demonstration
+        also measures its held-out NPOE."""
         X, U, g = data.X, data.U, data.groups
+        if winner.scope == "per_demo_task":  # its own rows and task part in each: §3.5 with a task term
+            return PerDemonstration(LinearConstraint(regressors="identity", task=True, n_constraints=k),
+                                    heldout=heldout).fit(X, U, groups=g, derivative=data.derivative)
         if winner.scope == "phases" and data.t is not None:  # the rows where they hold, found in time
             return ConstraintInStretches(block=BLOCK_S, n_constraints=k).fit(
                 X, U, groups=g, t=data.t, derivative=data.derivative)
         if winner.basis == "linear" and winner.scope == "global":
             return StateIndependentConstraint(n_constraints=k, seed=self.seed).fit(X, U, groups=g)
-        if winner.basis == "linear" and data.t is not None:
-            return PerWindow(window=None, n_constraints=k, heldout=True).fit(
+        if winner.basis == "linear" and data.t is not None and winner.measure != "shape residual":
+            return PerWindow(window=None, n_constraints=k, heldout=heldout).fit(
                 X, U, groups=g, t=data.t, derivative=data.derivative)
-        est = ManifoldConstraint(basis=winner.basis, n_constraints=k)
+        est = ManifoldConstraint(family=winner.basis, n_constraints=k)
         if winner.scope in ("global", "phases"):
             return est.fit(X, U, groups=g)
-        return PerDemonstration(est).fit(X, U, groups=g, derivative=data.derivative)
+        return PerDemonstration(est, heldout=heldout).fit(X, U, groups=g, derivative=data.derivative)
 
     def _candidates(self, data: ev.Sample, gap: int) -> tuple[list[ev.Candidate], list[dict[str, Any]]]:
         """The candidates to try, simplest first, and the table rows of those not tried."""
@@ -521,7 +556,11 @@ class AutoConstraint(ConstraintModel, SeedParams):
         self.selection_ = {"rule": "auto", "n_constraints": int(k_star), "model": label, "reason": reason,
                            "chosen": winner.candidate.name if winner else "none", "values": values,
                            "criterion": "held-out energy / noise variance of row k (the winner)",
-                           "candidates": rows}
+                           "candidates": rows, **({"geometry": self.geometry_} if self.geometry_ else {})}
+        final = None if winner is None else self.model_.constraint(data.X, groups=data.groups, t=data.t)
+        self.selection_["sure"] = sure.summary(
+            final, None if winner is None else winner.rows[:, :k_star], "" if winner is None else
+            winner.folds.reason, self.selection_, data.U.shape[1], "no constraint")
         self.model_.selection_ = {**self.selection_, "winner_selection": self.model_.selection_}
 
     def _refit(self, data: ev.Sample, winner: ev.Tried | None, k: int) -> ConstraintModel:

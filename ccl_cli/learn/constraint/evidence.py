@@ -69,6 +69,17 @@ class Tried:
     def se(self) -> float:
         return standard_error(self.errors)
 
+    def limits(self) -> dict[str, Any]:
+        """The noise rule's limits for its rows (:func:`.noise_rank.row_limits`, as :func:`rank`
+        applies them): ``noise_limit`` and ``share_limit`` per row (None: a row only its noise
+        ratio can admit), both None when the rule could not judge (the ratio rule decided)."""
+        ev = self.evidence
+        if ev is None or not ev.snr >= nr.MIN_SNR:
+            return {"noise_limit": None, "share_limit": None}
+        limit, share = nr.row_limits(ev.ratio, share_rows=nr.SHARE_ROWS)
+        return {"noise_limit": [float(v) for v in limit],
+                "share_limit": [float(v) if np.isfinite(v) else None for v in share]}
+
     def row(self, chosen: bool, reason: str) -> dict[str, Any]:
         """The candidate as a row of the report's table."""
         ev = self.evidence
@@ -77,7 +88,7 @@ class Tried:
                 "se": None if self.errors is None else self.se,
                 "noise_ratio": None if ev is None else [float(v) for v in ev.ratio],
                 "share": None if ev is None else [float(v) for v in ev.share],
-                "folds": self.folds.reason, "rank_reason": self.rank_reason,
+                **self.limits(), "folds": self.folds.reason, "rank_reason": self.rank_reason,
                 "scored_on": None if self.scored_on is None else self.scored_on.reason, "chosen": chosen,
                 "reason": reason, **self.extra}
 
@@ -85,7 +96,8 @@ class Tried:
 def not_tried(name: str, why: str) -> dict[str, Any]:
     """The table row of a candidate that was not tried."""
     return {"class": name, "model": name, "k": None, "error": "held-out NPOE", "heldout_error": None,
-            "se": None, "noise_ratio": None, "share": None, "folds": None, "rank_reason": "",
+            "se": None, "noise_ratio": None, "share": None, "noise_limit": None, "share_limit": None,
+            "folds": None, "rank_reason": "",
             "scored_on": None, "chosen": False, "reason": f"not tried: {why}"}
 
 

@@ -48,6 +48,7 @@ import numpy as np
 from ccl_cli.dataset import Derivative, HowMade, group_rows
 from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint.manifold import BASES, ManifoldConstraint, within_covariance
+from ccl_cli.learn.constraint.rank import Selection
 
 #: A demonstration shows a shape with at least MIN_SAMPLES samples and a spread above STILL × the
 #: median demonstration's.
@@ -72,6 +73,18 @@ RAIL_FIT = 0.08
 #: demonstration and by a quadric when at least half of the demonstrations do.
 REVISIT_RADIUS = 0.3
 REVISIT_SHARE = 0.25
+#: Lines in different directions are one constraint per demonstration when there are at least
+#: MIN_LINES of them and no point comes within MEET × a demonstration's spread of every one (lines
+#: through one point are straight reaches to one goal).
+MIN_LINES = 3
+MEET = 0.3
+#: Largest pooled residual of rows that each demonstration moves along at its own constant rate (a
+#: constant task part, :func:`task_residual`): strict, since a steady drift of a free motion (a pen
+#: progressing across a page) comes within 0.11–0.3.
+TASK_FIT = 0.02
+RIDGE_TIME = 1e-9
+#: A demonstration's circle of radius at least FLAT × its spread is a (bowed) line.
+FLAT = 5.0
 #: Circles fitted one per demonstration agree: axes within AXIS_DEG, radii within ± RADIUS_SPREAD.
 AXIS_DEG = 10.0
 RADIUS_SPREAD = 0.1
@@ -86,9 +99,10 @@ GAP_SHARE = 0.01
 REVISIT_QUERIES = 400
 #: The evidence is read on at most about EVIDENCE_ROWS samples (work bounded at any N): when the
 #: moving demonstrations hold more, at most max(EVIDENCE_DEMOS, EVIDENCE_ROWS / their median
-#: length) of them, evenly spaced in :func:`demo_order` (near the centre of the states to far from
-#: it), each cut to one contiguous block of at most EVIDENCE_ROWS / that many samples at a seeded
-#: place (:func:`evidence_rows`); the model that shows the constraint is then fitted on all rows.
+#: length) whole demonstrations, evenly spaced in :func:`demo_order` (near the centre of the states
+#: to far from it), thinned in time by one common stride (:func:`evidence_rows`), and the surfaces
+#: per demonstration judged on at most EVIDENCE_DEMOS of them; the model that shows the constraint
+#: is then fitted on all rows.
 EVIDENCE_ROWS = 20_000
 EVIDENCE_DEMOS = 50
 #: Phases: the samples that come back over their ground within PHASE_RADIUS × the spread are where
@@ -183,7 +197,7 @@ def drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int) -> np.ndarray:
     piece = np.zeros(len(X), np.int64)
     for j, (train, test) in enumerate(folds(X, groups)):
         try:
-            model = ManifoldConstraint(basis=basis, n_constraints=k).fit(
+            model = ManifoldConstraint(family=basis, n_constraints=k).fit(
                 X[train], np.zeros((len(train), q)), groups=_stretches(train, groups))
         except (InputError, np.linalg.LinAlgError):  # a fold whose states do not move: no evidence
             return np.full(k, np.inf)
@@ -231,10 +245,7 @@ def circle(P: np.ndarray) -> tuple[np.ndarray, float]:
 
 def _per_demo_drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int, which: np.ndarray
                     ) -> np.ndarray:
-    """Median over the demonstrations ``which`` (at most EVIDENCE_DEMOS of them, evenly spaced)
-    of each one's own held-out drift (blocks): (k,)."""
-    if len(which) > EVIDENCE_DEMOS:
-        which = which[np.linspace(0, len(which) - 1, EVIDENCE_DEMOS).round().astype(np.int64)]
+    """Median over the demonstrations ``which`` of each one's own held-out drift (blocks): (k,)."""
     rows = dict(zip(*group_rows(groups), strict=True))
     values = [drift(X[rows[d]], np.zeros(len(rows[d]), np.int64), basis, k) for d in which]
     return np.median(values, axis=0)
@@ -245,7 +256,7 @@ def shape_residual(P: np.ndarray, k: int, basis: str = "sphere") -> np.ndarray:
     fitted to it: the RMS of the first k level functions fitted to it alone, over its RMS
     spread: (k,). A circle or a line has a handful of parameters, so the fit to a few hundred
     samples is judged on those samples."""
-    model = ManifoldConstraint(basis=basis, n_constraints=k).fit(P, np.zeros_like(P))
+    model = ManifoldConstraint(family=basis, n_constraints=k).fit(P, np.zeros_like(P))
     spread = float(np.sqrt(((P - P.mean(0)) ** 2).sum(1).mean()))
     H = model.levels(P, k)
     return np.sqrt(((H - H.mean(0)) ** 2).mean(0)) / spread if spread > 0 else np.full(k, np.inf)
@@ -260,12 +271,12 @@ def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
         return True, "one demonstration"
     q = X.shape[1]
     directions, axes, radii, straight = [], [], [], []
-    for mine in rows:  # a loop over (at most EVIDENCE_DEMOS-bounded) demonstrations
+    for mine in rows:  # a loop over the demonstrations (of the bounded evidence sample)
         P = X[mine]
         c0 = P.mean(0)
         V = np.linalg.svd(P - c0, full_matrices=False)[2]
         directions.append(V[0])
-        straight.append(bool(shape_residual(P, q - 1, "linear").max() <= RAIL_FIT))
+        spread = float(np.sqrt(((P - c0) ** 2).sum(1).mean()))
         if q == 3:
             axis, r = circle(P)
             axes.append(axis)
@@ -274,14 +285,34 @@ def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
             sol = np.linalg.lstsq(np.c_[2 * Q, np.ones(len(Q))], (Q**2).sum(1), rcond=None)[0]
             r = float(np.sqrt(max(sol[2] + sol[0] ** 2 + sol[1] ** 2, 0.0)))
         radii.append(r)
+        # a line: the circle fits it no PARSIMONY × better, or bends so little over the demonstration
+        # (radius ≥ FLAT × its spread) that it is a bowed line
+        line = shape_residual(P, q - 1, "linear").max()
+        straight.append(bool(r >= FLAT * spread or line <= 1e-6  # (exact lines: the circle fit is rounding)
+                             or line <= PARSIMONY * shape_residual(P, q - 1, "sphere").max()))
     if all(straight):
         D = np.array(directions)
         ref = np.linalg.svd(D, full_matrices=False)[2][0]
         deg = float(np.degrees(np.arccos(np.clip(np.abs(D @ ref), 0.0, 1.0))).max())
-        return deg <= AXIS_DEG, f"lines within {deg:.1f}° of one direction"
-    if any(straight):
-        return False, "lines in some demonstrations, arcs in others"
-    r = np.array(radii)
+        if deg <= AXIS_DEG:
+            return True, f"lines within {deg:.1f}° of one direction"
+        # lines in different directions: each demonstration under its own constraint — unless they
+        # run through one point, as straight reaches to one goal do
+        centres = np.array([X[m].mean(0) for m in rows])
+        spreads = np.array([np.sqrt(((X[m] - X[m].mean(0)) ** 2).sum(1).mean()) for m in rows])
+        miss = _meeting_miss(centres, D)
+        meet = len(ids) < MIN_LINES or miss <= MEET * float(np.median(spreads))
+        if meet:
+            return False, f"lines in directions {deg:.0f}° apart, through one point (within {miss:.3g})"
+        return True, (f"lines in directions {deg:.0f}° apart that do not run through one point (the "
+                      f"nearest misses them by {miss:.3g} RMS): one constraint per demonstration")
+    straight = np.array(straight)
+    sizes = np.array([len(m) for m in rows])
+    if sizes[straight].sum() > sizes[~straight].sum():
+        return False, "lines in most demonstrations, arcs in others"
+    # arcs in most: a straight piece is too short to tell a large circle from a line
+    r = np.array(radii)[~straight]
+    axes = [a for a, s in zip(axes, straight, strict=False) if not s] if axes else axes
     med = float(np.median(r))
     rel = float(np.abs(r - med).max() / med) if med > 0 else np.inf
     deg = 0.0
@@ -291,6 +322,16 @@ def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
         deg = float(np.degrees(np.arccos(np.clip(np.abs(A @ ref), 0.0, 1.0))).max())
     ok = deg <= AXIS_DEG and rel <= RADIUS_SPREAD
     return ok, f"circles with axes within {deg:.1f}°, radii within ±{100 * rel:.0f} % of {med:.3g}"
+
+
+def _meeting_miss(points: np.ndarray, directions: np.ndarray) -> float:
+    """The RMS distance from the point nearest to every line (through ``points`` (L, q), along unit
+    ``directions`` (L, q)) to the lines."""
+    q = points.shape[1]
+    P = np.eye(q)[None] - np.einsum("li,lj->lij", directions, directions)  # projections across each line
+    point = np.linalg.lstsq(P.sum(0), np.einsum("lij,lj->i", P, points), rcond=None)[0]
+    gaps = np.einsum("lij,lj->li", P, point[None] - points)
+    return float(np.sqrt((gaps**2).sum(1).mean()))
 
 
 def contact_runs(X: np.ndarray, groups: np.ndarray) -> np.ndarray:
@@ -345,34 +386,61 @@ def _moving(X: np.ndarray, groups: np.ndarray) -> np.ndarray:
     return ok[inverse.ravel()]
 
 
+def spaced(ids: np.ndarray, count: int) -> np.ndarray:
+    """At most ``count`` of ``ids`` (m,), evenly spaced from the first to the last."""
+    if len(ids) <= count:
+        return ids
+    return ids[np.linspace(0, len(ids) - 1, count).round().astype(np.int64)]
+
+
 def evidence_rows(X: np.ndarray, groups: np.ndarray, rows: int = EVIDENCE_ROWS,
                   demos: int = EVIDENCE_DEMOS) -> np.ndarray:
     """The rows (sorted indices) the evidence is read on: all when there are at most ``rows``;
-    else whole demonstrations evenly spaced in :func:`demo_order`, at most max(``demos``, ``rows``
-    / their median length) of them, each longer than ``rows`` / that many cut to one contiguous
-    block of that length at a seeded place — a bounded, stratified, deterministic sample."""
+    else at most max(``demos``, ``rows`` / their median length) whole demonstrations evenly
+    spaced in :func:`demo_order`, each thinned in time by one common stride (every s-th sample,
+    from its first; at least MIN_SAMPLES samples kept of each) so that about ``rows`` remain — a
+    bounded, stratified, deterministic sample that keeps each demonstration's whole course (its
+    shape, returns and phases; the drift and shape measures are ratios of lengths, the same at
+    any rate)."""
     n = len(X)
     if n <= rows:
         return np.arange(n)
-    order = demo_order(X, groups)
     ids, members = group_rows(groups)
     sizes = np.array([len(m) for m in members])
     count = min(len(ids), max(demos, rows // max(int(np.median(sizes)), 1)))
-    picked = order[np.linspace(0, len(order) - 1, count).round().astype(np.int64)]
-    length = max(rows // count, MIN_SAMPLES)
-    rng = np.random.default_rng(0)
-    parts = []
-    for d in np.unique(picked):  # a loop over the (bounded) demonstrations picked
-        mine = members[int(np.searchsorted(ids, d))]
-        start = int(rng.integers(0, len(mine) - length + 1)) if len(mine) > length else 0
-        parts.append(mine[start:start + length])
+    if count < len(ids):
+        at = np.searchsorted(ids, np.unique(spaced(demo_order(X, groups), count)))
+    else:
+        at = np.arange(len(ids))
+    stride = max(1, -(-int(sizes[at].sum()) // rows))
+    parts = [members[i][:: max(1, min(stride, sizes[i] // MIN_SAMPLES))] for i in at]  # ≤ count of them
     return np.sort(np.concatenate(parts))
 
 
+def task_residual(X: np.ndarray, groups: np.ndarray, t: np.ndarray, k: int) -> float:
+    """How far the demonstrations are from moving along their own k constant rows at their own
+    constant rates (a·x − b t constant in each: a constraint with a constant task part, A u = b):
+    the RMS of the k quietest such levels fitted to each demonstration alone, pooled, over the
+    pooled RMS spread of the positions. X (N, q), groups (N,), t (N,) s."""
+    from scipy.linalg import eigh
+
+    q = X.shape[1]
+    num = den = 0.0
+    for m in group_rows(groups)[1]:  # a closed form per demonstration
+        P, s = X[m] - X[m].mean(0), t[m] - t[m].mean()
+        Z = np.c_[P, s / max(float(np.abs(s).max()), np.finfo(float).tiny)]  # time scaled to the unit
+        G = np.diag([1.0] * q + [0.0]) + RIDGE_TIME * np.eye(q + 1)
+        lam = eigh(Z.T @ Z, G, eigvals_only=True)
+        num += float(np.maximum(lam[:k], 0.0).sum()) / k
+        den += float((P**2).sum())
+    return float(np.sqrt(num / den)) if den > 0 else np.inf
+
+
 def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None = None,
-           max_k: int | None = None) -> Geometry:
+           max_k: int | None = None, t: np.ndarray | None = None) -> Geometry:
     """The number of constraints the positions X (N, q) of demonstrations ``groups`` show, and the
-    model that shows it (module docstring); ``only_k``: judge that rank alone; ``max_k``: at most."""
+    model that shows it (module docstring); ``only_k``: judge that rank alone; ``max_k``: at most;
+    ``t`` (N,) s: the sample times, for rails that move at a constant rate (a task part)."""
     X = np.asarray(X, dtype=float)
     q = X.shape[1]
     groups = np.zeros(len(X), np.int64) if groups is None else np.asarray(groups)
@@ -382,7 +450,9 @@ def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None =
                         f"{MIN_SAMPLES} samples or more")
     X, groups = X[usable], groups[usable]
     keep = evidence_rows(X, groups)
+    bounded = len(keep) < len(X)  # a sample: per-demonstration fits on at most EVIDENCE_DEMOS of them
     X, groups = X[keep], groups[keep]
+    t = None if t is None else np.asarray(t, dtype=float)[usable][keep]
     ids, rows = group_rows(groups)
     back = {int(d): revisits(X[mine]) for d, mine in zip(ids, rows, strict=True)}
     returning = np.array([d for d in ids if back[int(d)] >= REVISIT_SHARE])
@@ -409,11 +479,19 @@ def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None =
             agree, how = shapes_agree(X, groups)
             worst = fits.max(axis=0)
             holds = bool(agree and worst.max() <= RAIL_FIT)
-            tried.append(Tried(k, "per_demo", "sphere", worst, RAIL_FIT, holds,
+            lines = how.startswith("lines")  # straight in every demonstration: constant rows each
+            tried.append(Tried(k, "per_demo", "linear" if lines else "sphere", worst, RAIL_FIT, holds,
                                f"a line or circle in every demonstration ({how})", "shape residual"))
+        if rail and q <= 3 and t is not None and len(ids) >= MIN_LINES and not any(
+                x.holds for x in tried if x.k == k):
+            fit = task_residual(X, groups, t, k)
+            tried.append(Tried(k, "per_demo_task", "linear", np.full(k, fit), TASK_FIT, bool(fit <= TASK_FIT),
+                               "each demonstration moving along its own constant rows at its own constant "
+                               "rate (a task part: A u = b)", "shape residual"))
         if not rail and len(returning) and surfaces_return and len(ids) > 1:
             for basis in BASES[: 3 if quadrics else 2]:
-                d = _per_demo_drift(X, groups, basis, k, returning)
+                d = _per_demo_drift(X, groups, basis, k, spaced(returning, EVIDENCE_DEMOS)
+                                    if bounded else returning)
                 tried.append(Tried(k, "per_demo", basis, d, SURFACE, bool(d.max() <= SURFACE),
                                    "one surface per demonstration that comes back over its ground"))
         if not rail and surfaces_return:
@@ -512,5 +590,30 @@ def holds_limit(X: np.ndarray, groups: np.ndarray, k: int) -> float:
     the positions X (N, q) of demonstrations ``groups``: HOLDS where most demonstrations come back
     over their ground; on single passes RAIL_FIT for k = q − 1 (a line or circle) and THIN below."""
     keep = evidence_rows(X, groups)
-    back = np.mean([revisits(X[keep][mine]) >= REVISIT_SHARE for mine in group_rows(groups[keep])[1]]) >= 0.5
+    P = X[keep]
+    back = np.mean([revisits(P[mine]) >= REVISIT_SHARE for mine in group_rows(groups[keep])[1]]) >= 0.5
     return HOLDS if back else RAIL_FIT if k >= X.shape[1] - 1 else THIN
+
+
+def add_still_rows(chosen: Selection | None, rows: np.ndarray, X: np.ndarray, U: np.ndarray,
+                   groups: np.ndarray, t: np.ndarray | None, derivative: HowMade, max_k: int
+                   ) -> Selection | None:
+    """The noise rule's choice (:func:`~.noise_rank.noise_rank`) of an explicit learner's rows
+    (N, m, q), extended — when the actions are the states' derivative — by the next rows along
+    which the positions do not drift (:func:`rows_drift` within :func:`holds_limit`): a compliant
+    contact or a hand's tremor moves along a true row far above the noise, and never carries the
+    states off it. X (N, q), U (N, q), groups (N,), t (N,) s."""
+    if chosen is None or chosen.n_constraints >= max_k or not kinematic(X, U, groups, t, derivative)[0]:
+        return chosen
+    k = chosen.n_constraints
+    drift = rows_drift(rows[:, :max_k], X, groups)
+    limit = holds_limit(X, groups, max_k)
+    still = drift <= limit
+    while k < max_k and still[k]:
+        k += 1
+    if k > chosen.n_constraints:
+        chosen.reason += (f"; rows {chosen.n_constraints + 1}–{k} move above the noise but the positions "
+                          f"drift along them by at most {drift[chosen.n_constraints:k].max():.3g} of their "
+                          f"spread (≤ {limit:g}): constraints the contact gives a little along")
+        chosen.n_constraints = k
+    return chosen

@@ -34,11 +34,11 @@ from typing import Annotated, ClassVar, Literal
 import numpy as np
 from scipy.linalg import eigh
 
-from ccl_cli.errors import ConfigError, InputError
+from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint.base import ConstraintModel, check_rows_asked
 from ccl_cli.learn.params import Interval, parameters
 
-Basis = Literal["linear", "sphere", "quadric"]
+Family = Literal["linear", "sphere", "quadric"]
 #: The feature spaces, simplest first.
 BASES: tuple[str, ...] = ("linear", "sphere", "quadric")
 #: Relative ridge on G (a feature with no gradient along the data cannot be normalised).
@@ -79,8 +79,8 @@ class ManifoldConstraint(ConstraintModel):
     """k level functions of the states, constant along every demonstration (module docstring).
 
     Args:
-        basis: ``linear`` (planes, lines: constant rows), ``sphere`` (spheres, circles: a
-            hinge's radial row) or ``quadric`` (curved surfaces).
+        family: the level functions' features: ``linear`` (planes, lines: constant rows),
+            ``sphere`` (spheres, circles: a hinge's radial row) or ``quadric`` (curved surfaces).
         n_constraints: k (None: the rows whose mean squared variation along the
             demonstrations is at most ``tolerance`` times the states' own, at least one).
         tolerance: of that choice: the largest allowed ratio of a level's RMS variation along
@@ -95,14 +95,14 @@ class ManifoldConstraint(ConstraintModel):
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "n_action_": "value", "selection_": "value",
         "weights_": "array", "variation_": "array", "centre_": "array", "scale_": "value"}
-    basis: Basis = "sphere"
+    family: Family = "sphere"
     n_constraints: Annotated[int, Interval(1, 100_000)] | None = None
     tolerance: Annotated[float, Interval(0, None)] = 0.05
 
     @property
     def varies_with_state(self) -> bool:  # type: ignore[override]
         """Planes and lines (``linear``) have constant rows; spheres, circles, quadrics turn."""
-        return self.basis != "linear"
+        return self.family != "linear"
 
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
             t: np.ndarray | None = None, derivative: object = None) -> ManifoldConstraint:
@@ -121,7 +121,7 @@ class ManifoldConstraint(ConstraintModel):
         self.scale_ = float(np.sqrt(((X - self.centre_) ** 2).sum(1).mean()))
         if not self.scale_ > 0:
             raise InputError("the states do not move: no manifold to learn")
-        Phi, J = features(self.basis, self._scaled(X))
+        Phi, J = features(self.family, self._scaled(X))
         C = within_covariance(Phi, groups)
         G = np.einsum("nfq,ngq->fg", J, J) / len(X)
         G += RIDGE * np.trace(G) / len(G) * np.eye(len(G))
@@ -148,7 +148,7 @@ class ManifoldConstraint(ConstraintModel):
     def check_shapes(self) -> None:
         """weights_ (F, F), variation_ (F,), centre_ (q,) for the basis and q; scale_ > 0; 1 ≤ k < q."""
         q = self.n_action_
-        F = n_features(self.basis, q)
+        F = n_features(self.family, q)
         for name, want in (("weights_", (F, F)), ("variation_", (F,)), ("centre_", (q,))):
             if getattr(self, name, None) is None or np.shape(getattr(self, name)) != want:
                 raise self._shape_error(name)
@@ -165,19 +165,19 @@ class ManifoldConstraint(ConstraintModel):
         """h_1 … h_k at states X (N, q), in length units: (N, k)."""
         self._check_fitted("weights_")
         k = self.n_constraints_ if k is None else k
-        Phi, _ = features(self.basis, self._scaled(self._check_states(X)))
+        Phi, _ = features(self.family, self._scaled(self._check_states(X)))
         return Phi @ self.weights_[:, :k] * self.scale_
 
     def gradients(self, X: np.ndarray, k: int | None = None) -> np.ndarray:
         """∇h_1 … ∇h_k at states X (N, q), not normalised: (N, k, q)."""
         self._check_fitted("weights_")
         k = self.n_constraints_ if k is None else k
-        _, J = features(self.basis, self._scaled(self._check_states(X)))
+        _, J = features(self.family, self._scaled(self._check_states(X)))
         return np.einsum("fk,nfq->nkq", self.weights_[:, :k], J)
 
     def constant_rows(self) -> np.ndarray | None:
         """The rows (k, q) of a ``linear`` model (its gradients do not depend on x), else None."""
-        if self.basis != "linear":
+        if self.family != "linear":
             return None
         self._check_fitted("weights_")
         return self.constraint(self.centre_[None])[0]
@@ -193,8 +193,3 @@ class ManifoldConstraint(ConstraintModel):
         return np.swapaxes(Q, 1, 2) * signs[:, :, None]
 
 
-def check_basis(basis: str) -> str:
-    """``basis`` if it is one of :data:`BASES`, else one ConfigError."""
-    if basis not in BASES:
-        raise ConfigError(f"unknown manifold basis {basis!r} (use {', '.join(BASES)})")
-    return basis

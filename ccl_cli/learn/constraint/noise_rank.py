@@ -163,6 +163,21 @@ class Sample:
                             self.derived, recorded=self.recorded)
 
 
+def row_limits(r: np.ndarray, margin: float = MARGIN, share: float = SHARE, ratio: float = RATIO,
+               share_rows: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The limits of the rule (module docstring) for rows with noise ratios r (m,): the largest
+    noise ratio of each row that is a constraint (MARGIN for the first, min(MARGIN, RATIO · max(r_1,
+    1)) after it) and the largest share (``share`` for the first ``share_rows`` rows, None: every
+    row; −inf for the others, which only their noise ratio can admit): ((m,), (m,))."""
+    r = np.asarray(r, dtype=float)
+    limit = np.full(len(r), float(margin))
+    limit[1:] = min(margin, ratio * max(float(r[0]) if len(r) else 1.0, 1.0))
+    share_limit = np.full(len(r), float(share))
+    if share_rows is not None:
+        share_limit[share_rows:] = -np.inf
+    return limit, share_limit
+
+
 def noise_rank(evidence: RowEvidence, max_k: int, margin: float = MARGIN, share: float = SHARE,
                ratio: float = RATIO, min_snr: float = MIN_SNR, share_rows: int | None = None
                ) -> Selection | None:
@@ -175,12 +190,8 @@ def noise_rank(evidence: RowEvidence, max_k: int, margin: float = MARGIN, share:
     if not evidence.snr >= min_snr:
         return None
     r = evidence.ratio
-    limit = np.full(len(r), float(margin))
-    limit[1:] = min(margin, ratio * max(float(r[0]) if len(r) else 1.0, 1.0))
-    by_share = evidence.share <= share
-    if share_rows is not None:
-        by_share[share_rows:] = False
-    quiet = (r <= limit) | by_share
+    limit, share_limit = row_limits(r, margin, share, ratio, share_rows)
+    quiet = (r <= limit) | (evidence.share <= share_limit)
     m = min(int(max_k), len(quiet))
     k = int(np.argmin(np.r_[quiet[:m], False]))  # the first row that moves
     if k < m:
