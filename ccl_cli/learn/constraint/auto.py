@@ -264,9 +264,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
         except InputError as exc:
             self._fit_without_cv(data, exc.message)
             return self
-        with blas.threads(blas.stage_threads(len(choice.U))):  # many small fits: one BLAS thread when small
+        with blas.threads(blas.RUN_THREADS):  # many small fits: one BLAS thread
             tried, skipped = self._cross_validate(choice, folds, gap)
-        with blas.threads(blas.stage_threads(n)):
             self._choose(choice, tried, skipped, data)
         if subset:
             self.selection_["subset"] = subset
