@@ -152,3 +152,39 @@ def test_the_states_geometry_reads_a_bounded_sample(monkeypatch):
     for n in (2_000, 20_000):  # fits and the rows they see: bounded, not growing with N
         assert seen[n][1] <= 1_500 and seen[n][2] <= 80 * geometry.EVIDENCE_ROWS
     assert abs(seen[20_000][2] - seen[2_000][2]) <= 0.05 * seen[2_000][2]
+
+
+def test_how_sure_reads_the_same_bounded_sample_at_ten_times_the_samples(monkeypatch):
+    """auto's cone (the states' manifold fitted again without each fold, its rows against the
+    final ones) is read on the bounded sample of whole demonstrations above CHOICE_ROWS: the
+    rows it compares do not grow with N, and the final model is still fitted on all of them."""
+    from ccl_cli.learn.constraint import auto as auto_module
+    from ccl_cli.learn.constraint import sure
+
+    compared = []
+    real = sure.angles
+
+    def counted(final, held):
+        compared.append(len(final))
+        return real(final, held)
+
+    monkeypatch.setattr(sure, "angles", counted)
+    seen = {}
+    for n_demos in (30, 300):
+        rng = np.random.default_rng(1)
+        steps = rng.standard_normal((n_demos * 500, 2)) * 0.01
+        walk = np.cumsum(steps, axis=0)
+        X = np.c_[walk, 0.5 * walk[:, 1]]  # on the plane z = y / 2
+        groups = np.repeat(np.arange(n_demos), 500)
+        t = np.tile(np.arange(500) / 50.0, n_demos)
+        U = np.gradient(X, axis=0) * 50
+        compared.clear()
+        model = AutoConstraint().fit(X, U, groups=groups, t=t, derivative={"window": 5, "order": 2})
+        cone = model.selection_["sure"]["cone"]
+        seen[n_demos] = (model.n_constraints_, compared[:], cone["samples"])
+        normal = np.array([0.0, 0.5, -1.0]) / np.sqrt(1.25)
+        row = model.constraint(X[:1], groups=groups[:1], t=t[:1])[0, 0]
+        assert abs(abs(float(row @ normal)) - 1) < 1e-6
+    assert seen[30][0] == seen[300][0] == 1
+    assert seen[30][1] == [15_000] and seen[30][2] == 15_000  # up to CHOICE_ROWS: every sample
+    assert seen[300][1] == [seen[300][2]] and seen[300][2] <= auto_module.CHOICE_ROWS  # 150,000: a sample

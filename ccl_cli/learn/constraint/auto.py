@@ -277,12 +277,17 @@ class AutoConstraint(ConstraintModel, SeedParams):
         demonstrations or contiguous blocks (:func:`~ccl_cli.learn.model_selection.tuning_subset`;
         blocks of one recording act as its demonstrations) — the losing candidates never see
         all N — and a sentence saying what was taken ("" for all). The winner is fitted on all."""
+        sample, _, note = self._bounded(data)
+        return sample, note.replace("searched", "candidates chosen")
+
+    def _bounded(self, data: ev.Sample) -> tuple[ev.Sample, np.ndarray | None, str]:
+        """:meth:`_choice_sample` with the rows of ``data`` it took (None: all)."""
         found = ms.tuning_subset(data.groups, len(data.U), int(self.seed), CHOICE_ROWS)
         if found is None:
-            return data, ""
+            return data, None, ""
         rows, groups, note = found
         return ev.Sample(data.X[rows], data.U[rows], groups, None if data.t is None else data.t[rows],
-                         data.derived, data.recorded), note.replace("searched", "candidates chosen")
+                         data.derived, data.recorded), rows, note
 
     def _geometry(self, data: ev.Sample, derivative: HowMade) -> bool:
         """The states' own geometry first (:mod:`.geometry`), when the actions are their derivative:
@@ -337,9 +342,13 @@ class AutoConstraint(ConstraintModel, SeedParams):
     def _sure_of_states(self, data: ev.Sample, winner: geo.Tried, k: int) -> dict[str, Any]:
         """How sure (:mod:`.sure`): the model of the states' manifold fitted again without each
         fold — whole demonstrations, or blocks inside each one for a model per demonstration or
-        stretch — its rows at the held-out samples against the final ones, and k ± 1."""
+        stretch — its rows at the held-out samples against the final ones, and k ± 1. Above
+        :data:`CHOICE_ROWS` samples the folds are those of the bounded sample the velocity
+        candidates would be chosen on (:meth:`_bounded`): the cone's work does not grow with N."""
         q = data.U.shape[1]
         derived = data.derived
+        everything = data
+        data, taken, note = self._bounded(data)
         gap = self.gap if self.gap is not None else int(derived.window) if derived else ms.RECORDED_GAP
 
         def refit(idx: np.ndarray) -> ConstraintModel:
@@ -355,8 +364,13 @@ class AutoConstraint(ConstraintModel, SeedParams):
         except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
             why = f"no held-out fits: {getattr(exc, 'message', None) or exc}"
             return sure.summary(None, None, "", self.selection_, q, why)
-        final = self.model_.constraint(data.X, groups=data.groups, t=data.t)
-        return sure.summary(final, held, folds.reason, self.selection_, q)
+        if taken is None:
+            final = self.model_.constraint(data.X, groups=data.groups, t=data.t)
+        else:  # the final model at the rows taken, as the demonstrations it was fitted on
+            final = self.model_.constraint(everything.X[taken], groups=everything.groups[taken],
+                                           t=None if everything.t is None else everything.t[taken])
+        found = sure.summary(final, held, folds.reason, self.selection_, q)
+        return {**found, "subset": note.replace("searched", "cone read")} if note else found
 
     def _manifold_model(self, winner: geo.Tried, k: int, data: ev.Sample, heldout: bool = True
                         ) -> ConstraintModel:
