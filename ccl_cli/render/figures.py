@@ -356,19 +356,24 @@ def with_gaps(t: np.ndarray, factor: float = 3.0) -> tuple[np.ndarray, Callable[
 
 def envelope(x: np.ndarray, y: np.ndarray, points: int = LINE_POINTS) -> tuple[np.ndarray, np.ndarray]:
     """The samples of a line (x, y (n,), NaN where it breaks) that draw it at its width: all of
-    them up to ``points``; else, in each of ``points`` / 2 runs of consecutive samples (never
-    across a break), the lowest and the highest in order — the same pixels, at any n."""
+    them up to ``points``; else, in each of ``points`` / 2 runs of consecutive samples, the lowest
+    and the highest, in order, with every break and the samples either side of it — the same
+    pixels, at any n."""
     n = len(y)
     if n <= points:
         return x, y
     size = -(-n // (points // 2))
+    runs = -(-n // size)
     gap = np.isnan(y)
-    i = np.arange(n)
-    new = np.r_[True, (i[1:] % size == 0) | gap[1:] | gap[:-1]]  # a run never holds a break
-    run = np.cumsum(new) - 1
-    order = np.lexsort((np.where(gap, 0.0, y), run))  # in each run: lowest first, highest last
-    bounds = np.flatnonzero(np.r_[True, run[order][1:] != run[order][:-1]])
-    keep = np.unique(np.r_[order[bounds], order[np.r_[bounds[1:], n] - 1]])
+    low = np.full(runs * size, np.inf)
+    low[:n] = np.where(gap, np.inf, y)
+    high = np.full(runs * size, -np.inf)
+    high[:n] = np.where(gap, -np.inf, y)
+    first = np.arange(runs) * size
+    breaks = np.flatnonzero(gap)
+    lowest, highest = low.reshape(runs, size).argmin(1), high.reshape(runs, size).argmax(1)
+    keep = np.unique(np.r_[first + lowest, first + highest, breaks, breaks - 1, breaks + 1])
+    keep = keep[(keep >= 0) & (keep < n)]
     return x[keep], y[keep]
 
 
