@@ -21,7 +21,7 @@ import typer
 from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer vendors its click
 from typer.core import TyperCommand, TyperGroup
 
-from ccl_cli import progress, spec
+from ccl_cli import choices, progress
 from ccl_cli.cli_params import in_words, spread
 from ccl_cli.errors import CCLError, ConfigError, InputError, LearningError
 from ccl_cli.learn import defaults, params
@@ -99,7 +99,7 @@ SeedOpt = Annotated[int | None, typer.Option("--seed", help="Seed of every rando
                                              show_default="config, else 0")]
 TestOpt = Annotated[float | None, typer.Option(
     "--test-fraction", help="Fraction of demonstrations held out (0: none).",
-    show_default=f"config, else {spec.TestSplit().fraction}")]
+    show_default=f"config, else {choices.TEST_FRACTION}")]
 
 
 def _choices(name: str, literal: Any) -> type[Enum]:
@@ -116,18 +116,18 @@ def _value(v: Any) -> Any:
     return v.value if isinstance(v, Enum) else v
 
 
-Convention = _choices("Convention", spec.Convention)
-LearnAMethod = _choices("LearnAMethod", spec.ConstraintMethod)
+Convention = _choices("Convention", choices.Convention)
+LearnAMethod = _choices("LearnAMethod", choices.ConstraintMethod)
 Selection = _choices("Selection", params.SelectionRule)
 PiMethod = _choices("PiMethod", params.PolicyMethod)
-Projections = _choices("Projections", spec.Projections)
+Projections = _choices("Projections", choices.Projections)
 BasisKind = _choices("BasisKind", params.BasisKind)
 Features = _choices("Features", params.ArmName)
 Regressors = _choices("Regressors", params.Regressors)
 
 ConvOpt = Annotated[Convention | None, typer.Option("--convention",
                                                     help="Metric normalisers (docs/metrics.md).",
-                                                    show_default=_default(spec.Metrics().convention))]
+                                                    show_default=_default(choices.CONVENTION))]
 CentresOpt = Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres (also sets "
                                                 "basis.n_centres of a basis mapping; no basis search).",
                                                 show_default="config, else the stage's default")]
@@ -350,7 +350,7 @@ def learn_a(
              "per_window (one constant A per time window), per_segment (one constant A per segment, cut "
              "where it changes), manifold (the level sets the states stay on: lines, circles, surfaces; "
              "docs/methods.md).",
-        show_default=_default(spec.DEFAULT_CONSTRAINT_METHOD))] = None,
+        show_default=_default(choices.DEFAULT_CONSTRAINT_METHOD))] = None,
     selection: Annotated[Selection | None, typer.Option(
         help="How the number of constraints s is chosen (lambda's default: noise).",
         show_default=_default(defaults.DEFAULT_RULE))] = None,
@@ -425,6 +425,8 @@ def _basis_flags(pipeline: Path, given: dict[str, Any]) -> dict[str, Any]:
     that has a basis (learn-v, learn-pi, and learn-a when its method has one); none is a
     usage error naming the stages."""
     import inspect as pyinspect
+
+    from ccl_cli import spec
 
     plain = _config(pipeline, {})
     flags: dict[str, Any] = {}

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, group_rows
 from ccl_cli.errors import InputError
 from ccl_cli.learn import model_selection as _selection
 from ccl_cli.learn.noise import white_noise_var
@@ -242,15 +242,26 @@ def stamps(data: Demonstrations) -> list[dict[str, str]]:
     pos, owner = dt[ok], data.demo[1:][inside][ok]
     if len(pos) >= 3:
         med = float(np.median(pos))
-        own = np.empty_like(pos)
-        for d in np.unique(owner):  # a loop over demonstrations: each one's median interval
-            own[owner == d] = np.median(pos[owner == d])
+        own = median_by_group(pos, owner)
         spread = med * 1.4826 * float(np.median(np.abs(pos / own - 1.0)))
         if med > 0 and spread > JITTER * med:
             out.append(warning("jittery_stamps",
                                f"jittery stamps: the sampling interval varies by {100 * spread / med:.2g} % "
                                f"around {med:.3g} s ({1 / med:.3g} Hz); derivatives use the real stamps, "
                                "but stamp errors become velocity errors"))
+    return out
+
+
+def median_by_group(values: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Each value's group median (as ``np.median`` of the group's values): (n,) → (n,), by one
+    sort of (group, value) — linear in the number of groups, not quadratic."""
+    order = np.lexsort((values, groups))
+    v, g = values[order], groups[order]
+    starts = np.r_[0, np.flatnonzero(g[1:] != g[:-1]) + 1]
+    counts = np.diff(np.r_[starts, len(v)])
+    med = (v[starts + (counts - 1) // 2] + v[starts + counts // 2]) / 2
+    out = np.empty_like(values, dtype=float)
+    out[order] = np.repeat(med, counts)
     return out
 
 
@@ -345,7 +356,7 @@ def low_rank_actions(data: Demonstrations, U: np.ndarray, n_constraints: int,
                         f"directions (q − s = {q} − {n_constraints}) are needed to identify the constraint")]
     ids = data.demo_ids
     if len(ids) >= 2 and 0 < r < q:
-        per = [action_rank(U[data.demo == d], noise_var) for d in ids]
+        per = [action_rank(U[rows], noise_var) for rows in group_rows(data.demo)[1]]  # one per demonstration
         if sum(per) == r:
             return [warning("low_rank_actions",
                             f"each of the {len(ids)} training demonstrations moves along directions of its "
@@ -481,10 +492,11 @@ def _null_rows(Y: np.ndarray, s: int) -> tuple[np.ndarray, float]:
 
 
 def _stretches(d: Demonstrations, blocks: int | None = None) -> list[tuple[str, np.ndarray]]:
-    """(label, sample mask) per demonstration, or for a single recording ``blocks``
+    """(label, sample rows or mask) per demonstration, or for a single recording ``blocks``
     contiguous stretches of equal length in time (default: about VARIES_WINDOW_S each)."""
     if d.n_demos >= 2:
-        return [(f"demonstration {g}", d.demo == g) for g in d.demo_ids]
+        rows = dict(zip(*group_rows(d.demo), strict=True))
+        return [(f"demonstration {g}", rows[g]) for g in d.demo_ids]
     if blocks is None:
         blocks = int(np.clip(round(float(np.ptp(d.t)) / VARIES_WINDOW_S), 2, 24))
     edges = np.linspace(d.t.min(), d.t.max(), blocks + 1)

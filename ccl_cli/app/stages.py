@@ -37,6 +37,8 @@ class StageResult:
     metrics: dict[str, dict[str, dict]] = field(default_factory=dict)  # split → name → Metric dict
     info: dict[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
+    #: CPU seconds of this process in the stage (every thread; a benchmark's figure, not a result)
+    cpu_seconds: float = 0.0
     baseline: Any = None
     #: (part, data, convention) → metrics of this model; the stage and the evaluate stage
     #: both call it, so one model gets one set of numbers wherever it is reported.
@@ -208,7 +210,7 @@ class Pipeline:
         depend on the constraint of a learn-a stage, which may come later)."""
         names = [name for name, _ in stages]
         for i, (name, opts) in enumerate(stages):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             label = f"{name} ({self._describe(name, opts)})"
             if progress is None:
                 log.info("stage %s", label)
@@ -216,6 +218,7 @@ class Pipeline:
                 progress.start(label)
             result = getattr(self, "_" + name.replace("-", "_"))(opts)
             result.seconds = time.perf_counter() - t0
+            result.cpu_seconds = time.process_time() - c0
             self.results.append(result)
             if on_views is not None and not (name == "learn-pi" and "learn-a" in names[i + 1:]):
                 on_views(self.stage_views(result))

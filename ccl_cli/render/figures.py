@@ -34,11 +34,16 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, group_rows
 
 CELLS = 12  # arrow subsampling: at most one state per cell of a CELLS × CELLS grid
 MAX_DEMOS = 2  # demonstrations per time plot
 DPI = 90
+#: A line over time is drawn through at most this many of its samples (:func:`envelope`: each run
+#: of samples keeps its lowest and highest, about five per pixel of the ~400-pixel-wide panels), and a
+#: 3-D trajectory figure through at most TRAJECTORY_POINTS (every s-th sample of each demonstration).
+LINE_POINTS = 4000
+TRAJECTORY_POINTS = 20_000
 #: matplotlib settings while a figure is written: glyphs rasterised without FreeType's
 #: auto-hinter (the same text to the eye at this size; a tenth of the figures' time)
 RC = {"text.hinting": "no_hinting"}
@@ -349,6 +354,29 @@ def with_gaps(t: np.ndarray, factor: float = 3.0) -> tuple[np.ndarray, Callable[
     return cut(t), cut
 
 
+def envelope(x: np.ndarray, y: np.ndarray, points: int = LINE_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """The samples of a line (x, y (n,), NaN where it breaks) that draw it at its width: all of
+    them up to ``points``; else, in each of ``points`` / 2 runs of consecutive samples, the lowest
+    and the highest, in order, with every break and the samples either side of it — the same
+    pixels, at any n."""
+    n = len(y)
+    if n <= points:
+        return x, y
+    size = -(-n // (points // 2))
+    runs = -(-n // size)
+    gap = np.isnan(y)
+    low = np.full(runs * size, np.inf)
+    low[:n] = np.where(gap, np.inf, y)
+    high = np.full(runs * size, -np.inf)
+    high[:n] = np.where(gap, -np.inf, y)
+    first = np.arange(runs) * size
+    breaks = np.flatnonzero(gap)
+    lowest, highest = low.reshape(runs, size).argmin(1), high.reshape(runs, size).argmax(1)
+    keep = np.unique(np.r_[first + lowest, first + highest, breaks, breaks - 1, breaks + 1])
+    keep = keep[(keep >= 0) & (keep < n)]
+    return x[keep], y[keep]
+
+
 def time_figure(title: str, part: str, d: Demonstrations, lines: dict[str, tuple[str, np.ndarray]]):
     """One row per action dimension over time for up to MAX_DEMOS demonstrations of ``d``;
     ``lines``: style → (label, (N, q))."""
@@ -366,7 +394,7 @@ def time_figure(title: str, part: str, d: Demonstrations, lines: dict[str, tuple
                 if style in lines:
                     name, Y = lines[style]
                     s = STYLE[style]
-                    ax.plot(t, cut(Y[sel, j]), label=name, **s)
+                    ax.plot(*envelope(t, cut(Y[sel, j])), label=name, **s)
             ax.text(0.01, 0.96, names[j], transform=ax.transAxes, va="top", fontsize=7,
                     bbox={"facecolor": "white", "alpha": 0.7, "lw": 0, "pad": 1})
             ax.tick_params(labelsize=7)
@@ -477,9 +505,10 @@ def trajectory_figure(title: str, d: Demonstrations, part: str, at: np.ndarray, 
     extent = float(np.max(d.X.max(0) - d.X.min(0))) or 1.0
     length = 0.08 * extent
     colours = _colours(len(d.demo_ids))
+    step = max(1, -(-d.n_samples // TRAJECTORY_POINTS))
+    rows = dict(zip(*group_rows(d.demo), strict=True))
     for c, k in zip(colours, d.demo_ids, strict=True):
-        sel = np.flatnonzero(d.demo == k)
-        ax.plot(*d.X[sel].T, color=c, lw=0.8, alpha=0.8)
+        ax.plot(*d.X[rows[k][::step]].T, color=c, lw=0.8, alpha=0.8)
     P = d.X[at]
     if true is not None:
         for r in range(true.shape[1]):
@@ -522,8 +551,9 @@ def phases_figure(title: str, d: Demonstrations, holds: np.ndarray, speed: np.nd
         if true_holds is not None:
             ax.fill_between(t, 0, 0.06, where=true_holds[sel], transform=ax.get_xaxis_transform(), color="k",
                             alpha=0.55, lw=0, step="mid", label="a constraint in the file's ground truth")
-        ax.plot(t, speed[sel], color="0.45", lw=0.9, label="speed ‖u‖")
-        ax.plot(t, along[sel], color=CHOSEN_COLOUR, lw=1.0, label="speed along the learnt rows ‖Ã u‖")
+        ax.plot(*envelope(t, speed[sel]), color="0.45", lw=0.9, label="speed ‖u‖")
+        ax.plot(*envelope(t, along[sel]), color=CHOSEN_COLOUR, lw=1.0,
+                label="speed along the learnt rows ‖Ã u‖")
         share = 100 * float(on.mean())
         ax.text(0.005, 0.95, f"demonstration {int(k)}: holds {share:.0f} % of its samples",
                 transform=ax.transAxes, va="top", fontsize=7,
