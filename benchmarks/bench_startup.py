@@ -86,7 +86,7 @@ cfg = C.load(sys.argv[1])
 data, masks = read_data(cfg, None)
 t_read = now()
 from ccl_cli.learn import blas
-with blas.threads(blas.stage_threads(data.n_samples)):  # as run_to_dir does
+with blas.threads(blas.RUN_THREADS):  # as run_to_dir does
     p = Pipeline(cfg.spec, data, masks)
     p.run(cfg.stages())
 t_stages = now()
@@ -94,7 +94,7 @@ from ccl_cli.render.drawing import draw_views
 out = Path(sys.argv[2]); out.mkdir(parents=True, exist_ok=True)
 seconds = {}
 t_p0 = now()
-with blas.threads(blas.stage_threads(data.n_samples)):
+with blas.threads(blas.RUN_THREADS):
     draw_views(out, p.views(), seconds)  # one process
 t_plots = now()
 def span(a, b):

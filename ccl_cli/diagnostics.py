@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, group_rows
 from ccl_cli.errors import InputError
 from ccl_cli.learn import model_selection as _selection
 from ccl_cli.learn.noise import white_noise_var
@@ -58,13 +58,14 @@ CODES = ("constant_dimension", "no_motion", "noisy_actions", "few_demos", "short
          "low_rank_actions", "duplicate_stamps", "jittery_stamps", "hemisphere_flips", "spikes",
          "stamp_faults", "overfit", "no_better_than_baseline", "constraint_does_not_hold",
          "constraint_varies", "not_identifiable", "actions_near_faults", "far_from_truth",
-         "no_heldout_support", "degenerate_input")
+         "no_heldout_support", "degenerate_input", "repeated_poses", "not_judged")
 #: Sensor faults the readers found (:mod:`ccl_cli.io.faults`) → (warning code, what they are,
 #: the config key that keeps them); gaps are pauses or lost samples, stated in the report only.
 FAULTS = {"hemisphere_flip": ("hemisphere_flips", "hemisphere flip(s) of the tracker (positions "
                                                   "mirrored through the transmitter)", "flips: keep"),
           "spike": ("spikes", "spike(s) in the states", "spikes: keep"),
           "duplicate_sample": ("stamp_faults", "duplicated sample(s)", "stamps: keep"),
+          "repeated_pose": ("repeated_poses", "repeated pose(s)", "stamps: keep"),
           "bad_stamp": ("stamp_faults", "repeated or misplaced stamp(s)", "stamps: keep"),
           "backward_stamp": ("stamp_faults", "clock step(s) back", "stamps: keep"),
           "clock_step": ("stamp_faults", "clock step(s) forward", "stamps: keep"),
@@ -181,11 +182,15 @@ def demonstrations(data: Demonstrations) -> list[dict[str, str]]:
     out = []
     n = data.n_demos
     if n < MIN_DEMOS:
+        cut = pause_split(data)
+        advice = (f"the recordings pause {cut[2]} times for {cut[1]:.3g} s or more: data.demos: "
+                  f"{{split_on_gap: {cut[0]:g}}} cuts them at their pauses into {cut[3]} demonstrations"
+                  if cut is not None else "cut continuous recordings with data.demos: {window: S} (seconds) "
+                  "or record more demonstrations")
         out.append(warning("few_demos",
                            f"only {n} demonstration{'s' if n != 1 else ''} (fewer than {MIN_DEMOS}): "
                            "by default the held-out test set and cross-validation use contiguous time "
-                           "blocks rather than whole demonstrations; cut continuous recordings with "
-                           "data.demos: {window: S} (seconds) or record more demonstrations"))
+                           f"blocks rather than whole demonstrations; {advice}"))
     sizes = np.bincount(np.unique(data.demo, return_inverse=True)[1])
     short = int((sizes < MIN_DEMO_SAMPLES).sum())
     if short:
@@ -193,6 +198,31 @@ def demonstrations(data: Demonstrations) -> list[dict[str, str]]:
                            f"{short} of {n} demonstrations have fewer than {MIN_DEMO_SAMPLES} samples "
                            f"(shortest {int(sizes.min())})"))
     return out
+
+
+def pause_split(data: Demonstrations) -> tuple[float, float, int, int] | None:
+    """A ``split_on_gap`` that cuts the demonstrations at their pauses — intervals longer than
+    GAP_INTERVALS (:mod:`ccl_cli.io.summary`) × the median interval — into at least MIN_DEMOS
+    pieces of at least MIN_DEMO_SAMPLES samples: (the gap, a round value between that limit and
+    half the shortest pause; the shortest pause, s; the pauses; the pieces), else None."""
+    from ccl_cli.io.summary import GAP_INTERVALS
+
+    inside = data.demo[1:] == data.demo[:-1]
+    dt = np.diff(data.t)
+    steps = dt[inside & (dt > 0)]
+    if not len(steps):
+        return None
+    floor = GAP_INTERVALS * float(np.median(steps))
+    pause = inside & (dt > floor)
+    if not pause.any():
+        return None
+    shortest = float(dt[pause].min())
+    gap = max(float(f"{0.5 * shortest:.1g}"), float(f"{floor:.2g}"))
+    if gap <= floor or gap >= shortest:
+        gap = float(f"{0.5 * (floor + shortest):.3g}")
+    starts = np.r_[0, np.flatnonzero(~inside | pause) + 1, len(data.t)]
+    pieces = int((np.diff(starts) >= MIN_DEMO_SAMPLES).sum())
+    return (gap, shortest, int(pause.sum()), pieces) if pieces >= MIN_DEMOS else None
 
 
 def stamps(data: Demonstrations) -> list[dict[str, str]]:
@@ -212,15 +242,26 @@ def stamps(data: Demonstrations) -> list[dict[str, str]]:
     pos, owner = dt[ok], data.demo[1:][inside][ok]
     if len(pos) >= 3:
         med = float(np.median(pos))
-        own = np.empty_like(pos)
-        for d in np.unique(owner):  # a loop over demonstrations: each one's median interval
-            own[owner == d] = np.median(pos[owner == d])
+        own = median_by_group(pos, owner)
         spread = med * 1.4826 * float(np.median(np.abs(pos / own - 1.0)))
         if med > 0 and spread > JITTER * med:
             out.append(warning("jittery_stamps",
                                f"jittery stamps: the sampling interval varies by {100 * spread / med:.2g} % "
                                f"around {med:.3g} s ({1 / med:.3g} Hz); derivatives use the real stamps, "
                                "but stamp errors become velocity errors"))
+    return out
+
+
+def median_by_group(values: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Each value's group median (as ``np.median`` of the group's values): (n,) → (n,), by one
+    sort of (group, value) — linear in the number of groups, not quadratic."""
+    order = np.lexsort((values, groups))
+    v, g = values[order], groups[order]
+    starts = np.r_[0, np.flatnonzero(g[1:] != g[:-1]) + 1]
+    counts = np.diff(np.r_[starts, len(v)])
+    med = (v[starts + (counts - 1) // 2] + v[starts + counts // 2]) / 2
+    out = np.empty_like(values, dtype=float)
+    out[order] = np.repeat(med, counts)
     return out
 
 
@@ -253,6 +294,9 @@ def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
         for f in (entry.get("faults") or []) if isinstance(entry, dict) else []:
             if f.get("kind") not in FAULTS or not f.get("count"):
                 continue
+            if f["kind"] == "repeated_pose":
+                out.append(_repeats(entry.get("path"), f))
+                continue
             code, what, keep = FAULTS[f["kind"]]
             done = "kept as recorded" if f.get("action") == "reported" else f["action"]
             fix = "" if f.get("action") == "reported" else f"; data.faults: {{{keep}}} keeps them"
@@ -265,6 +309,21 @@ def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
             out.append(warning(code, f"{entry.get('path')}: {f['count']} {what}, {_samples(f['n_samples'])} "
                                      f"{done} — {at}{fix}"))
     return out
+
+
+def _repeats(path: str | None, f: dict[str, Any]) -> dict[str, str]:
+    """``repeated_poses``: the sensor's rate, the logging rate, and what was done with the
+    repeats (a :func:`ccl_cli.io.faults.repeated_poses` finding as a dict)."""
+    log_rate = f" logged at {f['log_rate_hz']:.3g} Hz" if f.get("log_rate_hz") else ""
+    head = (f"{path}: repeated poses: the sensor updates at {f['rate_hz']:.3g} Hz, its samples were"
+            f"{log_rate}: each pose is repeated {f['per_pose']:.3g} times (median) until the next")
+    if f.get("action") == "reported":
+        return warning("repeated_poses", f"{head}; kept as recorded (data.faults: {{stamps: keep}}): "
+                       "velocities derived across a repeat are zero, then jump")
+    return warning("repeated_poses", f"{head}; the {f['n_samples']} repeats were left out and learning "
+                   f"uses the {f['poses']} poses at their first stamps (a pose held over several updates "
+                   "keeps one sample per update); predict gives each repeat its pose's row (repair: "
+                   "filled); data.faults: {stamps: keep} keeps them")
 
 
 def action_rank(U: np.ndarray, noise_var: np.ndarray) -> int:
@@ -297,7 +356,7 @@ def low_rank_actions(data: Demonstrations, U: np.ndarray, n_constraints: int,
                         f"directions (q − s = {q} − {n_constraints}) are needed to identify the constraint")]
     ids = data.demo_ids
     if len(ids) >= 2 and 0 < r < q:
-        per = [action_rank(U[data.demo == d], noise_var) for d in ids]
+        per = [action_rank(U[rows], noise_var) for rows in group_rows(data.demo)[1]]  # one per demonstration
         if sum(per) == r:
             return [warning("low_rank_actions",
                             f"each of the {len(ids)} training demonstrations moves along directions of its "
@@ -307,9 +366,10 @@ def low_rank_actions(data: Demonstrations, U: np.ndarray, n_constraints: int,
 
 
 # -- verdicts of fitted stages -------------------------------------------------------------------
-#: A stage is ``ok`` when its held-out evidence is; ``poor`` when a check below fails (the
-#: run completes and says what is wrong); ``failed`` when it could not produce a result.
-STATUSES = ("ok", "poor", "failed")
+#: A stage is ``ok`` when its held-out evidence is; ``unjudged`` when it has no metric to judge
+#: it by (a policy learnt alone from data without a true π); ``poor`` when a check below fails
+#: (the run completes and says what is wrong); ``failed`` when it could not produce a result.
+STATUSES = ("ok", "unjudged", "poor", "failed")
 #: Overfit: a held-out error above OVERFIT_RATIO × the training error, and above OVERFIT_FLOOR
 #: (below it both are at the level of noise and numerical error).
 OVERFIT_RATIO = 10.0
@@ -432,10 +492,11 @@ def _null_rows(Y: np.ndarray, s: int) -> tuple[np.ndarray, float]:
 
 
 def _stretches(d: Demonstrations, blocks: int | None = None) -> list[tuple[str, np.ndarray]]:
-    """(label, sample mask) per demonstration, or for a single recording ``blocks``
+    """(label, sample rows or mask) per demonstration, or for a single recording ``blocks``
     contiguous stretches of equal length in time (default: about VARIES_WINDOW_S each)."""
     if d.n_demos >= 2:
-        return [(f"demonstration {g}", d.demo == g) for g in d.demo_ids]
+        rows = dict(zip(*group_rows(d.demo), strict=True))
+        return [(f"demonstration {g}", rows[g]) for g in d.demo_ids]
     if blocks is None:
         blocks = int(np.clip(round(float(np.ptp(d.t)) / VARIES_WINDOW_S), 2, 24))
     edges = np.linspace(d.t.min(), d.t.max(), blocks + 1)
@@ -500,8 +561,23 @@ def not_identifiable(stage: str, data: Demonstrations, Y: np.ndarray,
 
 
 def status(checks: list[dict[str, str]]) -> str:
-    """``poor`` when a verdict check fired, else ``ok``."""
-    return "poor" if any(c["code"] in VERDICT_CODES for c in checks) else "ok"
+    """``poor`` when a verdict check fired, ``unjudged`` when the stage has no metric to be
+    judged by (``not_judged``), else ``ok``."""
+    if any(c["code"] in VERDICT_CODES for c in checks):
+        return "poor"
+    return "unjudged" if any(c["code"] == "not_judged" for c in checks) else "ok"
+
+
+#: Why a policy learnt alone on data without ground truth has no metric, and how to get one.
+NO_POLICY_METRIC = ("the data has no true π (NUPE) and no constraint was learnt to compare Ñπ̃ with the "
+                    "observations (NCPE_obs); learn one before it (ccl run with stages: [learn-a, learn-pi]) "
+                    "or evaluate the policy on data with ground truth")
+
+
+def not_judged(stage: str, what: str) -> list[dict[str, str]]:
+    """``not_judged``: the stage has no metric at all, so nothing supports its result (its status
+    is ``unjudged``); ``what`` says why and what would give one."""
+    return [warning("not_judged", f"{stage}: no metric to judge it by: {what}")]
 
 
 #: The checks that make a stage ``poor``.
@@ -539,6 +615,9 @@ def heldout_support(selection: dict[str, Any] | None, evidence: dict[str, Any] |
             return {"supported": True, "why": f"the states' geometry: {best['basis']} "
                     f"({best['scope'].replace('_', ' ')}), {best['measure']} {max(best['drift']):.3g} ≤ "
                     f"{best['limit']:g}{judged(best['measure'])}"}
+    held = (selection.get("forces") or {}).get("heldout") if selection.get("decided_by") == "forces" else None
+    if held:  # contact stretches from the forces: their rows fitted without blocks held out inside them
+        return {"supported": bool(held["supported"]), "why": f"the forces' contact stretches: {held['why']}"}
     winner = next((r for r in selection.get("candidates") or [] if r.get("chosen") and r["class"] != "none"),
                   None)
     if winner is not None and (winner.get("k") or 0) >= k:

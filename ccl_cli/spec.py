@@ -29,21 +29,22 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, create_model
 
+# the fixed choices (learn-a's ``method`` is one of CONSTRAINT_METHODS), declared without NumPy or
+# pydantic for the command line's --help
+from ccl_cli.choices import (
+    CONVENTION,
+    DEFAULT_CONSTRAINT_METHOD,
+    TEST_FRACTION,
+    ConstraintMethod,
+    Convention,
+    On,
+    Projections,
+)
 from ccl_cli.io.options import DataOptions
 from ccl_cli.learn import defaults
 from ccl_cli.learn.params import MAX_SEED, Fields, Interval, Options, declared, describe
 
 STAGES = ("learn-v", "learn-a", "learn-pi", "evaluate")
-Convention = Literal["ccl", "original"]
-#: learn-a's ``method``: which constraint estimator (:data:`CONSTRAINT_METHODS`); ``auto`` (the
-#: default) chooses the model class and the number of constraints, 0 included, by held-out evidence
-ConstraintMethod = Literal["auto", "nhat", "alpha", "lambda", "linear", "per_window", "per_segment",
-                           "manifold"]
-DEFAULT_CONSTRAINT_METHOD = "auto"
-#: learn-pi's ``projections`` (pi-coupled): from the ground truth, a learn-a stage, or either
-Projections = Literal["auto", "learnt", "true"]
-#: which observations a stage learns from: u, the learnt w̃ of a learn-v stage, or w̃ when there is one
-On = Literal["auto", "u", "w"]
 
 
 class Section(BaseModel):
@@ -214,7 +215,7 @@ class TestSplit(Section):
     ``blocks`` contiguous time blocks with ``gap`` samples dropped at each boundary (default:
     the derivative window)."""
 
-    fraction: float = Field(0.3, **Interval(0, 1).field())
+    fraction: float = Field(TEST_FRACTION, **Interval(0, 1).field())
     seed: int = Field(0, **_SEED.field())
     use_masks: bool = True
     gap: int | None = Field(None, **Interval(0, 1_000_000, type=int).field())
@@ -234,14 +235,16 @@ class Data(DataOptions):
 
 
 class Metrics(Section):
-    convention: Convention = "ccl"
+    convention: Convention = CONVENTION
 
 
 class Output(Section):
-    """``plots``: draw the figures; ``format``: png, or svg / pdf (vector, for a paper)."""
+    """``plots``: draw the figures; ``format``: png, or svg / pdf (vector, for a paper); ``html``:
+    also write report.html (the report with its figures embedded and a 3-D view of the states)."""
 
     plots: bool = True
     format: Literal["png", "svg", "pdf"] = "png"
+    html: bool = False
 
 
 class StageItem(Section):

@@ -34,8 +34,7 @@ def test_threads_are_restored_when_the_block_raises():
 
 
 def test_stage_rule_and_run_json_record_the_choice(tmp_path, capsys):
-    assert blas.stage_threads(blas.SMALL_SAMPLES - 1) == 1
-    assert blas.stage_threads(blas.SMALL_SAMPLES) is None
+    assert blas.RUN_THREADS == 1
     before = blas.current()
     code = main(["run", str(CONFIGS / "toy2d_learn_a.yaml"), "-o", str(tmp_path / "a"), "-q"])
     assert code == 0, capsys.readouterr().err

@@ -218,3 +218,37 @@ def test_a_drawer_stopped_while_it_draws_ends_its_worker():
     worker = drawer._workers[0]
     assert worker.exitcode is not None and not lifeline.pid_alive(worker.pid)
     assert drawing._drawer is None and all(f.done() for f in drawer._futures.values())
+
+
+def test_a_long_line_is_drawn_through_its_envelope_with_the_same_pixels(tmp_path):
+    """A series of 200,000 samples (with breaks) drawn through at most LINE_POINTS of them —
+    each run's lowest and highest — differs from the whole series drawn by no more pixels than
+    matplotlib's own path simplification makes it differ from the series drawn unsimplified."""
+    import matplotlib
+
+    rng = np.random.default_rng(3)
+    y = np.cumsum(rng.standard_normal(200_000))
+    y[[1000, 120_000]] = np.nan  # breaks: no line drawn across them
+    x = np.arange(len(y), dtype=float)
+    x[np.isnan(y)] = np.nan
+    ex, ey = figures.envelope(x, y)
+    assert len(ey) <= figures.LINE_POINTS + 3 * 2 and np.isnan(ey).sum() == 2  # a break: itself and its sides
+    assert np.nanmax(ey) == np.nanmax(y) and np.nanmin(ey) == np.nanmin(y)
+    assert np.all(np.diff(ex[~np.isnan(ex)]) > 0)  # in order
+    short = np.arange(10.0)
+    assert figures.envelope(short, short)[1] is short  # short series: as they are
+
+    def drawn(xs, ys, name, simplify=True):
+        with matplotlib.rc_context({"path.simplify": simplify}):
+            fig, ax = figures.subplots(figsize=(4.2, 1.5))
+            ax.plot(xs, ys, color="k", lw=1.0)
+            ax.set_xlim(0, len(y))
+            ax.set_ylim(np.nanmin(y), np.nanmax(y))
+            ax.set_axis_off()
+            figures.save_figure(fig, tmp_path / f"{name}.png")
+        with Image.open(tmp_path / f"{name}.png") as im:
+            return np.asarray(im.convert("L"), dtype=float)
+
+    whole, exact, thin = drawn(x, y, "whole"), drawn(x, y, "exact", False), drawn(ex, ey, "thin")
+    ours, theirs = (np.abs(thin - whole) > 64).mean(), (np.abs(exact - whole) > 64).mean()
+    assert (whole < 128).mean() > 0.05 and ours <= theirs

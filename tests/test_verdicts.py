@@ -251,3 +251,22 @@ def test_degenerate_input_is_not_ok(capsys, tmp_path):
     few = d.subset(np.arange(1))
     found = diagnostics.degenerate_input("learn-a", few, few.U, "u", model)
     assert found and "1 training samples for 2 parameters" in found[0]["message"]
+
+
+def test_a_policy_with_no_metric_is_unjudged_not_ok(capsys, tmp_path):
+    """learn-pi alone on data without a true π: no metric (no Ñ to compare u with, no π to compare
+    π̃ with), so the stage is "unjudged" — never "ok" — says why, and --strict exits 1; the same
+    data with its truth has NUPE and is judged on it."""
+    data = sim.toy2d(n_demos=12, seed=3)
+    bare = data.subset(np.arange(data.n_samples))
+    bare.truth = {}
+    code, summary, metrics, report = run(capsys, tmp_path, bare, "[learn-pi]", "", "--strict")
+    assert code == 1 and summary["status"] == "unjudged" and metrics["learn-pi"]["status"] == "unjudged"
+    assert not any(metrics["learn-pi"].get(split) for split in ("train", "test", "heldout_blocks"))
+    assert summary["verdict"].startswith("unjudged: learn-pi: no metric to judge it by")
+    assert [w["code"] for w in summary["warnings"]].count("not_judged") == 1
+    assert report.startswith("# ccl run\n\n**Verdict: unjudged: ")
+    assert "no metric either." in report  # its dpl baseline has none either
+    code, summary, metrics, _ = run(capsys, tmp_path, data, "[learn-pi]")
+    assert "NUPE" in metrics["learn-pi"]["test"] and summary["status"] in ("ok", "poor")
+    assert "not_judged" not in [w["code"] for w in summary["warnings"]]

@@ -77,8 +77,9 @@ def run_record(command: str, cfg: Any, data: Demonstrations, pipeline: Any, blas
         "command": command, "argv": sys.argv, "config": cfg.raw, "config_source": cfg.source,
         "inputs": input_hashes(data), "versions": versions(), "timings": timings,
         "data": data_summary(pipeline), "validation": pipeline.split_info, "warnings": pipeline.warnings,
-        "blas": {"threads": blas_threads, "rule": f"1 below {blas.SMALL_SAMPLES} samples, else the "
-                 "library's own count (None: a BLAS ccl cannot control)"},
+        "blas": {"threads": blas_threads,
+                 "rule": f"{blas.RUN_THREADS} at any size: the run's products are too small to share "
+                 "(None: a BLAS ccl cannot control)"},
     }
 
 

@@ -68,9 +68,9 @@ def execute(command: str, cfg: Config, files, stages: list[tuple[str, Any]] | No
     data, masks = read_data(cfg, files)
     data.check_finite()
     t_read = time.perf_counter() - t0
-    # small problems run single-threaded BLAS (ccl_cli.learn.blas: threads cost more than they
-    # give there, and stall on shared cores); the choice goes into run.json
-    with blas.threads(blas.stage_threads(data.n_samples)) as blas_threads:
+    # single-threaded BLAS (ccl_cli.learn.blas: threads cost more than they give on the run's
+    # small products, and stall on shared cores); the choice goes into run.json
+    with blas.threads(blas.RUN_THREADS) as blas_threads:
         stages = stages if stages is not None else cfg.stages()
         pipeline = Pipeline(cfg.spec, data, masks)
         wanted = views if views is not None else cfg.spec.output.plots
@@ -88,8 +88,8 @@ def execute(command: str, cfg: Config, files, stages: list[tuple[str, Any]] | No
 
 
 def overall_status(results) -> str:
-    """The run's status: the worst of its stages' (ok < poor < failed)."""
-    order = {"ok": 0, "poor": 1, "failed": 2}
+    """The run's status: the worst of its stages' (ok < unjudged < poor < failed)."""
+    order = {"ok": 0, "unjudged": 1, "poor": 2, "failed": 3}
     return max((r.status for r in results), key=order.__getitem__, default="ok")
 
 
@@ -104,11 +104,11 @@ def verdict(results) -> str:
 
 
 def stage_metrics(results) -> dict[str, Any]:
-    """metrics.json: per stage its method, seconds, info and metrics per split."""
+    """metrics.json: per stage its method, seconds (wall and CPU), info and metrics per split."""
     out = {}
     for r in results:
-        entry = {"method": r.method, "seconds": round(r.seconds, 4), **{k: v for k, v in r.info.items()
-                                                                         if k != "summary"}}
+        entry = {"method": r.method, "seconds": round(r.seconds, 4), "cpu_seconds": round(r.cpu_seconds, 4),
+                 **{k: v for k, v in r.info.items() if k != "summary"}}
         entry.update(r.metrics)
         out[r.name] = entry
     return out

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, group_rows
 from ccl_cli.errors import InputError
 from ccl_cli.io.options import DemoOptions
 
@@ -175,8 +175,9 @@ def resegment(data: Demonstrations, demos: DemoOptions | Mapping[str, Any] | Non
     new = np.full(data.n_samples, -1)
     parent: list[int] = []
     first = 0
+    of_demo = dict(zip(*group_rows(data.demo), strict=True))
     for d in data.demo_ids:  # loop over demonstrations, not samples
-        rows = np.flatnonzero(data.demo == d)
+        rows = of_demo[d]
         ids, n_base = cut(data.t[rows], demos, f"{where}: demo {int(d)}", first=first)
         first += n_base
         inside = ids >= 0

@@ -29,7 +29,7 @@ from ccl_cli.learn.params import BasisKind, Fields, Interval, Seed, out_of_range
 FEATURE_CACHE_BYTES = 256 * 2**20
 #: ... and above this multiple of the learner's input arrays (issue 19: peak memory ≤ 5× the
 #: inputs), unless they take less than :data:`FEATURE_CACHE_FLOOR` bytes.
-FEATURE_CACHE_RATIO = 2
+FEATURE_CACHE_RATIO = 3
 FEATURE_CACHE_FLOOR = 64 * 2**20
 
 

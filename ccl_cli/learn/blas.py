@@ -3,10 +3,10 @@
 Small problems do not profit from BLAS threads, and on a machine whose cores are shared
 they lose badly: a LAPACK call (e.g. ``eigh`` of a 200 × 200 normal matrix) makes
 hundreds of threaded BLAS calls, each waiting for every thread, so one descheduled
-thread stalls them all (docs/measurements.md, "BLAS threads"). A run therefore fits a
-small training set single-threaded (:data:`SMALL_SAMPLES`) and records the choice in
-run.json, and a hyperparameter search (many small cross-validation fits) runs
-single-threaded.
+thread stalls them all (docs/measurements.md, "BLAS threads"). Every learner's fit runs
+single-threaded (its results must not depend on the count), and so does the rest of a run
+(:data:`RUN_THREADS`, recorded in run.json): predictions, scores and diagnostics work in
+row blocks whose products (8192 × p × K) are too small to share at any N.
 
 The threads are set through threadpoolctl (OpenBLAS, MKL, BLIS, ...); where no BLAS can
 be controlled nothing changes and :func:`threads` yields None.
@@ -21,20 +21,22 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-#: Stages on fewer training samples than this run with one BLAS thread.
-SMALL_SAMPLES = 20_000
+#: BLAS threads of a run, at any size: its products are row blocks of at most a few thousand
+#: rows by a few dozen columns, where a second thread costs more than it gives (RBF features of
+#: 10⁶ rows on the 2 shared cores: 1.43 s CPU and 4.7 s wall with 2 threads, 0.51 and 1.8 with 1).
+RUN_THREADS = 1
 #: The variables that set the BLAS (and OpenMP) threads of a process started after them
 #: (``ccl batch`` sets them to share the cores between its workers).
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def affinity_cores() -> int:
-    """The cores this process may run on: its CPU affinity (all cores where there is no
-    affinity API, e.g. macOS)."""
+    """The cores this process may run on: its CPU affinity (where there is no affinity API,
+    e.g. macOS, ``os.process_cpu_count`` of Python 3.13, else all cores)."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:
-        return os.cpu_count() or 1
+        return getattr(os, "process_cpu_count", os.cpu_count)() or 1
 
 
 def _blas_pools() -> list[dict]:
@@ -100,9 +102,3 @@ def threads(n: int | None) -> Iterator[int | None]:
             yield n
         finally:
             _IN_FORCE.reset(token)
-
-
-def stage_threads(n_samples: int) -> int | None:
-    """BLAS threads for a stage fitted on ``n_samples`` samples: 1 below
-    :data:`SMALL_SAMPLES`, else None (the library's own count, e.g. one per core)."""
-    return 1 if n_samples < SMALL_SAMPLES else None

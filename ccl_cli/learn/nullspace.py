@@ -31,7 +31,10 @@ and at N = 1e5 it had not converged after 1000 (25 s). So the fit runs in four s
    the original cost to, or below, where 1000 passes from the smooth start ended.
 
 Stages 1 and 2 run on a seeded subsample of :func:`subsample_size` rows when N is larger
-(otherwise on all rows, and stage 3 is their continuation). ``smoothing=0`` minimises
+(otherwise on all rows, and stage 3 is their continuation); stage 3 then takes at most
+:data:`FULL_PASSES` passes over all rows (so a fit costs a bounded number of passes over the
+data, O(N)). A fit started from another fit (a search's winner on a subset of the rows) runs
+its stage 2 on that subsample too before the passes over all rows. ``smoothing=0`` minimises
 the original residual itself in stages 2–3 (the original's optimum, slowly: ~180 passes
 on 500 samples); ``polish=False`` stops after stage 1 (then run on all rows). Times and
 errors before → after the staging: docs/measurements.md ("ncl").
@@ -70,6 +73,9 @@ STAGE_TOL = 1e-4
 SUBSAMPLE_ROWS = 10_000
 #: Passes of the last stage (the original residual, from the smoothed optimum).
 ORIGINAL_PASSES = 5
+#: Passes over all rows of stage 3 when a subsample ran first (its optimum is near): the fit's
+#: passes over all N are bounded by a count, ~FULL_PASSES + ORIGINAL_PASSES + 2, whatever N.
+FULL_PASSES = 10
 
 
 def subsample_size(n: int, n_params: int) -> int:
@@ -178,27 +184,27 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
         cache = feature_cache_bytes(X, U)
         blocks = feature_blocks(self.basis_, X, self.chunk_size, cache)
         n, q = U.shape
-        self.stages_: list[dict] = []
-        if start is not None:  # the last stages from a fit of the same basis on other rows of the data
-            W = np.array(start.W_, dtype=float)
-            if start._fit_rows > n:  # a fit on more rows (a fold's start): what these rows see of it
-                W = lift_to_rows(W, blocks)
-            if self.polish:
-                return self._polish(W, blocks, U, n, n, blocks, U, WARM_TOL)
-            W, cost = self._stage("smooth", W, blocks, smooth_residual(U), n, max(self.tol, WARM_TOL), 1e-12)
-            return self._done(W, cost, blocks, U, n, q)
         K = self.basis_.n_features
-        BtB, BtU = np.zeros((K, K)), np.zeros((K, q))
-        for rows, B in blocks():
-            BtB += B.T @ B
-            BtU += B.T @ U[rows]
-        W = eigen_lstsq(BtB, BtU.T, 1e-8)  # (q, K): the OLS start
         m = subsample_size(n, K * q)
         if m < n:
             keep = np.sort(np.random.default_rng(self.seed).choice(n, m, replace=False))
             U_s, sub_blocks = U[keep], feature_blocks(self.basis_, X[keep], self.chunk_size, cache)
         else:
             U_s, sub_blocks = U, blocks
+        self.stages_: list[dict] = []
+        if start is not None:  # the last stages from a fit of the same basis on other rows of the data
+            W = np.array(start.W_, dtype=float)
+            if start._fit_rows > n:  # a fit on more rows (a fold's start): what these rows see of it
+                W = lift_to_rows(W, blocks)
+            if self.polish:  # on a subsample first when there are more rows: fewer passes over all of them
+                return self._polish(W, blocks, U, n, m, sub_blocks, U_s, WARM_TOL)
+            W, cost = self._stage("smooth", W, blocks, smooth_residual(U), n, max(self.tol, WARM_TOL), 1e-12)
+            return self._done(W, cost, blocks, U, n, q)
+        BtB, BtU = np.zeros((K, K)), np.zeros((K, q))
+        for rows, B in blocks():
+            BtB += B.T @ B
+            BtU += B.T @ U[rows]
+        W = eigen_lstsq(BtB, BtU.T, 1e-8)  # (q, K): the OLS start
         if not np.any(W):  # BᵀU = 0: no action has a component along the features
             return self._finish(W, 0.0, 0.0, "zero start", q)
         last = not self.polish and m == n
@@ -230,7 +236,10 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
             W, cost = self._stage(name, W, sub_blocks, wall_residual(U_s, delta2), m, STAGE_TOL * 1e-2,
                                   1e-8, delta2)
         W, cost = self._stage(name, W, blocks, wall_residual(U, delta2), n, tol,
-                              1e-12 if m < n or not self.stages_ else 1e-8, delta2)
+                              1e-12 if m < n or not self.stages_ else 1e-8, delta2,
+                              min(FULL_PASSES, self.max_iter) if m < n else None)
+        if m < n and self.stages_[-1]["stop"] == "max_iter":
+            self.stages_[-1]["stop"] = "budget"
         if delta2 > 0:
             W, cost = self._stage("original", W, blocks, wall_residual(U, 0.0), n, tol, 1e-12, 0.0,
                                   min(ORIGINAL_PASSES, self.max_iter))

@@ -34,11 +34,16 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, group_rows
 
 CELLS = 12  # arrow subsampling: at most one state per cell of a CELLS × CELLS grid
 MAX_DEMOS = 2  # demonstrations per time plot
 DPI = 90
+#: A line over time is drawn through at most this many of its samples (:func:`envelope`: each run
+#: of samples keeps its lowest and highest, about five per pixel of the ~400-pixel-wide panels), and a
+#: 3-D trajectory figure through at most TRAJECTORY_POINTS (every s-th sample of each demonstration).
+LINE_POINTS = 4000
+TRAJECTORY_POINTS = 20_000
 #: matplotlib settings while a figure is written: glyphs rasterised without FreeType's
 #: auto-hinter (the same text to the eye at this size; a tenth of the figures' time)
 RC = {"text.hinting": "no_hinting"}
@@ -349,6 +354,29 @@ def with_gaps(t: np.ndarray, factor: float = 3.0) -> tuple[np.ndarray, Callable[
     return cut(t), cut
 
 
+def envelope(x: np.ndarray, y: np.ndarray, points: int = LINE_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """The samples of a line (x, y (n,), NaN where it breaks) that draw it at its width: all of
+    them up to ``points``; else, in each of ``points`` / 2 runs of consecutive samples, the lowest
+    and the highest, in order, with every break and the samples either side of it — the same
+    pixels, at any n."""
+    n = len(y)
+    if n <= points:
+        return x, y
+    size = -(-n // (points // 2))
+    runs = -(-n // size)
+    gap = np.isnan(y)
+    low = np.full(runs * size, np.inf)
+    low[:n] = np.where(gap, np.inf, y)
+    high = np.full(runs * size, -np.inf)
+    high[:n] = np.where(gap, -np.inf, y)
+    first = np.arange(runs) * size
+    breaks = np.flatnonzero(gap)
+    lowest, highest = low.reshape(runs, size).argmin(1), high.reshape(runs, size).argmax(1)
+    keep = np.unique(np.r_[first + lowest, first + highest, breaks, breaks - 1, breaks + 1])
+    keep = keep[(keep >= 0) & (keep < n)]
+    return x[keep], y[keep]
+
+
 def time_figure(title: str, part: str, d: Demonstrations, lines: dict[str, tuple[str, np.ndarray]]):
     """One row per action dimension over time for up to MAX_DEMOS demonstrations of ``d``;
     ``lines``: style → (label, (N, q))."""
@@ -366,7 +394,7 @@ def time_figure(title: str, part: str, d: Demonstrations, lines: dict[str, tuple
                 if style in lines:
                     name, Y = lines[style]
                     s = STYLE[style]
-                    ax.plot(t, cut(Y[sel, j]), label=name, **s)
+                    ax.plot(*envelope(t, cut(Y[sel, j])), label=name, **s)
             ax.text(0.01, 0.96, names[j], transform=ax.transAxes, va="top", fontsize=7,
                     bbox={"facecolor": "white", "alpha": 0.7, "lw": 0, "pad": 1})
             ax.tick_params(labelsize=7)
@@ -384,199 +412,6 @@ def time_figure(title: str, part: str, d: Demonstrations, lines: dict[str, tuple
 
 #: Colours of the constraint-count figure: a model that holds, one that does not, the chosen one.
 HOLDS_COLOUR, MISSES_COLOUR, CHOSEN_COLOUR = "tab:green", "0.65", "tab:red"
-
-
-def _geometry_axes(ax: Any, models: list[dict[str, Any]], chosen: int, q: int, decided: bool) -> list[Any]:
-    """Per rank k (1 … q − 1) the models of the states' geometry tried (:mod:`ccl_cli.learn.
-    constraint.geometry`): a bar per model at its worst held-out drift or shape residual, a black
-    dash at its limit, green when within it, the chosen one red; ranks not tried said why.
-    Returns the legend's handles."""
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
-
-    width = 0.8
-    ticks, names = [], []
-    for k in range(1, q):
-        at = [m for m in models if m["k"] == k]
-        if not at:
-            why = (f"not tried:\n{chosen} holds" if decided and k < chosen else "not tried")
-            ax.text(k, 0.5, why, transform=ax.get_xaxis_transform(), ha="center", va="center", fontsize=7,
-                    color="0.4")
-            continue
-        step = width / len(at)
-        x = k - width / 2 + step * (np.arange(len(at)) + 0.5)
-        worst = np.array([max(m["drift"]) if m["drift"] else np.nan for m in at])
-        colour = [CHOSEN_COLOUR if m.get("chosen") and decided else
-                  HOLDS_COLOUR if m["holds"] else MISSES_COLOUR for m in at]
-        floor = 1e-3 * min(m["limit"] for m in models)  # a bar this short still shows; its value says more
-        shown = np.maximum(np.nan_to_num(worst, nan=floor), floor)
-        bars(ax, x, shown, step * 0.85, colour)
-        ax.hlines([m["limit"] for m in at], x - step * 0.45, x + step * 0.45, colors="k", lw=1.4, zorder=3)
-        for xi, h, v in zip(x, shown, worst, strict=True):
-            ax.text(xi, h * 1.08, f"{v:.2g}", ha="center", va="bottom", fontsize=6, color="0.25")
-        ticks += list(x)
-        names += [f"{m['basis']} {m['scope'].replace('_', ' ')}" for m in at]
-    _log_axis(ax)
-    ax.set_ylim(top=ax.get_ylim()[1] * 1.6)  # room for the values over the bars
-    ax.set_xlim(0.4, q - 0.6)
-    ax.set_xticks(ticks, names, fontsize=7, rotation=35, ha="right", rotation_mode="anchor")
-    for k in range(1, q):
-        ax.text(k, 1.01, f"k = {k}", transform=ax.get_xaxis_transform(), ha="center", va="bottom", fontsize=8,
-                fontweight="bold" if decided and k == chosen else "normal",
-                color=CHOSEN_COLOUR if decided and k == chosen else "k")
-    ax.set_ylabel("worst held-out drift or shape residual\n(of the rows' spread, log)", fontsize=8)
-    return [Patch(color=HOLDS_COLOUR, label="holds (within its limit)"),
-            Patch(color=MISSES_COLOUR, label="does not hold"),
-            *([Patch(color=CHOSEN_COLOUR, label="chosen")] if decided else []),
-            Line2D([], [], color="k", lw=1.4, label="a model's limit")]
-
-
-def _log_axis(ax: Any, axis: str = "y") -> None:
-    """A log scale with plain numbers at the decades only (no labelled minor ticks)."""
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
-
-    (ax.set_yscale if axis == "y" else ax.set_xscale)("log")
-    ax.autoscale_view()
-    target = ax.yaxis if axis == "y" else ax.xaxis
-    low, high = (ax.get_ylim() if axis == "y" else ax.get_xlim())
-    decades = np.log10(max(high, 1e-300) / max(low, 1e-300))
-    subs = (1.0,) if decades > 2.5 else (1.0, 2.0, 5.0)
-    target.set_major_locator(LogLocator(base=10, subs=subs, numticks=8))
-    target.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-    target.set_minor_formatter(NullFormatter())
-
-
-def _noise_axes(ax_ratio: Any, ax_share: Any, candidates: list[dict[str, Any]], chosen: int) -> list[Any]:
-    """The velocity candidates of ``auto`` (:mod:`ccl_cli.learn.constraint.noise_rank`): per
-    candidate row k its held-out motion over its noise (left) and its share of the motion
-    (right), against the rule's limits (MARGIN; after the first row min(MARGIN, RATIO · r₁); the
-    share SHARE for the first row only); rows 1 … k of the chosen model are quiet. Returns the
-    legend's handles."""
-    tried = [r for r in candidates if r.get("noise_ratio")]
-    winner = next((r for r in tried if r.get("chosen")), None)
-    ref = winner or next((r for r in tried if r.get("noise_limit")), None)
-    colours = _colours(len(tried))
-    m = max(len(r["noise_ratio"]) for r in tried)
-    for ax, key, lim in ((ax_ratio, "noise_ratio", "noise_limit"), (ax_share, "share", "share_limit")):
-        for c, r in zip(colours, tried, strict=True):
-            v = np.maximum(np.asarray(r[key], dtype=float), 1e-12)
-            rows = np.arange(1, len(v) + 1)
-            mine = r is winner
-            ax.plot(rows, v, "o-", color=CHOSEN_COLOUR if mine else c, lw=2.2 if mine else 0.9,
-                    ms=6 if mine else 3.5,
-                    label=f"{r['class']} (k = {r.get('k')})" + (" — chosen" if mine else ""),
-                    zorder=3 if mine else 2)
-        if ref is not None and ref.get(lim):
-            limits = np.array([np.nan if v is None else v for v in ref[lim]], dtype=float)
-            rows = np.arange(1, len(limits) + 1)
-            ax.hlines(limits, rows - 0.35, rows + 0.35, colors="k", lw=1.6, zorder=4,
-                      label="the rule's limit for the row")
-        if chosen > 0 and ref is not None:
-            ax.axvspan(0.5, chosen + 0.5, color=HOLDS_COLOUR, alpha=0.08, lw=0)
-        _log_axis(ax)
-        ax.set_xticks(np.arange(1, m + 1))
-        ax.set_xlim(0.5, m + 0.5)
-        ax.set_xlabel("candidate row k (the rows' order of each model)", fontsize=8)
-    ax_ratio.set_ylabel("held-out motion along row k\n/ its noise variance (log)", fontsize=8)
-    ax_share.set_ylabel("share of all the motion\nalong row k (log)", fontsize=8)
-    for c, r in zip(colours, tried, strict=True):
-        if r.get("time_share") is not None:  # in stretches: its row must hold in enough of the time too
-            ax_ratio.annotate(f"{r['class']}: holds in {100 * r['time_share']:.0f} % of the held-out\n"
-                              f"moving time (≥ {100 * r['min_time_share']:.0f} % needed)",
-                              (1, max(r["noise_ratio"][0], 1e-12)), xytext=(8, 2), textcoords="offset points",
-                              fontsize=6, color=CHOSEN_COLOUR if r is winner else c, va="bottom")
-    if ref is None:  # the noise rule could not judge: the ratio rule on held-out energies decided
-        said = ("not trajectories in time: the noise rule cannot judge; the ratio rule on held-out "
-                "energies decided")
-    elif chosen:
-        said = f"a row is a constraint at or below its limit; shaded: the {chosen} chosen"
-    else:
-        said = "no candidate's row 1 holds: k = 0"
-    ax_ratio.set_title(wrap(said, 60), fontsize=8, y=1.0)
-    ax_share.set_title("... or when it carries no more than this share (row 1)", fontsize=8, y=1.0)
-    return ax_ratio.get_legend_handles_labels()[0]
-
-
-def selection_figure(selection: dict[str, Any], q: int):
-    """How the number of constraints was chosen: for ``auto``, each candidate k with its evidence
-    and the rule's limit — the states' geometry per rank (:func:`_geometry_axes`), the velocity
-    candidates' noise ratios and shares per row (:func:`_noise_axes`); for other rules the
-    criterion per candidate k (every per-k list in ``selection``), the chosen k marked; per
-    demonstration, how many demonstrations chose each k."""
-    chosen = int(selection.get("n_constraints", 0))
-    geometry = (selection.get("geometry") or {}).get("models") or []
-    noise = [r for r in selection.get("candidates") or [] if r.get("noise_ratio")]
-    if selection.get("rule") == "auto" and (geometry or noise):
-        return _auto_selection(selection, q, chosen, geometry, noise)
-    if "per_demo" in selection:
-        counts = np.bincount(list(selection["per_demo"].values()), minlength=q)
-        k = np.arange(len(counts))
-        fig, ax = subplots(figsize=(5, 3.4))
-        bars(ax, k, counts, 0.6, ["tab:red" if i == chosen else "0.6" for i in k])
-        ax.set_xticks(k)
-        ax.set_xlabel("number of constraints k")
-        ax.set_ylabel("demonstrations")
-        ax.set_title(wrap(f"Number of constraints chosen in each training demonstration; most common: "
-                          f"{chosen}"), fontsize=9, y=1.0)
-        fig.subplots_adjust(left=0.14, right=0.97, top=0.84, bottom=0.16)
-        return fig
-    series = {key: np.asarray(v, dtype=float) for key, v in selection.items()
-              if isinstance(v, list) and len(v) > 1 and all(isinstance(x, int | float) for x in v)}
-    if not series:
-        return None
-    width = max(6.4, 4.6 * len(series))
-    fig, axes = subplots(1, len(series), figsize=(width, 3.6), squeeze=False)
-    for ax, (key, v) in zip(axes[0], series.items(), strict=True):
-        k = np.arange(1, len(v) + 1)
-        ax.semilogy(k, np.maximum(v, 1e-300), "o-", color="0.3", lw=1)
-        if 1 <= chosen <= len(v):
-            ax.semilogy([chosen], [max(v[chosen - 1], 1e-300)], "o", ms=10, mfc="none", mec="tab:red", mew=2,
-                        label=f"chosen k = {chosen}")
-            ax.legend(loc="upper left", bbox_to_anchor=(0, -0.22), fontsize=8, frameon=False)
-        ax.set_xticks(k)
-        ax.set_xlabel("candidate number of constraints k")
-        meaning = selection.get("criterion") or {
-            "cv": "cross-validated NPOE", "eigengap": "residual of candidate k",
-            "threshold": "residual of candidate k"}.get(str(selection.get("rule")), key)
-        ax.set_ylabel(wrap(f"{meaning if key == 'values' else key} (log)", 34), fontsize=8)
-    chars = int(12 * width)  # characters of a 9-pt title line across the figure
-    title = wrap(f"How the number of constraints was chosen: rule {selection.get('rule')}", chars) + "\n" + \
-        wrap(str(selection.get("reason", "")), chars)
-    fig.suptitle(title, fontsize=9)
-    top = 1 - (0.15 + 0.17 * (title.count("\n") + 1)) / fig.get_figheight()
-    fig.subplots_adjust(left=0.9 / width, right=0.97, top=top, bottom=0.3, wspace=0.35)
-    return fig
-
-
-def _auto_selection(selection: dict[str, Any], q: int, chosen: int, geometry: list[dict[str, Any]],
-                    noise: list[dict[str, Any]]):
-    """The constraint-count figure of ``auto``: the states' geometry when it was tried, the
-    velocity candidates when they decided."""
-    by_states = selection.get("decided_by") == "states"
-    shapes = 0.0 if not geometry or q < 2 else max(4.0, 0.5 * len(geometry) + 1.0 * (q - 1))
-    curves = 0.0 if not noise or by_states else 8.8
-    width = 1.6 + shapes + curves
-    ratios = [r for r in (shapes, curves / 2, curves / 2) if r]
-    fig, axes = subplots(1, len(ratios), figsize=(width, 4.6), squeeze=False,
-                         gridspec_kw={"width_ratios": ratios})
-    axes = list(axes[0])
-    handles = []
-    if geometry and q > 1:
-        ax = axes.pop(0)
-        handles += _geometry_axes(ax, geometry, chosen, q, by_states)
-        said = "" if by_states else ": no shape holds, the velocities decide"
-        ax.set_title(f"the states' geometry{said}", fontsize=8, y=1.07)
-    if axes:
-        handles += _noise_axes(axes[0], axes[1], noise, chosen)
-    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 4), fontsize=7, frameon=False)
-    chars = int(12 * width)
-    title = wrap(f"How the number of constraints was chosen: k = {chosen}", chars) + "\n" + \
-        wrap(str(selection.get("reason", "")), chars)
-    fig.suptitle(title, fontsize=9)
-    top = 1 - (0.5 + 0.17 * (title.count("\n") + 1)) / fig.get_figheight()
-    fig.subplots_adjust(left=1.2 / width, right=0.98, top=top, bottom=(1.05 + 0.16 * (len(handles) > 4)) /
-                        fig.get_figheight(), wspace=0.35)
-    return fig
 
 
 def constraint_figure(info: dict[str, Any], method: str):
@@ -655,10 +490,6 @@ def _collector_paused():
             gc.enable()
 
 
-#: the drawing function of each kind of :class:`~ccl_cli.app.views.View`
-DRAW: dict[str, Callable[..., Any]] = {}
-
-
 def trajectory_figure(title: str, d: Demonstrations, part: str, at: np.ndarray, learnt: np.ndarray,
                       true: np.ndarray | None):
     """A 3-D view of the states X (N, 3) of ``d``, one colour per demonstration (phases cut
@@ -674,9 +505,10 @@ def trajectory_figure(title: str, d: Demonstrations, part: str, at: np.ndarray, 
     extent = float(np.max(d.X.max(0) - d.X.min(0))) or 1.0
     length = 0.08 * extent
     colours = _colours(len(d.demo_ids))
+    step = max(1, -(-d.n_samples // TRAJECTORY_POINTS))
+    rows = dict(zip(*group_rows(d.demo), strict=True))
     for c, k in zip(colours, d.demo_ids, strict=True):
-        sel = np.flatnonzero(d.demo == k)
-        ax.plot(*d.X[sel].T, color=c, lw=0.8, alpha=0.8)
+        ax.plot(*d.X[rows[k][::step]].T, color=c, lw=0.8, alpha=0.8)
     P = d.X[at]
     if true is not None:
         for r in range(true.shape[1]):
@@ -719,8 +551,9 @@ def phases_figure(title: str, d: Demonstrations, holds: np.ndarray, speed: np.nd
         if true_holds is not None:
             ax.fill_between(t, 0, 0.06, where=true_holds[sel], transform=ax.get_xaxis_transform(), color="k",
                             alpha=0.55, lw=0, step="mid", label="a constraint in the file's ground truth")
-        ax.plot(t, speed[sel], color="0.45", lw=0.9, label="speed ‖u‖")
-        ax.plot(t, along[sel], color=CHOSEN_COLOUR, lw=1.0, label="speed along the learnt rows ‖Ã u‖")
+        ax.plot(*envelope(t, speed[sel]), color="0.45", lw=0.9, label="speed ‖u‖")
+        ax.plot(*envelope(t, along[sel]), color=CHOSEN_COLOUR, lw=1.0,
+                label="speed along the learnt rows ‖Ã u‖")
         share = 100 * float(on.mean())
         ax.text(0.005, 0.95, f"demonstration {int(k)}: holds {share:.0f} % of its samples",
                 transform=ax.transAxes, va="top", fontsize=7,
@@ -752,7 +585,3 @@ def _equal_3d(ax: Any, X: np.ndarray) -> None:
     ax.set_xlim(mid[0] - half, mid[0] + half)
     ax.set_ylim(mid[1] - half, mid[1] + half)
     ax.set_zlim(mid[2] - half, mid[2] + half)
-
-
-DRAW.update(field=field_figure, time=time_figure, selection=selection_figure, constraint=constraint_figure,
-            trajectory=trajectory_figure, phases=phases_figure)

@@ -10,6 +10,8 @@ surfaces worked in phases and free motion (:mod:`~ccl_cli.simulate.realism`,
 
 from __future__ import annotations
 
+from functools import partial
+
 from ccl_cli.simulate.contact import contact_phases
 from ccl_cli.simulate.free import handwriting, reach_goal
 from ccl_cli.simulate.mechanisms import hinge, slide
@@ -39,6 +41,7 @@ PROBLEMS = {
     "tracker_flips": tracker_flips,
     "tracker_tilt": tracker_tilt,
     "arm_wipe": arm_wipe,
+    "arm_wipe_force": partial(arm_wipe, force=True),  # with the force channel (base frame)
     "arm_wipe_joint": arm_wipe_joint,
     "free_reach": free_reach,
     "flow2d": flow2d,

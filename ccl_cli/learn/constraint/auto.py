@@ -74,6 +74,12 @@ total variance is below MIN_SNR × their noise), each candidate's rank falls bac
 ``ratio`` rule on its held-out energies (at least one constraint). With too few samples to
 cross-validate, nhat is fitted with the noise rule on its own rows.
 
+Above :data:`CHOICE_ROWS` samples the candidates are tried and scored on a bounded, seeded
+sample of whole demonstrations (or contiguous blocks of long ones, each acting as a
+demonstration), counted in rows: the work of the choice does not grow with N, and only the
+winner is fitted on all the samples (``selection_["subset"]`` says what was taken). The states'
+geometry reads its own bounded sample (:func:`.geometry.evidence_rows`).
+
 Nothing here reads a clock: the same data and parameters give the same model.
 """
 
@@ -88,11 +94,18 @@ from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn import blas
 from ccl_cli.learn import model_selection as ms
 from ccl_cli.learn.constraint import evidence as ev
+from ccl_cli.learn.constraint import force_evidence, sure
 from ccl_cli.learn.constraint import geometry as geo
 from ccl_cli.learn.constraint import noise_rank as nr
-from ccl_cli.learn.constraint import sure
 from ccl_cli.learn.constraint.alpha import StateDependentConstraint
-from ccl_cli.learn.constraint.base import Applied, ConstraintModel, NewDataRule, Windows, check_rows_asked
+from ccl_cli.learn.constraint.base import (
+    ONE_ACTION,
+    Applied,
+    ConstraintModel,
+    NewDataRule,
+    Windows,
+    check_rows_asked,
+)
 from ccl_cli.learn.constraint.lambda_ import FeatureSpec, KnownFeatureConstraint, make_features
 from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.manifold import ManifoldConstraint
@@ -121,6 +134,9 @@ CANDIDATES = ("none", "manifold", "nhat", "per_demo", "per_segment", "per_window
 #: The RBF alpha candidate is tried up to this state dimension: its 25 centres cover no more
 #: (beyond it: alpha with linear angles, or lambda with the arm's own features).
 MAX_RBF_STATES = 3
+#: Above this many samples the candidates are chosen on a seeded sample of about this many
+#: (whole demonstrations or contiguous blocks), and only the winner is fitted on all of them.
+CHOICE_ROWS = ms.TUNE_MAX_ROWS
 #: The candidates whose rank bounds the rows the costly alpha fits need (one more than theirs).
 _CHEAP = ("nhat", "per_demo", "per_window", "per_segment")
 
@@ -222,8 +238,19 @@ class AutoConstraint(ConstraintModel, SeedParams):
 
     # -- fitting --------------------------------------------------------------------------
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-            t: np.ndarray | None = None, derivative: HowMade = None) -> AutoConstraint:
-        """Choose and fit the constraint model.
+            t: np.ndarray | None = None, derivative: HowMade = None, force: np.ndarray | None = None
+            ) -> AutoConstraint:
+        """Choose and fit the constraint model: from the states and the velocities
+        (:meth:`_fit`), then — with ``force`` (N, 3), the base-frame force of a force/torque
+        sensor — weighed against the contact the force shows (:mod:`.force_evidence`)."""
+        self._fit(X, U, groups=groups, t=t, derivative=derivative)
+        if force is not None:
+            force_evidence.weigh(self, np.asarray(X, float), np.asarray(U, float), groups, t, force)
+        return self
+
+    def _fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+             t: np.ndarray | None = None, derivative: HowMade = None) -> AutoConstraint:
+        """Choose and fit the constraint model from the states and the velocities.
 
         Args:
             X (N, p), U (N, q): states and actions, in time order within each demonstration.
@@ -234,6 +261,9 @@ class AutoConstraint(ConstraintModel, SeedParams):
                 from the positions X by their local polynomial, False when recorded, None when
                 not known (the larger of the two noise estimates,
                 :func:`~ccl_cli.learn.constraint.noise_rank.row_evidence`).
+
+        One action dimension (q = 1): no constraint (k = 0, :data:`~.base.ONE_ACTION`), no
+        candidate tried.
         """
         X, U = self._prepare_fit(X, U)
         n, q = U.shape
@@ -242,22 +272,46 @@ class AutoConstraint(ConstraintModel, SeedParams):
             t = np.asarray(t, dtype=float)
             if t.shape != (n,):
                 raise InputError(f"t must hold one time per sample, ({n},), got {t.shape}")
-        data = ev.Sample.of(X, U, groups, t, derivative)
-        derived = data.derived
         self.n_action_ = q
         self.geometry_ = None
+        if q == 1:
+            self._one_action(X, U, groups)
+            return self
+        data = ev.Sample.of(X, U, groups, t, derivative)
+        derived = data.derived
         if self._geometry(data, derivative):
             return self
         gap = self.gap if self.gap is not None else int(derived.window) if derived else ms.RECORDED_GAP
+        choice, subset = self._choice_sample(data)
         try:
-            folds = ms.make_folds(data.groups, n, self.cv_folds, self.seed, gap)
+            folds = ms.make_folds(choice.groups, len(choice.U), self.cv_folds, self.seed, gap)
         except InputError as exc:
             self._fit_without_cv(data, exc.message)
             return self
-        with blas.threads(blas.stage_threads(n)):  # many small fits: one BLAS thread below SMALL_SAMPLES
-            tried, skipped = self._cross_validate(data, folds, gap)
-            self._choose(data, tried, skipped)
+        with blas.threads(blas.RUN_THREADS):  # many small fits: one BLAS thread
+            tried, skipped = self._cross_validate(choice, folds, gap)
+            self._choose(choice, tried, skipped, data)
+        if subset:
+            self.selection_["subset"] = subset
         return self
+
+    def _choice_sample(self, data: ev.Sample) -> tuple[ev.Sample, str]:
+        """The samples the candidates are chosen on (every candidate's held-out rows, rank and
+        NPOE): all of them up to :data:`CHOICE_ROWS`; above, a bounded, seeded sample of whole
+        demonstrations or contiguous blocks (:func:`~ccl_cli.learn.model_selection.tuning_subset`;
+        blocks of one recording act as its demonstrations) — the losing candidates never see
+        all N — and a sentence saying what was taken ("" for all). The winner is fitted on all."""
+        sample, _, note = self._bounded(data)
+        return sample, note.replace("searched", "candidates chosen")
+
+    def _bounded(self, data: ev.Sample) -> tuple[ev.Sample, np.ndarray | None, str]:
+        """:meth:`_choice_sample` with the rows of ``data`` it took (None: all)."""
+        found = ms.tuning_subset(data.groups, len(data.U), int(self.seed), CHOICE_ROWS)
+        if found is None:
+            return data, None, ""
+        rows, groups, note = found
+        return ev.Sample(data.X[rows], data.U[rows], groups, None if data.t is None else data.t[rows],
+                         data.derived, data.recorded), rows, note
 
     def _geometry(self, data: ev.Sample, derivative: HowMade) -> bool:
         """The states' own geometry first (:mod:`.geometry`), when the actions are their derivative:
@@ -312,9 +366,13 @@ class AutoConstraint(ConstraintModel, SeedParams):
     def _sure_of_states(self, data: ev.Sample, winner: geo.Tried, k: int) -> dict[str, Any]:
         """How sure (:mod:`.sure`): the model of the states' manifold fitted again without each
         fold — whole demonstrations, or blocks inside each one for a model per demonstration or
-        stretch — its rows at the held-out samples against the final ones, and k ± 1."""
+        stretch — its rows at the held-out samples against the final ones, and k ± 1. Above
+        :data:`CHOICE_ROWS` samples the folds are those of the bounded sample the velocity
+        candidates would be chosen on (:meth:`_bounded`): the cone's work does not grow with N."""
         q = data.U.shape[1]
         derived = data.derived
+        everything = data
+        data, taken, note = self._bounded(data)
         gap = self.gap if self.gap is not None else int(derived.window) if derived else ms.RECORDED_GAP
 
         def refit(idx: np.ndarray) -> ConstraintModel:
@@ -330,8 +388,13 @@ class AutoConstraint(ConstraintModel, SeedParams):
         except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
             why = f"no held-out fits: {getattr(exc, 'message', None) or exc}"
             return sure.summary(None, None, "", self.selection_, q, why)
-        final = self.model_.constraint(data.X, groups=data.groups, t=data.t)
-        return sure.summary(final, held, folds.reason, self.selection_, q)
+        if taken is None:
+            final = self.model_.constraint(data.X, groups=data.groups, t=data.t)
+        else:  # the final model at the rows taken, as the demonstrations it was fitted on
+            final = self.model_.constraint(everything.X[taken], groups=everything.groups[taken],
+                                           t=None if everything.t is None else everything.t[taken])
+        found = sure.summary(final, held, folds.reason, self.selection_, q)
+        return {**found, "subset": note.replace("searched", "cone read")} if note else found
 
     def _manifold_model(self, winner: geo.Tried, k: int, data: ev.Sample, heldout: bool = True
                         ) -> ConstraintModel:
@@ -484,9 +547,11 @@ class AutoConstraint(ConstraintModel, SeedParams):
         item.extra = {"time_share": found.share, "min_time_share": MIN_SHARE}
         return item
 
-    def _choose(self, data: ev.Sample, tried: list[ev.Tried], skipped: list[dict[str, Any]]) -> None:
+    def _choose(self, data: ev.Sample, tried: list[ev.Tried], skipped: list[dict[str, Any]],
+                every: ev.Sample | None = None) -> None:
         """k*, the winner by the one-SE rule among the candidates of rank k*, its refit on all
-        the data, ``selection_`` and ``heldout_`` (module docstring)."""
+        the data (``every``; None: ``data``, which the candidates were tried on), ``selection_``
+        and ``heldout_`` (module docstring)."""
         ok = [c for c in tried if c.k is not None]
         if self.n_constraints is not None:
             k_star = int(self.n_constraints)
@@ -508,7 +573,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
         rows = [{**ev.not_tried("none", ""), "model": "no constraint (Ñ = I)", "k": 0, "heldout_error": 0.0,
                  "se": 0.0, "chosen": winner is None, "reason": none_why}]
         rows += [c.row(c is winner, _why(c, winner, best, k_star, top)) for c in tried] + skipped
-        self.model_ = self._refit(data, winner, k_star)
+        self.model_ = self._refit(data if every is None else every, winner, k_star)
         self.n_constraints_ = int(k_star)
         label = winner.candidate.label if winner else "no constraint"
         reason = (NO_CONSTRAINT + " (held out, every candidate)" if winner is None else
@@ -541,6 +606,15 @@ class AutoConstraint(ConstraintModel, SeedParams):
             return NoConstraint().fit(data.X, data.U, groups=data.groups)
         how = data.derivative if winner.candidate.name == "stretches" else None  # its noise needs it
         return winner.candidate.make(k).fit(data.X, data.U, groups=data.groups, t=data.t, derivative=how)
+
+    def _one_action(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None) -> None:
+        """k = 0 at one action dimension (:data:`~.base.ONE_ACTION`): no candidate is tried."""
+        self.model_ = NoConstraint().fit(X, U, groups=groups)
+        self.n_constraints_ = 0
+        self.heldout_ = None
+        self.selection_ = {"rule": "auto", "n_constraints": 0, "model": "no constraint", "chosen": "none",
+                           "reason": ONE_ACTION, "values": [], "criterion": "", "candidates": []}
+        self.model_.selection_ = {**self.selection_, "winner_selection": self.model_.selection_}
 
     def _fit_without_cv(self, data: ev.Sample, why: str) -> None:
         """Too few samples to cross-validate: nhat, its rank by the noise rule on its own rows

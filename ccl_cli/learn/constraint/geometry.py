@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Derivative, HowMade
+from ccl_cli.dataset import Derivative, HowMade, group_rows
 from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint.manifold import BASES, ManifoldConstraint, within_covariance
 from ccl_cli.learn.constraint.rank import Selection
@@ -97,6 +97,14 @@ BLOCKS = 5
 GAP_SHARE = 0.01
 #: At most this many query samples per demonstration in :func:`returning` (work bounded at any N).
 REVISIT_QUERIES = 400
+#: The evidence is read on at most about EVIDENCE_ROWS samples (work bounded at any N): when the
+#: moving demonstrations hold more, at most max(EVIDENCE_DEMOS, EVIDENCE_ROWS / their median
+#: length) whole demonstrations, evenly spaced in :func:`demo_order` (near the centre of the states
+#: to far from it), thinned in time by one common stride (:func:`evidence_rows`), and the surfaces
+#: per demonstration judged on at most EVIDENCE_DEMOS of them; the model that shows the constraint
+#: is then fitted on all rows.
+EVIDENCE_ROWS = 20_000
+EVIDENCE_DEMOS = 50
 #: Phases: the samples that come back over their ground within PHASE_RADIUS × the spread are where
 #: a surface may hold while the rest moves freely (approach, retract), when the free share of the
 #: samples is between FREE_SHARE and 1 − FREE_SHARE; runs shorter than MIN_RUN_SHARE of their
@@ -208,8 +216,12 @@ def returning(P: np.ndarray, radius: float = REVISIT_RADIUS) -> np.ndarray:
     the nearest one asked (work bounded at any n)."""
     from scipy.spatial import cKDTree
 
+    scale = float(np.abs(P).max()) if P.size else 0.0
+    if len(P) < 3 or not 0 < scale < np.inf:
+        return np.zeros(len(P), dtype=bool)
+    P = P / scale  # within ±1: the tree's squared distances cannot overflow (states near 1e300)
     spread = float(np.sqrt(((P - P.mean(0)) ** 2).sum(1).mean()))
-    if len(P) < 3 or not spread > 0:
+    if not spread > 0:
         return np.zeros(len(P), dtype=bool)
     step = max(1, len(P) // REVISIT_QUERIES)
     queries = np.arange(0, len(P), step)
@@ -238,7 +250,8 @@ def circle(P: np.ndarray) -> tuple[np.ndarray, float]:
 def _per_demo_drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int, which: np.ndarray
                     ) -> np.ndarray:
     """Median over the demonstrations ``which`` of each one's own held-out drift (blocks): (k,)."""
-    values = [drift(X[groups == d], np.zeros(int(np.sum(groups == d)), np.int64), basis, k) for d in which]
+    rows = dict(zip(*group_rows(groups), strict=True))
+    values = [drift(X[rows[d]], np.zeros(len(rows[d]), np.int64), basis, k) for d in which]
     return np.median(values, axis=0)
 
 
@@ -257,13 +270,13 @@ def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
     """Whether the curves of the demonstrations agree: circles with one axis (within AXIS_DEG) and
     radius (within ± RADIUS_SPREAD of the median), or lines with one direction (within AXIS_DEG),
     and a phrase saying how far apart they are. One demonstration agrees with itself."""
-    ids = np.unique(groups)
+    ids, rows = group_rows(groups)
     if len(ids) == 1:
         return True, "one demonstration"
     q = X.shape[1]
     directions, axes, radii, straight = [], [], [], []
-    for d in ids:
-        P = X[groups == d]
+    for mine in rows:  # a loop over the demonstrations (of the bounded evidence sample)
+        P = X[mine]
         c0 = P.mean(0)
         V = np.linalg.svd(P - c0, full_matrices=False)[2]
         directions.append(V[0])
@@ -289,9 +302,8 @@ def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
             return True, f"lines within {deg:.1f}° of one direction"
         # lines in different directions: each demonstration under its own constraint — unless they
         # run through one point, as straight reaches to one goal do
-        centres = np.array([X[groups == d].mean(0) for d in ids])
-        spreads = np.array([np.sqrt(((X[groups == d] - X[groups == d].mean(0)) ** 2).sum(1).mean())
-                            for d in ids])
+        centres = np.array([X[m].mean(0) for m in rows])
+        spreads = np.array([np.sqrt(((X[m] - X[m].mean(0)) ** 2).sum(1).mean()) for m in rows])
         miss = _meeting_miss(centres, D)
         meet = len(ids) < MIN_LINES or miss <= MEET * float(np.median(spreads))
         if meet:
@@ -299,7 +311,7 @@ def shapes_agree(X: np.ndarray, groups: np.ndarray) -> tuple[bool, str]:
         return True, (f"lines in directions {deg:.0f}° apart that do not run through one point (the "
                       f"nearest misses them by {miss:.3g} RMS): one constraint per demonstration")
     straight = np.array(straight)
-    sizes = np.array([np.count_nonzero(groups == d) for d in ids])
+    sizes = np.array([len(m) for m in rows])
     if sizes[straight].sum() > sizes[~straight].sum():
         return False, "lines in most demonstrations, arcs in others"
     # arcs in most: a straight piece is too short to tell a large circle from a line
@@ -330,8 +342,7 @@ def contact_runs(X: np.ndarray, groups: np.ndarray) -> np.ndarray:
     """An id per sample for each run of samples that come back over their ground (PHASE_RADIUS;
     runs of at least MIN_RUN_SHARE of their demonstration), −1 elsewhere: (N,)."""
     mask = np.zeros(len(X), dtype=bool)
-    for d in np.unique(groups):
-        m = np.flatnonzero(groups == d)
+    for m in group_rows(groups)[1]:
         mask[m] = returning(X[m], PHASE_RADIUS)
     runs = np.cumsum(np.r_[True, (mask[1:] != mask[:-1]) | (groups[1:] != groups[:-1])])
     ids = np.where(mask, runs, -1)
@@ -379,6 +390,37 @@ def _moving(X: np.ndarray, groups: np.ndarray) -> np.ndarray:
     return ok[inverse.ravel()]
 
 
+def spaced(ids: np.ndarray, count: int) -> np.ndarray:
+    """At most ``count`` of ``ids`` (m,), evenly spaced from the first to the last."""
+    if len(ids) <= count:
+        return ids
+    return ids[np.linspace(0, len(ids) - 1, count).round().astype(np.int64)]
+
+
+def evidence_rows(X: np.ndarray, groups: np.ndarray, rows: int = EVIDENCE_ROWS,
+                  demos: int = EVIDENCE_DEMOS) -> np.ndarray:
+    """The rows (sorted indices) the evidence is read on: all when there are at most ``rows``;
+    else at most max(``demos``, ``rows`` / their median length) whole demonstrations evenly
+    spaced in :func:`demo_order`, each thinned in time by one common stride (every s-th sample,
+    from its first; at least MIN_SAMPLES samples kept of each) so that about ``rows`` remain — a
+    bounded, stratified, deterministic sample that keeps each demonstration's whole course (its
+    shape, returns and phases; the drift and shape measures are ratios of lengths, the same at
+    any rate)."""
+    n = len(X)
+    if n <= rows:
+        return np.arange(n)
+    ids, members = group_rows(groups)
+    sizes = np.array([len(m) for m in members])
+    count = min(len(ids), max(demos, rows // max(int(np.median(sizes)), 1)))
+    if count < len(ids):
+        at = np.searchsorted(ids, np.unique(spaced(demo_order(X, groups), count)))
+    else:
+        at = np.arange(len(ids))
+    stride = max(1, -(-int(sizes[at].sum()) // rows))
+    parts = [members[i][:: max(1, min(stride, sizes[i] // MIN_SAMPLES))] for i in at]  # ≤ count of them
+    return np.sort(np.concatenate(parts))
+
+
 def task_residual(X: np.ndarray, groups: np.ndarray, t: np.ndarray, k: int) -> float:
     """How far the demonstrations are from moving along their own k constant rows at their own
     constant rates (a·x − b t constant in each: a constraint with a constant task part, A u = b):
@@ -388,8 +430,7 @@ def task_residual(X: np.ndarray, groups: np.ndarray, t: np.ndarray, k: int) -> f
 
     q = X.shape[1]
     num = den = 0.0
-    for d in np.unique(groups):  # a closed form per demonstration
-        m = groups == d
+    for m in group_rows(groups)[1]:  # a closed form per demonstration
         P, s = X[m] - X[m].mean(0), t[m] - t[m].mean()
         Z = np.c_[P, s / max(float(np.abs(s).max()), np.finfo(float).tiny)]  # time scaled to the unit
         G = np.diag([1.0] * q + [0.0]) + RIDGE_TIME * np.eye(q + 1)
@@ -412,8 +453,12 @@ def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None =
         return Geometry(0, None, [], {}, "the states show no constraint: no demonstration moves over "
                         f"{MIN_SAMPLES} samples or more")
     X, groups = X[usable], groups[usable]
-    ids = np.unique(groups)
-    back = {int(d): revisits(X[groups == d]) for d in ids}
+    keep = evidence_rows(X, groups)
+    bounded = len(keep) < len(X)  # a sample: per-demonstration fits on at most EVIDENCE_DEMOS of them
+    X, groups = X[keep], groups[keep]
+    t = None if t is None else np.asarray(t, dtype=float)[usable][keep]
+    ids, rows = group_rows(groups)
+    back = {int(d): revisits(X[mine]) for d, mine in zip(ids, rows, strict=True)}
     returning = np.array([d for d in ids if back[int(d)] >= REVISIT_SHARE])
     surfaces_return = len(returning) >= max(1, len(ids) / 2)
     quadrics = q <= 3
@@ -434,7 +479,7 @@ def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None =
             d = drift(X, groups, basis, k)
             tried.append(Tried(k, "global", basis, d, limit, bool(d.max() <= limit), why))
         if rail and q <= 3:
-            fits = np.array([shape_residual(X[groups == d], k) for d in ids])
+            fits = np.array([shape_residual(X[mine], k) for mine in rows])
             agree, how = shapes_agree(X, groups)
             worst = fits.max(axis=0)
             holds = bool(agree and worst.max() <= RAIL_FIT)
@@ -443,13 +488,14 @@ def decide(X: np.ndarray, groups: np.ndarray | None = None, only_k: int | None =
                                f"a line or circle in every demonstration ({how})", "shape residual"))
         if rail and q <= 3 and t is not None and len(ids) >= MIN_LINES and not any(
                 x.holds for x in tried if x.k == k):
-            fit = task_residual(X, groups, t[usable], k)
+            fit = task_residual(X, groups, t, k)
             tried.append(Tried(k, "per_demo_task", "linear", np.full(k, fit), TASK_FIT, bool(fit <= TASK_FIT),
                                "each demonstration moving along its own constant rows at its own constant "
                                "rate (a task part: A u = b)", "shape residual"))
         if not rail and len(returning) and surfaces_return and len(ids) > 1:
             for basis in BASES[: 3 if quadrics else 2]:
-                d = _per_demo_drift(X, groups, basis, k, returning)
+                d = _per_demo_drift(X, groups, basis, k, spaced(returning, EVIDENCE_DEMOS)
+                                    if bounded else returning)
                 tried.append(Tried(k, "per_demo", basis, d, SURFACE, bool(d.max() <= SURFACE),
                                    "one surface per demonstration that comes back over its ground"))
         if not rail and surfaces_return:
@@ -563,8 +609,9 @@ def holds_limit(X: np.ndarray, groups: np.ndarray, k: int) -> float:
     """The largest drift (:func:`rows_drift`) along k learnt rows with which a constraint holds on
     the positions X (N, q) of demonstrations ``groups``: HOLDS where most demonstrations come back
     over their ground; on single passes RAIL_FIT for k = q − 1 (a line or circle) and THIN below."""
-    ids = np.unique(groups)
-    back = np.mean([revisits(X[groups == d]) >= REVISIT_SHARE for d in ids]) >= 0.5
+    keep = evidence_rows(X, groups)
+    P = X[keep]
+    back = np.mean([revisits(P[mine]) >= REVISIT_SHARE for mine in group_rows(groups[keep])[1]]) >= 0.5
     return HOLDS if back else RAIL_FIT if k >= X.shape[1] - 1 else THIN
 
 
@@ -588,5 +635,7 @@ def add_still_rows(chosen: Selection | None, rows: np.ndarray, X: np.ndarray, U:
         chosen.reason += (f"; rows {chosen.n_constraints + 1}–{k} move above the noise but the positions "
                           f"drift along them by at most {drift[chosen.n_constraints:k].max():.3g} of their "
                           f"spread (≤ {limit:g}): constraints the contact gives a little along")
+        chosen.extra.update(drift=[float(v) for v in drift], drift_limit=float(limit),
+                            still_rows=list(range(chosen.n_constraints + 1, k + 1)))
         chosen.n_constraints = k
     return chosen

@@ -7,7 +7,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ccl_cli.dataset import HowMade
+from ccl_cli.dataset import HowMade, group_rows
 from ccl_cli.errors import InputError
 from ccl_cli.learn.base import clone
 from ccl_cli.learn.constraint.base import Applied, ConstraintModel, NewDataRule, refit_note, unseen
@@ -65,15 +65,19 @@ class PerDemonstration(ConstraintModel):
         X, U = self._prepare_fit(X, U)
         groups = np.zeros(len(U), int) if groups is None else np.asarray(groups)
         self.models_: dict[int, Any] = {}
-        for d in np.unique(groups):  # loop over demonstrations, not samples
-            m = groups == d
+        for d, m in zip(*group_rows(groups), strict=True):  # loop over demonstrations, not samples
             self.models_[int(d)] = clone(self.estimator).fit(X[m], U[m])
         counts = [m.n_constraints_ for m in self.models_.values()]
         self.n_constraints_ = int(np.bincount(counts).argmax())
+        rules = sorted({str((getattr(m, "selection_", None) or {}).get("rule"))
+                        for m in self.models_.values()})
         self.selection_ = {"rule": "per-demonstration",
                            "n_constraints": self.n_constraints_,
                            "per_demo": {int(k): int(m.n_constraints_) for k, m in self.models_.items()},
-                           "reason": "most common count over demonstrations"}
+                           "inner_rules": rules,
+                           "reason": (f"fixed by the user at {self.n_constraints_} in every demonstration"
+                                      if rules == ["fixed"] else "most common count over demonstrations "
+                                      f"(each chosen by rule {', '.join(rules)})")}
         self.heldout_ = self._held_out(X, U, groups, derivative) if self.heldout else None
         return self
 
@@ -131,7 +135,7 @@ class PerDemonstration(ConstraintModel):
         return out
 
     def _demo_rows(self, X: np.ndarray, groups: np.ndarray | None) -> list[tuple[int, np.ndarray]]:
-        """(demonstration id, its samples' mask) for each demonstration of ``groups`` (N,); one
+        """(demonstration id, its samples' rows) for each demonstration of ``groups`` (N,); one
         demonstration when None and only one was fitted; InputError for one not seen in fit."""
         self._check_fitted("models_")
         X = self._check_states(X)
@@ -141,10 +145,10 @@ class PerDemonstration(ConstraintModel):
             groups = np.full(len(X), next(iter(self.models_)))
         groups = np.asarray(groups)
         out = []
-        for d in np.unique(groups):
+        for d, rows in zip(*group_rows(groups), strict=True):
             if int(d) not in self.models_:
                 raise InputError(f"demonstration {int(d)} was not seen when fitting this model")
-            out.append((int(d), groups == d))
+            out.append((int(d), rows))
         return out
 
     def task_part(self, X: np.ndarray, *, groups: np.ndarray | None = None,

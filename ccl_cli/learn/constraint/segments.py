@@ -58,25 +58,50 @@ def cut(S: np.ndarray, counts: np.ndarray, prior: np.ndarray, beta: float, longe
         ) -> list[tuple[int, int]]:
     """The segments [i, j) of blocks 0 … B−1 minimising Σ λ₁(C_ij) + β per segment, each at most
     ``longest`` blocks (module docstring). S (B, q, q) the blocks' Σ u uᵀ, counts (B,), prior
-    (q, q) = ρ C̄. Dynamic programming: best[j] = min_i best[i] + λ₁(C_ij) + β — a loop over
-    the blocks, each step one batched eigvalsh of its ≤ ``longest`` candidate segments."""
-    B = len(S)
-    P = np.concatenate([np.zeros((1, *S.shape[1:])), np.cumsum(S, 0)])
-    M = np.r_[0.0, np.cumsum(counts)]
-    best = np.zeros(B + 1)
-    start = np.zeros(B + 1, np.int64)
-    for j in range(1, B + 1):  # a loop over blocks, not samples
+    (q, q) = ρ C̄: :func:`cut_demonstrations` of one demonstration."""
+    return cut_demonstrations(S, counts, np.array([len(S)]), prior, np.array([beta]), longest)[0]
+
+
+def cut_demonstrations(S: np.ndarray, counts: np.ndarray, lengths: np.ndarray, prior: np.ndarray,
+                       beta: np.ndarray, longest: int) -> list[list[tuple[int, int]]]:
+    """:func:`cut` of every demonstration at once: S (B, q, q) and counts (B,) of the blocks of D
+    demonstrations one after the other, ``lengths`` (D,) their numbers of blocks, ``beta`` (D,)
+    their prices of a segment → the segments [i, j) of each (blocks counted from its first).
+
+    Dynamic programming: best[j] = min_i best[i] + λ₁(C_ij) + β, C_ij from the running sums P
+    of Σ u uᵀ (and M of the counts) — a loop over the block position j, each step one batched
+    eigvalsh of the ≤ ``longest`` candidate segments of every demonstration still that long
+    (those sorted longest first, so they are a prefix): the same sums in the same order as
+    one demonstration at a time, with as many steps as the longest demonstration has blocks."""
+    D = len(lengths)
+    order = np.argsort(-np.asarray(lengths), kind="stable")
+    length = np.asarray(lengths)[order]
+    first = (np.cumsum(lengths) - lengths)[order]
+    beta = np.asarray(beta, dtype=float)[order]
+    alive = np.searchsorted(-length, -np.arange(int(length.max()) + 1), side="right")  # demos with ≥ j blocks
+    q = S.shape[1]
+    P, M = [np.zeros((D, q, q))], [np.zeros(D)]
+    for j in range(1, len(alive)):  # a loop over block positions, each batched over demonstrations
+        rows = first[: alive[j]] + j - 1
+        P.append(P[j - 1][: alive[j]] + S[rows])
+        M.append(M[j - 1][: alive[j]] + counts[rows])
+    best, start = [np.zeros(D)], [np.zeros(D, np.int64)]
+    for j in range(1, len(alive)):
+        a = alive[j]
         i = np.arange(max(0, j - longest), j)
-        C = P[j] - P[i] + (M[j] - M[i])[:, None, None] * prior
-        total = best[i] + quietest_motion(C) + beta
-        k = int(np.argmin(total))
-        best[j], start[j] = total[k], i[k]
-    spans = []
-    j = B
-    while j > 0:
-        spans.append((int(start[j]), j))
-        j = int(start[j])
-    return spans[::-1]
+        C = np.stack([P[j] - P[k][:a] + (M[j] - M[k][:a])[:, None, None] * prior for k in i])
+        total = np.stack([best[k][:a] for k in i]) + quietest_motion(C) + beta[:a]
+        pick = np.argmin(total, axis=0)
+        best.append(total[pick, np.arange(a)])
+        start.append(i[pick])
+    out: list[list[tuple[int, int]]] = [[] for _ in range(D)]
+    for r in range(D):  # a loop over demonstrations and their segments
+        spans, j = [], int(length[r])
+        while j > 0:
+            spans.append((int(start[j][r]), j))
+            j = int(start[j][r])
+        out[order[r]] = spans[::-1]
+    return out
 
 
 def split_price(C: np.ndarray, demo: np.ndarray) -> float:
@@ -135,13 +160,14 @@ class PerSegment(PerWindow):
         counts, prior = counts.astype(float), self.shrinkage * pooled
         price = split_price(S + counts[:, None, None] * prior, blocks[:, 0])
         longest = max(1, int(np.floor(self.window / self.block + 1e-9)))
+        demos, first, lengths = np.unique(blocks[:, 0], return_index=True, return_counts=True)  # sorted table
+        beta = np.array([self.penalty * price * np.log(max(int(n), 2.0)) for n in lengths])
         table, of_block = [], np.empty(len(blocks), np.int64)
-        for d in np.unique(blocks[:, 0]):  # a loop over demonstrations, not samples
-            mine = np.flatnonzero(blocks[:, 0] == d)  # in time order (the table is sorted)
-            beta = self.penalty * price * np.log(max(len(mine), 2.0))
-            for i, j in cut(S[mine], counts[mine], prior, beta, longest):
-                of_block[mine[i:j]] = len(table)
-                table.append((int(d), int(blocks[mine[i], 1]), int(blocks[mine[j - 1], 1]) + 1))
+        spans = cut_demonstrations(S, counts, lengths, prior, beta, longest)
+        for d, f, cuts in zip(demos, first, spans, strict=True):  # a loop over demonstrations' segments
+            for i, j in cuts:
+                of_block[f + i: f + j] = len(table)
+                table.append((int(d), int(blocks[f + i, 1]), int(blocks[f + j - 1, 1]) + 1))
         return of_block[blk], np.asarray(table, np.int64).reshape(-1, 3)
 
     def fit(self, X: np.ndarray | None, U: np.ndarray, *, groups: np.ndarray | None = None,

@@ -24,7 +24,12 @@ def window_index(groups: np.ndarray | None, t: np.ndarray | None, window: float 
         if t is None:
             raise InputError("a per-window constraint needs the sample times t")
         j = np.floor(np.asarray(t, float) / window).astype(np.int64)
-    table, seg = np.unique(np.stack([demo, j], 1), axis=0, return_inverse=True)
+    pairs = np.stack([demo, j], 1)
+    step = np.diff(demo)
+    if np.all((step > 0) | ((step == 0) & (np.diff(j) >= 0))):  # in order already: no sort
+        new = np.r_[True, (step != 0) | (np.diff(j) != 0)] if n else np.zeros(0, bool)
+        return np.cumsum(new) - 1, pairs[new]
+    table, seg = np.unique(pairs, axis=0, return_inverse=True)
     return seg.ravel(), table
 
 
@@ -53,16 +58,23 @@ def nearest_window(table: np.ndarray, window: float | None, n: int, groups: np.n
     if window is not None and t is None:
         raise InputError(f"a {what} constraint model needs the sample times t")
     j = np.zeros(n, np.int64) if window is None else np.floor(np.asarray(t, float) / window).astype(np.int64)
-    out = np.empty(n, np.int64)
-    for d in np.unique(groups):  # a loop over demonstrations, not samples
-        mine = np.flatnonzero(demos == d)
-        if not len(mine):
-            raise InputError(f"demonstration {int(d)} was not seen when fitting this {what} model; "
-                             "fit it on the new data")
-        m = groups == d
-        after = np.minimum(np.searchsorted(end[mine], j[m], side="right"), len(mine) - 1)  # first end > j
-        before = np.maximum(after - 1, 0)
-        to_after = np.maximum(first[mine][after] - j[m], 0)  # 0 inside the row
-        to_before = np.maximum(j[m] - (end[mine][before] - 1), 0)
-        out[m] = mine[np.where(to_after <= to_before, after, before)]
-    return out
+    order = np.argsort(demos, kind="stable")  # the table's rows by demonstration (sorted already)
+    ids, start = np.unique(demos[order], return_index=True)
+    stop = np.r_[start[1:], len(order)]
+    rank = np.minimum(np.searchsorted(ids, groups), len(ids) - 1)
+    missing = ids[rank] != groups
+    if missing.any():
+        raise InputError(f"demonstration {int(groups[missing].min())} was not seen when fitting this {what} "
+                         "model; fit it on the new data")
+    first, end, row_demo = first[order], end[order], np.repeat(np.arange(len(ids)), stop - start)
+    # one search for every sample: keys (demonstration, window) in one increasing sequence; the
+    # windows enter by their rank among all the values, so the keys never overflow
+    values = np.unique(np.r_[end, j])
+    span = len(values) + 1
+    after = np.searchsorted(row_demo * span + np.searchsorted(values, end),
+                            rank * span + np.searchsorted(values, j), side="right")  # first end > j
+    after = np.minimum(after, stop[rank] - 1)
+    before = np.maximum(after - 1, start[rank])
+    to_after = np.maximum(first[after] - j, 0)  # 0 inside the row
+    to_before = np.maximum(j - (end[before] - 1), 0)
+    return order[np.where(to_after <= to_before, after, before)]

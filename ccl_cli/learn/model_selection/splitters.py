@@ -220,9 +220,12 @@ def tuning_subset(groups: np.ndarray | None, n: int, seed: int = 0,
                   max_rows: int | None = None) -> tuple[np.ndarray, np.ndarray, str] | None:
     """Rows on which to search hyperparameters when there are more than ``max_rows``
     (default :data:`TUNE_MAX_ROWS`): whole demonstrations in a seeded random order until
-    about ``max_rows`` samples (at least :data:`MIN_DEMOS` of them), or — with fewer
-    demonstrations than that — :data:`N_BLOCKS` contiguous pieces spread over each
-    recording, which then act as the groups of the search's folds.
+    about ``max_rows`` samples (at least :data:`MIN_DEMOS` of them) — or, when those
+    MIN_DEMOS demonstrations alone hold more than ``max_rows`` samples, one contiguous block of
+    ``max_rows`` / MIN_DEMOS samples from each, at a seeded place — or, with fewer
+    demonstrations than MIN_DEMOS, :data:`N_BLOCKS` contiguous pieces spread over each
+    recording, which then act as the groups of the search's folds. Never more than about
+    ``max_rows`` rows, whatever the length of the demonstrations.
 
     Returns (row indices (m,), their groups (m,), a sentence saying what was taken), or
     None when all rows are used.
@@ -236,13 +239,24 @@ def tuning_subset(groups: np.ndarray | None, n: int, seed: int = 0,
     if len(ids) >= MIN_DEMOS:
         order = rng.permutation(len(ids))
         take = np.cumsum(sizes[order]) <= max_rows
-        take[:MIN_DEMOS] = True
-        chosen = ids[order[take]]
-        rows = np.flatnonzero(np.isin(g, chosen))
-        if len(rows) < n:
-            return rows, g[rows], (f"searched on {len(rows)} of {n} samples: {len(chosen)} of "
-                                   f"{len(ids)} whole demonstrations (seed {seed})")
-        return None
+        if sizes[order[:MIN_DEMOS]].sum() <= max_rows:  # then take[:MIN_DEMOS] holds
+            chosen = ids[order[take]]
+            rows = np.flatnonzero(np.isin(g, chosen))
+            if len(rows) < n:
+                return rows, g[rows], (f"searched on {len(rows)} of {n} samples: {len(chosen)} of "
+                                       f"{len(ids)} whole demonstrations (seed {seed})")
+            return None
+        chosen = np.sort(order[:MIN_DEMOS])  # long demonstrations: a block of each of MIN_DEMOS
+        length = max_rows // MIN_DEMOS
+        parts = []
+        for i in chosen:  # a loop over MIN_DEMOS demonstrations
+            mine = np.flatnonzero(g == ids[i])
+            start = int(rng.integers(0, max(len(mine) - length, 0) + 1))
+            parts.append(mine[start:start + length])
+        rows = np.sort(np.concatenate(parts))
+        return rows, g[rows], (f"searched on {len(rows)} of {n} samples: a contiguous block of at most "
+                               f"{length} samples from each of {MIN_DEMOS} of {len(ids)} demonstrations "
+                               f"(seed {seed})")
     piece = max_rows // N_BLOCKS
     starts = np.linspace(0, n - piece, N_BLOCKS).astype(int)
     rows = (starts[:, None] + np.arange(piece)[None, :]).ravel()

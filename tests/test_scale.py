@@ -1,0 +1,190 @@
+"""The default path at the size of real logs (issue 31): no crash on a demonstration of a few
+samples, and work that grows linearly in N — checked by counting calls and rows, not by the clock."""
+
+import sys
+from collections import Counter
+
+import numpy as np
+
+from ccl_cli import diagnostics
+from ccl_cli import simulate as sim
+from ccl_cli.dataset import Demonstrations
+from ccl_cli.learn import model_selection as ms
+from ccl_cli.learn.constraint import AutoConstraint, PerSegment, geometry, segments
+from ccl_cli.learn.constraint import evidence as ev
+from ccl_cli.learn.constraint.manifold import ManifoldConstraint
+from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
+from ccl_cli.learn.constraint.windows import PerWindow
+
+
+def with_a_scrap(n_demos: int = 12, seed: int = 0) -> Demonstrations:
+    """Varying-constraint toy demonstrations and, last, a demonstration of 2 samples."""
+    d = sim.toy2d(task=True, vary_constraint=True, n_demos=n_demos, n_steps=100, seed=seed)
+    return Demonstrations.concatenate([d, d.subset(np.arange(2))])
+
+
+def test_a_demonstration_of_two_samples_has_no_training_rows_in_a_fold_and_still_gets_held_out_rows():
+    """The 10⁶ crash ("demonstration 3760 was not seen when fitting this per-window model", a
+    demonstration of 2 samples): inside-window folds hold out both samples (or drop them by the
+    guard gap), so the fold's model has never seen that demonstration. Its held-out rows come
+    from the same kind of model fitted on the fold's training part as one stretch."""
+    d = with_a_scrap()
+    scrap = d.demo == d.demo.max()
+    assert scrap.sum() == 2
+    seg, _ = window_index(d.demo, d.t, None, len(d.U))
+    folds = ms.inner_folds(seg, 5, 2, "demonstration")
+    unseen = [j for j, (train, test) in enumerate(folds.pairs)
+              if np.isin(np.flatnonzero(scrap), test).any() and not scrap[train].any()]
+    assert unseen  # the cause: a fold that holds the scrap out and never trains on it
+    data = ev.Sample.of(d.X, d.U, d.demo, d.t, None)
+    cand = ev.Candidate("per_demo", "", lambda k: PerWindow(window=None, n_constraints=k, heldout=False),
+                        1, seg)
+    rows = ev.held_out_rows(cand, folds, 1, data)
+    norms = np.linalg.norm(rows[scrap, 0], axis=1)
+    np.testing.assert_allclose(norms, 1.0)
+
+
+def test_auto_fits_and_applies_with_a_demonstration_of_two_samples():
+    d = with_a_scrap()
+    model = AutoConstraint(candidates=["nhat", "per_demo", "per_window", "per_segment"]).fit(
+        d.X, d.U, groups=d.demo, t=d.t)
+    table = {r["class"]: r for r in model.selection_["candidates"]}
+    tried = [table[c] for c in ("per_demo", "per_window", "per_segment")
+             if not table[c]["reason"].startswith("not")]
+    assert tried and all(r["k"] is not None and "failed" not in r["reason"] for r in tried)
+    assert model.n_constraints_ == 1
+    # held-out data holding an unseen scrap: the model applies by its stated rule, no error
+    test = with_a_scrap(n_demos=4, seed=1)
+    applied = model.applies_to(test.X, test.U, groups=test.demo + 1000, t=test.t, new_recording=True)
+    P = applied.model.projection(test.X, groups=test.demo + 1000, t=test.t)
+    assert P.shape == (len(test.U), 2, 2) and np.isfinite(P).all()
+
+
+# -- linear work: calls and rows counted ---------------------------------------------------------
+def python_calls(fn, *args, **kw) -> int:
+    """The number of Python and C function calls ``fn(*args, **kw)`` makes."""
+    count = Counter()
+
+    def hook(frame, event, arg):
+        if event in ("call", "c_call"):
+            count[event] += 1
+
+    sys.setprofile(hook)
+    try:
+        fn(*args, **kw)
+    finally:
+        sys.setprofile(None)
+    return sum(count.values())
+
+
+def many_demonstrations(n_demos: int, length: int = 50, seed: int = 0) -> Demonstrations:
+    """``n_demos`` random walks of ``length`` samples in 3-D, 50 Hz, some stamps jittered."""
+    rng = np.random.default_rng(seed)
+    X = np.cumsum(rng.standard_normal((n_demos * length, 3)) * 0.01, axis=0)
+    t = np.tile(np.arange(length) / 50.0, n_demos) + rng.uniform(0, 1e-3, n_demos * length)
+    return Demonstrations(X, np.gradient(X, axis=0) * 50, np.repeat(np.arange(n_demos), length), t)
+
+
+def test_the_data_checks_make_as_many_calls_for_ten_times_the_demonstrations():
+    """stamps (a median per demonstration), the demonstration counts and low_rank_actions: no
+    Python loop over the samples of each demonstration (was a mask per demonstration: N × D)."""
+    small, large = many_demonstrations(200), many_demonstrations(2000)
+    for check in (diagnostics.stamps, diagnostics.demonstrations):
+        assert python_calls(check, large) <= python_calls(check, small) + 20
+    a, b = (python_calls(diagnostics.low_rank_actions, d, d.U, 1, np.full(3, 1e-6)) for d in (small, large))
+    assert b <= 10 * a + 100  # one small eigvalsh per demonstration, nothing per sample
+
+
+def test_window_lookup_makes_as_many_calls_for_ten_times_the_demonstrations():
+    small, large = many_demonstrations(200), many_demonstrations(2000)
+
+    def lookup(d):
+        seg, table = window_index(d.demo, d.t, 0.5, len(d.U))
+        return nearest_window(table, 0.5, len(d.U), d.demo, d.t)
+
+    assert python_calls(lookup, large) <= python_calls(lookup, small) + 20
+    seg, table = window_index(large.demo, large.t, 0.5, len(large.U))
+    np.testing.assert_array_equal(nearest_window(table, 0.5, len(large.U), large.demo, large.t), seg)
+
+
+def test_per_segment_cuts_every_demonstration_in_one_programme(monkeypatch):
+    """One batched eigvalsh per block position (the longest demonstration's blocks), whatever
+    the number of demonstrations; the matrices it sees grow linearly with them."""
+    seen = []
+    real = segments.quietest_motion
+
+    def counted(C):
+        seen.append(C.shape[:-2])
+        return real(C)
+
+    monkeypatch.setattr(segments, "quietest_motion", counted)
+    counts = {}
+    for n_demos in (20, 200):
+        seen.clear()
+        d = many_demonstrations(n_demos, length=100)
+        PerSegment(n_constraints=1, heldout=False).fit(d.X, d.U, groups=d.demo, t=d.t)
+        counts[n_demos] = (len(seen), sum(int(np.prod(s)) for s in seen))
+    assert counts[200][0] == counts[20][0]  # calls: blocks of the longest demonstration, + the price
+    assert counts[200][1] <= 10 * counts[20][1]  # matrices: linear in the demonstrations
+
+
+def test_the_states_geometry_reads_a_bounded_sample(monkeypatch):
+    """decide fits its manifolds on at most ~EVIDENCE_ROWS rows however many there are: the rows
+    the fits see are the same at 2·10⁵ and 2·10⁶ samples of the same structure."""
+    rows = []
+    real = ManifoldConstraint.fit
+
+    def counted(self, X, U, **kw):
+        rows.append(len(X))
+        return real(self, X, U, **kw)
+
+    monkeypatch.setattr(ManifoldConstraint, "fit", counted)
+    seen = {}
+    for n_demos in (2_000, 20_000):
+        rng = np.random.default_rng(0)
+        walk = np.cumsum(rng.standard_normal((n_demos * 100, 2)) * 0.01, axis=0)
+        X = np.c_[walk, 0.3 * walk[:, 0] + 1e-4 * rng.standard_normal(len(walk))]  # on a plane
+        groups = np.repeat(np.arange(n_demos), 100)
+        rows.clear()
+        found = geometry.decide(X, groups)
+        seen[n_demos] = (found.k, len(rows), sum(rows))
+    assert seen[2_000][0] == seen[20_000][0] == 1
+    for n in (2_000, 20_000):  # fits and the rows they see: bounded, not growing with N
+        assert seen[n][1] <= 1_500 and seen[n][2] <= 80 * geometry.EVIDENCE_ROWS
+    assert abs(seen[20_000][2] - seen[2_000][2]) <= 0.05 * seen[2_000][2]
+
+
+def test_how_sure_reads_the_same_bounded_sample_at_ten_times_the_samples(monkeypatch):
+    """auto's cone (the states' manifold fitted again without each fold, its rows against the
+    final ones) is read on the bounded sample of whole demonstrations above CHOICE_ROWS: the
+    rows it compares do not grow with N, and the final model is still fitted on all of them."""
+    from ccl_cli.learn.constraint import auto as auto_module
+    from ccl_cli.learn.constraint import sure
+
+    compared = []
+    real = sure.angles
+
+    def counted(final, held):
+        compared.append(len(final))
+        return real(final, held)
+
+    monkeypatch.setattr(sure, "angles", counted)
+    seen = {}
+    for n_demos in (30, 300):
+        rng = np.random.default_rng(1)
+        steps = rng.standard_normal((n_demos * 500, 2)) * 0.01
+        walk = np.cumsum(steps, axis=0)
+        X = np.c_[walk, 0.5 * walk[:, 1]]  # on the plane z = y / 2
+        groups = np.repeat(np.arange(n_demos), 500)
+        t = np.tile(np.arange(500) / 50.0, n_demos)
+        U = np.gradient(X, axis=0) * 50
+        compared.clear()
+        model = AutoConstraint().fit(X, U, groups=groups, t=t, derivative={"window": 5, "order": 2})
+        cone = model.selection_["sure"]["cone"]
+        seen[n_demos] = (model.n_constraints_, compared[:], cone["samples"])
+        normal = np.array([0.0, 0.5, -1.0]) / np.sqrt(1.25)
+        row = model.constraint(X[:1], groups=groups[:1], t=t[:1])[0, 0]
+        assert abs(abs(float(row @ normal)) - 1) < 1e-6
+    assert seen[30][0] == seen[300][0] == 1
+    assert seen[30][1] == [15_000] and seen[30][2] == 15_000  # up to CHOICE_ROWS: every sample
+    assert seen[300][1] == [seen[300][2]] and seen[300][2] <= auto_module.CHOICE_ROWS  # 150,000: a sample

@@ -1,0 +1,47 @@
+"""``ccl --help`` and ``ccl --version`` start without the numerical stack (issue 31): counted in
+imported modules in a fresh process, not timed."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+HEAVY = ("numpy", "pydantic", "scipy", "h5py", "matplotlib", "ccl_cli.spec")
+
+PROBE = """
+import contextlib, io, json, sys
+sys.argv = ["ccl", *json.loads(sys.argv[1])]
+from ccl_cli.cli import main
+out = io.StringIO()
+with contextlib.redirect_stdout(out):
+    code = main()
+print(json.dumps({"code": code, "out": out.getvalue(), "modules": sorted(sys.modules)}))
+"""
+
+
+def probe(args: list[str]) -> dict:
+    """What ``ccl ARGS`` returned, printed and imported, in a fresh process."""
+    proc = subprocess.run([sys.executable, "-c", PROBE, json.dumps(args)], capture_output=True, text=True,
+                          check=True)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("args", [["--help"], ["--version"], ["learn-a", "--help"], ["run", "--help"]])
+def test_help_and_version_import_neither_numpy_nor_pydantic(args):
+    found = probe(args)
+    assert found["code"] == 0
+    assert "ccl" in found["out"]
+    # a command's own --help goes through typer's adapters, which import pydantic themselves
+    heavy = HEAVY if len(args) == 1 else tuple(h for h in HEAVY if h != "pydantic")
+    loaded = [name for name in heavy if name in found["modules"]]
+    assert loaded == [], f"ccl {' '.join(args)} imported {loaded}"
+    assert not any(m.startswith(("numpy.", "scipy.")) for m in found["modules"])
+
+
+def test_the_same_probe_sees_the_stack_of_a_command_that_learns(tmp_path):
+    """The probe counts what a command imports: ``ccl simulate`` needs NumPy and the spec."""
+    out = tmp_path / "toy.h5"
+    found = probe(["simulate", "toy2d", "-o", str(out), "-q"])
+    assert found["code"] == 0 and out.exists()
+    assert "numpy" in found["modules"] and "pydantic" in found["modules"]
