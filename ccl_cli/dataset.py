@@ -297,6 +297,19 @@ class Demonstrations:
         return int(self.U.shape[1])
 
     @property
+    def rate_assumed(self) -> bool:
+        """Whether the sample times were made from an assumed rate (``data.time.rate``, no stamps
+        in any file): a length in seconds is then a number of samples at a rate nobody measured."""
+        files = self.metadata.get("files") or []
+
+        def paced(entry: Mapping[str, Any]) -> bool:
+            state = entry.get("state")
+            said = [entry.get("time"), state.get("time_column") if isinstance(state, Mapping) else None]
+            return any(str(v).startswith("rate") for v in said if v is not None)
+
+        return bool(files) and all(isinstance(f, Mapping) and paced(f) for f in files)
+
+    @property
     def demo_ids(self) -> np.ndarray:
         """Distinct demonstration ids in order of first appearance."""
         _, first = np.unique(self.demo, return_index=True)

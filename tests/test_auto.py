@@ -71,6 +71,32 @@ def test_free_motion_has_no_constraint(make):
     assert StateIndependentConstraint().fit(d.X, d.U).n_constraints_ == 1
 
 
+def test_times_from_an_assumed_rate_cut_nothing_in_seconds(tmp_path, capsys):
+    """Stamps made from data.time.rate: the candidates that cut the recording in seconds are not
+    tried (their windows would hold other samples at another assumed rate), and the text matrix's
+    Demonstrations say their times were assumed; a recording with stamps tries them."""
+    from ccl_cli.io import load_demonstrations
+
+    d = sim.tracker_tilt(seed=1)
+    model = fit_auto(d, candidates=VELOCITY, rate_assumed=True)
+    for name in ("per_window", "per_segment", "stretches"):
+        assert "assumed rate" in row_of(model, name)["reason"]
+    assert model.n_constraints_ == 1 and model.selection_["chosen"] not in ("per_window", "per_segment")
+    assert row_of(fit_auto(d, candidates=VELOCITY), "per_window")["k"] is not None
+    path = tmp_path / "tilt.txt"
+    np.savetxt(path, d.X[d.demo == d.demo[0]])
+    paced = load_demonstrations({"files": [str(path)], "state": {"columns": [0, 1, 2]}, "time": {"rate": 30}})
+    assert paced.rate_assumed and not d.rate_assumed
+    config = tmp_path / "c.yaml"
+    config.write_text(json.dumps({"data": {"files": [str(path)], "state": {"columns": [0, 1, 2]},
+                                           "time": {"rate": 30}},
+                                  "learn-a": {"candidates": ["nhat", "per_window"]}}))
+    ccl(capsys, "learn-a", "-c", config, "-o", tmp_path / "out", "--json", "-q")
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())["learn-a"]
+    rows = {r["class"]: r for r in metrics["selection"]["candidates"]}
+    assert "assumed rate" in rows["per_window"]["reason"]
+
+
 def test_a_plane_is_one_constant_constraint():
     d = sim.tracker_plane(duration=40.0, seed=5)
     model = fit_auto(d)  # the states show the plane: one constant A, its rows from the velocities

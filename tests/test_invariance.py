@@ -209,13 +209,10 @@ def test_an_assumed_rate_does_not_change_the_answer(runs, name, rate):
     assert_same(runs.base(name), other, f"{name} at {rate:g} Hz (10 Hz assumed first)")
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "the states' geometry finds no constraint at either rate, and then learn-a's velocity candidates run: "
-    "per_window (4-s windows, learn/constraint/auto.py) is tried when its windows hold ≥ 70 samples: at "
-    "an assumed 10 Hz they hold 40 (not tried, k = 0), at 30 Hz 120 and it claims one constraint in free "
-    "reaching (k 0 → 1, noise ratio 7.7 below the limit 10); the window is in seconds of a rate nobody "
-    "measured"))
 def test_an_assumed_rate_on_free_reaching(runs):
+    """Free reaching at an assumed 10 and 30 Hz: the states show no constraint, and the candidates
+    that cut the recording in seconds (per_window: 4-s windows of 40 or 120 samples) are not tried
+    on times made from an assumed rate — at 30 Hz they claimed k = 1 before."""
     case = runs.case("reach_goal text")
     assert_same(runs.base("reach_goal text"), runs.learn(case.files, {**case.data, "time": {"rate": 30.0}}),
                 "reach_goal text at 30 Hz")

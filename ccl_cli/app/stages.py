@@ -270,6 +270,8 @@ class Pipeline:
             raise ConfigError(f"learn-a.n_constraints (--n-constraints) is {opts.n_constraints}, but "
                               f"{q}-dimensional actions allow 1 to {max(q - 1, 1)} constraints")
         model = make_constraint(opts, self.seed)
+        if tr.rate_assumed and "rate_assumed" in model.get_params():
+            model.set_params(rate_assumed=True)  # no cuts in seconds of a rate nobody measured
         target = self._target(on, "train", tr)
         how = tr.derivative if target is tr.U else Derivative(False)  # a learnt w̃ is no derivative
         try:

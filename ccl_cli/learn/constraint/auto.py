@@ -137,6 +137,9 @@ MAX_RBF_STATES = 3
 #: Above this many samples the candidates are chosen on a seeded sample of about this many
 #: (whole demonstrations or contiguous blocks), and only the winner is fitted on all of them.
 CHOICE_ROWS = ms.TUNE_MAX_ROWS
+#: Why a candidate that cuts the recording in seconds is not tried on times made from an assumed rate.
+RATE_ASSUMED = ("the sample times come from an assumed rate (data.time.rate): cuts in seconds would move "
+                "with it")
 #: The candidates whose rank bounds the rows the costly alpha fits need (one more than theirs).
 _CHEAP = ("nhat", "per_demo", "per_window", "per_segment")
 
@@ -149,6 +152,9 @@ class AutoConstraint(ConstraintModel, SeedParams):
         candidates: names from :data:`CANDIDATES` to try (None: all that apply — ``lambda``
             needs ``features``, ``linear`` needs ``regressors``, ``per_window`` the sample times).
         window: window length (s) of the ``per_window`` candidate.
+        rate_assumed: the sample times were made from an assumed rate (no stamps): the
+            candidates that cut the recording in seconds (``per_window``, ``per_segment``,
+            ``stretches``) are not tried — their cuts would move with the rate assumed.
         features: Φ of the ``lambda`` candidate (a built-in arm, ``{arm, rows}`` or a callable).
         regressors: regressors of the ``linear`` candidate (``identity``, ``rbf``, ``polynomial``).
         n_constraints: fix k; the class is then chosen at that k.
@@ -171,6 +177,7 @@ class AutoConstraint(ConstraintModel, SeedParams):
     _fitted_attributes: ClassVar[dict[str, str]] = {}  # saved as its winner (ccl_cli.models)
     candidates: list[str] | None = None
     window: Seconds = WINDOW_S
+    rate_assumed: bool = False
     features: FeatureSpec | None = None
     regressors: Regressors | None = None
     n_constraints: NConstraints = None
@@ -470,6 +477,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
         window = None if name == "per_demo" else float(self.window)
         if window is not None and data.t is None:
             return ev.not_tried(name, "needs the sample times")
+        if window is not None and self.rate_assumed:
+            return ev.not_tried(name, RATE_ASSUMED)
         seg, table = window_index(data.groups, data.t, window, len(data.U))
         what = "demonstration" if window is None else f"{window:g}-s window"
         n_demos = len(np.unique(data.groups))
@@ -525,6 +534,8 @@ class AutoConstraint(ConstraintModel, SeedParams):
         constraint on held-out data: its rank and held-out NPOE from
         :func:`~ccl_cli.learn.constraint.stretches.held_out` on the global folds."""
         name = "stretches"
+        if self.rate_assumed:
+            return ev.not_tried(name, RATE_ASSUMED)
         k_other = max([c.k for c in tried if c.k is not None], default=0)
         if k_other > 0:
             return ev.not_tried(name, f"{k_other} constraint(s) hold on held-out data all along")
