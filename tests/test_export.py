@@ -129,6 +129,43 @@ def manifold_rows(body, X):
     return np.swapaxes(Q, 1, 2) * sign[:, :, None]
 
 
+def returning(P, radius, queries):
+    """Per sample of one demonstration P (n, q): two other passes of it (runs of consecutive
+    samples) within radius × its RMS spread; every step-th sample asked, the others take the
+    answer of the nearest one asked (form manifold_phases): (n,) bool."""
+    scale = np.abs(P).max() if P.size else 0.0
+    if len(P) < 3 or not 0 < scale < np.inf:
+        return np.zeros(len(P), bool)
+    P = P / scale
+    spread = np.sqrt(((P - P.mean(0)) ** 2).sum(1).mean())
+    if not spread > 0:
+        return np.zeros(len(P), bool)
+    step = max(1, len(P) // queries)
+    asked = np.arange(0, len(P), step)
+    back = [np.count_nonzero(np.diff(np.flatnonzero(np.sqrt(((P - P[i]) ** 2).sum(1)) <= radius * spread))
+                             != 1) >= 2 for i in asked]
+    return np.array(back)[np.minimum((np.arange(len(P)) + step // 2) // step, len(asked) - 1)]
+
+
+def phase_rows(body, X, demo):
+    """A(X) (N, k, q) of form manifold_phases: the manifold's rows where the levels h(x) lie within
+    tol × spread of the median level of a run of the sample's demonstration that comes back over
+    its ground (runs of at least min_share of the demonstration), rows of zeros elsewhere."""
+    r = body["phases"]
+    Phi, _ = manifold_features(body["basis"], (X - np.asarray(body["centre"])) / body["scale"])
+    H = Phi @ np.asarray(body["levels"]).T * body["scale"]
+    on = np.zeros(len(X), bool)
+    for d in np.unique(demo):
+        m = np.flatnonzero(demo == d)
+        back = returning(X[m], r["radius"], r["queries"])
+        edges = np.flatnonzero(np.diff(np.r_[0, back.astype(int), 0]))
+        levels = [np.median(H[m][a:b], axis=0) for a, b in zip(edges[::2], edges[1::2], strict=True)
+                  if b - a >= r["min_share"] * len(m)]
+        if levels:
+            off = np.abs(H[m][:, None, :] - np.asarray(levels)[None])
+            on[m] = (off <= r["tol"] * np.asarray(body["spread"])).all(-1).any(-1)
+    return np.where(on[:, None, None], manifold_rows(body, X), 0.0)
+
 def linear_rows(body, X):
     """A(x) = Σ_m f_m(x) weights[m], or weights Φ(x) (form linear): (N, k, q)."""
     r, W = body["regressors"], np.asarray(body["weights"])
@@ -352,6 +389,8 @@ def projection(doc, X, demo=None, t=None, U=None, new_recording=True):
             of, table = blocks_of(demo, t, fit["window"])
             n = len(table)
         return projection_of(window_rows(U, of, n, fit)[of], "orthonormal", q)
+    if form == "manifold_phases":
+        return projection_of(phase_rows(body, X, demo), "orthonormal", q)
     if form == "stretches":
         if new_recording:
             on = classify(body, fit, X, U, demo, t)
@@ -447,7 +486,8 @@ SADDLE = {"data": {"time": {"column": "t"}, "state": {"columns": ["x", "y", "z"]
 CONSTRAINTS = [
     ("sphere", "sphere", {}, "manifold", 1),
     ("plane", "plane", {}, "nhat", 1),
-    ("wipe", "wipe", {}, "stretches", 1),
+    ("wipe", "wipe", {}, "manifold_phases", 1),
+    ("stretches", "wipe", {"candidates": ["nhat", "per_demo", "stretches"]}, "stretches", 1),
     ("varying", "varying", {}, "per_demo:manifold", 1),
     ("free", "free", {}, "none", 0),
     ("saddle", "saddle", {}, "manifold", 1),
@@ -549,10 +589,13 @@ def test_exported_constraint_equals_ccl_predict_on_a_new_recording(case, work):
     q = doc["action"]["dimension"]  # and N is a projection of rank q − k (q where a stretch does not hold)
     rank = np.trace(N, axis1=1, axis2=2)
     assert np.abs(N @ N - N).max() < 1e-9
-    assert np.all((np.abs(rank - (q - k)) < 1e-9) | ((doc["scope"] == "stretch") & (np.abs(rank - q) < 1e-9)))
+    in_parts = doc["scope"] == "stretch" or doc["constraint"]["form"] == "manifold_phases"
+    assert np.all((np.abs(rank - (q - k)) < 1e-9) | (in_parts & (np.abs(rank - q) < 1e-9)))
+    if doc["constraint"]["form"] == "manifold_phases":  # both branches of its rule are compared
+        assert 0.1 < np.mean(np.abs(rank - (q - k)) < 1e-9) < 0.9
 
 
-LOCAL = [c for c in CONSTRAINTS if c[0] in ("wipe", "varying", "dishwasher", "per_window", "per_segment",
+LOCAL = [c for c in CONSTRAINTS if c[0] in ("stretches", "varying", "dishwasher", "per_window", "per_segment",
                                                 "per_demo_nhat")]
 
 

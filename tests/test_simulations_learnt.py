@@ -41,24 +41,23 @@ def test_learn_a_defaults_find_the_true_constraint(tmp_path, problem, args, k, m
         assert np.median(angles) < median_deg and np.percentile(angles, 90) < 3 * median_deg
 
 
-def test_a_surface_worked_in_phases_is_not_called_ok(tmp_path):
-    """The rows learnt on contact_phases are far from the truth (below): the verdict says so
-    against the file's truth (status poor, far_from_truth), not ok."""
-    got, _, _ = learnt_on("contact_phases", tmp_path, "--n-demos", "3")
+def test_a_surface_worked_in_phases_is_not_called_ok_where_it_is_wrong(tmp_path):
+    """Seed 2, the split holding out time blocks of its 3 demonstrations: the training part shows a
+    quadric all along before the phases, and its rows are off the table (8° median): the verdict says
+    so against the file's truth (status poor, far_from_truth), not ok."""
+    got, _, _ = learnt_on("contact_phases", tmp_path, "--n-demos", "3", seed=2)
     assert got.status == "poor"
     assert "far_from_truth" in {w["code"] for w in got.summary["warnings"]}
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "the states' geometry finds the phases (runs that come back over their ground) and a plane, but the "
-    "model auto fits on them (auto.py _manifold_model, scope phases) is ConstraintInStretches, which "
-    "learns the rows again from the velocities in 0.5-s blocks (learn/constraint/stretches.py): the hand's "
-    "tremor (0.4 mm at 8–12 Hz, ~25 mm/s in every direction, not white at 100 Hz) keeps the motion along "
-    "the normal above both quiet limits (MARGIN × the second-difference noise, SHARE_BLOCK = 0.1 % of the "
-    "typical energy) in most blocks; the rows it keeps are 77–89° off the normal, found in 8–20 % of the "
-    "contact samples (in contact the least-moving direction of the velocities is the normal to 0.5°)"))
 def test_learn_a_defaults_find_the_surface_where_the_hand_is_in_contact(tmp_path):
+    """A hand working on a table with tremor (0.4 mm at 8–12 Hz) and a compliant pad: the states come
+    back over their ground in contact, the plane's level function is learnt on those runs
+    (ManifoldInPhases) and holds where the states lie at a run's level; approach and retract free.
+    (The rows from the velocities in 0.5-s blocks were 77–89° off: the tremor moves along the normal
+    far above the noise.) Measured: contact within 5° at every sample (median 1.1°), 82 % of the free
+    samples left free."""
     _, true_k, angles = learnt_on("contact_phases", tmp_path, "--n-demos", "3")
     contact = true_k == 1
-    assert np.mean(angles[contact] < 5.0) > 0.8
+    assert np.mean(angles[contact] < 5.0) > 0.9 and np.median(angles[contact]) < 2.0
     assert np.mean(angles[~contact] == 0.0) > 0.8  # approach and retract left free

@@ -1,7 +1,9 @@
-"""A constraint that holds in some stretches of a recording only (ccl_cli/learn/constraint/
-stretches.py) and learn-a's ``auto`` choosing it on whole wiping recordings — approach (free),
-wipe (on a tilted table), retract (free) — against the simulation's ground truth; free motion
-keeps k = 0. The many-seed bars are in benchmarks/bench_auto.py (wipe_whole*, free_reach, flow2d)."""
+"""A constraint that holds in some stretches of a recording only, on whole wiping recordings —
+approach (free), wipe (on a tilted table), retract (free) — against the simulation's ground truth:
+by default learn-a's ``auto`` reads the phases and the table from the positions
+(ccl_cli/learn/constraint/manifold_phases.py, ``ManifoldInPhases``); from the velocities alone it
+chooses the constraint in stretches (stretches.py, ``ConstraintInStretches``). Free motion keeps
+k = 0. The many-seed bars are in benchmarks/bench_auto.py (wipe_whole*, free_reach, flow2d)."""
 
 import h5py
 import numpy as np
@@ -10,7 +12,7 @@ import pytest
 from ccl_cli import simulate as sim
 from ccl_cli.app.scoring import applied_on, projection_on
 from ccl_cli.errors import InputError
-from ccl_cli.learn.constraint import AutoConstraint, ConstraintInStretches
+from ccl_cli.learn.constraint import AutoConstraint, ConstraintInStretches, ManifoldInPhases
 from ccl_cli.learn.constraint import noise_rank as nr
 from ccl_cli.learn.constraint import stretches as st
 from ccl_cli.learn.constraint.auto import CANDIDATES
@@ -21,6 +23,10 @@ from ccl_cli.models import load_model, save_model
 def fit_auto(d, **kw) -> AutoConstraint:
     derivative = d.metadata.get("derivative", False)
     return AutoConstraint(**kw).fit(d.X, d.U, groups=d.demo, t=d.t, derivative=derivative)
+
+
+#: auto's candidates but the states' geometry: the velocities alone decide.
+VELOCITY = [c for c in CANDIDATES if c != "manifold"]
 
 
 def row_of(model: AutoConstraint, name: str) -> dict:
@@ -39,7 +45,30 @@ def wipe():
 
 @pytest.fixture(scope="module")
 def wipe_model(wipe):
-    return fit_auto(wipe)
+    """auto from the velocities alone: the constraint in stretches."""
+    return fit_auto(wipe, candidates=VELOCITY)
+
+
+def test_whole_wipe_recording_gets_the_table_in_its_phases_from_the_positions(wipe):
+    model = fit_auto(wipe)
+    assert model.n_constraints_ == 1 and model.selection_["chosen"] == "manifold"
+    inner = model.model_
+    assert isinstance(inner, ManifoldInPhases) and inner.family == "linear"
+    assert subspace_angle(inner.constant_rows(), np.atleast_2d(wipe.metadata["normal"])) < 0.5
+    # the states: no surface holds all along (the approach and retract leave the table), one holds
+    # in the stretches that come back over their ground — the wipes
+    shapes = model.selection_["geometry"]["models"]
+    assert not any(r["holds"] for r in shapes if r["scope"] != "phases")
+    phases = next(r for r in shapes if r["scope"] == "phases")
+    assert phases["chosen"] and phases["holds"] and phases["k"] == 1 and phases["drift"][0] < 0.1
+    # where it holds: at the level of a wipe, against the truth sample by sample
+    on = model.holds(wipe.X, groups=wipe.demo, t=wipe.t)
+    truth = wiping(wipe)
+    assert (on == truth).mean() > 0.9 and abs(inner.share_ - truth.mean()) < 0.1
+    N = model.projection(wipe.X, groups=wipe.demo, t=wipe.t)
+    assert (np.abs(N - wipe.true_projection()).max((1, 2)) < 0.05).mean() > 0.9
+    assert np.allclose(N[~on], np.eye(3))
+    assert "free motion elsewhere" in model.selection_["reason"]
 
 
 def test_whole_wipe_recording_gets_the_table_in_its_stretches(wipe, wipe_model):
@@ -48,12 +77,6 @@ def test_whole_wipe_recording_gets_the_table_in_its_stretches(wipe, wipe_model):
     inner = model.model_
     assert isinstance(inner, ConstraintInStretches)
     assert subspace_angle(inner.A_, np.atleast_2d(wipe.metadata["normal"])) < 1.5
-    # the states: no surface holds all along (the approach and retract leave the table), one holds
-    # in the stretches that come back over their ground — the wipes
-    shapes = model.selection_["geometry"]["models"]
-    assert not any(r["holds"] for r in shapes if r["scope"] != "phases")
-    phases = next(r for r in shapes if r["scope"] == "phases")
-    assert phases["chosen"] and phases["holds"] and phases["k"] == 1 and phases["drift"][0] < 0.1
     assert inner.share_ >= st.MIN_SHARE
     # where it holds: the wipe phase, against the truth sample by sample
     on = inner.holds(wipe.X, groups=wipe.demo, t=wipe.t)
@@ -71,17 +94,26 @@ def test_whole_wipe_recording_gets_the_table_in_its_stretches(wipe, wipe_model):
 @pytest.mark.parametrize("rate", [50.0, 1000.0])
 def test_whole_wipe_at_other_rates(rate):
     d = sim.arm_wipe(n_demos=5, rate=rate, seed=2)
+    normal = np.atleast_2d(d.metadata["normal"])
     model = fit_auto(d)
-    assert model.n_constraints_ == 1 and model.selection_["chosen"] == "stretches"
-    assert subspace_angle(model.model_.A_, np.atleast_2d(d.metadata["normal"])) < 1.5
+    assert model.n_constraints_ == 1 and isinstance(model.model_, ManifoldInPhases)
+    assert subspace_angle(model.model_.constant_rows(), normal) < 0.5
+    assert (model.holds(d.X, groups=d.demo, t=d.t) == wiping(d)).mean() > 0.9
+    velocity = fit_auto(d, candidates=VELOCITY)
+    assert velocity.n_constraints_ == 1 and velocity.selection_["chosen"] == "stretches"
+    assert subspace_angle(velocity.model_.A_, normal) < 1.5
 
 
 def test_whole_wipe_with_a_biased_and_drifting_position_sensor():
     d = sim.arm_wipe(n_demos=5, offset=0.01, drift=2e-4, seed=4)
     assert d.metadata["position_bias"]["drift_m_s"] == 2e-4
+    normal = np.atleast_2d(d.metadata["normal"])
     model = fit_auto(d)
-    assert model.n_constraints_ == 1 and model.selection_["chosen"] == "stretches"
-    assert subspace_angle(model.model_.A_, np.atleast_2d(d.metadata["normal"])) < 1.5
+    assert model.n_constraints_ == 1 and isinstance(model.model_, ManifoldInPhases)
+    assert subspace_angle(model.model_.constant_rows(), normal) < 1.5
+    velocity = fit_auto(d, candidates=VELOCITY)
+    assert velocity.n_constraints_ == 1 and velocity.selection_["chosen"] == "stretches"
+    assert subspace_angle(velocity.model_.A_, normal) < 1.5
 
 
 @pytest.mark.parametrize("make", [lambda s: sim.free_reach(seed=s), lambda s: sim.flow2d(seed=s)],
@@ -112,7 +144,7 @@ def test_a_constraint_holding_all_along_keeps_its_global_model():
 def test_saved_model_loads_and_classifies_new_demonstrations_of_the_same_table(tmp_path):
     d = sim.arm_wipe(n_demos=8, seed=0)
     train, new = d.subset(d.demo < 6), d.subset(d.demo >= 6)
-    model = fit_auto(train)
+    model = fit_auto(train, candidates=VELOCITY)
     path = save_model(tmp_path / "m.h5", model)
     loaded, _ = load_model(path)
     assert isinstance(loaded, ConstraintInStretches)
@@ -127,6 +159,26 @@ def test_saved_model_loads_and_classifies_new_demonstrations_of_the_same_table(t
     assert applied.rule.rule == "stretches classified" and applied.rule.keeps == ("rows", "k", "block")
     assert "holds in stretches" in note and "free motion elsewhere" in note
     assert (np.abs(N - new.true_projection()).max((1, 2)) < 0.05).mean() > 0.9
+
+
+def test_a_saved_surface_in_phases_finds_the_phases_of_new_demonstrations(tmp_path):
+    d = sim.arm_wipe(n_demos=8, seed=0)
+    train, new = d.subset(d.demo < 6), d.subset(d.demo >= 6)
+    model = fit_auto(train)
+    path = save_model(tmp_path / "m.h5", model)
+    loaded, _ = load_model(path)
+    assert isinstance(loaded, ManifoldInPhases)
+    assert np.array_equal(loaded.projection(train.X, groups=train.demo, t=train.t),
+                          model.projection(train.X, groups=train.demo, t=train.t))
+    applied = applied_on(loaded, new, new.U, new_data=True)
+    assert applied.rule.rule == "phases found again" and applied.rule.keeps == ("levels", "k")
+    N = projection_on(applied, new)
+    assert (np.abs(N - new.true_projection()).max((1, 2)) < 0.05).mean() > 0.9
+    with h5py.File(path, "r+") as f:  # a spread of the wrong length is refused on load
+        del f["arrays/spread_"]
+        f["arrays"].create_dataset("spread_", data=np.ones(2))
+    with pytest.raises(InputError, match="spread_"):
+        load_model(path)
 
 
 def test_damaged_blocks_are_refused(tmp_path, wipe_model):

@@ -164,6 +164,20 @@ def _manifold(model: Any) -> dict[str, Any]:
             "projection": ORTHONORMAL}
 
 
+def _manifold_phases(model: Any) -> dict[str, Any]:
+    """The level functions of a surface worked in phases (ManifoldInPhases) and the rule that finds
+    where it holds from the positions."""
+    from ccl_cli.learn.constraint import geometry, manifold_phases
+
+    return {**_manifold(model), "form": "manifold_phases", "spread": model.spread_,
+            "share": float(model.share_),
+            "phases": {"radius": geometry.PHASE_RADIUS, "queries": geometry.REVISIT_QUERIES,
+                       "min_share": geometry.MIN_RUN_SHARE, "tol": manifold_phases.TOL},
+            "formula": "the rows of form manifold where the sample lies at the level of a run of its "
+                       "demonstration that comes back over its ground (phases, docs/export.md), rows of "
+                       "zeros elsewhere", "projection": ORTHONORMAL}
+
+
 def _angles(model: Any) -> dict[str, Any]:
     return {"form": "angles", "dimension": int(model.n_action_), "basis": basis(model.basis_),
             "weights": list(model.weights_), "formula": f"A(x): {ANGLES}; d = q", "projection": ORTHONORMAL}
@@ -289,7 +303,8 @@ def _contact(model: Any) -> dict[str, Any]:
             "projection": ORTHONORMAL}
 
 
-_FORMS = {"nhat": _constant, "none": _none, "manifold": _manifold, "alpha": _angles, "lambda": _known,
+_FORMS = {"nhat": _constant, "none": _none, "manifold": _manifold, "manifold_phases": _manifold_phases,
+          "alpha": _angles, "lambda": _known,
           "linear": _linear, "per_window": _windows, "per_segment": _windows, "stretches": _stretches,
           "contact": _contact}
 

@@ -83,9 +83,10 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
     """The learnt constraint in readable form, for the report and metrics.json.
 
     One model: its rows (unit length, sign fixed so the largest entry is positive) at the
-    mean state (exactly the rows when A is constant), the action names, and with ground
-    truth the true rows at the sample nearest that state and the largest principal angle
-    between the two row spaces (for one row in 3-D: the angle between the plane normals).
+    mean state of the samples where it holds (exactly the rows when A is constant), the action
+    names, and with ground truth the true rows at the sample nearest that state and the largest
+    principal angle between the two row spaces (for one row in 3-D: the angle between the plane
+    normals).
     Per demonstration: that angle per demonstration (with ground truth)."""
     names = short_names(d.action_names)
     by_demo = model.models_by_demonstration()
@@ -102,14 +103,16 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
         if not angles:
             return None
         return {"per_demo_angle_deg": angles, "median_angle_deg": float(np.median(list(angles.values())))}
-    i = int(np.argmin(np.sum((d.X - d.X.mean(0)) ** 2, axis=1)))
+    on = np.flatnonzero(model.holds(d.X, groups=d.demo, t=d.t))  # where it holds (in stretches)
+    pool = on if len(on) else np.arange(d.n_samples)
+    i = int(pool[np.argmin(np.sum((d.X[pool] - d.X[pool].mean(0)) ** 2, axis=1))])
     A = model.constant_rows()  # constant rows (also those of a constraint in stretches)
     learnt = row_basis(A if A is not None else
                        model.constraint(d.X[i:i + 1], groups=d.demo[i:i + 1], t=d.t[i:i + 1])[0])
     if not len(learnt):
         return None  # no constraint: nothing to draw (the selection says why)
     learnt = learnt * np.sign(learnt[np.arange(len(learnt)), np.argmax(np.abs(learnt), axis=1)])[:, None]
-    at = "constant" if A is not None else f"state of sample {i} (nearest the mean state)"
+    at = "constant" if A is not None else f"state of sample {i} (nearest the mean state where it holds)"
     out: dict[str, Any] = {"names": names, "rows": learnt.tolist(), "at": at}
     if d.has_truth("A"):
         true = row_basis(d.truth_per_sample("A")[i])

@@ -7,6 +7,7 @@ from ccl_cli.learn.constraint.contact_phases import ContactPhases
 from ccl_cli.learn.constraint.lambda_ import KnownFeatureConstraint
 from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.manifold import ManifoldConstraint
+from ccl_cli.learn.constraint.manifold_phases import ManifoldInPhases
 from ccl_cli.learn.constraint.nhat import StateIndependentConstraint
 from ccl_cli.learn.constraint.none import NoConstraint
 from ccl_cli.learn.constraint.per_demo import PerDemonstration
@@ -22,6 +23,7 @@ __all__ = [
     "KnownFeatureConstraint",
     "LinearConstraint",
     "ManifoldConstraint",
+    "ManifoldInPhases",
     "NoConstraint",
     "PerDemonstration",
     "PerSegment",

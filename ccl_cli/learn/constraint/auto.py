@@ -109,6 +109,7 @@ from ccl_cli.learn.constraint.base import (
 from ccl_cli.learn.constraint.lambda_ import FeatureSpec, KnownFeatureConstraint, make_features
 from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.manifold import ManifoldConstraint
+from ccl_cli.learn.constraint.manifold_phases import ManifoldInPhases
 from ccl_cli.learn.constraint.nhat import StateIndependentConstraint
 from ccl_cli.learn.constraint.none import NO_CONSTRAINT, NoConstraint
 from ccl_cli.learn.constraint.per_demo import PerDemonstration
@@ -354,7 +355,6 @@ class AutoConstraint(ConstraintModel, SeedParams):
         rows += [ev.not_tried(c, "the states' geometry decided") for c in CANDIDATES
                  if c not in ("none", "manifold")]
         chosen = ("per_demo_task" if w.scope == "per_demo_task" else
-                  "stretches" if w.scope == "phases" and data.t is not None else
                   "manifold" if w.basis != "linear" or w.scope == "phases" else
                   "nhat" if w.scope == "global" else
                   "per_demo" if data.t is not None and w.measure != "shape residual" else "manifold")
@@ -417,16 +417,15 @@ class AutoConstraint(ConstraintModel, SeedParams):
         if winner.scope == "per_demo_task":  # its own rows and task part in each: §3.5 with a task term
             return PerDemonstration(LinearConstraint(regressors="identity", task=True, n_constraints=k),
                                     heldout=heldout).fit(X, U, groups=g, derivative=data.derivative)
-        if winner.scope == "phases" and data.t is not None:  # the rows where they hold, found in time
-            return ConstraintInStretches(block=BLOCK_S, n_constraints=k).fit(
-                X, U, groups=g, t=data.t, derivative=data.derivative)
+        if winner.scope == "phases":  # the level functions in the phases, found again from the positions
+            return ManifoldInPhases(family=winner.basis, n_constraints=k).fit(X, U, groups=g)
         if winner.basis == "linear" and winner.scope == "global":
             return StateIndependentConstraint(n_constraints=k, seed=self.seed).fit(X, U, groups=g)
         if winner.basis == "linear" and data.t is not None and winner.measure != "shape residual":
             return PerWindow(window=None, n_constraints=k, heldout=heldout).fit(
                 X, U, groups=g, t=data.t, derivative=data.derivative)
         est = ManifoldConstraint(family=winner.basis, n_constraints=k)
-        if winner.scope in ("global", "phases"):
+        if winner.scope == "global":
             return est.fit(X, U, groups=g)
         return PerDemonstration(est, heldout=heldout).fit(X, U, groups=g, derivative=data.derivative)
 

@@ -365,9 +365,9 @@ def _phases(X: np.ndarray, groups: np.ndarray, k: int, all_along: list[Tried]) -
         return None
     best_all = min((t.worst for t in all_along if t.holds), default=np.inf)
     found = None
-    for basis in BASES[:2]:  # one table, one bowl: no quadric through a few runs
-        d = drift(X[inside], runs[inside], basis, k)
-        if found is None or d.max() < found.worst:
+    for basis in BASES[:2]:  # one table, one bowl: no quadric through a few runs; a bowl only when
+        d = drift(X[inside], runs[inside], basis, k)  # PARSIMONY × better than the table
+        if found is None or d.max() * PARSIMONY < found.worst:
             found = Tried(k, "phases", basis, d, SURFACE, False,
                           "a surface in the stretches that come back over their ground "
                           f"({100 * (1 - free):.0f} % of the samples), free motion elsewhere")
@@ -581,10 +581,16 @@ def model_drift(model: Any, rows: np.ndarray, X: np.ndarray, groups: np.ndarray)
     by its own level functions h(x) — RMS(h − mean) / RMS(x − mean) within the demonstrations,
     the measure of :func:`drift` — others by integrating their rows (N, k, q) along the
     demonstrations (:func:`rows_drift`). Integrating the normalised gradients of a curved surface
-    adds up their small tilts over every loop; the level itself does not: (k,)."""
+    adds up their small tilts over every loop; the level itself does not. A model of level sets
+    that holds in phases only (rows of zeros elsewhere) is read where it holds, each stretch at its
+    own level: (k,)."""
     levels = getattr(model, "levels", None)
     if not callable(levels):
         return rows_drift(rows, X, groups)
+    on = np.abs(rows).max(axis=(1, 2)) > 0 if rows.shape[1] else np.ones(len(X), dtype=bool)
+    if not on.all():
+        breaks = (groups[1:] != groups[:-1]) | (on[1:] != on[:-1])
+        X, groups = X[on], np.cumsum(np.r_[True, breaks])[on]
     H = levels(X)
     spread = within_covariance(X, groups).trace()
     var = np.diag(within_covariance(H, groups))
