@@ -364,14 +364,13 @@ def _phases(X: np.ndarray, groups: np.ndarray, k: int, all_along: list[Tried]) -
     if not FREE_SHARE <= free <= 1.0 - FREE_SHARE or len(np.unique(runs[inside])) < 2:
         return None
     best_all = min((t.worst for t in all_along if t.holds), default=np.inf)
-    found = None
-    for basis in BASES[:2]:  # one table, one bowl: no quadric through a few runs; a bowl only when
-        d = drift(X[inside], runs[inside], basis, k)  # PARSIMONY × better than the table
-        if found is None or d.max() * PARSIMONY < found.worst:
-            found = Tried(k, "phases", basis, d, SURFACE, False,
-                          "a surface in the stretches that come back over their ground "
-                          f"({100 * (1 - free):.0f} % of the samples), free motion elsewhere")
-    found.holds = bool(found.worst <= SURFACE and found.worst * PARSIMONY <= best_all)
+    why = (f"a surface in the stretches that come back over their ground ({100 * (1 - free):.0f} % of "
+           "the samples), free motion elsewhere")
+    shapes = [Tried(k, "phases", basis, drift(X[inside], runs[inside], basis, k), SURFACE, False, why)
+              for basis in BASES[:2]]  # one table, one bowl: no quadric through a few runs
+    best = min(shapes, key=lambda t: t.worst)  # the evidence: the best of them; the shape: the
+    found = next(t for t in shapes if t.worst <= PARSIMONY * best.worst)  # simplest within PARSIMONY ×
+    found.holds = bool(best.worst <= SURFACE and best.worst * PARSIMONY <= best_all)
     return found
 
 
