@@ -28,6 +28,7 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations, group_rows
 from ccl_cli.errors import InputError
+from ccl_cli.learn import defaults as _defaults
 from ccl_cli.learn import model_selection as _selection
 from ccl_cli.learn.noise import white_noise_var
 
@@ -43,8 +44,10 @@ SMOOTH_STATE_SNR = 100.0
 #: A dimension is constant when its std ≤ 1e-12·(1 + |mean|), near-constant when its std is
 #: below NEAR_CONSTANT of the largest std among the dimensions of the same kind.
 NEAR_CONSTANT = 1e-3
-#: Fewer demonstrations than this: the split falls back to time blocks (selection.MIN_DEMOS).
+#: Fewer demonstrations than this: cross-validation falls back to time blocks (selection.MIN_DEMOS);
+#: fewer than TEST_MIN_DEMOS: the held-out test set too.
 MIN_DEMOS = _selection.MIN_DEMOS
+TEST_MIN_DEMOS = _defaults.TEST_MIN_DEMOS
 #: Demonstrations shorter than this (samples) are too short to derive, split or learn from.
 MIN_DEMO_SAMPLES = 10
 #: Directions whose action variance is below RANK_NOISE × the noise variance (or below
@@ -187,10 +190,12 @@ def demonstrations(data: Demonstrations) -> list[dict[str, str]]:
                   f"{{split_on_gap: {cut[0]:g}}} cuts them at their pauses into {cut[3]} demonstrations"
                   if cut is not None else "cut continuous recordings with data.demos: {window: S} (seconds) "
                   "or record more demonstrations")
+        which = ("cross-validation uses" if n >= TEST_MIN_DEMOS else
+                 "the held-out test set and cross-validation use")
         out.append(warning("few_demos",
                            f"only {n} demonstration{'s' if n != 1 else ''} (fewer than {MIN_DEMOS}): "
-                           "by default the held-out test set and cross-validation use contiguous time "
-                           f"blocks rather than whole demonstrations; {advice}"))
+                           f"by default {which} contiguous time blocks rather than whole "
+                           f"demonstrations; {advice}"))
     sizes = np.bincount(np.unique(data.demo, return_inverse=True)[1])
     short = int((sizes < MIN_DEMO_SAMPLES).sum())
     if short:

@@ -219,7 +219,7 @@ class TestSplit(Section):
     seed: int = Field(0, **_SEED.field())
     use_masks: bool = True
     gap: int | None = Field(None, **Interval(0, 1_000_000, type=int).field())
-    min_demos: int = Field(defaults.MIN_DEMOS, **Interval(2, 1_000_000, type=int).field())
+    min_demos: int = Field(defaults.TEST_MIN_DEMOS, **Interval(2, 1_000_000, type=int).field())
     blocks: int = Field(defaults.N_BLOCKS, **Interval(2, 1_000_000, type=int).field())
 
 

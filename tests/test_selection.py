@@ -45,9 +45,11 @@ def test_holdout_split_blocks_for_one_recording_and_demos_otherwise():
     assert np.abs(idx_tr[:, None] - idx_te[None, :]).min() > 9
     many = S.holdout_split(np.repeat(np.arange(10), 20), 0.3, seed=0)
     assert many.info["kind"] == "demonstrations" and many.info["n_test_demos"] == 3
-    few = S.holdout_split(np.repeat(np.arange(3), 400), 0.3, seed=0)
-    assert few.info["kind"] == "blocks" and "only 3 demonstrations" in few.info["reason"]
-    short = S.holdout_split(np.repeat(np.arange(4), 15), 0.3, seed=0, gap=10)  # blocks < 2 gaps long
+    three = S.holdout_split(np.repeat(np.arange(3), 400), 0.3, seed=0)  # one held out whole
+    assert three.info["kind"] == "demonstrations" and three.info["n_test_demos"] == 1
+    few = S.holdout_split(np.repeat(np.arange(2), 400), 0.3, seed=0)
+    assert few.info["kind"] == "blocks" and "only 2 demonstrations" in few.info["reason"]
+    short = S.holdout_split(np.repeat(np.arange(2), 15), 0.3, seed=0, gap=10)  # blocks < 2 gaps long
     assert short.info["kind"] == "demonstrations" and "too few for time blocks" in short.info["reason"]
     fewer_blocks = S.holdout_split(np.zeros(150, int), 0.3, seed=0, gap=10)
     assert fewer_blocks.info["n_train_blocks"] + fewer_blocks.info["n_test_blocks"] == 6

@@ -7,8 +7,11 @@ re-exports them.
 
 from __future__ import annotations
 
-#: Fewest demonstrations for splitting by demonstration; below it, time blocks.
+#: Fewest demonstrations for cross-validating by demonstration; below it, time blocks.
 MIN_DEMOS = 5
+#: Fewest demonstrations for holding out whole ones as the test set (one of three leaves two to
+#: learn from, whose agreement the states' geometry reads); below it, time blocks.
+TEST_MIN_DEMOS = 3
 #: Blocks a recording is cut into for the held-out test set.
 N_BLOCKS = 10
 #: Samples dropped from the training side of each train/test boundary (≥ the derivative window).

@@ -1,11 +1,12 @@
 """Splitters: which samples train and which test, and why.
 
-By demonstration when there are at least :data:`MIN_DEMOS` of them; otherwise contiguous time
-blocks (blocked K-fold), with ``gap`` samples dropped from the training side of every
-train/test boundary so that the windows of derived velocities (a Savitzky–Golay window of w
-samples makes u_n depend on x_{n±w/2}) never reach across it. :func:`inner_folds` holds out
-blocks *inside* each stretch, for models fitted per stretch; :func:`holdout_split` chooses the
-reported train/test split of a recording; :func:`tuning_subset` the rows a large search runs on.
+By demonstration when there are at least :data:`MIN_DEMOS` of them (the reported test split: at
+least :data:`TEST_MIN_DEMOS`); otherwise contiguous time blocks (blocked K-fold), with ``gap``
+samples dropped from the training side of every train/test boundary so that the windows of
+derived velocities (a Savitzky–Golay window of w samples makes u_n depend on x_{n±w/2}) never
+reach across it. :func:`inner_folds` holds out blocks *inside* each stretch, for models fitted
+per stretch; :func:`holdout_split` chooses the reported train/test split of a recording;
+:func:`tuning_subset` the rows a large search runs on.
 
 scikit-learn's ``GroupKFold`` splits by demonstration as :func:`make_folds` does, but has no
 blocked folds with guard gaps, no blocks held out inside stretches and no reasons in words;
@@ -23,7 +24,7 @@ import numpy as np
 
 from ccl_cli.dataset import Derivative, HowMade
 from ccl_cli.errors import InputError
-from ccl_cli.learn.defaults import DEFAULT_GAP, MIN_DEMOS, N_BLOCKS, N_FOLDS, TUNE_MAX_ROWS
+from ccl_cli.learn.defaults import DEFAULT_GAP, MIN_DEMOS, N_BLOCKS, N_FOLDS, TEST_MIN_DEMOS, TUNE_MAX_ROWS
 
 
 @dataclass
@@ -164,16 +165,15 @@ def _ranked(ids: np.ndarray, keys: np.ndarray | None, seed: int) -> np.ndarray:
 
 
 def holdout_split(demo: np.ndarray, fraction: float = 0.3, seed: int = 0, gap: int = DEFAULT_GAP,
-                  min_demos: int = MIN_DEMOS, n_blocks: int = N_BLOCKS, keys: np.ndarray | None = None
+                  min_demos: int = TEST_MIN_DEMOS, n_blocks: int = N_BLOCKS, keys: np.ndarray | None = None
                   ) -> Holdout:
     """The reported train/test split: by demonstration when there are at least
     ``min_demos``; else ``n_blocks`` contiguous time blocks of which round(fraction ·
     n_blocks) (seeded) are held out, with ``gap`` samples dropped from training at each
-    boundary. ``keys`` (one per demonstration, :func:`shape_keys`) rank the demonstrations
-    held out whole, so that which ones are does not depend on the order they came in; the time
-    blocks of fewer demonstrations follow the samples' order (blocks inside each demonstration,
-    or laid over them in ranked order, cut the arcs of a few hinge logs short enough to hide
-    their common circle). ``info``: kind, reason, n_train/n_test demos or blocks, samples, gap."""
+    boundary. ``keys`` (one per demonstration, :func:`shape_keys`) rank the demonstrations:
+    those held out whole, and the order in which the time blocks of fewer are laid over them
+    (each in time order), so that which samples are held out does not depend on the order the
+    demonstrations came in. ``info``: kind, reason, n_train/n_test demos or blocks, samples, gap."""
     if not 0.0 < fraction < 1.0:
         raise InputError(f"test fraction must be in (0, 1), got {fraction}")
     demo = np.asarray(demo)
@@ -200,11 +200,17 @@ def holdout_split(demo: np.ndarray, fraction: float = 0.3, seed: int = 0, gap: i
     blocks = _blocks(n, possible)
     n_test = min(max(1, int(round(fraction * len(blocks)))), len(blocks) - 1)
     chosen = np.sort(rng.choice(len(blocks), size=n_test, replace=False))
-    test_idx = np.concatenate([blocks[i] for i in chosen])
+    # the blocks are laid over the demonstrations in their ranked order (each in time order)
+    laid = np.arange(n)
+    if keys is not None and len(ids) > 1:
+        rank = np.empty(len(ids), np.int64)
+        rank[np.searchsorted(ids, _ranked(ids, keys, seed))] = np.arange(len(ids))
+        laid = np.lexsort((laid, rank[np.searchsorted(ids, demo)]))
+    test_pos = np.concatenate([blocks[i] for i in chosen])
     train = np.zeros(n, bool)
-    train[_guarded_train(n, test_idx, gap)] = True
+    train[laid[_guarded_train(n, test_pos, gap)]] = True
     test = np.zeros(n, bool)
-    test[test_idx] = True
+    test[laid[test_pos]] = True
     why = ("a single continuous recording" if len(ids) == 1 else f"only {len(ids)} demonstrations")
     info = {"kind": "blocks",
             "reason": f"{why} (< {min_demos}): {n_test} of {len(blocks)} contiguous time blocks held out, "
