@@ -214,7 +214,8 @@ def _learn_and_compare(tmp_path, capsys, data_cfg, name):
     model, _ = load_model(out / "model.h5")
     data = load_demonstrations(data_cfg, base=tmp_path)
     angles = []
-    for d in data.demo_ids:
+    assert len(model.models_) == 2  # 3 demonstrations: one held out whole (test split), one model each
+    for d in model.models_:
         X = data.X[data.demo == d]
         plane = np.linalg.svd(X - X.mean(0))[2][-1]  # the normal of the plane fitted to the positions
         _, vecs = np.linalg.eigh(model.models_[int(d)].projection(X[:1])[0])
