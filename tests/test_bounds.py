@@ -409,6 +409,25 @@ def test_json_mcap_message_missing_a_key_is_one_line(tmp_path, key, match):
             "velocity")
 
 
+@pytest.mark.parametrize("at,value,match", [
+    (7, "x", r"holds text \('x'\) where numbers are expected \(message 8\)"),
+    (7, "1.5", r"holds text \('1.5'\) where numbers are expected \(message 8\)"),
+    (7, "\u0661", r"holds text \('\u0661'\) where numbers are expected \(message 8\)"),
+    (0, "x", r"field 'position' of /joint_states holds text \('x'\) where numbers are expected$"),
+    (0, "1.5", r"holds text \('1.5'\) where numbers are expected$"),
+])
+def test_json_mcap_number_given_as_text_is_one_line(tmp_path, at, value, match):
+    """A JSON message's joint value given as text (fuzz, beyond-ascii): in the first message an
+    internal ValueError (NumPy's float conversion), in a later one 'changes length', and text
+    NumPy reads as a number ("1.5", an Arabic-Indic "١") was taken silently: now one line
+    naming the text and the message."""
+    rec = writers.joint_recording(n=20)
+    msgs = [writers.msg_dict(rec, i) for i in range(20)]
+    msgs[at]["position"][1] = value
+    path = writers.write_mcap_json(tmp_path / "r.mcap", rec, msgs)
+    refused({"files": [str(path)], "state": JOINTS}, match)
+
+
 def test_json_mcap_first_message_without_joint_names_is_one_line(tmp_path):
     """The joints configured and the first message naming none: one line (was a TypeError)."""
     rec = writers.joint_recording(n=20)
