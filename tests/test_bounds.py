@@ -428,6 +428,41 @@ def test_json_mcap_number_given_as_text_is_one_line(tmp_path, at, value, match):
     refused({"files": [str(path)], "state": JOINTS}, match)
 
 
+@pytest.mark.parametrize("first", [True, False])
+def test_json_mcap_text_that_is_not_unicode_is_one_line(tmp_path, capsys, first):
+    """A lone surrogate written as a JSON escape ("\\ud800", fuzz, beyond-ascii) in a joint name:
+    `inspect` and `convert` ended in an internal UnicodeEncodeError printing it; now one line
+    naming the message. A surrogate pair (an escaped emoji) is text like any other."""
+    from ccl_cli.cli import main
+
+    rec = writers.joint_recording(n=20)
+    msgs = [writers.msg_dict(rec, i) for i in range(20)]
+    for m in msgs:
+        m["header"]["frame_id"] = "base\U0001f600"  # written as the pair \ud83d\ude00
+    msgs[0 if first else 7]["name"][0] += "\ud800"
+    path = writers.write_mcap_json(tmp_path / "r.mcap", rec, [json.dumps(m).encode() for m in msgs])
+    refused({"files": [str(path)], "state": {"topic": "/joint_states", "field": "position"}},
+            rf"message {1 if first else 8} of /joint_states holds text that is not Unicode "
+            r"\(a lone surrogate, \\ud800\)")
+    assert main(["inspect", str(path)]) == (2 if first else 0)  # inspect reads the first message
+    err = capsys.readouterr().err
+    assert err == (f"ccl: error: {path}: the first message of /joint_states holds text that is not Unicode "
+                   "(a lone surrogate, \\ud800)\n" if first else ""), err
+    del msgs[0 if first else 7]["name"][0]
+    msgs[0 if first else 7]["name"].insert(0, writers.JOINTS[0])
+    path = writers.write_mcap_json(tmp_path / "r.mcap", rec, [json.dumps(m).encode() for m in msgs])
+    assert load_demonstrations({"files": [str(path)], "state": JOINTS}).X.shape == (20, 3)
+
+
+def test_a_surrogate_that_is_no_escaped_byte_is_shown_escaped():
+    """The CLI's error line shows a file name's undecodable bytes as \\xNN; a lone surrogate
+    from elsewhere (a JSON escape) made that line raise UnicodeEncodeError."""
+    from ccl_cli.cli import shown
+
+    assert shown(os.fsdecode(b"a\xff.h5")) == "a\\xff.h5"
+    assert shown("joint\ud800") == "joint\\ud800"
+
+
 def test_json_mcap_first_message_without_joint_names_is_one_line(tmp_path):
     """The joints configured and the first message naming none: one line (was a TypeError)."""
     rec = writers.joint_recording(n=20)
