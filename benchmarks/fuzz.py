@@ -870,7 +870,7 @@ def beyond_ascii_attribute(target: Path, rng: random.Random) -> str | None:
         else:
             k = rng.randrange(len(text) + 1)
             raw = text.encode()[:k] + rng.choice([*BAD_UTF8, new.encode()]) + text.encode()[k:]
-            obj.attrs.create(key, np.bytes_(raw),
+            obj.attrs.create(key, np.array(raw, dtype=f"S{len(raw)}"),  # np.bytes_ drops trailing NULs
                              dtype=h5py.string_dtype("utf-8" if how == "fixed-utf8" else "ascii", len(raw)))
     return f"beyond-ascii:attr-{how}:{key}"
 
