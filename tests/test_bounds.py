@@ -641,3 +641,21 @@ def test_a_ros1_bag_declaring_a_position_outside_the_file_is_one_line(tmp_path, 
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("ccl: error: ") and "internal" not in err[0], err
+
+
+@pytest.mark.parametrize("stamp", [b"\x17\x97\x9c\xfe\x9b", "soon", 1.5])
+def test_ros2_sqlite_log_time_that_is_not_an_integer_is_one_line(tmp_path, capsys, stamp):
+    """A damaged sqlite3 storage whose timestamp column holds bytes or text (fuzz, classic
+    7017, a flipped byte): `inspect` ended in an internal ValueError (NumPy's int64 conversion
+    of the library's values); now one line."""
+    import sqlite3
+
+    bag = writers.write_ros2_bag(tmp_path / "bag", writers.joint_recording(n=20))
+    db = next(bag.glob("*.db3"))
+    with sqlite3.connect(db) as con:
+        con.execute("UPDATE messages SET timestamp = ? WHERE id = 3", (stamp,))
+    con.close()
+    assert main(["inspect", str(bag), "--json", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"ccl: error: {bag}: /joint_states has message log times that are not integers " \
+                  "(damaged file?)\n"
