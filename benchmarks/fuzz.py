@@ -21,9 +21,11 @@ metadata names), storage files and manifest paths outside their folder, and JSON
 messages missing a key or holding one of another type. ``round4`` — 70 % get one of issue
 28 instead: ROS 1 chunk and index positions outside the file, 5,000-digit integers (YAML,
 JSON attributes, CSV cells, JSON messages), input names that are not UTF-8, CSVs with
-thousands of columns no config reads, YAML key bombs and duplicate keys; ``all`` — 30 % of
-each kind. Peak RSS of each case's process is recorded (``peak_rss_mb``, ``over_500MB``)
-beside its time (``over_20s``).
+thousands of columns no config reads, YAML key bombs and duplicate keys, and text beyond
+ASCII and beyond the BMP where text is parsed natively (CSV number and time cells — NumPy 2.4's
+np.loadtxt crashed converting some to int64 —, YAML through libyaml, HDF5 text attributes as
+UTF-8 or declared ASCII, JSON messages); ``all`` — 30 % of each kind. Peak RSS of each case's
+process is recorded (``peak_rss_mb``, ``over_500MB``) beside its time (``over_20s``).
 
 Outcomes per format: ``ok`` (exit 0), ``error`` (exit 2, one ``ccl: error:`` line),
 ``exit1`` (a learning failure, one line), ``internal`` (anything but our error classes:
@@ -749,16 +751,184 @@ def odd_name(dst: Path) -> Path:
     return new
 
 
+# -- text beyond ASCII: characters past ASCII and past the BMP where text is parsed natively -----
+#: characters someone may take for parts of a number or of the layout: Unicode digits, spaces,
+#: minus, a combining mark, BOM, line breaks of YAML 1.1 (NEL, LS, PS), the last code points,
+#: and the cell that crashed NumPy 2.4's integer conversion in np.loadtxt
+LOOKALIKES = ["\u0663", "\uff13", "\U0001d7d1", "\u0969", "\u00a0", "\u2003", "\u3000", "\u2212", "\u0301",
+              "\ufeff", "\u0085", "\u2028", "\u2029", "\u00e9", "\uffff", "\U0010ffff", "\U000d662d"]
+#: the zero of a script's digits (Arabic-Indic, fullwidth, mathematical bold, Devanagari, Myanmar)
+ZEROS = [0x660, 0xFF10, 0x1D7CE, 0x966, 0x1040]
+#: bytes a UTF-8 decoder must refuse: a surrogate, past U+10FFFF, an overlong form, a lone tail
+BAD_UTF8 = [b"\xed\xa0\x80", b"\xf4\x90\x80\x80", b"\xc0\xb1", b"\x80", b"\xff"]
+
+
+def odd_char(rng: random.Random) -> str:
+    """One character beyond ASCII: a look-alike, any of the BMP (surrogates aside), or (half of
+    them) any beyond the BMP."""
+    r = rng.random()
+    if r < 0.3:
+        return rng.choice(LOOKALIKES)
+    if r < 0.5:
+        code = rng.randrange(0x80, 0x10000 - 0x800)
+        return chr(code + 0x800 if code >= 0xD800 else code)
+    return chr(rng.randrange(0x10000, 0x110000))
+
+
+def odd_text(value: str, rng: random.Random) -> str:
+    """``value`` with characters beyond ASCII: replaced by one (alone or before ``n``, a digit or
+    an exponent), one put before or after it or in place of one of its characters, or its
+    digits written in another script's digits."""
+    c = odd_char(rng)
+    kind = rng.randrange(6)
+    if kind == 0:
+        return c
+    if kind == 1:
+        return c + rng.choice(["n", "1", "e5", c])
+    if kind == 2:
+        return value + c
+    if kind == 3:
+        return c + value
+    if kind == 4 and value:
+        k = rng.randrange(len(value))
+        return value[:k] + c + value[k + 1:]
+    zero = rng.choice(ZEROS)
+    return "".join(chr(zero + int(ch)) if "0" <= ch <= "9" else ch for ch in value)
+
+
+def beyond_ascii_csv(target: Path, rng: random.Random) -> str:
+    """CSV cells of the time column (half the cases) or another column with text beyond ASCII
+    (:func:`odd_text`): one cell, a few, or the whole column. Each distinct character is a new
+    draw for a parser that indexes a table by code point."""
+    lines = target.read_text().splitlines()
+    header = lines[0].split(",")
+    j = header.index("%time") if "%time" in header and rng.random() < 0.5 else rng.randrange(len(header))
+    rows = range(1, len(lines))
+    picks = rng.choice([[rng.choice(rows)], rng.sample(rows, min(3, len(rows))), list(rows)])
+    for i in picks:
+        cells = lines[i].split(",")
+        if j < len(cells):
+            cells[j] = odd_text(cells[j], rng).replace(",", ";")
+            lines[i] = ",".join(cells)
+    target.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    where = "time" if header[j] == "%time" else "column"
+    return f"beyond-ascii:csv-{where}:{'all' if len(picks) > 3 else len(picks)}"
+
+
+def beyond_ascii_yaml(target: Path, rng: random.Random) -> str:
+    """A YAML file (libyaml's scanner) with text beyond ASCII: a value or a key rewritten by
+    :func:`odd_text`, a character put anywhere in the text, or bytes that are not UTF-8."""
+    import yaml
+
+    r = rng.random()
+    raw = target.read_bytes()
+    if r < 0.5:
+        data = yaml.safe_load(raw)
+        paths = [p for p in _paths(data) if p]
+        if paths:
+            path = rng.choice(paths)
+            parent = data
+            for key in path[:-1]:
+                parent = parent[key]
+            value = parent[path[-1]]
+            if isinstance(parent, dict) and rng.random() < 0.3:
+                parent[odd_text(str(path[-1]), rng)] = parent.pop(path[-1])
+                kind = "key"
+            else:
+                parent[path[-1]] = odd_text(str(value), rng) if not isinstance(value, dict | list) else value
+                kind = "value"
+            target.write_text(yaml.safe_dump(data, sort_keys=False, allow_unicode=rng.random() < 0.7),
+                              encoding="utf-8")
+            return f"beyond-ascii:yaml-{kind}"
+    k = rng.randrange(len(raw) + 1)
+    if r < 0.85:
+        target.write_bytes(raw[:k] + odd_char(rng).encode() + raw[k:])
+        return "beyond-ascii:yaml-char"
+    target.write_bytes(raw[:k] + rng.choice(BAD_UTF8) + raw[k:])
+    return "beyond-ascii:yaml-bytes"
+
+
+def beyond_ascii_attribute(target: Path, rng: random.Random) -> str | None:
+    """An HDF5 text attribute (a format tag, a method, a JSON table, MATLAB_class) rewritten
+    with text beyond ASCII (:func:`odd_text`) as variable-length UTF-8, or as fixed-length bytes
+    declared ASCII or UTF-8 holding what UTF-8 refuses."""
+    import h5py
+    import numpy as np
+
+    with h5py.File(target, "a") as f:
+        found = [(obj, k) for obj in [f, *_objects(f)] for k in obj.attrs
+                 if isinstance(obj.attrs[k], str | bytes | np.bytes_)]
+        if not found:
+            return None
+        obj, key = rng.choice(found)
+        value = obj.attrs[key]
+        text = value.decode("utf-8", "replace") if isinstance(value, bytes) else str(value)
+        new = odd_text(text, rng)
+        how = rng.choice(["vlen", "vlen", "fixed-utf8", "fixed-ascii"])
+        if how == "vlen":
+            obj.attrs[key] = new
+        else:
+            k = rng.randrange(len(text) + 1)
+            raw = text.encode()[:k] + rng.choice([*BAD_UTF8, new.encode()]) + text.encode()[k:]
+            obj.attrs.create(key, np.array(raw, dtype=f"S{len(raw)}"),  # np.bytes_ drops trailing NULs
+                             dtype=h5py.string_dtype("utf-8" if how == "fixed-utf8" else "ascii", len(raw)))
+    return f"beyond-ascii:attr-{how}:{key}"
+
+
+def beyond_ascii_messages(target: Path, rng: random.Random) -> str:
+    """The JSON MCAP rewritten with joint names or a frame id beyond ASCII (raw, or as
+    ``\\uXXXX`` escapes, lone surrogates among them), or a number given as Unicode digits."""
+    import writers
+
+    rec = writers.joint_recording(n=60, gap_after=30)
+    msgs = [writers.msg_dict(rec, i) for i in range(len(rec.t_ns))]
+    kind = rng.choice(["name", "name", "surrogate", "frame", "digits"])
+    picks = range(len(msgs)) if rng.random() < 0.5 else rng.sample(range(len(msgs)), rng.randint(1, 3))
+    for i in picks:
+        m = msgs[i]
+        if kind in ("name", "surrogate"):
+            k = rng.randrange(len(m["name"]))
+            m["name"][k] = odd_text(m["name"][k], rng) if kind == "name" else m["name"][k] + "\ud800"
+        elif kind == "frame":
+            m["header"]["frame_id"] = odd_text(m["header"]["frame_id"], rng)
+        else:
+            k = rng.randrange(len(m["position"]))
+            m["position"][k] = odd_text(repr(m["position"][k]), rng)
+    ascii_ = rng.random() < 0.5  # json.dumps escapes beyond ASCII (a lone surrogate: always)
+    raw = [json.dumps(m, ensure_ascii=ascii_).encode("utf-8", "surrogatepass") for m in msgs]
+    writers.write_mcap_json(target, rec, raw)
+    return f"beyond-ascii:json-{kind}"
+
+
+def beyond_ascii(base: dict[str, Any], target: Path, rng: random.Random) -> str | None:
+    """Text beyond ASCII where this input holds text (None: it holds none we rewrite)."""
+    fmt = base["format"]
+    if fmt == "csv":
+        return beyond_ascii_csv(target, rng)
+    if base.get("yaml"):
+        return beyond_ascii_yaml(target, rng)
+    if fmt in ("hdf5", "model", "mat73"):
+        return beyond_ascii_attribute(target, rng)
+    if fmt == "mcap" and base["name"] == "mcap-json":
+        return beyond_ascii_messages(target, rng)
+    return None
+
 def round4_mutation(base: dict[str, Any], dst: Path, target: Path, rng: random.Random
                     ) -> tuple[str, Path] | None:
     """One of the mutations of issue 28 for this input: a file name that is not UTF-8 (a
     quarter of them, any input), else what fits its format — ROS 1 chunk and index positions,
     a wide CSV or a 5,000-digit cell, a YAML key bomb, a duplicate key or a 5,000-digit value,
-    a 5,000-digit integer in an HDF5 JSON attribute or a JSON message. Returns (mutation, the
-    input's path now), or None when nothing fits (a MATLAB file, a binary storage file)."""
+    a 5,000-digit integer in an HDF5 JSON attribute or a JSON message; or (a third of the
+    others, where it fits) text beyond ASCII in a CSV cell, a YAML file, an HDF5 text attribute
+    or a JSON message. Returns (mutation, the input's path now), or None when nothing fits (a
+    MATLAB v5 file, a binary storage file)."""
     fmt = base["format"]
     if rng.random() < 0.25:
         return "odd-name", odd_name(dst)
+    if rng.random() < 1 / 3:
+        found = beyond_ascii(base, target, rng)
+        if found is not None:
+            return found, dst
     if fmt == "ros1":
         mutation, new = ros1_positions(target.read_bytes(), rng)
         target.write_bytes(new)

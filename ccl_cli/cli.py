@@ -156,8 +156,11 @@ _QUIET = [False]  # set by every command through _logging: -q silences the summa
 
 def shown(text: str) -> str:
     """``text`` as it can be printed: the bytes of a file name that is not UTF-8 (held as
-    surrogate escapes, ``os.fsdecode``) shown as ``\\xNN``."""
-    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    surrogate escapes, ``os.fsdecode``) shown as ``\\xNN``; any other surrogate as ``\\udNNN``."""
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:  # a surrogate that is no escaped byte (a JSON "\\ud800")
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
 
 
 class _Shown(logging.Formatter):

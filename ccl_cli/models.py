@@ -227,6 +227,9 @@ def _fitted(group, where: str) -> dict[str, Any]:
             if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
                 raise InputError(f"{where}: fitted {key} must be an integer in [{lo}, {hi}], got {value!r}"
                                  [:200])
+    if "selection_" in fitted and not isinstance(fitted["selection_"], dict):
+        raise InputError(f"{where}: fitted selection_ must be a mapping (how k was chosen), got "
+                         f"{fitted['selection_']!r}"[:200])
     return fitted
 
 

@@ -409,6 +409,60 @@ def test_json_mcap_message_missing_a_key_is_one_line(tmp_path, key, match):
             "velocity")
 
 
+@pytest.mark.parametrize("at,value,match", [
+    (7, "x", r"holds text \('x'\) where numbers are expected \(message 8\)"),
+    (7, "1.5", r"holds text \('1.5'\) where numbers are expected \(message 8\)"),
+    (7, "\u0661", r"holds text \('\u0661'\) where numbers are expected \(message 8\)"),
+    (0, "x", r"field 'position' of /joint_states holds text \('x'\) where numbers are expected$"),
+    (0, "1.5", r"holds text \('1.5'\) where numbers are expected$"),
+])
+def test_json_mcap_number_given_as_text_is_one_line(tmp_path, at, value, match):
+    """A JSON message's joint value given as text (fuzz, beyond-ascii): in the first message an
+    internal ValueError (NumPy's float conversion), in a later one 'changes length', and text
+    NumPy reads as a number ("1.5", an Arabic-Indic "١") was taken silently: now one line
+    naming the text and the message."""
+    rec = writers.joint_recording(n=20)
+    msgs = [writers.msg_dict(rec, i) for i in range(20)]
+    msgs[at]["position"][1] = value
+    path = writers.write_mcap_json(tmp_path / "r.mcap", rec, msgs)
+    refused({"files": [str(path)], "state": JOINTS}, match)
+
+
+@pytest.mark.parametrize("first", [True, False])
+def test_json_mcap_text_that_is_not_unicode_is_one_line(tmp_path, capsys, first):
+    """A lone surrogate written as a JSON escape ("\\ud800", fuzz, beyond-ascii) in a joint name:
+    `inspect` and `convert` ended in an internal UnicodeEncodeError printing it; now one line
+    naming the message. A surrogate pair (an escaped emoji) is text like any other."""
+    from ccl_cli.cli import main
+
+    rec = writers.joint_recording(n=20)
+    msgs = [writers.msg_dict(rec, i) for i in range(20)]
+    for m in msgs:
+        m["header"]["frame_id"] = "base\U0001f600"  # written as the pair \ud83d\ude00
+    msgs[0 if first else 7]["name"][0] += "\ud800"
+    path = writers.write_mcap_json(tmp_path / "r.mcap", rec, [json.dumps(m).encode() for m in msgs])
+    refused({"files": [str(path)], "state": {"topic": "/joint_states", "field": "position"}},
+            rf"message {1 if first else 8} of /joint_states holds text that is not Unicode "
+            r"\(a lone surrogate, \\ud800\)")
+    assert main(["inspect", str(path)]) == (2 if first else 0)  # inspect reads the first message
+    err = capsys.readouterr().err
+    assert err == (f"ccl: error: {path}: the first message of /joint_states holds text that is not Unicode "
+                   "(a lone surrogate, \\ud800)\n" if first else ""), err
+    del msgs[0 if first else 7]["name"][0]
+    msgs[0 if first else 7]["name"].insert(0, writers.JOINTS[0])
+    path = writers.write_mcap_json(tmp_path / "r.mcap", rec, [json.dumps(m).encode() for m in msgs])
+    assert load_demonstrations({"files": [str(path)], "state": JOINTS}).X.shape == (20, 3)
+
+
+def test_a_surrogate_that_is_no_escaped_byte_is_shown_escaped():
+    """The CLI's error line shows a file name's undecodable bytes as \\xNN; a lone surrogate
+    from elsewhere (a JSON escape) made that line raise UnicodeEncodeError."""
+    from ccl_cli.cli import shown
+
+    assert shown(os.fsdecode(b"a\xff.h5")) == "a\\xff.h5"
+    assert shown("joint\ud800") == "joint\\ud800"
+
+
 def test_json_mcap_first_message_without_joint_names_is_one_line(tmp_path):
     """The joints configured and the first message naming none: one line (was a TypeError)."""
     rec = writers.joint_recording(n=20)
@@ -587,3 +641,21 @@ def test_a_ros1_bag_declaring_a_position_outside_the_file_is_one_line(tmp_path, 
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("ccl: error: ") and "internal" not in err[0], err
+
+
+@pytest.mark.parametrize("stamp", [b"\x17\x97\x9c\xfe\x9b", "soon", 1.5])
+def test_ros2_sqlite_log_time_that_is_not_an_integer_is_one_line(tmp_path, capsys, stamp):
+    """A damaged sqlite3 storage whose timestamp column holds bytes or text (fuzz, classic
+    7017, a flipped byte): `inspect` ended in an internal ValueError (NumPy's int64 conversion
+    of the library's values); now one line."""
+    import sqlite3
+
+    bag = writers.write_ros2_bag(tmp_path / "bag", writers.joint_recording(n=20))
+    db = next(bag.glob("*.db3"))
+    with sqlite3.connect(db) as con:
+        con.execute("UPDATE messages SET timestamp = ? WHERE id = 3", (stamp,))
+    con.close()
+    assert main(["inspect", str(bag), "--json", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"ccl: error: {bag}: /joint_states has message log times that are not integers " \
+                  "(damaged file?)\n"

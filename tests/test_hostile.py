@@ -250,6 +250,21 @@ def test_model_json_attributes_are_typed(fixtures, tmp_path):
         load_model(model)
 
 
+def test_a_model_whose_selection_is_not_a_mapping_is_refused(capsys, fixtures, tmp_path):
+    """A constraint model's fitted selection_ (how k was chosen) edited to another JSON type
+    (fuzz, even 7014: True): `inspect` ended in an internal TypeError; refused when it loads."""
+    assert main(["learn-a", str(fixtures["data"]), "--method", "nhat", "-o", str(tmp_path / "m"), "-q",
+                 "--test-fraction", "0"]) == 0
+    model = tmp_path / "m" / "model.h5"
+    assert isinstance(load_model(model)[0].selection_, dict)
+    with h5py.File(model, "a") as f:
+        f.attrs["fitted"] = json.dumps({**json.loads(f.attrs["fitted"]), "selection_": True})
+    capsys.readouterr()
+    assert main(["inspect", str(model), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"ccl: error: {model}: fitted selection_ must be a mapping (how k was chosen), got True\n"
+
+
 @pytest.mark.parametrize("method,array", [("nhat", "eigenvalues_"), ("nhat", "residuals_"),
                                           ("linear", "scale_"), ("linear", "singular_values_")])
 @pytest.mark.parametrize("edit", ["short", "long"])

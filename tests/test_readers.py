@@ -475,6 +475,29 @@ def test_csv_time_text_is_parsed_exactly(tmp_path):
         parse_time_ns(["0", "1.5", "9223372037.0"], None, "w")
 
 
+@pytest.mark.parametrize("cell,unit,match", [
+    ("x", None, "time value 'x' in row 5 is not a number"),
+    ("\u22121", None, "time value '\u22121' in row 5 is not a number"),
+    ("", None, "time value '' in row 5 is not a number"),
+    ("nan", None, "time value 'nan' in row 5 is not finite"),
+    ("1.5", None, r"time column mixes integer nanoseconds \('1700000000000000000', row 2\) with other "
+                  r"values \('1.5', row 5\); set time.unit"),
+    ("x", "ns", "time value 'x' in row 5 is not a number"),
+])
+def test_csv_time_value_at_fault_is_the_one_named(cell, unit, match):
+    """Epoch-ns stamps with one value that is not an integer (fuzz, beyond-ascii: a Unicode
+    minus): the guessed unit (s) made the first stamp out of range, and the error named row 2
+    ('1700000000000000000 ... is out of range'), not the value at fault."""
+    from ccl_cli.io.formats.csv_time import parse_time_ns
+
+    column = [str(1_700_000_000_000_000_000 + k * 10**7) for k in range(6)]
+    column[3] = cell
+    with pytest.raises(InputError, match=match):
+        parse_time_ns(column, unit, "w")
+    column[3] = "1700000000030000000"
+    assert parse_time_ns(column, unit, "w")[3] == 1_700_000_000_030_000_000
+
+
 @settings(max_examples=300, deadline=None)
 @given(column=st.lists(st.from_regex(r"[+-]?[0-9]{0,21}(\.[0-9]{0,12})?", fullmatch=True), min_size=1,
                        max_size=6),

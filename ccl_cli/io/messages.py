@@ -105,6 +105,21 @@ def flatten(obj: Any, prefix: str = "") -> tuple[list[float], list[str]]:
     return vals, names
 
 
+def _text_in(rows: list[Any]) -> tuple[int, str | bytes] | None:
+    """(index, value) of the first text among ``rows`` (each a value or a sequence of
+    values), or None. NumPy's float conversion would read texts such as "1.5" or "١" as
+    numbers: a message holding one is refused."""
+    for i, row in enumerate(rows):
+        if isinstance(row, np.ndarray):
+            if row.dtype.kind in "biuf":
+                continue
+            row = row.tolist()
+        for v in row if isinstance(row, list | tuple) else [row]:
+            if isinstance(v, str | bytes):
+                return i, v
+    return None
+
+
 def _getter(path: list[str], sample: Any) -> Callable[[Any], Any]:
     """A compiled accessor for a dotted path on messages shaped like ``sample``."""
     if not path:
@@ -243,9 +258,17 @@ class FieldExtractor:
         if len(leaf) != len(names):
             raise InputError(f"{self.where}: {self.spec.topic} has {len(names)} joint names but "
                              f"{len(leaf)} values in {self.field!r}")
+        text = _text_in([leaf])
+        if text is not None:
+            raise InputError(f"{self.where}: field {self.field!r} of {self.spec.topic} holds text "
+                             f"({text[1]!r}) where numbers are expected")
         if self._joint_identity:
             return leaf
-        return np.asarray(leaf, dtype=float)[self._joint_index]
+        try:
+            return np.asarray(leaf, dtype=float)[self._joint_index]
+        except (ValueError, TypeError):
+            raise InputError(f"{self.where}: field {self.field!r} of {self.spec.topic} is not numeric") \
+                from None
 
 
 class TopicCollector:
@@ -352,10 +375,22 @@ class TopicCollector:
             return
         for k, ex in enumerate(self.extractors):
             try:
-                rows = np.array(self._rows[k], dtype=float)
+                rows = np.array(self._rows[k])
             except (ValueError, TypeError):
+                rows = None
+            if rows is not None and rows.dtype.kind not in "biuf":  # NumPy would read "1.5", "١" as numbers
+                text = _text_in(self._rows[k])
+                if text is not None:
+                    raise InputError(f"{self.where}: field {ex.field!r} of {self.topic} holds text "
+                                     f"({text[1]!r}) where numbers are expected (message "
+                                     f"{self.n_messages - n + text[0] + 1})")
+            try:
+                rows = None if rows is None else np.asarray(rows, dtype=float)
+            except (ValueError, TypeError):
+                rows = None
+            if rows is None:
                 raise InputError(f"{self.where}: field {ex.field!r} of {self.topic} changes length "
-                                 "between messages") from None
+                                 "between messages")
             rows = rows.reshape(n, -1)
             if ex.by_joint and self._names is not None:
                 if rows.shape[1] != len(self._names):

@@ -331,6 +331,15 @@ class BagReader(TopicReader):
                 times.setdefault(conn.topic, []).append(log_ns)
                 if conn.topic not in first:
                     first[conn.topic] = library_call(where, what, bag.deserialize, raw, conn.msgtype)
-            return {k: (np.asarray(v, dtype=np.int64), first.get(k)) for k, v in times.items()}
+            return {k: (_log_times(v, where, k), first.get(k)) for k, v in times.items()}
         finally:
             bag.close()
+
+
+def _log_times(values: list[Any], where: str, topic: str) -> np.ndarray:
+    """The log times the library handed back for ``topic`` as int64; anything else (a damaged
+    sqlite3 storage can hold bytes or text in the timestamp column) one line."""
+    found = np.asarray(values)
+    if found.dtype.kind not in "iu" or (found.dtype.kind == "u" and found.size and found.max() >= 2**63):
+        raise InputError(f"{where}: {topic} has message log times that are not integers (damaged file?)")
+    return found.astype(np.int64, copy=False)

@@ -132,6 +132,7 @@ def _time_ns_per_value(column: Sequence[str], unit: str | None, where: str) -> n
         scale = UNIT_NS[unit]
         return np.array([_ns(x * scale, v, i, where)
                          for i, (x, v) in enumerate(zip(ints, column, strict=True))], dtype=np.int64)
+    _check_values(column, unit, where)
     scale = UNIT_NS[unit or "s"]
     digits = len(str(scale)) - 1
     out = np.empty(len(column), dtype=np.int64)
@@ -153,3 +154,29 @@ def _time_ns_per_value(column: Sequence[str], unit: str | None, where: str) -> n
                 raise InputError(f"{where}: time value {v[:40]!r} in row {i + 2} is not finite")
             out[i] = _ns(int(round(value)), v, i, where)
     return out
+
+
+def _check_values(column: Sequence[str], unit: str | None, where: str) -> None:
+    """Before any value is scaled: the first value that is not a finite number, then (``unit``
+    None) integer nanoseconds (≥ 1e15) beside values that are not integers, each one line
+    naming the rows — not a range error on a valid stamp scaled as seconds."""
+    big = other = None
+    for i, v in enumerate(column):
+        s = v.strip()
+        if _INT.match(s):
+            digits = s.lstrip("+-")
+            if big is None and (len(digits) > MAX_DIGITS or abs(int(digits)) >= 10**15):
+                big = i
+            continue
+        if not _DEC.match(s):
+            try:
+                value = float(v)
+            except ValueError:
+                raise InputError(f"{where}: time value {v[:40]!r} in row {i + 2} is not a number") from None
+            if not math.isfinite(value):
+                raise InputError(f"{where}: time value {v[:40]!r} in row {i + 2} is not finite")
+        other = i if other is None else other
+    if unit is None and big is not None and other is not None:
+        raise InputError(f"{where}: time column mixes integer nanoseconds ({column[big][:40]!r}, row "
+                         f"{big + 2}) with other values ({column[other][:40]!r}, row {other + 2}); "
+                         "set time.unit")

@@ -118,6 +118,7 @@ class McapReader(TopicReader):
             if all(encodings[t] == "json" for t in topics):
                 for _, channel, message in library_iter(where, what, reader.iter_messages(topics=topics)):
                     decoded = library_call(where, what, json.loads, message.data)
+                    _check_text(message.data, decoded, where, channel.topic, collectors[channel.topic])
                     collectors[channel.topic].add(decoded, message.log_time)
             else:
                 for _, channel, message, decoded in library_iter(where, what,
@@ -282,9 +283,27 @@ class McapReader(TopicReader):
         if as_json:
             found = next(library_iter(where, what, mc.iter_messages(topics=[topic])), None)
             msg = library_call(where, what, json.loads, found[2].data) if found else None
+            if found:
+                _check_text(found[2].data, msg, where, topic)
         else:
             found = next(library_iter(where, what, mc.iter_decoded_messages(topics=[topic])), None)
             msg = found[3] if found else None
         if found is None:
             raise InputError(f"{where}: topic {topic} lost its messages on a second read")
         return msg
+
+
+def _check_text(raw: bytes, decoded: Any, where: str, topic: str, collector: Any = None) -> None:
+    """A JSON message whose text is not Unicode — a lone surrogate, written as a ``\\ud800``
+    escape — refused in one line naming it (the message after ``collector``'s, else the first):
+    it could not be printed or written later. Only messages holding such an escape are looked
+    at again."""
+    if b"\\ud" not in raw and b"\\uD" not in raw:
+        return
+    try:
+        json.dumps(decoded, ensure_ascii=False).encode("utf-8")
+    except UnicodeEncodeError as exc:
+        bad = exc.object[exc.start:exc.end].encode("unicode_escape").decode()
+        which = f"message {collector.n_messages + 1}" if collector is not None else "the first message"
+        raise InputError(f"{where}: {which} of {topic} holds text that is not Unicode (a lone surrogate, "
+                         f"{bad})") from None
