@@ -188,3 +188,20 @@ def test_how_sure_reads_the_same_bounded_sample_at_ten_times_the_samples(monkeyp
     assert seen[30][0] == seen[300][0] == 1
     assert seen[30][1] == [15_000] and seen[30][2] == 15_000  # up to CHOICE_ROWS: every sample
     assert seen[300][1] == [seen[300][2]] and seen[300][2] <= auto_module.CHOICE_ROWS  # 150,000: a sample
+
+
+def test_ncl_makes_a_bounded_number_of_passes_over_all_the_rows():
+    """Above the subsample, ncl's passes over all N rows are at most FULL_PASSES +
+    ORIGINAL_FULL_PASSES whatever N; the stages before run on SUBSAMPLE_ROWS rows."""
+    from ccl_cli.learn import nullspace as ns
+
+    seen = {}
+    for n_demos in (150, 600):  # about 1.4·10⁴ and 5.5·10⁴ samples
+        d = sim.toy2d(task=True, n_demos=n_demos, n_steps=1000, seed=0)
+        model = ns.NullSpaceComponent(tune=False).fit(d.X, d.U, groups=d.demo)
+        on_all = [s for s in model.stages_ if s["rows"] == len(d.U)]
+        seen[n_demos] = (sum(s["full_passes"] + s["cost_passes"] for s in on_all),
+                         {s["rows"] for s in model.stages_ if s["rows"] != len(d.U)})
+    for n_demos, (passes, others) in seen.items():
+        assert 1 <= passes <= ns.FULL_PASSES + ns.ORIGINAL_FULL_PASSES, (n_demos, passes)
+        assert others == {ns.SUBSAMPLE_ROWS}
