@@ -32,7 +32,6 @@ from __future__ import annotations
 from typing import Annotated, ClassVar, Literal
 
 import numpy as np
-from scipy.linalg import eigh
 
 from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint.base import ConstraintModel, check_rows_asked
@@ -125,6 +124,8 @@ class ManifoldConstraint(ConstraintModel):
         C = within_covariance(Phi, groups)
         G = np.einsum("nfq,ngq->fg", J, J) / len(X)
         G += RIDGE * np.trace(G) / len(G) * np.eye(len(G))
+        from scipy.linalg import eigh  # here: a run that fits no manifold does not import SciPy's linalg
+
         lam, W = eigh(C, G)
         self.variation_ = np.maximum(lam, 0.0) * self.scale_**2  # in squared length units
         self.weights_ = W
