@@ -5,6 +5,7 @@ import sys
 from collections import Counter
 
 import numpy as np
+import pytest
 
 from ccl_cli import diagnostics
 from ccl_cli import simulate as sim
@@ -205,3 +206,29 @@ def test_ncl_makes_a_bounded_number_of_passes_over_all_the_rows():
     for n_demos, (passes, others) in seen.items():
         assert 1 <= passes <= ns.FULL_PASSES + ns.ORIGINAL_FULL_PASSES, (n_demos, passes)
         assert others == {ns.SUBSAMPLE_ROWS}
+
+
+def test_the_truth_comparison_reads_its_angles_at_a_bounded_sample(monkeypatch):
+    """Against the ground truth, the angles are read at TRUTH_ROWS samples evenly spaced when
+    there are more: the same median and k agreement as over every sample, at a bounded cost."""
+    from ccl_cli.app import truth
+    from ccl_cli.learn.constraint import StateIndependentConstraint
+
+    d = sim.toy2d(task=True, vary_constraint=True, n_demos=3000, n_steps=100, seed=4)
+    assert d.n_samples > 5 * truth.TRUTH_ROWS
+    model = StateIndependentConstraint(n_constraints=1).fit(d.X, d.U)
+    read = []
+    real = truth.per_sample
+
+    def counted(learnt, true):
+        read.append(len(learnt))
+        return real(learnt, true)
+
+    monkeypatch.setattr(truth, "per_sample", counted)
+    found = truth.compare(model, d, d.U, "train")
+    assert read == [truth.TRUTH_ROWS] and found["read_at"] == truth.TRUTH_ROWS
+    assert found["samples"] == d.n_samples
+    every, k_l, k_t = real(model.constraint(d.X), truth.true_rows(d))
+    assert found["median_deg"] == pytest.approx(float(np.median(every)), rel=0.02)
+    assert found["p90_deg"] == pytest.approx(float(np.percentile(every, 90)), rel=0.02)
+    assert found["k_agrees"] == float(np.mean(k_l == k_t)) == 1.0
