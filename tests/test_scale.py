@@ -232,3 +232,28 @@ def test_the_truth_comparison_reads_its_angles_at_a_bounded_sample(monkeypatch):
     assert found["median_deg"] == pytest.approx(float(np.median(every)), rel=0.02)
     assert found["p90_deg"] == pytest.approx(float(np.percentile(every, 90)), rel=0.02)
     assert found["k_agrees"] == float(np.mean(k_l == k_t)) == 1.0
+
+
+def test_a_demonstration_of_one_sample_takes_the_pooled_model_per_demonstration():
+    """The 10⁶ crash of the varying toy ("need at least 2 samples, got 1 sample"): the winner of
+    the states' geometry is a model per demonstration with a task part, and one demonstration
+    held a single sample. It takes the estimator fitted on all the samples; every other
+    demonstration keeps its own model, the same as without the scrap."""
+    from ccl_cli.learn.constraint import LinearConstraint, PerDemonstration
+
+    d = sim.toy2d(task=True, vary_constraint=True, n_demos=12, n_steps=100, seed=0)
+    one = Demonstrations.concatenate([d, d.subset(np.arange(1))])
+    assert np.bincount(one.demo)[-1] == 1
+    make = lambda: PerDemonstration(LinearConstraint(regressors="identity", task=True,  # noqa: E731
+                                                     n_constraints=1))
+    model = make().fit(one.X, one.U, groups=one.demo)
+    alone = make().fit(d.X, d.U, groups=d.demo)
+    scrap = int(one.demo.max())
+    assert model.selection_["pooled"] == [scrap] and "pooled" not in alone.selection_
+    pooled = LinearConstraint(regressors="identity", task=True, n_constraints=1).fit(one.X, one.U)
+    np.testing.assert_allclose(model.models_[scrap].constraint(one.X[-1:]), pooled.constraint(one.X[-1:]))
+    for k in alone.models_:
+        np.testing.assert_array_equal(model.constraint(d.X[d.demo == k], groups=d.demo[d.demo == k]),
+                                      alone.constraint(d.X[d.demo == k], groups=d.demo[d.demo == k]))
+    P = model.projection(one.X, groups=one.demo)
+    assert P.shape == (one.n_samples, 2, 2) and np.isfinite(P).all()
