@@ -257,3 +257,33 @@ def test_a_demonstration_of_one_sample_takes_the_pooled_model_per_demonstration(
                                       alone.constraint(d.X[d.demo == k], groups=d.demo[d.demo == k]))
     P = model.projection(one.X, groups=one.demo)
     assert P.shape == (one.n_samples, 2, 2) and np.isfinite(P).all()
+
+
+def test_a_model_per_demonstration_measures_its_held_out_error_on_a_bounded_sample(monkeypatch):
+    """The held-out NPOE of a model per demonstration (5 folds of blocks inside each) is measured
+    on the bounded sample of whole demonstrations above TUNE_MAX_ROWS samples: the fits it makes
+    do not grow with the number of demonstrations (they were 5 per demonstration: 50,000 small
+    fits of the varying toy at 10⁶)."""
+    from ccl_cli.learn.constraint import LinearConstraint, PerDemonstration
+    from ccl_cli.learn.defaults import TUNE_MAX_ROWS
+
+    fits = []
+    real = LinearConstraint.fit
+
+    def counted(self, X, U, **kw):
+        fits.append(len(X))
+        return real(self, X, U, **kw)
+
+    monkeypatch.setattr(LinearConstraint, "fit", counted)
+    seen = {}
+    for n_demos in (200, 2000):
+        d = sim.toy2d(task=True, vary_constraint=True, n_demos=n_demos, n_steps=100, seed=0)
+        fits.clear()
+        model = PerDemonstration(LinearConstraint(regressors="identity", task=True, n_constraints=1)).fit(
+            d.X, d.U, groups=d.demo, derivative={"window": 5, "order": 2})
+        seen[n_demos] = (d.n_samples, len(fits) - n_demos, sum(fits) - d.n_samples, model.heldout_)
+    small, large = seen[200], seen[2000]
+    assert small[0] <= TUNE_MAX_ROWS < large[0]
+    assert "subset" not in small[3] and "whole demonstrations" in large[3]["subset"]
+    assert large[1] <= 1.5 * small[1] and large[2] <= 1.5 * TUNE_MAX_ROWS * 5
+    assert 0 < large[3]["mean"] < 0.1 and 0 < small[3]["mean"] < 0.1  # the constraints hold held out
