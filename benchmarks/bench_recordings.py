@@ -2,7 +2,8 @@
 find what was injected, and which rule chooses the number of constraints right — including
 "no constraint".
 
-    python benchmarks/bench_recordings.py [--seeds 10] [--pipeline-seeds 1] [--only faults,rank,pipeline]
+    python benchmarks/bench_recordings.py [--seeds 10] [--pipeline-seeds 1] [--realism-seeds 3]
+                                          [--only faults,rank,pipeline,realism] [--cases PREFIX,...]
 
 JSON lines on stdout (one per case and seed, then one summary per case), the tables on
 stderr at the end. Sections:
@@ -19,6 +20,13 @@ stderr at the end. Sections:
   FILE`` and ``ccl run`` with ``stages: [learn-v, learn-a, learn-pi]``, default options:
   status, chosen k, the angle of the learnt normal to the truth, held-out NPOE and NPPE,
   learn-pi's held-out NCPE_obs, warnings.
+* ``realism`` — what real logs add (issue 30: compliance along the rows, tremor, drift, filtered
+  velocities) on hinges, slides, surfaces worked in phases and free motion: ``ccl simulate NAME
+  [--set ...]`` then ``ccl learn-a FILE`` with its defaults, the learnt rows at every sample as
+  ``ccl predict`` gives them against the true ones stored in the file: k against the truth's,
+  the median and 90th percentile over the constrained samples of the largest principal angle
+  (a sample whose learnt rank differs counts as 90°), the share of free samples (approach,
+  retract) left free, status and what learn-a chose.
 """
 
 from __future__ import annotations
@@ -37,6 +45,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+
+from learnt import largest_angles, learn_a, true_rows  # noqa: E402
 
 from ccl_cli import simulate as sim  # noqa: E402
 from ccl_cli.cli import main as ccl  # noqa: E402
@@ -425,6 +436,98 @@ def pipeline_section(seeds: range) -> None:
                     f"{run['status']} {','.join(run['warnings'])}")
 
 
+# -- realism -----------------------------------------------------------------------------------
+#: (case, ccl simulate problem, its --set / option arguments): the defaults of each simulation, then
+#: one effect pushed to the largest of the real logs (docs/recordings.md).
+REALISM_CASES: list[tuple[str, str, list[str]]] = [
+    ("hinge", "hinge", []),
+    ("hinge 4 demos", "hinge", ["--n-demos", "4"]),
+    ("hinge 10 Hz", "hinge", ["--rate", "10"]),
+    ("hinge grasp ±3 cm", "hinge", ["--set", "grasp=0.03"]),
+    ("hinge compliance 6 mm", "hinge", ["--set", "compliance=0.006"]),
+    ("hinge tremor 0.5 mm", "hinge", ["--set", "tremor=0.0005"]),
+    ("hinge drift 0.5 mm/s", "hinge", ["--set", "drift=0.0005"]),
+    ("hinge filtered velocities", "hinge", ["--set", "velocities=filtered"]),
+    ("slide", "slide", []),
+    ("slide bow 25 mm", "slide", ["--set", "bow=0.025"]),
+    ("slide compliance 4 mm", "slide", ["--set", "compliance=0.004"]),
+    ("slide drift 0.5 mm/s", "slide", ["--set", "drift=0.0005"]),
+    ("slide filtered velocities", "slide", ["--set", "velocities=filtered"]),
+    ("contact_phases plane", "contact_phases", []),
+    ("contact_phases sphere", "contact_phases", ["--set", "surface=sphere"]),
+    ("contact_phases compliance 4 mm", "contact_phases", ["--set", "compliance=0.004"]),
+    ("contact_phases drift 0.2 mm/s", "contact_phases", ["--set", "drift=0.0002"]),
+    ("contact_phases filtered velocities", "contact_phases", ["--set", "velocities=filtered"]),
+    ("reach_goal", "reach_goal", []),
+    ("reach_goal filtered velocities", "reach_goal", ["--set", "velocities=filtered"]),
+    ("handwriting", "handwriting", []),
+    ("handwriting 200 Hz", "handwriting", ["--rate", "200"]),
+]
+
+
+def realism_run(f: Path, out: Path) -> dict:
+    """learn-a's defaults on one simulated file against its truth (module docstring)."""
+    t0 = time.perf_counter()
+    got = learn_a([f], out)
+    row = {"exit": got.code, "k": got.k, "status": got.status, "seconds": round(time.perf_counter() - t0, 1)}
+    if got.code:
+        return row
+    truth = true_rows(got.data)
+    true_k = np.array([len(r) for r in truth])
+    angles = largest_angles(got.rows, truth)
+    held = true_k > 0
+    learnt_k = np.array([len(r) for r in got.rows])
+    learnt_free = learnt_k == 0
+    found = held & (learnt_k == true_k)
+    row.update(true_k=int(true_k.max()), chose=got.chose,
+               angle_median=float(np.median(angles[held])) if held.any() else None,
+               angle_p90=float(np.percentile(angles[held], 90)) if held.any() else None,
+               found=float(found.sum() / held.sum()) if held.any() else None,
+               angle_where_found=float(np.median(angles[found])) if found.any() else None,
+               free_left_free=float(learnt_free[~held].mean()) if (~held).any() and held.any() else None,
+               test_NPPE=(got.summary["stages"]["learn-a"].get("test") or {}).get("NPPE"),
+               warnings=sorted({w["code"] for w in got.summary.get("warnings", [])}))
+    return row
+
+
+def realism_section(seeds: range, only: list[str]) -> None:
+    title = ("realism (learn-a defaults vs truth): k right, k chosen, angle° (median over constrained "
+             "samples, worst seed), free samples left free (worst), where the rows are found (contact: "
+             "share of the constrained samples with the true rank, angle there), status, chosen")
+    with tempfile.TemporaryDirectory() as tmp:
+        tmpdir = Path(tmp)
+        for n, (case, problem, args) in enumerate(REALISM_CASES):
+            if only and not any(case.startswith(o) for o in only):
+                continue
+            runs = []
+            for seed in seeds:
+                f = tmpdir / f"{problem}_{n}_{seed}.h5"
+                code, _ = _run(["simulate", problem, "-o", str(f), "--seed", str(seed), "-q", *args])
+                if code:
+                    emit({"section": "realism", "case": case, "seed": seed, "error": f"simulate exit {code}"})
+                    continue
+                row = {"section": "realism", "case": case, "seed": seed,
+                       **realism_run(f, tmpdir / f"a_{f.stem}")}
+                emit(row)
+                runs.append(row)
+            ok = [r for r in runs if r["exit"] == 0]
+            right = [r for r in ok if r["k"] == r["true_k"]]
+            angles = [r["angle_median"] for r in right if r["angle_median"] is not None]
+            free = [r["free_left_free"] for r in ok if r.get("free_left_free") is not None]
+            found = [(r["found"], r["angle_where_found"]) for r in right if r.get("found") is not None]
+            ks = dict(sorted(Counter(r["k"] for r in ok).items()))
+            emit({"section": "realism", "case": case, "summary": True, "runs": len(runs),
+                  "right_k": len(right), "k": ks, "angle_median_max": max(angles) if angles else None})
+            TABLES[title].append(
+                f"{case:36s} truth k={ok[0]['true_k'] if ok else '?'}  {len(right)}/{len(runs)}  k={ks}"
+                f"  angle {_fmt(max(angles)) if angles else '–':>6s}"
+                + (f"  free {min(free):.2f}" if free else "")
+                + (f"  rows found in {min(f for f, _ in found):.2f}–{max(f for f, _ in found):.2f} of the "
+                   f"constrained samples, {_fmt(max((a for _, a in found if a is not None), default=None))}° "
+                   "there" if found and min(f for f, _ in found) < 0.99 else "")
+                + f"  {dict(Counter(r['status'] for r in ok))}  {sorted({r['chose'] for r in ok})}")
+
+
 def _fmt(v) -> str:
     if v is None:
         return "–"
@@ -435,8 +538,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--pipeline-seeds", type=int, default=1)
-    ap.add_argument("--only", default="faults,rank,pipeline", help="sections (faults, rank, pipeline)")
-    ap.add_argument("--cases", default="", help="rank: comma-separated case prefixes")
+    ap.add_argument("--realism-seeds", type=int, default=3)
+    ap.add_argument("--only", default="faults,rank,pipeline,realism",
+                    help="sections (faults, rank, pipeline, realism)")
+    ap.add_argument("--cases", default="", help="rank, realism: comma-separated case prefixes")
     ap.add_argument("--quick", action="store_true", help="30-s tracker recordings in the rank section")
     args = ap.parse_args()
     sections = args.only.split(",")
@@ -447,6 +552,8 @@ def main() -> None:
         rank_section(range(args.seeds), args.quick, [c for c in args.cases.split(",") if c])
     if "pipeline" in sections:
         pipeline_section(range(args.pipeline_seeds))
+    if "realism" in sections:
+        realism_section(range(args.realism_seeds), [c for c in args.cases.split(",") if c])
     for title, lines in TABLES.items():
         print(f"\n## {title}", file=sys.stderr)
         for line in lines:

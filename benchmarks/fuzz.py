@@ -8,9 +8,9 @@ metadata.yaml), pipeline configs (YAML) and batch manifests. Each case mutates o
 them — byte flips, truncation, zeroed blocks, inserted/deleted bytes, or a structural
 edit (a CSV cell, a YAML/JSON value, an HDF5 attribute or dataset replaced by one of
 another type, shape or value, links and external storage) — and runs the command that
-reads it (``ccl convert`` / ``learn-a`` / ``inspect`` for recordings, ``predict`` for
-models, ``run`` for configs, the manifest planner for manifests) in a forked child with
-a wall-clock limit.
+reads it (``ccl convert`` / ``learn-a`` / ``inspect`` for recordings, ``predict`` /
+``export`` / ``inspect`` for models, ``run`` for configs, the manifest planner for
+manifests) in a forked child with a wall-clock limit.
 
 Mixes (``--mix``): ``classic`` — the mutations above; ``hostile`` and ``even`` — 70 % / 35 %
 of the cases instead get one of issue 20: datasets declaring gigabytes they do not hold
@@ -18,8 +18,12 @@ of the cases instead get one of issue 20: datasets declaring gigabytes they do n
 over the line cap (run with ``CCL_MAX_BYTES=1M``), damaged attribute tables, inputs
 replaced by FIFOs, sockets, folders or /dev/zero (also the storage files a ROS 2 bag's
 metadata names), storage files and manifest paths outside their folder, and JSON MCAP
-messages missing a key or holding one of another type. Peak RSS of each case's process
-is recorded (``peak_rss_mb``, ``over_500MB``) beside its time (``over_20s``).
+messages missing a key or holding one of another type. ``round4`` — 70 % get one of issue
+28 instead: ROS 1 chunk and index positions outside the file, 5,000-digit integers (YAML,
+JSON attributes, CSV cells, JSON messages), input names that are not UTF-8, CSVs with
+thousands of columns no config reads, YAML key bombs and duplicate keys; ``all`` — 30 % of
+each kind. Peak RSS of each case's process is recorded (``peak_rss_mb``, ``over_500MB``)
+beside its time (``over_20s``).
 
 Outcomes per format: ``ok`` (exit 0), ``error`` (exit 2, one ``ccl: error:`` line),
 ``exit1`` (a learning failure, one line), ``internal`` (anything but our error classes:
@@ -41,6 +45,7 @@ import os
 import random
 import shutil
 import signal
+import struct
 import subprocess
 import sys
 import tempfile
@@ -115,6 +120,8 @@ def build_fixtures(root: Path) -> list[dict[str, Any]]:
     models = {
         "nhat": (toy, ["learn-a", "--method", "nhat"]),
         "per_demo": (toy, ["learn-a", "--method", "nhat", "--per-demo"]),
+        "auto": (parabola, ["learn-a"]),
+        "manifold": (toy, ["learn-a", "--method", "manifold"]),
         "linear": (parabola, ["learn-a", "--method", "linear", "--regressors", "polynomial",
                               "--degree", "2"]),
         "alpha": (parabola, ["learn-a", "--method", "alpha", "--n-centres", "4"]),
@@ -530,6 +537,29 @@ def long_line(raw: bytes, rng: random.Random) -> tuple[str, bytes]:
     return "long:cell", b"\n".join(lines)
 
 
+#: positions a damaged ROS 1 bag may declare: past the end, beyond any seek, "negative"
+#: (a small unsigned value's two's complement), inside the magic, zero
+ROS1_POSITIONS = ["past-end", "beyond-seek", "max", "negative", "in-magic", "zero", "at-end"]
+
+
+def ros1_positions(raw: bytes, rng: random.Random) -> tuple[str, bytes]:
+    """A ROS 1 bag with one declared position rewritten: a chunk info record's chunk_pos,
+    or the bag header's index_pos."""
+    fields = [(name, at + len(name)) for name in (b"chunk_pos=", b"index_pos=")
+              for at in _find_all(raw, name)]
+    if not fields:
+        return byte_mutation(raw, rng)
+    name, at = rng.choice(fields)
+    kind = rng.choice(ROS1_POSITIONS)
+    value = {"past-end": len(raw) + rng.randrange(1, 1 << 20),
+             "beyond-seek": (1 << 63) + rng.randrange(1 << 20), "max": (1 << 64) - 1,
+             "negative": (1 << 64) - rng.randrange(1, 4096), "in-magic": rng.randrange(1, 13),
+             "zero": 0, "at-end": len(raw)}[kind]
+    b = bytearray(raw)
+    struct.pack_into("<Q", b, at, value)
+    return f"ros1-position:{name.decode().rstrip('=')}:{kind}", bytes(b)
+
+
 def outside_manifest(target: Path, rng: random.Random) -> str:
     """A manifest that names paths outside its folder: ../ in a job's files or out."""
     import yaml
@@ -583,11 +613,176 @@ def hostile_mutation(base: dict[str, Any], dst: Path, target: Path, rng: random.
     return None
 
 
+# -- the mutations of issue 28: positions, wide integers, names, wide tables, YAML bombs ------------
+#: a placeholder replaced by a 5,000-digit integer in the text (Python cannot print one)
+HUGE_INT = "__CCL_FUZZ_HUGE_INT__"
+WIDE_INT = "9" * 5000
+
+
+def _with_huge_int(data: Any, rng: random.Random) -> Any:
+    """``data`` with one node (a value, or an item) replaced by :data:`HUGE_INT`."""
+    data = copy.deepcopy(data)
+    paths = [p for p in _paths(data) if p]
+    if not paths:
+        return HUGE_INT
+    path = rng.choice(paths)
+    parent = data
+    for key in path[:-1]:
+        parent = parent[key]
+    parent[path[-1]] = HUGE_INT
+    return data
+
+
+def huge_integer(base: dict[str, Any], target: Path, rng: random.Random) -> str | None:
+    """A 5,000-digit integer (beyond Python's 4,300-digit int(str) limit) in a YAML value, a
+    JSON attribute of an HDF5 file, a CSV cell or a JSON MCAP message."""
+    import yaml
+
+    fmt, sign = base["format"], rng.choice(["", "-"])
+    if base.get("yaml"):
+        text = yaml.safe_dump(_with_huge_int(yaml.safe_load(target.read_bytes()), rng), sort_keys=False)
+        target.write_text(text.replace(HUGE_INT, sign + WIDE_INT))
+        return "huge-int:yaml"
+    if fmt in ("hdf5", "model"):
+        import h5py
+
+        with h5py.File(target, "a") as f:
+            found = [(obj, k, _json(obj.attrs[k])) for obj in [f, *_objects(f)] for k in obj.attrs]
+            found = [item for item in found if item[2] is not None]
+            if not found:
+                return None
+            obj, key, value = rng.choice(found)
+            value = _with_huge_int(value, rng)
+            obj.attrs[key] = json.dumps(value).replace(f'"{HUGE_INT}"', sign + WIDE_INT)
+        return f"huge-int:attr:{key}"
+    if fmt == "csv":
+        lines = target.read_text().splitlines()
+        i = rng.randrange(1, len(lines))
+        cells = lines[i].split(",")
+        cells[rng.randrange(len(cells))] = sign + WIDE_INT
+        lines[i] = ",".join(cells)
+        target.write_text("\n".join(lines) + "\n")
+        return "huge-int:csv"
+    if fmt == "mcap" and base["name"] == "mcap-json":
+        import writers
+
+        rec = writers.joint_recording(n=60, gap_after=30)
+        msgs = [writers.msg_dict(rec, i) for i in range(len(rec.t_ns))]
+        k = rng.randrange(len(msgs))
+        msgs[k] = _with_huge_int(msgs[k], rng)
+        raw = [json.dumps(m).replace(f'"{HUGE_INT}"', sign + WIDE_INT).encode() for m in msgs]
+        writers.write_mcap_json(target, rec, raw)
+        return "huge-int:json-message"
+    return None
+
+
+def _objects(f: Any) -> list[Any]:
+    out: list[Any] = []
+    f.visititems(lambda name, obj: out.append(obj))
+    return out
+
+
+def _json(value: Any) -> Any:
+    """The JSON mapping or list an attribute holds as text, else None."""
+    if not isinstance(value, str | bytes):
+        return None
+    text = value.decode("utf-8", "replace") if isinstance(value, bytes) else value
+    if text[:1] not in ("[", "{"):
+        return None
+    try:
+        return json.loads(text)
+    except (ValueError, RecursionError):
+        return None
+
+
+def key_bomb(target: Path, rng: random.Random) -> str:
+    """A YAML file of 200,000 keys (3.4 MB), block or flow style, or 20,000 under one key of
+    the real file."""
+    kind = rng.choice(["block", "flow", "inside"])
+    if kind == "block":
+        target.write_text("data:\n" + "".join(f"  k{i:06d}: {i}\n" for i in range(200_000)))
+    elif kind == "flow":
+        target.write_text("data: {" + ", ".join(f"k{i:06d}: {i}" for i in range(200_000)) + "}\n")
+    else:
+        bomb = "".join(f"  k{i}: [{i}, {i}]\n" for i in range(40_000))
+        target.write_text(target.read_text() + "bomb:\n" + bomb)
+    return f"key-bomb:{kind}"
+
+
+def duplicate_key(target: Path, rng: random.Random) -> str:
+    """A line ``key: ...`` of the YAML file given twice (right after itself, or at the end
+    of its mapping)."""
+    import re
+
+    lines = target.read_text().splitlines()
+    keyed = [i for i, ln in enumerate(lines) if re.match(r"^\s*[A-Za-z_][\w.-]*:", ln)]
+    if not keyed:
+        return "duplicate-key:none"
+    i = rng.choice(keyed)
+    lines.insert(i + 1, lines[i])
+    target.write_text("\n".join(lines) + "\n")
+    return "duplicate-key"
+
+
+def wide_csv(target: Path, rng: random.Random) -> str:
+    """The CSV with thousands of columns no config reads inserted (at the front, the middle or
+    the end)."""
+    lines = target.read_text().splitlines()
+    extra = rng.choice([1_000, 20_000, 20_000, 200_000])
+    where = rng.choice(["front", "middle", "end"])
+    header = lines[0].split(",")
+    at = {"front": 0, "middle": len(header) // 2, "end": len(header)}[where]
+    names = [f"unused_{j}" for j in range(extra)]
+    rows = []
+    for k, line in enumerate(lines):
+        cells = line.split(",")
+        cells[at:at] = names if k == 0 else ["0.5"] * extra
+        rows.append(",".join(cells))
+    target.write_text("\n".join(rows) + "\n")
+    return f"wide-csv:{extra}:{where}"
+
+
+def odd_name(dst: Path) -> Path:
+    """``dst`` renamed to a name that is not UTF-8 (bytes 0xff 0xfe before its suffix)."""
+    new = dst.with_name(os.fsdecode(b"name\xff\xfe" + os.fsencode(dst.suffix)))
+    dst.rename(new)
+    return new
+
+
+def round4_mutation(base: dict[str, Any], dst: Path, target: Path, rng: random.Random
+                    ) -> tuple[str, Path] | None:
+    """One of the mutations of issue 28 for this input: a file name that is not UTF-8 (a
+    quarter of them, any input), else what fits its format — ROS 1 chunk and index positions,
+    a wide CSV or a 5,000-digit cell, a YAML key bomb, a duplicate key or a 5,000-digit value,
+    a 5,000-digit integer in an HDF5 JSON attribute or a JSON message. Returns (mutation, the
+    input's path now), or None when nothing fits (a MATLAB file, a binary storage file)."""
+    fmt = base["format"]
+    if rng.random() < 0.25:
+        return "odd-name", odd_name(dst)
+    if fmt == "ros1":
+        mutation, new = ros1_positions(target.read_bytes(), rng)
+        target.write_bytes(new)
+        return mutation, dst
+    if fmt == "csv":
+        return (wide_csv(target, rng) if rng.random() < 0.6 else huge_integer(base, target, rng)), dst
+    if base.get("yaml"):
+        kind = rng.choice(["key-bomb", "duplicate-key", "huge-int"])
+        if kind == "key-bomb":
+            return key_bomb(target, rng), dst
+        if kind == "duplicate-key":
+            return duplicate_key(target, rng), dst
+        return huge_integer(base, target, rng), dst
+    mutation = huge_integer(base, target, rng)
+    return (mutation, dst) if mutation is not None else None
+
+
 # -- one case ----------------------------------------------------------------------------------------
-def make_case(base: dict[str, Any], work: Path, rng: random.Random, hostile: float = 0.0
-              ) -> tuple[str, list[str] | None, Path, dict[str, str]]:
+def make_case(base: dict[str, Any], work: Path, rng: random.Random, hostile: float = 0.0,
+              round4: float = 0.0) -> tuple[str, list[str] | None, Path, dict[str, str]]:
     """Copy the base input into ``work``, mutate it, and return (mutation, argv, path, the
-    case's environment). ``hostile``: the share of cases given a mutation of issue 20."""
+    case's environment). ``hostile``: the share of cases given a mutation of issue 20;
+    ``round4``: of issue 28 (drawn only when positive, so the other mixes' seeds give the
+    cases they gave before)."""
     if work.exists():
         shutil.rmtree(work)
     work.mkdir(parents=True)
@@ -602,6 +797,10 @@ def make_case(base: dict[str, Any], work: Path, rng: random.Random, hostile: flo
     fmt = base["format"]
     env: dict[str, str] = {}
     drawn = hostile_mutation(base, dst, target, rng) if rng.random() < hostile else None
+    if drawn is None and round4 > 0 and rng.random() < round4:
+        found = round4_mutation(base, dst, target, rng)
+        if found is not None:
+            drawn, dst = (found[0], {}), found[1]
     r = rng.random()
     if drawn is not None:
         mutation, env = drawn
@@ -622,9 +821,12 @@ def make_case(base: dict[str, Any], work: Path, rng: random.Random, hostile: flo
     if fmt == "config":
         return mutation, ["run", str(dst), "-o", str(out), "-q"], dst, env
     if fmt == "model":
-        command = "inspect-model" if rng.random() < 0.25 else "predict"
-        if command == "inspect-model":
+        r = rng.random()
+        if r < 0.25:
             return mutation, ["inspect", str(dst), "--json", "-q"], dst, env
+        if r < 0.45:
+            return mutation, ["export", str(dst), "-o", str(work / ("e.json" if r < 0.35 else "e.yaml")),
+                              "-q"], dst, env
         return mutation, ["predict", str(dst), str(base["data"]), "-o", str(work / "p.csv"), "-q"], dst, env
     cfg = ["-c", str(base["config"])] if base.get("config") else []
     command = rng.choice(["convert", "learn-a", "inspect"])
@@ -724,8 +926,9 @@ def run_subprocess(argv: list[str] | None, manifest: Path, timeout: float,
     return proc.returncode, proc.stderr
 
 
-#: share of cases given a mutation of issue 20, per mix
-MIXES = {"classic": 0.0, "hostile": 0.7, "even": 0.35}
+#: share of cases given a mutation of issue 20 and of issue 28, per mix
+MIXES = {"classic": (0.0, 0.0), "hostile": (0.7, 0.0), "even": (0.35, 0.0), "round4": (0.0, 0.7),
+         "all": (0.3, 0.3)}
 
 
 def fuzz(cases: int, seed: int = 0, timeout: float = 20.0, subprocess_cases: int = 0,
@@ -758,6 +961,7 @@ def fuzz(cases: int, seed: int = 0, timeout: float = 20.0, subprocess_cases: int
         biggest: list[tuple[float, str, str]] = []
         over = {"over_20s": 0, "over_500MB": 0}
         sub_counts: collections.Counter = collections.Counter()
+        kinds: collections.Counter = collections.Counter()  # mutations by kind (before the first ':')
         errfile = tmp / "stderr.txt"
 
         def result(done: int) -> dict[str, Any]:
@@ -769,6 +973,7 @@ def fuzz(cases: int, seed: int = 0, timeout: float = 20.0, subprocess_cases: int
                     "total": {k: total.get(k, 0) for k in OUTCOMES},
                     "per_format": {f: {k: c.get(k, 0) for k in OUTCOMES} for f, c in sorted(counts.items())},
                     "through_ccl_executable": {k: sub_counts.get(k, 0) for k in OUTCOMES},
+                    "mutations": dict(kinds.most_common()),
                     "internal_groups": groups.most_common(60), "examples": examples,
                     "slowest": slowest, "peak_rss_mb": biggest, **over}
 
@@ -776,7 +981,7 @@ def fuzz(cases: int, seed: int = 0, timeout: float = 20.0, subprocess_cases: int
             if progress is not None and i and i % 200 == 0:
                 progress.write_text(json.dumps(result(i)) + "\n")
             base = bases[i % len(bases)] if i < len(bases) else rng.choice(bases)
-            mutation, argv, dst, env = make_case(base, tmp / "case", rng, MIXES[mix])
+            mutation, argv, dst, env = make_case(base, tmp / "case", rng, *MIXES[mix])
             # manifests through the executable would run whole batches: they go through the
             # planner in-process only
             through_ccl = i < subprocess_cases and argv is not None
@@ -789,6 +994,7 @@ def fuzz(cases: int, seed: int = 0, timeout: float = 20.0, subprocess_cases: int
                 err = errfile.read_text(errors="replace") if errfile.exists() else ""
             outcome, detail = classify(code, err)
             counts[base["format"]][outcome] += 1
+            kinds[mutation.split(":")[0]] += 1
             if through_ccl:
                 sub_counts[outcome] += 1
             slowest = sorted([*slowest, (round(seconds, 2), base["name"], mutation)], reverse=True)[:5]
@@ -831,7 +1037,8 @@ def main() -> None:
     ap.add_argument("--formats", default=None, help="comma-separated subset of formats")
     ap.add_argument("--progress", type=Path, default=None, help="write partial results here every 200 cases")
     ap.add_argument("--mix", choices=sorted(MIXES), default="classic",
-                    help="share of cases given the mutations of issue 20 (bombs, special files, ...)")
+                    help="share of cases given the mutations of issue 20 (bombs, special files, ...) and of "
+                         "issue 28 (positions, wide integers, names, wide CSVs, YAML bombs, duplicate keys)")
     args = ap.parse_args()
     result = fuzz(args.cases, args.seed, args.timeout, args.subprocess, args.keep,
                   args.formats.split(",") if args.formats else None, args.progress, args.mix)

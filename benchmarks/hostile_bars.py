@@ -10,6 +10,14 @@ read-only parent (as an unprivileged user, via setpriv, when run as root); ``uli
 with learn-a and batch; damaged models (attribute tables damaged until libhdf5 fails
 iterating them) through predict and inspect.
 
+Cases of issue 28 (round 4): a Dask batch whose only worker, or whose scheduler, is SIGKILLed
+mid-batch (a LocalCluster in processes of its own, tests/dask_cluster.py; seconds from the
+kill to ccl's exit, its exit status and lines, and a local rerun's metrics against a clean
+local run); ROS 1 bags declaring chunk and index positions outside the file; a 5,000-digit
+integer in a config; a recording whose name is not UTF-8 (learn-a and a batch glob); a
+3.4-MB YAML of 200,000 keys; a 128-MB CSV of 10⁶ columns of which 3 are read (learn-a and
+inspect, peak RSS); ``--force`` onto a folder holding a look-alike run.json.
+
 Every command runs as ``python -m ccl_cli.cli``, so ``PYTHONPATH=<a checkout>`` measures
 another version of ccl (the "before" of a change).
 
@@ -40,13 +48,24 @@ CCL = [sys.executable, "-m", "ccl_cli.cli"]
 STAGE = {"learn-a": {"method": "nhat"}, "stages": ["learn-a"], "output": {"plots": False}}
 
 
+#: starts the command as its own child and writes that child's peak RSS (KB) to argv[1]: a
+#: process started straight from this (large) one would count this one's pages in its ru_maxrss
+#: (Linux keeps the high-water mark of the address space it replaces at exec)
+LAUNCH = ("import os, resource, signal, subprocess, sys; p = subprocess.run(sys.argv[2:]); "
+          "open(sys.argv[1], 'w').write(str(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)); "
+          "p.returncode < 0 and (signal.signal(-p.returncode, signal.SIG_DFL), os.kill(os.getpid(), "
+          "-p.returncode)); sys.exit(p.returncode)")
+
+
 def run(argv: list[str], cwd: Path, timeout: float = 60.0, preexec: Any = None,
         prefix: list[str] | None = None) -> dict[str, Any]:
-    """Run one ccl command; exit status, wall and CPU seconds, peak RSS (MB) and stderr lines."""
-    err = cwd / ".stderr"
+    """Run one ccl command; exit status, wall and CPU seconds, peak RSS (MB, the command's own:
+    :data:`LAUNCH`) and stderr lines."""
+    err, rss = cwd / ".stderr", cwd / ".rss"
     t0 = time.monotonic()
     with open(err, "wb") as e:
-        proc = subprocess.Popen([*(prefix or []), *CCL, *map(str, argv)], cwd=cwd, stdin=subprocess.DEVNULL,
+        proc = subprocess.Popen([*(prefix or []), sys.executable, "-c", LAUNCH, rss, *CCL, *map(str, argv)],
+                                cwd=cwd, stdin=subprocess.DEVNULL,
                                 stdout=subprocess.DEVNULL, stderr=e, preexec_fn=preexec,
                                 start_new_session=True)
         code: int | None = None
@@ -62,8 +81,10 @@ def run(argv: list[str], cwd: Path, timeout: float = 60.0, preexec: Any = None,
     seconds = time.monotonic() - t0
     lines = [ln for ln in err.read_text(errors="replace").splitlines() if ln.strip()]
     err.unlink()
+    peak = int(rss.read_text()) if rss.exists() else usage.ru_maxrss  # killed: at least the launcher's
+    rss.unlink(missing_ok=True)
     return {"exit": code, "seconds": round(seconds, 2), "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
-            "peak_rss_mb": round(usage.ru_maxrss / 1024, 1),
+            "peak_rss_mb": round(peak / 1024, 1),
             "stderr_lines": len(lines), "first_line": lines[0][:200] if lines else ""}
 
 
@@ -205,6 +226,130 @@ for o in objs:
 """
 
 
+def round4(root: Path, toy: Path, want: Any) -> dict[str, Any]:
+    """The bars of issue 28 (see the module's docstring)."""
+    import fuzz
+    import writers
+
+    results: dict[str, Any] = {}
+    pipeline = _yaml(root / "pipe4.yaml", STAGE)
+    if want("dask"):
+        recs = root / "recs"
+        recs.mkdir()
+        from ccl_cli import simulate as sim
+        from ccl_cli.io import write_demonstrations
+
+        for i in range(8):
+            write_demonstrations(recs / f"rec_{i}.h5", sim.toy2d(constraint="parabola", n_demos=10, seed=i))
+        clean = root / "clean"
+        run(["batch", "--files", recs / "*.h5", "-c", pipeline, "-o", clean, "-q", "-j", "1"], root,
+            timeout=300)
+        for victim in ("worker", "scheduler"):
+            results[f"dask_{victim}_killed"] = dask_kill(root, recs, pipeline, victim, clean)
+    if want("ros1_positions"):
+        good = writers.write_ros1_bag(root / "good.bag", writers.joint_recording(n=60, gap_after=30))
+        raw = good.read_bytes()
+        cfg = _yaml(root / "bag1.yaml", {"data": {"state": {"topic": "/joint_states", "field": "position"},
+                                                  "action": {"derive": "state"}}, **STAGE})
+        rng, seen = random.Random(28), set()
+        for _ in range(400):
+            mutation, damaged = fuzz.ros1_positions(raw, rng)
+            if mutation in seen:
+                continue
+            seen.add(mutation)
+            path = root / "damaged.bag"
+            path.write_bytes(damaged)
+            name = mutation.replace("ros1-position:", "ros1_")
+            results[f"{name}_learn_a"] = run(["learn-a", path, "-c", cfg, "-o", root / "ob", "-q"], root)
+            results[f"{name}_inspect"] = run(["inspect", path, "-q"], root)
+    if want("int_5000"):
+        cfg = root / "wide_int.yaml"
+        cfg.write_text(f"seed: 1\ndata:\n  test:\n    seed: {'9' * 5000}\n")
+        results["int_5000_config"] = run(["learn-a", toy, "-c", cfg, "-o", root / "oi", "-q"], root)
+    if want("non_utf8_name"):
+        odd = root / os.fsdecode(b"rec\xff\xfe.h5")
+        shutil.copy(toy, odd)
+        results["non_utf8_name_learn_a"] = run(["learn-a", odd, "-o", root / os.fsdecode(b"o\xfc"), "-q"],
+                                               root)
+        results["non_utf8_name_batch_glob"] = run(["batch", "--files", root / "*.h5", "-c", pipeline, "-o",
+                                                   root / "ob4", "-q", "-j", "1"], root, timeout=300)
+    if want("key_bomb"):
+        bomb = root / "bomb.yaml"
+        bomb.write_text("data:\n" + "".join(f"  k{i:06d}: {i}\n" for i in range(200_000)))
+        results["key_bomb"] = {"file_bytes": bomb.stat().st_size,
+                               **run(["learn-a", toy, "-c", bomb, "-o", root / "ok", "-q"], root)}
+    if want("wide_csv"):
+        import bench_csv
+
+        config = bench_csv.wide_csv(root / "wide.csv", 128.0)
+        results["wide_csv_learn_a"] = {"file_bytes": (root / "wide.csv").stat().st_size,
+                                       **run(["learn-a", root / "wide.csv", "-c", config, "-o", root / "ow",
+                                              "-q", "--test-fraction", "0"], root, timeout=300)}
+        results["wide_csv_inspect"] = run(["inspect", root / "wide.csv", "-q"], root, timeout=300)
+        (root / "wide.csv").unlink()
+    if want("force_look_alike"):
+        mine = root / "results"
+        mine.mkdir()
+        files = {"run.json": json.dumps({"command": "my-tool", "versions": {"my-tool": "1"}}),
+                 "notes.md": "mine"}
+        for name, text in files.items():
+            (mine / name).write_text(text)
+        res = run(["learn-a", toy, "-o", mine, "--force", "-q"], root)
+        results["force_look_alike"] = {**res, "files_intact": {p.name: p.read_text() for p in mine.iterdir()}
+                                       == files}
+    return results
+
+
+def dask_kill(root: Path, recs: Path, pipeline: Path, victim: str, clean: Path) -> dict[str, Any]:
+    """``ccl batch --scheduler`` on a cluster of one worker (no nanny: nothing restarts it);
+    the worker or the scheduler SIGKILLed once two jobs are written; then a local rerun."""
+    import dask_cluster
+
+    out = root / f"dask_{victim}"
+    cluster, info = dask_cluster.start(1, nanny=False)
+    err = root / ".dask_stderr"
+    try:
+        with open(err, "wb") as e:
+            proc = subprocess.Popen([*CCL, "batch", "--files", str(recs / "*.h5"), "-c", str(pipeline), "-o",
+                                     str(out), "--scheduler", info["address"]], cwd=root,
+                                    stdout=subprocess.DEVNULL, stderr=e)
+            deadline = time.monotonic() + 300
+            while time.monotonic() < deadline and proc.poll() is None and not (
+                    (out / "jobs").exists() and len([p for p in (out / "jobs").iterdir()
+                                                     if not p.name.startswith(".")]) >= 2):
+                time.sleep(0.02)
+            pid = info["scheduler_pid"] if victim == "scheduler" else next(iter(info["workers"].values()))
+            os.kill(pid, signal.SIGKILL)
+            killed = time.monotonic()
+            try:
+                code = proc.wait(timeout=120)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                code = None
+            seconds = time.monotonic() - killed
+    finally:
+        dask_cluster.stop(cluster)
+    lines = [ln for ln in err.read_text(errors="replace").splitlines() if ln.strip()]
+    rerun = run(["batch", "--files", recs / "*.h5", "-c", pipeline, "-o", out, "-q", "-j", "1"], root,
+                timeout=300)
+    same = _metrics(out) == _metrics(clean)
+    return {"exit": code, "seconds_after_kill": round(seconds, 2), "stderr_lines": len(lines),
+            "traceback": any("Traceback" in ln for ln in lines),
+            "first_line": lines[0][:300] if lines else "",
+            "rerun_exit": rerun["exit"], "rerun_metrics_identical_to_clean_local": same}
+
+
+def _metrics(out: Path) -> dict[str, Any]:
+    """Per job folder, every metric value of its metrics.json (train and test splits)."""
+    found = {}
+    for p in sorted((out / "jobs").iterdir()):
+        if not p.name.startswith("."):
+            stages = json.loads((p / "metrics.json").read_text())
+            found[p.name] = {(s, split, m): v["value"] for s, e in stages.items()
+                             for split in ("train", "test") for m, v in (e.get(split) or {}).items()}
+    return found
+
+
 def leftovers(folder: Path, keep: set[str]) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if p.name not in keep)
 
@@ -278,6 +423,7 @@ def measure(only: set[str] | None, gigabytes: float) -> dict[str, Any]:
                 work.mkdir()
                 res = run(argv, work, timeout=300, preexec=limit)
                 results[name] = {**res, "left": leftovers(work, set())}
+        results.update(round4(root, toy, want))
         if want("damaged_model"):
             assert run(["learn-v", toy, "-o", root / "v", "-q", "--n-centres", "4", "--test-fraction", "0"],
                        root, timeout=300)["exit"] == 0

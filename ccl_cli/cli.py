@@ -22,6 +22,7 @@ from typer._click.exceptions import NoArgsIsHelpError, UsageError  # typer vendo
 from typer.core import TyperCommand, TyperGroup
 
 from ccl_cli import choices, progress
+from ccl_cli.cli_params import in_words, spread
 from ccl_cli.errors import CCLError, ConfigError, InputError, LearningError
 from ccl_cli.learn import defaults, params
 
@@ -38,7 +39,7 @@ class _OneLineUsage:
 
     def parse_args(self, ctx: Any, args: list[str]) -> list[str]:
         try:
-            return super().parse_args(ctx, args)  # type: ignore[misc]
+            return super().parse_args(ctx, spread(self, args))  # type: ignore[misc]
         except NoArgsIsHelpError:
             raise
         except UsageError as exc:
@@ -46,7 +47,11 @@ class _OneLineUsage:
 
 
 class _Command(_OneLineUsage, TyperCommand):
-    """Commands whose usage errors are one line."""
+    """Commands whose usage errors are one line and whose --help is in words."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        in_words(self.params)
 
 
 class _Group(_OneLineUsage, TyperGroup):
@@ -68,7 +73,7 @@ def _typer() -> typer.Typer:
              "null-space policies π(x) from demonstrations (HDF5, CSV, MCAP, ROS 1/2 bags).",
         no_args_is_help=True,
         context_settings={"help_option_names": ["-h", "--help"]},
-        add_completion=False,
+        add_completion=True,
         pretty_exceptions_enable=False,
         rich_markup_mode=None,
     )
@@ -78,7 +83,8 @@ app = _typer()
 
 # -- shared options -----------------------------------------------------------------------
 DataArg = Annotated[list[Path] | None, typer.Argument(
-    help="Recordings (files, bag directories or globs); overrides data.files of the config.",
+    help="Recordings: files, globs, bag folders or folders of recordings; overrides data.files of the "
+         "config.",
     show_default=False)]
 ConfigOpt = Annotated[Path | None, typer.Option("--config", "-c", help="YAML config (see README).")]
 OutOpt = Annotated[Path | None, typer.Option(
@@ -148,11 +154,26 @@ def _root(version: Annotated[bool, typer.Option("--version", callback=_version, 
 _QUIET = [False]  # set by every command through _logging: -q silences the summaries too
 
 
+def shown(text: str) -> str:
+    """``text`` as it can be printed: the bytes of a file name that is not UTF-8 (held as
+    surrogate escapes, ``os.fsdecode``) shown as ``\\xNN``."""
+    return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+class _Shown(logging.Formatter):
+    """'ccl: message', with :func:`shown` file names."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        return shown(super().format(record))
+
+
 def _logging(quiet: bool) -> None:
     _QUIET[0] = quiet
     progress.install(progress.terminal_hook(quiet))  # long reads: a bar on a terminal, not with -q
     level = logging.WARNING if quiet else logging.INFO
     logging.basicConfig(level=level, format="ccl: %(message)s", stream=sys.stderr, force=True)
+    for handler in logging.root.handlers:
+        handler.setFormatter(_Shown("ccl: %(message)s"))
 
 
 def _common(seed, test_fraction, convention) -> dict[str, Any]:
@@ -174,7 +195,7 @@ def _emit(summary: dict[str, Any], as_json: bool, quiet: bool = False) -> None:
         sys.stdout.write(text.json_line(summary))
         return
     for line in text.summary_lines(summary, quiet or _QUIET[0]):
-        typer.echo(line, err=True)
+        typer.echo(shown(line), err=True)
 
 
 def _wrote(command: str, out: Path, data, as_json: bool) -> None:
@@ -183,7 +204,7 @@ def _wrote(command: str, out: Path, data, as_json: bool) -> None:
         _emit({"status": "ok", "command": command, "out": str(out), "samples": data.n_samples,
                "demos": data.n_demos}, True)
     elif not _QUIET[0]:
-        typer.echo(f"wrote {out}: {data.n_samples} samples in {data.n_demos} demonstrations", err=True)
+        typer.echo(shown(f"wrote {out}: {data.n_samples} samples in {data.n_demos} demonstrations"), err=True)
 
 
 def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
@@ -377,15 +398,48 @@ def learn_pi(
 @app.command("run")
 def run(
     pipeline: Annotated[Path, typer.Argument(help="Pipeline YAML with data and stages.")],
-    data: Annotated[list[Path] | None, typer.Option("--data", help="Recordings overriding data.files.")]
-    = None,
+    data: Annotated[list[Path] | None, typer.Option(
+        "--data", help="Recordings overriding data.files: files, globs, folders; every word up to the next "
+                       "option.")] = None,
     out: OutOpt = None, seed: SeedOpt = None, test_fraction: TestOpt = None, convention: ConvOpt = None,
+    n_centres: Annotated[int | None, typer.Option("--n-centres", help="Number of RBF centres of every stage "
+                                                  "of the pipeline that has a basis (learn-v, learn-pi, "
+                                                  "learn-a with alpha, lambda or linear; no basis search).",
+                                                  show_default="config, else each stage's default")] = None,
+    basis: Annotated[BasisKind | None, typer.Option("--basis", help="Feature map of every stage of the "
+                                                    "pipeline that has a basis (no basis search).",
+                                                    show_default="config, else rbf")] = None,
     strict: StrictOpt = False, force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Run the stages of a pipeline YAML in order (learn-v, learn-a, learn-pi, evaluate)."""
     _logging(quiet)
-    cfg = _config(pipeline, _common(seed, test_fraction, convention))
+    flags = _common(seed, test_fraction, convention)
+    if n_centres is not None or basis is not None:
+        flags |= _basis_flags(pipeline, {"n_centres": n_centres, "basis": _value(basis)})
+    cfg = _config(pipeline, flags)
     _learn("run", None, cfg, data, out, force, json_out, quiet, strict)
+
+
+def _basis_flags(pipeline: Path, given: dict[str, Any]) -> dict[str, Any]:
+    """``--n-centres`` / ``--basis`` of ``ccl run`` as the flags of each stage of the pipeline
+    that has a basis (learn-v, learn-pi, and learn-a when its method has one); none is a
+    usage error naming the stages."""
+    import inspect as pyinspect
+
+    from ccl_cli import spec
+
+    plain = _config(pipeline, {})
+    flags: dict[str, Any] = {}
+    for name, opts in plain.stages():
+        method = getattr(opts, "method", None)
+        if name in ("learn-v", "learn-pi") or (name == "learn-a" and "n_centres" in pyinspect.signature(
+                spec.constraint_class(method).__init__).parameters):
+            flags[name] = given
+    if not flags:
+        said = "/".join(f"--{k.replace('_', '-')}" for k, v in given.items() if v is not None)
+        stages = ", ".join(f"{n} ({getattr(o, 'method', '')})".replace(" ()", "") for n, o in plain.stages())
+        raise InputError(f"{said}: no stage of {pipeline} has a basis ({stages})")
+    return flags
 
 
 # -- using saved models -------------------------------------------------------------------
@@ -445,10 +499,10 @@ def predict(
         _emit(summary, True)
     elif not quiet:
         repaired = sum(n for kinds in summary["repaired"].values() for n in kinds.values())
-        typer.echo(f"wrote {out} ({summary['samples']} rows: one per sample read"
+        typer.echo(shown(f"wrote {out} ({summary['samples']} rows: one per sample read"
                    + (f", {repaired} repaired (columns repair, fault)" if repaired else "")
                    + (f"; {summary['left_out']} outside the configured demonstrations" if summary["left_out"]
-                      else "") + ")", err=True)
+                      else "") + ")"), err=True)
         typer.echo(f"applied: {summary['rule']['words']}", err=True)
         if summary.get("note"):
             typer.echo(f"note: {summary['note']}", err=True)
@@ -476,14 +530,16 @@ def export(
     elif not quiet:
         what = (f"{summary['method']} constraint, k = {summary['k']} ({summary['form']})"
                 if summary["kind"] == "constraint" else f"{summary['method']} {summary['kind']}")
-        typer.echo(f"wrote {out}: {what}, schema version {summary['schema_version']}", err=True)
+        typer.echo(shown(f"wrote {out}: {what}, schema version {summary['schema_version']}"), err=True)
 
 
 # -- data commands --------------------------------------------------------------------------
 @app.command("simulate")
 def simulate(
     problem: Annotated[str, typer.Argument(help="toy2d, two_link, arm7, varying_constraint, tracker_plane, "
-                                                "tracker_sphere or arm_at_rest.")],
+                                                "tracker_sphere, arm_at_rest, tracker_flips, tracker_tilt, "
+                                                "arm_wipe, arm_wipe_joint, free_reach, flow2d, hinge, slide, "
+                                                "contact_phases, reach_goal or handwriting.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     seed: Annotated[int, typer.Option(help="Seed.")] = 0,
     noise: Annotated[float | None, typer.Option(help="Std of noise on u (tracker_*: on positions, m).")]
@@ -505,6 +561,9 @@ def simulate(
     n_recordings: Annotated[int | None, typer.Option(help="tracker_*: continuous recordings (default 1).")]
     = None,
     test_fraction: Annotated[float, typer.Option(help="Demos marked test in /mask (0: no masks).")] = 0.0,
+    settings: Annotated[list[str] | None, typer.Option(
+        "--set", help="NAME=VALUE: any other keyword of the problem (docs/recordings.md), e.g. "
+                      "--set compliance=0.003 --set sweep_deg=[60,120]; repeatable.")] = None,
     force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Write a reference problem with ground truth (π, w, v, b, A, N) as canonical HDF5."""
@@ -523,6 +582,12 @@ def simulate(
              "n_recordings": n_recordings}
     accepted = pyinspect.signature(fn).parameters
     kwargs = {k: v for k, v in given.items() if v is not None}
+    extra = simulations.parse_settings(settings)
+    twice = [k for k in extra if k in kwargs or k == "seed"]
+    if twice:
+        flag = twice[0].replace("_", "-")
+        raise InputError(f"--set {twice[0]} repeats an option of its own (use --{flag})")
+    kwargs.update(extra)
     bad = [k for k in kwargs if k not in accepted]
     if bad:
         raise InputError(f"{problem} takes no --{bad[0].replace('_', '-')} "
@@ -541,35 +606,43 @@ def simulate(
 
 @app.command("inspect")
 def inspect_cmd(
-    data: Annotated[Path, typer.Argument(help="A recording (file or bag directory) or a model file.")],
+    data: Annotated[list[Path], typer.Argument(
+        help="Recordings (files, bag directories, folders of recordings or globs) or model files: "
+             "each is described.", show_default=False)],
     config: ConfigOpt = None,
-    gap: Annotated[float | None, typer.Option(help="Pause (seconds) that splits demonstrations "
-                                              "[default: data.demos.split_on_gap, else 5 × the median "
-                                              "sampling interval].", show_default=False)] = None,
+    gap: Annotated[float | None, typer.Option(metavar="SECONDS", help="Pause (seconds) that splits "
+                                              "demonstrations.", show_default="data.demos.split_on_gap, "
+                                              "else 5 × the median sampling interval")] = None,
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
-    """What a file holds. A recording: topics (type, count, rate over the active time, fields,
-    joint names), CSV columns, time span and the stretches between pauses (default: longer than
-    5 × the median sampling interval); with -c, the demonstrations learning reads with that
-    config. A model file: its method, constraints, basis and what it
-    was trained on (inputs, config, figures)."""
-    from ccl_cli.app.evaluate import inspect_file
+    """What files hold. A recording: topics (type, count, rate over the active time, fields,
+    joint names), CSV columns (those holding text said so), time span and the stretches between
+    pauses (default: longer than 5 × the median sampling interval); a headerless table without
+    a time column: its columns, rows and what a config must say to read it; with -c, the
+    demonstrations learning reads with that config. A model file: its method, constraints, basis
+    and what it was trained on (inputs, config, figures). Several files: each in turn (--json:
+    one object, "files" holding each one's)."""
+    from ccl_cli.app.evaluate import inspect_files
 
     _logging(quiet)
     cfg = _config(config, {})
-    info = inspect_file(data, cfg.spec.data, gap, cfg.base, configured=config is not None)
+    infos = inspect_files(data, cfg.spec.data, gap, cfg.base, configured=config is not None)
     if json_out:
-        _emit(info, True)
+        _emit(infos[0] if len(infos) == 1 else {"status": "ok", "command": "inspect", "files": infos}, True)
         return
     from ccl_cli.render.text import inspect_lines
 
-    for line in inspect_lines(info):
-        typer.echo(line)
+    for i, info in enumerate(infos):
+        if i:
+            typer.echo("")
+        for line in inspect_lines(info):
+            typer.echo(line)
 
 
 @app.command("convert")
 def convert(
-    data: Annotated[list[Path], typer.Argument(help="Recordings to convert.")],
+    data: Annotated[list[Path], typer.Argument(help="Recordings to convert: files, globs, bag folders or "
+                                                    "folders of recordings.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Canonical HDF5 file to write.")],
     config: ConfigOpt = None, force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
     format_version: Annotated[int, typer.Option("--format-version", min=1, max=2,
@@ -593,20 +666,27 @@ def convert(
 @app.command("batch")
 def batch(
     manifest: Annotated[Path | None, typer.Argument(help="Manifest YAML (files → pipeline configs).")] = None,
-    files: Annotated[list[str] | None, typer.Option("--files", help="Paths or globs (without a manifest).")]
-    = None,
+    files: Annotated[list[str] | None, typer.Option(
+        "--files", metavar="PATH", help="Recordings, one job each (without a manifest): files, globs, "
+                                        "folders.")] = None,
     config: ConfigOpt = None,
     out: OutOpt = None,
-    workers: Annotated[int | None, typer.Option("--workers", "-j", help="Local processes.",
-                                                show_default="the number of cores")] = None,
+    workers: Annotated[int | None, typer.Option("--workers", "-j", min=1, help="Local processes, at most "
+                                                "the usable cores (the CPU affinity's).",
+                                                show_default="one per usable core")] = None,
+    oversubscribe: Annotated[bool, typer.Option("--oversubscribe", help="Start -j workers even when they "
+                                                "are more than the usable cores.")] = False,
     scheduler: Annotated[str | None, typer.Option(help="Address of a running Dask scheduler.")] = None,
+    worker_wait: Annotated[float, typer.Option("--worker-wait", min=0, help="With --scheduler: seconds to "
+                                               "wait for a Dask worker when none is left (then the batch "
+                                               "ends; a rerun resumes it).")] = 30.0,
     force: Annotated[bool, typer.Option("--force", help="Re-run jobs whose outputs are up to date.")] = False,
     allow_outside: Annotated[bool, typer.Option("--allow-outside", help="Let the manifest name paths "
                                                 "outside its folder.")] = False,
     json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> int:
     """Run a pipeline per recording (or group) in parallel; resumable; summary.csv/.md/.png."""
-    from ccl_cli.app.batch import can_fork, fork_workers, plan, run_batch, start_workers
+    from ccl_cli.app.batch import can_fork, fork_workers, plan, run_batch, start_workers, worker_count
     from ccl_cli.render.outputs import write_run
     from ccl_cli.render.summary import write_summary
 
@@ -614,6 +694,13 @@ def batch(
     t0 = time.perf_counter()
     if manifest is None and files and config is None:
         raise ConfigError("batch --files needs --config/-c: a pipeline YAML with a stages: list")
+    if scheduler is not None and (workers is not None or oversubscribe):
+        log.warning("-j/--oversubscribe do not apply with --scheduler: the Dask workers run the jobs, as "
+                    "many at once as they have threads")
+    asked = workers
+    workers, said = worker_count(workers, oversubscribe)
+    if said and scheduler is None:
+        log.warning(said)
     fork = scheduler is None and can_fork()
     if scheduler is None and not fork:
         start_workers(workers, (write_run.__module__,))  # the fork server's imports overlap the planning
@@ -626,24 +713,27 @@ def batch(
         loading = preload_in_background()  # matplotlib for summary.png (and the jobs' figures)
         if fork:  # imported once here, not again in each worker
             loading.join()
+    workers, _ = worker_count(asked, oversubscribe, len(jobs))  # no more workers than jobs
     # workers forked once the plan holds, before this process starts any other thread
     pool = fork_workers(workers, (write_run.__module__,)) if fork else None
     bar = _bar("jobs", len(jobs), quiet)
     try:
         results = run_batch(jobs, outdir, write_run, workers, scheduler, force,
-                            progress=bar.advance if bar else None, pool=pool)
+                            progress=bar.advance if bar else None, pool=pool, worker_wait=worker_wait)
     finally:
         if bar:
             bar.stop()
     summary = write_summary(outdir, results, time.perf_counter() - t0, plots=plots)
     summary["outdir"] = str(outdir)
+    if scheduler is None:
+        summary["workers"] = workers
     if json_out:
         _emit({k: v for k, v in summary.items() if k != "results"}, True)
     elif not quiet or summary["failed"]:
-        typer.echo(f"{summary['jobs']} jobs: {summary['ok']} ran, {summary['skipped']} skipped, "
-                   f"{summary['failed']} failed; summary in {outdir / 'summary.md'}", err=True)
+        typer.echo(shown(f"{summary['jobs']} jobs: {summary['ok']} ran, {summary['skipped']} skipped, "
+                         f"{summary['failed']} failed; summary in {outdir / 'summary.md'}"), err=True)
         for f in summary["failures"]:
-            typer.echo(f"  failed {f['job']}: {f['error']}", err=True)
+            typer.echo(shown(f"  failed {f['job']}: {f['error']}"), err=True)
     return 1 if summary["failed"] else 0
 
 
@@ -674,6 +764,12 @@ def main(argv: list[str] | None = None) -> int:
 
     import ccl_cli
 
+    reconfigure = getattr(sys.stdout, "reconfigure", None)
+    if reconfigure is not None:
+        try:  # a file name that is not UTF-8 is printed as its own bytes (as ls prints it)
+            reconfigure(errors="surrogateescape")
+        except (ValueError, OSError):
+            pass
     try:
         if signal.getsignal(signal.SIGINT) is ccl_cli._interrupted_while_starting:
             signal.signal(signal.SIGINT, signal.default_int_handler)  # from here on: KeyboardInterrupt
@@ -691,7 +787,7 @@ def main(argv: list[str] | None = None) -> int:
         typer.echo("ccl: interrupted; no partial outputs were left", err=True)
         return 130
     except CCLError as exc:
-        typer.echo(f"ccl: error: {exc.message}", err=True)
+        typer.echo(f"ccl: error: {shown(exc.message)}", err=True)
         if not getattr(exc, "summarised", False):
             _json_error(argv, exc.exit_code, type(exc).__name__, exc.message)
         return exc.exit_code
@@ -710,7 +806,7 @@ def main(argv: list[str] | None = None) -> int:
             raise
         first = str(exc).splitlines()[0] if str(exc) else ""
         message = f"internal error: {type(exc).__name__}: {first}"
-        typer.echo(f"ccl: {message} (set CCL_DEBUG=1 for a traceback)", err=True)
+        typer.echo(f"ccl: {shown(message)} (set CCL_DEBUG=1 for a traceback)", err=True)
         _json_error(argv, 1, "InternalError", message)
         return 1
 

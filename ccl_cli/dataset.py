@@ -21,6 +21,8 @@ TRUTH_KEYS = ("pi", "w", "v", "b", "A", "N")
 #: known how the actions were made): its window (samples) and order.
 DEFAULT_WINDOW = 9
 DEFAULT_ORDER = 2
+#: the largest state or action magnitude a run learns from: its square (1e300) still fits float64
+MAX_MAGNITUDE = 1e150
 
 
 def group_rows(groups: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -226,6 +228,8 @@ class Demonstrations:
         derivative: how U was made (:class:`Derivative`; not known by default).
         repair: what sensor-fault repair did to each sample it saw (:class:`Repair`; None
             when no check ran).
+        force: the force a force/torque sensor measured at each sample, in the base frame (the
+            frame of the states' positions), (N, 3) finite; None when the log has none.
     """
 
     X: np.ndarray
@@ -240,6 +244,7 @@ class Demonstrations:
     metadata: dict[str, Any] = field(default_factory=dict)
     derivative: Derivative = field(default_factory=Derivative)
     repair: Repair | None = None
+    force: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.X = np.asarray(self.X, dtype=float)
@@ -269,6 +274,14 @@ class Demonstrations:
             if key not in TRUTH_KEYS:
                 raise InputError(f"unknown ground-truth key {key!r} (known: {', '.join(TRUTH_KEYS)})")
         self.truth = {k: np.asarray(v, dtype=float) for k, v in self.truth.items()}
+        if self.force is not None:
+            self.force = np.asarray(self.force, dtype=float)
+            if self.force.shape != (n, 3):
+                raise InputError(f"force must hold one 3-D force per sample, ({n}, 3), got "
+                                 f"{self.force.shape}")
+            if not np.isfinite(self.force).all():
+                row = int(np.argwhere(~np.isfinite(self.force))[0][0])
+                raise InputError(f"force has non-finite values (first at row {row})")
 
     # -- sizes ------------------------------------------------------------------------
     @property
@@ -333,7 +346,8 @@ class Demonstrations:
                 truth[key] = value
         repair = None if self.repair is None else self.repair.after(idx, n)
         return replace(self, X=self.X[idx], U=self.U[idx], demo=self.demo[idx], t=self.t[idx],
-                       truth=truth, metadata=dict(self.metadata), repair=repair)
+                       truth=truth, metadata=dict(self.metadata), repair=repair,
+                       force=None if self.force is None else self.force[idx])
 
     def select_demos(self, ids: np.ndarray | list[int]) -> Demonstrations:
         return self.subset(np.isin(self.demo, np.asarray(ids)))
@@ -376,6 +390,11 @@ class Demonstrations:
             _, inv = np.unique(part.demo, return_inverse=True)
             demos.append(inv + offset)
             offset += int(inv.max()) + 1 if len(inv) else 0
+        forces = [p.force is not None for p in parts]
+        if any(forces) and not all(forces):
+            part = parts[forces.index(False)]
+            raise InputError(f"{part.metadata.get('source') or 'a dataset'} has no force channel while "
+                             "others have one: give every file the same data.force mapping")
         keys = set.intersection(*(set(p.truth) for p in parts))
         truth = {}
         for key in keys:
@@ -394,12 +413,23 @@ class Demonstrations:
             metadata={"parts": [p.metadata for p in parts]},
             derivative=next((p.derivative for p in parts if p.derivative.known), Derivative()),
             repair=Repair.join([(p.repair, p.n_samples) for p in parts]),
+            force=np.concatenate([p.force for p in parts]) if all(forces) else None,
         )
 
     def check_finite(self) -> None:
+        """Refuse NaN or inf, and values beyond ±:data:`MAX_MAGNITUDE` (no measurement: a
+        damaged number, whose square overflows float64 in every least-squares fit)."""
         for name, arr in (("X", self.X), ("U", self.U)):
             bad = ~np.isfinite(arr)
             if bad.any():
                 row = int(np.argwhere(bad)[0][0])
                 count = int(bad.any(axis=1).sum())
                 raise InputError(f"{name} has {count} non-finite samples (first at row {row})")
+            huge = np.abs(arr) > MAX_MAGNITUDE
+            if huge.any():
+                row, col = (int(i) for i in np.argwhere(huge)[0])
+                column = (self.state_names if name == "X" else self.action_names)[col]
+                count = int(huge.any(axis=1).sum())
+                raise InputError(f"{name} has {count} samples beyond ±{MAX_MAGNITUDE:g} "
+                                 f"(first at row {row}, {column} = {arr[row, col]:.3g}): no measurement is "
+                                 "that large; a damaged recording?")

@@ -58,13 +58,14 @@ CODES = ("constant_dimension", "no_motion", "noisy_actions", "few_demos", "short
          "low_rank_actions", "duplicate_stamps", "jittery_stamps", "hemisphere_flips", "spikes",
          "stamp_faults", "overfit", "no_better_than_baseline", "constraint_does_not_hold",
          "constraint_varies", "not_identifiable", "actions_near_faults", "far_from_truth",
-         "no_heldout_support", "degenerate_input")
+         "no_heldout_support", "degenerate_input", "repeated_poses", "not_judged")
 #: Sensor faults the readers found (:mod:`ccl_cli.io.faults`) → (warning code, what they are,
 #: the config key that keeps them); gaps are pauses or lost samples, stated in the report only.
 FAULTS = {"hemisphere_flip": ("hemisphere_flips", "hemisphere flip(s) of the tracker (positions "
                                                   "mirrored through the transmitter)", "flips: keep"),
           "spike": ("spikes", "spike(s) in the states", "spikes: keep"),
           "duplicate_sample": ("stamp_faults", "duplicated sample(s)", "stamps: keep"),
+          "repeated_pose": ("repeated_poses", "repeated pose(s)", "stamps: keep"),
           "bad_stamp": ("stamp_faults", "repeated or misplaced stamp(s)", "stamps: keep"),
           "backward_stamp": ("stamp_faults", "clock step(s) back", "stamps: keep"),
           "clock_step": ("stamp_faults", "clock step(s) forward", "stamps: keep"),
@@ -181,11 +182,15 @@ def demonstrations(data: Demonstrations) -> list[dict[str, str]]:
     out = []
     n = data.n_demos
     if n < MIN_DEMOS:
+        cut = pause_split(data)
+        advice = (f"the recordings pause {cut[2]} times for {cut[1]:.3g} s or more: data.demos: "
+                  f"{{split_on_gap: {cut[0]:g}}} cuts them at their pauses into {cut[3]} demonstrations"
+                  if cut is not None else "cut continuous recordings with data.demos: {window: S} (seconds) "
+                  "or record more demonstrations")
         out.append(warning("few_demos",
                            f"only {n} demonstration{'s' if n != 1 else ''} (fewer than {MIN_DEMOS}): "
                            "by default the held-out test set and cross-validation use contiguous time "
-                           "blocks rather than whole demonstrations; cut continuous recordings with "
-                           "data.demos: {window: S} (seconds) or record more demonstrations"))
+                           f"blocks rather than whole demonstrations; {advice}"))
     sizes = np.bincount(np.unique(data.demo, return_inverse=True)[1])
     short = int((sizes < MIN_DEMO_SAMPLES).sum())
     if short:
@@ -193,6 +198,31 @@ def demonstrations(data: Demonstrations) -> list[dict[str, str]]:
                            f"{short} of {n} demonstrations have fewer than {MIN_DEMO_SAMPLES} samples "
                            f"(shortest {int(sizes.min())})"))
     return out
+
+
+def pause_split(data: Demonstrations) -> tuple[float, float, int, int] | None:
+    """A ``split_on_gap`` that cuts the demonstrations at their pauses — intervals longer than
+    GAP_INTERVALS (:mod:`ccl_cli.io.summary`) × the median interval — into at least MIN_DEMOS
+    pieces of at least MIN_DEMO_SAMPLES samples: (the gap, a round value between that limit and
+    half the shortest pause; the shortest pause, s; the pauses; the pieces), else None."""
+    from ccl_cli.io.summary import GAP_INTERVALS
+
+    inside = data.demo[1:] == data.demo[:-1]
+    dt = np.diff(data.t)
+    steps = dt[inside & (dt > 0)]
+    if not len(steps):
+        return None
+    floor = GAP_INTERVALS * float(np.median(steps))
+    pause = inside & (dt > floor)
+    if not pause.any():
+        return None
+    shortest = float(dt[pause].min())
+    gap = max(float(f"{0.5 * shortest:.1g}"), float(f"{floor:.2g}"))
+    if gap <= floor or gap >= shortest:
+        gap = float(f"{0.5 * (floor + shortest):.3g}")
+    starts = np.r_[0, np.flatnonzero(~inside | pause) + 1, len(data.t)]
+    pieces = int((np.diff(starts) >= MIN_DEMO_SAMPLES).sum())
+    return (gap, shortest, int(pause.sum()), pieces) if pieces >= MIN_DEMOS else None
 
 
 def stamps(data: Demonstrations) -> list[dict[str, str]]:
@@ -264,6 +294,9 @@ def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
         for f in (entry.get("faults") or []) if isinstance(entry, dict) else []:
             if f.get("kind") not in FAULTS or not f.get("count"):
                 continue
+            if f["kind"] == "repeated_pose":
+                out.append(_repeats(entry.get("path"), f))
+                continue
             code, what, keep = FAULTS[f["kind"]]
             done = "kept as recorded" if f.get("action") == "reported" else f["action"]
             fix = "" if f.get("action") == "reported" else f"; data.faults: {{{keep}}} keeps them"
@@ -276,6 +309,21 @@ def sensor_faults(data: Demonstrations) -> list[dict[str, str]]:
             out.append(warning(code, f"{entry.get('path')}: {f['count']} {what}, {_samples(f['n_samples'])} "
                                      f"{done} — {at}{fix}"))
     return out
+
+
+def _repeats(path: str | None, f: dict[str, Any]) -> dict[str, str]:
+    """``repeated_poses``: the sensor's rate, the logging rate, and what was done with the
+    repeats (a :func:`ccl_cli.io.faults.repeated_poses` finding as a dict)."""
+    log_rate = f" logged at {f['log_rate_hz']:.3g} Hz" if f.get("log_rate_hz") else ""
+    head = (f"{path}: repeated poses: the sensor updates at {f['rate_hz']:.3g} Hz, its samples were"
+            f"{log_rate}: each pose is repeated {f['per_pose']:.3g} times (median) until the next")
+    if f.get("action") == "reported":
+        return warning("repeated_poses", f"{head}; kept as recorded (data.faults: {{stamps: keep}}): "
+                       "velocities derived across a repeat are zero, then jump")
+    return warning("repeated_poses", f"{head}; the {f['n_samples']} repeats were left out and learning "
+                   f"uses the {f['poses']} poses at their first stamps (a pose held over several updates "
+                   "keeps one sample per update); predict gives each repeat its pose's row (repair: "
+                   "filled); data.faults: {stamps: keep} keeps them")
 
 
 def action_rank(U: np.ndarray, noise_var: np.ndarray) -> int:
@@ -318,9 +366,10 @@ def low_rank_actions(data: Demonstrations, U: np.ndarray, n_constraints: int,
 
 
 # -- verdicts of fitted stages -------------------------------------------------------------------
-#: A stage is ``ok`` when its held-out evidence is; ``poor`` when a check below fails (the
-#: run completes and says what is wrong); ``failed`` when it could not produce a result.
-STATUSES = ("ok", "poor", "failed")
+#: A stage is ``ok`` when its held-out evidence is; ``unjudged`` when it has no metric to judge
+#: it by (a policy learnt alone from data without a true π); ``poor`` when a check below fails
+#: (the run completes and says what is wrong); ``failed`` when it could not produce a result.
+STATUSES = ("ok", "unjudged", "poor", "failed")
 #: Overfit: a held-out error above OVERFIT_RATIO × the training error, and above OVERFIT_FLOOR
 #: (below it both are at the level of noise and numerical error).
 OVERFIT_RATIO = 10.0
@@ -396,7 +445,7 @@ def constraint_evidence(model: Any, d: Demonstrations, Y: np.ndarray) -> dict[st
         # the actions are the states' derivative: a constraint keeps the states on its level sets,
         # whatever compliance or tremor adds to the velocities (learn/constraint/geometry.py) —
         # it holds when either test says so
-        drift = geometry.rows_drift(rows, d.X, d.demo)
+        drift = geometry.model_drift(applied.model, rows, d.X, d.demo)
         limit = geometry.holds_limit(d.X, d.demo, rows.shape[1])
         kept = out or {"ratio": [], "share": ev.share.tolist(), "holds": False, "refitted": applied.refitted}
         if not kept["holds"] and np.isfinite(drift).all():
@@ -512,8 +561,23 @@ def not_identifiable(stage: str, data: Demonstrations, Y: np.ndarray,
 
 
 def status(checks: list[dict[str, str]]) -> str:
-    """``poor`` when a verdict check fired, else ``ok``."""
-    return "poor" if any(c["code"] in VERDICT_CODES for c in checks) else "ok"
+    """``poor`` when a verdict check fired, ``unjudged`` when the stage has no metric to be
+    judged by (``not_judged``), else ``ok``."""
+    if any(c["code"] in VERDICT_CODES for c in checks):
+        return "poor"
+    return "unjudged" if any(c["code"] == "not_judged" for c in checks) else "ok"
+
+
+#: Why a policy learnt alone on data without ground truth has no metric, and how to get one.
+NO_POLICY_METRIC = ("the data has no true π (NUPE) and no constraint was learnt to compare Ñπ̃ with the "
+                    "observations (NCPE_obs); learn one before it (ccl run with stages: [learn-a, learn-pi]) "
+                    "or evaluate the policy on data with ground truth")
+
+
+def not_judged(stage: str, what: str) -> list[dict[str, str]]:
+    """``not_judged``: the stage has no metric at all, so nothing supports its result (its status
+    is ``unjudged``); ``what`` says why and what would give one."""
+    return [warning("not_judged", f"{stage}: no metric to judge it by: {what}")]
 
 
 #: The checks that make a stage ``poor``.
@@ -551,6 +615,9 @@ def heldout_support(selection: dict[str, Any] | None, evidence: dict[str, Any] |
             return {"supported": True, "why": f"the states' geometry: {best['basis']} "
                     f"({best['scope'].replace('_', ' ')}), {best['measure']} {max(best['drift']):.3g} ≤ "
                     f"{best['limit']:g}{judged(best['measure'])}"}
+    held = (selection.get("forces") or {}).get("heldout") if selection.get("decided_by") == "forces" else None
+    if held:  # contact stretches from the forces: their rows fitted without blocks held out inside them
+        return {"supported": bool(held["supported"]), "why": f"the forces' contact stretches: {held['why']}"}
     winner = next((r for r in selection.get("candidates") or [] if r.get("chosen") and r["class"] != "none"),
                   None)
     if winner is not None and (winner.get("k") or 0) >= k:

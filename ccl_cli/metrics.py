@@ -161,7 +161,7 @@ def ncpe_observed(N_est: np.ndarray, U: np.ndarray, Pi_est: np.ndarray, V_est: n
     Ñ and the observations z (minus a learnt task part ``V_est``) in place of the true N
     and Nπ (reported as ``NCPE_obs``). U, Pi_est, V_est: (N, q)."""
     Z = U if V_est is None else U - V_est
-    label = of if V_est is None else f"{of} - learnt v"
+    label = of if V_est is None else f"{of} - learnt task part A+b"  # learn-a's, not learn-v's
     return _metric("NCPE_obs", Z - _apply(N_est, Pi_est), total_variance(Z), label, groups)
 
 

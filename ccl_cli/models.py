@@ -43,6 +43,7 @@ from ccl_cli.io.h5.seal import create_hdf5
 from ccl_cli.learn.basis import basis_from_state
 from ccl_cli.learn.constraint import (
     ConstraintInStretches,
+    ContactPhases,
     KnownFeatureConstraint,
     LinearConstraint,
     ManifoldConstraint,
@@ -70,6 +71,7 @@ CLASSES: dict[str, tuple[str, type]] = {
     "per_window": ("constraint", PerWindow),
     "per_segment": ("constraint", PerSegment),
     "stretches": ("constraint", ConstraintInStretches),
+    "contact": ("constraint", ContactPhases),
     "manifold": ("constraint", ManifoldConstraint),
     "none": ("constraint", NoConstraint),
     "ncl": ("nullspace", NullSpaceComponent),
@@ -275,8 +277,26 @@ def _read(group, method: str, where: str) -> Any:
         model.check_shapes()
     except InputError as exc:
         raise InputError(f"{where}: {exc.message} ({method} model)"[:300]) from None
+    _check_lengths(model, base, where)
     _check_n_features(model, where)
     return model
+
+
+def _check_lengths(model: Any, method: str, where: str) -> None:
+    """The vectors a model keeps beside its weights (eigenvalues, residuals, singular values,
+    scales) are as long as its weights imply: one per action (nhat), one per regressor
+    column (linear); a file edited to another length is refused, not carried along."""
+    want: dict[str, int] = {}
+    if method == "nhat" and isinstance(getattr(model, "n_action_", None), int):
+        want = {"eigenvalues_": model.n_action_, "residuals_": model.n_action_}
+    elif method == "linear" and getattr(model, "W_", None) is not None:
+        d = model.W_.shape[1] + (model.Wb_.shape[1] if model.task and model.Wb_ is not None else 0)
+        want = {"singular_values_": d, "scale_": d}
+    for name, n in want.items():
+        value = getattr(model, name, None)
+        if value is not None and value.shape != (n,):
+            raise InputError(f"{where}: array {name} has shape {value.shape}, expected ({n},) for a {method} "
+                             "model")
 
 
 def _read_basis(model: Any, group, where: str) -> None:

@@ -239,10 +239,12 @@ class Metrics(Section):
 
 
 class Output(Section):
-    """``plots``: draw the figures; ``format``: png, or svg / pdf (vector, for a paper)."""
+    """``plots``: draw the figures; ``format``: png, or svg / pdf (vector, for a paper); ``html``:
+    also write report.html (the report with its figures embedded and a 3-D view of the states)."""
 
     plots: bool = True
     format: Literal["png", "svg", "pdf"] = "png"
+    html: bool = False
 
 
 class StageItem(Section):

@@ -264,6 +264,18 @@ def test_manifest_fields_are_typed(capsys, tmp_path, text, match):
     assert code == 2 and re.search(match, err) and err.count("\n") == 1, err
 
 
+def test_override_keys_of_several_types_are_one_line(capsys, recordings, tmp_path):
+    """A manifest's overrides with an integer key beside string ones (YAML ``1:``): one line
+    naming the key (json could not sort the keys: an internal TypeError, fuzz seed 280)."""
+    shutil.copy(recordings / "rec_00.h5", tmp_path / "rec_00.h5")
+    shutil.copy(recordings / "pipeline.yaml", tmp_path / "pipeline.yaml")
+    manifest = tmp_path / "m.yaml"
+    manifest.write_text("jobs:\n  - files: rec_00.h5\n    config: pipeline.yaml\n"
+                        "    overrides: {learn-a: {n_constraints: 1, 1: x}}\n")
+    code, _, err = batch(capsys, manifest, "-o", tmp_path / "o")
+    assert code == 2 and "jobs[0]" in err and "learn-a" in err and err.count("\n") == 1, err
+
+
 def test_batch_never_writes_into_a_users_folder(capsys, recordings, tmp_path):
     """-o on a folder with the user's files (even ones named like the summaries): exit 2,
     every file as it was; an empty folder, or one ccl made, is written into."""
@@ -313,21 +325,25 @@ def test_manifest_paths_stay_in_its_folder(capsys, recordings, tmp_path, edit):
     assert code == 0 and summary["ok"] >= 1, err
 
 
-def test_batch_folder_of_an_earlier_version_is_resumed(capsys, recordings, tmp_path):
-    """A batch folder written before the .ccl-output marker (jobs/ and summaries only, each
-    job folder ccl's) is still ccl's: resumed, not refused."""
+def test_batch_folder_of_an_earlier_version_is_refused_with_a_hint(capsys, recordings, tmp_path):
+    """A batch folder without the .ccl-output marker (as a ccl before the marker left it, or
+    anything made to look like one: jobs/ and summaries, run.json files) is not ccl's: refused
+    untouched, with a one-line hint to remove it; with the marker it is resumed."""
     out = tmp_path / "old"
     one = ["--files", recordings / "rec_00.h5", "-c", recordings / "pipeline.yaml", "-j", 1, "-o", out]
     code, summary, err = batch(capsys, *one)
     assert code == 0 and summary["ok"] == 1, err
-    (out / ".ccl-output").unlink()  # as an earlier version left it
-    code, summary, err = batch(capsys, *one)
+    code, summary, err = batch(capsys, *one)  # marked: resumed
     assert code == 0 and summary["skipped"] == 1, err
-    (out / ".ccl-output").unlink()
-    (out / "notes.txt").write_text("mine\n")  # anything else: not a batch folder
+    (out / ".ccl-output").unlink()  # as an earlier version left it
+    before = sorted(str(p) for p in out.rglob("*"))
+    code, _, err = batch(capsys, *one)
+    assert code == 2 and err.count("\n") == 1 and "holds files ccl did not write" in err
+    assert "the batch folder of an earlier ccl" in err and "remove it yourself" in err
+    assert sorted(str(p) for p in out.rglob("*")) == before
+    (out / ".ccl-output").write_text('{"written_by": "someone"}')  # a look-alike marker
     code, _, err = batch(capsys, *one)
     assert code == 2 and "holds files ccl did not write" in err
-    assert (out / "notes.txt").read_text() == "mine\n"
 
 
 def test_summary_figure_names_each_job_without_its_key_hash():
@@ -339,8 +355,8 @@ def test_summary_figure_names_each_job_without_its_key_hash():
 
 
 def test_summary_figure_is_drawn_when_a_job_draws_figures(capsys, recordings, tmp_path):
-    """summary.png: one panel per held-out metric, 80 dpi, as wide as the jobs need; drawn
-    only when a job's config draws figures (an earlier one is removed when not)."""
+    """summary.png: one panel per held-out metric, 80 dpi, a row per job (as tall as the jobs
+    need); drawn only when a job's config draws figures (an earlier one is removed when not)."""
     from PIL import Image
 
     from ccl_cli.app.batch import JobResult
@@ -353,8 +369,11 @@ def test_summary_figure_is_drawn_when_a_job_draws_figures(capsys, recordings, tm
     results = [JobResult(**r) for r in summary_results(out)]
     metrics = {k for r in results for k, v in r.stages["learn-a"]["test"].items() if v > 0}
     write_summary(out, results, 1.0, plots=True)
+    from ccl_cli.render import jobs_figure as jf
+
     with Image.open(out / "summary.png") as png:
-        assert png.size == (max(6, 0.25 * 10 + 3) * 80, round(2.2 * len(metrics) * 80))
+        assert png.size[1] == round((jf.HEAD + 10 * jf.ROW + jf.FOOT) * jf.DPI)
+        assert png.size[0] > round(jf.PANEL * len(metrics) * jf.DPI)
     assert "(summary.png)" in (out / "summary.md").read_text()
     write_summary(out, results, 1.0, plots=False)
     assert not (out / "summary.png").exists() and "summary.png" not in (out / "summary.md").read_text()
@@ -407,3 +426,184 @@ def test_forked_workers_get_their_share_of_the_blas_threads():
 
     if blas.controllable():
         assert json.loads(proc.stdout) == [max(1, (os.cpu_count() or 1) // 2)]
+
+
+# -- a Dask cluster losing workers or its scheduler (os.kill of their pids) ---------------------
+def _ccl_lines(err: str) -> list[str]:
+    return [ln for ln in err.splitlines() if ln.startswith("ccl: ")]
+
+
+def _wait_for_jobs(jobs: Path, n: int, proc: subprocess.Popen, timeout: float = 120) -> None:
+    """Until ``n`` job folders are written (or the batch has ended)."""
+    deadline = time.time() + timeout
+    while time.time() < deadline and proc.poll() is None:
+        if jobs.exists() and len([p for p in jobs.iterdir() if not p.name.startswith(".")]) >= n:
+            return
+        time.sleep(0.02)
+
+
+@pytest.fixture(scope="module")
+def clean_local(recordings, tmp_path_factory):
+    """The ten rec_0* jobs run locally, once: the metrics every Dask rerun must give."""
+    out = tmp_path_factory.mktemp("clean") / "out"
+    proc = subprocess.run([CCL, "batch", "--files", str(recordings / "rec_0*.h5"), "-c",
+                           str(recordings / "pipeline.yaml"), "-o", str(out), "-j", "2", "-q"],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    return job_metrics(out)
+
+
+@pytest.mark.parametrize("victim", ["worker", "scheduler"])
+def test_dask_batch_survives_a_killed_worker_or_scheduler(recordings, tmp_path, clean_local, victim):
+    """The only worker (nothing restarts it) or the scheduler SIGKILLed mid-batch: ccl ends
+    within seconds (no hang), exit 1, one line naming what was lost (the worker and the jobs
+    it held; the scheduler), no traceback; a rerun (here: local) completes with the metrics of
+    a clean local run."""
+    import dask_cluster
+
+    cluster, info = dask_cluster.start(1, nanny=False)
+    out = tmp_path / "out"
+    args = [CCL, "batch", "--files", str(recordings / "rec_0*.h5"), "-c", str(recordings / "pipeline.yaml"),
+            "-o", str(out)]
+    try:
+        proc = subprocess.Popen([*args, "--scheduler", info["address"], "--worker-wait", "2"],
+                                stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+        _wait_for_jobs(out / "jobs", 2, proc)
+        assert proc.poll() is None, proc.communicate()[1]
+        (worker, pid), = info["workers"].items()
+        os.kill(info["scheduler_pid"] if victim == "scheduler" else pid, signal.SIGKILL)
+        _, err = proc.communicate(timeout=60)  # a hang fails here
+    finally:
+        dask_cluster.stop(cluster)
+    lines = _ccl_lines(err)
+    assert proc.returncode == 1 and len(lines) == 1 and "Traceback" not in err, err
+    finished = {p.name for p in (out / "jobs").iterdir() if not p.name.startswith(".")}
+    assert 2 <= len(finished) < 10
+    if victim == "worker":
+        named = re.findall(r"rec_0\d_h5-[0-9a-f]{8}", lines[0])
+        assert lines[0].startswith(f"ccl: error: no Dask worker left: worker {worker} lost while running job")
+        # jobs it held (one may have written its folder before its result reached ccl)
+        assert set(named) - finished, lines[0]
+        done, left = map(int, re.search(r"(\d+) of 10 jobs done, (\d+) not", lines[0]).groups())
+        assert done + left == 10 and done <= len(finished)
+    else:
+        assert lines[0].startswith(f"ccl: error: lost the Dask scheduler at {info['address']}")
+    assert "run the batch again to resume" in lines[0]
+    again = subprocess.run([*args, "-j", "2", "-q", "--json"], capture_output=True, text=True, timeout=600)
+    summary = json.loads(again.stdout)
+    assert again.returncode == 0 and summary["skipped"] >= len(finished), again.stderr
+    assert summary["ok"] + summary["skipped"] == 10
+    assert not [p for p in (out / "jobs").iterdir() if p.name.startswith(".")]
+    now = job_metrics(out)
+    assert now.keys() == clean_local.keys() and all(values(now[k]) == values(clean_local[k]) for k in now)
+
+
+def test_dask_worker_restarted_by_its_nanny_costs_nothing(capsys, recordings, tmp_path, clean_local):
+    """A worker killed mid-batch and restarted by its nanny: the jobs it held run again on
+    the new worker, one warning line names the lost worker and jobs, every job finishes
+    with the metrics of a local run."""
+    import dask_cluster
+
+    cluster, info = dask_cluster.start(1, nanny=True)
+    out = tmp_path / "out"
+    try:
+        proc = subprocess.Popen([CCL, "batch", "--files", str(recordings / "rec_0*.h5"), "-c",
+                                 str(recordings / "pipeline.yaml"), "-o", str(out), "--scheduler",
+                                 info["address"], "--json"], stderr=subprocess.PIPE, stdout=subprocess.PIPE,
+                                text=True)
+        _wait_for_jobs(out / "jobs", 2, proc)
+        (worker, pid), = info["workers"].items()
+        os.kill(pid, signal.SIGKILL)
+        stdout, err = proc.communicate(timeout=120)
+    finally:
+        dask_cluster.stop(cluster)
+    summary = json.loads(stdout)
+    assert proc.returncode == 0 and summary["ok"] + summary["skipped"] == 10, err
+    warned = [ln for ln in _ccl_lines(err) if "lost" in ln]
+    assert len(warned) == 1 and worker in warned[0] and "retried on another worker" in warned[0], err
+    now = job_metrics(out)
+    assert all(values(now[k]) == values(clean_local[k]) for k in now)
+
+
+def test_a_job_that_keeps_losing_its_worker_is_failed_not_retried_forever(monkeypatch):
+    """The supervisor's bound, on a stand-in cluster: a job whose worker is lost twice is
+    cancelled and failed naming the worker; the other jobs go on."""
+    from ccl_cli.app import dask_jobs
+
+    class Fut:
+        def __init__(self, key):
+            self.key, self.status, self.cancelled = key, "pending", False
+
+        def done(self):
+            return self.status != "pending"
+
+        def result(self, timeout=None):
+            return "done"
+
+        def cancel(self, force=False):
+            self.cancelled = True
+
+        def release(self):
+            pass
+
+    class Client:
+        status = "running"
+
+        def __init__(self):
+            self.futures, self.looks = {}, 0
+            self.scheduler = type("S", (), {"address": "tcp://sched:1"})()
+
+        def submit(self, fn, *args, key, pure):
+            self.futures[key] = Fut(key)
+            return self.futures[key]
+
+        def scheduler_info(self, n_workers=-1):
+            self.looks += 1
+            # look 1: w1 holds job a; 2: w1 lost, w2 holds a; 3: w2 lost, w3 alive; then b finishes
+            alive = {1: ["tcp://w1"], 2: ["tcp://w2"], 3: ["tcp://w3"]}.get(self.looks, ["tcp://w3"])
+            if self.looks >= 4:
+                self.futures["ccl-job-b"].status = "finished"
+            return {"workers": dict.fromkeys(alive)}
+
+        def processing(self):
+            return {1: {"tcp://w1": ["ccl-job-a"]}, 2: {"tcp://w2": ["ccl-job-a"]}}.get(self.looks, {})
+
+        def cancel(self, futures, force=False):
+            pass
+
+    import distributed
+
+    monkeypatch.setattr(distributed, "wait", lambda fs, timeout, return_when: None)
+    client = Client()
+    done, failed = [], []
+    dask_jobs.run_jobs(client, {"a": (print, ()), "b": (print, ())}, lambda j, r: done.append(j),
+                       lambda j, why: failed.append((j, why)), worker_wait=60)
+    assert done == ["b"] and client.futures["ccl-job-a"].cancelled
+    assert failed == [("a", "worker tcp://w2 lost while running job a (2 workers lost with it; not retried)")]
+
+
+def test_batch_as_an_unprivileged_user_never_writes_into_a_users_folder(recordings):
+    """As the user nobody, into a folder another user made world-writable: refused, every
+    file as it was; into a new folder: the batch runs."""
+    from tests_paths import as_nobody, shared_folder
+
+    prefix = as_nobody()
+    root = shared_folder()
+    try:
+        for name in ("rec_00.h5", "pipeline.yaml"):
+            shutil.copy(recordings / name, root / name)
+            (root / name).chmod(0o644)
+        user = root / "user"
+        user.mkdir()
+        user.chmod(0o777)
+        (user / "summary.md").write_text("mine\n")
+        args = [*prefix, CCL, "batch", "--files", str(root / "rec_00.h5"), "-c", str(root / "pipeline.yaml"),
+                "-j", "1", "-q"]
+        proc = subprocess.run([*args, "-o", str(user)], capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 2 and "holds files ccl did not write" in proc.stderr, proc.stderr
+        assert [p.name for p in user.iterdir()] == ["summary.md"]
+        assert (user / "summary.md").read_text() == "mine\n"
+        proc = subprocess.run([*args, "-o", str(root / "new")], capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+    finally:
+        shutil.rmtree(root, ignore_errors=True)

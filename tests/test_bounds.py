@@ -289,6 +289,23 @@ def test_bag_storage_outside_its_folder_needs_allow_outside(tmp_path, caplog):
     refused(cfg, rf"names '../elsewhere/{store.name}', which leads to {store}, outside")
 
 
+def test_a_symlinked_metadata_yaml_leading_outside_the_bag_needs_allow_outside(tmp_path, capsys):
+    """A ROS 2 bag whose metadata.yaml is a symlink to a file elsewhere: refused like a
+    storage file outside the bag (it was followed silently), read with data.allow_outside."""
+    rec = writers.joint_recording(n=40)
+    bag = writers.write_ros2_bag(tmp_path / "bag", rec, "sqlite3")
+    reference = load_demonstrations({"files": [str(bag)], "state": JOINTS})
+    outside = tmp_path / "meta.yaml"
+    outside.write_bytes((bag / "metadata.yaml").read_bytes())
+    (bag / "metadata.yaml").unlink()
+    (bag / "metadata.yaml").symlink_to(outside)
+    cfg = {"files": [str(bag)], "state": JOINTS}
+    refused(cfg, f"leads through a symlink to {outside}, outside .*data.allow_outside: true allows it")
+    assert main(["inspect", str(bag)]) == 2 and "outside" in capsys.readouterr().err
+    data = load_demonstrations({**cfg, "allow_outside": True})
+    np.testing.assert_array_equal(data.X, reference.X)
+
+
 # -- the probe fails closed ----------------------------------------------------------------------
 def test_probe_refuses_a_file_whose_attribute_table_cannot_be_read(tmp_path, monkeypatch):
     """libhdf5 failing while the probe iterates an attribute table (as on the damaged model
@@ -355,6 +372,19 @@ def test_foreign_attributes_are_checked(tmp_path):
     refused({"files": [str(path)], "format": "hdf5"}, r"attribute 'format' must be a string")
 
 
+@pytest.mark.parametrize("suffix", [".h5", ".mat"])
+def test_an_object_name_that_is_not_utf8_is_one_line(capsys, tmp_path, suffix):
+    """h5py decodes link names as UTF-8 inside its visit callback and wraps the failure in a
+    SystemError (fuzz classic seed 4280, a flipped byte in a MATLAB v7.3 name)."""
+    path = writers.write_mat73(tmp_path / f"odd{suffix}", {"X": [[1.0, 2.0], [3.0, 4.0]]})
+    with h5py.File(path, "a") as f:
+        f.create_dataset(b"Y\xff\x80", data=np.ones(3))
+    assert main(["inspect", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"ccl: error: {path}: cannot read the HDF5 structure (an object's name is not UTF-8); " \
+                  "damaged file?\n"
+
+
 # -- JSON messages missing keys ------------------------------------------------------------------
 @pytest.mark.parametrize("key,match", [
     ("name", r"a JointState needs name: a list of strings, got NoneType \(message 8\)"),
@@ -377,6 +407,16 @@ def test_json_mcap_message_missing_a_key_is_one_line(tmp_path, key, match):
     path = writers.write_mcap_json(tmp_path / "v.mcap", rec, msgs)
     refused({"files": [str(path)], "state": JOINTS, "action": {**JOINTS, "field": "velocity"}},
             "velocity")
+
+
+def test_json_mcap_first_message_without_joint_names_is_one_line(tmp_path):
+    """The joints configured and the first message naming none: one line (was a TypeError)."""
+    rec = writers.joint_recording(n=20)
+    msgs = [writers.msg_dict(rec, i) for i in range(20)]
+    del msgs[0]["name"]
+    path = writers.write_mcap_json(tmp_path / "r.mcap", rec, msgs)
+    refused({"files": [str(path)], "state": JOINTS},
+            r"r.mcap: /joint_states: a JointState needs name: a list of strings, got NoneType$")
 
 
 # -- kinematic features ---------------------------------------------------------------------------
@@ -407,6 +447,11 @@ def test_mat73_cells_that_are_not_references_or_loop_are_refused(tmp_path):
         ds.attrs["MATLAB_class"] = b"cell"
         ds[0, 0] = ds.ref
     refused(cfg, "nested deeper than 32 levels")
+    with h5py.File(path, "a") as f:  # a cell pointing to a named datatype (fuzz seed 280, case 5158)
+        f["#refs#/type"] = np.dtype("f8")
+        f["X"][0, 0] = f["#refs#/type"].ref
+    refused(cfg, "a reference to a Datatype, not an array")
+    assert main(["inspect", str(path), "--json"]) == 2
 
 
 def test_attribute_text_that_is_not_utf8_is_refused_in_plain_text(capsys, tmp_path):
@@ -507,3 +552,38 @@ def test_an_mcap_chunk_index_pointing_outside_the_file_is_one_line(tmp_path, cap
     assert main(["learn-a", str(path), "-c", str(config), "-o", str(tmp_path / "a"), "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "outside the file" in err[0], err
+
+
+@pytest.mark.parametrize("field", ["chunk_pos", "index_pos"])
+@pytest.mark.parametrize("kind", ["past-end", "beyond-seek", "max", "negative", "in-magic", "zero", "at-end"])
+def test_a_ros1_bag_declaring_a_position_outside_the_file_is_one_line(tmp_path, capsys, field, kind):
+    """A chunk or index position past the end of the bag, beyond any seek (≥ 2⁶³) or "negative"
+    (an unsigned field near 2⁶⁴): checked before the seek (io/formats/bag1.py's _block raised
+    ValueError / OSError EINVAL, an internal error: 16 of 20,000 fuzzed bags)."""
+    import random
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+    import fuzz
+
+    from ccl_cli.io.formats.bag1 import read_index
+
+    good = writers.write_ros1_bag(tmp_path / "good.bag", writers.joint_recording(n=60, gap_after=30))
+    raw = good.read_bytes()
+    rng = random.Random(0)
+    for _ in range(200):  # the seeded draw that damages this field this way
+        mutation, damaged = fuzz.ros1_positions(raw, rng)
+        if mutation.startswith(f"ros1-position:{field}:{kind}"):
+            break
+    path = tmp_path / "damaged.bag"
+    path.write_bytes(damaged)
+    if kind != "at-end" or field == "index_pos":
+        with pytest.raises(InputError) as info:  # the numpy index; then rosbags' reader says why
+            read_index(path)
+        assert "\n" not in info.value.message
+    config = tmp_path / "c.yaml"
+    config.write_text("data: {state: {topic: /joint_states, field: position}, action: {derive: state}}\n")
+    for argv in (["inspect", str(path), "--json"],
+                 ["learn-a", str(path), "-c", str(config), "-o", str(tmp_path / "a"), "-q"]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("ccl: error: ") and "internal" not in err[0], err

@@ -368,12 +368,12 @@ def test_version_and_help_show_defaults_and_choices(capsys):
 
     proc = ccl("learn-a", "--help")
     text = " ".join(proc.stdout.split())
-    assert "<auto|nhat|alpha|lambda|linear|per_window|per_segment|manifold>" in text
-    assert "[default: (config, else auto)]" in text
-    assert f"<{'|'.join(get_args(SelectionRule))}>" in text
-    assert f"[default: (config, else {StateIndependentConstraint().selection})]" in text
-    assert "<ccl|original>" in text
-    assert "[default: (config, else pi)]" in " ".join(ccl("learn-pi", "--help").stdout.split())
+    assert "--method auto|nhat|alpha|lambda|linear|per_window|per_segment|manifold " in text
+    assert "[default: config, else auto]" in text
+    assert f"--selection {'|'.join(get_args(SelectionRule))} " in text
+    assert f"[default: config, else {StateIndependentConstraint().selection}]" in text
+    assert "--convention ccl|original " in text
+    assert "[default: config, else pi]" in " ".join(ccl("learn-pi", "--help").stdout.split())
 
 
 def test_flag_overrides_a_basis_mapping_at_any_depth(capsys, tmp_path):

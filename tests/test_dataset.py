@@ -44,5 +44,11 @@ def test_shape_and_value_checks():
     d = Demonstrations(X=np.array([[0.0], [np.nan]]), U=np.zeros((2, 1)))
     with pytest.raises(InputError, match="X has 1 non-finite samples \\(first at row 1\\)"):
         d.check_finite()
+    big = Demonstrations(X=np.zeros((3, 2)), U=np.array([[0.0, 1.0], [0.0, -3e216], [1e151, 0.0]]),
+                         action_names=["ux", "uy"])
+    with pytest.raises(InputError, match=r"U has 2 samples beyond ±1e\+150 \(first at row 1, uy = -3e\+216\)"
+                       ):
+        big.check_finite()  # squares overflow float64
+    Demonstrations(X=np.full((2, 1), 1e150), U=np.full((2, 1), -1e150)).check_finite()  # at the bound: kept
     with pytest.raises(InputError, match="test fraction"):
         d.split(1.5)

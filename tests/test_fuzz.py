@@ -46,6 +46,17 @@ def test_hostile_mix_small_budget():
     assert result["total"]["error"] > result["total"]["ok"] > 0
 
 
+def test_round4_mix_small_budget():
+    """The mutations of issue 28 (ROS 1 positions outside the file, 5,000-digit integers,
+    names that are not UTF-8, wide CSVs, YAML key bombs and duplicate keys): only our error
+    classes, no crash, nothing slow or over 500 MB."""
+    result = fuzz.fuzz(cases=60, seed=3, timeout=20.0, mix="round4")
+    bad = {k: result["total"][k] for k in ("internal", "crash", "timeout")}
+    assert bad == {"internal": 0, "crash": 0, "timeout": 0}, result["internal_groups"]
+    assert result["over_500MB"] == 0, result["peak_rss_mb"]
+    assert {"huge-int", "odd-name", "ros1-position"} <= set(result["mutations"]), result["mutations"]
+
+
 @pytest.fixture(scope="module")
 def csv_text(tmp_path_factory) -> str:
     path = writers.write_csv(tmp_path_factory.mktemp("csv") / "rec.csv", writers.joint_recording(n=12))

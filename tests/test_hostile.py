@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import time
 from pathlib import Path
 
@@ -249,6 +250,36 @@ def test_model_json_attributes_are_typed(fixtures, tmp_path):
         load_model(model)
 
 
+@pytest.mark.parametrize("method,array", [("nhat", "eigenvalues_"), ("nhat", "residuals_"),
+                                          ("linear", "scale_"), ("linear", "singular_values_")])
+@pytest.mark.parametrize("edit", ["short", "long"])
+def test_a_model_array_of_the_wrong_length_is_refused(capsys, tmp_path, method, array, edit):
+    """The vectors a model keeps beside its weights, edited to another length: refused when
+    the model loads (they were carried along silently)."""
+    data = tmp_path / "toy.h5"
+    write_demonstrations(data, sim.toy2d(constraint="parabola", n_demos=6, n_steps=40, seed=1))
+    extra = ["--regressors", "polynomial", "--degree", "2"] if method == "linear" else []
+    assert main(["learn-a", str(data), "--method", method, *extra, "-o", str(tmp_path / "m"), "-q",
+                 "--test-fraction", "0"]) == 0
+    model = tmp_path / "m" / "model.h5"
+    load_model(model)
+    with h5py.File(model, "a") as f:
+        name = next(k for k in _datasets(f) if k.endswith(array))
+        value = f[name][()]
+        del f[name]
+        f[name] = value[:-1] if edit == "short" else np.r_[value, value[-1:]]
+    with pytest.raises(h5safe.InputError, match=f"array {array} has shape"):
+        load_model(model)
+    code, _, err = run_main(capsys, "predict", model, data, "-o", tmp_path / "p.csv")
+    assert code == 2 and f"array {array} has shape" in one_line_error(err)
+
+
+def _datasets(f) -> list[str]:
+    found: list[str] = []
+    f.visititems(lambda name, obj: found.append(name) if isinstance(obj, h5py.Dataset) else None)
+    return found
+
+
 # -- YAML safely -----------------------------------------------------------------------------
 def billion_laughs(path: Path) -> Path:
     """Nine levels of nine aliases: 9^9 ≈ 387 million strings once expanded, in < 1 kB."""
@@ -427,6 +458,107 @@ def test_ros2_metadata_with_odd_types(capsys, tmp_path, edit):
             assert code == 2 and ("storage file name must be" in err or "must be lists" in err), err
 
 
+WIDE = "9" * 5000  # over Python's 4,300-digit limit of int(str)
+
+
+@pytest.mark.parametrize("where", ["config", "config_nested", "config_list", "manifest", "metadata",
+                                   "model_params", "model_fitted", "job_record"])
+def test_integers_beyond_64_bits_are_one_line(capsys, fixtures, tmp_path, where):
+    """A 5,000-digit integer in a config, a manifest, a ROS 2 bag's metadata.yaml or a model's
+    JSON attribute: exit 2, one line naming the file, the key and the line (it was an internal
+    ValueError from int() of > 4,300 digits); refused at parse time, never converted."""
+    import sys
+
+    import yaml
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    import writers
+
+    cfg = tmp_path / "c.yaml"
+    if where.startswith("config"):
+        cfg.write_text({"config": f"seed: {WIDE}\n",
+                        "config_nested": f"seed: 1\ndata:\n  test:\n    seed: {WIDE}\n",
+                        "config_list": f"learn-a:\n  grid: {{n_centres: [1, -{WIDE}]}}\n"}[where])
+        key = {"config": "seed", "config_nested": "data.test.seed",
+               "config_list": "learn-a.grid.n_centres[1]"}[where]
+        line = {"config": 1, "config_nested": 4, "config_list": 2}[where]
+        code, _, err = run_main(capsys, "learn-a", fixtures["data"], "-c", cfg, "-o", tmp_path / "o")
+        assert code == 2 and f"c.yaml:{line}: {key} is an integer of 5000 digits" in one_line_error(err)
+    elif where == "manifest":
+        manifest = tmp_path / "m.yaml"
+        manifest.write_text(f"jobs:\n  - files: [x.h5]\n    overrides: {{seed: {WIDE}}}\n")
+        code, _, err = run_main(capsys, "batch", manifest, "-o", tmp_path / "b")
+        assert code == 2 and "m.yaml:3: jobs[0].overrides.seed is an integer of 5000 digits" \
+            in one_line_error(err)
+    elif where == "metadata":
+        bag = writers.write_ros2_bag(tmp_path / "bag", writers.joint_recording(n=20))
+        text = (bag / "metadata.yaml").read_text()
+        count = yaml.safe_load(text)["rosbag2_bagfile_information"]["message_count"]
+        text = text.replace(f"message_count: {count}", f"message_count: {WIDE}", 1)
+        (bag / "metadata.yaml").write_text(text)
+        cfg.write_text("data:\n  state: {topic: /joint_states, field: position}\n")
+        for command in (["inspect", bag], ["convert", bag, "-o", tmp_path / "o.h5", "-c", cfg]):
+            code, _, err = run_main(capsys, *command)
+            assert code == 2 and re.search(r"metadata.yaml:\d+: rosbag2_bagfile_information\..*message_count "
+                                           "is an integer of 5000 digits", one_line_error(err)), err
+    elif where == "job_record":  # a tampered job.json: the job runs again instead of failing
+        data = copy(fixtures["data"], tmp_path / "toy.h5")
+        cfg.write_text("stages: [learn-a]\noutput: {plots: false}\ndata: {test: {fraction: 0}}\n")
+        args = ["batch", "--files", data, "-c", cfg, "-o", tmp_path / "b", "-j", "1", "--json", "-q"]
+        assert run_main(capsys, *args)[0] == 0
+        record = next((tmp_path / "b" / "jobs").iterdir()) / "job.json"
+        record.write_text(f'{{"key": {WIDE}}}')
+        code, out, err = run_main(capsys, *args)
+        assert code == 0 and json.loads(out)["ok"] == 1, err
+    else:
+        model = copy(fixtures["model"], tmp_path / "m.h5")
+        attr = where.split("_")[1]
+        with h5py.File(model, "a") as f:
+            value = json.loads(f.attrs[attr])
+            first = next(iter(value))
+            f.attrs[attr] = json.dumps({**value, first: 0}, indent=1).replace(": 0", f": {WIDE}", 1)
+        for command in (["predict", model, fixtures["data"], "-o", tmp_path / "p.csv"], ["inspect", model]):
+            code, _, err = run_main(capsys, *command)
+            assert code == 2 and f"attribute '{attr}' line 2: {first} is an integer of 5000 digits" \
+                in one_line_error(err)
+
+
+@pytest.mark.parametrize("text,match", [
+    ("seed: 1\nseed: 2\n", "c.yaml:2: duplicate key 'seed' at the top level (lines 1 and 2)"),
+    ("data:\n  test: {fraction: 0.2}\n  state: {columns: [x]}\n  test: {seed: 3}\n",
+     "c.yaml:4: duplicate key 'test' in data (lines 2 and 4)"),
+    ("stages:\n  - learn-a: {method: nhat, method: alpha}\n",
+     "c.yaml:2: duplicate key 'method' in stages[0].learn-a (lines 2 and 2)"),
+])
+def test_duplicate_yaml_keys_are_refused_naming_both_lines(capsys, fixtures, tmp_path, text, match):
+    """PyYAML keeps the last of two equal keys silently; a config saying two things is refused."""
+    (tmp_path / "c.yaml").write_text(text)
+    code, _, err = run_main(capsys, "learn-a", fixtures["data"], "-c", tmp_path / "c.yaml", "-o",
+                            tmp_path / "o")
+    assert code == 2 and match in one_line_error(err)
+
+
+def test_a_key_bomb_is_refused_before_it_is_built(capsys, fixtures, tmp_path):
+    """A 3.4-MB config of 200,000 keys: refused while only the parser's events are walked —
+    no node built (it was refused after composing 400,003 nodes: 22–50 s and ~370 MB)."""
+    import tracemalloc
+
+    from ccl_cli import config as C
+
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text("data:\n" + "".join(f"  k{i:06d}: {i}\n" for i in range(200_000)))
+    assert bomb.stat().st_size > 3.4e6
+    tracemalloc.start()
+    t0 = cpu_seconds()
+    with pytest.raises(C.ConfigError, match=r"bomb.yaml:50000: config has more than 100000 values"):
+        C.load(bomb)
+    seconds, peak = cpu_seconds() - t0, tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 60e6 and seconds < 3, (peak, seconds)  # the text and its decoding, no nodes
+    code, _, err = run_main(capsys, "learn-a", fixtures["data"], "-c", bomb)
+    assert code == 2 and "key or alias bomb" in one_line_error(err)
+
+
 # -- never lose data ---------------------------------------------------------------------------
 def test_force_never_replaces_a_folder_ccl_did_not_write(capsys, fixtures, tmp_path):
     mine = tmp_path / "thesis"
@@ -435,6 +567,7 @@ def test_force_never_replaces_a_folder_ccl_did_not_write(capsys, fixtures, tmp_p
     (mine / "metrics.json").write_text("{}")  # looks a bit like an output, still not ours
     code, _, err = run_main(capsys, "learn-v", fixtures["data"], "-o", mine, "--force", "-q")
     assert code == 2 and "was not written by ccl" in one_line_error(err)
+    assert "remove it yourself" in err and "holds a run.json" not in err
     assert (mine / "chapter1.tex").read_text() == "years of work"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["thesis"]
     afile = tmp_path / "notes.txt"
@@ -447,6 +580,76 @@ def test_force_never_replaces_a_folder_ccl_did_not_write(capsys, fixtures, tmp_p
         code, _, err = run_main(capsys, "learn-v", fixtures["data"], "-o", out, "--force", "-q")
         assert code == 0, err
     assert (out / ".ccl-output").is_file()
+
+
+@pytest.mark.parametrize("marker", [None, "empty", "other", "symlink", "fifo", "folder"])
+def test_force_never_replaces_a_folder_holding_a_look_alike_run_json(capsys, fixtures, tmp_path, marker):
+    """A user's folder holding a run.json with command and versions (what ccl's outputs held
+    before the marker; any tool may write one), with or without a .ccl-output that is not
+    ccl's: --force refuses it in one line naming the hint, every file intact (it was deleted)."""
+    mine = tmp_path / "results"
+    mine.mkdir()
+    files = {"run.json": json.dumps({"command": "my-tool", "versions": {"my-tool": "1.0"}}),
+             "data.csv": "1,2,3\n", "notes.md": "two years of notes\n"}
+    for name, text in files.items():
+        (mine / name).write_text(text)
+    outside = tmp_path / "elsewhere.json"
+    outside.write_text(json.dumps({"written_by": "ccl"}))
+    if marker == "empty":
+        (mine / ".ccl-output").write_text("")
+    elif marker == "other":
+        (mine / ".ccl-output").write_text(json.dumps({"written_by": "another tool"}))
+    elif marker == "symlink":  # ccl's content, but not a file of the folder
+        (mine / ".ccl-output").symlink_to(outside)
+    elif marker == "fifo":
+        os.mkfifo(mine / ".ccl-output")
+    elif marker == "folder":
+        (mine / ".ccl-output").mkdir()
+    code, _, err = run_main(capsys, "learn-a", fixtures["data"], "-o", mine, "--force", "-q")
+    line = one_line_error(err)
+    assert code == 2 and "--force replaces only folders ccl marked" in line
+    assert "holds a run.json but no .ccl-output marker of ccl's" in line and "remove it yourself" in line
+    assert {p.name: p.read_text() for p in mine.iterdir() if p.is_file() and not p.is_symlink()
+            and p.name != ".ccl-output"} == files
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere.json", "results"]
+
+
+def test_force_as_an_unprivileged_user(fixtures):
+    """As the user nobody (where permissions matter): an output nobody wrote is replaced with
+    --force; a look-alike folder, and one whose marker nobody cannot read, are refused with
+    every file intact."""
+    import shutil
+    import subprocess
+
+    from tests_paths import CCL, as_nobody, shared_folder
+
+    prefix = as_nobody()
+    root = shared_folder()
+    try:
+        data = copy(fixtures["data"], root / "toy.h5")
+        data.chmod(0o644)
+
+        def ccl(*args):
+            proc = subprocess.run([*prefix, CCL, *map(str, args), "-q"], capture_output=True, text=True,
+                                  timeout=300, cwd=root)
+            return proc.returncode, proc.stderr
+
+        code, err = ccl("learn-a", data, "-o", root / "out")
+        assert code == 0, err
+        code, err = ccl("learn-a", data, "-o", root / "out", "--force")
+        assert code == 0, err
+        mine = root / "mine"
+        mine.mkdir()
+        (mine / "run.json").write_text(json.dumps({"command": "x", "versions": {}}))
+        (mine / "keep.txt").write_text("mine")
+        (mine / ".ccl-output").write_text(json.dumps({"written_by": "ccl"}))
+        (mine / ".ccl-output").chmod(0o000)  # a marker this user cannot read is no marker
+        mine.chmod(0o777)
+        code, err = ccl("learn-a", data, "-o", mine, "--force")
+        assert code == 2 and "--force replaces only folders ccl marked" in one_line_error(err)
+        assert (mine / "keep.txt").read_text() == "mine" and (mine / "run.json").exists()
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
 
 
 def test_stale_temporaries_of_a_killed_run_are_removed(capsys, fixtures, tmp_path):

@@ -17,7 +17,7 @@ from ccl_cli.cli import main
 from ccl_cli.io import write_demonstrations
 from ccl_cli.learn.constraint import AutoConstraint, sure
 from ccl_cli.learn.constraint import noise_rank as nr
-from ccl_cli.render import figures
+from ccl_cli.render import count, figures
 
 
 def rotate(v: np.ndarray, axis: np.ndarray, deg: float) -> np.ndarray:
@@ -139,7 +139,7 @@ def test_report_metrics_and_inspect_say_how_sure(tmp_path, capsys):
 def test_count_figure_of_the_states_geometry_draws_each_model_and_its_limit():
     d = sim.tracker_plane(duration=30.0, seed=1)
     sel = fit(d).selection_
-    fig = figures.selection_figure(sel, 3)
+    fig = count.selection_figure(sel, 3)
     ax = fig.axes[0]
     shapes = sel["geometry"]["models"]
     bars = [c for c in ax.collections if not hasattr(c, "get_segments")]  # one collection per rank k
@@ -148,14 +148,14 @@ def test_count_figure_of_the_states_geometry_draws_each_model_and_its_limit():
     assert tops == pytest.approx([max(max(m["drift"]), floor) for m in sorted(shapes, key=lambda m: m["k"])])
     limits = [s[0][1] for c in ax.collections if hasattr(c, "get_segments") for s in c.get_segments()]
     assert limits == pytest.approx([m["limit"] for m in sorted(shapes, key=lambda m: m["k"])])
-    chosen = [t.get_text() for t in ax.texts if t.get_color() == figures.CHOSEN_COLOUR]
+    chosen = [t.get_text() for t in ax.texts if t.get_color() == count.CHOSEN_COLOUR]
     assert chosen == ["k = 1"]
 
 
 def test_count_figure_of_the_velocities_draws_ratios_shares_and_the_rule():
     d = sim.arm7(rows=(0, 1), n_demos=20, seed=2)
     sel = fit(d, candidates=["nhat", "per_demo"]).selection_
-    fig = figures.selection_figure(sel, 7)
+    fig = count.selection_figure(sel, 7)
     ratio_ax, share_ax = fig.axes
     nhat = next(r for r in sel["candidates"] if r["class"] == "nhat")
     line = next(ln for ln in ratio_ax.lines if ln.get_label().startswith("nhat"))

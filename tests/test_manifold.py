@@ -150,6 +150,9 @@ def test_revisits_tell_loops_from_a_single_pass():
     assert revisits(X[g == 0]) > 0.8
     X, g = free_reaches()
     assert revisits(X[g == 0]) < 0.05
+    X, g, _ = plane_strokes()
+    share = revisits(X[g == 0])
+    assert revisits(X[g == 0] * 1e250) == share  # no overflow in the tree's distances (was a ValueError)
 
 
 def _logs(kind: str) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:

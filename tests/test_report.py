@@ -6,6 +6,7 @@ formula in the reports fails here.
 """
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -117,6 +118,9 @@ def test_task_term_is_not_in_npoe_and_policy_metrics_by_hand(tmp_path):
         "learn-pi-time.png"}
     report = (out / "report.md").read_text()
     assert "NMSE" not in report and "baseline" in report.lower()
+    # no learn-v stage ran: no label speaks of one (the task part is learn-a's A⁺b)
+    assert "Learnt from the observed actions u.\n" in report and not re.search(r"learnt v\b", report)
+    assert "(var of u - learnt task part A+b)" in report
     assert metrics["learn-a"]["constraint"]["median_angle_deg"] < 1.0
     N_est = np.eye(2)[None] - a[:, :, None] * a[:, None, :] / norm2[:, None, None]
     v_est = a * (b / norm2)[:, None]
@@ -128,7 +132,7 @@ def test_task_term_is_not_in_npoe_and_policy_metrics_by_hand(tmp_path):
         check(got, "NCPE", msq(apply(Np, d.truth["pi"] - est)), tv(apply(Np, d.truth["pi"])), "N pi")
         if part == "train":
             z = d.U - v_est
-            check(got, "NCPE_obs", msq(z - apply(N_est, est)), tv(z), "u - learnt v")
+            check(got, "NCPE_obs", msq(z - apply(N_est, est)), tv(z), "u - learnt task part A+b")
         # no policy metric compares u with π̃
         assert set(got) <= {"NUPE", "NCPE", "NCPE_obs"}
         base = metrics["learn-pi"]["baseline"][part]

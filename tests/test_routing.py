@@ -45,6 +45,7 @@ CASES = [
     ("per_segment", lambda: C.PerSegment(), {"penalty": [2.0, 4.0]}, TILT),
     ("stretches", lambda: C.ConstraintInStretches(), {"block": [0.5, 1.0]}, WIPE),
     ("auto", lambda: C.AutoConstraint(), {"cv_folds": [3]}, PLANE),
+    ("manifold", lambda: C.ManifoldConstraint(), {"family": ["linear", "sphere"]}, PLANE),
     ("ncl", lambda: NullSpaceComponent(n_centres=4, tune=False), {"n_centres": [4, 9]}, NCL),
     *[(m, lambda m=m: PolicyLearner(method=m, n_centres=9, tune=False), {"n_centres": [4, 9]}, TOY)
       for m in METHODS],

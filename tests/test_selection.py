@@ -89,7 +89,35 @@ def test_ratio_rule_counts_residuals_at_the_noise_level():
     assert exact.n_constraints == 2
     assert rank.ratio(np.array([1.0, 1.1]), max_k=1).n_constraints == 1
     d = sel.as_dict()
-    assert set(d) == {"rule", "n_constraints", "values", "criterion", "reason"}
+    assert set(d) == {"rule", "n_constraints", "values", "criterion", "reason", "limits", "limit_rule"}
+    # the limit each value was held against: none for row 1, then 2 × row 1's (3e-4 > 2e-4 stops it)
+    assert d["limits"][0] is None and d["limits"][1:] == pytest.approx([2e-4] * 3)
+    assert exact.as_dict()["limits"][1] == pytest.approx(2e-9)  # the floor 1e-9 × max, not 2e-32
+
+
+def test_each_rule_records_the_limit_it_held_its_values_against():
+    """threshold: the level after row 1; cv: the NPOE of k − 1 rows + 2 × row 1's increment + one SE
+    (rows counted while within it); eigengap: the ratio across each gap; noise: the noise rule's
+    limits and the shares with theirs."""
+    from ccl_cli.learn.constraint import noise_rank as nr
+
+    th = rank.Selection("threshold", 1, [0.01, 0.5], limits=rank.threshold_limits(2, 0.1))
+    assert th.as_dict()["limits"] == [None, 0.1]
+    inc = np.array([[1.0, 1.9, 9.0], [1.2, 2.3, 11.0], [0.8, 1.7, 10.0]])  # 3 folds, 3 rows
+    cv = rank.cv_rule(inc, max_k=3)
+    se = (inc[:, 1] - 2 * inc[:, 0]).std(ddof=1) / np.sqrt(3)
+    assert cv.n_constraints == 2 and cv.values == pytest.approx(np.cumsum(inc.mean(0)))
+    assert cv.limits[1] == pytest.approx(1.0 + 2 * 1.0 + se)
+    assert cv.values[1] <= cv.limits[1] and cv.values[2] > cv.limits[2]
+    gap = rank.gap(np.array([1e-4, 2e-4, 1.0]))
+    assert gap.n_constraints == 2 and gap.as_dict()["gaps"] == pytest.approx([2.0, 5e3])
+    ev = nr.RowEvidence(energy=np.array([1e-3, 0.5]), noise=np.array([1e-3, 1e-3]),
+                        share=np.array([2e-3, 0.99]), snr=100.0)
+    noise = nr.noise_rank(ev, 2).as_dict()
+    assert noise["n_constraints"] == 1 and noise["values"] == pytest.approx([1.0, 500.0])
+    assert noise["limits"] == pytest.approx([nr.MARGIN, 2.0])
+    assert noise["share"] == pytest.approx([2e-3, 0.99])
+    assert noise["share_limits"] == pytest.approx([nr.SHARE, nr.SHARE])
 
 
 def test_lambda_cross_validated_count_on_the_7dof_arm_scores_joint_space_data():

@@ -91,7 +91,7 @@ def test_inspect_names_storage_compression_and_encoding(tmp_path, capsys, contai
             "mcap": lambda: write_mcap_ros2(tmp_path / "r.mcap", rec)}[container]()
     assert main(["inspect", str(path), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
-    expected = {"ros1": ("ROS 1 bag", "none", "ros1msg"), "ros1-bz2": ("ROS 1 bag", "bz2", "ros1msg"),
+    expected = {"ros1": ("ROS 1 bag", "none", "ros1"), "ros1-bz2": ("ROS 1 bag", "bz2", "ros1"),
                 "ros2": ("ROS 2 bag (sqlite3", "none", "cdr"), "mcap": ("MCAP", "zstd", "cdr")}[container]
     assert info["storage"].startswith(expected[0])
     assert info["compression"] == expected[1] and info["encoding"] == expected[2]

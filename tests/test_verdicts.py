@@ -55,6 +55,25 @@ def test_constraint_evidence_tells_a_quiet_row_from_a_moving_one():
 
 
 
+def test_constraint_evidence_of_a_curved_surface_reads_its_level_not_its_integrated_rows():
+    """A model of level sets measures the positions' drift by its own level h(x): integrating the
+    normalised gradients of a sphere adds up their tilts over every loop (the Trakstar curved
+    surface: 1.1 of the spread, "does not hold", on the right answer)."""
+    from ccl_cli.learn.constraint import ManifoldConstraint, geometry
+
+    d = sim.tracker_sphere(duration=60.0, seed=4)
+    model = ManifoldConstraint(family="sphere", n_constraints=1).fit(d.X, d.U, groups=d.demo)
+    ev = diagnostics.constraint_evidence(model, d, d.U)
+    h = model.levels(d.X)[:, 0]
+    by_hand = h.std() / np.sqrt(np.trace(np.cov(d.X.T, bias=True)))  # one demonstration
+    assert ev["holds"] and ev["drift"][0] == pytest.approx(by_hand, rel=1e-9) and by_hand < 0.02
+    integrated = geometry.rows_drift(model.constraint(d.X), d.X, d.demo)[0]
+    assert integrated > 5 * by_hand
+    model.weights_[:, 0] = model.weights_[:, -1].copy()  # the level of the widest spread instead
+    ev = diagnostics.constraint_evidence(model, d, d.U)
+    assert not ev["holds"] and ev["measure"] == "drift" and ev["drift"][0] > 0.5
+
+
 def test_constraint_evidence_of_overflowing_data_tells_nothing():
     """Observations whose squares overflow (a damaged file's 1e200s) give no evidence, not
     rows judged on NaN (does_not_hold then found no moving row: StopIteration)."""
@@ -232,3 +251,22 @@ def test_degenerate_input_is_not_ok(capsys, tmp_path):
     few = d.subset(np.arange(1))
     found = diagnostics.degenerate_input("learn-a", few, few.U, "u", model)
     assert found and "1 training samples for 2 parameters" in found[0]["message"]
+
+
+def test_a_policy_with_no_metric_is_unjudged_not_ok(capsys, tmp_path):
+    """learn-pi alone on data without a true π: no metric (no Ñ to compare u with, no π to compare
+    π̃ with), so the stage is "unjudged" — never "ok" — says why, and --strict exits 1; the same
+    data with its truth has NUPE and is judged on it."""
+    data = sim.toy2d(n_demos=12, seed=3)
+    bare = data.subset(np.arange(data.n_samples))
+    bare.truth = {}
+    code, summary, metrics, report = run(capsys, tmp_path, bare, "[learn-pi]", "", "--strict")
+    assert code == 1 and summary["status"] == "unjudged" and metrics["learn-pi"]["status"] == "unjudged"
+    assert not any(metrics["learn-pi"].get(split) for split in ("train", "test", "heldout_blocks"))
+    assert summary["verdict"].startswith("unjudged: learn-pi: no metric to judge it by")
+    assert [w["code"] for w in summary["warnings"]].count("not_judged") == 1
+    assert report.startswith("# ccl run\n\n**Verdict: unjudged: ")
+    assert "no metric either." in report  # its dpl baseline has none either
+    code, summary, metrics, _ = run(capsys, tmp_path, data, "[learn-pi]")
+    assert "NUPE" in metrics["learn-pi"]["test"] and summary["status"] in ("ok", "poor")
+    assert "not_judged" not in [w["code"] for w in summary["warnings"]]

@@ -33,3 +33,39 @@ def cpu_seconds() -> float:
 
     own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def as_nobody() -> list[str]:
+    """The command prefix that runs a command as the unprivileged user ``nobody`` (setpriv,
+    when this runs as root), or [] when this already runs unprivileged; skips the test when
+    neither is possible."""
+    import os
+    import pwd
+    import subprocess
+
+    import pytest
+
+    if os.geteuid() != 0:
+        return []
+    setpriv = shutil.which("setpriv")
+    try:
+        user = pwd.getpwnam("nobody")
+    except KeyError:
+        user = None
+    if setpriv is None or user is None:
+        pytest.skip("running as root without setpriv or a nobody user")
+    prefix = [setpriv, f"--reuid={user.pw_uid}", f"--regid={user.pw_gid}", "--clear-groups", "--"]
+    probe = subprocess.run([*prefix, CCL, "--version"], capture_output=True, timeout=60)
+    if probe.returncode != 0:
+        pytest.skip("ccl cannot run as nobody here (its environment is not readable)")
+    return prefix
+
+
+def shared_folder() -> Path:
+    """A new folder under the system's temporary folder that every user may write into
+    (the tests' own tmp_path is private to this user)."""
+    import tempfile
+
+    folder = Path(tempfile.mkdtemp(prefix="ccl-shared-"))
+    folder.chmod(0o777)
+    return folder

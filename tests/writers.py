@@ -146,9 +146,9 @@ def write_mcap_ros1(path: Path, rec: Recording) -> Path:
     return path
 
 
-def write_mcap_json(path: Path, rec: Recording, messages: list[dict] | None = None) -> Path:
-    """JSON-encoded JointState messages (``messages``: these dicts instead of ``rec``'s, one
-    per stamp of ``rec``)."""
+def write_mcap_json(path: Path, rec: Recording, messages: list[dict | bytes] | None = None) -> Path:
+    """JSON-encoded JointState messages (``messages``: these dicts, or encoded texts, instead of
+    ``rec``'s, one per stamp of ``rec``)."""
     from mcap.writer import Writer
 
     with open(path, "wb") as f:
@@ -159,7 +159,8 @@ def write_mcap_json(path: Path, rec: Recording, messages: list[dict] | None = No
         cid = writer.register_channel("/joint_states", "json", sid)
         for i in range(len(rec.t_ns)):
             msg = msg_dict(rec, i) if messages is None else messages[i]
-            writer.add_message(cid, int(rec.log_ns[i]), json.dumps(msg).encode(), int(rec.log_ns[i]))
+            raw = msg if isinstance(msg, bytes) else json.dumps(msg).encode()
+            writer.add_message(cid, int(rec.log_ns[i]), raw, int(rec.log_ns[i]))
         writer.finish()
     return path
 

@@ -14,9 +14,9 @@ Manifest (YAML; paths relative to it)::
 Each job writes ``OUT/jobs/<job>/`` exactly as ``ccl run`` would, plus ``job.json`` with its
 content key (sha256 of the input files, the resolved config and the ccl version). A job
 whose folder holds the same key is skipped unless ``force``; folders are written atomically,
-so an interrupted batch resumes where it stopped. Execution goes through one
-``concurrent.futures.Executor``: a process pool locally, or a dask.distributed cluster's
-executor with ``scheduler`` — the same code path.
+so an interrupted batch resumes where it stopped. Each job is one call of :func:`run_job`: on a
+local process pool, or with ``scheduler`` on a dask.distributed cluster whose lost workers and
+scheduler are watched for (:mod:`ccl_cli.app.dask_jobs`).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from typing import Any
 
 from ccl_cli import __version__, config
 from ccl_cli.errors import CCLError, ConfigError, OutputError
-from ccl_cli.learn.blas import THREAD_VARS
+from ccl_cli.learn.blas import THREAD_VARS, affinity_cores
 
 log = logging.getLogger("ccl")
 #: writes one job's folder: (RunResult, outdir, *, force, extra_files) → summary
@@ -100,7 +100,8 @@ def job_key(files: list[str], cfg: dict[str, Any]) -> str:
 
 def _job_id(files: list[str]) -> str:
     stem = Path(files[0]).name.replace(".", "_") if len(files) == 1 else f"group_{Path(files[0]).parent.name}"
-    digest = hashlib.sha256("\n".join(sorted(map(str, files))).encode()).hexdigest()[:8]
+    names = "\n".join(sorted(map(str, files))).encode("utf-8", "surrogateescape")  # any bytes a name holds
+    digest = hashlib.sha256(names).hexdigest()[:8]
     return f"{stem}-{digest}"
 
 
@@ -115,6 +116,7 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
     (:func:`~ccl_cli.io.limits.inside`).
     """
     from ccl_cli.io import expand_files, read_yaml
+    from ccl_cli.io.files import TWICE, given_once
 
     if manifest is not None:
         mpath = Path(manifest)
@@ -158,13 +160,19 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
     for i, rule in enumerate(rules):
         _check_rule(rule, f"{where}jobs[{i}]")
         matched = _resolved(expand_files(rule["files"], base), base, named, allow_outside)
+        try:
+            given_once([Path(f) for f in matched],
+                       why=TWICE if rule.get("group") else "it would be run twice, into one folder")
+        except CCLError as exc:
+            rule_at = f"jobs[{i}]: " if named is not None else ""
+            raise ConfigError(f"{where}{rule_at}{exc.message}") from None
         if named is not None and rule.get("config"):
             _inside(base, Path(rule["config"]), named, allow_outside, f"jobs[{i}].config")
         groups = [matched] if rule.get("group") else [[f] for f in matched]
         for group in groups:
             overrides = [rule.get("overrides") or {}, *(v for paths, v in file_over
                                                           if any(p in group for p in paths))]
-            same = json.dumps([rule.get("config"), overrides], sort_keys=True, default=str)
+            same = json.dumps(_typed_keys([rule.get("config"), overrides]), sort_keys=True, default=str)
             cfg = resolved.get(same)
             if cfg is None:
                 try:
@@ -184,6 +192,17 @@ def plan(manifest: str | Path | None = None, files: list[str] | None = None,
     if not jobs:
         raise ConfigError("the manifest matches no files")
     return jobs, out
+
+
+def _typed_keys(value: Any) -> Any:
+    """``value`` with every mapping key as text naming its type (``str:a``, ``int:1``): a
+    manifest may give keys of several types (YAML ``1:`` is an integer), which json cannot
+    sort together; the config check then names the key at fault."""
+    if isinstance(value, dict):
+        return {f"{type(k).__name__}:{k}": _typed_keys(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_typed_keys(v) for v in value]
+    return value
 
 
 def _resolved(paths: list[Path], base: Path, manifest: Path | None, allow_outside: bool) -> list[str]:
@@ -232,20 +251,55 @@ def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
     so it pickles to the workers)."""
     logging.getLogger("ccl").setLevel(logging.WARNING)
     _ignore_file_size_signal()
+    with _named(job.job_id):
+        return _run_job(job, jobs_dir, force, write)
+
+
+class _JobLines(logging.Formatter):
+    """'ccl: <job>: message' on stderr, a file name that is not UTF-8 shown as ``\\xNN``."""
+
+    def __init__(self, job_id: str) -> None:
+        super().__init__("%(message)s")
+        self.job_id = job_id
+
+    def format(self, record: logging.LogRecord) -> str:
+        line = f"ccl: {self.job_id}: {super().format(record)}"
+        return line.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
+@contextlib.contextmanager
+def _named(job_id: str):
+    """While a job runs, its warnings (stderr of a local worker, a Dask worker's log) name it:
+    'ccl: <job>: warning: ...'; only the lines of the thread that runs it (a Dask worker runs
+    several jobs at once)."""
+    import threading
+
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_JobLines(job_id))
+    handler.setLevel(logging.WARNING)
+    me = threading.get_ident()
+    handler.addFilter(lambda record: record.thread == me)
+    logger = logging.getLogger("ccl")
+    logger.addHandler(handler)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+
+
+def _run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
+    """:func:`run_job`'s work."""
     t0 = time.perf_counter()
     outdir = Path(jobs_dir) / job.job_id
     try:
         key = job_key(job.files, job.config)
         marker = outdir / "job.json"
         if not force and marker.exists():
-            try:
-                if json.loads(marker.read_text()).get("key") == key:
-                    stages = json.loads((outdir / "metrics.json").read_text())
-                    from ccl_cli.app.run import summarise
+            done = _recorded(marker, outdir / "metrics.json", key)
+            if done is not None:
+                from ccl_cli.app.run import summarise
 
-                    return JobResult(job.job_id, job.files, "skipped", 0.0, stages=summarise(stages))
-            except (json.JSONDecodeError, OSError):
-                pass
+                return JobResult(job.job_id, job.files, "skipped", 0.0, stages=summarise(done))
         cfg = config.from_mapping(job.config, source=job.config_path or "<batch>")
         from ccl_cli.app.run import execute
 
@@ -264,14 +318,30 @@ def run_job(job: Job, jobs_dir: str, force: bool, write: Writer) -> JobResult:
                          f"internal error: {type(exc).__name__}: {first}", 1)
 
 
+def _recorded(marker: Path, metrics: Path, key: str) -> dict[str, Any] | None:
+    """The metrics of a job folder whose ``job.json`` records ``key`` (it is up to date);
+    None when it records another key or either file is unreadable (the job runs again)."""
+    from ccl_cli.io.jsonsafe import loads
+
+    try:
+        record = loads(marker.read_bytes(), str(marker))
+        stages = loads(metrics.read_bytes(), str(metrics)) if isinstance(record, dict) and \
+            record.get("key") == key else None
+    except (CCLError, OSError):
+        return None
+    return stages if isinstance(stages, dict) else None
+
+
 #: what a batch folder of a ccl version before the .ccl-output marker holds
 BATCH_FILES = {"jobs", "summary.csv", "summary.md", "summary.json", "summary.png"}
 
 
 def written_by_earlier_batch(path: Path) -> bool:
-    """True for a batch folder of an earlier ccl (no marker): nothing but ``jobs/`` and the
-    summaries, every job folder one ccl wrote (:func:`~ccl_cli.io.atomic.written_by_ccl`)."""
-    from ccl_cli.io.atomic import is_temporary, written_by_ccl
+    """True for what looks like the batch folder of an earlier ccl (no marker): nothing but
+    ``jobs/`` and the summaries, every job folder holding a run.json like ccl's
+    (:func:`~ccl_cli.io.atomic.looks_like_an_output`). Only a hint: such a folder is refused
+    like any other folder ccl did not mark (any tool may write such files)."""
+    from ccl_cli.io.atomic import is_temporary, looks_like_an_output
 
     try:
         names = {p.name for p in path.iterdir()}
@@ -279,7 +349,7 @@ def written_by_earlier_batch(path: Path) -> bool:
     except OSError:
         return False
     return "jobs" in names and names <= BATCH_FILES and bool(jobs) and \
-        all(p.is_dir() and not p.is_symlink() and written_by_ccl(p) for p in jobs)
+        all(p.is_dir() and not p.is_symlink() and looks_like_an_output(p) for p in jobs)
 
 
 def _ignore_file_size_signal() -> None:
@@ -293,46 +363,34 @@ def _ignore_file_size_signal() -> None:
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 
 
-def make_executor(workers: int | None, scheduler: str | None,
-                  preload: tuple[str, ...] = ()) -> tuple[Executor, Any]:
-    """A process pool (workers from the fork server), or the executor of a dask.distributed
-    client at ``scheduler``."""
-    if scheduler:
-        try:
-            from distributed import Client
-        except ImportError:
-            raise ConfigError("--scheduler needs dask.distributed: pip install 'ccl_cli[dask]'") from None
-        _check_reachable(scheduler)
-        try:
-            client = Client(scheduler, timeout="10s")
-        except Exception as exc:
-            raise ConfigError(f"cannot connect to the Dask scheduler at {scheduler} ({exc})") from None
-        return client.get_executor(), client
+def worker_count(requested: int | None, oversubscribe: bool = False, jobs: int | None = None
+                 ) -> tuple[int, str | None]:
+    """The local workers of a batch: ``requested`` (default: one per usable core, the cores
+    this process may run on: :func:`~ccl_cli.learn.blas.affinity_cores`), at most the usable
+    cores unless ``oversubscribe`` (more processes than cores only share them, and each costs
+    its memory and start), and no more than the ``jobs``. Returns (workers, the line that says
+    why fewer than asked for run, or None)."""
+    cores = affinity_cores()
+    n = cores if requested is None else requested
+    said = None
+    if n > cores and not oversubscribe:
+        many = "s" if cores != 1 else ""
+        said = (f"-j {requested}: {cores} usable core{many}, so {cores} worker{many} (more would only "
+                f"share them; --oversubscribe starts {requested})")
+        n = cores
+    return (max(1, min(n, jobs)) if jobs else n), said
+
+
+def make_executor(workers: int | None, preload: tuple[str, ...] = ()) -> Executor:
+    """The local process pool (workers from the fork server)."""
     from concurrent.futures import ProcessPoolExecutor
 
     from ccl_cli.lifeline import worker_init
 
-    n = workers or os.cpu_count() or 1
+    n = workers or affinity_cores()
     ctx = local_context(n, preload)
     return ProcessPoolExecutor(max_workers=n, mp_context=ctx, initializer=worker_init,
-                               initargs=(os.getpid(),)), None
-
-
-def _check_reachable(address: str) -> None:
-    """A refused or unresolvable ``tcp://host:port`` scheduler address is a ConfigError at once
-    (dask.distributed would retry it until its connect timeout)."""
-    import socket
-    from urllib.parse import urlsplit
-
-    parts = urlsplit(address if "://" in address else f"tcp://{address}")
-    if parts.scheme != "tcp" or not parts.hostname or parts.port is None:
-        return  # other transports (tls, inproc, ...): left to dask.distributed
-    try:
-        with socket.create_connection((parts.hostname, parts.port), timeout=5):
-            pass
-    except OSError as exc:
-        reason = exc.strerror or type(exc).__name__
-        raise ConfigError(f"cannot connect to the Dask scheduler at {address} ({reason})") from None
+                               initargs=(os.getpid(),))
 
 
 #: modules every worker starts with, imported once (by the fork server, or by this process
@@ -345,7 +403,7 @@ def _blas_threads(n: int) -> int | None:
     """BLAS threads of each of ``n`` local workers: cores / n, in the environment of the
     processes started from now on where the user set none (returned; None when the user
     set one: this process's BLAS, and a forked worker's, then already follow it)."""
-    threads = max(1, (os.cpu_count() or 1) // n)
+    threads = max(1, affinity_cores() // n)
     chosen = not any(var in os.environ for var in THREAD_VARS)
     for var in THREAD_VARS:
         os.environ.setdefault(var, str(threads))  # workers share the cores, not oversubscribe them
@@ -375,7 +433,7 @@ def local_context(n: int, preload: tuple[str, ...] = ()):
 def start_workers(workers: int | None, preload: tuple[str, ...] = ()) -> None:
     """Start the local fork server now: its imports (:data:`PRELOAD` and ``preload``) then
     overlap the planning of the batch instead of delaying the first job."""
-    ctx = local_context(workers or os.cpu_count() or 1, preload)
+    ctx = local_context(workers or affinity_cores(), preload)
     if ctx.get_start_method() == "forkserver":
         from multiprocessing import forkserver
 
@@ -406,7 +464,7 @@ def fork_workers(workers: int | None, preload: tuple[str, ...] = ()) -> Executor
 
     for module in (*PRELOAD, *preload):
         importlib.import_module(module)
-    n = workers or os.cpu_count() or 1
+    n = workers or affinity_cores()
     pool = ProcessPoolExecutor(max_workers=n, mp_context=get_context("fork"), initializer=_forked_init,
                                initargs=(os.getpid(), _blas_threads(n)))
     pool.submit(int)  # forks every worker now, before this process starts a thread
@@ -434,16 +492,19 @@ def _forked_init(parent: int, blas_threads: int | None) -> None:
 
 def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = None,
               scheduler: str | None = None, force: bool = False, progress=None,
-              pool: Executor | None = None) -> list[JobResult]:
+              pool: Executor | None = None, worker_wait: float | None = None) -> list[JobResult]:
     """Run ``jobs`` into ``out/jobs/`` over ``workers`` local processes (or the Dask cluster at
     ``scheduler``), each job's folder written by ``write`` (see :func:`run_job`); results in
     the jobs' order. ``progress(result)`` is called as each job ends. ``pool``: local workers
     already started (:func:`fork_workers`), shut down here whatever happens.
 
-    ``out`` must be new, empty, or a batch folder ccl made (:func:`~ccl_cli.io.atomic.claim_folder`):
+    ``out`` must be new, empty, or a batch folder ccl marked (:func:`~ccl_cli.io.atomic.claim_folder`):
     a user's folder is refused untouched. A job whose folder cannot be written (a full disk,
     a file-size limit) stops the batch: :class:`OutputError`, and what this run left empty
-    is removed (:func:`~ccl_cli.io.atomic.release_folder`)."""
+    is removed (:func:`~ccl_cli.io.atomic.release_folder`). On Dask, a lost worker costs the
+    jobs it held (retried elsewhere, then failed), a lost scheduler or no worker left for
+    ``worker_wait`` seconds ends the batch with one line (:mod:`ccl_cli.app.dask_jobs`); the
+    jobs that finished are kept for a rerun."""
     from ccl_cli.io.atomic import claim_folder, clean_stale, release_folder
 
     try:
@@ -464,36 +525,72 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
     removed = clean_stale(jobs_dir, every=True)
     if removed:
         log.info("removed %d unfinished job folder(s) of an interrupted batch", removed)
-    executor, client = (pool, None) if pool is not None else \
-        make_executor(workers, scheduler, (write.__module__,))
+    by_id = {job.job_id: job for job in jobs}
     results: list[JobResult] = []
+
+    def ended(res: JobResult) -> None:
+        results.append(res)
+        if progress is not None:
+            progress(res)
+        if res.output_fault:  # the disk is full or a size limit hit: every job would fail
+            raise OutputError(res.error)
+
+    def failed(job_id: str, reason: str) -> None:
+        job = by_id[job_id]
+        ended(JobResult(job.job_id, job.files, "failed", 0.0, reason, 1))
+
     try:
-        futures = {executor.submit(run_job, job, str(jobs_dir.resolve()), force, write): job for job in jobs}
+        args = (str(jobs_dir.resolve()), force, write)
+        if scheduler:
+            _on_dask(scheduler, {j.job_id: (run_job, (j, *args)) for j in jobs}, ended, failed, worker_wait)
+        else:
+            _on_pool(pool or make_executor(workers, (write.__module__,)), jobs, args, ended, failed)
+    except BaseException as exc:  # Ctrl-C or a failure here: do not wait for the running jobs
+        _kill_workers()
+        clean_stale(jobs_dir, every=True)
+        release_folder(out, fault=isinstance(exc, OutputError))
+        raise
+    clean_stale(jobs_dir, every=True)  # temporaries of processes that were still dying at the start
+    order = {j.job_id: i for i, j in enumerate(jobs)}
+    return sorted(results, key=lambda r: order[r.job_id])
+
+
+def _on_pool(executor: Executor, jobs: list[Job], args: tuple, ended: Callable[[JobResult], None],
+             failed: Callable[[str, str], None]) -> None:
+    """The jobs on a local process pool; ``ended`` / ``failed`` as each one ends."""
+    try:
+        futures = {executor.submit(run_job, job, *args): job for job in jobs}
         for fut in as_completed(futures):
             job = futures[fut]
             try:
                 res = fut.result()
             except Exception as exc:  # a worker died
-                res = JobResult(job.job_id, job.files, "failed", 0.0, f"worker failed: {exc}", 1)
-            results.append(res)
-            if progress is not None:
-                progress(res)
-            if res.output_fault:  # the disk is full or a size limit hit: every job would fail
-                raise OutputError(res.error)
-    except BaseException as exc:  # Ctrl-C or a failure here: do not wait for the running jobs
+                failed(job.job_id, f"worker failed: {exc}")
+            else:
+                ended(res)
+    except BaseException:
         executor.shutdown(wait=False, cancel_futures=True)
-        _kill_workers()
-        clean_stale(jobs_dir, every=True)
-        release_folder(out, fault=isinstance(exc, OutputError))
         raise
-    else:
-        executor.shutdown(wait=True)
+    executor.shutdown(wait=True)
+
+
+def _on_dask(scheduler: str, tasks: dict[str, tuple[Callable, tuple]], ended: Callable[[JobResult], None],
+             failed: Callable[[str, str], None], worker_wait: float | None) -> None:
+    """The jobs on the Dask cluster at ``scheduler``, watched (:func:`~ccl_cli.app.dask_jobs.run_jobs`)."""
+    from ccl_cli.app import dask_jobs
+
+    restore = dask_jobs.quiet_dask()
+    client = None
+    try:
+        client = dask_jobs.connect(scheduler)
+        dask_jobs.run_jobs(client, tasks, lambda _, res: ended(res), failed,
+                           dask_jobs.WORKER_WAIT if worker_wait is None else worker_wait)
     finally:
-        if client is not None:
-            client.close()
-    clean_stale(jobs_dir, every=True)  # temporaries of processes that were still dying at the start
-    order = {j.job_id: i for i, j in enumerate(jobs)}
-    return sorted(results, key=lambda r: order[r.job_id])
+        with contextlib.suppress(Exception):  # a lost scheduler: nothing left to close
+            if client is not None:
+                client.close(timeout=5)
+        if client is None or str(client.status) == "closed":
+            restore()
 
 
 def _kill_workers() -> None:

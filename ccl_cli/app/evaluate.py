@@ -259,6 +259,17 @@ def inspect_file(path: Path, options: Any = None, gap: float | None = None, base
     return info
 
 
+def inspect_files(paths: list[Path], options: Any = None, gap: float | None = None, base: Path | None = None,
+                  configured: bool = False) -> list[dict[str, Any]]:
+    """``ccl inspect`` of several paths, globs or folders (:func:`~ccl_cli.io.files.expand_files`):
+    :func:`inspect_file` of each, in order; a file given twice is refused as learning refuses it."""
+    from ccl_cli.io.files import expand_files, given_once
+
+    found = expand_files([str(p) for p in paths], digests=False)
+    given_once(found)
+    return [inspect_file(p, options, gap, base, configured) for p in found]
+
+
 def _split_words(options: Any) -> str:
     """How the config's ``data.demos`` cuts a recording, in words."""
     demos = options.demos

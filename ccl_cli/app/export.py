@@ -278,8 +278,20 @@ def per_demonstration(model: Any, inner: str) -> dict[str, Any]:
                        "rows)", "projection": "per_entry"}
 
 
+def _contact(model: Any) -> dict[str, Any]:
+    """One row per contact stretch a force showed (ContactPhases), none elsewhere."""
+    entries = [{"demonstration": int(d), "start": a, "end": b, "rows": rows}
+               for (d, a, b), rows in zip(model.spans_, model.A_, strict=True)]
+    return {"form": "contact", "entries": entries,
+            "lookup": "a sample of demonstration d at time t takes the rows of the entry of d with start ≤ "
+                      "t ≤ end; none outside every entry",
+            "formula": "A(x) = the entry's row in a contact stretch, rows of zeros elsewhere",
+            "projection": ORTHONORMAL}
+
+
 _FORMS = {"nhat": _constant, "none": _none, "manifold": _manifold, "alpha": _angles, "lambda": _known,
-          "linear": _linear, "per_window": _windows, "per_segment": _windows, "stretches": _stretches}
+          "linear": _linear, "per_window": _windows, "per_segment": _windows, "stretches": _stretches,
+          "contact": _contact}
 
 
 # -- a recording the model has not seen -----------------------------------------------------------
@@ -304,6 +316,11 @@ def new_data(model: Any, method: str) -> dict[str, Any]:
                       "share_block": stretches.SHARE_BLOCK,
                       "noise": {"mad_normal": MAD_NORMAL, "derivative_half_span": DERIVATIVE_HALF_SPAN_S,
                                 "derivative_max_window": DERIVATIVE_MAX_WINDOW, "derivative_order": 2}}
+    elif method == "contact":
+        out["reproducible"] = False
+        out["fit"] = {"method": "classify", "block": float(model.block),
+                      "why": "the contact rows' blocks classified by ccl's noise rule: apply the model to a "
+                             "new recording with ccl predict"}
     elif method.startswith("per_demo:"):
         est, inner = model.estimator, method.split(":", 1)[1]
         fixed = getattr(est, "n_constraints", None)
@@ -347,6 +364,7 @@ def clean(value: Any) -> Any:
 
 
 _SCALAR = r'(?:"(?:[^"\\]|\\.)*"|[-+0-9.eE]+|null|true|false)'
+_SURROGATE = re.compile("[\udc80-\udcff]")
 _FLAT = re.compile(rf"\[\s*({_SCALAR}(?:,\s*{_SCALAR})*)\s*\]")
 
 
@@ -355,6 +373,9 @@ def dump(doc: dict[str, Any], style: str) -> str:
     JSON (indented, the same lists on one line); numbers written so that they read back exactly."""
     if style == "json":
         text = json.dumps(doc, indent=2, ensure_ascii=False, allow_nan=False)
+        # a file name that is not UTF-8 (os.fsdecode's surrogate escapes) as a \udcNN escape, as
+        # YAML writes it and run.json does: UTF-8 cannot encode a lone surrogate
+        text = _SURROGATE.sub(lambda m: f"\\u{ord(m.group(0)):04x}", text)
         return _FLAT.sub(lambda m: "[" + re.sub(r",\n\s*", ", ", m.group(1)) + "]" if "\n" in m.group(0)
                          else m.group(0), text) + "\n"
     import yaml

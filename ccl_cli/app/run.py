@@ -88,8 +88,8 @@ def execute(command: str, cfg: Config, files, stages: list[tuple[str, Any]] | No
 
 
 def overall_status(results) -> str:
-    """The run's status: the worst of its stages' (ok < poor < failed)."""
-    order = {"ok": 0, "poor": 1, "failed": 2}
+    """The run's status: the worst of its stages' (ok < unjudged < poor < failed)."""
+    order = {"ok": 0, "unjudged": 1, "poor": 2, "failed": 3}
     return max((r.status for r in results), key=order.__getitem__, default="ok")
 
 

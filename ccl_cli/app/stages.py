@@ -21,7 +21,7 @@ from ccl_cli.app.views import View, constant_rows, describe_constraint, phases, 
 from ccl_cli.dataset import Demonstrations, Derivative
 from ccl_cli.errors import ConfigError, LearningError
 from ccl_cli.learn import model_selection
-from ccl_cli.learn.constraint import PerDemonstration, PerWindow, geometry
+from ccl_cli.learn.constraint import PerDemonstration, PerWindow, force_evidence, geometry
 from ccl_cli.learn.nullspace import NullSpaceComponent
 from ccl_cli.learn.policy import PolicyLearner
 from ccl_cli.spec import constraint_class
@@ -98,8 +98,8 @@ def split_data(data: Demonstrations, spec: Any, masks: dict[str, list[int]] | No
                                   "set, every metric is on training data",
                                   "n_train_samples": data.n_samples, "n_test_samples": 0})
     hold = model_selection.holdout_split(data.demo, float(test.fraction), test.seed, guard_gap(spec, data),
-                                         test.min_demos,
-                           test.blocks)
+                                         test.min_demos, test.blocks,
+                                         keys=model_selection.shape_keys(data.X, data.demo))
     train, held = data.subset(hold.train), data.subset(hold.test)
     return Split(train, held if held.n_samples else None, hold.info)
 
@@ -263,6 +263,9 @@ class Pipeline:
     def _fit_constraint(self, opts: Any, on: str) -> Any:
         tr = self.split.train
         q = tr.n_action
+        if q < 2:  # the learners answer k = 0 there (base.ONE_ACTION): nothing to learn from a recording
+            raise ConfigError("learning a constraint needs at least 2 action dimensions (a constraint row "
+                              "on one would forbid all motion)")
         if opts.n_constraints is not None and not 1 <= opts.n_constraints <= max(q - 1, 1):
             raise ConfigError(f"learn-a.n_constraints (--n-constraints) is {opts.n_constraints}, but "
                               f"{q}-dimensional actions allow 1 to {max(q - 1, 1)} constraints")
@@ -270,7 +273,8 @@ class Pipeline:
         target = self._target(on, "train", tr)
         how = tr.derivative if target is tr.U else Derivative(False)  # a learnt w̃ is no derivative
         try:
-            model.fit(tr.X, target, groups=tr.demo, t=tr.t, derivative=how)
+            model.fit(tr.X, target, groups=tr.demo, t=tr.t, derivative=how,
+                      **force_evidence.fit_params(model, tr.force))
         except (np.linalg.LinAlgError, FloatingPointError) as exc:
             raise LearningError(f"learn-a failed: {exc}") from None
         return model
@@ -341,7 +345,8 @@ class Pipeline:
         else:
             on = self._on(opts.on)
             model = self._fit_constraint(opts, on)
-            why = "learnt from the learnt w̃ (on: w)" if on == "w" else "learnt from u"
+            why = ("learnt from the learnt w̃ (on: w)" if on == "w" else
+                   "on: u" if self.w else "")  # without learn-v there is nothing else to learn from
         self.constraint = model
         target = self._target(on, "train", tr)
         self.warnings += diagnostics.emit(diagnostics.low_rank_actions(tr, target, int(model.n_constraints_)))
@@ -482,6 +487,8 @@ class Pipeline:
         checks: list[dict[str, str]] = []
         test = result.metrics.get("test", {})
         base = (result.info.get("baseline") or {}).get("test", {})
+        if not any(n in result.metrics.get(p, {}) for p in ("train", "test") for n in ("NCPE_obs", "NUPE")):
+            return diagnostics.not_judged("learn-pi", diagnostics.NO_POLICY_METRIC)
         for name in ("NCPE_obs", "NUPE"):
             if name not in result.metrics.get("train", {}):
                 continue

@@ -25,6 +25,8 @@ from ccl_cli.learn.constraint.base import Windows
 from ccl_cli.metrics import row_basis, subspace_angle
 
 GRID = 22  # points per axis of the grid a 2-D field is evaluated on
+#: in a caption, only where the figure shows the file's ground truth
+VS_TRUE = " vs true"
 
 
 @dataclass
@@ -218,7 +220,7 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
             arrows["true"] = ("true w", d.truth["w"])
         out += _field_and_time("learn-v", f"{title}: null-space component w", d, dpart, arrows, arrows,
                                model.predict if planar else None, "learnt w̃(x) on a grid",
-                               ("learnt vs true null-space component",
+                               (f"learnt{VS_TRUE if 'true' in arrows else ''} null-space component",
                                 "learnt w̃ against the observations over time"))
     elif result.name == "learn-a":
         if not model.new_data_rule.carries_over and not dpart.startswith("train"):
@@ -236,7 +238,8 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
         title_a = f"{title}: projection onto the learnt null space"
         if planar:
             grid = None if model.is_local else field_on_grid(d, null_direction(model))
-            out.append(View("learn-a-field.png", "learn-a: learnt vs true projections", "field",
+            caption = f"learn-a: learnt{VS_TRUE if 'true' in arrows else ''} projections"
+            out.append(View("learn-a-field.png", caption, "field",
                             {"title": title_a, "d": d, "part": dpart, "arrows": arrows, "field": grid,
                              "field_label": "learnt null-space direction of Ñ(x) on a grid",
                              "directions": True}))
@@ -272,7 +275,8 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
             lines["predicted"] = ("predicted u = Ñπ̃" if v is None else "predicted u = Ã⁺b̃ + Ñπ̃", pred)
         out += _field_and_time("learn-pi", f"{title}: null-space policy π", d, dpart, arrows, lines,
                                model.predict if planar else None, "learnt π̃(x) on a grid",
-                               ("learnt vs true policy", "learnt policy (and the predicted u) over time"))
+                               (f"learnt{VS_TRUE if 'true' in arrows else ''} policy",
+                                "learnt policy (and the predicted u) over time"))
     return out
 
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations, Derivative, Repair
 from ccl_cli.errors import InputError
+from ccl_cli.io import forces
 from ccl_cli.io.derivative import derive_actions
 from ccl_cli.io.options import UNIT_NS, DataOptions, DemoOptions, TimeOptions
 from ccl_cli.io.segment import CUTS, cut
@@ -37,13 +38,16 @@ class Variable:
 
 @dataclass
 class Part:
-    """One demonstration: state (n, p), action (n, q) or None, time (n,) seconds or None."""
+    """One demonstration: state (n, p), action (n, q) or None, time (n,) seconds or None; the
+    arrays read beside the state, sample for sample (``extra``: the force and the tool's
+    orientation, :mod:`ccl_cli.io.forces`)."""
 
     X: np.ndarray
     U: np.ndarray | None
     t: np.ndarray | None
     label: str
     meta: dict[str, Any] = field(default_factory=dict)
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def as_numeric(values: Any, where: str, keep_int: bool = False) -> np.ndarray:
@@ -214,6 +218,16 @@ def pick_columns(parts: list[Part], attr: str, names: list[str], columns: list[A
     return kept
 
 
+def pick_extra(parts: list[Part], key: str, columns: list[Any] | None, where: str) -> None:
+    """Keep ``columns`` of every part's ``extra[key]`` in place (by 0-based index, or by the
+    numbered names :func:`names_for` gives)."""
+    if not parts or key not in parts[0].extra:
+        raise InputError(f"{where}: not read (name its dataset or variable)")
+    names = names_for(key, parts[0].extra[key].shape[1], None)
+    for part in parts:
+        part.extra[key] = select_columns(part.extra[key], names, columns, where)[0]
+
+
 def named_parts(chunks: list[tuple[str, dict[str, np.ndarray]]], options: DataOptions, where: str,
                 labels: dict[str, str], given: dict[str, list[str] | None], derive: bool
                 ) -> tuple[list[Part], list[str], list[str] | None, int, str]:
@@ -223,7 +237,10 @@ def named_parts(chunks: list[tuple[str, dict[str, np.ndarray]]], options: DataOp
     (:func:`pick_columns`). Returns (parts, state names, action names — None when derived —,
     time origin ns, what the time was read from)."""
     times, origin, time_used = chunk_times(chunks, options.time, where)
-    parts = [Part(a["state"], a.get("action"), t, label) for (label, a), t in zip(chunks, times, strict=True)]
+    parts = [Part(a["state"], a.get("action"), t, label, extra={k: a[k] for k in forces.KEYS if k in a})
+             for (label, a), t in zip(chunks, times, strict=True)]
+    for key, selection in forces.selections(options).items():  # the force's own columns
+        pick_extra(parts, key, selection.columns, f"{where}: {forces.option_path(key)}")
 
     def names(key: str, attr: str) -> list[str]:
         default = names_for(labels[key], getattr(parts[0], attr).shape[1], given.get(key))
@@ -260,7 +277,8 @@ def cut_parts(parts: list[Part], demos: DemoOptions, where: str, passes: list[np
             rows = ids == j
             t = part.t[rows]
             out.append(Part(part.X[rows], part.U[rows] if part.U is not None else None, t,
-                            f"{part.label} [{t[0]:.4g}, {t[-1]:.4g}] s", dict(part.meta)))
+                            f"{part.label} [{t[0]:.4g}, {t[-1]:.4g}] s", dict(part.meta),
+                            {k: v[rows] for k, v in part.extra.items()}))
     if not out:
         raise InputError(f"{where}: no samples left after the demos cuts "
                          f"({', '.join('demos.' + k for k in sorted(cuts.given()))})")
@@ -281,6 +299,7 @@ def assemble(parts: list[Part], options: DataOptions, where: str, state_names: l
     p = parts[0].X.shape[1]
     q = parts[0].U.shape[1] if parts[0].U is not None else None
     Xs, Us, Ts, demo, dropped = [], [], [], [], 0
+    extras: dict[str, list[np.ndarray]] = {k: [] for k in parts[0].extra}
     for k, part in enumerate(parts):
         here = f"{where}: {part.label}"
         if part.X.shape[1] != p or (q is not None and part.U.shape[1] != q):
@@ -289,6 +308,8 @@ def assemble(parts: list[Part], options: DataOptions, where: str, state_names: l
         ok = np.isfinite(part.X).all(1)
         if part.U is not None:
             ok &= np.isfinite(part.U).all(1)
+        for value in part.extra.values():
+            ok &= np.isfinite(value).all(1)
         if not ok.all():
             if policy == "fail":
                 raise InputError(f"{here}: {int((~ok).sum())} samples contain NaN or inf "
@@ -302,13 +323,17 @@ def assemble(parts: list[Part], options: DataOptions, where: str, state_names: l
         Xs.append(part.X[ok])
         Us.append(part.U[ok] if part.U is not None else None)
         Ts.append(t)
+        for key, value in part.extra.items():
+            extras[key].append(value[ok])
         demo.append(np.full(int(ok.sum()), k))
     X, t, ids = np.concatenate(Xs), np.concatenate(Ts), np.concatenate(demo)
     U = np.concatenate(Us) if q is not None else None
     fixed = repair_recording(t, X, U, ids, options.faults)  # before actions are derived
     repair = Repair.untouched(len(t))
+    extra = {k: np.concatenate(v) for k, v in extras.items()}
     if fixed is not None:
         t, X, U, ids = fixed.t, fixed.X, fixed.U, ids[fixed.keep]
+        extra = {k: v[fixed.keep] for k, v in extra.items()}
         meta["faults"] = fixed.report
         repair = fixed.record
     bad = np.flatnonzero((np.diff(t) <= 0) & (ids[1:] == ids[:-1]))
@@ -330,6 +355,10 @@ def assemble(parts: list[Part], options: DataOptions, where: str, state_names: l
     if "forward_kinematics" in parts[0].meta:
         meta["forward_kinematics"] = parts[0].meta["forward_kinematics"]
         units = meta["forward_kinematics"]["units"]
-    return Demonstrations(X=X, U=U, demo=ids, t=t, state_names=state_names, action_names=action_names,
+    data = Demonstrations(X=X, U=U, demo=ids, t=t, state_names=state_names, action_names=action_names,
                           state_units=units, action_units=[f"{u}/s" for u in units] if units else None,
                           metadata=meta, derivative=how, repair=repair)
+    if options.force is not None:
+        force = forces.base_frame(extra["force"], extra.get("orientation"), options.force, where)
+        data = forces.finish(data, force, options)
+    return data

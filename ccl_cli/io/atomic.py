@@ -3,9 +3,10 @@
 * Nothing partial: a failure (including Ctrl-C, a full disk or a read-only folder)
   removes the temporary and leaves the destination as it was; I/O failures become one
   :class:`~ccl_cli.errors.InputError` line.
-* Never lose data: ``force`` replaces an existing *folder* only if ccl wrote it (it holds
-  the :data:`MARKER` file, or — folders of earlier versions — a ``run.json`` with
-  ``command`` and ``versions``). Anything else is refused, untouched.
+* Never lose data: ``force`` replaces an existing *folder* only if ccl marked it: it holds
+  the :data:`MARKER` file, a regular file of ccl's own content (:func:`marked`). Anything
+  else is refused, untouched — also a folder that merely holds a ``run.json`` like ccl's
+  (any tool may write one; the refusal says how to remove an earlier ccl's output).
 * Temporaries are named ``.<name>.<pid>.<random>.tmp``; those of processes that no longer
   run (a killed run) are removed the next time the same output is written.
 * Outputs follow the umask (``mkstemp``/``mkdtemp`` would make them private).
@@ -18,6 +19,7 @@ import json
 import os
 import re
 import shutil
+import stat
 import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -45,20 +47,53 @@ def check_writable(path: Path, force: bool) -> None:
         raise InputError(f"{path} exists; use --force to overwrite it")
 
 
-def written_by_ccl(path: Path) -> bool:
-    """True for a folder ccl wrote (marker file, or a run.json of an earlier version)."""
-    if (path / MARKER).is_file():
-        return True
+#: the largest marker read (it holds a few fields)
+MARKER_BYTES = 4096
+
+
+def marked(path: Path) -> bool:
+    """True for a folder ccl marked: its :data:`MARKER` is a regular file (not a symlink) of at
+    most :data:`MARKER_BYTES` holding ccl's JSON (``"written_by": "ccl"``)."""
+    from ccl_cli.io.limits import open_regular
+
+    marker = Path(path) / MARKER
     try:
-        run = json.loads((path / "run.json").read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):
+        st = os.lstat(marker)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > MARKER_BYTES:
+            return False
+        with open_regular(marker, "the marker") as f:
+            found = json.loads(f.read(MARKER_BYTES))
+    except (OSError, InputError, ValueError, RecursionError):
+        return False
+    return isinstance(found, dict) and found.get("written_by") == "ccl"
+
+
+def looks_like_an_output(path: Path) -> bool:
+    """A folder holding a ``run.json`` with ``command`` and ``versions`` (as ccl's outputs
+    did before the marker; any tool may write one)."""
+    from ccl_cli.io.jsonsafe import loads
+
+    try:
+        run = loads((path / "run.json").read_bytes()[:1 << 20], str(path / "run.json"))
+    except (OSError, InputError):
         return False
     return isinstance(run, dict) and "command" in run and "versions" in run
 
 
+def not_marked(path: Path, action: str) -> InputError:
+    """The refusal of a folder ccl did not mark (one line; a hint for one that looks like the
+    output of an earlier ccl, written before the marker)."""
+    if looks_like_an_output(path):
+        return InputError(f"{path} exists and holds a run.json but no {MARKER} marker of ccl's: {action} "
+                          "only folders ccl marked (an output of an earlier ccl, from before outputs were "
+                          "marked? remove it yourself, or choose another output)")
+    return InputError(f"{path} exists and was not written by ccl (no {MARKER} marker of ccl's in it); "
+                      f"{action} only folders ccl marked (remove it yourself or choose another output)")
+
+
 def check_replaceable(path: Path, force: bool) -> None:
     """A folder output: an existing one is replaced only with ``force`` and only if ccl
-    wrote it."""
+    marked it (:func:`marked`)."""
     path = Path(path)
     if not path.exists() and not path.is_symlink():
         return
@@ -67,10 +102,8 @@ def check_replaceable(path: Path, force: bool) -> None:
     if path.is_symlink() or not path.is_dir():
         raise InputError(f"{path} exists and is not a folder ccl wrote; --force replaces only those "
                          "(remove it yourself or choose another output)")
-    if not written_by_ccl(path):
-        raise InputError(f"{path} exists and was not written by ccl (no {MARKER} or run.json in it); "
-                         "--force replaces only folders ccl wrote (remove it yourself or choose another "
-                         "output)")
+    if not marked(path):
+        raise not_marked(path, "--force replaces")
 
 
 _TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.[A-Za-z0-9_]+\.tmp$|^\.(?P<old>.+)\.old-(?P<opid>\d+)$")
@@ -246,21 +279,24 @@ def _created_here(path: Path) -> bool:
 
 def claim_folder(path: str | Path, earlier: Callable[[Path], bool] | None = None) -> bool:
     """Make ``path`` a folder ccl may write into piece by piece (``ccl batch -o``): created
-    here (and marked), or an empty folder (marked), or one ccl made before (it holds
-    :data:`MARKER`, or ``earlier(path)`` recognises what an earlier version wrote). A
-    user's folder with anything in it, or a file, is refused untouched: one
-    :class:`InputError` line. Returns True when this call created the folder."""
+    here (and marked), or an empty folder (marked), or one ccl marked before (:func:`marked`).
+    A user's folder with anything in it, or a file, is refused untouched: one
+    :class:`InputError` line (with a hint when ``earlier(path)`` recognises what an earlier
+    ccl wrote before the marker). Returns True when this call created the folder."""
     path = Path(path)
     try:
         if path.is_symlink() or (path.exists() and not path.is_dir()):
             raise InputError(f"{path} exists and is not a folder ccl made; choose another output")
         created = not path.exists()
-        if not created and not (path / MARKER).is_file() and not (earlier is not None and earlier(path)):
-            if any(path.iterdir()):
-                raise InputError(f"{path} holds files ccl did not write (no {MARKER} in it); ccl writes "
-                                 "only into a new or empty folder or one it made (choose another output)")
+        was_marked = not created and marked(path)
+        if not created and not was_marked and any(path.iterdir()):
+            hint = " (the batch folder of an earlier ccl, from before outputs were marked? remove it " \
+                "yourself, or choose another output)" if earlier is not None and earlier(path) else \
+                " (choose another output)"
+            raise InputError(f"{path} holds files ccl did not write (no {MARKER} in it); ccl writes only "
+                             f"into a new or empty folder or one it marked{hint}")
         path.mkdir(parents=True, exist_ok=True)
-        if not (path / MARKER).is_file():
+        if not was_marked:
             mark(path, **({"created_by_pid": os.getpid()} if created else {}))
     except OSError as exc:
         raise _failed(path, exc) from None

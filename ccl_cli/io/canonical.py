@@ -10,7 +10,7 @@ the number of demonstrations::
     /demos/offsets (D+1,) int64   demonstration k is samples offsets[k]:offsets[k+1]
         name (D,) str (the names masks use), t0_ns (D,) int64, source (D,) str
         t (N,) float64 seconds since time_origin_ns, strictly increasing within a demonstration
-        x (N, p)  u (N, q)
+        x (N, p)  u (N, q)  force (N, 3) base-frame force (optional)
         truth/pi (N, q)  truth/w  truth/v  truth/b (N, s)
         truth/A (s, q) constant | (N, s, q);  truth/N (q, q) | (N, q, q)
     /mask/train, /mask/test   names of demonstrations (optional)
@@ -18,7 +18,7 @@ the number of demonstrations::
 Version 1 (read, and written with ``format_version=1``) keeps one group per demonstration::
 
     /demos/demo_0000/  attrs: index (demo order), n_samples, t0_ns, source
-        t (n,)  x (n, p)  u (n, q)
+        t (n,)  x (n, p)  u (n, q)  force (n, 3) (optional)
         truth/pi (n, q)  truth/w  truth/v  truth/b (n, s)
         truth/A (s, q) constant | (n, s, q);  truth/N (q, q) | (n, q, q)
 
@@ -166,6 +166,8 @@ def _write_samples(g, data: Demonstrations, rows: np.ndarray | slice, collapse: 
     _dataset(g, "t", data.t[rows], COMPRESSION)
     _dataset(g, "x", data.X[rows], COMPRESSION)
     _dataset(g, "u", data.U[rows], COMPRESSION)
+    if data.force is not None:
+        _dataset(g, "force", data.force[rows], COMPRESSION)
     if not data.truth:
         return
     tg = g.create_group("truth")
@@ -334,6 +336,20 @@ def _read_columns(demos, where: str) -> Arrays:
     return x, u, t, demo, truth, names
 
 
+def _force(demos, where: str, version: int, names: list[str], n: int) -> np.ndarray | None:
+    """The stored base-frame force (N, 3) — beside every demonstration's ``u`` or none — or None."""
+    groups = [demos] if version == 2 else [group_of(demos, name, f"{where}: /demos") for name in names]
+    found = [has(g, "force", where) for g in groups]
+    if not any(found):
+        return None
+    if not all(found):
+        raise InputError(f"{where}: /demos/{names[found.index(False)]} has no force while others have one")
+    force = np.concatenate([numeric(g, "force", where, ndim=(2,)) for g in groups])
+    if force.shape != (n, 3):
+        raise InputError(f"{where}: force must be one 3-D force per sample, ({n}, 3), got {force.shape}")
+    return force
+
+
 def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any]]:
     """Read a canonical file (version 1 or 2) → (Demonstrations, info with time_origin_ns,
     masks, provenance, the demonstrations' names and the file's ``format_version``).
@@ -352,6 +368,7 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
             raise InputError(f"{where}: no demonstrations under /demos")
         X, U, T, demo, truth, names = (_read_columns if version == 2 else _read_groups)(demos, where)
         p, q = X.shape[1], U.shape[1]
+        force = _force(demos, where, version, names, len(X))
         masks = {}
         mask = group_of(f, "mask", where, required=False)
         if mask is not None:
@@ -368,7 +385,7 @@ def read_demonstrations(path: str | Path) -> tuple[Demonstrations, dict[str, Any
             action_names=attr_strings(f.attrs, "action_names", where, q),
             state_units=attr_strings(f.attrs, "state_units", where, p),
             action_units=attr_strings(f.attrs, "action_units", where, q),
-            metadata={"source": where},
+            metadata={"source": where}, force=force,
         )
         try:  # provenance is informative only: a damaged one is dropped, not fatal
             provenance = attr_json(f.attrs, "provenance", where, {}, dict)

@@ -8,9 +8,14 @@ positions and stamps, before velocities are derived from them.
 * :func:`stamp_faults` — duplicated samples, repeated or out-of-order stamps, clock steps
   (a jump of the stamps the positions do not show) and gaps (lost samples or pauses).
   Duplicates dropped, bad stamps and clock steps re-stamped, gaps reported.
+* :func:`repeated_poses` — a sensor that updates more slowly than it is logged (a tracker read
+  at 417 Hz that updates at 29 Hz) repeats each pose until the next: the repeats are dropped, the
+  first sample of each pose kept (velocities then come from the poses at the sensor's rate,
+  not from runs of zero motion between jumps).
 * :func:`force_bias` — a force/torque channel that reads a constant offset where the tool is
   free. Reported, never removed (what the sensor should read is not known).
-* :func:`clean_positions` — stamps, then flips, then spikes, as a reader would call them.
+* :func:`clean_positions` — repeated poses, stamps, then flips, then spikes, as a reader would
+  call them.
 
 Nothing loops over samples: the passes over positions run in blocks of samples (each with
 the neighbours its stencil reaches), spread over the cores (:mod:`ccl_cli.io.blockwise`), so
@@ -69,6 +74,14 @@ GAP_JITTER = 6.0
 #: noise and, had the gap's time passed, would have moved them by MOTION_Z × their noise more.
 MOTION_Z = 5.0
 VELOCITY_SPAN_S = 0.16
+#: Repeated poses: at least HELD_SHARE of the samples repeat the one before them exactly (every
+#: coordinate), there are at least HELD_MIN_POSES new poses, and the new poses come at a steady
+#: period P (robust spread of their intervals below HELD_STEADY · P): the sensor's update period.
+#: A quantised sensor at rest or crawling repeats its values too, but its changes come when the
+#: motion crosses a count, not at a period.
+HELD_SHARE = 0.5
+HELD_MIN_POSES = 20
+HELD_STEADY = 0.25
 #: Force bias: reported when the median of a channel at rest differs from zero by more than
 #: BIAS_Z standard errors and by more than half the channel's noise.
 BIAS_Z = 5.0
@@ -513,6 +526,56 @@ def _stamp_faults(t: np.ndarray, X: np.ndarray, demo: np.ndarray
     return [f for f in findings if f], t_new, keep, period
 
 
+def repeated_poses(t: np.ndarray, X: np.ndarray, demo: np.ndarray, action: str = "dropped") -> Finding:
+    """Samples that repeat the pose before them, in a recording whose sensor updates more slowly
+    than it was logged: t (N,) s, X (N, d), demo (N,).
+
+    Found when the repeats are frequent and the new poses steady (:data:`HELD_SHARE`,
+    :data:`HELD_MIN_POSES`, :data:`HELD_STEADY`); P is the median interval between new poses.
+    ``mask`` marks the samples to drop: every repeat, except that a pose held for m ≥ 2 periods
+    (the sensor at rest, reporting the same pose at each update) keeps one sample per period —
+    the first at or after each multiple of P — so a rest stays a rest, with its updates.
+    ``detail``: ``rate_hz`` (1/P, the sensor's rate), ``log_rate_hz`` (the samples' median
+    rate), ``per_pose`` (median samples per pose), ``poses`` (the new poses); ``count`` the
+    samples concerned."""
+    t = np.asarray(t, dtype=float)
+    X = np.asarray(X, dtype=float)
+    demo = np.asarray(demo)
+    n = len(t)
+    none = Finding("repeated_pose", np.zeros(n, dtype=bool), action, count=0)
+    if n < 3:
+        return none
+    same = np.r_[False, demo[1:] == demo[:-1]]
+    repeat = same.copy()
+    repeat[1:] &= (X[1:] == X[:-1]).all(1)
+    if not same.any() or repeat.sum() < HELD_SHARE * same.sum():
+        return none
+    new = np.flatnonzero(~repeat)  # the first sample of each pose (each demonstration's first too)
+    follows = demo[new[1:]] == demo[new[:-1]]
+    if len(new) < HELD_MIN_POSES or not follows.any():
+        return none
+    gaps = (t[new[1:]] - t[new[:-1]])[follows]
+    period, spread = _period(gaps)
+    log_period, _ = _period(np.diff(t)[same[1:]])
+    if period <= 0 or spread > HELD_STEADY * period or period < 1.5 * log_period:
+        return none  # no steady updates, or one at every sample (repeats only where it rests)
+    # each pose's run: its start time, and how many periods it lasts (to the next pose, or to one
+    # logging interval past its demonstration's last sample)
+    run = np.cumsum(~repeat) - 1
+    _, stop = _demo_bounds(demo)
+    ends = np.r_[t[new[1:]], 0.0]
+    last = np.r_[~follows, True]  # the last pose of its demonstration
+    ends[last] = t[stop[new[last]] - 1] + log_period
+    periods = np.rint((ends - t[new]) / period)
+    phase = np.floor((t - t[new][run]) / period)
+    earlier = np.r_[-1.0, phase[:-1]]
+    kept = ~repeat | ((phase >= 1) & (phase <= periods[run] - 1) & (phase > earlier) & repeat)
+    mask = ~kept
+    detail = {"rate_hz": 1.0 / period, "log_rate_hz": 1.0 / log_period if log_period > 0 else None,
+              "per_pose": float(np.median(np.diff(np.r_[new, n]))), "poses": int(len(new))}
+    return Finding("repeated_pose", mask, action, detail, count=int(mask.sum()))
+
+
 def _slope(t: np.ndarray, X: np.ndarray, idx: np.ndarray, valid: np.ndarray
            ) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares velocity of X over the samples idx (M, m) where valid (M, m): (M, d), and
@@ -676,7 +739,8 @@ def _widen(mask: np.ndarray, where: np.ndarray | None, n: int) -> np.ndarray:
 
 def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str = "mirror",
                     drop_spikes: bool = True, stamps: bool = True) -> Cleaned:
-    """Stamp faults (:func:`stamp_faults`), then hemisphere flips (``flips``: ``mirror`` them
+    """Repeated poses (:func:`repeated_poses`: dropped with ``stamps``, else reported), stamp
+    faults (:func:`stamp_faults`), then hemisphere flips (``flips``: ``mirror`` them
     back, ``drop`` them, or ``keep`` them as they are), then spikes (dropped unless
     ``drop_spikes`` is False) on t (N,), X (N, d), demo (N,). Findings that were kept are
     reported with action ``reported``. Arrays no check changed are returned as given."""
@@ -687,11 +751,17 @@ def clean_positions(t: np.ndarray, X: np.ndarray, demo: np.ndarray, flips: str =
     idx: np.ndarray | None = None  # the input index of every sample still in (None: all)
     findings: list[Finding] = []
     period = None  # the stamps' period, when spikes sees the same intervals (else measured there)
+    held = repeated_poses(t, X, demo, "dropped" if stamps else "reported")
+    if held:
+        findings.append(held)
+        if stamps:  # the stamp checks then see the sensor's own period
+            idx, t, X, demo = _take(~held.mask, idx, t, X, demo)
     if stamps:
         found, t, keep, measured = _stamp_faults(t, X, demo)
-        findings += found
+        findings += [f if idx is None else
+                     Finding(f.kind, _widen(f.mask, idx, n), f.action, f.detail, f.count) for f in found]
         idx, X, demo, t = _take(keep, idx, X, demo, t)
-        if not found and bool((demo[1:] == demo[:-1]).all()):
+        if not found and not held and bool((demo[1:] == demo[:-1]).all()):
             period = measured  # the stamps unchanged, no demonstration edge: the same median
     flip = hemisphere_flips(X, demo)
     if flip:

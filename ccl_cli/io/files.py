@@ -1,8 +1,11 @@
-"""Input paths: globs to files, and content digests for provenance and batch keys.
+"""Input paths: files, globs and folders to recordings, and content digests for provenance
+and batch keys.
 
-Every caller of :func:`expand_files` then asks for the files' digests (a run's provenance,
-a batch job's content key), so expanding starts them on a background thread: the digest
-reads the file while the reader decodes it, and :func:`file_hash` waits for it.
+Every command that reads recordings takes them alike: a path, a glob, or a folder that is
+not a ROS 2 bag (it stands for the recordings in it). Every caller of :func:`expand_files`
+then asks for the files' digests (a run's provenance, a batch job's content key), so
+expanding starts them on a background thread: the digest reads the file while the reader
+decodes it, and :func:`file_hash` waits for it.
 """
 
 from __future__ import annotations
@@ -10,6 +13,7 @@ from __future__ import annotations
 import functools
 import glob
 import hashlib
+import logging
 import os
 import threading
 from concurrent.futures import Future
@@ -17,6 +21,11 @@ from pathlib import Path
 
 from ccl_cli.errors import InputError
 from ccl_cli.io.limits import regular_file
+from ccl_cli.io.sniff import is_bag, is_hdf5, is_mat, is_mcap, is_text, read_head
+
+log = logging.getLogger("ccl")
+#: the text files of a folder read as recordings (tables); other text (notes, configs) is not
+TABLE_SUFFIXES = (".csv", ".tsv", ".txt", ".dat", ".log", ".asc")
 
 
 def refuse_configs(files: list[Path] | list[str] | None) -> None:
@@ -28,8 +37,10 @@ def refuse_configs(files: list[Path] | list[str] | None) -> None:
                              "(or to ccl run), and the recordings as the data")
 
 
-def expand_files(files: list[str] | str, base: Path | None = None) -> list[Path]:
-    """Paths and globs → existing paths, in the order given (globs sorted)."""
+def expand_files(files: list[str] | str, base: Path | None = None, digests: bool = True) -> list[Path]:
+    """Paths, globs and folders → existing recordings, in the order given (globs and a folder's
+    recordings in name order, :func:`folder_recordings`). ``digests``: start their sha256 on a
+    background thread (:func:`file_hash` waits for it)."""
     if isinstance(files, str | Path):
         files = [str(files)]
     if not isinstance(files, list | tuple) or not all(isinstance(f, str | Path) for f in files):
@@ -47,11 +58,75 @@ def expand_files(files: list[str] | str, base: Path | None = None) -> list[Path]
         else:
             if not p.exists():
                 raise InputError(f"{p}: no such file or directory")
-            out.append(p)
+            out += folder_recordings(p) if p.is_dir() and not is_bag(p, b"") else [p]
     if not out:
         raise InputError("no input files")
-    _hash_in_background(out)
+    if digests:
+        _hash_in_background(out)
     return out
+
+
+def folder_recordings(folder: Path) -> list[Path]:
+    """The recordings in ``folder`` (not a ROS 2 bag itself), in name order: its ROS 2 bag
+    folders, its files in a recording format their first bytes show (ROS 1 bag, MCAP, .mat,
+    HDF5) and its text tables (:data:`TABLE_SUFFIXES`). Hidden entries, other folders and other
+    files (notes, configs, pictures) are left out, said on the log; none left is an InputError."""
+    try:
+        entries = sorted(p for p in folder.iterdir() if not p.name.startswith("."))
+    except OSError as exc:
+        raise InputError(f"{folder}: {exc.strerror or type(exc).__name__}") from None
+    found, left = [], []
+    for p in entries:
+        (found if _is_recording(p) else left).append(p)
+    if not found:
+        raise InputError(f"{folder}: a folder with no recording in it (no ROS 2 bag folder, ROS 1 bag, "
+                         f"MCAP, .mat, HDF5 or {'/'.join(TABLE_SUFFIXES)} table"
+                         + (f"; it holds {_listed(left)}" if left else "") + ")")
+    if left:
+        log.info("%s: %d recording(s); left out %s (not recordings)", folder, len(found), _listed(left))
+    return found
+
+
+def _listed(paths: list[Path], limit: int = 5) -> str:
+    """The first ``limit`` folder entries by name (a folder's with a slash), and how many more."""
+    names = ", ".join(p.name + ("/" if p.is_dir() else "") for p in paths[:limit])
+    return names + (f" and {len(paths) - limit} more" if len(paths) > limit else "")
+
+
+def _is_recording(path: Path) -> bool:
+    """A ROS 2 bag folder, or a regular file in a recording format (its first bytes; a text
+    file by its suffix too)."""
+    if path.is_dir():
+        return is_bag(path, b"")
+    if not path.is_file():
+        return False
+    try:
+        head = read_head(path)
+    except InputError:
+        return False
+    if any(test(path, head) for test in (is_bag, is_mcap, is_mat, is_hdf5)):
+        return True
+    return bool(head) and path.suffix.lower() in TABLE_SUFFIXES and is_text(path, head)
+
+
+#: Why a recording given twice is refused, for a dataset
+TWICE = "a recording given twice would count its demonstrations twice (and could be trained and tested on)"
+
+
+def given_once(paths: list[Path], digests: list[str] | None = None, why: str = TWICE) -> None:
+    """Refuse a recording given twice — the same file (by its resolved path; a glob and a name
+    can both reach it) or, with ``digests`` (sha256 of each), the same content under two names:
+    its demonstrations would count twice, and a split could train and test on the same samples
+    (``why``: what it would do instead, said in the message)."""
+    seen: dict[object, Path] = {}
+    for i, p in enumerate(paths):
+        key = p.resolve() if digests is None else digests[i]
+        if key in seen:
+            what = (f"{p} is given twice" if str(p) == str(seen[key]) else
+                    f"{seen[key]} and {p} are the same file" if digests is None else
+                    f"{seen[key]} and {p} have the same content (sha256 {key[:12]}…)")
+            raise InputError(f"{what}: {why}; give each once")
+        seen[key] = p
 
 
 Key = tuple[tuple[str, int, int], ...]

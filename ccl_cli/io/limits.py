@@ -8,6 +8,8 @@ cap on what one object of a file may claim.
   object and its declared size. A claim far beyond what the file could hold
   (:data:`MAX_EXPANSION` bytes per byte of file, past 64 MiB: a decompression bomb, or
   a shape no data was ever written for) is refused too.
+* :func:`check_span` — every position a file declares (a chunk, an index record) lies
+  inside the file before it is sought.
 * :func:`open_regular` / :func:`regular_file` — only regular files are opened: a FIFO,
   device or socket would block a read forever or never end; the type is checked before
   the open, and again on the open descriptor (opened non-blocking, so a FIFO swapped in
@@ -84,6 +86,22 @@ def check_claim(where: str, what: str, shape: tuple[int, ...] | int, itemsize: i
         raise InputError(f"{where}: {what} declares {declared} ({_size(nbytes)}), far more than the "
                          f"file holds ({_size(file_bytes)}); refused before reading")
     return nbytes
+
+
+class OutsideFile(InputError):
+    """A position a file declares lies outside it: the file is damaged (no other reader of
+    it would do better)."""
+
+
+def check_span(where: str, what: str, start: int, stop: int, size: int, within: str = "") -> None:
+    """Refuse a span [start, stop) a file declares (a record's position and length) that does
+    not lie inside its first ``size`` bytes (``within`` names them; default: the file's) — a
+    position past the end, a negative one, one beyond any seek — before anything is sought
+    or read there."""
+    if not 0 <= start <= stop <= size:
+        at = f"byte {start}" if start == stop else f"bytes [{start}, {stop})"
+        within = within or f"the file ({size} bytes)"
+        raise OutsideFile(f"{where}: {what} is declared at {at}, outside {within}; damaged file?")
 
 
 # -- regular files ----------------------------------------------------------------------------

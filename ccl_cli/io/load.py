@@ -15,7 +15,7 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations
 from ccl_cli.errors import ConfigError, InputError
-from ccl_cli.io.files import expand_files, file_hash
+from ccl_cli.io.files import expand_files, file_hash, given_once
 from ccl_cli.io.options import DataOptions
 from ccl_cli.io.reader import Recording
 from ccl_cli.io.registry import format_of, open_reader
@@ -41,7 +41,7 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
     if not entries:
         raise ConfigError("no input data: give files on the command line or data.files in the config")
     paths = expand_files(entries, None if files else base)
-    _given_once(paths)
+    given_once(paths)
     options = robot_relative_to(options, base)
     recordings: list[Recording] = []
     for path in paths:
@@ -53,7 +53,7 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
                configured(options.action and options.action.units, data.n_action, "data.action"))
     ends = np.cumsum([part.n_samples for part in parts])
     digests = [file_hash(p) for p in paths]
-    _given_once(paths, digests)
+    given_once(paths, digests)
     data.metadata = {"files": [{"path": str(p), "sha256": digest,
                                 **{k: v for k, v in part.metadata.items() if k != "source"},
                                 "demo_ids": np.unique(data.demo[end - part.n_samples:end]).tolist()}
@@ -66,22 +66,6 @@ def read_dataset(options: Options, files: Sequence[str | Path] | None = None, ba
         raise InputError(f"only {data.n_samples} samples were read; at least {options.min_samples} "
                          "are needed")
     return data, single.masks if single is not None else None
-
-
-def _given_once(paths: list[Path], digests: list[str] | None = None) -> None:
-    """Refuse a recording given twice — the same file (by its resolved path; a glob and a name
-    can both reach it) or, with ``digests`` (sha256 of each), the same content under two names:
-    its demonstrations would count twice, and a split could train and test on the same samples."""
-    seen: dict[object, Path] = {}
-    for i, p in enumerate(paths):
-        key = p.resolve() if digests is None else digests[i]
-        if key in seen:
-            what = (f"{p} is given twice" if str(p) == str(seen[key]) else
-                    f"{seen[key]} and {p} are the same file" if digests is None else
-                    f"{seen[key]} and {p} have the same content (sha256 {key[:12]}…)")
-            raise InputError(f"{what}: a recording given twice would count its demonstrations twice (and "
-                             "could be trained and tested on); give each once")
-        seen[key] = p
 
 
 def robot_relative_to(options: DataOptions, base: Path | None) -> DataOptions:

@@ -34,6 +34,14 @@ DEFAULT_FIELDS = {
 VECTOR_KEYS = ("x", "y", "z", "w")
 
 
+def type_name(msgtype: str) -> str:
+    """A message type named one way whatever the container: 'package/msg/Type', as ROS 2 and
+    rosbags name it (a ROS 1 bag's or a ROS 1 MCAP's 'sensor_msgs/JointState' →
+    'sensor_msgs/msg/JointState'); any other name as it is."""
+    parts = msgtype.split("/")
+    return "/".join([parts[0], "msg", parts[1]]) if len(parts) == 2 and all(parts) else msgtype
+
+
 def short_type(msgtype: str) -> str:
     """'sensor_msgs/msg/JointState' or 'sensor_msgs/JointState' → 'JointState'."""
     return msgtype.replace("/msg/", "/").split("/")[-1]
@@ -214,7 +222,7 @@ class FieldExtractor:
 
     def _joints(self, msg: Any, leaf: Any) -> np.ndarray | Any:
         names = _get(msg, "name") if _has(msg, "name") else None
-        if names != self._joint_names:  # list equality: cheap, and robust to reordering
+        if names is None or names != self._joint_names:  # list equality: cheap, robust to reordering
             if not isinstance(names, list | tuple) or not all(isinstance(n, str) for n in names):
                 raise InputError(f"{self.where}: {self.spec.topic}: a JointState needs name: a list of "
                                  f"strings, got {type(names).__name__}")

@@ -149,6 +149,35 @@ class ActionOptions(StreamOptions):
     order: int = Field(2, **Interval(1, 20, type=int).field())
 
 
+class OrientationOptions(StreamOptions):
+    """The tool's orientation at each sample, a unit quaternion (4 numbers), named as a stream
+    is (:class:`StreamOptions`), in ``convention`` wxyz (scalar first) or xyzw (scalar last,
+    as ROS ``geometry_msgs/Quaternion`` fields are laid out: the default for a topic)."""
+
+    convention: Literal["wxyz", "xyzw"] | None = None
+
+
+class ForceOptions(StreamOptions):
+    """A force/torque sensor's force channel (3 numbers per sample, fx fy fz), named as a stream
+    is (:class:`StreamOptions`), in ``frame`` base (the frame of the states' positions, the
+    default) or tool — then ``orientation`` (:class:`OrientationOptions`) rotates it into the
+    base frame: f_base = R(q) f_tool."""
+
+    frame: Literal["base", "tool"] = "base"
+    orientation: OrientationOptions | None = None
+
+    @model_validator(mode="after")
+    def _frame(self) -> ForceOptions:
+        if self.frame == "tool" and self.orientation is None:
+            raise ValueError("frame: tool needs orientation: the tool's quaternion stream (e.g. {columns: "
+                             "[3, 4, 5, 6], convention: wxyz}) to rotate the force into the base frame")
+        if self.frame == "base" and self.orientation is not None:
+            raise ValueError("orientation applies to frame: tool (a base-frame force is not rotated)")
+        if self.forward_kinematics is not None:
+            raise ValueError("forward_kinematics applies to the state, not to a force")
+        return self
+
+
 class TimeOptions(Options):
     """Where time comes from: a CSV ``column`` (name or index), an HDF5 ``dataset`` or a .mat
     ``variable``, in ``unit`` (integer stamps without one: ≥ 1e15 means ns, else s), or a
@@ -247,7 +276,8 @@ class FaultOptions(Options):
 class DataOptions(Options):
     """The ``data`` section: ``files`` (paths or globs), the ``format`` (auto: from the
     content), the ``state`` stream, the ``action`` (a stream, or derived from the state when
-    absent), ``time``, ``demos``, what to do with samples holding NaN or inf (``nonfinite``),
+    absent), a ``force`` channel (:class:`ForceOptions`, optional), ``time``, ``demos``, what
+    to do with samples holding NaN or inf (``nonfinite``),
     with sensor ``faults``, the ``typestore`` of ROS 2 bags without message definitions, the
     fewest samples a dataset may have (``min_samples``), and whether the files a ROS 2 bag's
     metadata names may lie outside its folder (``allow_outside``; symlinks resolved)."""
@@ -257,6 +287,7 @@ class DataOptions(Options):
     typestore: str | None = None
     state: StreamOptions | None = None
     action: ActionOptions | None = None
+    force: ForceOptions | None = None
     time: TimeOptions = TimeOptions()
     demos: DemoOptions = DemoOptions()
     nonfinite: Literal["drop", "fail"] = "drop"

@@ -21,6 +21,7 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations, Derivative, Repair
 from ccl_cli.errors import InputError
+from ccl_cli.io import forces
 from ccl_cli.io.derivative import derive_actions
 from ccl_cli.io.options import DataOptions, DemoOptions, FaultOptions, StreamOptions
 from ccl_cli.io.reader import ReaderBase, Recording
@@ -53,7 +54,7 @@ class StreamReader(ReaderBase):
 
     def __init__(self, path: str | Path, options: DataOptions) -> None:
         super().__init__(path, options)
-        for selection in (options.state, options.action):
+        for selection in (options.state, options.action, *forces.selections(options).values()):
             if not self.sibling_files and selection is not None and \
                     (selection.file is not None or selection.samples is not None):
                 raise InputError(f"{self.path}: file and samples apply to CSV/text input, not {self.format}")
@@ -84,7 +85,8 @@ class StreamReader(ReaderBase):
         if not derive:
             selections.append(with_joints(o.action, fk, selections[0].joints))
         signal = o.demos.where
-        raw = self.streams(selections + ([signal.selection()] if signal is not None else []))
+        extra = [forces.plain(s) for s in forces.selections(o).values()]  # data.force: read in the same pass
+        raw = self.streams(selections + extra + ([signal.selection()] if signal is not None else []))
         state = _repaired(raw[0], selections[0], o)
         rest = [_clean(s, sel, o.nonfinite) for s, sel in zip(raw[1:], selections[1:], strict=False)]
         t_ns, X, repair = state.t_ns, state.values, state.repair
@@ -142,6 +144,9 @@ class StreamReader(ReaderBase):
                               state_names=state_names, action_names=action_names, state_units=units,
                               action_units=[f"{u}/s" for u in units] if units else None, metadata=meta,
                               derivative=how, repair=repair)
+        if extra:
+            got = [_clean(s, sel, o.nonfinite) for s, sel in zip(raw[len(selections):], extra, strict=False)]
+            data = forces.on_stamps(data, t_ns, got, o, str(self.path), align)
         return Recording(data, int(t_ns[0]))
 
     def inspect(self, gap: float | None = None) -> dict[str, Any]:

@@ -40,12 +40,15 @@ def activity(t_ns: np.ndarray, gap_s: float | None = None) -> dict[str, Any]:
 
 
 def summary(data: Demonstrations) -> dict[str, Any]:
-    """Counts and names of what a reader produced."""
+    """Counts and names of what a reader produced (and, with a force channel, its median magnitude in
+    the base frame)."""
     counts = np.bincount(np.unique(data.demo, return_inverse=True)[1])
     rows = dict(zip(*group_rows(data.demo), strict=True))
     return {"samples": data.n_samples, "demos": int(data.n_demos), "state_names": data.state_names,
             "action_names": data.action_names, "samples_per_demo": counts.tolist(),
-            "duration_s": float(sum(np.ptp(data.t[rows[d]]) for d in data.demo_ids))}
+            "duration_s": float(sum(np.ptp(data.t[rows[d]]) for d in data.demo_ids)),
+            **({"force": {"frame": "base", "median_norm": float(np.median(np.linalg.norm(data.force, 1)))}}
+               if data.force is not None else {})}
 
 
 def repairs(data: Demonstrations) -> list[dict[str, Any]]:

@@ -31,12 +31,12 @@ THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def affinity_cores() -> int:
-    """The cores this process may run on: its CPU affinity (all cores where there is no
-    affinity API, e.g. macOS)."""
+    """The cores this process may run on: its CPU affinity (where there is no affinity API,
+    e.g. macOS, ``os.process_cpu_count`` of Python 3.13, else all cores)."""
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:
-        return os.cpu_count() or 1
+        return getattr(os, "process_cpu_count", os.cpu_count)() or 1
 
 
 def _blas_pools() -> list[dict]:

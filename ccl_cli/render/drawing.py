@@ -19,10 +19,17 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from ccl_cli.render.figures import DRAW, _draw, _import_matplotlib
+from ccl_cli.render import figures
+from ccl_cli.render.count import selection_figure
+from ccl_cli.render.figures import _draw, _import_matplotlib
 
 Spec = tuple[str, str, dict[str, Any]]  # a figure as data: (file name, kind of figure, its arguments)
 Drawn = dict[str, "tuple[float, bytes] | None"]  # file name -> (seconds, the file's bytes) or None
+
+#: the drawing function of each kind of :class:`~ccl_cli.app.views.View`
+DRAW: dict[str, Any] = {"field": figures.field_figure, "time": figures.time_figure,
+                        "selection": selection_figure, "constraint": figures.constraint_figure,
+                        "trajectory": figures.trajectory_figure, "phases": figures.phases_figure}
 
 #: The largest figure data sent to the drawer (bytes, pickled): a large recording's figures are
 #: drawn at the end by ccl itself, from memory it already holds (a copy to another process would

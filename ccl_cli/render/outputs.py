@@ -20,7 +20,13 @@ from ccl_cli.app.run import RunResult
 
 
 def write_json(path: Path, value: Any) -> None:
-    path.write_text(json.dumps(value, indent=2, default=_default) + "\n")
+    path.write_text(json.dumps(value, indent=2, default=_default) + "\n")  # ASCII: \\u escapes
+
+
+def write_text(path: Path, text: str) -> None:
+    """``text`` as UTF-8; a file name that is not UTF-8 (held as surrogate escapes,
+    ``os.fsdecode``) is written back as its own bytes."""
+    path.write_text(text, encoding="utf-8", errors="surrogateescape")
 
 
 def _default(value: Any) -> Any:
@@ -69,8 +75,14 @@ def write_run(result: RunResult, outdir: Path, force: bool = False,
         plots = draw_views(tmp, result.views, plot_seconds, result.cfg.spec.output.format) \
             if result.views else []
         write_json(tmp / "metrics.json", result.metrics)
-        (tmp / "report.md").write_text(markdown(f"ccl {result.command}", result, plots))
-        (tmp / "config.yaml").write_text(yaml.safe_dump(result.cfg.raw, sort_keys=False))
+        report = markdown(f"ccl {result.command}", result, plots)
+        write_text(tmp / "report.md", report)
+        if result.cfg.spec.output.html:  # the same text and figures as one web page
+            from ccl_cli.render.html import run_page
+
+            write_text(tmp / "report.html", run_page(f"ccl {result.command}", report, tmp, result.data,
+                                                     result.views))
+        write_text(tmp / "config.yaml", yaml.safe_dump(result.cfg.raw, sort_keys=False))
         write_json(tmp / "run.json", {**result.record, "plot_seconds": plot_seconds})
         for name, value in (extra_files or {}).items():
             write_json(tmp / name, value)
@@ -95,6 +107,6 @@ def write_evaluation(summary: dict[str, Any], out: Path, force: bool = False, fm
         lines += metric_rows({"all": summary["metrics"]}) or ["No metric: the data has no ground truth for "
                                                              "this model.", ""]
         lines += [f"![{caption}]({rel})\n" for caption, rel in plots]
-        (tmp / "report.md").write_text("\n".join(lines))
+        write_text(tmp / "report.md", "\n".join(lines))
         write_json(tmp / "run.json", {"command": "evaluate", "model": summary["model"],
                                       "inputs": summary["inputs"], "versions": versions()})

@@ -96,8 +96,10 @@ def markdown(title: str, result: Any, plots: list[tuple[str, str]]) -> str:
         lines += metric_rows(entry)
         base = entry.get("baseline")
         if base:
+            rows = metric_rows(base)
             lines += [f"Baseline: direct policy learning ({base.get('method')}, u regressed on β(x), "
-                      "ignoring the constraints) — its own errors:", "", *metric_rows(base)]
+                      "ignoring the constraints) — " + ("its own errors:" if rows else "no metric either."),
+                      "", *rows]
         if entry.get("stop_reason"):
             reason = entry["stop_reason"]
             lines += [f"Optimiser: {entry.get('n_iter')} passes over the data; stopped on "

@@ -16,8 +16,6 @@ from ccl_cli.app.batch import JobResult
 from ccl_cli.errors import OutputError
 from ccl_cli.metrics import SPLITS
 
-DPI = 80  # summary.png's resolution
-
 
 def _flat(res: JobResult) -> dict[str, Any]:
     row: dict[str, Any] = {"job": res.job_id, "files": ";".join(res.files), "status": res.status,
@@ -78,7 +76,7 @@ def _write_summary(out: Path, results: list[JobResult], seconds: float, plots: b
         def stage(name: str) -> Path:
             return staged.enter_context(atomic_path(out / name, force=True))
 
-        with open(stage("summary.csv"), "w", newline="") as f:
+        with open(stage("summary.csv"), "w", newline="", errors="surrogateescape") as f:
             w = csv.DictWriter(f, fieldnames=fixed[:6] + metric_cols + ["error"])
             w.writeheader()
             for r in rows:
@@ -86,7 +84,7 @@ def _write_summary(out: Path, results: list[JobResult], seconds: float, plots: b
         drawn = plots and _plot(stage, rows, shown)
         if drawn:
             lines += ["", "![metrics across jobs](summary.png)"]
-        stage("summary.md").write_text("\n".join(lines) + "\n")
+        stage("summary.md").write_text("\n".join(lines) + "\n", errors="surrogateescape")
         stage("summary.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
     if not drawn:  # an earlier run's figure would show other results
         (out / "summary.png").unlink(missing_ok=True)
@@ -94,59 +92,24 @@ def _write_summary(out: Path, results: list[JobResult], seconds: float, plots: b
 
 
 def _short(name: str, width: int = 24) -> str:
-    """A job name for a tick label: without its key's hash suffix, cut to ``width``."""
+    """A job name for a figure: without its key's hash suffix, cut to ``width``; a name that is
+    not UTF-8 (surrogate escapes) with its undecodable bytes shown as �."""
+    name = name.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
     name = re.sub(r"-[0-9a-f]{8}$", "", name)
     return name if len(name) <= width else name[:width - 1] + "…"
 
 
 def _plot(stage: Callable[[str], Path], rows: list[dict], columns: list[str]) -> bool:
-    """One panel per metric: its value per job, coloured by method (log scale), saved to
-    ``stage("summary.png")``; False when there is nothing to plot.
-
-    Drawn from few artists (docs/measurements.md, "ccl batch: the fixed cost"): a job is a
-    light vertical line (one collection per panel) named under the last panel by a plain
-    text, not a tick (five artists, built on every panel); values are labelled in plain
-    text (``2e-03``: matplotlib's default ``2 × 10⁻³`` is typeset by its TeX parser), the
-    units between decades only where a panel spans at most two; the layout is fitted at the
-    resolution the figure is drawn at, so the text is measured once."""
-    cols = [c for c in columns if any(isinstance(r.get(c), float) and r[c] > 0 for r in rows)][:6]
+    """summary.png (:mod:`ccl_cli.render.jobs_figure`): one row per job, one panel per metric
+    (at most six) that some job has a value of, saved to ``stage("summary.png")``; False when no
+    job has a value."""
+    cols = [c for c in columns if any(isinstance(r.get(c), int | float) for r in rows)][:6]
     if not cols:
         return False
-    from ccl_cli.render.figures import save_figure, subplots
+    from ccl_cli.render import jobs_figure
 
-    fig, axes = subplots(len(cols), 1, figsize=(max(6, 0.25 * len(rows) + 3), 2.2 * len(cols)),
-                         squeeze=False)  # Agg, no pyplot; a per-user font cache
-    fig.set_dpi(DPI)
-    import matplotlib
-    from matplotlib.ticker import LogFormatter, NullLocator
-
-    methods = sorted({r["method"] for r in rows if r["status"] != "failed"})
-    tab10 = matplotlib.colormaps["tab10"]
-    colours = {m: tab10(i % 10) for i, m in enumerate(methods)}
-    jobs = range(len(rows))
-    for ax, col in zip(axes[:, 0], cols, strict=True):
-        for m in methods:
-            pts = [(i, r[col]) for i, r in enumerate(rows)
-                   if r["method"] == m and isinstance(r.get(col), float) and r[col] > 0]
-            if pts:
-                ax.scatter(*zip(*pts, strict=True), color=colours[m], label=m, s=18)
-        ax.set_yscale("log")
-        ax.yaxis.set_major_formatter(LogFormatter())
-        ax.yaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False))
-        values = [r[col] for r in rows if isinstance(r.get(col), float) and r[col] > 0]
-        if max(values) > 100 * min(values):
-            ax.yaxis.set_minor_locator(NullLocator())
-        ax.set_ylabel(col, fontsize=7)
-        ax.set_xticks([])
-        ax.vlines(jobs, 0, 1, transform=ax.get_xaxis_transform(), colors="0.85", lw=0.6, zorder=0)
-        ax.set_xlim(-0.5, len(rows) - 0.5)
-    last = axes[-1, 0]
-    slanted = len(rows) > 3
-    for i, r in zip(jobs, rows, strict=True):  # the job's name under its line
-        last.text(i, -0.03, _short(r["job"]), transform=last.get_xaxis_transform(), fontsize=6,
-                  rotation=60 if slanted else 0, rotation_mode="anchor", va="top",
-                  ha="right" if slanted else "center")
-    axes[0, 0].legend(fontsize=6, loc="best")
-    fig.tight_layout()
-    save_figure(fig, stage("summary.png"), dpi=DPI, fmt="png")
+    jobs = [jobs_figure.Job(_short(r["job"], 32), r["status"], r["method"],
+                            {c: float(r[c]) if isinstance(r.get(c), int | float) else None for c in cols})
+            for r in rows]
+    jobs_figure.write(stage("summary.png"), jobs, cols)
     return True

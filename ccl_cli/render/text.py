@@ -131,12 +131,30 @@ def inspect_lines(info: dict[str, Any]) -> list[str]:
         if t.get("joint_names"):
             out.append(f"  {'':30s} joints: {', '.join(t['joint_names'])}")
     if "columns" in info:
-        out.append(f"columns:  {', '.join(map(str, info['columns']))}")
+        headless = "" if info.get("header", True) else " (no header: columns by 0-based index)"
+        out.append(f"columns:  {', '.join(map(str, info['columns']))}{headless}")
+        if info.get("text_columns"):
+            out.append(f"text:     {', '.join(info['text_columns'])} (text, not numbers: never a state or "
+                       "an action)")
+        if info.get("empty_columns"):
+            out.append(f"empty:    {', '.join(info['empty_columns'])}")
         rate = f", {info['rate_hz']:.1f} Hz over {info['active_s']:.2f} s active" \
             if info.get("rate_hz") else ""
-        out.append(f"rows:     {info['rows']} (time column {info['time_column']}{rate})")
+        timed = f"time column {info['time_column']}{rate}" if info.get("time_column") else "no time column"
+        out.append(f"rows:     {info['rows']} ({timed})")
+    if info.get("repeats"):
+        r = info["repeats"]
+        cols = ", ".join(map(str, r["columns"][:6])) + (", …" if len(r["columns"]) > 6 else "")
+        out.append(f"repeats:  {r['rows']} rows repeat the row before (in {cols}): the sensor updates at "
+                   f"{r['rate_hz']:.1f} Hz, a pose every {r['per_pose']:.3g} rows; learning keeps each "
+                   "pose's first row (data.faults: {stamps: keep} keeps every row)")
+    if info.get("needs"):
+        out.append("to read it, a config (-c) says:")
+        out += [f"  {need}" for need in info["needs"]]
     for node in info.get("tree", []):  # HDF5 / .mat contents
-        out.append("  " + "  ".join(str(v) for k, v in node.items() if k != "names"))
+        value = f"  = {node['value']:g} (one number: time: {{variable: {node['path']}}} takes it as the " \
+            "sampling interval)" if "value" in node else ""
+        out.append("  " + "  ".join(str(v) for k, v in node.items() if k not in ("names", "value")) + value)
     if "gap_s" in info and "demos" in info:
         out.append(f"pauses:   {info['demos']} stretches in {info.get('demos_from')} between pauses > "
                    f"{info['gap_s']:.3g} s ({info.get('gap_rule')}; change with --gap)")

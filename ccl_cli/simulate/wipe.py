@@ -310,8 +310,8 @@ def _split(N: np.ndarray, velocity: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def arm_wipe(n_demos: int = 8, rate: float = 200.0, noise: float = 2e-5, tilt_deg: float = 10.0,
-             compliance: float = 1e-4, offset: float = 0.0, drift: float = 0.0, seed: int = 0
-             ) -> Demonstrations:
+             compliance: float = 1e-4, offset: float = 0.0, drift: float = 0.0, seed: int = 0,
+             force: bool = False) -> Demonstrations:
     """Task space of :func:`wipe_log`: X the measured end-effector positions (N, 3) (FK of the
     measured joints plus white noise of std ``noise`` m), U their velocities derived as the
     readers do (N, 3).
@@ -323,7 +323,10 @@ def arm_wipe(n_demos: int = 8, rate: float = 200.0, noise: float = 2e-5, tilt_de
     Truth: N = I − nnᵀ while wiping and I in approach and retract (N, 3, 3); of the noise-free
     end-effector velocity u, w = π = N u and v = u − w (the pressing motion along n while
     wiping, ``compliance``). A is not stored (its row count changes with the phase);
-    ``metadata["phases"]`` gives each demonstration's phase times, ``metadata["normal"]`` n."""
+    ``metadata["phases"]`` gives each demonstration's phase times, ``metadata["normal"]`` n.
+
+    ``force``: the dataset carries the force/torque channel's force (N, 3) in the base frame
+    (:attr:`~ccl_cli.dataset.Demonstrations.force`: bias, contact with friction, noise)."""
     log = wipe_log(n_demos=n_demos, rate=rate, ee_noise=noise, tilt_deg=tilt_deg, compliance=compliance,
                    seed=seed)
     ee = log.ee
@@ -334,6 +337,8 @@ def arm_wipe(n_demos: int = 8, rate: float = 200.0, noise: float = 2e-5, tilt_de
     wiping = (log.phase == WIPE)[:, None, None]
     N = np.where(wiping, np.eye(3) - np.outer(log.normal, log.normal), np.eye(3))
     d = _wipe_data(log, ee, U, _split(N, log.ee_vel), "task", ["x", "y", "z"], ["m"] * 3, deriv)
+    if force:
+        d.force = log.wrench[:, :3].copy()
     if offset or drift:
         d.metadata["position_bias"] = {"offset_m": offset, "offset_direction": way[0].tolist(),
                                        "drift_m_s": drift, "drift_direction": way[1].tolist()}

@@ -17,8 +17,8 @@ from ccl_cli.errors import InputError
 from ccl_cli.io.formats.bag1 import BagIndex, in_order, read_chunk, read_index
 from ccl_cli.io.layouts import NotFixed, fixed_topic, read_uint
 from ccl_cli.io.library_errors import library_call, library_iter
-from ccl_cli.io.limits import inside, open_regular, regular_file
-from ccl_cli.io.messages import TopicReader, finish_topics, read_topics, short_type
+from ccl_cli.io.limits import OutsideFile, inside, open_regular, regular_file
+from ccl_cli.io.messages import TopicReader, finish_topics, read_topics, short_type, type_name
 from ccl_cli.io.options import StreamOptions
 from ccl_cli.io.sniff import BAG2_METADATA
 from ccl_cli.io.streams import Stream
@@ -27,12 +27,6 @@ from ccl_cli.progress import progress_of
 
 log = logging.getLogger("ccl")
 _TYPES = "\0types"  # the key of the topic types among the topics read by _fixed_topics
-
-
-def normalize(msgtype: str) -> str:
-    """'sensor_msgs/JointState' (ROS 1) → 'sensor_msgs/msg/JointState', as rosbags names it."""
-    parts = msgtype.split("/")
-    return "/".join([parts[0], "msg", parts[-1]]) if len(parts) == 2 else msgtype
 
 
 def _typestore(name: str | None):
@@ -85,6 +79,15 @@ def storage_files(root: Path, metadata: Any, allow_outside: bool = False) -> lis
     return out
 
 
+def bag_metadata(root: Path, allow_outside: bool = False) -> Any:
+    """A ROS 2 bag's metadata.yaml, read by ccl's bounded YAML parser (rosbags' is not bounded);
+    a metadata.yaml that is a symlink leading outside the bag folder is refused unless
+    ``allow_outside``, as a storage file would be."""
+    inside(root, BAG2_METADATA, f"the bag {root}", allow_outside)
+    metadata, _ = read_yaml(root / BAG2_METADATA, "ROS 2 bag metadata", error=InputError)
+    return metadata
+
+
 def _count(value, where: str) -> int:
     """A count or time from bag metadata (metadata.yaml can hold anything)."""
     if value is None:
@@ -107,7 +110,7 @@ class BagReader(TopicReader):
         root = bag_root(self.path)
         if root.is_dir():
             # bounded first (size, depth, aliases): rosbags' YAML parser is not
-            metadata, _ = read_yaml(root / BAG2_METADATA, "ROS 2 bag metadata", error=InputError)
+            metadata = bag_metadata(root, self.options.allow_outside)
             storage_files(root, metadata, self.options.allow_outside)
         else:
             regular_file(root, "the bag")
@@ -129,6 +132,8 @@ class BagReader(TopicReader):
             return None
         try:
             index = read_index(root)
+        except OutsideFile:
+            raise  # a chunk or index position outside the file: damaged, whoever reads it
         except InputError:
             return None
         return index if set(index.entries) == {c.id for c in index.connections} else None
@@ -138,13 +143,13 @@ class BagReader(TopicReader):
         if index is not None and index.entries:  # from the index: no message read
             topics: dict[str, dict[str, Any]] = {}
             for conn in index.connections:
-                entry = topics.setdefault(conn.topic, {"type": normalize(conn.msgtype), "count": 0})
+                entry = topics.setdefault(conn.topic, {"type": type_name(conn.msgtype), "count": 0})
                 entry["count"] += int(len(index.entries[conn.id]))
             times = [e[[0, -1], 0] for e in index.entries.values() if len(e)]
             codecs = sorted({c.compression or "none" for c in index.chunks}) or ["none"]
             return {"start_ns": int(min(t[0] for t in times)), "end_ns": int(max(t[1] for t in times)),
                     "storage": f"ROS 1 bag 2.0, {len(index.chunks)} chunk(s)",
-                    "compression": ", ".join(codecs), "encoding": "ros1msg",
+                    "compression": ", ".join(codecs), "encoding": "ros1",
                     "topics": dict(sorted(topics.items()))}
         reader = self._open()
         try:
@@ -164,8 +169,8 @@ class BagReader(TopicReader):
         ROS 1 bag rosbags opened; what the metadata does not say is left out."""
         root = bag_root(self.path)
         if not root.is_dir():
-            return {"storage": "ROS 1 bag", "encoding": "ros1msg"}
-        metadata, _ = read_yaml(root / BAG2_METADATA, "ROS 2 bag metadata", error=InputError)
+            return {"storage": "ROS 1 bag", "encoding": "ros1"}
+        metadata = bag_metadata(root, self.options.allow_outside)
         info = metadata.get("rosbag2_bagfile_information") if isinstance(metadata, dict) else None
         if not isinstance(info, dict):
             return {}
@@ -220,7 +225,7 @@ class BagReader(TopicReader):
         if index is None:
             return None  # ROS 2 bags, and whatever the library path refuses with its own words
         where = str(self.path)
-        types = {c.topic: normalize(c.msgtype) for c in index.connections}
+        types = {c.topic: type_name(c.msgtype) for c in index.connections}
         if any(s.topic not in types for s in selections):
             return None
         collectors, _ = read_topics(list(selections), types, where)
@@ -289,7 +294,7 @@ class BagReader(TopicReader):
         raw = bytes(buf[at + 8 + hlen:at + 8 + hlen + size])
         if len(raw) != size:
             return None
-        msgtype = normalize(conn.msgtype)
+        msgtype = type_name(conn.msgtype)
         store = get_typestore(Stores.EMPTY)
         what = f"read the message definition of {conn.topic}"
         library_call(where, what, store.register, library_call(where, what, get_types_from_msg, conn.msgdef,

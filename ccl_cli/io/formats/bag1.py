@@ -22,7 +22,7 @@ from typing import IO
 import numpy as np
 
 from ccl_cli.errors import InputError
-from ccl_cli.io.limits import check_claim, open_regular
+from ccl_cli.io.limits import check_claim, check_span, open_regular
 
 MAGIC = b"#ROSBAG V2.0\n"
 OP_MSG, OP_BAG_HEADER, OP_INDEX, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
@@ -122,10 +122,12 @@ def _data_fields(raw: bytes) -> dict[str, str]:
 
 
 def _block(f: IO[bytes], start: int, stop: int, what: str, where: str, size: int) -> _Records:
-    """The bytes [start, stop) of the bag, read at once, as records read from memory."""
-    check_claim(where, what, max(stop - start, 0), 1, size)
+    """The bytes [start, stop) of the bag, read at once, as records read from memory; the
+    span is checked against the file's ``size`` first (:func:`~ccl_cli.io.limits.check_span`)."""
+    check_span(where, what, start, stop, size)
+    check_claim(where, what, stop - start, 1, size)
     f.seek(start)
-    raw = f.read(max(stop - start, 0))
+    raw = f.read(stop - start)
     return _Records(io.BytesIO(raw), where, len(raw))
 
 
@@ -161,8 +163,9 @@ def read_index(path: Path) -> BagIndex:
         index_pos = _int(head, "index_pos", "<Q", where)
         n_conn = _int(head, "conn_count", "<I", where)
         n_chunks = _int(head, "chunk_count", "<I", where)
-        if index_pos == 0 or index_pos >= size:
+        if index_pos == 0:
             raise InputError(f"{where}: the bag is not indexed (reindex it with rosbag reindex)")
+        check_span(where, "the bag's index", index_pos, index_pos, size - 1)
         rec = _block(f, index_pos, size, "the bag's index", where, size)
         connections = []
         for _ in range(n_conn):
@@ -191,9 +194,12 @@ def read_index(path: Path) -> BagIndex:
         ends = sorted({pos for pos, _ in infos} | {index_pos})
         chunks: list[Chunk] = []
         for number, (pos, counts) in enumerate(infos):
-            top = _block(f, pos, min(pos + HEAD_READ, size), "a chunk", where, size)
+            check_span(where, f"chunk {number}", pos, pos, index_pos,
+                       f"the {index_pos} bytes before the bag's index")  # where chunks lie
+            top = _block(f, pos, min(pos + HEAD_READ, size), f"chunk {number}", where, size)
             fields, n = top.record(OP_CHUNK, "a chunk")
             data_pos = pos + top.f.tell()
+            check_span(where, f"the data of chunk {number}", data_pos, data_pos + n, size)
             chunks.append(Chunk(data_pos, n, fields.get("compression", b"").decode("latin-1"),
                                 _int(fields, "size", "<I", where)))
             stop = ends[bisect.bisect_right(ends, pos)] if pos < index_pos else size
@@ -230,8 +236,10 @@ def read_chunk(f: IO[bytes], chunk: Chunk, where: str) -> np.ndarray:
     decompress = decompressors.get(chunk.compression)
     if decompress is None:
         raise InputError(f"{where}: chunk compression {chunk.compression!r} is not supported")
-    check_claim(where, f"the chunk at byte {chunk.data_pos}", max(chunk.size, chunk.data_len), 1,
-                os.fstat(f.fileno()).st_size)
+    size = os.fstat(f.fileno()).st_size
+    check_span(where, f"the chunk at byte {chunk.data_pos}", chunk.data_pos, chunk.data_pos + chunk.data_len,
+               size)
+    check_claim(where, f"the chunk at byte {chunk.data_pos}", max(chunk.size, chunk.data_len), 1, size)
     f.seek(chunk.data_pos)
     raw = f.read(chunk.data_len)
     if len(raw) != chunk.data_len:

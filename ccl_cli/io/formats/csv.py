@@ -13,27 +13,31 @@ as ``x.2``, or any column by its 0-based index. The time column is parsed exactl
 integer nanoseconds stay int64; decimal seconds are split at the point, never passed
 through float64.
 
-A table of numbers only (no quotes, no empty cell) is parsed by NumPy's text reader in
-one pass (:class:`_Matrix`); anything else by the csv module, cell by cell (:class:`_Cells`),
-which also explains every problem.
+The file is read as a stream and only the columns a read asks for are kept (and the time
+columns): a table of numbers only (no quotes, no empty cell) through NumPy's text reader,
+block by block; anything else by the csv module, row by row, which also explains every
+problem (:mod:`.csv_body`). Exact time stamps: :mod:`.csv_time`.
 """
 
 from __future__ import annotations
 
 import csv
 import io
-import math
 import os
-import re
 from collections.abc import Sequence
+from itertools import islice
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
 
 from ccl_cli.errors import InputError
+from ccl_cli.io.faults import repeated_poses
+from ccl_cli.io.formats import csv_body
+from ccl_cli.io.formats.csv_body import Body, is_number
+from ccl_cli.io.formats.csv_time import parse_time_ns
 from ccl_cli.io.limits import check_claim, max_line_bytes, open_regular
-from ccl_cli.io.options import UNIT_NS, DataOptions, StreamOptions, TimeOptions
+from ccl_cli.io.options import DataOptions, StreamOptions, TimeOptions
 from ccl_cli.io.streams import Stream, StreamReader
 from ccl_cli.io.summary import activity
 
@@ -43,14 +47,6 @@ from ccl_cli.io.summary import activity
 TIME_NAMES = ("rosbagTimestamp", "%time", "__time", "time", "timestamp", "t", "header.stamp",
               "field.header.stamp", "stamp", "time_stamp")
 _TIME_KEYS = {n.lower() for n in TIME_NAMES}
-_INT = re.compile(r"^[+-]?\d+$")
-_DEC = re.compile(r"^([+-]?)(\d*)\.(\d*)$")
-#: a whole time column of integers, or of integers and decimals (one value per line)
-_INTS = re.compile(r"(?:[+-]?\d+\n)*")
-_DECIMALS = re.compile(r"(?:[+-]?(?:\d*\.\d*|\d+)\n)*")
-_I64 = 2**63 - 1
-#: line boundaries of str.splitlines that are not line ends to the csv module
-_OTHER_LINE_BREAKS = "\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"
 
 
 def unique_names(header: list[str]) -> list[str]:
@@ -65,250 +61,156 @@ def unique_names(header: list[str]) -> list[str]:
     return out
 
 
-# -- exact time stamps -----------------------------------------------------------------------
-def parse_time_ns(column: Sequence[str], unit: str | None, where: str) -> np.ndarray:
-    """Exact int64 nanoseconds from strings (n,) → (n,). ``unit`` None: integers ≥ 1e15 are
-    ns, everything else seconds. Values that are not finite or do not fit int64 ns are an
-    :class:`InputError` naming the row."""
-    fast = _time_ns_vectorised(column, unit)
-    return fast if fast is not None else _time_ns_per_value(column, unit, where)
+# -- the table -------------------------------------------------------------------------------------
+#: ``ccl inspect`` looks for repeated rows (a sensor logged faster than it updates) in the state's
+#: columns, or without a config in the first this many columns of numbers
+REPEAT_COLUMNS = 16
+#: ``ccl inspect`` samples the first rows of a table this wide or narrower to tell which columns
+#: hold text (a wider one — 10⁶ columns — would hold each sampled row as that many strings)
+KIND_COLUMNS = 4096
 
-
-def _time_ns_vectorised(column: Sequence[str], unit: str | None) -> np.ndarray | None:
-    """The common cases at array speed: all integers, or integers and plain decimals
-    (``[+-]digits.digits``). None when a value is anything else or out of range (then
-    :func:`_time_ns_per_value` parses it, and names the row at fault)."""
-    text = "\n".join(column) + "\n"
-    values = np.array(column, dtype=str)
-    try:
-        if _INTS.fullmatch(text):
-            ints = values.astype(np.int64)
-            big = max(abs(int(ints.min())), abs(int(ints.max())))
-            unit = unit or ("ns" if big >= 10**15 else "s")
-            if big * UNIT_NS[unit] > _I64:
-                return None
-            return ints * UNIT_NS[unit]
-        if not _DECIMALS.fullmatch(text):
-            return None
-        scale = UNIT_NS[unit or "s"]
-        digits = len(str(scale)) - 1
-        negative = np.char.startswith(values, "-")
-        whole, _, frac = np.char.partition(np.char.lstrip(values, "+-"), ".").T
-        whole = np.where(whole == "", "0", whole).astype(np.int64)
-        if int(whole.max(initial=0)) >= _I64 // scale:
-            return None
-        ns = whole * scale
-        if digits:
-            ns += np.char.ljust(frac, digits, "0").astype(f"U{digits}").astype(np.int64)
-        return np.where(negative, -ns, ns)
-    except (ValueError, OverflowError):
-        return None
-
-
-def _ns(value: int, v: str, i: int, where: str) -> int:
-    if not -_I64 <= value <= _I64:
-        raise InputError(f"{where}: time value {v[:40]!r} in row {i + 2} is out of range "
-                         "(beyond ±9.2e18 ns)")
-    return value
-
-
-def _time_ns_per_value(column: Sequence[str], unit: str | None, where: str) -> np.ndarray:
-    """:func:`parse_time_ns` one value at a time (any float syntax; exact errors)."""
-    if all(_INT.match(v.strip()) for v in column):  # str.strip: any Unicode space around it
-        ints = [int(v.strip()) for v in column]
-        if unit is None:
-            unit = "ns" if max(map(abs, ints), default=0) >= 10**15 else "s"
-        scale = UNIT_NS[unit]
-        return np.array([_ns(x * scale, v, i, where)
-                         for i, (x, v) in enumerate(zip(ints, column, strict=True))], dtype=np.int64)
-    scale = UNIT_NS[unit or "s"]
-    digits = len(str(scale)) - 1
-    out = np.empty(len(column), dtype=np.int64)
-    for i, v in enumerate(column):  # exact decimal split; a float would lose ns at epoch scale
-        m = _DEC.match(v.strip())
-        if m:
-            sign = -1 if m.group(1) == "-" else 1
-            whole = int(m.group(2) or 0)
-            frac = (m.group(3) + "0" * digits)[:digits] if digits else ""
-            out[i] = _ns(sign * (whole * scale + (int(frac) if frac else 0)), v, i, where)
-        elif _INT.match(v.strip()):
-            out[i] = _ns(int(v.strip()) * scale, v, i, where)
-        else:
-            try:
-                value = float(v) * scale
-            except ValueError:
-                raise InputError(f"{where}: time value {v[:40]!r} in row {i + 2} is not a number") from None
-            if not math.isfinite(value):
-                raise InputError(f"{where}: time value {v[:40]!r} in row {i + 2} is not finite")
-            out[i] = _ns(int(round(value)), v, i, where)
-    return out
-
-
-# -- the body of a table: numbers in one pass, or cells ------------------------------------------
-class _Matrix:
-    """A table of numbers only: every cell parsed by ``np.loadtxt`` at once; the text of a
-    column is split out of the lines only when asked (exact time stamps)."""
-
-    def __init__(self, values: np.ndarray, lines: list[str], delimiter: str | None, transposed: bool) -> None:
-        self.values = values.T if transposed else values  # (rows, columns), one sample per row
-        self.lines = lines
-        self.delimiter = delimiter
-        self.transposed = transposed
-
-    @property
-    def n_rows(self) -> int:
-        return self.values.shape[0]
-
-    def text(self, k: int) -> list[str]:
-        if self.transposed:  # column k of the table is line k of the file
-            return self.lines[k].split(self.delimiter)
-        if self.delimiter is None:
-            return [ln.split(None, k + 1)[k] for ln in self.lines]
-        return [ln.split(self.delimiter, k + 1)[k] for ln in self.lines]
-
-    def numbers(self, k: int, name: str, where: str) -> np.ndarray:
-        return self.values[:, k]
-
-    def is_numeric(self, k: int) -> bool:
-        return True
-
-
-class _Cells:
-    """A table as rows of cells (strings), as the csv module reads it."""
-
-    def __init__(self, rows: list[list[str]]) -> None:
-        self.rows = rows
-
-    @property
-    def n_rows(self) -> int:
-        return len(self.rows)
-
-    def text(self, k: int) -> list[str]:
-        return [r[k] for r in self.rows]
-
-    def numbers(self, k: int, name: str, where: str) -> np.ndarray:
-        col = self.text(k)
-        try:
-            return np.array(col, dtype=float)
-        except ValueError:
-            bad = next(i for i, v in enumerate(col) if not _is_number(v))
-            raise InputError(f"{where}: column {name!r} row {bad + 2} is not numeric "
-                             f"({col[bad]!r})") from None
-
-    def is_numeric(self, k: int) -> bool:
-        """Every value of column ``k`` parses as a number ('' and text do not)."""
-        try:
-            np.asarray(self.text(k), dtype=float)
-        except ValueError:
-            return False
-        return True
+#: a key asking for every column (a text matrix read without ``columns``)
+ALL = "*"
 
 
 class CsvTable:
-    """One text file read as a table: column names and a body of ``n_rows`` samples."""
+    """One text file read as a table: column names and a body of ``n_rows`` samples holding
+    the columns asked for (:meth:`want`) and the time columns, read as a stream
+    (:mod:`.csv_body`): the other columns are skipped while reading."""
 
     def __init__(self, path: Path, time: TimeOptions, samples: str | None = None) -> None:
         self.path = Path(path)
         self.time = time
         self.samples = samples or "rows"
         self.headerless = False
-        self._loaded: tuple[list[str], _Matrix | _Cells] | None = None
+        self._wanted: set[str | int] = set()
+        self._loaded: tuple[list[str], Body] | None = None
         self._time: tuple[np.ndarray, str] | None = None
+        self._delim = ","
 
     # -- parsing ---------------------------------------------------------------------------
-    def _read_text(self) -> str:
-        """The file's text, once its size and the length of its longest line are known to be
-        within the caps (:func:`check_lines`: a scan that never holds a line)."""
-        try:
-            with open_regular(self.path, "the CSV file") as f:
-                check_lines(f, str(self.path))
-                raw = f.read()
-        except OSError as exc:
-            raise InputError(f"{self.path}: {exc.strerror or type(exc).__name__}") from None
-        try:
-            return raw.decode("utf-8-sig")
-        except UnicodeDecodeError:
-            raise InputError(f"{self.path}: not a text (CSV) file") from None
+    def want(self, keys: list[str | int] | tuple) -> None:
+        """Ask for columns (names, indices, or :data:`ALL`) before or after loading: a column
+        not read yet makes the next :meth:`load` read the file again."""
+        new = set(keys) - self._wanted
+        if not new:
+            return
+        self._wanted |= new
+        if self._loaded is not None:
+            names, body = self._loaded
+            if not all(body.has(k) for k in self._kept(names)):
+                self._loaded = None
 
-    def load(self) -> tuple[list[str], _Matrix | _Cells]:
-        """(column names, body), parsed once."""
+    def load(self) -> tuple[list[str], Body]:
+        """(column names, body), read once per set of columns asked for."""
         if self._loaded is None:
-            text = self._read_text()
-            delim = self.time.delimiter or _sniff_delimiter(text[:65536])
-            self._loaded = self._numbers(text, delim) or self._cells(text, delim)
+            self._loaded = self._read()
         return self._loaded
 
-    def _numbers(self, text: str, delim: str) -> tuple[list[str], _Matrix] | None:
-        """The whole table through ``np.loadtxt``; None unless it is numbers only (then the
-        cell-by-cell reader gives the same table, or says what is wrong)."""
-        if '"' in text or any(c in text for c in _OTHER_LINE_BREAKS):
-            return None  # quoting, or characters str.splitlines breaks at and the csv module not
+    def _kept(self, names: list[str]) -> set[int]:
+        """The columns to keep: those asked for that exist (a missing one is named by
+        :meth:`stream`)."""
+        if ALL in self._wanted:
+            return set(range(len(names)))
+        kept = set()
+        for key in self._wanted:
+            try:
+                kept.add(self.index(names, key))
+            except InputError:
+                pass
+        return kept
+
+    def _time_columns(self, names: list[str]) -> set[int]:
+        """The columns a time may come from: the configured one, or (without a rate) those named
+        like one (:data:`TIME_NAMES`)."""
+        if self.time.column is not None:
+            try:
+                return {self.index(names, self.time.column)}
+            except InputError:
+                return set()
+        if self.time.rate:
+            return set()
+        return {k for k, n in enumerate(names) if n.lower() in _TIME_KEYS}
+
+    def _read(self) -> tuple[list[str], Body]:
+        """The table, once the file's size and the length of its longest line are known to be
+        within the caps (:func:`check_lines`: a scan that never holds a line)."""
+        where = str(self.path)
+        try:
+            with open_regular(self.path, "the CSV file") as f:
+                n_lines = check_lines(f, where)
+                f.seek(0)
+                delim = self.time.delimiter or _sniff_delimiter(f.read(65536).decode("utf-8-sig", "replace"))
+                self._delim = delim
+                if self.samples == "columns":
+                    with csv_body.text_stream(f, "") as text:
+                        return self._transposed(text.read(), delim)
+                with csv_body.text_stream(f, None) as text:
+                    found = self._numbers(text, delim, n_lines)
+                if found is None:
+                    with csv_body.text_stream(f, "") as text:
+                        found = self._cells(text, delim)
+                return found
+        except UnicodeDecodeError:
+            raise InputError(f"{self.path}: not a text (CSV) file") from None
+        except OSError as exc:
+            raise InputError(f"{self.path}: {exc.strerror or type(exc).__name__}") from None
+
+    def _names(self, header: list[str], headerless: bool) -> list[str]:
+        self.headerless = headerless
+        return [str(j) for j in range(len(header))] if headerless else unique_names(header)
+
+    def _numbers(self, text, delim: str, n_lines: int) -> tuple[list[str], Body] | None:
+        """The table through NumPy's text reader, block by block, keeping the asked columns;
+        None unless it is numbers only (then the cell-by-cell reader gives the same table, or
+        says what is wrong)."""
         sep = None if delim in (" ", "whitespace") else delim
-        lines = text.splitlines()  # at \n, \r\n and \r, as the csv module
-        if sep is not None and max(map(len, lines)) > csv.field_size_limit():
-            return None  # a line that may hold a field the csv module refuses
-        # blank lines (only separators and white space) are skipped; a line of other white
-        # space kept here makes np.loadtxt fail, and the cell-by-cell reader decide
         blank = " \t" + (sep or "")
-        lines = [ln for ln in lines if ln.strip(blank)]
-        header = (lines[0].split(sep) if sep is not None else lines[0].split()) if lines else []
+        while (first := text.readline()) and not first.strip(blank + "\n"):
+            pass  # blank lines before the header
+        first = first[:-1] if first.endswith("\n") else first
+        if not first or csv_body.NOT_PLAIN.search(first):
+            return None
+        header = first.split(sep)
         if not any(c.strip() for c in header):
             return None
-        headerless = all(_is_number(c) for c in header)
-        if self.samples == "columns" and not headerless:
+        headerless = all(is_number(c) for c in header)
+        names = self._names(header, headerless)
+        kept, times = self._kept(names), self._time_columns(names)
+        body = csv_body.numbers(csv_body.blocks(text, first if headerless else None), sep, len(header),
+                                sorted(kept), sorted(times), n_lines)
+        if body is None or (not body.n_rows and not headerless):
             return None
-        body = lines if headerless else lines[1:]
-        if not body:
-            return None
-        try:
-            values = np.loadtxt(body, delimiter=sep, comments=None, dtype=float, ndmin=2)
-        except ValueError:
-            return None
-        if values.shape != (len(body), len(header)):
-            return None
-        self.headerless = headerless
-        transposed = self.samples == "columns"
-        n_names = values.shape[0] if transposed else len(header)
-        names = [str(j) for j in range(n_names)] if headerless else unique_names(header)
-        return names, _Matrix(values, body, sep, transposed)
+        return names, body
 
-    def _cells(self, text: str, delim: str) -> tuple[list[str], _Cells]:
-        f = io.StringIO(text, newline="")
-        if delim in (" ", "whitespace"):
-            rows = [line.split() for line in f]
-        else:
-            reader = csv.reader(f, delimiter=delim)
-            try:
-                rows = list(reader)
-            except csv.Error as exc:  # a field over csv.field_size_limit (128 kB), ...
-                raise InputError(f"{self.path}: line {reader.line_num}: not a readable CSV row "
-                                 f"({exc})") from None
-        rows = [r for r in rows if r and any(c.strip() for c in r)]
+    def _cells(self, text, delim: str) -> tuple[list[str], Body]:
+        """The table through the csv module, row by row, keeping the asked columns."""
+        rows = csv_body.csv_rows(text, delim, str(self.path))
+
+        def keep(header: list[str], headerless: bool) -> list[int]:
+            names = self._names(header, headerless)
+            return sorted(self._kept(names) | self._time_columns(names))
+
+        header, headerless, body = csv_body.cells(rows, keep, lambda row: not all(map(is_number, row)),
+                                                  str(self.path))
+        return self._names(header, headerless), body
+
+    def _transposed(self, text: str, delim: str) -> tuple[list[str], Body]:
+        """``samples: columns``: a headerless matrix with one sample per column, read whole
+        (it is transposed) and checked as before."""
+        rows = [r for r in csv_body.csv_rows(io.StringIO(text, newline=""), delim, str(self.path))
+                if r and any(c.strip() for c in r)]
         if not rows:
             raise InputError(f"{self.path}: empty CSV file")
-        header = rows[0]
-        self.headerless = all(_is_number(c) for c in header)
-        if self.samples == "columns":
-            if not self.headerless:
-                raise InputError(f"{self.path}: samples: columns needs a text matrix without a header row")
-            width = len(header)
-            bad = next((i for i, r in enumerate(rows) if len(r) != width), None)
-            if bad is not None:
-                raise InputError(f"{self.path}: row {bad + 1} has {len(rows[bad])} fields, row 1 has {width}")
-            rows = [list(col) for col in zip(*rows, strict=True)]  # one sample per column → per row
-            header = rows[0]
-        if self.headerless:
-            names = [str(j) for j in range(len(header))]
-            body = rows
-        else:
-            names = unique_names(header)
-            body = rows[1:]
-        bad = next((i for i, r in enumerate(body) if len(r) != len(names)), None)
+        if not all(is_number(c) for c in rows[0]):
+            raise InputError(f"{self.path}: samples: columns needs a text matrix without a header row")
+        width = len(rows[0])
+        bad = next((i for i, r in enumerate(rows) if len(r) != width), None)
         if bad is not None:
-            first = "row 1" if self.headerless else "the header"
-            raise InputError(f"{self.path}: row {bad + 1 + (not self.headerless)} has {len(body[bad])} "
-                             f"fields, {first} has {len(names)}")
-        return names, _Cells(body)
+            raise InputError(f"{self.path}: row {bad + 1} has {len(rows[bad])} fields, row 1 has {width}")
+        self.headerless = True
+        names = [str(j) for j in range(len(rows))]  # one variable per line of the file
+        return names, Body(width, texts=dict(enumerate(rows)))
 
     # -- columns and time --------------------------------------------------------------------
     def index(self, names: list[str], key: str | int) -> int:
@@ -350,14 +252,46 @@ class CsvTable:
         return parse_time_ns(body.text(idx), self.time.unit, where), names[idx]
 
     def listing(self) -> dict[str, Any]:
+        """Columns, rows, time column and span; a table with no time column and none configured
+        is listed too (``time_column`` None: a config must say the rate or the column)."""
         names, body = self.load()
-        t, col = self.time_ns() if body.n_rows else (np.zeros(0, np.int64), "")
+        t, col = np.zeros(0, np.int64), ""
+        if body.n_rows and (self.time.column is not None or self.time.rate or find_time_column(names, body)
+                            is not None):
+            t, col = self.time_ns()
+        elif body.n_rows:
+            col = None
         return {"start_ns": int(t[0]) if len(t) else 0, "end_ns": int(t[-1]) if len(t) else 0,
                 "columns": names, "rows": body.n_rows, "time_column": col, "header": not self.headerless,
                 "sample_axis": self.samples}
 
+    def kinds(self, names: list[str], cells: int = 200_000) -> list[str]:
+        """What each column holds in the first rows of the file (as many as hold about ``cells``
+        cells, at most 50): ``number``, ``text`` (a cell that is not a number: a frame_id, a
+        flattened header) or ``empty``. Called after :meth:`load` (the file's lines are checked).
+        A table wider than :data:`KIND_COLUMNS` is not sampled (a row would be as many strings):
+        its columns read so far say what they hold, the others count as numbers."""
+        if len(names) > KIND_COLUMNS:
+            _, body = self.load()
+            return ["number" if not body.has(k) or body.is_numeric(k) else "text" for k in range(len(names))]
+        limit = max(2, min(50, cells // max(len(names), 1)))
+        rows: list[list[str]] = []
+        with open_regular(self.path, "the CSV file") as f, csv_body.text_stream(f, "") as text:
+            for row in csv_body.csv_rows(text, self._delim, str(self.path)):
+                if row and any(c.strip() for c in row):
+                    rows.append(row)
+                if len(rows) >= limit:
+                    break
+        rows = [r for r in rows[(0 if self.headerless else 1):] if len(r) == len(names)]
+        out = []
+        for k in range(len(names)):
+            cells_k = [r[k].strip() for r in rows if r[k].strip()]
+            out.append("empty" if not cells_k else "number" if all(map(is_number, cells_k)) else "text")
+        return out
+
     def stream(self, selection: StreamOptions) -> Stream:
         """The columns of ``selection`` (all but the time column of a text matrix)."""
+        self.want(selection.columns or [ALL])
         names, body = self.load()
         if not selection.columns and not self.headerless:
             raise InputError(f"{self.path}: a CSV stream needs columns: [...] (columns: {', '.join(names)})")
@@ -376,30 +310,35 @@ class CsvTable:
                       {"columns": [names[k] for k in idx], "time_column": tcol, "sample_axis": self.samples})
 
 
-def check_lines(f: IO[bytes], where: str) -> None:
+def check_lines(f: IO[bytes], where: str) -> int:
     """Refuse a text file over the cap (:func:`~ccl_cli.io.limits.check_claim`) or with a line
     longer than :func:`~ccl_cli.io.limits.max_line_bytes`, before it is read: the file is
     mapped, not loaded, and each step looks for the last line end (LF or CR) in the next
-    window of that many bytes, so a file of n bytes takes about n / window steps."""
+    window of that many bytes, so a file of n bytes takes about n / window steps. Returns
+    how many lines it holds at most (line ends, + 1)."""
     import mmap
 
     size = os.fstat(f.fileno()).st_size
     check_claim(where, "the text", size, 1)
     window = max_line_bytes()
-    if size <= window:
-        return
-    with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-        start = 0
-        while size - start > window:
-            end = start + window + 1  # a line of exactly ``window`` bytes ends inside
-            last = max(mm.rfind(b"\n", start, end), mm.rfind(b"\r", start, end))
-            if last < 0:
-                raise InputError(f"{where}: a line longer than {window} bytes starts at byte {start}; "
-                                 "not a CSV table (refused before reading it)")
-            start = last + 1
+    if size > window:
+        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            start = 0
+            while size - start > window:
+                end = start + window + 1  # a line of exactly ``window`` bytes ends inside
+                last = max(mm.rfind(b"\n", start, end), mm.rfind(b"\r", start, end))
+                if last < 0:
+                    raise InputError(f"{where}: a line longer than {window} bytes starts at byte {start}; "
+                                     "not a CSV table (refused before reading it)")
+                start = last + 1
+    f.seek(0)
+    lines = 1
+    while block := f.read(1 << 20):  # \n, \r and \r\n end lines (a pair split by a block counts twice)
+        lines += block.count(b"\n") + block.count(b"\r") - block.count(b"\r\n")
+    return lines
 
 
-def find_time_column(names: list[str], body: _Matrix | _Cells) -> int | None:
+def find_time_column(names: list[str], body: Body) -> int | None:
     """Index of the first :data:`TIME_NAMES` column (case-insensitive, in that order) whose
     every value is a number; None when there is none."""
     lower = [n.lower() for n in names]
@@ -417,21 +356,13 @@ def _sniff_delimiter(sample: str) -> str:
     lines = [ln for ln in sample.splitlines() if ln.strip()][:20]
     if lines and not any(c in ln for ln in lines for c in ",;"):
         widths = {len(ln.split()) for ln in lines}
-        numeric_first = all(_is_number(tok) for tok in lines[0].split())
+        numeric_first = all(is_number(tok) for tok in lines[0].split())
         if numeric_first or (len(widths) == 1 and widths.pop() > 1 and "\t" not in sample):
             return " "
     try:
         return csv.Sniffer().sniff(sample, delimiters=",;\t ").delimiter
     except csv.Error:
         return ","
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-        return True
-    except ValueError:
-        return False
 
 
 # -- the format -------------------------------------------------------------------------------
@@ -459,6 +390,8 @@ class CsvReader(StreamReader):
         return self._tables[key]
 
     def streams(self, selections: Sequence[StreamOptions]) -> list[Stream]:
+        for s in selections:  # every column of a table asked for before it is read: one pass
+            self.table(s).want(s.columns or [ALL])
         return [self.table(s).stream(s) for s in selections]
 
     def listing(self) -> dict[str, Any]:
@@ -468,23 +401,71 @@ class CsvReader(StreamReader):
     def inspect(self, gap: float | None = None) -> dict[str, Any]:
         """Columns, rows and time column; the names the configured streams would get; the
         rate over the active time and the demonstrations of the (first) state column."""
+        o = self.options
+        for selection in (o.state, None if o.derives_action else o.action):
+            if selection is not None and selection.columns:
+                self.table(selection).want(selection.columns)
+        table = self.table(StreamOptions(samples=o.state.samples) if o.state is not None else None)
+        table.want(list(range(REPEAT_COLUMNS + 1)))  # those :data:`REPEAT_COLUMNS` looks at, in one pass
         info = self.listing()
+        kinds = table.kinds(info["columns"]) if info["sample_axis"] == "rows" and info["rows"] else \
+            ["number"] * len(info["columns"])
         out = self.span(info)
         out.update({k: info[k] for k in ("columns", "rows", "time_column", "header", "sample_axis")})
+        for kind in ("text", "empty"):
+            listed = [c for c, k in zip(info["columns"], kinds, strict=True) if k == kind]
+            if listed:
+                out[f"{kind}_columns"] = listed
+        if info["time_column"] is None:  # nothing to time the rows by: say what a config needs
+            return {k: v for k, v in out.items() if k not in ("start_ns", "end_ns", "duration_s")} \
+                | {"needs": _needs(table, info, kinds)}
         if info["rows"] > 1 and out["duration_s"] > 0:
             out["rate_hz"] = (info["rows"] - 1) / out["duration_s"]
-        o = self.options
         for key, selection in (("state", o.state), ("action", None if o.derives_action else o.action)):
             if selection is not None and (selection.columns or (key == "state" and not info["header"])):
                 out[f"{key}_names"] = self.streams([selection])[0].names
-        state = o.state.columns if o.state is not None and o.state.columns else \
-            [c for c in info["columns"] if c != info["time_column"]][:1]
+        numbers = list(islice((c for c, k in zip(info["columns"], kinds, strict=True)
+                               if k == "number" and c != info["time_column"] and not _bookkeeping(c)),
+                              REPEAT_COLUMNS))
+        state = o.state.columns if o.state is not None and o.state.columns else numbers
         if state:
-            main = StreamOptions(columns=state[:1], samples=o.state.samples if o.state else None)
-            act = activity(self.streams([main])[0].t_ns, gap)
+            main = StreamOptions(columns=state, samples=o.state.samples if o.state else None)
+            stream = self.streams([main])[0]
+            act = activity(stream.t_ns, gap)
             out.update({"rate_hz": act["rate_hz"], "active_s": act["active_s"], "demos": act["demos"],
                         "demos_from": "rows", "gap_s": act["gap_s"]} | _rule(act))
+            held = repeated_poses((stream.t_ns - stream.t_ns[0]) / 1e9, stream.values,
+                                  np.zeros(len(stream.t_ns), dtype=np.int64))
+            if held:
+                out["repeats"] = {"columns": list(state), **held.detail, "rows": int(held.count)}
         return out
+
+
+def _bookkeeping(name: str) -> bool:
+    """A column that counts or stamps messages rather than measuring (a ROS header's seq and
+    stamp, another time column): new in every row, so no sign of a sensor's updates."""
+    low = str(name).lower()
+    return low in _TIME_KEYS or low.endswith(("seq", "stamp", ".secs", ".nsecs", "time"))
+
+
+def _needs(table: CsvTable, info: dict[str, Any], kinds: list[str]) -> list[str]:
+    """What a config must say to read a table that has no time column (for ``ccl inspect``):
+    the rate or the time column (a first column that increases throughout is named), the state
+    columns, and the samples' side of a matrix wider than tall."""
+    names, body = table.load()
+    numbers = [c for c, k in zip(names, kinds, strict=True) if k == "number"]
+    out = ["data.time: {rate: HZ} (the rows carry no time: say how many were recorded per second)"]
+    if numbers and numbers[0] == names[0] and body.n_rows > 2 and \
+            bool(np.all(np.diff(body.numbers(0, names[0], str(table.path))) > 0)):
+        out[0] += f", or data.time: {{column: {names[0]}}} (column {names[0]} increases throughout: a time?)"
+        numbers = numbers[1:]
+    if info["sample_axis"] == "rows" and table.headerless and len(names) > info["rows"]:
+        out.append(f"data.state: {{samples: columns}} if each of the {len(names)} columns is a sample (the "
+                   f"original library's layout: {info['rows']} rows, one per dimension)")
+    shown = ", ".join(map(str, numbers[:8])) + (", …" if len(numbers) > 8 else "")
+    out.append(f"data.state: {{columns: [{shown}]}} (the state's columns)")
+    out.append("data.action: {derive: state} (velocities from the states), or {columns: [...]}")
+    return out
 
 
 def _rule(act: dict[str, Any]) -> dict[str, Any]:

@@ -31,6 +31,7 @@ import numpy as np
 
 from ccl_cli.dataset import Derivative
 from ccl_cli.errors import InputError
+from ccl_cli.io import forces
 from ccl_cli.io.arrays import (
     NAME_ATTRS,
     Variable,
@@ -149,6 +150,11 @@ def _part(group, options: DataOptions, where: str, label: str, names: bool = Tru
         vars_["action"] = _variable(group, options.action, where, names)
     if options.time.dataset is not None:
         vars_["time"] = _dataset(group, options.time.dataset, where, keep_int=True)
+    for key, selection in forces.selections(options).items():  # data.force beside the state
+        if selection.dataset is None:
+            raise InputError(f"{where}: {forces.option_path(key)} needs dataset: PATH "
+                             "for an HDF5 layout")
+        vars_[key] = _variable(group, selection, where, False)
     return orient(vars_, "rows", f"{where}: {label}"), vars_
 
 

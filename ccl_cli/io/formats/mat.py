@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from ccl_cli.errors import InputError
+from ccl_cli.io import forces
 from ccl_cli.io.arrays import Variable, as_numeric, assemble, cut_parts, named_parts, orient, split_by_index
 from ccl_cli.io.formats.mat5_elements import check_variable
 from ccl_cli.io.h5.access import attr_str, attr_value, error_text
@@ -209,14 +210,20 @@ class _V73:
         return np.asarray(raw).T  # back to MATLAB's orientation
 
     def _deref(self, ref: Any, where: str) -> Any:
-        """The object an object reference points to (a null or dangling one: InputError)."""
+        """The dataset or group an object reference points to (a null or dangling one, or one
+        to anything else — a named datatype: InputError)."""
+        import h5py
+
         try:
             if not ref:
                 raise ValueError("null reference")
-            return self.f[ref]
+            found = self.f[ref]
         except (KeyError, ValueError, TypeError, OSError, RuntimeError) as exc:
             raise InputError(f"{where}: a reference that cannot be followed ({error_text(exc)}); "
                              "damaged file?") from None
+        if not isinstance(found, h5py.Dataset | h5py.Group):
+            raise InputError(f"{where}: a reference to a {type(found).__name__}, not an array; damaged file?")
+        return found
 
     def _read(self, obj, where: str) -> np.ndarray:
         """A dataset's values, its declared size (as float64) checked before reading."""
@@ -284,12 +291,21 @@ def read_mat(src: _V5 | _V73, path: Path, options: DataOptions) -> Recording:
         specs["time"] = (options.time.variable, None)
     if signal is not None:
         specs["where"] = (signal.variable, signal.samples)
+    for key, selection in forces.selections(options).items():  # data.force beside the state
+        if selection.variable is None:
+            raise InputError(f"{where}: {forces.option_path(key)} needs variable: NAME "
+                             "for a .mat file")
+        specs[key] = (selection.variable, selection.samples)
     values = {key: src.get(name) for key, (name, _) in specs.items()}
     cells = {key: isinstance(v, list) for key, v in values.items()}
     chunks: list[tuple[str, dict[str, np.ndarray]]] = []
     if cells["state"]:
         n_demo = len(values["state"])
+        # a time variable holding one number beside cells: the sampling interval of every cell
+        shared = {k for k, v in values.items() if k == "time" and not isinstance(v, list) and np.size(v) == 1}
         for key, v in values.items():
+            if key in shared:
+                continue
             if not isinstance(v, list) or len(v) != n_demo:
                 got = f"{len(v)} cells" if isinstance(v, list) else "a matrix"
                 raise InputError(f"{where}: {specs[key][0]} is {got} but "
@@ -300,7 +316,8 @@ def read_mat(src: _V5 | _V73, path: Path, options: DataOptions) -> Recording:
                              "cell array (one demonstration per cell already)")
         for k in range(n_demo):
             label = f"{state.variable}{{{k + 1}}}"
-            arrays = {key: _variable(v[k], f"{where}: {specs[key][0]}{{{k + 1}}}",
+            arrays = {key: _variable(v if key in shared else v[k],
+                                     f"{where}: {specs[key][0]}" + ("" if key in shared else f"{{{k + 1}}}"),
                                      specs[key][1], key == "time") for key, v in values.items()}
             chunks.append((label, _oriented(arrays, f"{where}: {label}")))
     else:
@@ -403,6 +420,8 @@ def list_v5(path: Path) -> list[dict[str, Any]]:
     out: list[dict[str, Any]] = []
     for name, shape, cls in src.variables():
         out.append({"path": name, "kind": "variable", "shape": list(shape), "class": cls})
+        if cls in NUMERIC_CLASSES and int(np.prod(shape)) == 1:  # one number: e.g. dt, a sampling interval
+            out[-1]["value"] = float(np.asarray(src.load(name), dtype=float).ravel()[0])
         if cls in CONTAINERS:
             out += _v5_children(src.load(name), name)
     return truncate(out)

@@ -17,8 +17,8 @@ import numpy as np
 from ccl_cli.errors import InputError
 from ccl_cli.io.layouts import FixedTopic, NotFixed, fixed_topic
 from ccl_cli.io.library_errors import library_call, library_iter
-from ccl_cli.io.limits import check_claim, open_regular
-from ccl_cli.io.messages import TopicReader, finish_topics, read_topics, short_type
+from ccl_cli.io.limits import check_claim, check_span, open_regular
+from ccl_cli.io.messages import TopicReader, finish_topics, read_topics, short_type, type_name
 from ccl_cli.io.options import StreamOptions
 from ccl_cli.io.sniff import MCAP_MAGIC
 from ccl_cli.io.streams import Stream
@@ -61,9 +61,14 @@ class McapReader(TopicReader):
         summary = library_call(where, "read MCAP", reader.get_summary)
         if summary is None:
             raise InputError(f"{where}: MCAP has no summary (truncated?)")
-        for index in summary.chunk_indexes:  # what each chunk decompresses to, before it is read
-            check_claim(where, f"the chunk at byte {index.chunk_start_offset}",
-                        max(int(index.uncompressed_size), int(index.chunk_length)), 1)
+        size = os.fstat(f.fileno()).st_size
+        for index in summary.chunk_indexes:  # where each chunk lies, and what it decompresses to
+            what = f"the chunk at byte {index.chunk_start_offset}"
+            start = int(index.chunk_start_offset)
+            check_span(where, what, start, start + int(index.chunk_length), size)
+            check_claim(where, what, max(int(index.uncompressed_size), int(index.chunk_length)), 1)
+            for cid, offset in index.message_index_offsets.items():
+                check_span(where, f"the message index of channel {cid}", int(offset), int(offset), size)
         return reader, summary
 
     def listing(self) -> dict[str, Any]:
@@ -73,7 +78,8 @@ class McapReader(TopicReader):
         topics = {}
         for cid, ch in summary.channels.items():
             schema = summary.schemas.get(ch.schema_id)
-            topics[str(ch.topic)] = {"type": schema.name if schema else "", "encoding": ch.message_encoding,
+            topics[str(ch.topic)] = {"type": type_name(schema.name) if schema else "",
+                                     "encoding": ch.message_encoding,
                                      "count": int(counts.get(cid, 0))}
         st = summary.statistics
         codecs = sorted({str(c.compression) or "none" for c in summary.chunk_indexes}) or ["none"]
@@ -96,7 +102,7 @@ class McapReader(TopicReader):
                     have = ", ".join(sorted({str(c.topic) for c in summary.channels.values()})) or "none"
                     raise InputError(f"{where}: topic {selection.topic!r} not found (topics: {have})")
                 schema = summary.schemas.get(channels[0].schema_id)
-                msgtypes[selection.topic] = schema.name if schema else ""
+                msgtypes[selection.topic] = type_name(schema.name) if schema else ""
                 encodings[selection.topic] = channels[0].message_encoding
             collectors, slots = read_topics(selections, msgtypes, where)
             done: dict[str, list[Stream]] = {}

@@ -12,7 +12,6 @@ converts while reading; ``docs/readers.md`` has the measurements behind that cho
 from __future__ import annotations
 
 import functools
-import json
 import os
 from typing import Any
 
@@ -123,11 +122,9 @@ def attr_json(attrs, key: str, where: str, default: Any = _MISSING, kind: type |
     value = _attr(attrs, key, where, default)
     if value is default and default is not _MISSING:
         return value
-    text = attr_str(attrs, key, where)
-    try:
-        out = json.loads(text)
-    except (json.JSONDecodeError, RecursionError) as exc:
-        raise InputError(f"{where}: attribute {key!r} is not valid JSON ({error_text(exc)})") from None
+    from ccl_cli.io.jsonsafe import loads
+
+    out = loads(attr_str(attrs, key, where), f"{where}: attribute {key!r}")
     if kind is not None and not isinstance(out, kind):
         raise InputError(f"{where}: attribute {key!r} must be a JSON {kind.__name__}, got {_describe(out)}")
     return out

@@ -83,6 +83,11 @@ def list_hdf5(path: str | Path, matlab: bool = False, limit: int = LIMIT) -> lis
             f.visititems_links(visit)
         except (OSError, RuntimeError, KeyError) as exc:
             raise InputError(f"{path}: cannot read the HDF5 structure ({exc})") from None
+        except (UnicodeDecodeError, SystemError) as exc:  # h5py wraps an error of its callback
+            if not isinstance(exc, UnicodeDecodeError) and not isinstance(exc.__cause__, UnicodeDecodeError):
+                raise
+            raise InputError(f"{path}: cannot read the HDF5 structure (an object's name is not UTF-8); "
+                             "damaged file?") from None
         if refused:
             raise refused[0]
     return truncate(out, limit)

@@ -3,6 +3,7 @@
 from ccl_cli.learn.constraint.alpha import StateDependentConstraint
 from ccl_cli.learn.constraint.auto import AutoConstraint
 from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.constraint.contact_phases import ContactPhases
 from ccl_cli.learn.constraint.lambda_ import KnownFeatureConstraint
 from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.manifold import ManifoldConstraint
@@ -17,6 +18,7 @@ __all__ = [
     "AutoConstraint",
     "ConstraintInStretches",
     "ConstraintModel",
+    "ContactPhases",
     "KnownFeatureConstraint",
     "LinearConstraint",
     "ManifoldConstraint",

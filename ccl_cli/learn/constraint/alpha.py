@@ -24,14 +24,19 @@ from ccl_cli.learn.constraint.angular import (
     fit_sequence,
     rows_from_weights,
 )
-from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.constraint.base import (
+    ConstraintModel,
+    UntunedAtOneAction,
+    check_rows_asked,
+    one_action_selection,
+)
 from ccl_cli.learn.linalg import row_chunks
 from ccl_cli.learn.model_selection import Tunable
 from ccl_cli.learn.params import Interval, MaxIter, SeedParams, Tolerance, out_of_range, parameters
 
 
 @parameters
-class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedParams):
+class AngularConstraintMixin(UntunedAtOneAction, Tunable, BasisParams, sel.SelectionParams, SeedParams):
     """Shared fitting of the angle maps and the choice of s for alpha and lambda; its
     parameters: ``n_restarts`` LM starts per row, at most ``max_iter`` passes per row, the
     relative tolerance ``tol`` (and the basis, selection, seed and tune groups)."""
@@ -54,10 +59,17 @@ class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedPara
         the data: run to convergence from a fit on more rows, a fold's; refined by at most
         REFINE_PASSES passes from one on fewer rows, a search's subset);
         sets weights_, nmse_, n_constraints_, selection_. X (N, p), U (N, q), groups (N,):
-        the data given to ``fit``, for the cross-validated choice of s."""
+        the data given to ``fit``, for the cross-validated choice of s. One action dimension
+        (q = 1): no rows (:data:`~.base.ONE_ACTION`)."""
         d = V.shape[1]
-        if d < 2:
-            raise ConfigError("learning a constraint needs at least 2 action dimensions")
+        if self.n_action_ == 1:  # a row would forbid all motion (base.ONE_ACTION)
+            check_rows_asked(1, self.n_constraints)
+            self._row_weights, self.weights_, self.nmse_ = [], [], []
+            self.n_constraints_ = 0
+            self.selection_ = one_action_selection()
+            return
+        if d < 2:  # lambda: Φ with one task row leaves Λ no direction to choose
+            raise ConfigError(f"the features give {d} task row: learning the selection Λ needs at least 2")
         max_k = min(self.max_constraints or d - 1, d - 1)
         rule = sel.rule_of(self)
         if rule == "fixed" and self.n_constraints > max_k:
@@ -75,7 +87,11 @@ class AngularConstraintMixin(Tunable, BasisParams, sel.SelectionParams, SeedPara
                 else len(fits)
             reason = (f"constraint {k + 1} raised nmse to {nmse[k]:.3g} (> best and > 1e-3)"
                       if k < len(fits) else f"stopped at the maximum {k}")
-            return sel.Selection("threshold", k, nmse, reason)
+            last = [max(min(nmse[:-1]), 1e-3)] if len(fits) > 1 else []
+            return sel.Selection("threshold", k, nmse, reason, "nmse of row k",
+                                 limits=[None] * (len(fits) - len(last)) + last,
+                                 limit_rule="the last row fitted counts unless its nmse rose above the best "
+                                            "before it and above 1e-3 (the original's rule)")
 
         def noise() -> sel.Selection | None:  # the rows of every fit at every sample, (N, m, q)
             timing = getattr(self, "_timing", (None, None))
@@ -158,7 +174,8 @@ class StateDependentConstraint(AngularConstraintMixin, ConstraintModel):
             ) -> StateDependentConstraint:
         """Learn Ã(x) from states X (N, p) and actions U (N, q); ``groups`` (N,):
         demonstration ids, for the folds of tuning and of the ``cv`` rule; ``t`` (N,) s and
-        ``derivative`` (how U was made) for the noise of the ``noise`` rule (as lambda's)."""
+        ``derivative`` (how U was made) for the noise of the ``noise`` rule (as lambda's).
+        One action dimension (q = 1): no rows (k = 0, :data:`~.base.ONE_ACTION`; nothing tuned)."""
         return self._fit_timed(X, U, groups, t, derivative)
 
     def _fit_core(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,

@@ -94,11 +94,18 @@ from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn import blas
 from ccl_cli.learn import model_selection as ms
 from ccl_cli.learn.constraint import evidence as ev
+from ccl_cli.learn.constraint import force_evidence, sure
 from ccl_cli.learn.constraint import geometry as geo
 from ccl_cli.learn.constraint import noise_rank as nr
-from ccl_cli.learn.constraint import sure
 from ccl_cli.learn.constraint.alpha import StateDependentConstraint
-from ccl_cli.learn.constraint.base import Applied, ConstraintModel, NewDataRule, Windows, check_rows_asked
+from ccl_cli.learn.constraint.base import (
+    ONE_ACTION,
+    Applied,
+    ConstraintModel,
+    NewDataRule,
+    Windows,
+    check_rows_asked,
+)
 from ccl_cli.learn.constraint.lambda_ import FeatureSpec, KnownFeatureConstraint, make_features
 from ccl_cli.learn.constraint.linear import LinearConstraint
 from ccl_cli.learn.constraint.manifold import ManifoldConstraint
@@ -231,8 +238,19 @@ class AutoConstraint(ConstraintModel, SeedParams):
 
     # -- fitting --------------------------------------------------------------------------
     def fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
-            t: np.ndarray | None = None, derivative: HowMade = None) -> AutoConstraint:
-        """Choose and fit the constraint model.
+            t: np.ndarray | None = None, derivative: HowMade = None, force: np.ndarray | None = None
+            ) -> AutoConstraint:
+        """Choose and fit the constraint model: from the states and the velocities
+        (:meth:`_fit`), then — with ``force`` (N, 3), the base-frame force of a force/torque
+        sensor — weighed against the contact the force shows (:mod:`.force_evidence`)."""
+        self._fit(X, U, groups=groups, t=t, derivative=derivative)
+        if force is not None:
+            force_evidence.weigh(self, np.asarray(X, float), np.asarray(U, float), groups, t, force)
+        return self
+
+    def _fit(self, X: np.ndarray, U: np.ndarray, *, groups: np.ndarray | None = None,
+             t: np.ndarray | None = None, derivative: HowMade = None) -> AutoConstraint:
+        """Choose and fit the constraint model from the states and the velocities.
 
         Args:
             X (N, p), U (N, q): states and actions, in time order within each demonstration.
@@ -243,6 +261,9 @@ class AutoConstraint(ConstraintModel, SeedParams):
                 from the positions X by their local polynomial, False when recorded, None when
                 not known (the larger of the two noise estimates,
                 :func:`~ccl_cli.learn.constraint.noise_rank.row_evidence`).
+
+        One action dimension (q = 1): no constraint (k = 0, :data:`~.base.ONE_ACTION`), no
+        candidate tried.
         """
         X, U = self._prepare_fit(X, U)
         n, q = U.shape
@@ -251,10 +272,13 @@ class AutoConstraint(ConstraintModel, SeedParams):
             t = np.asarray(t, dtype=float)
             if t.shape != (n,):
                 raise InputError(f"t must hold one time per sample, ({n},), got {t.shape}")
-        data = ev.Sample.of(X, U, groups, t, derivative)
-        derived = data.derived
         self.n_action_ = q
         self.geometry_ = None
+        if q == 1:
+            self._one_action(X, U, groups)
+            return self
+        data = ev.Sample.of(X, U, groups, t, derivative)
+        derived = data.derived
         if self._geometry(data, derivative):
             return self
         gap = self.gap if self.gap is not None else int(derived.window) if derived else ms.RECORDED_GAP
@@ -582,6 +606,15 @@ class AutoConstraint(ConstraintModel, SeedParams):
             return NoConstraint().fit(data.X, data.U, groups=data.groups)
         how = data.derivative if winner.candidate.name == "stretches" else None  # its noise needs it
         return winner.candidate.make(k).fit(data.X, data.U, groups=data.groups, t=data.t, derivative=how)
+
+    def _one_action(self, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None) -> None:
+        """k = 0 at one action dimension (:data:`~.base.ONE_ACTION`): no candidate is tried."""
+        self.model_ = NoConstraint().fit(X, U, groups=groups)
+        self.n_constraints_ = 0
+        self.heldout_ = None
+        self.selection_ = {"rule": "auto", "n_constraints": 0, "model": "no constraint", "chosen": "none",
+                           "reason": ONE_ACTION, "values": [], "criterion": "", "candidates": []}
+        self.model_.selection_ = {**self.selection_, "winner_selection": self.model_.selection_}
 
     def _fit_without_cv(self, data: ev.Sample, why: str) -> None:
         """Too few samples to cross-validate: nhat, its rank by the noise rule on its own rows

@@ -244,10 +244,34 @@ class TimedConstraint(ConstraintModel):
         return np.eye(self.n_action_) - np.einsum("nki,nkj->nij", A, A)
 
 
+#: The answer of every constraint learner at one action dimension (q = 1): a row on one action
+#: forbids all motion, and a constraint leaves motion free (k ≤ q − 1 = 0).
+ONE_ACTION = ("one action dimension: a constraint row on it would forbid all motion (a constraint leaves "
+              "motion free: k ≤ q − 1 = 0), so no constraint: Ñ = I")
+
+
+def one_action_selection() -> dict:
+    """``selection_`` of the answer at one action dimension (:data:`ONE_ACTION`, k = 0)."""
+    return {"rule": "one action", "n_constraints": 0, "values": [], "criterion": "", "reason": ONE_ACTION}
+
+
+class UntunedAtOneAction:
+    """Placed before :class:`~ccl_cli.learn.model_selection.Tunable` in a tunable learner's bases:
+    at one action dimension its rule answers no rows whatever the basis (:data:`ONE_ACTION`), so
+    there is nothing to tune (``tuning_`` None)."""
+
+    def _fit_tuned(self, X: np.ndarray, U: np.ndarray, **kwargs: object) -> bool:
+        if U.shape[1] == 1 and self.n_constraints is None:
+            self.tuning_ = None
+            return False
+        return super()._fit_tuned(X, U, **kwargs)
+
+
 def check_rows_asked(q: int, n_constraints: int | None) -> None:
-    """ConfigError unless q ≥ 2 action dimensions and a fixed ``n_constraints`` is 0 … q − 1
-    (for the learners that may answer no constraint: auto, per window)."""
-    if q < 2:
-        raise ConfigError("learning a constraint needs at least 2 action dimensions")
-    if n_constraints is not None and n_constraints > q - 1:
-        raise ConfigError(out_of_range("n_constraints", n_constraints, Interval(0, q - 1, type=int)))
+    """ConfigError unless a fixed ``n_constraints`` is 0 … q − 1 (at q = 1: none, :data:`ONE_ACTION`)."""
+    if n_constraints is None or n_constraints <= q - 1:
+        return
+    if q == 1:
+        raise ConfigError(f"n_constraints = {n_constraints} on one action dimension: a constraint row on it "
+                          "would forbid all motion (k ≤ q − 1 = 0)")
+    raise ConfigError(out_of_range("n_constraints", n_constraints, Interval(0, q - 1, type=int)))

@@ -72,10 +72,13 @@ class Tried:
     def limits(self) -> dict[str, Any]:
         """The noise rule's limits for its rows (:func:`.noise_rank.row_limits`, as :func:`rank`
         applies them): ``noise_limit`` and ``share_limit`` per row (None: a row only its noise
-        ratio can admit), both None when the rule could not judge (the ratio rule decided)."""
+        ratio can admit), both None when the rule could not judge — then ``ratio_limit``: the
+        ratio rule's limit on each row's share (:func:`.rank.ratio_limits`, None for row 1)."""
         ev = self.evidence
-        if ev is None or not ev.snr >= nr.MIN_SNR:
+        if ev is None:
             return {"noise_limit": None, "share_limit": None}
+        if not ev.snr >= nr.MIN_SNR:  # the ratio rule on the held-out energies, as shares
+            return {"noise_limit": None, "share_limit": None, "ratio_limit": sel.ratio_limits(ev.share)}
         limit, share = nr.row_limits(ev.ratio, share_rows=nr.SHARE_ROWS)
         return {"noise_limit": [float(v) for v in limit],
                 "share_limit": [float(v) if np.isfinite(v) else None for v in share]}
@@ -138,8 +141,8 @@ def rank(tried: Tried, m: int, data: Sample) -> None:
     ev = data.rows_evidence(tried.rows, pieces(tried.folds, data.groups))
     tried.evidence = ev
     chosen = nr.noise_rank(ev, m, share_rows=nr.SHARE_ROWS)
-    if chosen is None:
-        chosen = sel.ratio(ev.energy, m, criterion="held-out energy along row k")
+    if chosen is None:  # on the shares (the energies over one total): the same rows count
+        chosen = sel.ratio(ev.share, m, criterion="held-out energy along row k")
         chosen.reason = ("the samples are not trajectories the noise rule can judge (total variance "
                          f"< {nr.MIN_SNR:g} × noise): ratio rule on held-out energies; " + chosen.reason)
     tried.k = int(chosen.n_constraints)

@@ -216,8 +216,12 @@ def returning(P: np.ndarray, radius: float = REVISIT_RADIUS) -> np.ndarray:
     the nearest one asked (work bounded at any n)."""
     from scipy.spatial import cKDTree
 
+    scale = float(np.abs(P).max()) if P.size else 0.0
+    if len(P) < 3 or not 0 < scale < np.inf:
+        return np.zeros(len(P), dtype=bool)
+    P = P / scale  # within ±1: the tree's squared distances cannot overflow (states near 1e300)
     spread = float(np.sqrt(((P - P.mean(0)) ** 2).sum(1).mean()))
-    if len(P) < 3 or not spread > 0:
+    if not spread > 0:
         return np.zeros(len(P), dtype=bool)
     step = max(1, len(P) // REVISIT_QUERIES)
     queries = np.arange(0, len(P), step)
@@ -571,6 +575,22 @@ def rows_drift(rows: np.ndarray, X: np.ndarray, groups: np.ndarray) -> np.ndarra
     return np.sqrt(var / spread) if spread > 0 else np.full(k, np.inf)
 
 
+def model_drift(model: Any, rows: np.ndarray, X: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """How far the positions X (N, q) of demonstrations ``groups`` move off a fitted model's
+    constraint: a model of level sets (one with ``levels``, :class:`~.manifold.ManifoldConstraint`)
+    by its own level functions h(x) — RMS(h − mean) / RMS(x − mean) within the demonstrations,
+    the measure of :func:`drift` — others by integrating their rows (N, k, q) along the
+    demonstrations (:func:`rows_drift`). Integrating the normalised gradients of a curved surface
+    adds up their small tilts over every loop; the level itself does not: (k,)."""
+    levels = getattr(model, "levels", None)
+    if not callable(levels):
+        return rows_drift(rows, X, groups)
+    H = levels(X)
+    spread = within_covariance(X, groups).trace()
+    var = np.diag(within_covariance(H, groups))
+    return np.sqrt(var / spread) if spread > 0 else np.full(H.shape[1], np.inf)
+
+
 def integrate(W: np.ndarray, X: np.ndarray, groups: np.ndarray, t: np.ndarray | None) -> np.ndarray:
     """The states a velocity W (N, q) would have carried X (N, q) through: each demonstration
     starts at its first state and adds ∫W dt (trapezoids on the stamps t (N,); unit steps
@@ -615,5 +635,7 @@ def add_still_rows(chosen: Selection | None, rows: np.ndarray, X: np.ndarray, U:
         chosen.reason += (f"; rows {chosen.n_constraints + 1}–{k} move above the noise but the positions "
                           f"drift along them by at most {drift[chosen.n_constraints:k].max():.3g} of their "
                           f"spread (≤ {limit:g}): constraints the contact gives a little along")
+        chosen.extra.update(drift=[float(v) for v in drift], drift_limit=float(limit),
+                            still_rows=list(range(chosen.n_constraints + 1, k + 1)))
         chosen.n_constraints = k
     return chosen

@@ -90,7 +90,9 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
         """Learn Λ̃(x) from states X (N, p) and joint-space actions U (N, q); ``groups``
         (N,): demonstration ids, for the folds of tuning and of the ``cv`` rule; ``t`` (N,) s
         and ``derivative`` (how U was made: the readers' {"window", "order"}, False when
-        recorded, None when not known) for the noise of the ``noise`` rule."""
+        recorded, None when not known) for the noise of the ``noise`` rule. Φ must fit the data
+        (ConfigError / InputError, both ValueErrors: the built-in ``arm2`` needs p = q = 2). One
+        action dimension (q = 1): no rows (k = 0, :data:`~.base.ONE_ACTION`; nothing tuned)."""
         return self._fit_timed(X, U, groups, t, derivative)
 
     def _angle_dim(self) -> int:
@@ -108,8 +110,11 @@ class KnownFeatureConstraint(AngularConstraintMixin, ConstraintModel):
         V = None
         for rows in row_chunks(len(X)):
             Phi = features(X[rows])
-            if Phi.ndim != 3 or Phi.shape[0] != len(X[rows]) or Phi.shape[2] != U.shape[1]:
+            if Phi.ndim != 3 or Phi.shape[0] != len(X[rows]):
                 raise ConfigError(f"features must give (N, r, {U.shape[1]}) matrices, got {Phi.shape}")
+            if Phi.shape[2] != U.shape[1]:
+                raise ConfigError(f"the features give Φ (r, q) = {Phi.shape[1:]} for q = {Phi.shape[2]} "
+                                  f"actions; U has q = {U.shape[1]}")
             V = np.empty((len(X), Phi.shape[1])) if V is None else V
             V[rows] = np.einsum("nrq,nq->nr", Phi, U[rows])
         return V, np.linalg.norm(V, axis=1) >= MIN_TASK_NORM

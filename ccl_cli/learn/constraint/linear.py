@@ -28,7 +28,7 @@ from ccl_cli.dataset import HowMade
 from ccl_cli.errors import InputError
 from ccl_cli.learn.basis import Basis, BasisParams, make_basis
 from ccl_cli.learn.constraint import rank as sel
-from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.constraint.base import ONE_ACTION, ConstraintModel, UntunedAtOneAction
 from ccl_cli.learn.constraint.lambda_ import ROBOT, make_features
 from ccl_cli.learn.linalg import nullspace_projection, row_chunks
 from ccl_cli.learn.model_selection import Tunable
@@ -50,8 +50,8 @@ def polynomial_features(X: np.ndarray, degree: int) -> np.ndarray:
 
 
 @parameters
-class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParams, sel.ThresholdParams,
-                       SeedParams):
+class LinearConstraint(UntunedAtOneAction, Tunable, ConstraintModel, BasisParams, sel.SelectionParams,
+                       sel.ThresholdParams, SeedParams):
     """A(x) = W Φ_A(x) estimated in closed form.
 
     Args:
@@ -224,7 +224,9 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
             t: np.ndarray | None = None, derivative: HowMade = None) -> LinearConstraint:
         """Estimate W (and W_b) from states X (N, p) and actions U (N, q); ``groups`` (N,):
         demonstration ids, for the folds of tuning and of the ``cv`` rule. Its rules read
-        neither the times ``t`` nor ``derivative`` (the protocol's signature)."""
+        neither the times ``t`` nor ``derivative`` (the protocol's signature). One action
+        dimension (q = 1): no rows (k = 0, :data:`~.base.ONE_ACTION`; nothing tuned) unless
+        ``n_constraints`` fixes them."""
         return self._fit(X, U, groups=groups)
 
     def _fit_basis(self, X: np.ndarray, U: np.ndarray) -> Basis | None:
@@ -252,12 +254,18 @@ class LinearConstraint(Tunable, ConstraintModel, BasisParams, sel.SelectionParam
             k = 1
             while k < max_k and nmse[k] < self.threshold:
                 k += 1
-            return sel.Selection("threshold", k, list(nmse[:max_k]), f"nmse below {self.threshold}")
+            return sel.Selection("threshold", k, list(nmse[:max_k]), f"nmse below {self.threshold}",
+                                 "nmse of row k",
+                                 limits=sel.threshold_limits(min(max_k, len(nmse)), self.threshold),
+                                 limit_rule=sel.THRESHOLD_RULE.format(self.threshold))
 
-        chosen = sel.choose(self, ratio_values=vals[: max_k + 1] / len(X), gap_values=vals[: max_k + 1],
-                            max_k=max_k, fixed_max=d,
-                            criterion="squared singular value k of the scaled regressors / N",
-                            threshold=threshold, X=X, U=U, groups=groups)
+        if self.n_action_ == 1 and self.n_constraints is None:  # "at least one row" would forbid all motion
+            chosen = sel.Selection("one action", 0, [], ONE_ACTION)
+        else:
+            chosen = sel.choose(self, ratio_values=vals[: max_k + 1] / len(X), gap_values=vals[: max_k + 1],
+                                max_k=max_k, fixed_max=d,
+                                criterion="squared singular value k of the scaled regressors / N",
+                                threshold=threshold, X=X, U=U, groups=groups)
         self.n_constraints_ = chosen.n_constraints
         self.selection_ = chosen.as_dict()
         if self._reweight_steps and self.n_constraints_ > 1:

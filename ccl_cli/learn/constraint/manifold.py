@@ -34,7 +34,7 @@ from typing import Annotated, ClassVar, Literal
 import numpy as np
 
 from ccl_cli.errors import InputError
-from ccl_cli.learn.constraint.base import ConstraintModel, check_rows_asked
+from ccl_cli.learn.constraint.base import ONE_ACTION, ConstraintModel, check_rows_asked
 from ccl_cli.learn.params import Interval, parameters
 
 Family = Literal["linear", "sphere", "quadric"]
@@ -107,7 +107,8 @@ class ManifoldConstraint(ConstraintModel):
             t: np.ndarray | None = None, derivative: object = None) -> ManifoldConstraint:
         """Learn the level functions from the states X (N, q) of the demonstrations ``groups``
         (N,; None: one); U (N, q), the states' velocities, is used for its shape only, and
-        neither the times ``t`` nor how U was made are read (positions need no differentiation)."""
+        neither the times ``t`` nor how U was made are read (positions need no differentiation).
+        InputError unless p = q; one dimension (p = q = 1): no rows (k = 0, :data:`~.base.ONE_ACTION`)."""
         X, U = self._prepare_fit(X, U)
         q = U.shape[1]
         if X.shape[1] != q:
@@ -131,7 +132,9 @@ class ManifoldConstraint(ConstraintModel):
         self.weights_ = W
         spread = float(within_covariance(X, groups).trace())
         ratio = np.sqrt(self.variation_[: q - 1] / spread) if spread > 0 else np.full(q - 1, np.inf)
-        if self.n_constraints is not None:
+        if q == 1:  # a level of one coordinate would hold the state still
+            k, reason = 0, ONE_ACTION
+        elif self.n_constraints is not None:
             k = int(self.n_constraints)
             reason = f"fixed by the user at {k}"
         else:
@@ -140,14 +143,20 @@ class ManifoldConstraint(ConstraintModel):
                       "the spread of the states" if ratio[0] <= self.tolerance else
                       f"the quietest level function varies by {ratio[0]:.3g} × the spread (one row kept)")
         self.n_constraints_ = k
-        self.selection_ = {"rule": "manifold" if self.n_constraints is None else "fixed", "n_constraints": k,
+        rule = "one action" if q == 1 else "manifold" if self.n_constraints is None else "fixed"
+        self.selection_ = {"rule": rule, "n_constraints": k,
                            "values": [float(v) for v in ratio], "reason": reason,
                            "criterion": "RMS variation of level function k along the demonstrations / "
                                         "RMS spread of the states"}
+        if self.n_constraints is None:
+            self.selection_.update(limits=[float(self.tolerance)] * len(ratio), limit_rule=(
+                f"level function k counts while it varies by at most {self.tolerance:g} × the spread "
+                "(row 1 always counts)"))
         return self
 
     def check_shapes(self) -> None:
-        """weights_ (F, F), variation_ (F,), centre_ (q,) for the basis and q; scale_ > 0; 1 ≤ k < q."""
+        """weights_ (F, F), variation_ (F,), centre_ (q,) for the basis and q; scale_ > 0; 1 ≤ k < q
+        (k = 0 at q = 1)."""
         q = self.n_action_
         F = n_features(self.family, q)
         for name, want in (("weights_", (F, F)), ("variation_", (F,)), ("centre_", (q,))):
@@ -155,7 +164,7 @@ class ManifoldConstraint(ConstraintModel):
                 raise self._shape_error(name)
         if not (isinstance(self.scale_, float | int) and self.scale_ > 0):
             raise self._shape_error("scale_")
-        if not 1 <= self.n_constraints_ < q:
+        if not (self.n_constraints_ == 0 if q == 1 else 1 <= self.n_constraints_ < q):
             raise self._shape_error("n_constraints_")
         super().check_shapes()
 

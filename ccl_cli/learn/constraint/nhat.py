@@ -15,7 +15,7 @@ from ccl_cli.dataset import HowMade
 from ccl_cli.errors import ConfigError
 from ccl_cli.learn.angles import unit_vector
 from ccl_cli.learn.constraint import rank as sel
-from ccl_cli.learn.constraint.base import ConstraintModel
+from ccl_cli.learn.constraint.base import ConstraintModel, one_action_selection
 from ccl_cli.learn.params import NhatMethod as Method
 from ccl_cli.learn.params import SeedParams, parameters
 
@@ -39,7 +39,10 @@ def _threshold_count(lams: np.ndarray, rows: np.ndarray, cov: np.ndarray, n: int
         k += 1
     return sel.Selection("threshold", k, list(nmse[:max_k]),
                          f"constraint {k + 1} would have nmse {nmse[k]:.3g} ≥ {threshold}"
-                         if k < max_k else f"all {k} candidates below {threshold}")
+                         if k < max_k else f"all {k} candidates below {threshold}",
+                         "nmse of row k: (λ_k / N) / Σ var(N_k u)",
+                         limits=sel.threshold_limits(min(max_k, len(nmse)), threshold),
+                         limit_rule=sel.THRESHOLD_RULE.format(threshold))
 
 
 @parameters
@@ -83,9 +86,19 @@ class StateIndependentConstraint(ConstraintModel, sel.SelectionParams, sel.Thres
             ) -> StateIndependentConstraint:
         """Learn Ã from actions U (N, q); X (N, p) is only used for ``n_features_in_`` (it
         may be None: any p is then accepted); ``groups`` (N,) for the ``cv`` rule's folds.
-        Its rules read neither the times ``t`` nor ``derivative`` (the protocol's signature)."""
+        Its rules read neither the times ``t`` nor ``derivative`` (the protocol's signature).
+        One action dimension (q = 1): no rows (k = 0, :data:`~.base.ONE_ACTION`) unless
+        ``n_constraints`` fixes them."""
         X, U = self._prepare_fit(X, U)
         n, q = U.shape
+        self.n_action_ = q
+        if q == 1 and self.n_constraints is None:  # a rule's "at least one row" would forbid all motion
+            self.eigenvalues_ = np.linalg.eigvalsh(U.T @ U)
+            self.residuals_ = np.maximum(self.eigenvalues_, 0.0)
+            self.A_ = np.zeros((0, 1))
+            self.n_constraints_ = 0
+            self.selection_ = one_action_selection()
+            return self
         max_k = self.max_constraints or q - 1
         max_k = max(1, min(max_k, q - 1 if q > 1 else 1))
         rows, lams = self._candidate_rows(U)
@@ -102,7 +115,6 @@ class StateIndependentConstraint(ConstraintModel, sel.SelectionParams, sel.Thres
         self.A_ = rows[: self.n_constraints_].copy()
         self.residuals_ = lams
         self.selection_ = chosen.as_dict()
-        self.n_action_ = q
         return self
 
     def projection_k(self, X: np.ndarray, k: int) -> np.ndarray:

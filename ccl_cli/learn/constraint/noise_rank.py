@@ -201,7 +201,11 @@ def noise_rank(evidence: RowEvidence, max_k: int, margin: float = MARGIN, share:
         why = f"all {k} candidate rows are quiet (at most {m} allowed)"
     if k == 0:
         why = "no constraint: " + why
-    return Selection(RULE, k, [float(v) for v in r], why, "energy / noise variance of row k")
+    return Selection(RULE, k, [float(v) for v in r], why, "energy / noise variance of row k", list(limit),
+                     "row k counts while it is quiet: its energy over its noise at most its limit, or its "
+                     "share of the motion at most its share limit",
+                     extra={"share": [float(v) for v in evidence.share],
+                            "share_limits": [float(v) if np.isfinite(v) else None for v in share_limit]})
 
 
 def choose(U: np.ndarray, rows: np.ndarray, demo: np.ndarray, t: np.ndarray, max_k: int,

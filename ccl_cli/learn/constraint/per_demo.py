@@ -80,10 +80,15 @@ class PerDemonstration(ConstraintModel):
             self.models_[int(d)] = clone(self.estimator).fit(X[m], U[m]) if own else pooled
         counts = [m.n_constraints_ for m in self.models_.values()]
         self.n_constraints_ = int(np.bincount(counts).argmax())
+        rules = sorted({str((getattr(m, "selection_", None) or {}).get("rule"))
+                        for m in self.models_.values()})
         self.selection_ = {"rule": "per-demonstration",
                            "n_constraints": self.n_constraints_,
                            "per_demo": {int(k): int(m.n_constraints_) for k, m in self.models_.items()},
-                           "reason": "most common count over demonstrations"}
+                           "inner_rules": rules,
+                           "reason": (f"fixed by the user at {self.n_constraints_} in every demonstration"
+                                      if rules == ["fixed"] else "most common count over demonstrations "
+                                      f"(each chosen by rule {', '.join(rules)})")}
         if short:
             self.selection_["pooled"] = short
             self.selection_["reason"] += (f"; {len(short)} demonstration(s) of fewer than {self.MIN_SAMPLES} "

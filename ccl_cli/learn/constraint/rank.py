@@ -7,7 +7,15 @@ report can tabulate and plot it. ``model.selection_`` is :meth:`Selection.as_dic
     {"rule": str, "n_constraints": int,
      "values": [criterion for k = 1, 2, ...],   # what the rule compared (see below)
      "criterion": str,                          # what "values" are
-     "reason": str}
+     "reason": str,
+     "limits": [the rule's limit on value k, or None],   # where the rule has limits (below)
+     "limit_rule": str}                         # how a value is held against its limit
+
+``limits`` and ``limit_rule`` let a figure draw each candidate against the rule: ``ratio``
+(the value of row k at most RATIO_FACTOR × row 1's), ``threshold`` (below the level),
+``cv`` (the held-out NPOE of k rows at most that of k − 1 rows + RATIO_FACTOR × row 1's
+increment + one SE), ``noise`` (:mod:`.noise_rank`: also ``share`` and ``share_limits``);
+``eigengap`` has none (the largest gap decides: ``gaps``), nor ``fixed``.
 
 Each learner has a sequence of residuals ρ_1 ≤ ρ_2 ≤ ... of its candidate constraint
 rows (nhat: eigenvalues of Σ u uᵀ / N; alpha, lambda: nmse of row k; linear: squared
@@ -86,16 +94,32 @@ class ThresholdParams:
 
 @dataclass
 class Selection:
+    """How k was chosen (module docstring): ``limits`` (per value, None where the rule sets
+    none) and ``limit_rule`` (in words) when the rule compares values with limits; ``extra``
+    further evidence of the rule (entries of :meth:`as_dict`)."""
+
     rule: str
     n_constraints: int
     values: list[float] = field(default_factory=list)
     reason: str = ""
     criterion: str = ""
+    limits: list[float | None] | None = None
+    limit_rule: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
-        return {"rule": self.rule, "n_constraints": self.n_constraints,
-                "values": [float(v) for v in self.values], "criterion": self.criterion,
-                "reason": self.reason}
+        out = {"rule": self.rule, "n_constraints": self.n_constraints,
+               "values": [float(v) for v in self.values], "criterion": self.criterion,
+               "reason": self.reason}
+        if self.limits is not None:
+            out["limits"] = finite_or_none(self.limits)
+            out["limit_rule"] = self.limit_rule
+        return {**out, **self.extra}
+
+
+def finite_or_none(values: Any) -> list[float | None]:
+    """Floats of ``values`` (m,), None where a value is None or not finite (JSON has no inf)."""
+    return [None if v is None or not np.isfinite(v) else float(v) for v in values]
 
 
 def rule_of(model: Any) -> str:
@@ -132,6 +156,16 @@ def choose(model: Any, *, ratio_values: np.ndarray, gap_values: np.ndarray, max_
     return cross_validated(model, X, U, groups, max_k, model.cv_folds, model.seed)
 
 
+#: How a ``threshold`` rule on nmse holds its values (``.format(threshold)``).
+THRESHOLD_RULE = "row k counts while its nmse is below {:g} (the original's rule; row 1 always counts)"
+
+
+def threshold_limits(m: int, threshold: float) -> list[float | None]:
+    """The limits of the original's threshold rule for m candidate rows: none for row 1, then
+    ``threshold``."""
+    return [None] + [float(threshold)] * max(m - 1, 0)
+
+
 def fixed(n: int, max_k: int) -> Selection:
     if not 1 <= n <= max_k:
         raise ConfigError(out_of_range("n_constraints", n, Interval(1, max_k, type=int)))
@@ -148,7 +182,8 @@ def gap(values: np.ndarray, floor: float = 1e-9, rule: str = "eigengap") -> Sele
     ratios = vf[1:] / vf[:-1]
     k = int(np.argmax(ratios)) + 1
     return Selection(rule, k, list(v),
-                     f"largest gap between residual {k} and {k + 1} (ratio {ratios[k - 1]:.3g})")
+                     f"largest gap between residual {k} and {k + 1} (ratio {ratios[k - 1]:.3g})",
+                     extra={"gaps": finite_or_none(ratios)})
 
 
 def ratio(values: np.ndarray, max_k: int, floor: float = 1e-9, factor: float = RATIO_FACTOR,
@@ -161,18 +196,29 @@ def ratio(values: np.ndarray, max_k: int, floor: float = 1e-9, factor: float = R
     v = np.asarray(values, dtype=float)
     if v.size == 0:
         raise ConfigError("no candidate constraints to choose from")
+    limits = ratio_limits(v, floor, factor)
     top = max(float(np.max(v)), np.finfo(float).tiny)
     vf = np.maximum(v, floor * top)
-    limit = factor * vf[0]
     k = 1
-    while k < min(max_k, v.size) and vf[k] <= limit:
+    while k < min(max_k, v.size) and vf[k] <= limits[k]:
         k += 1
     if k < v.size:
         why = (f"row {k + 1} has {vf[k] / vf[0]:.3g}× the residual of row 1 (> {factor:g}: "
                "motion, not noise)")
     else:
         why = f"all {k} candidates within {factor:g}× the residual of row 1 (noise level)"
-    return Selection("ratio", k, list(v), why, criterion)
+    return Selection("ratio", k, list(v), why, criterion, limits,
+                     f"row k counts while its value is at most {factor:g}× row 1's (row 1 always counts)")
+
+
+def ratio_limits(values: Any, floor: float = 1e-9, factor: float = RATIO_FACTOR) -> list[float | None]:
+    """The limit :func:`ratio` holds each of ``values`` (m,) against: none for row 1 (always a
+    constraint), then ``factor`` × row 1's value (floored at ``floor`` × the largest)."""
+    v = np.asarray(values, dtype=float)
+    if v.size == 0:
+        return []
+    top = max(float(np.max(v)), np.finfo(float).tiny)
+    return [None] + [factor * max(float(v[0]), floor * top)] * (v.size - 1)
 
 
 def cv_rule(increments: np.ndarray, max_k: int, factor: float = RATIO_FACTOR) -> Selection:
@@ -185,18 +231,23 @@ def cv_rule(increments: np.ndarray, max_k: int, factor: float = RATIO_FACTOR) ->
     inc = np.asarray(increments, dtype=float)
     n_folds = inc.shape[0]
     mean = inc.mean(0)
-    k = 1
-    while k < min(max_k, inc.shape[1]):
-        diff = inc[:, k] - factor * inc[:, 0]
+    total = np.cumsum(mean)
+    limits: list[float | None] = [None]  # on the held-out NPOE of k rows, total[k - 1]
+    within = []
+    for j in range(1, inc.shape[1]):
+        diff = inc[:, j] - factor * inc[:, 0]
         se = diff.std(ddof=1) / np.sqrt(n_folds) if n_folds > 1 else 0.0
-        if diff.mean() > se:
-            break
+        limits.append(float(total[j - 1] + factor * mean[0] + se))
+        within.append(diff.mean() <= se)
+    k = 1
+    while k < min(max_k, inc.shape[1]) and within[k - 1]:
         k += 1
     why = (f"row {k + 1} removes {mean[k] / max(mean[0], 1e-300):.3g}× the held-out energy of row 1 "
            f"(more than {factor:g}× + 1 SE)" if k < inc.shape[1]
            else f"all {k} rows remove held-out energy at the noise level")
-    sel = Selection("cv", k, list(np.cumsum(mean)), why, "held-out NPOE of the first k rows")
-    return sel
+    return Selection("cv", k, list(total), why, "held-out NPOE of the first k rows", limits,
+                     f"k rows count while the held-out NPOE of k rows is at most that of k − 1 rows + "
+                     f"{factor:g}× row 1's + one SE over the folds")
 
 
 def truncated_npoe(model: Any, X: np.ndarray, U: np.ndarray, groups: np.ndarray | None = None) -> np.ndarray:

@@ -63,7 +63,15 @@ from ccl_cli.learn import model_selection as ms
 from ccl_cli.learn.basis import cluster_moments
 from ccl_cli.learn.consistency import npoe_error
 from ccl_cli.learn.constraint import noise_rank as nr
-from ccl_cli.learn.constraint.base import Applied, NewDataRule, TimedConstraint, unseen
+from ccl_cli.learn.constraint.base import (
+    ONE_ACTION,
+    Applied,
+    NewDataRule,
+    TimedConstraint,
+    check_rows_asked,
+    one_action_selection,
+    unseen,
+)
 from ccl_cli.learn.constraint.timeblocks import nearest_window, window_index
 from ccl_cli.learn.linalg import nullspace_projection
 from ccl_cli.learn.params import Interval, MaxConstraints, Seconds, out_of_range, parameters
@@ -210,11 +218,14 @@ class ConstraintInStretches(TimedConstraint):
             t: np.ndarray | None = None, derivative: HowMade = None) -> ConstraintInStretches:
         """Learn the rows and where they hold from U (N, q) of demonstrations ``groups`` at times
         ``t`` (N,) s; ``derivative`` says how U was made (as for ``auto``: the readers'
-        {"window", "order"}, False when recorded, None when not known)."""
+        {"window", "order"}, False when recorded, None when not known). Without ``t`` the blocks
+        (in seconds) cannot be placed: InputError naming t. One action dimension (q = 1): no
+        rows (k = 0, :data:`~.base.ONE_ACTION`), holding nowhere; ``t`` not read."""
         X, U = self._prepare_fit(X, U)
         q = U.shape[1]
-        if q < 2:
-            raise ConfigError("learning a constraint needs at least 2 action dimensions")
+        if q == 1:
+            check_rows_asked(1, self.n_constraints)
+            return self._one_action(groups, len(U))
         if self.n_constraints is not None and self.n_constraints > q - 1:
             raise ConfigError(out_of_range("n_constraints", self.n_constraints, Interval(1, q - 1, type=int)))
         if t is None:
@@ -242,6 +253,16 @@ class ConstraintInStretches(TimedConstraint):
         self.heldout_ = None
         return self
 
+    def _one_action(self, groups: np.ndarray | None, n: int) -> ConstraintInStretches:
+        """k = 0 at one action dimension (:data:`~.base.ONE_ACTION`): no rows, holding nowhere; one
+        block per demonstration (the times are not read)."""
+        demos = window_index(groups, None, None, n)[1][:, 0]
+        self.blocks_ = np.c_[demos, np.zeros((len(demos), 2), np.int64)]
+        self.A_ = np.zeros((0, 1))
+        self.n_action_, self.n_constraints_, self.share_, self.stretches_, self.heldout_ = 1, 0, 0.0, [], None
+        self.selection_ = one_action_selection()
+        return self
+
     def _label(self, blocks: Blocks, holds: np.ndarray) -> None:
         labels = fill_still(holds, blocks.moving, blocks.demo)
         self.blocks_ = np.c_[blocks.table, labels.astype(np.int64)]
@@ -255,6 +276,10 @@ class ConstraintInStretches(TimedConstraint):
         are those of these data where the motion along the rows is quiet."""
         self._check_fitted("A_")
         X, U = self._check_states(X), np.asarray(U, dtype=float)
+        if self.n_constraints_ == 0:  # one action dimension: no rows, nothing to classify
+            out = ConstraintInStretches(block=self.block)._one_action(groups, len(X))
+            out.n_features_in_ = self.n_features_in_
+            return out
         if t is None:
             raise InputError("a constraint in stretches needs the sample times t")
         blocks, holds = label_blocks(nr.Sample.of(X, U, groups, np.asarray(t, float), derivative),
@@ -297,13 +322,13 @@ class ConstraintInStretches(TimedConstraint):
         return self.A_
 
     def check_shapes(self) -> None:
-        """blocks_ (B, 3) integers with a 0/1 label, A_ (s, q) with s ≥ 1."""
+        """blocks_ (B, 3) integers with a 0/1 label, A_ (s, q) with s ≥ 1 (none at q = 1)."""
         blocks = self.blocks_
         if blocks is None or blocks.ndim != 2 or blocks.shape[1] != 3 or \
                 not np.array_equal(blocks, np.round(blocks)) or not np.isin(blocks[:, 2], (0, 1)).all():
             raise self._shape_error("blocks_")
         s, q = self.n_constraints_, self.n_action_
-        if self.A_ is None or s < 1 or self.A_.shape != (s, q):
+        if self.A_ is None or s < (1 if q > 1 else 0) or self.A_.shape != (s, q):
             raise self._shape_error("A_")
         super().check_shapes()
 
@@ -313,7 +338,8 @@ class ConstraintInStretches(TimedConstraint):
         nearest fitted block of its demonstration."""
         self._check_fitted("A_")
         n = len(self._check_states(X))
-        at = nearest_window(self.blocks_[:, :2], self.block, n, groups, t, "stretches")
+        per = None if self.n_constraints_ == 0 else self.block  # no rows: one block per demonstration
+        at = nearest_window(self.blocks_[:, :2], per, n, groups, t, "stretches")
         return self.blocks_[at, 2].astype(bool)
 
     def constraint(self, X: np.ndarray, *, groups: np.ndarray | None = None,
@@ -325,6 +351,8 @@ class ConstraintInStretches(TimedConstraint):
 
     def summary(self) -> str:
         """Where the constraint holds, in words."""
+        if self.n_constraints_ == 0:
+            return ONE_ACTION
         return describe(self.n_constraints_, self.share_, self.stretches_)
 
 

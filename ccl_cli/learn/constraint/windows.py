@@ -36,6 +36,7 @@ from typing import ClassVar
 import numpy as np
 
 from ccl_cli.dataset import HowMade
+from ccl_cli.errors import InputError
 from ccl_cli.learn.base import clone
 from ccl_cli.learn.basis import cluster_moments
 from ccl_cli.learn.consistency import npoe_error
@@ -47,6 +48,7 @@ from ccl_cli.learn.constraint.base import (
     TimedConstraint,
     Windows,
     check_rows_asked,
+    one_action_selection,
     refit_note,
     unseen,
 )
@@ -110,10 +112,17 @@ class PerWindow(TimedConstraint):
         times ``t`` (N,) s. ``derivative`` says how U was made, for the noise of the rank rule
         (as :meth:`AutoConstraint.fit <ccl_cli.learn.constraint.auto.AutoConstraint.fit>`: the
         readers' {"window", "order"}, False when recorded, None when not known). X (N, p) is
-        used for p and, for derived actions, as the positions."""
+        used for p and, for derived actions, as the positions. Without ``t`` the windows (in
+        seconds) cannot be placed: InputError naming t (``window`` None needs no times). One
+        action dimension (q = 1): no rows (k = 0, :data:`~.base.ONE_ACTION`), one piece per
+        demonstration, ``t`` not read."""
         X, U = self._prepare_fit(X, U)
         n, q = U.shape
         check_rows_asked(q, self.n_constraints)
+        if q == 1:
+            return self._one_action(U, groups)
+        if t is None and self.window is not None:
+            raise InputError(f"one constraint per {self.per} needs the sample times t (fit(X, U, t=...))")
         seg, table = self._windows(U, groups, t)
         rows = window_rows(U, seg, len(table), self.shrinkage)
         if self.n_constraints is not None:
@@ -128,6 +137,17 @@ class PerWindow(TimedConstraint):
         self.n_action_ = q
         self.selection_ = {**chosen.as_dict(), "windows": len(table), "per": self.per}
         self.heldout_ = self._held_out(X, U, seg, groups, t, derivative) if self.heldout else None
+        return self
+
+    def _one_action(self, U: np.ndarray, groups: np.ndarray | None) -> PerWindow:
+        """k = 0 at one action dimension (:data:`~.base.ONE_ACTION`): no rows to place in time, so
+        one piece per demonstration (``window_`` None) and the times are not read."""
+        table = window_index(groups, None, None, len(U))[1]
+        self.windows_ = table if self.TABLE_WIDTH == 2 else table[:, [0, 1, 1]] + [0, 0, 1]
+        self.A_ = np.zeros((len(table), 0, 1))
+        self.window_ = None
+        self.n_action_, self.n_constraints_, self.heldout_ = 1, 0, None
+        self.selection_ = {**one_action_selection(), "windows": len(table), "per": "demonstration"}
         return self
 
     @property

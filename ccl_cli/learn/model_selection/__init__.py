@@ -42,6 +42,7 @@ from ccl_cli.learn.model_selection.splitters import (  # noqa: F401
     inner_folds,
     inner_heldout,
     make_folds,
+    shape_keys,
     tuning_subset,
 )
 from ccl_cli.learn.model_selection.tuning import Tunable, TuneSpec, basis_grid, rbf_tunable  # noqa: F401

@@ -14,6 +14,7 @@ these are ours (docs/internals.md, "Model selection").
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -146,12 +147,44 @@ class Holdout:
     info: dict[str, Any] = field(default_factory=dict)
 
 
+def shape_keys(X: np.ndarray, demo: np.ndarray) -> np.ndarray:
+    """A key per demonstration (in the order of ``np.unique(demo)``) that depends on its samples
+    only through what no change of frame, length unit, rate or file order changes: its number of
+    samples and the shares of its positions' spread along their principal axes (the singular
+    values of its centred states X (N, p), each over their sum, to 6 digits): (n_demos,) strings.
+    Demonstrations ranked by these keys are held out alike whatever order they came in."""
+    ids, inverse = np.unique(demo, return_inverse=True)
+    order = np.argsort(inverse.ravel(), kind="stable")
+    starts = np.searchsorted(inverse.ravel()[order], np.arange(len(ids)))
+    keys = []
+    for rows in np.split(order, starts[1:]):
+        P = np.asarray(X[rows], dtype=float)
+        sv = np.linalg.svd(P - P.mean(axis=0), compute_uv=False) if len(P) > 1 else np.zeros(1)
+        share = sv / sv.sum() if np.isfinite(sv).all() and sv.sum() > 0 else np.zeros_like(sv)
+        keys.append(f"{len(rows)}:" + ",".join(f"{v:.6f}" for v in share))
+    return np.array(keys)
+
+
+def _ranked(ids: np.ndarray, keys: np.ndarray | None, seed: int) -> np.ndarray:
+    """``ids`` in a seeded order: of their ``keys`` when given (the same whatever the order of
+    the ids), else of their position."""
+    if keys is None:
+        return np.random.default_rng(seed).permutation(ids)
+    digest = [hashlib.blake2b(f"{seed}|{k}".encode(), digest_size=8).hexdigest() for k in keys]
+    return ids[np.lexsort((keys, digest))]
+
+
 def holdout_split(demo: np.ndarray, fraction: float = 0.3, seed: int = 0, gap: int = DEFAULT_GAP,
-                  min_demos: int = MIN_DEMOS, n_blocks: int = N_BLOCKS) -> Holdout:
+                  min_demos: int = MIN_DEMOS, n_blocks: int = N_BLOCKS, keys: np.ndarray | None = None
+                  ) -> Holdout:
     """The reported train/test split: by demonstration when there are at least
     ``min_demos``; else ``n_blocks`` contiguous time blocks of which round(fraction ·
     n_blocks) (seeded) are held out, with ``gap`` samples dropped from training at each
-    boundary. ``info``: kind, reason, n_train/n_test demos or blocks, samples, gap."""
+    boundary. ``keys`` (one per demonstration, :func:`shape_keys`) rank the demonstrations
+    held out whole, so that which ones are does not depend on the order they came in; the time
+    blocks of fewer demonstrations follow the samples' order (blocks inside each demonstration,
+    or laid over them in ranked order, cut the arcs of a few hinge logs short enough to hide
+    their common circle). ``info``: kind, reason, n_train/n_test demos or blocks, samples, gap."""
     if not 0.0 < fraction < 1.0:
         raise InputError(f"test fraction must be in (0, 1), got {fraction}")
     demo = np.asarray(demo)
@@ -161,7 +194,8 @@ def holdout_split(demo: np.ndarray, fraction: float = 0.3, seed: int = 0, gap: i
     possible = min(n_blocks, n // (2 * gap + 4))  # blocks long enough for their guard gaps
     if len(ids) >= max(min_demos, 2) or (possible < 3 and len(ids) >= 2):
         n_test = min(max(1, int(round(fraction * len(ids)))), len(ids) - 1)
-        test_ids = rng.choice(ids, size=n_test, replace=False)
+        test_ids = (rng.choice(ids, size=n_test, replace=False) if keys is None
+                    else _ranked(ids, keys, seed)[:n_test])
         test = np.isin(demo, test_ids)
         why = (f"{len(ids)} demonstrations (≥ {min_demos})" if len(ids) >= min_demos else
                f"only {len(ids)} demonstrations (< {min_demos}) but {n} samples are too few for "
@@ -178,9 +212,8 @@ def holdout_split(demo: np.ndarray, fraction: float = 0.3, seed: int = 0, gap: i
     n_test = min(max(1, int(round(fraction * len(blocks)))), len(blocks) - 1)
     chosen = np.sort(rng.choice(len(blocks), size=n_test, replace=False))
     test_idx = np.concatenate([blocks[i] for i in chosen])
-    train_idx = _guarded_train(n, test_idx, gap)
     train = np.zeros(n, bool)
-    train[train_idx] = True
+    train[_guarded_train(n, test_idx, gap)] = True
     test = np.zeros(n, bool)
     test[test_idx] = True
     why = ("a single continuous recording" if len(ids) == 1 else f"only {len(ids)} demonstrations")
