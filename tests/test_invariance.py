@@ -13,11 +13,11 @@ the simulations of ccl_cli/simulate (a hinge, a slide, handwriting, reaching; fi
 ``ccl simulate`` and rewritten transformed). Where a property fails today the case is an
 ``xfail(strict=True)`` naming the cause, so that a fix shows.
 
-One thing is not invariant today: learn-a's held-out test split holds out other samples when
-the files or demonstrations come in another order (``holdout_split`` picks them by position), so
-the model is fitted on other data. The order is checked with the defaults where that moves
-nothing (models per demonstration; k = 0), with ``data.test.fraction: 0`` on the others, and the
-defaults' failures are xfails.
+The held-out test split ranks the demonstrations it holds out whole by their shape
+(``splitters.shape_keys``), so the same logs are held out in any order; under 5 demonstrations
+it holds out contiguous time blocks in the samples' order, which another order changes (a
+strict xfail below). The order is checked with the split on, and with ``data.test.fraction: 0``
+(what is learnt from the same data).
 
 Examples per property: ``CCL_INVARIANCE_EXAMPLES`` (default 2; the report's figures: 25).
 """
@@ -289,9 +289,8 @@ def test_a_rotated_and_translated_frame_does_not_change_the_answer(runs, name, a
 
 
 # -- the order of files and demonstrations ----------------------------------------------------------
-#: Cases whose answer does not depend on the held-out split's choice (in the examples tried, 25
-#: per property): a model per demonstration (refitted on every log) whose circles agree on every
-#: subset, or no constraint.
+#: Cases checked with the split on: 5 demonstrations or more (held out by shape, the same in any
+#: order), or under 5 (handwriting, reach_goal: blocks in file order) with no constraint in any.
 ORDER_CASES = ["hinge", "handwriting", "reach_goal", "dishwasher", "drawer", "slide"]
 #: The same cases with the split off: what is learnt from the same data.
 ORDER_CASES_NO_SPLIT = ["dishwasher", "drawer", "slide", "contact_phases"]

@@ -572,3 +572,27 @@ def test_a_wide_csv_keeps_only_the_columns_it_reads(tmp_path):
     table.want(["c7", "c19999"])
     names, body = table.load()
     assert len(names) == width and set(body.values) | set(body.texts) == {0, 7, 19999}
+
+
+@pytest.mark.parametrize("cell", ["\U000d662dn", "\U000d662d", "1\u00e9"])
+def test_csv_time_cell_beyond_ascii_is_one_error_not_a_crash(tmp_path, cell):
+    """NumPy 2.x's integer conversion in ``loadtxt`` crashed the process (SIGSEGV) on some
+    characters beyond ASCII ("\\U000d662dn" as an int64 field): such a block's time column is
+    read as text, and the cell refused in one line. Run in a child so a crash fails this test."""
+    import subprocess
+    import sys
+
+    lines = write_csv(tmp_path / "rec.csv", joint_recording(n=12)).read_text().splitlines()
+    names = lines[0].split(",")
+    cells = lines[5].split(",")
+    cells[names.index("%time")] = cell
+    lines[5] = ",".join(cells)
+    path = tmp_path / "bad.csv"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    code = ("import sys\nfrom ccl_cli.io import load_demonstrations\nfrom ccl_cli.errors import CCLError\n"
+            "try:\n    load_demonstrations({'files': [sys.argv[1]], 'state': {'columns': ['x', 'y', 'z']},"
+            " 'time': {'column': '%time'}})\nexcept CCLError as e:\n    print('ERR', e.message)\n")
+    done = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr[-500:]
+    assert done.stdout.startswith("ERR ") and done.stdout.count("\n") == 1

@@ -510,15 +510,13 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
     try:
         claim_folder(out, earlier=written_by_earlier_batch)
     except BaseException:
-        if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+        _idle_pool_down(pool)
         raise
     jobs_dir = out / "jobs"
     try:
         jobs_dir.mkdir(exist_ok=True)
     except OSError as exc:
-        if pool is not None:
-            pool.shutdown(wait=False, cancel_futures=True)
+        _idle_pool_down(pool)
         release_folder(out)
         raise OutputError(f"{jobs_dir}: cannot write the output ({exc.strerror}); nothing was written") \
             from None
@@ -553,6 +551,14 @@ def run_batch(jobs: list[Job], out: Path, write: Writer, workers: int | None = N
     clean_stale(jobs_dir, every=True)  # temporaries of processes that were still dying at the start
     order = {j.job_id: i for i, j in enumerate(jobs)}
     return sorted(results, key=lambda r: order[r.job_id])
+
+
+def _idle_pool_down(pool: Executor | None) -> None:
+    """Shut down a pool that ran no job, waiting for its manager thread (its workers are idle:
+    at once). Not waiting raced concurrent.futures' exit hook, which wakes the thread through a
+    pipe the thread may be closing: 'Exception ignored ... Bad file descriptor' on stderr."""
+    if pool is not None:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _on_pool(executor: Executor, jobs: list[Job], args: tuple, ended: Callable[[JobResult], None],

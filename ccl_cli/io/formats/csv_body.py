@@ -198,8 +198,12 @@ def _parse(text: str, sep: str | None, width: int, data: list[int], times: list[
     """One block through ``np.loadtxt`` with a structured dtype: data columns float64, time
     columns int64 (text of :data:`TIME_TEXT` bytes once a block had a non-integer one), the
     others (narrow tables: every column is read, so a row of another width fails) one byte;
-    None when it does not parse."""
+    None when it does not parse. A block that is not ASCII reads its time columns as text: NumPy's
+    integer conversion (2.x) can crash the process on some characters beyond ASCII."""
     used = sorted({*data, *times})
+    if not text.isascii():
+        for k in times:
+            as_int[k] = False
     for _ in range(2):
         fields = {k: "f8" for k in data} | {k: ("i8" if as_int[k] else f"S{TIME_TEXT}") for k in times}
         columns = used if wide else range(width)
