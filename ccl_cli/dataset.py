@@ -7,9 +7,9 @@ Ground truth, when known (simulation), lives in ``truth``; learners never read i
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
@@ -23,6 +23,19 @@ DEFAULT_WINDOW = 9
 DEFAULT_ORDER = 2
 #: the largest state or action magnitude a run learns from: its square (1e300) still fits float64
 MAX_MAGNITUDE = 1e150
+
+T = TypeVar("T")
+
+
+def first_appearance(ids: np.ndarray) -> np.ndarray:
+    """The distinct values of ``ids`` (N,) in order of first appearance: from the starts of
+    its runs (O(N)) when no value has two runs (contiguous groups), else by a sort."""
+    ids = np.asarray(ids)
+    runs = ids[np.r_[0, np.flatnonzero(ids[1:] != ids[:-1]) + 1]] if len(ids) else ids
+    if len(np.unique(runs)) == len(runs):
+        return runs
+    _, first = np.unique(ids, return_index=True)
+    return ids[np.sort(first)]
 
 
 def group_rows(groups: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -245,6 +258,9 @@ class Demonstrations:
     derivative: Derivative = field(default_factory=Derivative)
     repair: Repair | None = None
     force: np.ndarray | None = None
+    #: figures of these arrays computed once (:meth:`memo`): name → (the fields they were
+    #: computed from, the value)
+    _memo: dict[str, tuple[tuple, Any]] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.X = np.asarray(self.X, dtype=float)
@@ -296,11 +312,22 @@ class Demonstrations:
     def n_action(self) -> int:
         return int(self.U.shape[1])
 
+    def memo(self, name: str, compute: Callable[[], T]) -> T:
+        """``compute()``, a read-only figure of this data, computed once: kept under ``name``
+        while X, U, demo, t, the derivative and the repair record are the objects it was
+        computed from (a field set anew computes it again). The caller must not modify it."""
+        key = (self.X, self.U, self.demo, self.t, self.derivative, self.repair)
+        kept = self._memo.get(name)
+        if kept is not None and all(a is b for a, b in zip(kept[0], key, strict=True)):
+            return kept[1]
+        value = compute()
+        self._memo[name] = (key, value)
+        return value
+
     @property
     def demo_ids(self) -> np.ndarray:
-        """Distinct demonstration ids in order of first appearance."""
-        _, first = np.unique(self.demo, return_index=True)
-        return self.demo[np.sort(first)]
+        """Distinct demonstration ids in order of first appearance (computed once)."""
+        return self.memo("demo_ids", lambda: first_appearance(self.demo))
 
     @property
     def n_demos(self) -> int:
