@@ -342,3 +342,24 @@ def test_demo_ids_in_order_of_first_appearance_without_a_sort_of_contiguous_grou
     d = Demonstrations(np.zeros((10, 1)), np.zeros((10, 1)), ids)
     assert d.demo_ids is d.demo_ids  # computed once
 
+
+def test_a_metrics_groups_are_indexed_without_a_sort_when_in_order(monkeypatch):
+    from ccl_cli import metrics
+
+    rng = np.random.default_rng(0)
+    ordered = np.sort(rng.integers(0, 50, 1000))
+    shuffled = rng.permutation(ordered)
+    for groups in (ordered, shuffled, ordered[:1]):
+        _, inverse, counts = np.unique(groups, return_inverse=True, return_counts=True)
+        got = metrics.group_index(groups)
+        np.testing.assert_array_equal(got[0], inverse)
+        np.testing.assert_array_equal(got[1], counts)
+    sorts = []
+    real = np.unique
+    monkeypatch.setattr(np, "unique", lambda *a, **k: sorts.append(1) or real(*a, **k))
+    diff = rng.normal(size=(1000, 2))
+    m = metrics._metric("NPE", diff, 2.0, "u", ordered)  # the pieces of groups_of: in order
+    assert not sorts and m.n_groups == len(real(ordered))
+    per = [np.mean(np.sum(diff[ordered == g] ** 2, 1)) / 2.0 for g in real(ordered)]
+    assert m.se == pytest.approx(np.std(per, ddof=1) / np.sqrt(len(per)))
+
