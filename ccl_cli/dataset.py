@@ -350,8 +350,16 @@ class Demonstrations:
             return np.broadcast_to(value, (self.n_samples, *value.shape))
         return value
 
-    def true_projection(self) -> np.ndarray:
-        """True null-space projection N_n (N, q, q), from ``N`` or from ``A``."""
+    def true_projection(self, per_sample: bool = True) -> np.ndarray:
+        """True null-space projection N_n (N, q, q), from ``N`` or from ``A``; with
+        ``per_sample=False`` one (q, q) when the truth is constant (N × q² floats fewer)."""
+        key = "N" if "N" in self.truth else "A"
+        if key in self.truth and not per_sample and self.truth[key].ndim == 2:
+            if key == "N":
+                return self.truth["N"]
+            from ccl_cli.learn.linalg import nullspace_projection
+
+            return nullspace_projection(self.truth["A"][None])[0]
         if "N" in self.truth:
             return np.asarray(self.truth_per_sample("N"))
         if "A" in self.truth:

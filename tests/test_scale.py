@@ -363,3 +363,43 @@ def test_a_metrics_groups_are_indexed_without_a_sort_when_in_order(monkeypatch):
     per = [np.mean(np.sum(diff[ordered == g] ** 2, 1)) / 2.0 for g in real(ordered)]
     assert m.se == pytest.approx(np.std(per, ddof=1) / np.sqrt(len(per)))
 
+
+def test_a_constant_true_constraint_is_scored_as_one_matrix():
+    """NCPE and NPPE of a constant ground truth use one (q, q) projection, not N copies of it
+    (72 MB at 10⁶ samples of q = 3, twice per part): the same matrix, the same figures."""
+    from ccl_cli import metrics
+
+    d = sim.tracker_plane(n_recordings=2, duration=5.0, seed=0)
+    assert d.truth["A"].ndim == 2  # constant
+    one = d.true_projection(per_sample=False)
+    assert one.shape == (3, 3)
+    np.testing.assert_allclose(d.true_projection(), np.broadcast_to(one, (d.n_samples, 3, 3)), atol=1e-15)
+    est = d.truth["pi"] + 0.1
+    a, b = (metrics.ncpe(N, d.truth["pi"], est).value for N in (one, d.true_projection()))
+    assert a == pytest.approx(b, rel=1e-12)
+    varying = sim.toy2d(vary_constraint=True, n_demos=3, n_steps=50, seed=0)
+    assert varying.true_projection(per_sample=False).shape == (varying.n_samples, 2, 2)
+
+
+def test_a_constant_learnt_constraint_is_scored_as_one_matrix_and_a_varying_one_per_sample():
+    """learn-a's and learn-pi's figures (NPOE, NPPE, NCPE_obs) take one (q, q) Ñ from a model
+    whose Ã is constant and holds everywhere — N × q² floats fewer — with the same figures."""
+    from ccl_cli.app import scoring
+    from ccl_cli.learn.constraint import AutoConstraint, PerWindow, StateIndependentConstraint
+
+    d = sim.tracker_plane(n_recordings=2, duration=10.0, seed=0)
+    nhat = StateIndependentConstraint().fit(d.X, d.U, groups=d.demo, t=d.t)
+    auto = AutoConstraint().fit(d.X, d.U, groups=d.demo, t=d.t, derivative=d.derivative)
+    for model in (nhat, auto):
+        applied = scoring.applied_on(model, d, d.U)
+        one, every = scoring.projection_on(applied, d, per_sample=False), scoring.projection_on(applied, d)
+        assert one.shape == (3, 3) and every.shape == (d.n_samples, 3, 3)
+        np.testing.assert_allclose(every, np.broadcast_to(one, every.shape), atol=1e-15)
+    figures = scoring.constraint_metrics(scoring.applied_on(nhat, d, d.U), d, d.U)
+    every = nhat.projection(d.X)
+    by_hand = np.mean(np.sum((d.U - np.einsum("nij,nj->ni", every, d.U)) ** 2, 1)) / d.U.var(0, ddof=1).sum()
+    assert figures["NPOE"]["value"] == pytest.approx(by_hand, rel=1e-12)
+    varying = sim.toy2d(vary_constraint=True, n_demos=4, n_steps=60, seed=0)
+    per_window = PerWindow(window=None).fit(varying.X, varying.U, groups=varying.demo, t=varying.t)
+    applied = scoring.applied_on(per_window, varying, varying.U)
+    assert scoring.projection_on(applied, varying, per_sample=False).shape == (varying.n_samples, 2, 2)
