@@ -274,8 +274,8 @@ class Demonstrations:
         n = self.X.shape[0]
         if self.U.shape[0] != n:
             raise InputError(f"X has {n} samples but U has {self.U.shape[0]}")
-        self.demo = np.zeros(n, dtype=np.int64) if self.demo is None else np.asarray(self.demo)
-        self.demo = self.demo.astype(np.int64)
+        self.demo = np.zeros(n, dtype=np.int64) if self.demo is None else \
+            np.asarray(self.demo, dtype=np.int64)  # no copy of int64 ids
         self.t = np.arange(n, dtype=float) if self.t is None else np.asarray(self.t, dtype=float)
         if self.demo.shape != (n,) or self.t.shape != (n,):
             raise InputError(f"demo and t must have shape ({n},)")
@@ -369,6 +369,13 @@ class Demonstrations:
         raise InputError("no ground-truth constraint (A or N) in this dataset")
 
     # -- selection --------------------------------------------------------------------
+    def without_truth(self) -> Demonstrations:
+        """The same samples (the same arrays, and what :meth:`memo` kept of them) without the
+        ground truth."""
+        out = replace(self, truth={})
+        out._memo.update(self._memo)
+        return out
+
     def subset(self, mask: np.ndarray) -> Demonstrations:
         """The samples where ``mask`` (bool (N,) or index array) holds."""
         idx = np.asarray(mask)

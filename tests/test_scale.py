@@ -403,3 +403,25 @@ def test_a_constant_learnt_constraint_is_scored_as_one_matrix_and_a_varying_one_
     per_window = PerWindow(window=None).fit(varying.X, varying.U, groups=varying.demo, t=varying.t)
     applied = scoring.applied_on(per_window, varying, varying.U)
     assert scoring.projection_on(applied, varying, per_sample=False).shape == (varying.n_samples, 2, 2)
+
+
+def test_a_run_keeps_the_ground_truth_in_its_parts_only_and_reads_the_repairs_once(tmp_path, monkeypatch):
+    """After the split the recording's own ground truth is dropped (the parts hold copies: 80 MB
+    of the 10⁶-sample tracker's); its arrays and what was computed of them stay shared."""
+    from ccl_cli import config as C
+    from ccl_cli.app import run
+    from ccl_cli.io import summary
+
+    path = tmp_path / "c.yaml"
+    path.write_text("data: {files: [data.h5]}\nstages: [learn-a]\noutput: {plots: false}\n")
+    data = sim.tracker_plane(n_recordings=4, duration=10.0, seed=0)
+    monkeypatch.setattr(run, "read_data", lambda cfg, files: (data, None))
+    calls = []
+    real = summary._repairs
+    monkeypatch.setattr(summary, "_repairs", lambda d: calls.append(1) or real(d))
+    result = run.execute("run", C.load(path), None)
+    assert result.data.truth == {} and result.pipeline.data is result.data
+    assert result.data.X is data.X and result.data.demo is data.demo and data.truth  # the caller's intact
+    assert {"pi", "A"} <= set(result.pipeline.split.train.truth) and result.pipeline.split.test.truth
+    assert "NPPE" in result.metrics["learn-a"]["test"]  # scored against the parts' truth
+    assert len(calls) == 1  # the data checks' read, shared with run.json's

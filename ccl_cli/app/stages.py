@@ -156,6 +156,9 @@ class Pipeline:
     def __init__(self, spec: Any, data: Demonstrations, masks: dict | None = None) -> None:
         self.spec = spec
         self.data = data
+        #: coded data warnings ({code, message}); stages and other checks append to it (the data
+        #: checks run before the split copies the parts: their temporaries on the data alone)
+        self.warnings: list[dict[str, str]] = diagnostics.emit(diagnostics.check_data(data))
         self.split = split_data(data, spec, masks)
         self.split_info = self.split.info
         self.seed = spec.seed
@@ -166,8 +169,6 @@ class Pipeline:
         #: w̃) — decided by learn-a on held-out evidence, else w̃ when a learn-v stage generalised
         self.observations: str | None = None
         self.constraint: Any = None
-        #: coded data warnings ({code, message}); stages and other checks append to it
-        self.warnings: list[dict[str, str]] = diagnostics.emit(diagnostics.check_data(data))
 
     # -- helpers ------------------------------------------------------------------------
     def parts(self) -> list[tuple[str, Demonstrations]]:
