@@ -109,13 +109,15 @@ def constraint_metrics(applied: Applied, d: Demonstrations, Y: np.ndarray, conve
     return out
 
 
-def nullspace_metrics(w: np.ndarray, d: Demonstrations, convention: str = "ccl") -> dict[str, dict]:
-    """NPE of the learnt w̃ (N, q) and, with ground truth, NUPE of w and of v = u − w̃."""
+def nullspace_metrics(w: np.ndarray, d: Demonstrations, convention: str = "ccl", truth: bool = True
+                      ) -> dict[str, dict]:
+    """NPE of the learnt w̃ (N, q) and, with ground truth (unless ``truth=False``), NUPE of w and
+    of v = u − w̃."""
     groups = groups_of(d)
     items = [metrics.npe(d.U, w, convention, groups)]
-    if d.has_truth("w"):
+    if truth and d.has_truth("w"):
         items.append(metrics.nupe(d.truth["w"], w, "NUPE_w", "w", groups))
-    if d.has_truth("v"):
+    if truth and d.has_truth("v"):
         items.append(metrics.nupe(d.truth["v"], d.U - w, "NUPE_v", "v", groups))
     return _dict(*items)
 

@@ -249,7 +249,7 @@ class Pipeline:
         self._score_parts(result)
         # "no task part": u regressed on the same features (w̃ = E[u | x], v = 0)
         plain = PolicyLearner(method="dpl", basis=model.basis_, tune=False, seed=self.seed).fit(tr.X, tr.U)
-        baseline = {part: {"NPE": scoring.nullspace_metrics(plain.predict(d.X), d)["NPE"]}
+        baseline = {part: {"NPE": scoring.nullspace_metrics(plain.predict(d.X), d, truth=False)["NPE"]}
                     for part, d in self.parts()}
         result.info["baseline"] = {"method": "u regressed on the same features (no task part)", **baseline}
         part, _ = self._held_out()
