@@ -425,3 +425,26 @@ def test_a_run_keeps_the_ground_truth_in_its_parts_only_and_reads_the_repairs_on
     assert {"pi", "A"} <= set(result.pipeline.split.train.truth) and result.pipeline.split.test.truth
     assert "NPPE" in result.metrics["learn-a"]["test"]  # scored against the parts' truth
     assert len(calls) == 1  # the data checks' read, shared with run.json's
+
+
+def test_a_parts_pieces_are_found_once_for_all_its_figures(monkeypatch):
+    from ccl_cli.app import scoring
+
+    d = sim.tracker_plane(n_recordings=2, duration=10.0, seed=0)
+    calls = []
+    real = scoring._pieces
+    monkeypatch.setattr(scoring, "_pieces", lambda data: calls.append(1) or real(data))
+    first = scoring.groups_of(d)
+    for w in (d.U, 0.5 * d.U):
+        scoring.nullspace_metrics(w, d)
+    assert len(calls) == 1 and scoring.groups_of(d) is first
+    np.testing.assert_array_equal(first, real(d))
+
+
+def test_total_variance_is_the_sum_of_the_sample_variances():
+    from ccl_cli.learn.linalg import total_variance
+
+    Y = np.random.default_rng(1).normal(size=(1000, 4)) * [1, 10, 1e-3, 1e6] + 1e3
+    for ddof in (0, 1):
+        assert total_variance(Y, ddof) == pytest.approx(np.var(Y, 0, ddof=ddof).sum(), rel=1e-13)
+    assert np.isnan(total_variance(Y[:1])) and total_variance(np.arange(5.0)) == 2.5

@@ -73,7 +73,12 @@ def _has_true_constraint(d: Demonstrations) -> bool:
 def groups_of(d: Demonstrations) -> np.ndarray:
     """Ids of the contiguous pieces of ``d`` that the spread of a figure is taken over: each
     demonstration, and inside one, each run of samples without a time gap (the held-out time
-    blocks of a continuous recording; a gap is over 5 median sampling intervals): (N,)."""
+    blocks of a continuous recording; a gap is over 5 median sampling intervals): (N,). Computed
+    once per data (:meth:`~ccl_cli.dataset.Demonstrations.memo`: every figure of a part reads it)."""
+    return d.memo("groups_of", lambda: _pieces(d))
+
+
+def _pieces(d: Demonstrations) -> np.ndarray:
     n = d.n_samples
     if n < 2:
         return np.zeros(n, dtype=int)
