@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, group_rows
 from ccl_cli.learn.consistency import apply_projection
 from ccl_cli.learn.constraint.base import Windows
 from ccl_cli.metrics import row_basis, subspace_angle
@@ -94,10 +94,11 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
         if not d.has_truth("A"):
             return None
         angles = {}
+        first = dict(zip(*group_rows(d.demo), strict=True))  # one sort, not a mask per demonstration
         for k, m in by_demo.items():
-            sel = np.flatnonzero(d.demo == k)
-            if sel.size == 0:
+            if k not in first:
                 continue
+            sel = first[k]
             learnt = m.constraint(d.X[sel[:1]])[0]
             angles[int(k)] = subspace_angle(learnt, d.truth_per_sample("A")[sel[0]])
         if not angles:
@@ -137,8 +138,9 @@ def phases(model: Any, d: Demonstrations) -> dict[str, Any] | None:
         return None
     step = float(np.median(np.diff(d.t)[d.demo[1:] == d.demo[:-1]])) if d.n_samples > 1 else 0.0
     per_demo = []
+    rows = dict(zip(*group_rows(d.demo), strict=True))  # one sort, not a mask per demonstration
     for k in d.demo_ids:  # a loop over demonstrations
-        sel = np.flatnonzero(d.demo == k)
+        sel = rows[k]
         t, held = d.t[sel] - d.t[sel[0]], on[sel]
         edges = np.flatnonzero(np.diff(np.r_[0, held.astype(np.int8), 0]))
         spans = [[float(t[a]), float(t[b - 1] + step)] for a, b in zip(edges[::2], edges[1::2], strict=True)]
