@@ -279,3 +279,14 @@ def test_a_figures_size_is_counted_without_pickling_it(monkeypatch):
     drawer._futures, drawer._pool = {}, Pool()
     drawer.submit([("big.png", "time", args)], "png")
     assert drawer._futures == {} and not dumps
+
+
+@pytest.mark.parametrize("demos,ticks", [(30, 30), (60, 60), (61, 31), (10_000, 60)])
+def test_the_angle_of_each_demonstration_names_at_most_60_of_them(demos, ticks):
+    """A tick per demonstration up to figures.MAX_DEMO_TICKS, every k-th beyond (matplotlib laid out
+    each of the 10⁴ ticks of a 10⁶-sample toy: 56 s for one figure)."""
+    angles = {k: float(k % 7) for k in range(demos)}
+    fig = figures.constraint_figure({"per_demo_angle_deg": angles, "median_angle_deg": 3.0}, "per_demo")
+    labels = [t.get_text() for t in fig.axes[0].get_xticklabels()]
+    assert len(labels) == ticks and labels[0] == "0"
+    assert len(fig.axes[0].patches) + sum(len(c.get_paths()) for c in fig.axes[0].collections) >= demos
