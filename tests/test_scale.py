@@ -129,17 +129,24 @@ def test_per_segment_cuts_every_demonstration_in_one_programme(monkeypatch):
     assert counts[200][1] <= 10 * counts[20][1]  # matrices: linear in the demonstrations
 
 
+def lengths(monkeypatch, owner, name: str, method: bool = False) -> list[int]:
+    """The length of the first array of every call of ``owner.name`` from now on (after ``self``
+    for a ``method``): a list that grows as they run."""
+    seen: list[int] = []
+    real = getattr(owner, name)
+
+    def counted(*args, **kw):
+        seen.append(len(args[1] if method else args[0]))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(owner, name, counted)
+    return seen
+
+
 def test_the_states_geometry_reads_a_bounded_sample(monkeypatch):
     """decide fits its manifolds on at most ~EVIDENCE_ROWS rows however many there are: the rows
     the fits see are the same at 2·10⁵ and 2·10⁶ samples of the same structure."""
-    rows = []
-    real = ManifoldConstraint.fit
-
-    def counted(self, X, U, **kw):
-        rows.append(len(X))
-        return real(self, X, U, **kw)
-
-    monkeypatch.setattr(ManifoldConstraint, "fit", counted)
+    rows = lengths(monkeypatch, ManifoldConstraint, "fit", method=True)
     seen = {}
     for n_demos in (2_000, 20_000):
         rng = np.random.default_rng(0)
@@ -162,14 +169,7 @@ def test_how_sure_reads_the_same_bounded_sample_at_ten_times_the_samples(monkeyp
     from ccl_cli.learn.constraint import auto as auto_module
     from ccl_cli.learn.constraint import sure
 
-    compared = []
-    real = sure.angles
-
-    def counted(final, held):
-        compared.append(len(final))
-        return real(final, held)
-
-    monkeypatch.setattr(sure, "angles", counted)
+    compared = lengths(monkeypatch, sure, "angles")
     seen = {}
     for n_demos in (30, 300):
         rng = np.random.default_rng(1)
@@ -217,14 +217,8 @@ def test_the_truth_comparison_reads_its_angles_at_a_bounded_sample(monkeypatch):
     d = sim.toy2d(task=True, vary_constraint=True, n_demos=3000, n_steps=100, seed=4)
     assert d.n_samples > 5 * truth.TRUTH_ROWS
     model = StateIndependentConstraint(n_constraints=1).fit(d.X, d.U)
-    read = []
     real = truth.per_sample
-
-    def counted(learnt, true):
-        read.append(len(learnt))
-        return real(learnt, true)
-
-    monkeypatch.setattr(truth, "per_sample", counted)
+    read = lengths(monkeypatch, truth, "per_sample")
     found = truth.compare(model, d, d.U, "train")
     assert read == [truth.TRUTH_ROWS] and found["read_at"] == truth.TRUTH_ROWS
     assert found["samples"] == d.n_samples
@@ -267,14 +261,7 @@ def test_a_model_per_demonstration_measures_its_held_out_error_on_a_bounded_samp
     from ccl_cli.learn.constraint import LinearConstraint, PerDemonstration
     from ccl_cli.learn.defaults import TUNE_MAX_ROWS
 
-    fits = []
-    real = LinearConstraint.fit
-
-    def counted(self, X, U, **kw):
-        fits.append(len(X))
-        return real(self, X, U, **kw)
-
-    monkeypatch.setattr(LinearConstraint, "fit", counted)
+    fits = lengths(monkeypatch, LinearConstraint, "fit", method=True)
     seen = {}
     for n_demos in (200, 2000):
         d = sim.toy2d(task=True, vary_constraint=True, n_demos=n_demos, n_steps=100, seed=0)
