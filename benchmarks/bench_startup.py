@@ -4,13 +4,14 @@ same run (issue 19's bar: ≤ 10×, wall and CPU). One JSON object per line:
 * per repeat: {"repeat", "ccl_wall_s", "ccl_cpu_s", "numpy_wall_s", "numpy_cpu_s",
   "ratio_wall", "ratio_cpu"} and, with ``--without-plots``, the same run with
   ``output.plots: false`` ("noplots_wall_s", "noplots_cpu_s", "noplots_ratio_wall",
-  "noplots_ratio_cpu"). The commands run back to back in an order that rotates every repeat,
-  so the machine's drift hits them alike; CPU is the child's user + system time
-  (``resource.getrusage(RUSAGE_CHILDREN)`` before/after each child), its drawing process
-  included;
+  "noplots_ratio_cpu") and, with ``--with-help``, ``ccl --help`` ("help_*"). The commands
+  run back to back in an order that rotates every repeat, so the machine's drift hits them
+  alike; CPU is the child's user + system time (``resource.getrusage(RUSAGE_CHILDREN)``
+  before/after each child), its drawing process included;
 * then {"config", "repeats", "bar", "median_ratio_wall", "median_ratio_cpu", "met_wall",
   "met_cpu", the median seconds of each command, "bytecode", "load_before", "load_after",
-  "cpus"} (and "noplots_median_ratio_wall" / "_cpu");
+  "cpus"} (and "noplots_median_ratio_wall" / "_cpu", "help_median_ratio_wall" / "_cpu",
+  "help_bar", "help_met_cpu");
 * with ``--phases``: the seconds (wall and CPU) of the run's phases, measured in one more
   process: imports, reading, stages, matplotlib's import, each figure.
 
@@ -19,7 +20,7 @@ an environment with ``PYTHONDONTWRITEBYTECODE=1`` and no cache would otherwise c
 module from source in every run (``--source`` removes the caches and measures that;
 "bytecode" says which was measured).
 
-Run:  python benchmarks/bench_startup.py [--repeats 9] [--without-plots] [--phases]
+Run:  python benchmarks/bench_startup.py [--repeats 9] [--without-plots] [--with-help] [--phases]
       [--config configs/toy2d_learn_pi.yaml]
 """
 
@@ -42,6 +43,8 @@ import yaml
 
 ROOT = Path(__file__).resolve().parent.parent
 BAR = 10.0
+#: issue 31: `ccl --help` against `import numpy`
+HELP_BAR = 1.3
 
 
 def timed(cmd: list[str], env: dict[str, str]) -> tuple[float, float]:
@@ -114,6 +117,8 @@ def main() -> int:
     ap.add_argument("--without-plots", action="store_true",
                     help="also time the run with output.plots: false")
     ap.add_argument("--phases", action="store_true", help="also time the run's phases in one process")
+    ap.add_argument("--with-help", action="store_true",
+                    help="also time `ccl --help` (issue 31's bar: ≤ 1.3× `import numpy`)")
     ap.add_argument("--source", action="store_true",
                     help="remove the package's bytecode caches first instead (with "
                          "PYTHONDONTWRITEBYTECODE=1: every run compiles from source)")
@@ -137,6 +142,8 @@ def main() -> int:
         commands = {"ccl": run(args.config, "out"), "numpy": [sys.executable, "-c", "import numpy"]}
         if args.without_plots:
             commands["noplots"] = run(without_plots(ROOT / args.config, tmp), "noplots")
+        if args.with_help:
+            commands["help"] = ([ccl] if ccl else [sys.executable, "-m", "ccl_cli.cli"]) + ["--help"]
         for cmd in commands.values():
             timed(cmd, env)  # warm the file cache and matplotlib's font cache
         load = os.getloadavg()[0]
@@ -165,9 +172,12 @@ def main() -> int:
                                       "median_ratio_cpu": med("ratio_cpu"),
                                       "met_wall": med("ratio_wall") <= BAR,
                                       "met_cpu": med("ratio_cpu") <= BAR}
-        if args.without_plots:
-            summary |= {"noplots_median_ratio_wall": med("noplots_ratio_wall"),
-                        "noplots_median_ratio_cpu": med("noplots_ratio_cpu")}
+        for name in ("noplots", "help"):
+            if name in commands:
+                summary |= {f"{name}_median_ratio_wall": med(f"{name}_ratio_wall"),
+                            f"{name}_median_ratio_cpu": med(f"{name}_ratio_cpu")}
+        if args.with_help:
+            summary |= {"help_bar": HELP_BAR, "help_met_cpu": med("help_ratio_cpu") <= HELP_BAR}
         for name in names:
             summary |= {f"median_{name}_wall_s": med(f"{name}_wall_s"),
                         f"median_{name}_cpu_s": med(f"{name}_cpu_s")}

@@ -7,9 +7,9 @@ Ground truth, when known (simulation), lives in ``truth``; learners never read i
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
@@ -23,6 +23,19 @@ DEFAULT_WINDOW = 9
 DEFAULT_ORDER = 2
 #: the largest state or action magnitude a run learns from: its square (1e300) still fits float64
 MAX_MAGNITUDE = 1e150
+
+T = TypeVar("T")
+
+
+def first_appearance(ids: np.ndarray) -> np.ndarray:
+    """The distinct values of ``ids`` (N,) in order of first appearance: from the starts of
+    its runs (O(N)) when no value has two runs (contiguous groups), else by a sort."""
+    ids = np.asarray(ids)
+    runs = ids[np.r_[0, np.flatnonzero(ids[1:] != ids[:-1]) + 1]] if len(ids) else ids
+    if len(np.unique(runs)) == len(runs):
+        return runs
+    _, first = np.unique(ids, return_index=True)
+    return ids[np.sort(first)]
 
 
 def group_rows(groups: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
@@ -245,6 +258,9 @@ class Demonstrations:
     derivative: Derivative = field(default_factory=Derivative)
     repair: Repair | None = None
     force: np.ndarray | None = None
+    #: figures of these arrays computed once (:meth:`memo`): name → (the fields they were
+    #: computed from, the value)
+    _memo: dict[str, tuple[tuple, Any]] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self.X = np.asarray(self.X, dtype=float)
@@ -258,8 +274,8 @@ class Demonstrations:
         n = self.X.shape[0]
         if self.U.shape[0] != n:
             raise InputError(f"X has {n} samples but U has {self.U.shape[0]}")
-        self.demo = np.zeros(n, dtype=np.int64) if self.demo is None else np.asarray(self.demo)
-        self.demo = self.demo.astype(np.int64)
+        self.demo = np.zeros(n, dtype=np.int64) if self.demo is None else \
+            np.asarray(self.demo, dtype=np.int64)  # no copy of int64 ids
         self.t = np.arange(n, dtype=float) if self.t is None else np.asarray(self.t, dtype=float)
         if self.demo.shape != (n,) or self.t.shape != (n,):
             raise InputError(f"demo and t must have shape ({n},)")
@@ -296,6 +312,18 @@ class Demonstrations:
     def n_action(self) -> int:
         return int(self.U.shape[1])
 
+    def memo(self, name: str, compute: Callable[[], T]) -> T:
+        """``compute()``, a read-only figure of this data, computed once: kept under ``name``
+        while X, U, demo, t, the derivative and the repair record are the objects it was
+        computed from (a field set anew computes it again). The caller must not modify it."""
+        key = (self.X, self.U, self.demo, self.t, self.derivative, self.repair)
+        kept = self._memo.get(name)
+        if kept is not None and all(a is b for a, b in zip(kept[0], key, strict=True)):
+            return kept[1]
+        value = compute()
+        self._memo[name] = (key, value)
+        return value
+
     @property
     def rate_assumed(self) -> bool:
         """Whether the sample times were made from an assumed rate (``data.time.rate``, no stamps
@@ -311,9 +339,8 @@ class Demonstrations:
 
     @property
     def demo_ids(self) -> np.ndarray:
-        """Distinct demonstration ids in order of first appearance."""
-        _, first = np.unique(self.demo, return_index=True)
-        return self.demo[np.sort(first)]
+        """Distinct demonstration ids in order of first appearance (computed once)."""
+        return self.memo("demo_ids", lambda: first_appearance(self.demo))
 
     @property
     def n_demos(self) -> int:
@@ -336,8 +363,16 @@ class Demonstrations:
             return np.broadcast_to(value, (self.n_samples, *value.shape))
         return value
 
-    def true_projection(self) -> np.ndarray:
-        """True null-space projection N_n (N, q, q), from ``N`` or from ``A``."""
+    def true_projection(self, per_sample: bool = True) -> np.ndarray:
+        """True null-space projection N_n (N, q, q), from ``N`` or from ``A``; with
+        ``per_sample=False`` one (q, q) when the truth is constant (N × q² floats fewer)."""
+        key = "N" if "N" in self.truth else "A"
+        if key in self.truth and not per_sample and self.truth[key].ndim == 2:
+            if key == "N":
+                return self.truth["N"]
+            from ccl_cli.learn.linalg import nullspace_projection
+
+            return nullspace_projection(self.truth["A"][None])[0]
         if "N" in self.truth:
             return np.asarray(self.truth_per_sample("N"))
         if "A" in self.truth:
@@ -347,6 +382,13 @@ class Demonstrations:
         raise InputError("no ground-truth constraint (A or N) in this dataset")
 
     # -- selection --------------------------------------------------------------------
+    def without_truth(self) -> Demonstrations:
+        """The same samples (the same arrays, and what :meth:`memo` kept of them) without the
+        ground truth."""
+        out = replace(self, truth={})
+        out._memo.update(self._memo)
+        return out
+
     def subset(self, mask: np.ndarray) -> Demonstrations:
         """The samples where ``mask`` (bool (N,) or index array) holds."""
         idx = np.asarray(mask)

@@ -99,8 +99,13 @@ def noise_levels(data: Demonstrations) -> dict[str, Any]:
     ``band_x`` (max std of a state / RMS of the state's mean), ``derived`` (bool|None) and
     ``temporal``: whether the samples are trajectories in time (states smooth, SNR_x ≥
     SMOOTH_STATE_SNR, or at rest, band_x < STILL_BAND), without which differences in time
-    say nothing about noise.
+    say nothing about noise. Computed once per data (:meth:`Demonstrations.memo`): a run's
+    checks ask for the training part's three times.
     """
+    return dict(data.memo("noise_levels", lambda: _noise_levels(data)))
+
+
+def _noise_levels(data: Demonstrations) -> dict[str, Any]:
     X, U, demo = data.X, data.U, data.demo
     x_noise = white_noise_var(X, demo)
     u_white = white_noise_var(U, demo)

@@ -252,3 +252,41 @@ def test_a_long_line_is_drawn_through_its_envelope_with_the_same_pixels(tmp_path
     whole, exact, thin = drawn(x, y, "whole"), drawn(x, y, "exact", False), drawn(ex, ey, "thin")
     ours, theirs = (np.abs(thin - whole) > 64).mean(), (np.abs(exact - whole) > 64).mean()
     assert (whole < 128).mean() > 0.05 and ours <= theirs
+
+
+def test_a_figures_size_is_counted_without_pickling_it(monkeypatch):
+    """The drawer's message limit reads the figure data's bytes (arrays, items, strings); a
+    recording of 10⁶ samples is not pickled to be measured (a transient copy of it)."""
+    import pickle
+
+    from ccl_cli.dataset import Demonstrations
+
+    d = Demonstrations(np.zeros((1000, 3)), np.ones((1000, 3)))
+    args = {"d": d, "lines": {"u": ("observed u", d.U)}, "title": "x" * 10}
+    counted = drawing.data_bytes(args)
+    assert counted >= d.X.nbytes + d.U.nbytes + d.t.nbytes + d.demo.nbytes  # d.U once
+    assert counted < d.X.nbytes + 2 * d.U.nbytes + d.t.nbytes + d.demo.nbytes
+    assert 0.5 < counted / len(pickle.dumps(args, pickle.HIGHEST_PROTOCOL)) < 1.5
+    dumps = []
+    monkeypatch.setattr(pickle, "dumps", lambda *a, **k: dumps.append(1) or b"")
+    monkeypatch.setattr(drawing, "MAX_MESSAGE", 1000)
+
+    class Pool:
+        def submit(self, *a):
+            raise AssertionError("a figure over the limit was sent")
+
+    drawer = drawing.Drawer.__new__(drawing.Drawer)
+    drawer._futures, drawer._pool = {}, Pool()
+    drawer.submit([("big.png", "time", args)], "png")
+    assert drawer._futures == {} and not dumps
+
+
+@pytest.mark.parametrize("demos,ticks", [(30, 30), (60, 60), (61, 31), (10_000, 60)])
+def test_the_angle_of_each_demonstration_names_at_most_60_of_them(demos, ticks):
+    """A tick per demonstration up to figures.MAX_DEMO_TICKS, every k-th beyond (matplotlib laid out
+    each of the 10⁴ ticks of a 10⁶-sample toy: 56 s for one figure)."""
+    angles = {k: float(k % 7) for k in range(demos)}
+    fig = figures.constraint_figure({"per_demo_angle_deg": angles, "median_angle_deg": 3.0}, "per_demo")
+    labels = [t.get_text() for t in fig.axes[0].get_xticklabels()]
+    assert len(labels) == ticks and labels[0] == "0"
+    assert len(fig.axes[0].patches) + sum(len(c.get_paths()) for c in fig.axes[0].collections) >= demos

@@ -403,12 +403,20 @@ def test_ncl_stages_on_a_subsample_end_at_the_all_rows_optimum(monkeypatch):
     train, test = ncl_halves()
     whole = NullSpaceComponent(n_centres=4, tune=False).fit(train.X, train.U)
     monkeypatch.setattr(nullspace, "SUBSAMPLE_ROWS", 200)  # 20 K q = 160 < 200 < 500 rows
+    bounded = NullSpaceComponent(n_centres=4, tune=False).fit(train.X, train.U)
+    # given the passes (10 of stage 3, 5 of stage 4 over all rows) the stages reach the optimum
+    monkeypatch.setattr(nullspace, "FULL_PASSES", 10)
+    monkeypatch.setattr(nullspace, "ORIGINAL_FULL_PASSES", nullspace.ORIGINAL_PASSES)
     sub = NullSpaceComponent(n_centres=4, tune=False).fit(train.X, train.U)
     assert [s["rows"] for s in whole.stages_] == [500, 500, 500]
     assert [s["rows"] for s in sub.stages_] == [200, 200, 500, 500]
     assert sub.cost_ == pytest.approx(whole.cost_, rel=1e-6)
     scale = np.abs(whole.predict(test.X)).max()
     np.testing.assert_allclose(sub.predict(test.X), whole.predict(test.X), atol=1e-4 * scale)
+    # the default bound (4 and 2 passes over all rows) ends near it: cost +0.08 %, w̃ within 0.07 %
+    assert [s["stop"] for s in bounded.stages_][2:] == ["budget", "budget"]
+    assert bounded.cost_ == pytest.approx(whole.cost_, rel=1e-3)
+    np.testing.assert_allclose(bounded.predict(test.X), whole.predict(test.X), atol=1e-3 * scale)
 
 
 def test_kron_least_squares_forms_normal_equations_only_at_accepted_points(monkeypatch):

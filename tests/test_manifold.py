@@ -271,3 +271,35 @@ def test_rows_each_demonstration_moves_along_at_a_constant_rate_are_a_task_part(
     assert nppe < 0.1
     free = sim.flow2d(seed=0)
     assert decide(free.X, free.demo, t=free.t).k == 0
+
+
+def test_the_generalised_eigenproblem_without_scipy_matches_scipys():
+    from scipy.linalg import eigh
+
+    from ccl_cli.learn.linalg import generalized_eigh
+
+    rng = np.random.default_rng(0)
+    for d in (2, 3, 6, 10):
+        M, N = rng.normal(size=(200, d)), rng.normal(size=(200, d)) * rng.uniform(0.01, 10, d)
+        A, B = M.T @ M / 200, N.T @ N / 200
+        lam, W = generalized_eigh(A, B)
+        ref, V = eigh(A, B)
+        np.testing.assert_allclose(lam, ref, rtol=1e-9)
+        np.testing.assert_allclose(W.T @ B @ W, np.eye(d), atol=1e-10)  # B-orthonormal
+        np.testing.assert_allclose(np.abs(np.sum(W * (B @ V), 0)), 1.0, atol=1e-9)  # the same directions
+
+
+def test_returning_counts_passes_as_a_kd_trees_ball_query():
+    from scipy.spatial import cKDTree
+
+    from ccl_cli.learn.constraint import geometry
+
+    rng = np.random.default_rng(1)
+    for n in (3, 50, 2000):
+        t = np.linspace(0, 20, n)
+        P = np.c_[np.cos(t), np.sin(t), 0.1 * t] + rng.normal(scale=0.01, size=(n, 3))
+        Q, r = P[:: max(1, n // 400)], 0.3
+        near = cKDTree(P).query_ball_point(Q, r, return_sorted=True)
+        runs = [np.count_nonzero(np.diff(nb) != 1) + 1 for nb in near]
+        np.testing.assert_array_equal(geometry.passes_near(P, Q, r), runs)
+    assert geometry.returning(P).mean() == pytest.approx(0.0, abs=0.1)  # a helix: no second pass

@@ -45,3 +45,32 @@ def test_the_same_probe_sees_the_stack_of_a_command_that_learns(tmp_path):
     found = probe(["simulate", "toy2d", "-o", str(out), "-q"])
     assert found["code"] == 0 and out.exists()
     assert "numpy" in found["modules"] and "pydantic" in found["modules"]
+
+
+def test_a_run_that_fits_no_manifold_imports_no_scipy(tmp_path):
+    """configs/toy2d_learn_pi.yaml (a linear constraint, a policy) learns with NumPy alone: SciPy's
+    linalg (the manifold's generalised eigenproblem) is imported only where it is used."""
+    from pathlib import Path
+
+    config = Path(__file__).resolve().parent.parent / "configs" / "toy2d_learn_pi.yaml"
+    found = probe(["run", str(config), "-o", str(tmp_path / "run"), "-q"])
+    assert found["code"] == 0 and (tmp_path / "run" / "metrics.json").exists()
+    assert "numpy" in found["modules"]
+    assert not any(m == "scipy" or m.startswith("scipy.") for m in found["modules"])
+
+
+def test_the_default_pipeline_on_a_tracker_plane_imports_no_scipy(tmp_path):
+    """learn-a's auto fits the states' manifolds (the generalised eigenproblem, NumPy's Cholesky
+    and eigh) and asks which samples come back over their ground (all distances up to
+    geometry.BRUTE_ROWS samples) without SciPy: its linalg and spatial cost a run 35 MiB."""
+    data = tmp_path / "plane.h5"
+    made = probe(["simulate", "tracker_plane", "--n-recordings", "3", "--duration", "20", "-o", str(data),
+                  "-q"])
+    assert made["code"] == 0
+    config = tmp_path / "c.yaml"
+    config.write_text("stages: [learn-a]\noutput: {plots: false}\n")
+    found = probe(["run", str(config), "--data", str(data), "-o", str(tmp_path / "run"), "-q"])
+    assert found["code"] == 0 and (tmp_path / "run" / "metrics.json").exists()
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["learn-a"]["selection"]["decided_by"] == "states"  # the manifolds were fitted
+    assert not any(m == "scipy" or m.startswith("scipy.") for m in found["modules"])

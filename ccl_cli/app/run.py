@@ -73,6 +73,9 @@ def execute(command: str, cfg: Config, files, stages: list[tuple[str, Any]] | No
     with blas.threads(blas.RUN_THREADS) as blas_threads:
         stages = stages if stages is not None else cfg.stages()
         pipeline = Pipeline(cfg.spec, data, masks)
+        # the parts hold their own ground truth (copies): the recording's is not read again
+        # (10 columns of 10⁶ samples, 80 MB, of the tracker's; tests/test_scale.py)
+        data = pipeline.data = data.without_truth()
         wanted = views if views is not None else cfg.spec.output.plots
         pipeline.run(stages, progress=progress, on_views=on_views if wanted else None)
         shown = pipeline.views() if wanted else []

@@ -29,7 +29,8 @@ import numpy as np
 
 from ccl_cli import metrics
 from ccl_cli.dataset import Demonstrations
-from ccl_cli.learn.constraint.base import Applied
+from ccl_cli.learn.consistency import apply_projection
+from ccl_cli.learn.constraint.base import Applied, ConstraintModel
 
 KINDS = {"learn-a": "constraint", "learn-v": "nullspace", "learn-pi": "policy"}
 
@@ -46,8 +47,16 @@ def applied_on(model: Any, d: Demonstrations, Y: np.ndarray, new_data: bool = Fa
     return model.applies_to(d.X, Y, groups=d.demo, t=d.t, new_recording=new_data)
 
 
-def projection_on(applied: Applied, d: Demonstrations) -> np.ndarray:
-    """Ñ (N, q, q) of an applied constraint model at the samples of ``d``."""
+def projection_on(applied: Applied, d: Demonstrations, per_sample: bool = True) -> np.ndarray:
+    """Ñ (N, q, q) of an applied constraint model at the samples of ``d``; with
+    ``per_sample=False`` one (q, q) when the model's Ã is one constant matrix that holds at every
+    sample (:meth:`~ccl_cli.learn.constraint.base.ConstraintModel.constant_rows`, ``holds`` not
+    restricted to stretches): its projection at the first sample, N × q² floats fewer (a metric
+    applies either)."""
+    model = applied.model.chosen_
+    if not per_sample and d.n_samples and model.constant_rows() is not None \
+            and type(model).holds is ConstraintModel.holds:
+        return applied.model.projection(d.X[:1], groups=d.demo[:1], t=d.t[:1])[0]
     return applied.model.projection(d.X, groups=d.demo, t=d.t)
 
 
@@ -64,7 +73,12 @@ def _has_true_constraint(d: Demonstrations) -> bool:
 def groups_of(d: Demonstrations) -> np.ndarray:
     """Ids of the contiguous pieces of ``d`` that the spread of a figure is taken over: each
     demonstration, and inside one, each run of samples without a time gap (the held-out time
-    blocks of a continuous recording; a gap is over 5 median sampling intervals): (N,)."""
+    blocks of a continuous recording; a gap is over 5 median sampling intervals): (N,). Computed
+    once per data (:meth:`~ccl_cli.dataset.Demonstrations.memo`: every figure of a part reads it)."""
+    return d.memo("groups_of", lambda: _pieces(d))
+
+
+def _pieces(d: Demonstrations) -> np.ndarray:
     n = d.n_samples
     if n < 2:
         return np.zeros(n, dtype=int)
@@ -81,18 +95,18 @@ def constraint_metrics(applied: Applied, d: Demonstrations, Y: np.ndarray, conve
     and, with ground truth π and N, NPPE; both under ``convention``, of the constraint model as
     it applies to ``d`` (:func:`applied_on`; its note, when it was fitted there, goes into every
     entry)."""
-    N_est, note = projection_on(applied, d), applied.note
+    N_est, note = projection_on(applied, d, per_sample=False), applied.note
     sd = applied.model.varies_with_state
     truth = _has_true_constraint(d)
     Pi = d.truth["pi"] if truth else None
     W = None
     if truth and sd:
-        W = d.truth["w"] if d.has_truth("w") else np.einsum("nij,nj->ni", d.true_projection(), Pi)
+        W = d.truth["w"] if d.has_truth("w") else apply_projection(d.true_projection(False), Pi)
     groups = groups_of(d)
     items = [metrics.npoe(N_est, Y, convention, Pi=None if sd else Pi, W=W,
                           V_est=task_part(applied, d), of=of, groups=groups)]
     if truth:
-        items.append(metrics.nppe(d.true_projection(), N_est, Pi, d.U, convention, state_dependent=sd,
+        items.append(metrics.nppe(d.true_projection(False), N_est, Pi, d.U, convention, state_dependent=sd,
                                   groups=groups))
     out = _dict(*items)
     for entry in out.values() if note else ():
@@ -100,13 +114,15 @@ def constraint_metrics(applied: Applied, d: Demonstrations, Y: np.ndarray, conve
     return out
 
 
-def nullspace_metrics(w: np.ndarray, d: Demonstrations, convention: str = "ccl") -> dict[str, dict]:
-    """NPE of the learnt w̃ (N, q) and, with ground truth, NUPE of w and of v = u − w̃."""
+def nullspace_metrics(w: np.ndarray, d: Demonstrations, convention: str = "ccl", truth: bool = True
+                      ) -> dict[str, dict]:
+    """NPE of the learnt w̃ (N, q) and, with ground truth (unless ``truth=False``), NUPE of w and
+    of v = u − w̃."""
     groups = groups_of(d)
     items = [metrics.npe(d.U, w, convention, groups)]
-    if d.has_truth("w"):
+    if truth and d.has_truth("w"):
         items.append(metrics.nupe(d.truth["w"], w, "NUPE_w", "w", groups))
-    if d.has_truth("v"):
+    if truth and d.has_truth("v"):
         items.append(metrics.nupe(d.truth["v"], d.U - w, "NUPE_v", "v", groups))
     return _dict(*items)
 
@@ -121,9 +137,9 @@ def policy_metrics(est: np.ndarray, d: Demonstrations, constraint: Applied | Non
     if d.has_truth("pi"):
         items.append(metrics.nupe(d.truth["pi"], est, groups=groups))
         if _has_true_constraint(d):
-            items.append(metrics.ncpe(d.true_projection(), d.truth["pi"], est, groups))
+            items.append(metrics.ncpe(d.true_projection(False), d.truth["pi"], est, groups))
     if constraint is not None:
         Y = d.U if Y is None else Y
-        items.append(metrics.ncpe_observed(projection_on(constraint, d), Y, est, task_part(constraint, d),
-                                           of, groups))
+        N_est = projection_on(constraint, d, per_sample=False)
+        items.append(metrics.ncpe_observed(N_est, Y, est, task_part(constraint, d), of, groups))
     return _dict(*items)

@@ -20,7 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, group_rows
+from ccl_cli.learn.consistency import apply_projection
 from ccl_cli.learn.constraint.base import Windows
 from ccl_cli.metrics import row_basis, subspace_angle
 
@@ -94,10 +95,11 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
         if not d.has_truth("A"):
             return None
         angles = {}
+        first = dict(zip(*group_rows(d.demo), strict=True))  # one sort, not a mask per demonstration
         for k, m in by_demo.items():
-            sel = np.flatnonzero(d.demo == k)
-            if sel.size == 0:
+            if k not in first:
                 continue
+            sel = first[k]
             learnt = m.constraint(d.X[sel[:1]])[0]
             angles[int(k)] = subspace_angle(learnt, d.truth_per_sample("A")[sel[0]])
         if not angles:
@@ -139,8 +141,9 @@ def phases(model: Any, d: Demonstrations) -> dict[str, Any] | None:
         return None
     step = float(np.median(np.diff(d.t)[d.demo[1:] == d.demo[:-1]])) if d.n_samples > 1 else 0.0
     per_demo = []
+    rows = dict(zip(*group_rows(d.demo), strict=True))  # one sort, not a mask per demonstration
     for k in d.demo_ids:  # a loop over demonstrations
-        sel = np.flatnonzero(d.demo == k)
+        sel = rows[k]
         t, held = d.t[sel] - d.t[sel[0]], on[sel]
         edges = np.flatnonzero(np.diff(np.r_[0, held.astype(np.int8), 0]))
         spans = [[float(t[a]), float(t[b - 1] + step)] for a, b in zip(edges[::2], edges[1::2], strict=True)]
@@ -159,7 +162,8 @@ def phase_series(model: Any, d: Demonstrations, title: str) -> dict[str, Any]:
             model.constraint(d.X, groups=d.demo, t=d.t))
     true = None
     if d.has_truth("N") or d.has_truth("A"):  # where the file's ground truth has a constraint
-        true = np.abs(d.true_projection() - np.eye(d.n_action)).max(axis=(1, 2)) > 1e-6
+        off = np.abs(d.true_projection(False) - np.eye(d.n_action)).max(axis=(-2, -1))  # () or (N,)
+        true = np.broadcast_to(off > 1e-6, (d.n_samples,))
     return {"title": f"{title}: where the constraint holds", "d": d, "holds": on,
             "speed": np.linalg.norm(d.U, axis=1),
             "along": np.linalg.norm(np.einsum("nkq,nq->nk", rows, d.U), axis=1),
@@ -229,15 +233,15 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
         if not model.new_data_rule.carries_over and not dpart.startswith("train"):
             d, dpart = train, "train" + suffix  # e.g. one model per demonstration: its own only
         applied = applied_on(model, d, d.U)
-        N, v = projection_on(applied, d), task_part(applied, d)
+        N, v = projection_on(applied, d, per_sample=False), task_part(applied, d)
         Y = d.U if v is None else d.U - v
         arrows = {"observed": ("observed u" if v is None else "u − its learnt task part Ã⁺b̃", Y),
-                  "learnt": ("Ñ(u − Ã⁺b̃)" if v is not None else "Ñ u", np.einsum("nij,nj->ni", N, Y))}
+                  "learnt": ("Ñ(u − Ã⁺b̃)" if v is not None else "Ñ u", apply_projection(N, Y))}
         if d.has_truth("pi") and (d.has_truth("N") or d.has_truth("A")):
             pi = d.truth["pi"]
             arrows = {"observed": arrows["observed"],
-                      "true": ("true N π", np.einsum("nij,nj->ni", d.true_projection(), pi)),
-                      "learnt": ("Ñ π", np.einsum("nij,nj->ni", N, pi))}
+                      "true": ("true N π", apply_projection(d.true_projection(False), pi)),
+                      "learnt": ("Ñ π", apply_projection(N, pi))}
         title_a = f"{title}: projection onto the learnt null space"
         if planar:
             grid = None if model.is_local else field_on_grid(d, null_direction(model))
@@ -273,8 +277,8 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
         lines = dict(arrows)
         if constraint is not None and constraint.new_data_rule.carries_over:
             applied = applied_on(constraint, d, d.U)
-            v, N = task_part(applied, d), projection_on(applied, d)
-            pred = np.einsum("nij,nj->ni", N, est) + (0 if v is None else v)
+            v, N = task_part(applied, d), projection_on(applied, d, per_sample=False)
+            pred = apply_projection(N, est) + (0 if v is None else v)
             lines["predicted"] = ("predicted u = Ñπ̃" if v is None else "predicted u = Ã⁺b̃ + Ñπ̃", pred)
         out += _field_and_time("learn-pi", f"{title}: null-space policy π", d, dpart, arrows, lines,
                                model.predict if planar else None, "learnt π̃(x) on a grid",

@@ -8,6 +8,7 @@ bursts shows 500 Hz, not its average over the pauses.
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import numpy as np
@@ -58,7 +59,13 @@ def repairs(data: Demonstrations) -> list[dict[str, Any]]:
     ``samples`` and ``times``: [first, last] of each run of such samples, in s from the
     demonstration's first sample (a dropped sample at the time between the samples on either
     side). Samples with no place in the data (left out by the demonstrations' options) and the
-    gaps (pauses, in the stamps' findings) are not listed."""
+    gaps (pauses, in the stamps' findings) are not listed. Computed once per data
+    (:meth:`~ccl_cli.dataset.Demonstrations.memo`: a run records it in run.json, in each saved
+    model and in a check); each caller gets its own copy."""
+    return copy.deepcopy(data.memo("repairs", lambda: _repairs(data)))
+
+
+def _repairs(data: Demonstrations) -> list[dict[str, Any]]:
     rep = data.repair
     if rep is None or not len(rep.row):
         return []

@@ -26,9 +26,10 @@ and at N = 1e5 it had not converged after 1000 (25 s). So the fit runs in four s
    the start is near the optimum; with μ₀ = 1e-3 the damped steps needed ~20 passes to
    open up along the flat directions that matter for the test error, μ₀ = 1e-12 took 7),
    to ``tol``;
-4. the original residual (δ = 0) for at most :data:`ORIGINAL_PASSES` passes, from the
-   stage-3 optimum: near it the wall samples are few and placed, so these passes lower
-   the original cost to, or below, where 1000 passes from the smooth start ended.
+4. the original residual (δ = 0) for at most :data:`ORIGINAL_PASSES` passes
+   (:data:`ORIGINAL_FULL_PASSES` over all rows after a subsample), from the stage-3
+   optimum: near it the wall samples are few and placed, so these passes lower the
+   original cost to, or below, where 1000 passes from the smooth start ended.
 
 Stages 1 and 2 run on a seeded subsample of :func:`subsample_size` rows when N is larger
 (otherwise on all rows, and stage 3 is their continuation); stage 3 then takes at most
@@ -73,9 +74,13 @@ STAGE_TOL = 1e-4
 SUBSAMPLE_ROWS = 10_000
 #: Passes of the last stage (the original residual, from the smoothed optimum).
 ORIGINAL_PASSES = 5
-#: Passes over all rows of stage 3 when a subsample ran first (its optimum is near): the fit's
-#: passes over all N are bounded by a count, ~FULL_PASSES + ORIGINAL_PASSES + 2, whatever N.
-FULL_PASSES = 10
+#: Passes over all rows of stages 3 and 4 when a subsample ran first (its optimum is near): the
+#: fit's passes over all N are bounded by a count, FULL_PASSES + ORIGINAL_FULL_PASSES + 2,
+#: whatever N (issue 31: 10 + 5 took 16 s of CPU at N = 7·10⁵ with 36 centres, 4 + 2 7 s; the
+#: held-out NPE 0.6–1.8 % higher on the 10⁵–10⁶ tracker and varying toy samples, where the
+#: search's choice of the basis moves it by 20 %; docs/measurements.md, "ncl").
+FULL_PASSES = 4
+ORIGINAL_FULL_PASSES = 2
 
 
 def subsample_size(n: int, n_params: int) -> int:
@@ -242,7 +247,7 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
             self.stages_[-1]["stop"] = "budget"
         if delta2 > 0:
             W, cost = self._stage("original", W, blocks, wall_residual(U, 0.0), n, tol, 1e-12, 0.0,
-                                  min(ORIGINAL_PASSES, self.max_iter))
+                                  min(ORIGINAL_FULL_PASSES if m < n else ORIGINAL_PASSES, self.max_iter))
             if self.stages_[-1]["stop"] == "max_iter":
                 self.stages_[-1]["stop"] = "budget"
         return self._done(W, cost, blocks, U, n, U.shape[1])

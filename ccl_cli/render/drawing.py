@@ -37,6 +37,28 @@ DRAW: dict[str, Any] = {"field": figures.field_figure, "time": figures.time_figu
 MAX_MESSAGE = 16 * 2**20
 
 
+def data_bytes(value: Any, seen: set[int] | None = None) -> int:
+    """About the bytes a figure's data take in a message: its NumPy arrays' bytes, 8 per other
+    item of its dicts, lists and tuples, a string's length — through the fields of objects such as
+    :class:`~ccl_cli.dataset.Demonstrations`, each object once."""
+    import numpy as np
+
+    seen = set() if seen is None else seen
+    if id(value) in seen:
+        return 0
+    seen.add(id(value))
+    if isinstance(value, np.ndarray):
+        return int(value.nbytes)
+    if isinstance(value, str | bytes):
+        return len(value)
+    if isinstance(value, dict):
+        return sum(8 + data_bytes(k, seen) + data_bytes(v, seen) for k, v in value.items())
+    if isinstance(value, list | tuple):
+        return sum(8 + data_bytes(v, seen) for v in value)
+    fields = getattr(value, "__dict__", None)
+    return data_bytes(fields, seen) if isinstance(fields, dict) else 8
+
+
 def draw_spec(spec: Spec, fmt: str) -> tuple[float, bytes] | None:
     """One figure drawn as a ``fmt`` file in memory: (seconds, bytes), None: nothing to draw."""
     _, kind, args = spec
@@ -87,12 +109,10 @@ class Drawer:
 
     def submit(self, specs: list[Spec], fmt: str) -> None:
         """Have the drawer draw these figures, one after another, while ccl goes on (figures
-        whose data are over :data:`MAX_MESSAGE` are left to ccl)."""
-        import pickle
-
+        whose data take over :data:`MAX_MESSAGE` bytes (:func:`data_bytes`) are left to ccl:
+        counted, not pickled to be measured — a pickle of a 10⁶-sample recording is a copy)."""
         for spec in specs:
-            size = len(pickle.dumps(spec, pickle.HIGHEST_PROTOCOL))
-            if spec[0] not in self._futures and size <= MAX_MESSAGE:
+            if spec[0] not in self._futures and data_bytes(spec[2]) <= MAX_MESSAGE:
                 self._futures[spec[0]] = self._pool.submit(draw_spec, spec, fmt)
 
     def collect(self, specs: list[Spec], fmt: str) -> tuple[float, Drawn]:

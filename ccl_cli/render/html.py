@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations
+from ccl_cli.dataset import Demonstrations, group_rows
 
 #: The most states the 3-D view embeds (every stride-th sample of each demonstration).
 MAX_POINTS = 20000
@@ -48,10 +48,9 @@ def scene(d: Demonstrations, trajectory: dict[str, Any] | None = None) -> dict[s
     if d.n_state != 3 or d.n_samples == 0:
         return None
     stride = max(1, -(-d.n_samples // MAX_POINTS))
-    demos = []
-    for k in d.demo_ids:  # a loop over demonstrations
-        sel = np.flatnonzero(d.demo == k)[::stride]
-        demos.append({"id": int(k), "stride": stride, "points": _round(d.X[sel])})
+    rows = dict(zip(*group_rows(d.demo), strict=True))  # one sort, not a mask per demonstration
+    demos = [{"id": int(k), "stride": stride, "points": _round(d.X[rows[k][::stride]])}
+             for k in d.demo_ids]  # a loop over demonstrations
     lo, hi = d.X.min(0), d.X.max(0)
     out: dict[str, Any] = {"axes": _axis_names(d), "demos": demos, "lo": _round(lo), "hi": _round(hi),
                            "rows": None}

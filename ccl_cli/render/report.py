@@ -177,7 +177,9 @@ def truth_lines(found: dict[str, Any] | None) -> list[str]:
     nppe = "" if found.get("NPPE") is None else f"; NPPE {found['NPPE']:.3e}"
     varies = " (the most common; it varies over the samples)" if found["true_k_varies"] else ""
     out = ["### Against the ground truth in the file", "",
-           f"On the {found['part']} data ({found['samples']} samples): true k = {found['true_k']}{varies}, "
+           f"On the {found['part']} data ({found['samples']} samples"
+           + (f"; angles read at {found['read_at']} of them, evenly spaced" if found.get("read_at") else "")
+           + f"): true k = {found['true_k']}{varies}, "
            f"learnt k = {found['learnt_k']} ({100 * found['k_agrees']:.0f} % of the samples with as many "
            f"learnt as true rows); {angle}{nppe}.", ""]
     if found["far"]:

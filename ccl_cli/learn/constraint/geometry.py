@@ -49,6 +49,7 @@ from ccl_cli.dataset import Derivative, HowMade, group_rows
 from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint.manifold import BASES, ManifoldConstraint, within_covariance
 from ccl_cli.learn.constraint.rank import Selection
+from ccl_cli.learn.linalg import generalized_eigh, row_chunks
 
 #: A demonstration shows a shape with at least MIN_SAMPLES samples and a spread above STILL × the
 #: median demonstration's.
@@ -97,6 +98,9 @@ BLOCKS = 5
 GAP_SHARE = 0.01
 #: At most this many query samples per demonstration in :func:`returning` (work bounded at any N).
 REVISIT_QUERIES = 400
+#: Samples of a demonstration up to which :func:`returning` measures all distances (400 × n of
+#: them) instead of building a k-d tree.
+BRUTE_ROWS = 50_000
 #: The evidence is read on at most about EVIDENCE_ROWS samples (work bounded at any N): when the
 #: moving demonstrations hold more, at most max(EVIDENCE_DEMOS, EVIDENCE_ROWS / their median
 #: length) whole demonstrations, evenly spaced in :func:`demo_order` (near the centre of the states
@@ -209,13 +213,28 @@ def drift(X: np.ndarray, groups: np.ndarray, basis: str, k: int) -> np.ndarray:
     return np.sqrt(var / spread) if spread > 0 else np.full(k, np.inf)
 
 
+def passes_near(P: np.ndarray, Q: np.ndarray, r: float) -> np.ndarray:
+    """For each point of Q (m, q): the number of runs of consecutive samples of P (n, q) within
+    distance ``r`` of it (‖p − x‖² ≤ r², summed over the dimensions in order, as a k-d tree's ball
+    query): (m,) int. In blocks of about 2¹⁶ distances (they stay in the cache)."""
+    out = np.empty(len(Q), dtype=np.int64)
+    r2 = r * r
+    for rows in row_chunks(len(Q), max(1, 2**16 // max(len(P), 1))):
+        d2 = (P[None, :, 0] - Q[rows, None, 0]) ** 2  # (c, n)
+        for j in range(1, P.shape[1]):
+            d2 += (P[None, :, j] - Q[rows, None, j]) ** 2
+        inside = d2 <= r2
+        out[rows] = inside[:, 0] + (inside[:, 1:] & ~inside[:, :-1]).sum(1)
+    return out
+
+
 def returning(P: np.ndarray, radius: float = REVISIT_RADIUS) -> np.ndarray:
     """Per sample of a demonstration P (n, q): whether its neighbourhood (``radius`` × the
     demonstration's RMS spread) holds at least two other passes of it (runs of consecutive
     samples): (n,) bool. At most REVISIT_QUERIES samples are asked; the others take the answer of
-    the nearest one asked (work bounded at any n)."""
-    from scipy.spatial import cKDTree
-
+    the nearest one asked (work bounded at any n). Up to BRUTE_ROWS samples (the bounded samples
+    the geometry reads) the neighbourhoods are found from all distances, in blocks, without SciPy
+    (whose import costs a run 35 MiB and 0.2 s); above, by SciPy's k-d tree."""
     scale = float(np.abs(P).max()) if P.size else 0.0
     if len(P) < 3 or not 0 < scale < np.inf:
         return np.zeros(len(P), dtype=bool)
@@ -225,8 +244,13 @@ def returning(P: np.ndarray, radius: float = REVISIT_RADIUS) -> np.ndarray:
         return np.zeros(len(P), dtype=bool)
     step = max(1, len(P) // REVISIT_QUERIES)
     queries = np.arange(0, len(P), step)
-    near = cKDTree(P).query_ball_point(P[queries], radius * spread, return_sorted=True)
-    answer = np.array([np.count_nonzero(np.diff(nb) != 1) >= 2 for nb in near])  # ≤ REVISIT_QUERIES
+    if len(P) <= BRUTE_ROWS:
+        answer = passes_near(P, P[queries], radius * spread) >= 3
+    else:
+        from scipy.spatial import cKDTree
+
+        near = cKDTree(P).query_ball_point(P[queries], radius * spread, return_sorted=True)
+        answer = np.array([np.count_nonzero(np.diff(nb) != 1) >= 2 for nb in near])  # ≤ REVISIT_QUERIES
     nearest = np.minimum((np.arange(len(P)) + step // 2) // step, len(queries) - 1)
     return answer[nearest]
 
@@ -425,15 +449,13 @@ def task_residual(X: np.ndarray, groups: np.ndarray, t: np.ndarray, k: int) -> f
     constant rates (a·x − b t constant in each: a constraint with a constant task part, A u = b):
     the RMS of the k quietest such levels fitted to each demonstration alone, pooled, over the
     pooled RMS spread of the positions. X (N, q), groups (N,), t (N,) s."""
-    from scipy.linalg import eigh
-
     q = X.shape[1]
     num = den = 0.0
     for m in group_rows(groups)[1]:  # a closed form per demonstration
         P, s = X[m] - X[m].mean(0), t[m] - t[m].mean()
         Z = np.c_[P, s / max(float(np.abs(s).max()), np.finfo(float).tiny)]  # time scaled to the unit
         G = np.diag([1.0] * q + [0.0]) + RIDGE_TIME * np.eye(q + 1)
-        lam = eigh(Z.T @ Z, G, eigvals_only=True)
+        lam = generalized_eigh(Z.T @ Z, G)[0]
         num += float(np.maximum(lam[:k], 0.0).sum()) / k
         den += float((P**2).sum())
     return float(np.sqrt(num / den)) if den > 0 else np.inf

@@ -32,10 +32,10 @@ from __future__ import annotations
 from typing import Annotated, ClassVar, Literal
 
 import numpy as np
-from scipy.linalg import eigh
 
 from ccl_cli.errors import InputError
 from ccl_cli.learn.constraint.base import ONE_ACTION, ConstraintModel, check_rows_asked
+from ccl_cli.learn.linalg import generalized_eigh
 from ccl_cli.learn.params import Interval, parameters
 
 Family = Literal["linear", "sphere", "quadric"]
@@ -126,7 +126,7 @@ class ManifoldConstraint(ConstraintModel):
         C = within_covariance(Phi, groups)
         G = np.einsum("nfq,ngq->fg", J, J) / len(X)
         G += RIDGE * np.trace(G) / len(G) * np.eye(len(G))
-        lam, W = eigh(C, G)
+        lam, W = generalized_eigh(C, G)
         self.variation_ = np.maximum(lam, 0.0) * self.scale_**2  # in squared length units
         self.weights_ = W
         spread = float(within_covariance(X, groups).trace())

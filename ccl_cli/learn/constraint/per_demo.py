@@ -24,6 +24,9 @@ class PerDemonstration(ConstraintModel):
     has not seen has no model here: the stated rule (:attr:`new_data_rule`) fits the estimator
     anew on it, and nothing of this model carries over.
 
+    A demonstration of fewer than :data:`MIN_SAMPLES` samples takes the estimator fitted on all
+    the samples given (one model, shared by such demonstrations).
+
     ``heldout``: also measure the held-out NPOE (eq. 3.8) of such a model, which can only be
     tested on its own demonstrations: K = 5 folds of contiguous blocks held out inside every
     demonstration (:func:`~ccl_cli.learn.model_selection.inner_folds`; the training samples
@@ -37,6 +40,10 @@ class PerDemonstration(ConstraintModel):
     """
 
     local_to = "demonstration"
+    #: A demonstration with fewer samples than this has no model of its own (no estimator fits
+    #: one sample): it takes the estimator fitted on every sample given at once, shared by all
+    #: such demonstrations (``selection_["pooled"]`` lists them).
+    MIN_SAMPLES = 2
     _fitted_attributes: ClassVar[dict[str, str]] = {
         "n_features_in_": "value", "n_constraints_": "value", "selection_": "value", "heldout_": "value",
         "models_": "models"}
@@ -65,8 +72,12 @@ class PerDemonstration(ConstraintModel):
         X, U = self._prepare_fit(X, U)
         groups = np.zeros(len(U), int) if groups is None else np.asarray(groups)
         self.models_: dict[int, Any] = {}
-        for d, m in zip(*group_rows(groups), strict=True):  # loop over demonstrations, not samples
-            self.models_[int(d)] = clone(self.estimator).fit(X[m], U[m])
+        ids, rows = group_rows(groups)
+        short = [int(d) for d, m in zip(ids, rows, strict=True) if len(m) < self.MIN_SAMPLES]
+        pooled = clone(self.estimator).fit(X, U) if short else None
+        for d, m in zip(ids, rows, strict=True):  # loop over demonstrations, not samples
+            own = len(m) >= self.MIN_SAMPLES
+            self.models_[int(d)] = clone(self.estimator).fit(X[m], U[m]) if own else pooled
         counts = [m.n_constraints_ for m in self.models_.values()]
         self.n_constraints_ = int(np.bincount(counts).argmax())
         rules = sorted({str((getattr(m, "selection_", None) or {}).get("rule"))
@@ -78,6 +89,10 @@ class PerDemonstration(ConstraintModel):
                            "reason": (f"fixed by the user at {self.n_constraints_} in every demonstration"
                                       if rules == ["fixed"] else "most common count over demonstrations "
                                       f"(each chosen by rule {', '.join(rules)})")}
+        if short:
+            self.selection_["pooled"] = short
+            self.selection_["reason"] += (f"; {len(short)} demonstration(s) of fewer than {self.MIN_SAMPLES} "
+                                          "samples take the model fitted on all the samples")
         self.heldout_ = self._held_out(X, U, groups, derivative) if self.heldout else None
         return self
 

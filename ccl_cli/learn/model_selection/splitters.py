@@ -109,24 +109,35 @@ def inner_folds(segments: np.ndarray, n_folds: int = N_FOLDS, gap: int = DEFAULT
 
 
 def inner_heldout(segments: np.ndarray, derivative: HowMade,
-                  error_of: Callable[[np.ndarray, np.ndarray], float], what: str = "segment"
-                  ) -> dict[str, Any] | None:
+                  error_of: Callable[[np.ndarray, np.ndarray], float], what: str = "segment",
+                  max_rows: int = TUNE_MAX_ROWS) -> dict[str, Any] | None:
     """The held-out NPOE of a model fitted per segment (a demonstration or a window), which can
     be tested only on its own segments: :data:`N_FOLDS` :func:`inner_folds` of ``segments`` (N,)
     with the guard gap of how U was made (``derivative``: its window when derived, else
     :data:`RECORDED_GAP`); ``error_of(train, test)`` fits on the rows ``train`` and returns the
     error on the rows ``test``. {error, mean, se, per_fold, folds}, or None when most segments
-    are too short for the blocks and their gaps."""
+    are too short for the blocks and their gaps. Above ``max_rows`` samples the folds are those
+    of a bounded, seeded sample of whole segments (or contiguous blocks of long ones, as segments:
+    :func:`tuning_subset`), and ``subset`` says what was taken: the work does not grow with N."""
     how = Derivative.of(derivative)
     gap = int(how.window) if how.derived else RECORDED_GAP
     seg = np.asarray(segments)
+    found = tuning_subset(seg, len(seg), 0, max_rows) if len(seg) > max_rows else None
+    rows = None
+    if found is not None:
+        rows, taken, note = found
+        seg = np.unique(taken, return_inverse=True)[1].ravel()
     counts = np.bincount(seg)
     if (counts[seg] >= N_FOLDS * (2 * gap + MIN_BLOCK)).mean() < 0.5:
         return None
     folds = inner_folds(seg, N_FOLDS, gap, what)
-    e = np.array([error_of(train, test) for train, test in folds.pairs])  # a loop over the folds
-    return {"error": "NPOE", "mean": float(e.mean()), "se": float(e.std(ddof=1) / np.sqrt(len(e))),
-            "per_fold": e.tolist(), "folds": folds.reason}
+    pairs = folds.pairs if rows is None else [(rows[train], rows[test]) for train, test in folds.pairs]
+    e = np.array([error_of(train, test) for train, test in pairs])  # a loop over the folds
+    out = {"error": "NPOE", "mean": float(e.mean()), "se": float(e.std(ddof=1) / np.sqrt(len(e))),
+           "per_fold": e.tolist(), "folds": folds.reason}
+    if found is not None:
+        out["subset"] = note.replace("searched on", "measured on")
+    return out
 
 
 # -- the reported train/test split ----------------------------------------------------------
