@@ -91,11 +91,11 @@ class ManifoldInPhases(ManifoldConstraint):
             raise InputError("no phase of the states comes back over its ground: no surface in phases "
                              "to learn")
         super().fit(X[inside], U[inside], groups=runs[inside])
-        H = self.levels(X[inside])
-        levels, which = run_levels(H, runs[inside])
+        H = self.levels(X)
+        levels, which = run_levels(H[inside], runs[inside])
         floor = np.finfo(float).eps * self.scale_
-        self.spread_ = np.maximum(np.sqrt(((H - levels[which]) ** 2).mean(0)), floor)
-        self.share_ = float(self._on(X, g, runs).mean())
+        self.spread_ = np.maximum(np.sqrt(((H[inside] - levels[which]) ** 2).mean(0)), floor)
+        self.share_ = float(self._on(H, g, runs).mean())
         self.selection_ = {**self.selection_, "reason": f"{self.selection_['reason']}; {self.summary()}"}
         return self
 
@@ -107,19 +107,22 @@ class ManifoldInPhases(ManifoldConstraint):
         if self.n_constraints_ == 0 or not len(X):
             return np.zeros(len(X), dtype=bool)
         g = np.zeros(len(X), np.int64) if groups is None else np.asarray(groups)
-        return self._on(X, g, contact_runs(X, g))
+        return self._on(self.levels(X), g, contact_runs(X, g))
 
-    def _on(self, X: np.ndarray, groups: np.ndarray, runs: np.ndarray) -> np.ndarray:
-        """Whether each sample's levels are within TOL × spread_ of a run of its demonstration: (N,)."""
-        on = np.zeros(len(X), dtype=bool)
-        if not (runs >= 0).any():
+    def _on(self, H: np.ndarray, groups: np.ndarray, runs: np.ndarray) -> np.ndarray:
+        """Whether each sample's levels H (N, k) are within TOL × spread_ of the level of a run
+        (runs (N,), −1 outside) of its demonstration: (N,)."""
+        on = np.zeros(len(H), dtype=bool)
+        inside = runs >= 0
+        if not inside.any():
             return on
-        H = self.levels(X)
-        for rows in group_rows(groups)[1]:
-            mine = runs[rows] >= 0
-            if mine.any():
-                levels, _ = run_levels(H[rows][mine], runs[rows][mine])
-                near = np.abs(H[rows][:, None, :] - levels[None]) <= TOL * self.spread_
+        levels, which = run_levels(H[inside], runs[inside])
+        demo_of_run = np.empty(len(levels), dtype=groups.dtype)
+        demo_of_run[which] = groups[inside]
+        of_demo = dict(zip(*group_rows(demo_of_run), strict=True))
+        for d, rows in zip(*group_rows(groups), strict=True):
+            if d in of_demo:
+                near = np.abs(H[rows][:, None, :] - levels[of_demo[d]][None]) <= TOL * self.spread_
                 on[rows] = near.all(-1).any(-1)
         return on
 
