@@ -235,3 +235,16 @@ def test_needs_the_sample_times():
     d = sim.arm_wipe(n_demos=2, seed=0)
     with pytest.raises(InputError, match="sample times"):
         ConstraintInStretches().fit(d.X, d.U, groups=d.demo)
+
+
+def test_the_rows_of_a_curved_surface_in_phases_are_described_where_it_holds(wipe):
+    """A bowl's rows turn with the state: the report reads them at a sample where it holds, with
+    its demonstration (where it holds is found on the whole of it), not at one sample alone."""
+    from ccl_cli.app.views import describe_constraint
+
+    model = ManifoldInPhases(family="sphere", n_constraints=1).fit(wipe.X, wipe.U, groups=wipe.demo)
+    shown = describe_constraint(model, wipe)
+    assert shown is not None and shown["at"].startswith("state of sample")
+    i = int(shown["at"].split()[3])
+    assert model.holds(wipe.X, groups=wipe.demo)[i]
+    assert subspace_angle(np.array(shown["rows"]), np.atleast_2d(wipe.metadata["normal"])) < 5.0

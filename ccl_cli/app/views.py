@@ -109,12 +109,15 @@ def describe_constraint(model: Any, d: Demonstrations) -> dict[str, Any] | None:
     pool = on if len(on) else np.arange(d.n_samples)
     i = int(pool[np.argmin(np.sum((d.X[pool] - d.X[pool].mean(0)) ** 2, axis=1))])
     A = model.constant_rows()  # constant rows (also those of a constraint in stretches)
-    learnt = row_basis(A if A is not None else
-                       model.constraint(d.X[i:i + 1], groups=d.demo[i:i + 1], t=d.t[i:i + 1])[0])
+    constant = A is not None
+    if not constant:  # the rows at sample i, read with its demonstration (where a model holds may
+        own = np.flatnonzero(d.demo == d.demo[i])  # depend on the rest of it: phases, stretches)
+        A = model.constraint(d.X[own], groups=d.demo[own], t=d.t[own])[int(np.searchsorted(own, i))]
+    learnt = row_basis(A)
     if not len(learnt):
         return None  # no constraint: nothing to draw (the selection says why)
     learnt = learnt * np.sign(learnt[np.arange(len(learnt)), np.argmax(np.abs(learnt), axis=1)])[:, None]
-    at = "constant" if A is not None else f"state of sample {i} (nearest the mean state where it holds)"
+    at = "constant" if constant else f"state of sample {i} (nearest the mean state where it holds)"
     out: dict[str, Any] = {"names": names, "rows": learnt.tolist(), "at": at}
     if d.has_truth("A"):
         true = row_basis(d.truth_per_sample("A")[i])
