@@ -38,6 +38,12 @@ def first_appearance(ids: np.ndarray) -> np.ndarray:
     return ids[np.sort(first)]
 
 
+def stamps_assumed(time_used: object) -> bool:
+    """Whether a reader's record of the time it used (``metadata`` "time" or "time_column": a
+    column, a dataset, or "rate R Hz") says the stamps were made from an assumed rate."""
+    return str(time_used or "").startswith("rate")
+
+
 def group_rows(groups: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
     """The distinct ids of ``groups`` (N,) in ascending order (as ``np.unique``) and, for each,
     its row indices in ascending order (as ``np.flatnonzero(groups == id)``): one stable sort,
@@ -332,8 +338,8 @@ class Demonstrations:
 
         def paced(entry: Mapping[str, Any]) -> bool:
             state = entry.get("state")
-            said = [entry.get("time"), state.get("time_column") if isinstance(state, Mapping) else None]
-            return any(str(v).startswith("rate") for v in said if v is not None)
+            return stamps_assumed(entry.get("time")) or \
+                (isinstance(state, Mapping) and stamps_assumed(state.get("time_column")))
 
         return bool(files) and all(isinstance(f, Mapping) and paced(f) for f in files)
 

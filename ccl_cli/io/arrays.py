@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations, Derivative, Repair
+from ccl_cli.dataset import Demonstrations, Derivative, Repair, stamps_assumed
 from ccl_cli.errors import InputError
 from ccl_cli.io import forces
 from ccl_cli.io.derivative import derive_actions
@@ -344,7 +344,7 @@ def assemble(parts: list[Part], options: DataOptions, where: str, state_names: l
                          f"{k - first} ({t[k - 1]!r} s then {t[k]!r} s)")
     how = Derivative()  # recorded actions of a table: not said
     if U is None:
-        paced = str(meta.get("time", "")).startswith("rate")  # stamps from an assumed rate
+        paced = stamps_assumed(meta.get("time"))  # stamps from an assumed rate
         U, meta["action"] = derive_actions(t, X, ids, options.action, paced=paced)
         how = Derivative.from_record(meta["action"])
         action_names = [f"d{n}/dt" for n in state_names]

@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ccl_cli.dataset import Demonstrations, Derivative, Repair
+from ccl_cli.dataset import Demonstrations, Derivative, Repair, stamps_assumed
 from ccl_cli.errors import InputError
 from ccl_cli.io import forces
 from ccl_cli.io.derivative import derive_actions
@@ -96,7 +96,7 @@ class StreamReader(ReaderBase):
         U: np.ndarray | None = None
         if rest:
             (action,), selection = rest, o.action
-            paced = str(state.meta.get("time_column", "")).startswith("rate")
+            paced = stamps_assumed(state.meta.get("time_column"))
             if selection.file and paced and len(action.t_ns) != len(t_ns):
                 raise InputError(f"{self.path}: {len(t_ns)} state samples but {len(action.t_ns)} action "
                                  f"samples in {selection.file}; check samples: rows|columns")
@@ -137,7 +137,7 @@ class StreamReader(ReaderBase):
             U = U[keep] if U is not None else None
             t = (t_ns - t_ns[0]) / 1e9
         if U is None:
-            paced = str(state.meta.get("time_column", "")).startswith("rate")
+            paced = stamps_assumed(state.meta.get("time_column"))
             U, meta["action"] = derive_actions(t_s, X, demo, o.action, paced=paced)
             how = Derivative.from_record(meta["action"])
         data = Demonstrations(X=X, U=U, demo=demo, t=t,
