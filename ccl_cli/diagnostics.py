@@ -604,6 +604,22 @@ def far_from_truth(stage: str, comparison: dict[str, Any] | None) -> list[dict[s
     return [warning("far_from_truth", f"{stage}: {comparison['why']}")]
 
 
+def nullspace_far_from_truth(stage: str, part: str, metrics: dict[str, Any] | None) -> list[dict[str, str]]:
+    """``far_from_truth`` when the file carries the true null-space part w and the learnt w̃ is
+    no closer to it, on ``part``, than w̃ = 0: NUPE_w (``metrics``' entry, eq. of ALGORITHMS.md's
+    metric table, normalised by w's variance) not below :data:`ZERO_LEVEL` by at least its
+    standard error. The NPE alone cannot say this: it measures how consistent w̃ is with u along
+    w̃'s own direction, and a w̃ far from the truth can be consistent."""
+    found = (metrics or {}).get("NUPE_w")
+    if not found or not np.isfinite(found["value"]):
+        return []
+    if found["value"] + (found.get("se") or 0.0) < ZERO_LEVEL:
+        return []
+    where = "held-out" if part == "test" else "training"
+    return [warning("far_from_truth", f"{stage}: {where} NUPE_w {found['value']:.3g} against the file's true "
+                                      f"null-space part w is no better than w̃ = 0 ({ZERO_LEVEL:g})")]
+
+
 def heldout_support(selection: dict[str, Any] | None, evidence: dict[str, Any] | None,
                     part: str) -> dict[str, Any] | None:
     """Whether held-out evidence supports the k > 0 rows learn-a's ``auto`` chose: the states'

@@ -217,6 +217,28 @@ def test_a_right_answer_against_the_truth_stays_ok(capsys, tmp_path):
     assert f"largest principal angle per sample median {found['median_deg']:.3g}°" in report
 
 
+def test_a_null_space_part_far_from_the_truth_in_the_file_is_poor(capsys, tmp_path):
+    """A hand opening a door (4 demonstrations, a 4-mm compliant grasp): learn-v's w̃ is
+    consistent with u on the held-out demonstrations (NPE 0.27, better than u regressed with no
+    task part, 1.2), so the verdict was "ok"; against the true w the file carries it is worse than
+    w̃ = 0 (NUPE_w 2.0). The toy with a task part stays ok (NUPE_w 1e-4)."""
+    data = sim.hinge(n_demos=4, seed=1, compliance=0.004)
+    code, summary, metrics, _ = run(capsys, tmp_path, data, "[learn-v]")
+    v = metrics["learn-v"]
+    assert code == 0 and v["status"] == summary["status"] == "poor"
+    assert v["test"]["NPE"]["value"] < v["baseline"]["test"]["NPE"]["value"]  # the NPE checks pass
+    assert v["test"]["NUPE_w"]["value"] > 1.5
+    assert summary["verdict"] == (f"poor: learn-v: held-out NUPE_w {v['test']['NUPE_w']['value']:.3g} against "
+                                  "the file's true null-space part w is no better than w̃ = 0 (1)")
+    toy = sim.toy2d(constraint="fixed", task=True, sampling="uniform", n_samples=1000, n_demos=10, seed=0)
+    code, summary, metrics, _ = run(capsys, tmp_path, toy, "[learn-v]")
+    assert summary["status"] == "ok" and metrics["learn-v"]["test"]["NUPE_w"]["value"] < 1e-2
+    by_hand = diagnostics.nullspace_far_from_truth("s", "train", {"NUPE_w": metric(0.95, se=0.1)})
+    assert by_hand[0]["code"] == "far_from_truth" and "training NUPE_w 0.95" in by_hand[0]["message"]
+    assert diagnostics.nullspace_far_from_truth("s", "test", {"NUPE_w": metric(0.5, se=0.1)}) == []
+    assert diagnostics.nullspace_far_from_truth("s", "test", {"NPE": metric(3.0)}) == []  # no truth
+
+
 def test_held_out_support_from_the_selection_table():
     shape = {"k": 1, "scope": "global", "basis": "linear", "measure": "held-out drift", "drift": [0.02],
              "limit": 0.05, "holds": True}

@@ -254,6 +254,7 @@ class Pipeline:
         result.info["baseline"] = {"method": "u regressed on the same features (no task part)", **baseline}
         part, _ = self._held_out()
         self._judge(result, [
+            *diagnostics.nullspace_far_from_truth("learn-v", part, result.metrics.get(part)),
             *diagnostics.overfit("learn-v", "NPE", result.metrics["train"]["NPE"],
                                  result.metrics.get("test", {}).get("NPE")),
             *diagnostics.not_better("learn-v", "NPE", result.metrics.get("test", {}).get("NPE"),
