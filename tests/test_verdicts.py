@@ -228,8 +228,9 @@ def test_a_null_space_part_far_from_the_truth_in_the_file_is_poor(capsys, tmp_pa
     assert code == 0 and v["status"] == summary["status"] == "poor"
     assert v["test"]["NPE"]["value"] < v["baseline"]["test"]["NPE"]["value"]  # the NPE checks pass
     assert v["test"]["NUPE_w"]["value"] > 1.5
-    assert summary["verdict"] == (f"poor: learn-v: held-out NUPE_w {v['test']['NUPE_w']['value']:.3g} against "
-                                  "the file's true null-space part w is no better than w̃ = 0 (1)")
+    nupe = v["test"]["NUPE_w"]["value"]
+    assert summary["verdict"] == (f"poor: learn-v: held-out NUPE_w {nupe:.3g} against the file's true "
+                                  "null-space part w is no better than w̃ = 0 (1)")
     toy = sim.toy2d(constraint="fixed", task=True, sampling="uniform", n_samples=1000, n_demos=10, seed=0)
     code, summary, metrics, _ = run(capsys, tmp_path, toy, "[learn-v]")
     assert summary["status"] == "ok" and metrics["learn-v"]["test"]["NUPE_w"]["value"] < 1e-2
