@@ -466,3 +466,33 @@ def test_the_per_demonstration_figures_compare_the_ids_a_bounded_number_of_times
     counted = describe_constraint(model, d)
     assert Compared.elements <= 3 * d.n_samples  # was 200 × N
     assert counted == plain and len(counted["per_demo_angle_deg"]) == 200
+
+
+def test_each_figures_data_are_the_rows_it_draws_at_any_size():
+    """The figures over time get the rows of the demonstrations they draw, the 3-D trajectory
+    about TRAJECTORY_POINTS states, the phases figure its first demonstrations: at 10⁶ samples
+    their data took 56–77 MB each, over the drawer's message limit, and ccl drew them itself
+    after its stages (importing matplotlib a second time); now the drawer draws every one."""
+    from ccl_cli.app import views
+    from ccl_cli.app.stages import Pipeline
+    from ccl_cli.config import from_mapping
+    from ccl_cli.render.drawing import MAX_MESSAGE, data_bytes
+
+    d = sim.tracker_plane(duration=300.0, n_recordings=4, seed=1)  # 60,000 samples, 3-D
+    cfg = from_mapping({"data": {"files": []}, "stages": ["learn-v", "learn-a", "learn-pi"]})
+    pipeline = Pipeline(cfg.spec, d, None)
+    pipeline.run(cfg.stages())
+    shown = {v.name: v for v in pipeline.views()}
+    assert {"learn-v-time.png", "learn-a-time.png", "learn-a-trajectory.png", "learn-pi-time.png"} <= set(shown)
+    test = pipeline.split.test
+    for name in ("learn-v-time.png", "learn-a-time.png", "learn-pi-time.png"):
+        args = shown[name].args
+        first = test.demo_ids[: views.TIME_DEMOS]
+        assert np.array_equal(args["d"].X, test.X[np.isin(test.demo, first)])
+        assert all(len(Y) == args["d"].n_samples for _, Y in args["lines"].values())
+    trajectory = shown["learn-a-trajectory.png"].args
+    assert trajectory["d"].n_samples <= views.TRAJECTORY_POINTS + views.TRAJECTORY_ARROWS + test.n_demos
+    at = np.unique(np.linspace(0, test.n_samples - 1, views.TRAJECTORY_ARROWS).astype(int))
+    assert np.array_equal(trajectory["d"].X[trajectory["at"]], test.X[at])  # the arrows' states
+    assert trajectory["d"].n_demos == test.n_demos
+    assert all(data_bytes(v.args) <= MAX_MESSAGE / 4 for v in shown.values())

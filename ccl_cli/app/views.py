@@ -156,9 +156,10 @@ def phases(model: Any, d: Demonstrations) -> dict[str, Any] | None:
 
 
 def phase_series(model: Any, d: Demonstrations, title: str) -> dict[str, Any]:
-    """The data of the phases figure on the training data ``d``: per sample whether the
-    constraint holds (N,), the speed ‖u‖ and the speed along the learnt rows ‖Ã u‖ (N,) — with
-    the rows where it holds (constant rows elsewhere too, so the motion along them shows)."""
+    """The data of the phases figure on the training data ``d``, on the rows of its first
+    :data:`PHASE_DEMOS` demonstrations (M,): per sample whether the constraint holds (M,), the
+    speed ‖u‖ and the speed along the learnt rows ‖Ã u‖ (M,) — with the rows where it holds
+    (constant rows elsewhere too, so the motion along them shows); ``n_demos``: d's count."""
     on = np.asarray(model.holds(d.X, groups=d.demo, t=d.t), dtype=bool)
     A = model.constant_rows()
     rows = (np.broadcast_to(A, (d.n_samples, *np.shape(A))) if A is not None else
@@ -167,10 +168,11 @@ def phase_series(model: Any, d: Demonstrations, title: str) -> dict[str, Any]:
     if d.has_truth("N") or d.has_truth("A"):  # where the file's ground truth has a constraint
         off = np.abs(d.true_projection(False) - np.eye(d.n_action)).max(axis=(-2, -1))  # () or (N,)
         true = np.broadcast_to(off > 1e-6, (d.n_samples,))
-    return {"title": f"{title}: where the constraint holds", "d": d, "holds": on,
-            "speed": np.linalg.norm(d.U, axis=1),
-            "along": np.linalg.norm(np.einsum("nkq,nq->nk", rows, d.U), axis=1),
-            "true_holds": true}
+    shown = first_demos(d, PHASE_DEMOS)  # the rows the figure draws
+    return {"title": f"{title}: where the constraint holds", "d": d.subset(shown), "n_demos": d.n_demos,
+            "holds": on[shown], "speed": np.linalg.norm(d.U[shown], axis=1),
+            "along": np.linalg.norm(np.einsum("nkq,nq->nk", rows[shown], d.U[shown]), axis=1),
+            "true_holds": None if true is None else true[shown]}
 
 
 #: Stretches of a per-window / per-segment model listed in the report (the first ones).
@@ -256,7 +258,7 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
         else:
             out.append(View("learn-a-time.png",
                             "learn-a: learnt projection against the observations over time",
-                            "time", {"title": title_a, "part": dpart, "d": d, "lines": arrows}))
+                            "time", time_view(title_a, dpart, d, arrows)))
         if d.n_state == 3 and d.n_action == 3 and model.n_constraints_:
             out.append(View("learn-a-trajectory.png",
                             "learn-a: the trajectory and the learnt constraint in 3-D", "trajectory",
@@ -299,20 +301,42 @@ def _field_and_time(stage: str, title: str, d: Demonstrations, part: str, arrows
         out.append(View(f"{stage}-field.png", f"{stage}: {captions[0]}", "field",
                         {"title": title, "d": d, "part": part, "arrows": arrows,
                          "field": field_on_grid(d, predict), "field_label": field_label}))
-    out.append(View(f"{stage}-time.png", f"{stage}: {captions[1]}", "time",
-                    {"title": title, "part": part, "d": d, "lines": lines}))
+    out.append(View(f"{stage}-time.png", f"{stage}: {captions[1]}", "time", time_view(title, part, d, lines)))
     return out
 
 
 #: Arrows of the learnt constraint drawn along a 3-D trajectory.
 TRAJECTORY_ARROWS = 40
+#: A 3-D trajectory figure draws about this many states at most (every s-th sample of each
+#: demonstration, and those the arrows start from).
+TRAJECTORY_POINTS = 20_000
+#: Demonstrations a figure over time draws (the first ones of its part).
+TIME_DEMOS = 2
+#: Demonstrations the phases figure draws (the first ones of the training part).
+PHASE_DEMOS = 6
+
+
+def first_demos(d: Demonstrations, count: int) -> np.ndarray:
+    """The rows (indices, in order) of the first ``count`` demonstrations of ``d``."""
+    return np.flatnonzero(np.isin(d.demo, d.demo_ids[:count]))
+
+
+def time_view(title: str, part: str, d: Demonstrations, lines: dict[str, tuple[str, np.ndarray]]
+              ) -> dict[str, Any]:
+    """The data of a figure over time (:func:`ccl_cli.render.figures.time_figure`): the first
+    :data:`TIME_DEMOS` demonstrations of ``d`` and their rows of each line (label, (N, q)) — the
+    rows the figure draws, whatever N (a figure's data small enough for the drawer)."""
+    rows = first_demos(d, TIME_DEMOS)
+    return {"title": title, "part": part, "d": d.subset(rows),
+            "lines": {style: (name, Y[rows]) for style, (name, Y) in lines.items()}}
 
 
 def trajectory_normals(model: Any, d: Demonstrations, title: str, part: str) -> dict[str, Any]:
-    """The data of a 3-D trajectory figure: the states of ``d`` (N, 3) per demonstration and,
-    at about TRAJECTORY_ARROWS states spread along them, the learnt constraint rows (unit,
-    sign fixed towards the mean row) and the true ones where known: {"X", "demo", "at" (M,),
-    "learnt" (M, s, 3), "true" (M, s', 3) or None, ...}."""
+    """The data of a 3-D trajectory figure: the states of ``d`` (N, 3) per demonstration (every
+    s-th sample of each, about :data:`TRAJECTORY_POINTS` in all) and, at about
+    TRAJECTORY_ARROWS states spread along them, the learnt constraint rows (unit, sign fixed
+    towards the mean row) and the true ones where known: {"d" (those states), "at" (M,) (rows
+    of "d"), "learnt" (M, s, 3), "true" (M, s', 3) or None, ...}."""
     at = np.unique(np.linspace(0, d.n_samples - 1, TRAJECTORY_ARROWS).astype(int))
     # a model per stretch on demonstrations it did not see: by its rule, as the metrics are
     applied = model.applies_to(d.X, d.U, groups=d.demo, t=d.t, new_recording=False).model
@@ -324,5 +348,8 @@ def trajectory_normals(model: Any, d: Demonstrations, title: str, part: str) -> 
     if d.has_truth("A"):
         true = d.truth_per_sample("A")[at]
         true = true / np.maximum(np.linalg.norm(true, axis=-1, keepdims=True), 1e-300)
-    return {"title": f"{title}: the trajectory and the learnt constraint", "d": d, "part": part, "at": at,
-            "learnt": rows, "true": true}
+    step = max(1, -(-d.n_samples // TRAJECTORY_POINTS))
+    keep = np.union1d(np.concatenate([m[::step] for m in group_rows(d.demo)[1]]), at) if step > 1 else None
+    return {"title": f"{title}: the trajectory and the learnt constraint", "part": part,
+            "d": d if keep is None else d.subset(keep),
+            "at": at if keep is None else np.searchsorted(keep, at), "learnt": rows, "true": true}

@@ -34,16 +34,16 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
+from ccl_cli.app.views import PHASE_DEMOS, TIME_DEMOS
 from ccl_cli.dataset import Demonstrations, group_rows
 
 CELLS = 12  # arrow subsampling: at most one state per cell of a CELLS × CELLS grid
-MAX_DEMOS = 2  # demonstrations per time plot
+MAX_DEMOS = TIME_DEMOS  # demonstrations per time plot (the view gives their rows)
 DPI = 90
 #: A line over time is drawn through at most this many of its samples (:func:`envelope`: each run
-#: of samples keeps its lowest and highest, about five per pixel of the ~400-pixel-wide panels), and a
-#: 3-D trajectory figure through at most TRAJECTORY_POINTS (every s-th sample of each demonstration).
+#: of samples keeps its lowest and highest, about five per pixel of the ~400-pixel-wide panels); a
+#: 3-D trajectory figure through the states its view chose (``TRAJECTORY_POINTS`` at most).
 LINE_POINTS = 4000
-TRAJECTORY_POINTS = 20_000
 #: matplotlib settings while a figure is written: glyphs rasterised without FreeType's
 #: auto-hinter (the same text to the eye at this size; a tenth of the figures' time)
 RC = {"text.hinting": "no_hinting"}
@@ -511,10 +511,9 @@ def trajectory_figure(title: str, d: Demonstrations, part: str, at: np.ndarray, 
     extent = float(np.max(d.X.max(0) - d.X.min(0))) or 1.0
     length = 0.08 * extent
     colours = _colours(len(d.demo_ids))
-    step = max(1, -(-d.n_samples // TRAJECTORY_POINTS))
     rows = dict(zip(*group_rows(d.demo), strict=True))
     for c, k in zip(colours, d.demo_ids, strict=True):
-        ax.plot(*d.X[rows[k][::step]].T, color=c, lw=0.8, alpha=0.8)
+        ax.plot(*d.X[rows[k]].T, color=c, lw=0.8, alpha=0.8)
     P = d.X[at]
     if true is not None:
         for r in range(true.shape[1]):
@@ -536,15 +535,12 @@ def trajectory_figure(title: str, d: Demonstrations, part: str, at: np.ndarray, 
     return fig
 
 
-#: Demonstrations drawn in the phases figure (the first ones).
-PHASE_DEMOS = 6
-
-
 def phases_figure(title: str, d: Demonstrations, holds: np.ndarray, speed: np.ndarray, along: np.ndarray,
-                  true_holds: np.ndarray | None = None):
+                  true_holds: np.ndarray | None = None, n_demos: int | None = None):
     """Per training demonstration (the first PHASE_DEMOS) over time: the speed ‖u‖ and the speed
     along the learnt rows ‖Ã u‖, shaded where the constraint holds (``holds`` (N,)), and a bar
-    under each where the ground truth stored in the file has a constraint (``true_holds``)."""
+    under each where the ground truth stored in the file has a constraint (``true_holds``);
+    ``n_demos``: the training demonstrations in all (default: d's)."""
     ids = d.demo_ids[:PHASE_DEMOS]
     fig, axes = subplots(len(ids), 1, figsize=(8.0, 1.25 * len(ids) + 1.5), squeeze=False, sharex=True)
     unit = (d.action_units or [""])[0]
@@ -568,7 +564,8 @@ def phases_figure(title: str, d: Demonstrations, holds: np.ndarray, speed: np.nd
         ax.locator_params(axis="y", nbins=3)
     axes[-1, 0].set_xlabel("time from the start of the demonstration [s]", fontsize=8)
     fig.supylabel(f"speed [{unit}]" if unit else "speed", fontsize=8)
-    more = f" (the first {len(ids)} of {d.n_demos})" if d.n_demos > len(ids) else ""
+    n_demos = d.n_demos if n_demos is None else n_demos
+    more = f" (the first {len(ids)} of {n_demos})" if n_demos > len(ids) else ""
     fig.suptitle(f"{title}\non the training demonstrations{more}", fontsize=10)
     handles = axes[0, 0].get_legend_handles_labels()
     fig.legend(*handles, loc="lower center", ncol=min(len(handles[0]), 2), fontsize=8, frameon=False)
