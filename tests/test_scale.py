@@ -483,7 +483,8 @@ def test_each_figures_data_are_the_rows_it_draws_at_any_size():
     pipeline = Pipeline(cfg.spec, d, None)
     pipeline.run(cfg.stages())
     shown = {v.name: v for v in pipeline.views()}
-    assert {"learn-v-time.png", "learn-a-time.png", "learn-a-trajectory.png", "learn-pi-time.png"} <= set(shown)
+    names = {"learn-v-time.png", "learn-a-time.png", "learn-a-trajectory.png", "learn-pi-time.png"}
+    assert names <= set(shown)
     test = pipeline.split.test
     for name in ("learn-v-time.png", "learn-a-time.png", "learn-pi-time.png"):
         args = shown[name].args
