@@ -63,6 +63,11 @@ class StreamReader(ReaderBase):
         """One :class:`Stream` per selection, in order."""
         raise NotImplementedError
 
+    def read_streams(self, selections: Sequence[StreamOptions]) -> list[Stream]:
+        """:meth:`streams` for :meth:`read`, which asks once: a format that holds what it read
+        (a CSV table) may let go of it while the streams are made."""
+        return self.streams(selections)
+
     def listing(self) -> dict[str, Any]:
         """``start_ns``, ``end_ns`` and ``topics`` ({name: {type, count}}) or the table's columns."""
         raise NotImplementedError
@@ -86,7 +91,7 @@ class StreamReader(ReaderBase):
             selections.append(with_joints(o.action, fk, selections[0].joints))
         signal = o.demos.where
         extra = [forces.plain(s) for s in forces.selections(o).values()]  # data.force: read in the same pass
-        raw = self.streams(selections + extra + ([signal.selection()] if signal is not None else []))
+        raw = self.read_streams(selections + extra + ([signal.selection()] if signal is not None else []))
         state = _repaired(raw[0], selections[0], o)
         rest = [_clean(s, sel, o.nonfinite) for s, sel in zip(raw[1:], selections[1:], strict=False)]
         t_ns, X, repair = state.t_ns, state.values, state.repair

@@ -289,6 +289,20 @@ class CsvTable:
             out.append("empty" if not cells_k else "number" if all(map(is_number, cells_k)) else "text")
         return out
 
+    def let_go(self, still: Sequence[StreamOptions]) -> None:
+        """Drop the columns of the table read that none of the selections ``still`` reads (its
+        stamps stay, parsed: :meth:`time_ns`); a column asked for again reads the file again."""
+        if self._loaded is None or any(not s.columns for s in still):
+            return  # nothing read, or a text matrix's stream: every column
+        names, body = self._loaded
+        try:
+            needed = {self.index(names, c) for s in still for c in s.columns}
+        except InputError:  # a column not in the table: its stream says so
+            return
+        for columns in (body.values, body.texts):
+            for k in set(columns) - needed:
+                del columns[k]
+
     def stream(self, selection: StreamOptions) -> Stream:
         """The columns of ``selection`` (all but the time column of a text matrix)."""
         self.want(selection.columns or [ALL])
@@ -390,9 +404,26 @@ class CsvReader(StreamReader):
         return self._tables[key]
 
     def streams(self, selections: Sequence[StreamOptions]) -> list[Stream]:
+        return self._streams(selections, once=False)
+
+    def read_streams(self, selections: Sequence[StreamOptions]) -> list[Stream]:
+        """:meth:`streams`, each table's columns let go of as soon as the last stream that reads
+        them has its copy, and the tables at the end (:meth:`~StreamReader.read` reads each
+        once): the memory holds a column as read or as copied into a stream, not both."""
+        return self._streams(selections, once=True)
+
+    def _streams(self, selections: Sequence[StreamOptions], once: bool) -> list[Stream]:
         for s in selections:  # every column of a table asked for before it is read: one pass
             self.table(s).want(s.columns or [ALL])
-        return [self.table(s).stream(s) for s in selections]
+        out = []
+        for i, s in enumerate(selections):
+            table = self.table(s)
+            out.append(table.stream(s))
+            if once:
+                table.let_go([later for later in selections[i + 1:] if self.table(later) is table])
+        if once:
+            self._tables.clear()
+        return out
 
     def listing(self) -> dict[str, Any]:
         state = self.options.state

@@ -126,12 +126,14 @@ def numbers(blocks_of_lines: Iterable[str], sep: str | None, width: int, keep: l
     text reader: columns ``keep`` as float64 (allocated once, for ``most`` rows), the time
     columns ``times`` as int64 where they are integers, else as text. None when a line is not
     ``width`` numbers in the kept columns (quotes, a text cell, a row of another width, a
-    cell the csv module would refuse) or holds a character str.splitlines would break at."""
+    cell the csv module would refuse) or holds a character str.splitlines would break at.
+    Each column is an array of its own (a reader lets go of a column once it has copied it)
+    and owns its memory: a block's parsed table is dropped once its columns are copied out."""
     blank = re.compile("(?m)^[ \t" + re.escape(sep or "") + "]*$")
     limit = csv.field_size_limit()
     wide = width >= WIDE
     data = [k for k in keep if k not in times]  # a kept time column is read from its text
-    out = np.empty((len(data), most)) if data else None  # one row per data column
+    out = [np.empty(most) for _ in data]  # one array per data column
     texts: dict[int, list[np.ndarray]] = {k: [] for k in times}
     as_int = dict.fromkeys(times, True)
     n = 0
@@ -155,14 +157,13 @@ def numbers(blocks_of_lines: Iterable[str], sep: str | None, width: int, keep: l
         if table is None:
             return None
         for j, k in enumerate(data):
-            out[j, n:n + rows] = table[f"c{k}"]
-        for k in times:
-            texts[k].append(table[f"c{k}"] if as_int[k] else _checked_text(table[f"c{k}"], block, sep, k))
+            out[j][n:n + rows] = table[f"c{k}"]
+        for k in times:  # a field of ``table`` is a view of all of it: copied
+            field_ = table[f"c{k}"]
+            texts[k].append(field_.copy() if as_int[k] else _checked_text(field_, block, sep, k))
         n += rows
-    if out is not None:
-        out = out[:, :n]  # a view: the blank lines' room stays allocated (the data columns' share)
-    return Body(n, {k: out[j] for j, k in enumerate(data)} if out is not None else {},
-                {k: _joined(v) for k, v in texts.items()})
+    # views: the blank lines' room stays allocated (the data columns' share)
+    return Body(n, {k: out[j][:n] for j, k in enumerate(data)}, {k: _joined(v) for k, v in texts.items()})
 
 
 #: ASCII characters that make a line one the fast path does not read (see :data:`NOT_PLAIN`)
@@ -220,11 +221,12 @@ def _parse(text: str, sep: str | None, width: int, data: list[int], times: list[
 
 
 def _checked_text(column: np.ndarray, block: str, sep: str | None, k: int) -> np.ndarray:
-    """A time column's text as read (``S``), or — a value that may have been cut at
-    :data:`TIME_TEXT` bytes, or a block that is not ASCII — split from its lines again."""
-    if (not column.size or int(np.char.str_len(column).max()) < TIME_TEXT) and block.isascii() \
-            and "\x00" not in block:
-        return column
+    """A time column's text as read (``S``, as wide as its longest value: a copy, not a view
+    of the block's table), or — a value that may have been cut at :data:`TIME_TEXT` bytes, or
+    a block that is not ASCII — split from its lines again."""
+    longest = int(np.char.str_len(column).max()) if column.size else 0
+    if longest < TIME_TEXT and block.isascii() and "\x00" not in block:
+        return column.astype(f"S{max(longest, 1)}")
     return _as_text_array([_field(ln, sep, k) for ln in block.split("\n")])
 
 

@@ -59,7 +59,7 @@ def _time_ns_vectorised(column: Sequence[str] | np.ndarray, unit: str | None) ->
     (``[+-]digits.digits``). None when a value is anything else or out of range (then
     :func:`_time_ns_per_value` parses it, and names the row at fault)."""
     if isinstance(column, np.ndarray) and column.dtype.kind in "iu":
-        return _integers(column.astype(np.int64), unit)
+        return _integers(column.astype(np.int64, copy=False), unit)
     values = _as_text(column)
     if values.size == 0:
         return None
