@@ -8,6 +8,7 @@ import pytest
 from PIL import Image
 
 from ccl_cli import lifeline
+from ccl_cli.app import views
 from ccl_cli.render import drawing, figures
 
 
@@ -231,12 +232,12 @@ def test_a_long_line_is_drawn_through_its_envelope_with_the_same_pixels(tmp_path
     y[[1000, 120_000]] = np.nan  # breaks: no line drawn across them
     x = np.arange(len(y), dtype=float)
     x[np.isnan(y)] = np.nan
-    ex, ey = figures.envelope(x, y)
-    assert len(ey) <= figures.LINE_POINTS + 3 * 2 and np.isnan(ey).sum() == 2  # a break: itself and its sides
+    ex, ey = views.envelope(x, y)
+    assert len(ey) <= views.LINE_POINTS + 3 * 2 and np.isnan(ey).sum() == 2  # a break: itself and its sides
     assert np.nanmax(ey) == np.nanmax(y) and np.nanmin(ey) == np.nanmin(y)
     assert np.all(np.diff(ex[~np.isnan(ex)]) > 0)  # in order
     short = np.arange(10.0)
-    assert figures.envelope(short, short)[1] is short  # short series: as they are
+    assert views.envelope(short, short)[1] is short  # short series: as they are
 
     def drawn(xs, ys, name, simplify=True):
         with matplotlib.rc_context({"path.simplify": simplify}):

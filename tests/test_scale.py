@@ -469,8 +469,9 @@ def test_the_per_demonstration_figures_compare_the_ids_a_bounded_number_of_times
 
 
 def test_each_figures_data_are_the_rows_it_draws_at_any_size():
-    """The figures over time get the rows of the demonstrations they draw, the 3-D trajectory
-    about TRAJECTORY_POINTS states, the phases figure its first demonstrations: at 10⁶ samples
+    """The figures over time get the samples they draw (of their first demonstrations, through at
+    most LINE_POINTS), the 3-D trajectory about TRAJECTORY_POINTS states, the phases figure its
+    first demonstrations, none the file's ground truth: at 10⁶ samples
     their data took 56–77 MB each, over the drawer's message limit, and ccl drew them itself
     after its stages (importing matplotlib a second time); now the drawer draws every one."""
     from ccl_cli.app import views
@@ -488,9 +489,15 @@ def test_each_figures_data_are_the_rows_it_draws_at_any_size():
     test = pipeline.split.test
     for name in ("learn-v-time.png", "learn-a-time.png", "learn-pi-time.png"):
         args = shown[name].args
-        first = test.demo_ids[: views.TIME_DEMOS]
-        assert np.array_equal(args["d"].X, test.X[np.isin(test.demo, first)])
-        assert all(len(Y) == args["d"].n_samples for _, Y in args["lines"].values())
+        assert args["ids"] == test.demo_ids[: views.TIME_DEMOS].tolist()
+        for k, panel in zip(args["ids"], args["panels"], strict=True):  # the samples as drawn
+            rows = np.flatnonzero(test.demo == k)
+            assert len(rows) > views.LINE_POINTS
+            for _, drawn in panel.values():
+                assert [len(x) for x, _ in drawn] <= [views.LINE_POINTS + 2] * test.n_action
+                x, t0, t1 = drawn[0][0], test.t[rows[0]], test.t[rows[-1]]  # the whole demonstration
+                assert t0 <= np.nanmin(x) and np.nanmax(x) <= t1
+                assert np.nanmax(x) - np.nanmin(x) > 0.99 * (t1 - t0)
     trajectory = shown["learn-a-trajectory.png"].args
     assert trajectory["d"].n_samples <= views.TRAJECTORY_POINTS + views.TRAJECTORY_ARROWS + test.n_demos
     at = np.unique(np.linspace(0, test.n_samples - 1, views.TRAJECTORY_ARROWS).astype(int))

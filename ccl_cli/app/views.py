@@ -15,6 +15,7 @@ metrics, on the same data, so a figure and metrics.json never disagree.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -169,7 +170,8 @@ def phase_series(model: Any, d: Demonstrations, title: str) -> dict[str, Any]:
         off = np.abs(d.true_projection(False) - np.eye(d.n_action)).max(axis=(-2, -1))  # () or (N,)
         true = np.broadcast_to(off > 1e-6, (d.n_samples,))
     shown = first_demos(d, PHASE_DEMOS)  # the rows the figure draws
-    return {"title": f"{title}: where the constraint holds", "d": d.subset(shown), "n_demos": d.n_demos,
+    return {"title": f"{title}: where the constraint holds", "d": d.without_truth().subset(shown),
+            "n_demos": d.n_demos,
             "holds": on[shown], "speed": np.linalg.norm(d.U[shown], axis=1),
             "along": np.linalg.norm(np.einsum("nkq,nq->nk", rows[shown], d.U[shown]), axis=1),
             "true_holds": None if true is None else true[shown]}
@@ -321,14 +323,65 @@ def first_demos(d: Demonstrations, count: int) -> np.ndarray:
     return np.flatnonzero(np.isin(d.demo, d.demo_ids[:count]))
 
 
+#: A line over time is drawn through at most this many of its samples (:func:`envelope`: each run
+#: of samples keeps its lowest and highest, about five per pixel of the ~400-pixel-wide panels).
+LINE_POINTS = 4000
+
+
 def time_view(title: str, part: str, d: Demonstrations, lines: dict[str, tuple[str, np.ndarray]]
               ) -> dict[str, Any]:
-    """The data of a figure over time (:func:`ccl_cli.render.figures.time_figure`): the first
-    :data:`TIME_DEMOS` demonstrations of ``d`` and their rows of each line (label, (N, q)) — the
-    rows the figure draws, whatever N (a figure's data small enough for the drawer)."""
-    rows = first_demos(d, TIME_DEMOS)
-    return {"title": title, "part": part, "d": d.subset(rows),
-            "lines": {style: (name, Y[rows]) for style, (name, Y) in lines.items()}}
+    """The data of a figure over time (:func:`ccl_cli.render.figures.time_figure`): for each of
+    the first :data:`TIME_DEMOS` demonstrations of ``d``, each line's (label, Y (N, q)) samples
+    as drawn — cut at the gaps in its times (:func:`with_gaps`), through at most LINE_POINTS
+    of them (:func:`envelope`): the same figure at any N, from data small enough for the
+    drawer."""
+    ids = d.demo_ids[:TIME_DEMOS]
+    panels = []
+    for k in ids:
+        sel = np.flatnonzero(d.demo == k)
+        t, cut = with_gaps(d.t[sel])
+        panels.append({style: (name, [envelope(t, cut(Y[sel, j])) for j in range(Y.shape[1])])
+                       for style, (name, Y) in lines.items()})
+    return {"title": title, "part": part, "names": list(d.action_names),
+            "units": None if d.action_units is None else list(d.action_units),
+            "ids": [int(k) for k in ids], "panels": panels}
+
+
+def with_gaps(t: np.ndarray, factor: float = 3.0) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]:
+    """Times (n,) with a NaN inserted wherever an interval exceeds ``factor`` × the median one
+    (held-out time blocks, pauses), and the function that does the same to a series (n,), so
+    a line is never drawn across a gap."""
+    dt = np.diff(t)
+    step = np.median(dt[dt > 0]) if np.any(dt > 0) else 0.0
+    breaks = np.flatnonzero(dt > factor * step) + 1 if step > 0 else np.zeros(0, dtype=int)
+
+    def cut(y: np.ndarray) -> np.ndarray:
+        return np.insert(np.asarray(y, dtype=float), breaks, np.nan)
+
+    return cut(t), cut
+
+
+def envelope(x: np.ndarray, y: np.ndarray, points: int = LINE_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """The samples of a line (x, y (n,), NaN where it breaks) that draw it at its width: all of
+    them up to ``points``; else, in each of ``points`` / 2 runs of consecutive samples, the lowest
+    and the highest, in order, with every break and the samples either side of it — the same
+    pixels, at any n."""
+    n = len(y)
+    if n <= points:
+        return x, y
+    size = -(-n // (points // 2))
+    runs = -(-n // size)
+    gap = np.isnan(y)
+    low = np.full(runs * size, np.inf)
+    low[:n] = np.where(gap, np.inf, y)
+    high = np.full(runs * size, -np.inf)
+    high[:n] = np.where(gap, -np.inf, y)
+    first = np.arange(runs) * size
+    breaks = np.flatnonzero(gap)
+    lowest, highest = low.reshape(runs, size).argmin(1), high.reshape(runs, size).argmax(1)
+    keep = np.unique(np.r_[first + lowest, first + highest, breaks, breaks - 1, breaks + 1])
+    keep = keep[(keep >= 0) & (keep < n)]
+    return x[keep], y[keep]
 
 
 def trajectory_normals(model: Any, d: Demonstrations, title: str, part: str) -> dict[str, Any]:
@@ -351,5 +404,5 @@ def trajectory_normals(model: Any, d: Demonstrations, title: str, part: str) -> 
     step = max(1, -(-d.n_samples // TRAJECTORY_POINTS))
     keep = np.union1d(np.concatenate([m[::step] for m in group_rows(d.demo)[1]]), at) if step > 1 else None
     return {"title": f"{title}: the trajectory and the learnt constraint", "part": part,
-            "d": d if keep is None else d.subset(keep),
+            "d": d if keep is None else d.without_truth().subset(keep),
             "at": at if keep is None else np.searchsorted(keep, at), "learnt": rows, "true": true}

@@ -34,16 +34,12 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from ccl_cli.app.views import PHASE_DEMOS, TIME_DEMOS
+from ccl_cli.app.views import PHASE_DEMOS, TIME_DEMOS, envelope
 from ccl_cli.dataset import Demonstrations, group_rows
 
 CELLS = 12  # arrow subsampling: at most one state per cell of a CELLS × CELLS grid
 MAX_DEMOS = TIME_DEMOS  # demonstrations per time plot (the view gives their rows)
 DPI = 90
-#: A line over time is drawn through at most this many of its samples (:func:`envelope`: each run
-#: of samples keeps its lowest and highest, about five per pixel of the ~400-pixel-wide panels); a
-#: 3-D trajectory figure through the states its view chose (``TRAJECTORY_POINTS`` at most).
-LINE_POINTS = 4000
 #: matplotlib settings while a figure is written: glyphs rasterised without FreeType's
 #: auto-hinter (the same text to the eye at this size; a tenth of the figures' time)
 RC = {"text.hinting": "no_hinting"}
@@ -209,7 +205,7 @@ def action_labels(d: Demonstrations) -> list[str]:
     return [label(n, u) for n, u in zip(d.action_names, _units(d.action_names, d.action_units), strict=True)]
 
 
-def describe_data(part: str, d: Demonstrations, ids: np.ndarray | None = None) -> str:
+def describe_data(part: str, d: Demonstrations | None, ids: np.ndarray | None = None) -> str:
     """Which demonstrations a figure shows: all of ``d`` (``ids`` None) or the given ones."""
     what = {"test": "held-out (test)", "train": "training", "all": "given",
             "test-blocks": "held-out (test) time blocks of", "train-blocks": "training samples of"}[part]
@@ -340,70 +336,31 @@ def field_figure(title: str, d: Demonstrations, part: str, arrows: dict[str, tup
     return fig
 
 
-def with_gaps(t: np.ndarray, factor: float = 3.0) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray]]:
-    """Times (n,) with a NaN inserted wherever an interval exceeds ``factor`` × the median one
-    (held-out time blocks, pauses), and the function that does the same to a series (n,), so
-    a line is never drawn across a gap."""
-    dt = np.diff(t)
-    step = np.median(dt[dt > 0]) if np.any(dt > 0) else 0.0
-    breaks = np.flatnonzero(dt > factor * step) + 1 if step > 0 else np.zeros(0, dtype=int)
-
-    def cut(y: np.ndarray) -> np.ndarray:
-        return np.insert(np.asarray(y, dtype=float), breaks, np.nan)
-
-    return cut(t), cut
-
-
-def envelope(x: np.ndarray, y: np.ndarray, points: int = LINE_POINTS) -> tuple[np.ndarray, np.ndarray]:
-    """The samples of a line (x, y (n,), NaN where it breaks) that draw it at its width: all of
-    them up to ``points``; else, in each of ``points`` / 2 runs of consecutive samples, the lowest
-    and the highest, in order, with every break and the samples either side of it — the same
-    pixels, at any n."""
-    n = len(y)
-    if n <= points:
-        return x, y
-    size = -(-n // (points // 2))
-    runs = -(-n // size)
-    gap = np.isnan(y)
-    low = np.full(runs * size, np.inf)
-    low[:n] = np.where(gap, np.inf, y)
-    high = np.full(runs * size, -np.inf)
-    high[:n] = np.where(gap, -np.inf, y)
-    first = np.arange(runs) * size
-    breaks = np.flatnonzero(gap)
-    lowest, highest = low.reshape(runs, size).argmin(1), high.reshape(runs, size).argmax(1)
-    keep = np.unique(np.r_[first + lowest, first + highest, breaks, breaks - 1, breaks + 1])
-    keep = keep[(keep >= 0) & (keep < n)]
-    return x[keep], y[keep]
-
-
-def time_figure(title: str, part: str, d: Demonstrations, lines: dict[str, tuple[str, np.ndarray]]):
-    """One row per action dimension over time for up to MAX_DEMOS demonstrations of ``d``;
-    ``lines``: style → (label, (N, q))."""
-    ids = d.demo_ids[:MAX_DEMOS]
-    q = d.n_action
+def time_figure(title: str, part: str, names: list[str], units: list[str] | None, ids: list[int],
+                panels: list[dict[str, tuple[str, list[tuple[np.ndarray, np.ndarray]]]]]):
+    """One row per action dimension (``names``, ``units``) over time, one column per
+    demonstration ``ids`` (at most MAX_DEMOS); ``panels``: per demonstration, style → (label,
+    the (times, values) drawn of each action dimension) (:func:`ccl_cli.app.views.time_view`)."""
+    q = len(names)
     fig, axes = subplots(q, len(ids), figsize=(4.2 * len(ids) + 1.5, 1.35 * q + 1.2), squeeze=False,
-                             sharex="col")
-    names = action_labels(d)
-    for c, k in enumerate(ids):
-        sel = np.flatnonzero(d.demo == k)
-        t, cut = with_gaps(d.t[sel])
+                         sharex="col")
+    labels = [label(n, u) for n, u in zip(names, _units(names, units), strict=True)]
+    for c, (k, series) in enumerate(zip(ids, panels, strict=True)):
         for j in range(q):
             ax = axes[j, c]
             for style in ("true", "observed", "baseline", "learnt", "predicted"):
-                if style in lines:
-                    name, Y = lines[style]
-                    s = STYLE[style]
-                    ax.plot(*envelope(t, cut(Y[sel, j])), label=name, **s)
-            ax.text(0.01, 0.96, names[j], transform=ax.transAxes, va="top", fontsize=7,
+                if style in series:
+                    name, drawn = series[style]
+                    ax.plot(*drawn[j], label=name, **STYLE[style])
+            ax.text(0.01, 0.96, labels[j], transform=ax.transAxes, va="top", fontsize=7,
                     bbox={"facecolor": "white", "alpha": 0.7, "lw": 0, "pad": 1})
             ax.tick_params(labelsize=7)
             ax.locator_params(axis="x", nbins=5)  # fewer ticks: each costs a few artists
             ax.locator_params(axis="y", nbins=4)
         axes[0, c].set_title(f"demonstration {int(k)}", fontsize=8, y=1.0)
         axes[-1, c].set_xlabel("time from the start of the recording [s]", fontsize=8)
-    fig.suptitle(f"{title}\non {describe_data(part, d, ids)}", fontsize=10)
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", ncol=len(lines), fontsize=8,
+    fig.suptitle(f"{title}\non {describe_data(part, None, np.asarray(ids))}", fontsize=10)
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", ncol=len(panels[0]), fontsize=8,
                frameon=False)
     h = fig.get_figheight()
     fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.95 / h, bottom=1.0 / h, hspace=0.15, wspace=0.18)
