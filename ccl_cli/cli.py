@@ -8,6 +8,7 @@ message on stderr, never a traceback (``CCL_DEBUG=1`` shows one for internal err
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import sys
@@ -211,7 +212,8 @@ def _wrote(command: str, out: Path, data, as_json: bool) -> None:
 
 
 def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
-           force: bool, as_json: bool, quiet: bool, strict: bool = False) -> None:
+           force: bool, as_json: bool, quiet: bool, strict: bool = False,
+           scheduler: str | None = None) -> None:
     from ccl_cli.app.run import default_outdir, execute
     from ccl_cli.render.outputs import check_output, write_run
 
@@ -228,7 +230,8 @@ def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
                     submit_views(views, cfg.spec.output.format)
         bar = _bar("stages", len(stages), quiet)
         try:
-            result = execute(command, cfg, files, stages, progress=bar, on_views=on_views)
+            with _cluster(scheduler):  # after the drawer's fork: a client's threads are not forked
+                result = execute(command, cfg, files, stages, progress=bar, on_views=on_views)
         finally:
             if bar:
                 bar.stop()
@@ -243,6 +246,30 @@ def _learn(command: str, stages: list[str] | None, cfg, files, out: Path | None,
         error = LearningError(f"--strict: the run is {summary['verdict']}")
         error.summarised = as_json  # --json printed the run's summary (status poor): one object only
         raise error
+
+
+@contextmanager
+def _cluster(scheduler: str | None):
+    """The fits' block sums on the Dask cluster at ``scheduler`` (:mod:`ccl_cli.learn.blocksums`)
+    while the block runs; nothing without one."""
+    if scheduler is None:
+        yield
+        return
+    from ccl_cli.app import dask_jobs
+    from ccl_cli.learn.blocksums import on_cluster
+
+    restore = dask_jobs.quiet_dask()
+    client = None
+    try:
+        client = dask_jobs.connect(scheduler)
+        with on_cluster(client):
+            yield
+    finally:
+        with contextlib.suppress(Exception):  # a lost scheduler: nothing left to close
+            if client is not None:
+                client.close(timeout=5)
+        if client is None or str(client.status) == "closed":
+            restore()
 
 
 def _bar(label: str, total: int, quiet: bool):
@@ -412,6 +439,10 @@ def run(
     basis: Annotated[BasisKind | None, typer.Option("--basis", help="Feature map of every stage of the "
                                                     "pipeline that has a basis (no basis search).",
                                                     show_default="config, else rbf")] = None,
+    scheduler: Annotated[str | None, typer.Option(
+        help="Address of a running Dask scheduler (tcp://host:8786): the block sums of the policies' "
+             "normal equations (learn-pi, the dpl baselines) are computed by its workers; the rest of the "
+             "run here.")] = None,
     strict: StrictOpt = False, force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Run the stages of a pipeline YAML in order (learn-v, learn-a, learn-pi, evaluate)."""
@@ -420,7 +451,7 @@ def run(
     if n_centres is not None or basis is not None:
         flags |= _basis_flags(pipeline, {"n_centres": n_centres, "basis": _value(basis)})
     cfg = _config(pipeline, flags)
-    _learn("run", None, cfg, data, out, force, json_out, quiet, strict)
+    _learn("run", None, cfg, data, out, force, json_out, quiet, strict, scheduler=scheduler)
 
 
 def _basis_flags(pipeline: Path, given: dict[str, Any]) -> dict[str, Any]:

@@ -24,6 +24,7 @@ feature matrix, no N × K q regressor matrix); predict works in the same blocks.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any, ClassVar, get_args
 
 import numpy as np
@@ -31,9 +32,10 @@ import numpy as np
 from ccl_cli.errors import ConfigError, InputError, LearningError
 from ccl_cli.learn.base import Estimator, clone
 from ccl_cli.learn.basis import Basis, BasisParams, RBFBasis, feature_cache_bytes
+from ccl_cli.learn.blocksums import block_sums
 from ccl_cli.learn.consistency import inconsistency_error
 from ccl_cli.learn.defaults import POLICY_METHOD
-from ccl_cli.learn.linalg import eigen_solve, kron_rows, row_chunks
+from ccl_cli.learn.linalg import CHUNK_ROWS, eigen_solve, kron_rows, row_chunks
 from ccl_cli.learn.model_selection import WIDTH, Folds, Tunable, basis_grid, held_out_errors
 from ccl_cli.learn.params import ChunkSize, CutoffRule, NonNegative, SeedParams, parameters
 from ccl_cli.learn.params import PolicyMethod as Method
@@ -317,19 +319,21 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
         out = []
         for idx in index_sets:
             n = len(U) if idx is None else len(idx)
-            if self.method == "lwpi":
-                M, r = np.zeros((K, d * q, d * q)), np.zeros((K, d * q))
-            elif self.method == "dpl":
-                M, r = np.zeros((K, K)), np.zeros((K, q))
-            else:
-                M, r = np.zeros((K * q, K * q)), np.zeros(K * q)
-            for block in row_chunks(n, self.chunk_size):
-                rows = block if idx is None else idx[block]
-                B = basis.transform(X[rows]) if features is None else features[rows]
-                Mb, rb = self._block_equations(B, X[rows], U[rows], None if P is None else P[rows])
-                M += Mb
-                r += rb
-            out.append((M, r))
+
+            def take(s: int, e: int, idx: np.ndarray | None = idx) -> tuple[Any, ...]:
+                rows = slice(s, e) if idx is None else idx[s:e]
+                return (X[rows], U[rows], None if P is None else P[rows],
+                        None if features is None else features[rows])
+
+            sums = block_sums(partial(_block, self, basis), take, n, self.chunk_size or CHUNK_ROWS)
+            if sums is None:  # no rows: the equations of nothing
+                if self.method == "lwpi":
+                    sums = np.zeros((K, d * q, d * q)), np.zeros((K, d * q))
+                elif self.method == "dpl":
+                    sums = np.zeros((K, K)), np.zeros((K, q))
+                else:
+                    sums = np.zeros((K * q, K * q)), np.zeros(K * q)
+            out.append(tuple(sums))
         return out
 
     def _block_equations(self, B: np.ndarray, X: np.ndarray, U: np.ndarray, P: np.ndarray | None
@@ -419,3 +423,12 @@ class PolicyLearner(Tunable, Estimator, BasisParams, SeedParams):
 def rms_norm(U: np.ndarray) -> float:
     """The root mean square of the action norms, sqrt(mean_n ‖u_n‖²), of U (N, q)."""
     return float(np.sqrt(np.mean(np.sum(np.square(U), axis=1))))
+
+
+def _block(learner: PolicyLearner, basis: Basis, X: np.ndarray, U: np.ndarray, P: np.ndarray | None,
+           features: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The normal equations of one block of rows (:meth:`PolicyLearner._block_equations`), its
+    features β(X) computed here when not given: a function of its arguments alone, so a cluster's
+    worker can compute it (:mod:`ccl_cli.learn.blocksums`)."""
+    B = basis.transform(X) if features is None else features
+    return learner._block_equations(B, X, U, P)
