@@ -440,9 +440,9 @@ def run(
                                                     "pipeline that has a basis (no basis search).",
                                                     show_default="config, else rbf")] = None,
     scheduler: Annotated[str | None, typer.Option(
-        help="Address of a running Dask scheduler (tcp://host:8786): the block sums of the policies' "
-             "normal equations (learn-pi, the dpl baselines) are computed by its workers; the rest of the "
-             "run here.")] = None,
+        help="Address of a running Dask scheduler (tcp://host:8786): the sums over all rows of the fits "
+             "(learn-v's passes, the policies' normal equations) are computed by its workers, which hold "
+             "the rows; reading, learn-a, predictions and scores run here.")] = None,
     strict: StrictOpt = False, force: ForceOpt = False, json_out: JsonOpt = False, quiet: QuietOpt = False,
 ) -> None:
     """Run the stages of a pipeline YAML in order (learn-v, learn-a, learn-pi, evaluate)."""

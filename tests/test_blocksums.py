@@ -62,22 +62,52 @@ def test_a_policy_learnt_on_a_cluster_is_the_one_learnt_here(cluster, method):
     assert np.abs(there.predict(d.X) - here.predict(d.X)).max() <= 1e-10 * np.abs(here.predict(d.X)).max()
 
 
-def test_ccl_run_with_a_scheduler_learns_what_it_learns_alone(cluster, tmp_path, capsys):
-    from pathlib import Path
-
+def test_ncl_learnt_on_a_cluster_is_the_one_learnt_here(cluster):
+    """learn-v's Levenberg–Marquardt passes over all rows: the rows and their features held by
+    the workers (sent once), each pass's JᵀJ, Jᵀr and Σ r² summed there block by block."""
     from distributed import get_task_stream
 
+    from ccl_cli.learn.nullspace import NullSpaceComponent
+
+    client, _ = cluster
+    d = sim.toy2d(n_demos=100, task=True, seed=2)
+    kw = {"n_centres": 16, "tune": False, "chunk_size": 64, "seed": 0}
+    here = NullSpaceComponent(**kw).fit(d.X, d.U)
+    with get_task_stream(client) as tasks, blocksums.on_cluster(client):
+        there = NullSpaceComponent(**kw).fit(d.X, d.U)
+    groups = len(blocksums.spans(len(blocksums.spans(d.n_samples, 64)), blocksums.TASK_BLOCKS))
+    passes = sum(s["full_passes"] + s["cost_passes"] for s in there.stages_ if s["rows"] == d.n_samples)
+    sums = [t for t in tasks.data if str(t["key"]).startswith("_sum_task")]
+    assert passes > 0 and len(sums) == passes * groups  # every pass over all rows: on the workers
+    assert [s["stop"] for s in there.stages_] == [s["stop"] for s in here.stages_]
+    # an iterative fit stopped at its tolerance: the paths part by rounding, the optima by less
+    # than 1e-6 of w̃'s scale (5e-8 here), the costs by less than 1e-9
+    w_here, w_there = here.predict(d.X), there.predict(d.X)
+    assert np.abs(w_there - w_here).max() <= 1e-6 * np.abs(w_here).max()
+    assert there.cost_ == pytest.approx(here.cost_, rel=1e-9)
+
+
+def test_ccl_run_with_a_scheduler_learns_what_it_learns_alone(cluster, tmp_path, capsys):
+    from distributed import get_task_stream
+
+    from ccl_cli.io import write_demonstrations
+
     client, address = cluster
-    config = Path(__file__).resolve().parent.parent / "configs" / "toy2d_learn_pi.yaml"
+    data = write_demonstrations(tmp_path / "toy.h5", sim.toy2d(n_demos=100, task=True, seed=3))
+    config = tmp_path / "run.yaml"
+    config.write_text(f"data: {{files: [{data}]}}\nlearn-v: {{chunk_size: 64}}\n"
+                      "learn-pi: {chunk_size: 64}\nstages: [learn-v, learn-a, learn-pi]\n")
     assert main(["run", str(config), "-o", str(tmp_path / "here"), "-q"]) == 0
     with get_task_stream(client) as tasks:
         assert main(["run", str(config), "-o", str(tmp_path / "there"), "-q", "--scheduler", address]) == 0
-    assert any(str(t["key"]).startswith("_task") for t in tasks.data)  # the policy's sums: on the cluster
-    here, there = (json.loads((tmp_path / p / "metrics.json").read_text())["learn-pi"]
-                   for p in ("here", "there"))
-    for part in ("train", "test"):
-        for name, m in here[part].items():
-            assert there[part][name]["value"] == pytest.approx(m["value"], rel=1e-9, abs=1e-12), name
+    keys = {str(t["key"]).split("-")[0] for t in tasks.data}
+    assert {"_task", "_sum_task", "_map_task"} <= keys  # the policies' sums and ncl's passes: there
+    here, there = (json.loads((tmp_path / p / "metrics.json").read_text()) for p in ("here", "there"))
+    for stage in ("learn-v", "learn-a", "learn-pi"):  # normalised errors (1: as bad as zero), within 1e-6
+        for part in {"train", "test"} & set(here[stage]):
+            for name, m in here[stage][part].items():
+                got = there[stage][part][name]["value"]
+                assert got == pytest.approx(m["value"], rel=1e-6, abs=1e-6), (stage, name)
 
 
 def test_an_unreachable_scheduler_is_one_line(tmp_path, capsys):
@@ -88,3 +118,22 @@ def test_an_unreachable_scheduler_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "Dask scheduler" in err[0] and "Traceback" not in err[0]
     assert not (tmp_path / "x").exists()
+
+
+def test_a_cluster_lost_before_a_fit_is_one_line():
+    from distributed import Client
+
+    from ccl_cli.errors import LearningError
+
+    proc, info = dask_cluster.start(1)
+    client = Client(info["address"], timeout="10s")
+    dask_cluster.stop(proc)  # the scheduler and its worker are gone
+    d = sim.toy2d(n_demos=100, seed=1)
+    try:
+        with blocksums.on_cluster(client), pytest.raises(LearningError) as lost:
+            PolicyLearner(method="dpl", n_centres=16, tune=False, chunk_size=64).fit(d.X, d.U)
+        message = str(lost.value)
+        assert message.startswith("the Dask cluster could not compute the block sums of a fit (")
+        assert "\n" not in message
+    finally:
+        client.close(timeout=2)

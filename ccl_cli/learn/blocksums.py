@@ -76,10 +76,10 @@ def _task(fn: Callable[..., tuple[np.ndarray, ...]], blocks: list[tuple[np.ndarr
 def block_sums(fn: Callable[..., tuple[np.ndarray, ...]], take: Callable[[int, int], tuple[np.ndarray, ...]],
                n: int, rows: int) -> tuple[np.ndarray, ...] | None:
     """Σ over the blocks [s, e) of ``rows`` rows covering 0..n of ``fn(*take(s, e))``, in block
-    order — here, or on the cluster of :func:`on_cluster`; None when n = 0."""
+    order — here, or on the cluster of :func:`on_cluster` (:func:`worth_sending`); None when n = 0."""
     blocks = spans(n, rows)
     client = _CLIENT.get()
-    if client is None:
+    if not worth_sending(n, rows):
         return fold(fn, (take(s, e) for s, e in blocks))  # each block taken as it is summed
     groups = [blocks[i:i + TASK_BLOCKS] for i in range(0, len(blocks), TASK_BLOCKS)]
     parts: list[Any] = []
@@ -88,8 +88,68 @@ def block_sums(fn: Callable[..., tuple[np.ndarray, ...]], take: Callable[[int, i
             parts += client.gather([client.submit(_task, fn, [take(s, e) for s, e in group], pure=False)
                                     for group in groups[w:w + WAVE]])
     except Exception as exc:  # noqa: BLE001 - a lost cluster (or a task it could not run) is one line
-        from ccl_cli.errors import LearningError
-
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise LearningError(f"the Dask cluster could not compute the block sums of a fit ({first})") from None
+        raise _lost(exc) from None
     return fold(lambda *p: p, [p for p in parts if p is not None])
+
+
+class Held:
+    """The rows of a fit's blocks held by the cluster's workers — sent once, read on every pass of
+    an iterative fit — as one future per task of :data:`TASK_BLOCKS` blocks (``take(s, e)`` of
+    each block), or what :meth:`map` computed of them there. Only inside :func:`on_cluster`."""
+
+    def __init__(self, futures: list[Any], client: Any) -> None:
+        self.futures, self.client = futures, client
+
+    @classmethod
+    def send(cls, take: Callable[[int, int], tuple[np.ndarray, ...]], n: int, rows: int) -> Held:
+        client = _CLIENT.get()
+        blocks = spans(n, rows)
+        groups = [blocks[i:i + TASK_BLOCKS] for i in range(0, len(blocks), TASK_BLOCKS)]
+        try:
+            return cls([client.scatter([[take(s, e) for s, e in group]])[0] for group in groups], client)
+        except Exception as exc:  # noqa: BLE001 - one line, as block_sums
+            raise _lost(exc) from None
+
+    def map(self, fn: Callable[..., tuple[np.ndarray, ...]], *args: Any) -> Held:
+        """``fn(*args, *block)`` of every block, computed and kept where the block is."""
+        return Held([self.client.submit(_map_task, fn, args, f, pure=False) for f in self.futures],
+                    self.client)
+
+    def sums(self, fn: Callable[..., tuple[np.ndarray, ...]], *args: Any, beside: tuple[Held, ...] = ()
+             ) -> tuple[np.ndarray, ...] | None:
+        """Σ over the blocks of ``fn(*args, *block, *its blocks of beside)``, in block order
+        (:func:`block_sums`'s grouping)."""
+        try:
+            parts = self.client.gather([
+                self.client.submit(_sum_task, fn, args, f, *(h.futures[i] for h in beside), pure=False)
+                for i, f in enumerate(self.futures)])
+        except Exception as exc:  # noqa: BLE001 - one line, as block_sums
+            raise _lost(exc) from None
+        return fold(lambda *p: p, [p for p in parts if p is not None])
+
+
+def worth_sending(n: int, rows: int) -> bool:
+    """Whether the block sums of n rows in blocks of ``rows`` go to the cluster: inside
+    :func:`on_cluster`, for more rows than one task computes (a search's fits on its bounded
+    subsample, and any fit of fewer rows, are computed here: one task gains nothing)."""
+    return _CLIENT.get() is not None and n > TASK_BLOCKS * rows
+
+
+def _map_task(fn: Callable[..., tuple[np.ndarray, ...]], args: tuple, group: list[tuple[np.ndarray, ...]]
+              ) -> list[tuple[np.ndarray, ...]]:
+    from ccl_cli.learn import blas
+
+    with blas.threads(1):
+        return [tuple(fn(*args, *block)) for block in group]
+
+
+def _sum_task(fn: Callable[..., tuple[np.ndarray, ...]], args: tuple, *groups: list[tuple[np.ndarray, ...]]
+              ) -> tuple[np.ndarray, ...] | None:
+    return _task(lambda *block: fn(*args, *block), [sum(blocks, ()) for blocks in zip(*groups, strict=True)])
+
+
+def _lost(exc: Exception) -> Exception:
+    from ccl_cli.errors import LearningError
+
+    first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return LearningError(f"the Dask cluster could not compute the block sums of a fit ({first})")

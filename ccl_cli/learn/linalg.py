@@ -152,6 +152,7 @@ def kron_least_squares(
     cutoff: float = LM_CUTOFF,
     info: dict | None = None,
     mu0: float = 1e-3,
+    passes: Callable[[np.ndarray, bool], tuple[float, np.ndarray | None, np.ndarray | None]] | None = None,
 ) -> tuple[np.ndarray, float, int]:
     """Levenberg–Marquardt on accumulated normal equations for min_W Σ_n r_n(W)².
 
@@ -188,6 +189,9 @@ def kron_least_squares(
     Args:
         info: if given, receives ``stop`` (the reason above), ``full_passes``,
             ``cost_passes`` and ``accepted`` (steps).
+        passes: if given, ``passes(W, full)`` computes a pass instead of ``blocks`` and
+            ``residual`` here: (Σ r², JᵀJ, Jᵀr) for a full pass, (Σ r², None, None) for a cost
+            pass (e.g. on a cluster's workers, :mod:`ccl_cli.learn.blocksums`).
 
     Returns:
         (W (m, K), cost Σ r², passes over the data of either kind).
@@ -212,6 +216,14 @@ def kron_least_squares(
             r = residual(W, rows, B)[0]
             cost += float(r @ r)
         return cost
+
+    if passes is not None:
+        def full(w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:  # noqa: F811 - the given passes
+            cost, H, Jtr = passes(w.reshape(shape), True)
+            return cost, H, Jtr
+
+        def cost_only(w: np.ndarray) -> float:  # noqa: F811
+            return passes(w.reshape(shape), False)[0]
 
     counts = {"full_passes": 1, "cost_passes": 0, "accepted": 0}
 

@@ -49,16 +49,26 @@ O(N K q)) and memory O(chunk · Kq + (Kq)²), never N × Kq.
 
 from __future__ import annotations
 
+import contextvars
 from collections.abc import Callable
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
 from ccl_cli.errors import LearningError
+from ccl_cli.learn import blocksums
 from ccl_cli.learn.base import Estimator
 from ccl_cli.learn.basis import Basis, BasisParams, Blocks, feature_blocks, feature_cache_bytes
 from ccl_cli.learn.consistency import npe_error
-from ccl_cli.learn.linalg import WARM_TOL, eigen_lstsq, kron_least_squares, lift_to_rows, row_chunks
+from ccl_cli.learn.linalg import (
+    CHUNK_ROWS,
+    WARM_TOL,
+    eigen_lstsq,
+    kron_least_squares,
+    kron_normal,
+    lift_to_rows,
+    row_chunks,
+)
 from ccl_cli.learn.model_selection import Tunable
 from ccl_cli.learn.params import ChunkSize, MaxIter, NonNegative, SeedParams, Tolerance, parameters
 
@@ -96,6 +106,7 @@ def smooth_residual(U: np.ndarray) -> Residual:
         Wt = B @ W.T  # (c, q)
         return np.einsum("nq,nq->n", Ub - Wt, Wt), Ub - 2.0 * Wt
 
+    residual.made_by = (smooth_residual, ())  # type: ignore[attr-defined] - rebuilt per block on a cluster
     return residual
 
 
@@ -112,7 +123,32 @@ def wall_residual(U: np.ndarray, delta2: float) -> Residual:
         r = (a - c + EPS_RESIDUAL) / sd
         return r, (Ub - 2.0 * Wt) / sd[:, None] - (r / d)[:, None] * Wt
 
+    residual.made_by = (wall_residual, (delta2,))  # type: ignore[attr-defined]
     return residual
+
+
+#: The rows of the fit running now held by a cluster's workers, (n, U and X blocks, their features).
+_HELD: contextvars.ContextVar[tuple[int, Any, Any] | None] = contextvars.ContextVar("ccl_ncl_held",
+                                                                                       default=None)
+
+
+def _features(basis: Basis, U: np.ndarray, X: np.ndarray) -> tuple[np.ndarray]:
+    """β(X) of one block (on the worker that holds it)."""
+    return (basis.transform(X),)
+
+
+def _pass_block(made_by: tuple[Callable, tuple], W: np.ndarray, full: bool, U: np.ndarray, X: np.ndarray,
+                B: np.ndarray) -> tuple[np.ndarray, ...]:
+    """One block's part of a Levenberg–Marquardt pass (:func:`~ccl_cli.learn.linalg.kron_least_squares`):
+    (Σ r²,) and, for a full pass, JᵀJ and Jᵀr of its rows — the residual rebuilt from its maker."""
+    factory, args = made_by
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        r, G = factory(U, *args)(W, slice(None), B)
+        cost = np.array([float(r @ r)])
+        if not full:
+            return (cost,)
+        M, g = kron_normal(G, B, r)
+    return cost, M, g
 
 
 @parameters
@@ -186,6 +222,14 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
         ``polish=False`` of the smooth stage on all rows), run to
         :data:`~ccl_cli.learn.linalg.WARM_TOL`."""
         self.basis_ = self._fit_basis(X, U) if basis is None else basis
+        chunk = self.chunk_size or CHUNK_ROWS
+        if _HELD.get() is None and blocksums.worth_sending(len(U), chunk):  # its workers hold the rows
+            rows = blocksums.Held.send(lambda s, e: (U[s:e], X[s:e]), len(U), chunk)
+            token = _HELD.set((len(U), rows, rows.map(_features, self.basis_)))
+            try:
+                return self._fit_core(X, U, groups=groups, basis=self.basis_, start=start)
+            finally:
+                _HELD.reset(token)
         cache = feature_cache_bytes(X, U)
         blocks = feature_blocks(self.basis_, X, self.chunk_size, cache)
         n, q = U.shape
@@ -257,9 +301,15 @@ class NullSpaceComponent(Tunable, Estimator, BasisParams, SeedParams):
                ) -> tuple[np.ndarray, float]:
         """One Levenberg–Marquardt stage; its passes and stop reason go to ``stages_``."""
         info: dict = {}
+        held = _HELD.get()
+        on_cluster = None
+        if held is not None and held[0] == rows and hasattr(residual, "made_by"):  # all rows: on the cluster
+            def on_cluster(W: np.ndarray, full: bool) -> tuple[float, np.ndarray | None, np.ndarray | None]:
+                sums = held[1].sums(_pass_block, residual.made_by, W, full, beside=(held[2],))
+                return float(sums[0][0]), *(sums[1:] if full else (None, None))
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # checked by _done
             W, cost, _ = kron_least_squares(W, blocks, residual, passes or self.max_iter, tol, info=info,
-                                            mu0=mu0)
+                                            mu0=mu0, passes=on_cluster)
         self.stages_.append({"stage": name, "rows": rows, "delta2": delta2, **info})
         return W, cost
 
