@@ -279,3 +279,49 @@ def test_the_rows_of_a_curved_surface_in_phases_are_described_where_it_holds(wip
     i = int(shown["at"].split()[3])
     assert model.holds(wipe.X, groups=wipe.demo)[i]
     assert subspace_angle(np.array(shown["rows"]), np.atleast_2d(wipe.metadata["normal"])) < 5.0
+
+
+def wipes_2d(n_demos: int = 5, seed: int = 0, rate: float = 100.0):
+    """A hand wiping along a line in the plane (tilted 0.1 rad): an approach from above (free),
+    strokes back and forth on the line, a retract (free); positions with 0.2 mm noise."""
+    from ccl_cli.dataset import Demonstrations
+
+    rng = np.random.default_rng(seed)
+    turn = np.array([[np.cos(0.1), -np.sin(0.1)], [np.sin(0.1), np.cos(0.1)]])
+    X, demo = [], []
+    for k in range(n_demos):
+        x0 = rng.uniform(-0.1, 0.1)
+        approach = np.column_stack([np.full(150, x0), np.linspace(0.3, 0.0, 150)])
+        strokes = np.column_stack([x0 + 0.08 * np.sin(np.linspace(0, 8 * np.pi, 800)), np.zeros(800)])
+        retract = np.column_stack([strokes[-1, 0] + np.linspace(0, 0.1, 150), np.linspace(0.0, 0.3, 150)])
+        P = np.vstack([approach, strokes, retract]) + rng.normal(scale=2e-4, size=(1100, 2))
+        X.append(P @ turn.T)
+        demo.append(np.full(1100, k))
+    X = np.vstack(X)
+    t = np.tile(np.arange(1100) / rate, n_demos)
+    return Demonstrations(X=X, U=np.gradient(X, axis=0) * rate, demo=np.concatenate(demo), t=t)
+
+
+def test_a_constraint_in_phases_draws_no_field_on_a_grid():
+    """The learn-a figure of a 2-D model drew Ñ's null direction on a grid of states; a grid is not
+    a recording, and a model in phases found its phases in the grid's raster order: the field
+    showed (1, 0) — Ñ = I's first column — at every grid state, whatever the line (0.1 rad here).
+    Only a model whose Ã(x) is fixed by the state alone draws a field there."""
+    from ccl_cli.app.stages import StageResult
+    from ccl_cli.app.views import stage_views
+    from ccl_cli.learn.constraint import StateIndependentConstraint
+
+    d = wipes_2d()
+    phases = ManifoldInPhases(family="linear", n_constraints=1).fit(d.X, d.U, groups=d.demo)
+    assert phases.new_data_rule.rule == "phases found again" and 0.6 < phases.share_ < 0.8
+    assert subspace_angle(phases.constant_rows(), np.array([[-np.sin(0.1), np.cos(0.1)]])) < 1.0
+
+    def field(model):
+        views = stage_views(StageResult("learn-a", "m", model), d, "train", d, False)
+        return next(v for v in views if v.kind == "field").args["field"]
+
+    assert field(phases) is None  # the arrows at the recording's states only
+    plain = StateIndependentConstraint(n_constraints=1).fit(d.X, d.U)
+    grid = field(plain)
+    along = np.abs(grid["F"] / np.linalg.norm(grid["F"], axis=1, keepdims=True) @ plain.A_[0])
+    assert grid["F"].shape[1] == 2 and along.max() < 1e-6  # Ñ's direction: orthogonal to its row

@@ -23,7 +23,7 @@ import numpy as np
 
 from ccl_cli.dataset import Demonstrations, group_rows
 from ccl_cli.learn.consistency import apply_projection
-from ccl_cli.learn.constraint.base import Windows
+from ccl_cli.learn.constraint.base import AS_FITTED, Windows
 from ccl_cli.metrics import row_basis, subspace_angle
 
 GRID = 22  # points per axis of the grid a 2-D field is evaluated on
@@ -251,7 +251,11 @@ def stage_views(result: Any, shown: Demonstrations, part: str, train: Demonstrat
                       "learnt": ("Ñ π", apply_projection(N, pi))}
         title_a = f"{title}: projection onto the learnt null space"
         if planar:
-            grid = None if model.is_local else field_on_grid(d, null_direction(model))
+            # a grid is not a recording: only a model whose Ã(x) is fixed by the state alone ("as
+            # fitted") has a field there — where a model in phases or stretches holds is found
+            # from a recording's own motion, which grid states do not have
+            grid = field_on_grid(d, null_direction(model)) \
+                if not model.is_local and model.new_data_rule.rule == AS_FITTED.rule else None
             caption = f"learn-a: learnt{VS_TRUE if 'true' in arrows else ''} projections"
             out.append(View("learn-a-field.png", caption, "field",
                             {"title": title_a, "d": d, "part": dpart, "arrows": arrows, "field": grid,
