@@ -8,7 +8,6 @@ message on stderr, never a traceback (``CCL_DEBUG=1`` shows one for internal err
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
 import sys
@@ -258,18 +257,8 @@ def _cluster(scheduler: str | None):
     from ccl_cli.app import dask_jobs
     from ccl_cli.learn.blocksums import on_cluster
 
-    restore = dask_jobs.quiet_dask()
-    client = None
-    try:
-        client = dask_jobs.connect(scheduler)
-        with on_cluster(client):
-            yield
-    finally:
-        with contextlib.suppress(Exception):  # a lost scheduler: nothing left to close
-            if client is not None:
-                client.close(timeout=5)
-        if client is None or str(client.status) == "closed":
-            restore()
+    with dask_jobs.connected(scheduler) as client, on_cluster(client):
+        yield
 
 
 def _bar(label: str, total: int, quiet: bool):

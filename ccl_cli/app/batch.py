@@ -585,18 +585,9 @@ def _on_dask(scheduler: str, tasks: dict[str, tuple[Callable, tuple]], ended: Ca
     """The jobs on the Dask cluster at ``scheduler``, watched (:func:`~ccl_cli.app.dask_jobs.run_jobs`)."""
     from ccl_cli.app import dask_jobs
 
-    restore = dask_jobs.quiet_dask()
-    client = None
-    try:
-        client = dask_jobs.connect(scheduler)
+    with dask_jobs.connected(scheduler) as client:
         dask_jobs.run_jobs(client, tasks, lambda _, res: ended(res), failed,
                            dask_jobs.WORKER_WAIT if worker_wait is None else worker_wait)
-    finally:
-        with contextlib.suppress(Exception):  # a lost scheduler: nothing left to close
-            if client is not None:
-                client.close(timeout=5)
-        if client is None or str(client.status) == "closed":
-            restore()
 
 
 def _kill_workers() -> None:

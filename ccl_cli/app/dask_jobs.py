@@ -23,7 +23,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -119,6 +119,24 @@ def connect(address: str) -> Any:
     except Exception as exc:  # noqa: BLE001 - any failure of the connection is one line
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ConfigError(f"cannot connect to the Dask scheduler at {address} ({first})") from None
+
+
+@contextlib.contextmanager
+def connected(address: str) -> Iterator[Any]:
+    """A client of the scheduler at ``address`` (:func:`connect`) while the block runs, with
+    dask.distributed's log lines held back (:func:`quiet_dask`); closed after (a lost scheduler:
+    nothing left to close), its log lines let through again once it has closed."""
+    restore = quiet_dask()
+    client = None
+    try:
+        client = connect(address)
+        yield client
+    finally:
+        with contextlib.suppress(Exception):
+            if client is not None:
+                client.close(timeout=5)
+        if client is None or str(client.status) == "closed":
+            restore()
 
 
 def _check_reachable(address: str) -> None:
