@@ -198,32 +198,27 @@ def kron_least_squares(
     """
     shape = np.shape(W0)
 
-    def full(w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-        W = w.reshape(shape)
-        cost, H, Jtr = 0.0, np.zeros((w.size, w.size)), np.zeros(w.size)
+    def passes_here(W: np.ndarray, with_normal: bool) -> tuple[float, np.ndarray | None, np.ndarray | None]:
+        """A pass over ``blocks`` in this process: Σ r², and JᵀJ, Jᵀr with ``with_normal``."""
+        cost, H, Jtr = 0.0, None, None
+        if with_normal:
+            H, Jtr = np.zeros((W.size, W.size)), np.zeros(W.size)
         for rows, B in blocks():
             r, G = residual(W, rows, B)
-            M, g = kron_normal(G, B, r)
-            H += M
-            Jtr += g
+            if with_normal:
+                M, g = kron_normal(G, B, r)
+                H += M
+                Jtr += g
             cost += float(r @ r)
         return cost, H, Jtr
 
+    run_pass = passes_here if passes is None else passes
+
+    def full(w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        return run_pass(w.reshape(shape), True)  # type: ignore[return-value]
+
     def cost_only(w: np.ndarray) -> float:
-        W = w.reshape(shape)
-        cost = 0.0
-        for rows, B in blocks():
-            r = residual(W, rows, B)[0]
-            cost += float(r @ r)
-        return cost
-
-    if passes is not None:
-        def full(w: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:  # noqa: F811 - the given passes
-            cost, H, Jtr = passes(w.reshape(shape), True)
-            return cost, H, Jtr
-
-        def cost_only(w: np.ndarray) -> float:  # noqa: F811
-            return passes(w.reshape(shape), False)[0]
+        return run_pass(w.reshape(shape), False)[0]
 
     counts = {"full_passes": 1, "cost_passes": 0, "accepted": 0}
 

@@ -38,7 +38,6 @@ from ccl_cli.app.views import PHASE_DEMOS, TIME_DEMOS, envelope
 from ccl_cli.dataset import Demonstrations, group_rows
 
 CELLS = 12  # arrow subsampling: at most one state per cell of a CELLS × CELLS grid
-MAX_DEMOS = TIME_DEMOS  # demonstrations per time plot (the view gives their rows)
 DPI = 90
 #: matplotlib settings while a figure is written: glyphs rasterised without FreeType's
 #: auto-hinter (the same text to the eye at this size; a tenth of the figures' time)
@@ -211,7 +210,7 @@ def describe_data(part: str, d: Demonstrations | None, ids: np.ndarray | None = 
             "test-blocks": "held-out (test) time blocks of", "train-blocks": "training samples of"}[part]
     if ids is None:
         return f"the {d.n_demos} {what} demonstrations"
-    shown = ", ".join(str(int(i)) for i in ids[:MAX_DEMOS]) + (", …" if len(ids) > MAX_DEMOS else "")
+    shown = ", ".join(str(int(i)) for i in ids[:TIME_DEMOS]) + (", …" if len(ids) > TIME_DEMOS else "")
     return f"{what} demonstration{'s' if len(ids) > 1 else ''} {shown}"
 
 
@@ -339,7 +338,7 @@ def field_figure(title: str, d: Demonstrations, part: str, arrows: dict[str, tup
 def time_figure(title: str, part: str, names: list[str], units: list[str] | None, ids: list[int],
                 panels: list[dict[str, tuple[str, list[tuple[np.ndarray, np.ndarray]]]]]):
     """One row per action dimension (``names``, ``units``) over time, one column per
-    demonstration ``ids`` (at most MAX_DEMOS); ``panels``: per demonstration, style → (label,
+    demonstration ``ids`` (at most TIME_DEMOS); ``panels``: per demonstration, style → (label,
     the (times, values) drawn of each action dimension) (:func:`ccl_cli.app.views.time_view`)."""
     q = len(names)
     fig, axes = subplots(q, len(ids), figsize=(4.2 * len(ids) + 1.5, 1.35 * q + 1.2), squeeze=False,
