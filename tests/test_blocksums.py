@@ -75,16 +75,20 @@ def test_ncl_learnt_on_a_cluster_is_the_one_learnt_here(cluster):
     here = NullSpaceComponent(**kw).fit(d.X, d.U)
     with get_task_stream(client) as tasks, blocksums.on_cluster(client):
         there = NullSpaceComponent(**kw).fit(d.X, d.U)
-    groups = len(blocksums.spans(len(blocksums.spans(d.n_samples, 64)), blocksums.TASK_BLOCKS))
+    groups = len(blocksums.task_groups(d.n_samples, 64))
     passes = sum(s["full_passes"] + s["cost_passes"] for s in there.stages_ if s["rows"] == d.n_samples)
     sums = [t for t in tasks.data if str(t["key"]).startswith("_sum_task")]
     assert passes > 0 and len(sums) == passes * groups  # every pass over all rows: on the workers
     assert [s["stop"] for s in there.stages_] == [s["stop"] for s in here.stages_]
     # an iterative fit stopped at its tolerance: the paths part by rounding, the optima by less
-    # than 1e-6 of w̃'s scale (5e-8 here), the costs by less than 1e-9
+    # than 1e-6 of w̃'s scale (5e-8 here), the costs by less than 1e-8 (the workers' last bits vary
+    # from run to run: 8e-11 to 2.2e-9 over 13 runs)
     w_here, w_there = here.predict(d.X), there.predict(d.X)
     assert np.abs(w_there - w_here).max() <= 1e-6 * np.abs(w_here).max()
-    assert there.cost_ == pytest.approx(here.cost_, rel=1e-9)
+    assert there.cost_ == pytest.approx(here.cost_, rel=1e-8)
+    with blocksums.on_cluster(client):  # the same rows sent again: their own keys on the cluster
+        again = NullSpaceComponent(**kw).fit(d.X, d.U)  # (hashed keys: "lost dependencies")
+    assert again.cost_ == pytest.approx(here.cost_, rel=1e-8)
 
 
 def test_ccl_run_with_a_scheduler_learns_what_it_learns_alone(cluster, tmp_path, capsys):

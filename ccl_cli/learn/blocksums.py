@@ -8,9 +8,10 @@ sums of before, bit for bit). Inside :func:`on_cluster` the blocks go to the clu
 :data:`TASK_BLOCKS` consecutive blocks a task with their rows: each task folds its blocks with one
 BLAS thread and sends back its partial sums (arrays of the statistics' size, e.g. (K q, K q)),
 which are added here in task order — the same grouping whatever the load or the number of
-workers, so the same result on every run (it differs from this process's by rounding only: the
-sums are grouped by task). The rows travel once, with their task; what comes back does not grow
-with N.
+workers. The result differs from this process's by rounding only (the sums are grouped by task,
+and the workers' last bits are not always this process's: from one run to the next too), which
+an iterative fit carries into a slightly different path. The rows travel once, with their task;
+what comes back does not grow with N.
 
 Shapes: ``take(s, e)`` returns a tuple of arrays of rows [s, e); ``fn(*arrays)`` returns a tuple
 of arrays of fixed shapes.
@@ -50,6 +51,12 @@ def spans(n: int, rows: int) -> list[tuple[int, int]]:
     return [(s, min(s + rows, n)) for s in range(0, n, rows)]
 
 
+def task_groups(n: int, rows: int) -> list[list[tuple[int, int]]]:
+    """The blocks of :func:`spans` in consecutive groups of :data:`TASK_BLOCKS`: one cluster task each."""
+    blocks = spans(n, rows)
+    return [blocks[i:i + TASK_BLOCKS] for i in range(0, len(blocks), TASK_BLOCKS)]
+
+
 def fold(fn: Callable[..., tuple[np.ndarray, ...]], blocks: Iterable[tuple[np.ndarray, ...]]
          ) -> tuple[np.ndarray, ...] | None:
     """The sum of ``fn`` over ``blocks`` (each a tuple of its arrays), left to right; None for none."""
@@ -77,11 +84,9 @@ def block_sums(fn: Callable[..., tuple[np.ndarray, ...]], take: Callable[[int, i
                n: int, rows: int) -> tuple[np.ndarray, ...] | None:
     """Σ over the blocks [s, e) of ``rows`` rows covering 0..n of ``fn(*take(s, e))``, in block
     order — here, or on the cluster of :func:`on_cluster` (:func:`worth_sending`); None when n = 0."""
-    blocks = spans(n, rows)
-    client = _CLIENT.get()
     if not worth_sending(n, rows):
-        return fold(fn, (take(s, e) for s, e in blocks))  # each block taken as it is summed
-    groups = [blocks[i:i + TASK_BLOCKS] for i in range(0, len(blocks), TASK_BLOCKS)]
+        return fold(fn, (take(s, e) for s, e in spans(n, rows)))  # each block taken as it is summed
+    client, groups = _CLIENT.get(), task_groups(n, rows)
     parts: list[Any] = []
     try:
         for w in range(0, len(groups), WAVE):  # a wave of tasks at a time, gathered in order
@@ -95,7 +100,9 @@ def block_sums(fn: Callable[..., tuple[np.ndarray, ...]], take: Callable[[int, i
 class Held:
     """The rows of a fit's blocks held by the cluster's workers — sent once, read on every pass of
     an iterative fit — as one future per task of :data:`TASK_BLOCKS` blocks (``take(s, e)`` of
-    each block), or what :meth:`map` computed of them there. Only inside :func:`on_cluster`."""
+    each block), or what :meth:`map` computed of them there. Only inside :func:`on_cluster`.
+    (A sum read once, :func:`block_sums`, sends each task's rows with the task instead: no data
+    left on the workers, no round trip to scatter them.)"""
 
     def __init__(self, futures: list[Any], client: Any) -> None:
         self.futures, self.client = futures, client
@@ -103,12 +110,12 @@ class Held:
     @classmethod
     def send(cls, take: Callable[[int, int], tuple[np.ndarray, ...]], n: int, rows: int) -> Held:
         client = _CLIENT.get()
-        blocks = spans(n, rows)
-        groups = [blocks[i:i + TASK_BLOCKS] for i in range(0, len(blocks), TASK_BLOCKS)]
         try:
-            return cls([client.scatter([[take(s, e) for s, e in group]])[0] for group in groups], client)
+            futures = [client.scatter([[take(s, e) for s, e in group]], hash=False)[0]  # keys of their own
+                       for group in task_groups(n, rows)]
         except Exception as exc:  # noqa: BLE001 - one line, as block_sums
             raise _lost(exc) from None
+        return cls(futures, client)
 
     def map(self, fn: Callable[..., tuple[np.ndarray, ...]], *args: Any) -> Held:
         """``fn(*args, *block)`` of every block, computed and kept where the block is."""
